@@ -1,0 +1,54 @@
+//! Quality flags carried by every epoch and every output record.
+//! A degraded sample is flagged, never dropped.
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Flags(pub u16);
+
+impl Flags {
+    /// Fluxgate frame older than the staleness limit (or missing): e, ė held from the last good frame.
+    pub const FLUX_STALE: u16 = 1 << 0;
+    /// No GPS fix (or GPS stale): speed/position held, field states not propagated with real ds.
+    pub const NO_GPS: u16 = 1 << 1;
+    /// A parser reported an error since the previous record.
+    pub const PARSE_ERROR: u16 = 1 << 2;
+    /// The scalar value is missing or not finite: no measurement update this epoch.
+    pub const MAG_MISSING: u16 = 1 << 3;
+    /// Innovation rejected by the gate (outlier): no measurement update.
+    pub const INNOVATION_REJECTED: u16 = 1 << 4;
+    /// The filter was (re)initialised at this epoch.
+    pub const FILTER_RESET: u16 = 1 << 5;
+    /// A tie-point pseudo-measurement was applied at this epoch.
+    pub const TIE_POINT: u16 = 1 << 6;
+    /// An auxiliary channel used by the model is missing: its regressors are zeroed.
+    pub const AUX_MISSING: u16 = 1 << 7;
+    /// Survey mode: deviation coefficients frozen (applied, not estimated).
+    pub const SURVEY_MODE: u16 = 1 << 8;
+    /// The filter has not yet converged (calibration pattern not complete).
+    pub const NOT_CONVERGED: u16 = 1 << 9;
+    /// Epoch could not be formed with a centred derivative (start of data or gap).
+    pub const DERIVATIVE_DEGRADED: u16 = 1 << 10;
+
+    pub const fn empty() -> Self {
+        Flags(0)
+    }
+    pub fn set(&mut self, bit: u16) {
+        self.0 |= bit;
+    }
+    pub const fn contains(self, bit: u16) -> bool {
+        self.0 & bit != 0
+    }
+    pub fn union(self, other: Flags) -> Flags {
+        Flags(self.0 | other.0)
+    }
+    /// Any flag that means the compensated value is less trustworthy than normal.
+    pub const fn degraded(self) -> bool {
+        self.0
+            & (Self::FLUX_STALE
+                | Self::NO_GPS
+                | Self::PARSE_ERROR
+                | Self::MAG_MISSING
+                | Self::AUX_MISSING
+                | Self::DERIVATIVE_DEGRADED)
+            != 0
+    }
+}

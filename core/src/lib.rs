@@ -1,0 +1,22 @@
+//! magcomp-core: the compensator core shared by the firmware and the host tools.
+//!
+//! `no_std`, no allocation, f32 inside the filter. The data flow is
+//! `protocol` (bytes → frames) → `epoch` (aligned samples → epochs with e, ė, V, Δh) →
+//! `model` (regressors of the chosen terms) → `filter` (square-root Kalman filter) →
+//! `compensator` (one output record per scalar sample).
+#![cfg_attr(not(feature = "std"), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod compensator;
+pub mod epoch;
+pub mod filter;
+pub mod flags;
+pub mod model;
+pub mod protocol;
+pub mod spectrum;
+pub mod units;
+
+
+
+pub use flags::Flags;
+pub use units::MagCounts;

@@ -1,0 +1,8 @@
+//! magcomp host library: everything the `magcomp` command does, reusable from tests and
+//! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
+
+pub mod diagnose;
+pub mod report;
+pub mod sim;
+pub mod tl;
+pub mod trace;

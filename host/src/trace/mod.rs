@@ -1,0 +1,52 @@
+//! The recorded-trace data contract (`shared/docs/trace-format.md`): one row per scalar
+//! sample, named columns, `#` metadata, missing values as NaN (never zero).
+
+/// A trace held column-wise in memory. Numeric columns are f64 with NaN for missing values;
+/// text columns (e.g. `segment`) are kept as strings.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Trace {
+    /// `# key: value` metadata lines before the header, in file order.
+    pub meta: Vec<(String, String)>,
+    /// Numeric columns in file order: (name, values).
+    pub numeric: Vec<(String, Vec<f64>)>,
+    /// Text columns in file order: (name, values).
+    pub text: Vec<(String, Vec<String>)>,
+}
+
+impl Trace {
+    pub fn len(&self) -> usize {
+        self.numeric
+            .first()
+            .map(|(_, v)| v.len())
+            .or_else(|| self.text.first().map(|(_, v)| v.len()))
+            .unwrap_or(0)
+    }
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+    pub fn col(&self, name: &str) -> Option<&[f64]> {
+        self.numeric.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+    }
+    pub fn text_col(&self, name: &str) -> Option<&[String]> {
+        self.text.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+    }
+    pub fn meta(&self, key: &str) -> Option<&str> {
+        self.meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+    }
+    /// Adds or replaces a numeric column.
+    pub fn set_col(&mut self, name: &str, values: Vec<f64>) {
+        if let Some(slot) = self.numeric.iter_mut().find(|(n, _)| n == name) {
+            slot.1 = values;
+        } else {
+            self.numeric.push((name.to_string(), values));
+        }
+    }
+    /// Adds or replaces a text column.
+    pub fn set_text_col(&mut self, name: &str, values: Vec<String>) {
+        if let Some(slot) = self.text.iter_mut().find(|(n, _)| n == name) {
+            slot.1 = values;
+        } else {
+            self.text.push((name.to_string(), values));
+        }
+    }
+}
