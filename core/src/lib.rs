@@ -20,3 +20,5 @@ pub mod units;
 
 pub use flags::Flags;
 pub use units::MagCounts;
+pub use compensator::{Compensator, CompensatorConfig, Output};
+pub use epoch::{AlignedSample, Epoch, EpochBuilder, MAX_AUX};
