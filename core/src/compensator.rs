@@ -130,8 +130,7 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     pub fn new(model: Model<'a>, cfg: CompensatorConfig) -> Result<Self, CompensatorError> {
-        if !(cfg.noise_nt > 0.0 && cfg.prior_scale > 0.0 && cfg.sigma1 > 0.0 && cfg.sigma2 > 0.0)
-        {
+        if !(cfg.noise_nt > 0.0 && cfg.prior_scale > 0.0 && cfg.sigma1 > 0.0 && cfg.sigma2 > 0.0) {
             return Err(CompensatorError::BadConfig);
         }
         let builder = EpochBuilder::new(cfg.epoch).ok_or(CompensatorError::WindowTooLarge)?;

@@ -207,9 +207,9 @@ impl<const W: usize> EpochBuilder<W> {
         };
         // Local position (f64: lat/lon need it), origin at the first fix.
         let (north_m, east_m) = if s.lat_deg.is_finite() && s.lon_deg.is_finite() {
-            let (lat0, lon0, coslat0) = *self.origin.get_or_insert_with(|| {
-                (s.lat_deg, s.lon_deg, libm::cos(s.lat_deg.to_radians()))
-            });
+            let (lat0, lon0, coslat0) = *self
+                .origin
+                .get_or_insert_with(|| (s.lat_deg, s.lon_deg, libm::cos(s.lat_deg.to_radians())));
             (
                 (s.lat_deg - lat0).to_radians() * EARTH_RADIUS_M,
                 (s.lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat0,

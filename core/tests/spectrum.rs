@@ -79,4 +79,3 @@ fn too_short_or_bad_input_gives_none() {
     let nan = vec![f64::NAN; 20_000];
     assert!(estimate_sigma1(&s, &nan, &Sigma1Config::default(), &mut a).is_none());
 }
-

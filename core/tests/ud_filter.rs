@@ -22,7 +22,9 @@ struct DenseKf {
 impl DenseKf {
     fn update(&mut self, h: &[f64], z: f64, r: f64) -> (f64, f64) {
         let n = self.x.len();
-        let ph: Vec<f64> = (0..n).map(|i| (0..n).map(|j| self.p[i][j] * h[j]).sum()).collect();
+        let ph: Vec<f64> = (0..n)
+            .map(|i| (0..n).map(|j| self.p[i][j] * h[j]).sum())
+            .collect();
         let s: f64 = (0..n).map(|i| h[i] * ph[i]).sum::<f64>() + r;
         let nu = z - (0..n).map(|i| h[i] * self.x[i]).sum::<f64>();
         for i in 0..n {

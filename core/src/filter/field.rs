@@ -72,16 +72,16 @@ impl FieldProcess {
         }
         // Physical Φ and U_q entries, then x̃ = x/s: Φ̃_ij = Φ_ij s_j/s_i, Ũ_ij = U_ij s_j/s_i.
         let d2 = d * d;
-        let p = [
-            (0, 1, d),
-            (0, 2, 0.5 * d2),
-            (1, 2, d),
-            (3, 4, d),
-        ];
+        let p = [(0, 1, d), (0, 2, 0.5 * d2), (1, 2, d), (3, 4, d)];
         for &(i, j, v) in &p {
             phi[off + i][off + j] = v * s[j] / s[i];
         }
-        let uq = [(0, 1, 0.5 * d), (0, 2, d2 / 6.0), (1, 2, 0.5 * d), (3, 4, 0.5 * d)];
+        let uq = [
+            (0, 1, 0.5 * d),
+            (0, 2, d2 / 6.0),
+            (1, 2, 0.5 * d),
+            (3, 4, 0.5 * d),
+        ];
         for k in 0..FIELD_STATES {
             g[k][off + k] = 1.0;
         }
@@ -91,7 +91,13 @@ impl FieldProcess {
         let v1 = self.sigma1 * self.sigma1;
         let v2 = self.sigma2 * self.sigma2;
         let d3 = d2 * d;
-        let dphys = [v1 * d3 * d2 / 720.0, v1 * d3 / 12.0, v1 * d, v2 * d3 / 12.0, v2 * d];
+        let dphys = [
+            v1 * d3 * d2 / 720.0,
+            v1 * d3 / 12.0,
+            v1 * d,
+            v2 * d3 / 12.0,
+            v2 * d,
+        ];
         for k in 0..FIELD_STATES {
             dq[k] = dphys[k] / (s[k] * s[k]);
         }

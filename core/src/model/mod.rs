@@ -5,9 +5,11 @@
 //! To add an effect, write one type implementing [`Term`] in `terms.rs` and give it a name
 //! in the host's term registry (`docs/adding-an-effect.md`).
 
+pub mod catalog;
 pub mod terms;
 
 use crate::epoch::Epoch;
+pub use catalog::{AnyTerm, ChannelUse, TermInfo, CATALOG};
 pub use terms::*;
 
 /// Most regressors a single term may have.

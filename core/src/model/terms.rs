@@ -5,38 +5,50 @@ use super::{Term, MAX_TERM_STATES};
 use crate::epoch::Epoch;
 
 /// Permanent magnetisation: `K·e` (3, nT).
+#[derive(Clone, Copy, Debug)]
 pub struct Permanent;
 /// Induced magnetisation: `e_i e_j·|B|/B*` without `e3²` (5, nT).
+#[derive(Clone, Copy, Debug)]
 pub struct Induced;
 /// Eddy currents: `e_i ė_j·|B|/B*` without `e3ė3` (8, nT·s).
+#[derive(Clone, Copy, Debug)]
 pub struct Eddy;
 /// A current-carrying circuit: `I·e_i` (3, nT/A) for auxiliary channel `channel`.
+#[derive(Clone, Copy, Debug)]
 pub struct Current {
     pub channel: usize,
 }
 /// Inductive coupling of a changing current: `dI/dt·e_i` (3, nT·s/A).
+#[derive(Clone, Copy, Debug)]
 pub struct CurrentRate {
     pub channel: usize,
 }
 /// Time lag between the scalar sensor and the fluxgate: derivatives of the permanent and
 /// induced regressors, `ė_i` and `d(e_i e_j)/dt·|B|/B*` (8, nT·s; ≈ −lag × coefficient).
+#[derive(Clone, Copy, Debug)]
 pub struct Lag;
 /// The ε⁶ eddy term from flying through gradients: `e_i e_j·d|B|/dt` (6, s), model.md §4.
+#[derive(Clone, Copy, Debug)]
 pub struct Rate;
 /// External (diurnal) variation recorded by a base station: `base − base₀` (1, nT/nT).
+#[derive(Clone, Copy, Debug)]
 pub struct Diurnal {
     pub channel: usize,
 }
 /// Higher-order induced magnetisation: the 7 independent cubic monomials of e (nT).
+#[derive(Clone, Copy, Debug)]
 pub struct InducedHigh;
 /// Fluxgate calibration error seen against INS attitude: `e_ref − e` (3, nT).
+#[derive(Clone, Copy, Debug)]
 pub struct FluxCal;
 /// Periodic interference locked to a rotation channel (rpm): cos/sin of 1st and 2nd
 /// harmonic of the rotation phase (4, nT).
+#[derive(Clone, Copy, Debug)]
 pub struct Periodic {
     pub channel: usize,
 }
 /// An unknown constant offset: used when the model has no field states to absorb it.
+#[derive(Clone, Copy, Debug)]
 pub struct Offset;
 
 impl Term for Permanent {
@@ -62,7 +74,13 @@ impl Term for Permanent {
 }
 
 fn induced_monomials(e: &[f32; 3]) -> [f32; 5] {
-    [e[0] * e[0], e[1] * e[1], e[0] * e[1], e[0] * e[2], e[1] * e[2]]
+    [
+        e[0] * e[0],
+        e[1] * e[1],
+        e[0] * e[1],
+        e[0] * e[2],
+        e[1] * e[2],
+    ]
 }
 
 impl Term for Induced {
@@ -253,7 +271,9 @@ impl Term for Rate {
         0.1
     }
     fn label(&self, i: usize) -> &'static str {
-        ["dB", "e1*e1*dB", "e2*e2*dB", "e1*e2*dB", "e1*e3*dB", "e2*e3*dB"][i]
+        [
+            "dB", "e1*e1*dB", "e2*e2*dB", "e1*e2*dB", "e1*e3*dB", "e2*e3*dB",
+        ][i]
     }
     fn unit(&self, _: usize) -> &'static str {
         "s"
@@ -324,7 +344,9 @@ impl Term for InducedHigh {
         50.0
     }
     fn label(&self, i: usize) -> &'static str {
-        ["e1^3", "e2^3", "e1^2e2", "e1e2^2", "e1^2e3", "e2^2e3", "e1e2e3"][i]
+        [
+            "e1^3", "e2^3", "e1^2e2", "e1e2^2", "e1^2e3", "e2^2e3", "e1e2e3",
+        ][i]
     }
     fn unit(&self, _: usize) -> &'static str {
         "nT"
