@@ -2,6 +2,9 @@
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
 pub mod diagnose;
+pub mod flight;
+pub mod model_spec;
+pub mod pipeline;
 pub mod report;
 pub mod sim;
 pub mod tl;
