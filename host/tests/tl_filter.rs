@@ -128,3 +128,19 @@ fn filtfilt_has_no_startup_transient_on_offsets() {
     assert!(ends > 1e-6, "padding should matter at the ends");
     assert!(mid < 1e-7, "{mid}");
 }
+
+#[test]
+fn noise_gain_matches_filtered_white_noise() {
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, StandardNormal};
+    let sos = butterworth_bandpass(4, 0.1, 0.9, 10.0).unwrap();
+    let g = sos.filtfilt_noise_gain();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+    let x: Vec<f64> = (0..200_000).map(|_| StandardNormal.sample(&mut rng)).collect();
+    let y = filtfilt(&sos, &x).unwrap();
+    let var = y.iter().map(|v| v * v).sum::<f64>() / y.len() as f64;
+    println!("filtfilt white-noise power gain: computed {g:.4}, measured {var:.4}");
+    // The band is 0.8 of 5 Hz wide: the gain is a bit under 0.16.
+    assert!((0.12..0.16).contains(&g));
+    assert!((var / g - 1.0).abs() < 0.03);
+}

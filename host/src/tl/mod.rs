@@ -189,7 +189,11 @@ impl TlConfig {
 pub struct TlFit {
     /// Coefficients in nT, in the order of `names`.
     pub coefficients: Vec<f64>,
-    /// 1σ of each coefficient (nT).
+    /// 1σ of each coefficient (nT): the regression's `s²·diag(...)` (see [`ridge`]) divided
+    /// by the band-pass's white-noise power gain (`noise_gain`), because the filtered
+    /// residuals are correlated: their in-band density is that of the unfiltered noise, not
+    /// of a white sequence with the filtered variance. Assumes the unfiltered residual is
+    /// roughly white in the pass band.
     pub sigma: Vec<f64>,
     pub names: Vec<String>,
     pub config: TlConfig,
@@ -208,6 +212,8 @@ pub struct TlFit {
     pub cond_normal: f64,
     /// Numerical rank of the regression (equals the term count unless λ = 0 and collinear).
     pub rank: usize,
+    /// White-noise power gain of the band-pass (1 without filtering), see `sigma`.
+    pub noise_gain: f64,
 }
 
 /// Central difference per sample, one-sided at the ends (MagNav's `fdm`).
@@ -480,9 +486,10 @@ pub fn fit(
     }
 
     let sol = ridge(&af, &yf, cfg.lambda)?;
+    let noise_gain = sos.as_ref().map_or(1.0, Sos::filtfilt_noise_gain);
     Ok(TlFit {
         coefficients: sol.coefficients,
-        sigma: sol.sigma,
+        sigma: sol.sigma.iter().map(|s| s / noise_gain.sqrt()).collect(),
         names: cfg.terms.names(),
         config: cfg.clone(),
         rows_used,
@@ -492,6 +499,7 @@ pub fn fit(
         residual_std_nt: sol.residual_std,
         cond_normal: sol.cond_normal,
         rank: sol.rank,
+        noise_gain,
     })
 }
 
