@@ -1,1 +1,1 @@
-//! (in progress)
+//! Report rendering (in progress).
