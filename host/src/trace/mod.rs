@@ -57,22 +57,13 @@ impl Trace {
         self.len() == 0
     }
     pub fn col(&self, name: &str) -> Option<&[f64]> {
-        self.numeric
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+        self.numeric.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
     }
     pub fn text_col(&self, name: &str) -> Option<&[String]> {
-        self.text
-            .iter()
-            .find(|(n, _)| n == name)
-            .map(|(_, v)| v.as_slice())
+        self.text.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
     }
     pub fn meta(&self, key: &str) -> Option<&str> {
-        self.meta
-            .iter()
-            .find(|(k, _)| k == key)
-            .map(|(_, v)| v.as_str())
+        self.meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
     }
     /// Adds or replaces a numeric column.
     pub fn set_col(&mut self, name: &str, values: Vec<f64>) {
