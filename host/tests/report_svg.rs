@@ -153,8 +153,12 @@ fn linear_ticks_are_nice_and_inside_the_range() {
 #[test]
 fn log_ticks_are_decades_or_1_2_5() {
     assert_eq!(log_ticks(0.01, 100.0), vec![0.01, 0.1, 1.0, 10.0, 100.0]);
-    assert_eq!(log_ticks(0.003, 0.5), vec![0.01, 0.1]);
-    // Less than two decades inside: 1-2-5.
+    assert_eq!(log_ticks(0.003, 1.5), vec![0.01, 0.1, 1.0]);
+    // Fewer than three decades inside: 1-2-5.
+    assert_eq!(
+        log_ticks(0.003, 0.5),
+        vec![0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5]
+    );
     assert_eq!(log_ticks(1.5, 12.0), vec![2.0, 5.0, 10.0]);
     assert_eq!(log_ticks(0.15, 0.6), vec![0.2, 0.5]);
     // Many decades: thinned.

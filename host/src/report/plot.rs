@@ -621,7 +621,8 @@ impl Plot {
         // Segment labels.
         for (s, row) in self.segments.iter().zip(&seg_rows) {
             let Some(row) = row else { continue };
-            let (a, b) = (sx(s.x0).max(left), sx(s.x1).min(right));
+            // Inset so the brackets of adjacent segments stay distinct.
+            let (a, b) = (sx(s.x0).max(left) + 1.5, sx(s.x1).min(right) - 1.5);
             if !(b > a) {
                 continue;
             }
@@ -660,7 +661,8 @@ impl Plot {
                 let (a, b) = (sx(s.x0).max(left), sx(s.x1).min(right));
                 let tw = text_w(&s.label, 11.0);
                 let c = (a + b) / 2.0;
-                let (l, r) = (c.min(a).min(c - tw / 2.0), c.max(b).max(c + tw / 2.0));
+                // Only the texts must not collide; brackets of adjacent segments may touch.
+                let (l, r) = (c - tw / 2.0, c + tw / 2.0);
                 let row = row_end.iter().position(|&e| e + 4.0 <= l);
                 if let Some(k) = row {
                     row_end[k] = r;

@@ -43,7 +43,7 @@ fn clean(v: f64) -> f64 {
 }
 
 /// Major ticks of a log axis over [lo, hi] (both > 0): the decades inside the range; when
-/// fewer than two decades fall inside, also 2 and 5 × 10^k; when there are more than
+/// fewer than three decades fall inside, also 2 and 5 × 10^k; when there are more than
 /// ~10 decades, every n-th decade.
 pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
@@ -53,7 +53,7 @@ pub fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
     let k1 = hi.log10().ceil() as i32 + 1;
     let inside = |v: f64| v >= lo * (1.0 - 1e-12) && v <= hi * (1.0 + 1e-12);
     let decades: Vec<i32> = (k0..=k1).filter(|&k| inside(pow10(1, k))).collect();
-    if decades.len() >= 2 {
+    if decades.len() >= 3 {
         let every = decades.len().div_ceil(10);
         return decades
             .iter()
