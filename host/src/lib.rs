@@ -3,6 +3,7 @@
 
 pub mod diagnose;
 pub mod flight;
+pub mod metrics;
 pub mod model_spec;
 pub mod pipeline;
 pub mod report;
