@@ -1,1 +1,526 @@
-//! (in progress)
+//! The compensator: epoch builder + model terms + UD filter, one output per scalar sample.
+//!
+//! State layout (dynamic states first so the time update touches only the leading block):
+//! `[offset (models without field) | tie-point clones | field (5) | term coefficients…]`.
+//! All states are scaled by their prior 1σ (model.md §5, the paper's normalisation).
+
+use crate::epoch::{AlignedSample, Epoch, EpochBuilder, EpochConfig};
+use crate::filter::field::{FieldProcess, FIELD_STATES};
+use crate::filter::ud::{UdFilter, MAX_DYNAMIC, MAX_NOISE};
+use crate::flags::Flags;
+use crate::model::{Model, MAX_TERM_STATES};
+use crate::units::MagCounts;
+
+/// Largest number of tie points (revisited locations such as the cloverleaf centre).
+pub const MAX_TIE_POINTS: usize = 2;
+
+/// A revisited location: the first pass stores the field there, later passes tie to it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TiePoint {
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+}
+
+/// Filter settings. `for_rate` gives the defaults for a sample rate.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CompensatorConfig {
+    pub epoch: EpochConfig,
+    /// Scalar measurement noise 1σ (nT): sensor noise plus what the model cannot follow.
+    pub noise_nt: f32,
+    /// Field-model driving noise (nT/m^2.5); σ2 ≈ σ1/10 (model.md §3 findings).
+    pub sigma1: f32,
+    pub sigma2: f32,
+    /// Length over which the field priors are set (m).
+    pub field_length_m: f32,
+    /// Prior 1σ of the field at the first sample relative to the reference (nT).
+    pub bh_prior_nt: f32,
+    /// Multiplier on every term's prior 1σ.
+    pub prior_scale: f32,
+    /// Innovation gate in σ (0 = off). After `gate_max_run` consecutive rejections the
+    /// next sample is accepted anyway, so a real change cannot lock the filter out.
+    pub gate_sigma: f32,
+    pub gate_max_run: u32,
+    /// Tie points and the radius within which a pass counts as a revisit (m).
+    pub tie_points: [Option<TiePoint>; MAX_TIE_POINTS],
+    pub tie_radius_m: f32,
+    /// Lower bound of the horizontal gradient assumed in the tie variance (nT/m).
+    pub tie_gradient_floor_nt_per_m: f32,
+}
+
+impl CompensatorConfig {
+    pub fn for_rate(sample_rate_hz: f32) -> Self {
+        Self {
+            epoch: EpochConfig::for_rate(sample_rate_hz),
+            noise_nt: 0.02,
+            sigma1: 1.0e-6,
+            sigma2: 1.0e-7,
+            field_length_m: 1000.0,
+            bh_prior_nt: 100.0,
+            prior_scale: 1.0,
+            gate_sigma: 8.0,
+            gate_max_run: 5,
+            tie_points: [None; MAX_TIE_POINTS],
+            tie_radius_m: 60.0,
+            tie_gradient_floor_nt_per_m: 0.001,
+        }
+    }
+}
+
+/// One output record per scalar sample.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Output {
+    pub t_s: f64,
+    pub mag: Option<MagCounts>,
+    /// Estimated aircraft interference (nT).
+    pub interference_nt: f32,
+    /// `mag − interference`, exact to 1e-4 nT.
+    pub compensated: Option<MagCounts>,
+    /// Field-state estimate `B_h + B_z·(h − h0)` relative to the reference (nT).
+    pub anomaly_nt: f32,
+    /// Innovation and its predicted variance (NaN when no update was made).
+    pub innovation_nt: f32,
+    pub innovation_var_nt2: f32,
+    pub flags: Flags,
+}
+
+/// Errors of configuration or coefficient loading.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CompensatorError {
+    /// The model needs more states than the compile-time capacity `N`.
+    TooManyStates { needed: usize, capacity: usize },
+    /// The derivative window does not fit the ring capacity `W`.
+    WindowTooLarge,
+    /// A prior or setting is not finite/positive.
+    BadConfig,
+    /// Coefficient slice of the wrong length or with non-finite values.
+    BadCoefficients,
+}
+
+#[derive(Clone, Copy, Debug, Default)]
+struct TieState {
+    cloned: bool,
+    inside: bool,
+    acted: bool,
+    last_dist_m: f32,
+    north_m: f32,
+    east_m: f32,
+    local: Option<(f32, f32)>,
+}
+
+/// The real-time compensator. `N`: state capacity; `W`: derivative ring capacity.
+pub struct Compensator<'a, const N: usize, const W: usize> {
+    model: Model<'a>,
+    cfg: CompensatorConfig,
+    builder: EpochBuilder<W>,
+    filter: UdFilter<N>,
+    field: Option<FieldProcess>,
+    scale: [f32; N],
+    n_offset: usize,
+    n_clone: usize,
+    field_at: usize,
+    terms_at: usize,
+    n_dyn: usize,
+    n: usize,
+    survey: bool,
+    last_reference: Option<MagCounts>,
+    reject_run: u32,
+    ties: [TieState; MAX_TIE_POINTS],
+    updates: u32,
+}
+
+impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
+    pub fn new(model: Model<'a>, cfg: CompensatorConfig) -> Result<Self, CompensatorError> {
+        if !(cfg.noise_nt > 0.0 && cfg.prior_scale > 0.0 && cfg.sigma1 > 0.0 && cfg.sigma2 > 0.0) {
+            return Err(CompensatorError::BadConfig);
+        }
+        let builder = EpochBuilder::new(cfg.epoch).ok_or(CompensatorError::WindowTooLarge)?;
+        let n_offset = usize::from(!model.field);
+        let n_clone = if model.field {
+            cfg.tie_points.iter().filter(|t| t.is_some()).count()
+        } else {
+            0
+        };
+        let field_at = n_offset + n_clone;
+        let terms_at = field_at + if model.field { FIELD_STATES } else { 0 };
+        let n = terms_at + model.coefficient_count();
+        if n > N {
+            return Err(CompensatorError::TooManyStates {
+                needed: n,
+                capacity: N,
+            });
+        }
+        if terms_at > MAX_DYNAMIC || model.terms.iter().any(|t| t.len() > MAX_TERM_STATES) {
+            return Err(CompensatorError::TooManyStates {
+                needed: n,
+                capacity: N,
+            });
+        }
+        let field = model.field.then(|| {
+            FieldProcess::new(cfg.sigma1, cfg.sigma2, cfg.field_length_m, cfg.bh_prior_nt)
+        });
+        let mut scale = [1.0f32; N];
+        if n_offset == 1 {
+            scale[0] = 1000.0;
+        }
+        if let Some(f) = &field {
+            for c in 0..n_clone {
+                scale[n_offset + c] = f.scale[0];
+            }
+            scale[field_at..field_at + FIELD_STATES].copy_from_slice(&f.scale);
+        }
+        let mut at = terms_at;
+        for t in model.terms {
+            for i in 0..t.len() {
+                scale[at + i] = t.prior_sigma(i) * cfg.prior_scale;
+            }
+            at += t.len();
+        }
+        if scale[..n].iter().any(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(CompensatorError::BadConfig);
+        }
+        let filter = UdFilter::new(n, &[0.0; N], &[1.0; N]).ok_or(CompensatorError::BadConfig)?;
+        Ok(Self {
+            model,
+            cfg,
+            builder,
+            filter,
+            field,
+            scale,
+            n_offset,
+            n_clone,
+            field_at,
+            terms_at,
+            n_dyn: terms_at,
+            n,
+            survey: false,
+            last_reference: None,
+            reject_run: 0,
+            ties: [TieState::default(); MAX_TIE_POINTS],
+            updates: 0,
+        })
+    }
+
+    pub fn model(&self) -> &Model<'a> {
+        &self.model
+    }
+    pub fn config(&self) -> &CompensatorConfig {
+        &self.cfg
+    }
+    /// Total number of filter states.
+    pub fn state_count(&self) -> usize {
+        self.n
+    }
+    /// Index of the first term coefficient in the state vector.
+    pub fn coefficient_offset(&self) -> usize {
+        self.terms_at
+    }
+    pub fn filter(&self) -> &UdFilter<N> {
+        &self.filter
+    }
+    pub fn is_survey_mode(&self) -> bool {
+        self.survey
+    }
+
+    /// Survey mode: coefficients are frozen (applied, not estimated); the field states keep
+    /// running. Switching decouples the coefficients from the field states.
+    pub fn set_survey_mode(&mut self, on: bool) {
+        if on && !self.survey {
+            self.filter.decouple(self.n_dyn);
+        }
+        self.survey = on;
+    }
+
+    /// Term coefficients in physical units (nT, nT·s, …), model order.
+    pub fn coefficients(&self, out: &mut [f32]) -> usize {
+        let k = self.n - self.terms_at;
+        let x = self.filter.state();
+        for (i, o) in out.iter_mut().enumerate().take(k) {
+            *o = x[self.terms_at + i] * self.scale[self.terms_at + i];
+        }
+        k.min(out.len())
+    }
+
+    /// 1σ of each term coefficient from the filter covariance, physical units.
+    pub fn coefficient_sigmas(&self, out: &mut [f32]) -> usize {
+        let k = self.n - self.terms_at;
+        for (i, o) in out.iter_mut().enumerate().take(k) {
+            let j = self.terms_at + i;
+            *o = libm::sqrtf(self.filter.variance(j).max(0.0)) * self.scale[j];
+        }
+        k.min(out.len())
+    }
+
+    /// Loads known coefficients (physical units) and switches to survey mode.
+    pub fn set_coefficients(&mut self, coeffs: &[f32]) -> Result<(), CompensatorError> {
+        let k = self.n - self.terms_at;
+        if coeffs.len() != k || coeffs.iter().any(|c| !c.is_finite()) {
+            return Err(CompensatorError::BadCoefficients);
+        }
+        self.set_survey_mode(true);
+        let at = self.terms_at;
+        let x = self.filter.state_mut();
+        for (i, c) in coeffs.iter().enumerate() {
+            x[at + i] = c / self.scale[at + i];
+        }
+        Ok(())
+    }
+
+    /// Field states (physical units): B_h (nT, relative to the reference), ∂B_h/∂s (nT/m),
+    /// ∂²B_h/∂s² (nT/m²), B_z (nT/m), ∂B_z/∂s (nT/m²).
+    pub fn field_state(&self) -> Option<[f32; FIELD_STATES]> {
+        self.field?;
+        let x = self.filter.state();
+        let mut f = [0.0; FIELD_STATES];
+        for (i, v) in f.iter_mut().enumerate() {
+            *v = x[self.field_at + i] * self.scale[self.field_at + i];
+        }
+        Some(f)
+    }
+
+    /// Pushes one aligned scalar sample; returns the output of the sample
+    /// `half_width` samples back (exactly one output per pushed sample overall, with
+    /// [`flush`](Self::flush) at the end of the stream).
+    pub fn push(&mut self, s: &AlignedSample) -> Option<Output> {
+        let ep = self.builder.push(s)?;
+        Some(self.process(&ep))
+    }
+
+    /// Emits the samples still held for the centred derivative (end of stream).
+    pub fn flush(&mut self) -> Option<Output> {
+        let ep = self.builder.flush()?;
+        Some(self.process(&ep))
+    }
+
+    /// Like `push`, but also hands the epoch to the caller (host diagnostics).
+    pub fn push_epoch(&mut self, s: &AlignedSample) -> Option<(Epoch, Output)> {
+        let ep = self.builder.push(s)?;
+        let out = self.process(&ep);
+        Some((ep, out))
+    }
+
+    pub fn flush_epoch(&mut self) -> Option<(Epoch, Output)> {
+        let ep = self.builder.flush()?;
+        let out = self.process(&ep);
+        Some((ep, out))
+    }
+
+    /// Regressors of all term coefficients for an epoch (physical, unscaled), model order.
+    /// Returns false if any term lacked an input.
+    pub fn term_regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        let mut ok = true;
+        let mut at = 0;
+        let mut buf = [0.0f32; MAX_TERM_STATES];
+        for t in self.model.terms {
+            let l = t.len();
+            ok &= t.regressors(ep, &mut buf[..l]);
+            if at + l <= out.len() {
+                out[at..at + l].copy_from_slice(&buf[..l]);
+            }
+            at += l;
+        }
+        ok
+    }
+
+    fn process(&mut self, ep: &Epoch) -> Output {
+        let mut flags = ep.flags;
+        if self.survey {
+            flags.set(Flags::SURVEY_MODE);
+        }
+        self.rereference(ep.reference);
+        if let Some(f) = self.field {
+            if ep.ds_m > 0.0 && ep.ds_m.is_finite() {
+                let mut phi = [[0.0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
+                let mut g = [[0.0f32; MAX_DYNAMIC]; MAX_NOISE];
+                let mut dq = [0.0f32; MAX_NOISE];
+                f.discretise(ep.ds_m, self.field_at, &mut phi, &mut g, &mut dq);
+                self.filter.time_update(self.n_dyn, &phi, &g, &dq);
+            }
+        }
+        // Regressors: scaled for the filter, physical for the interference sum.
+        let mut h = [0.0f32; N];
+        let mut phys = [0.0f32; N];
+        if self.n_offset == 1 {
+            phys[0] = 1.0;
+        }
+        if self.field.is_some() {
+            phys[self.field_at] = 1.0;
+            phys[self.field_at + 3] = ep.dh_m;
+        }
+        let mut at = self.terms_at;
+        let mut buf = [0.0f32; MAX_TERM_STATES];
+        for t in self.model.terms {
+            let l = t.len();
+            if !t.regressors(ep, &mut buf[..l]) {
+                flags.set(Flags::AUX_MISSING);
+            }
+            phys[at..at + l].copy_from_slice(&buf[..l]);
+            at += l;
+        }
+        let x = self.filter.state();
+        let mut interference = 0.0f32;
+        let mut frozen = 0.0f32;
+        let mut at = self.terms_at;
+        for t in self.model.terms {
+            for i in at..at + t.len() {
+                let c = x[i] * self.scale[i] * phys[i];
+                frozen += c;
+                if t.is_interference() {
+                    interference += c;
+                }
+            }
+            at += t.len();
+        }
+        let upto = if self.survey { self.n_dyn } else { self.n };
+        for i in 0..upto {
+            h[i] = phys[i] * self.scale[i];
+        }
+        let r = self.cfg.noise_nt * self.cfg.noise_nt;
+        let mut innovation_nt = f32::NAN;
+        let mut innovation_var = f32::NAN;
+        if ep.dmag_nt.is_finite() {
+            let z = if self.survey {
+                ep.dmag_nt - frozen
+            } else {
+                ep.dmag_nt
+            };
+            let s = self.filter.predicted_variance(&h, r);
+            let nu = z - self.filter.predict(&h);
+            let gate = self.cfg.gate_sigma;
+            let reject = gate > 0.0
+                && self.updates > 100
+                && nu * nu > gate * gate * s
+                && self.reject_run < self.cfg.gate_max_run;
+            if reject {
+                self.reject_run += 1;
+                flags.set(Flags::INNOVATION_REJECTED);
+                innovation_nt = nu;
+                innovation_var = s;
+            } else if let Some(inn) = self.filter.update(&h, z, r) {
+                self.reject_run = 0;
+                self.updates = self.updates.saturating_add(1);
+                innovation_nt = inn.value;
+                innovation_var = inn.variance;
+            }
+        }
+        if self.tie_points(ep) {
+            flags.set(Flags::TIE_POINT);
+        }
+        // Outputs from the updated state.
+        let x = self.filter.state();
+        if !self.survey {
+            interference = 0.0;
+            let mut at = self.terms_at;
+            for t in self.model.terms {
+                if t.is_interference() {
+                    for i in at..at + t.len() {
+                        interference += x[i] * self.scale[i] * phys[i];
+                    }
+                }
+                at += t.len();
+            }
+        }
+        let anomaly_nt = if self.field.is_some() {
+            let a = self.field_at;
+            x[a] * self.scale[a] + x[a + 3] * self.scale[a + 3] * ep.dh_m
+        } else {
+            x[0] * self.scale[0]
+        };
+        Output {
+            t_s: ep.t_s,
+            mag: ep.mag,
+            interference_nt: interference,
+            compensated: ep.mag.map(|m| m.minus_nt(interference)),
+            anomaly_nt,
+            innovation_nt,
+            innovation_var_nt2: innovation_var,
+            flags,
+        }
+    }
+
+    /// Keeps the field states continuous when the builder moves its exact reference.
+    fn rereference(&mut self, reference: MagCounts) {
+        let Some(old) = self.last_reference.replace(reference) else {
+            return;
+        };
+        if old == reference {
+            return;
+        }
+        let shift_nt = old.diff_nt(reference);
+        let main = if self.field.is_some() {
+            self.field_at
+        } else {
+            0
+        };
+        let first_clone = self.n_offset;
+        let n_clone = self.n_clone;
+        let scale = self.scale;
+        let x = self.filter.state_mut();
+        x[main] += shift_nt / scale[main];
+        for i in first_clone..first_clone + n_clone {
+            x[i] += shift_nt / scale[i];
+        }
+    }
+
+    /// Tie-point logic: on the first pass near a point the field value is cloned; on later
+    /// passes `B_h(now) − B_h(then) = 0` is applied with a variance that grows with the
+    /// distance between the two passes times the horizontal gradient (model.md §3).
+    fn tie_points(&mut self, ep: &Epoch) -> bool {
+        let Some(field) = self.field else {
+            return false;
+        };
+        let mut applied = false;
+        for k in 0..self.n_clone {
+            let Some(tp) = self.cfg.tie_points[k] else {
+                continue;
+            };
+            let st = &mut self.ties[k];
+            if st.local.is_none() {
+                st.local = self.builder.local_position(tp.lat_deg, tp.lon_deg);
+            }
+            let Some((pn, pe)) = st.local else {
+                continue;
+            };
+            let dn = ep.north_m - pn;
+            let de = ep.east_m - pe;
+            let dist = libm::sqrtf(dn * dn + de * de);
+            if dist > self.cfg.tie_radius_m {
+                st.inside = false;
+                st.acted = false;
+                continue;
+            }
+            let closest_passed = st.inside && !st.acted && dist > st.last_dist_m;
+            st.inside = true;
+            st.last_dist_m = dist;
+            if !closest_passed {
+                continue;
+            }
+            st.acted = true;
+            let clone = self.n_offset + k;
+            let bh = self.field_at;
+            if !st.cloned {
+                st.cloned = true;
+                st.north_m = ep.north_m;
+                st.east_m = ep.east_m;
+                self.filter.clone_state(clone, bh);
+                continue;
+            }
+            let sep_n = ep.north_m - st.north_m;
+            let sep_e = ep.east_m - st.east_m;
+            let sep_m = libm::sqrtf(sep_n * sep_n + sep_e * sep_e);
+            // Horizontal gradient: the along-track estimate plus 2σ, never below the floor
+            // (the cross-track gradient is unobserved; isotropy makes them alike).
+            let g_scale = field.scale[1];
+            let g_est = libm::fabsf(self.filter.state()[bh + 1] * g_scale)
+                + 2.0 * libm::sqrtf(self.filter.variance(bh + 1).max(0.0)) * g_scale;
+            let g = g_est.max(self.cfg.tie_gradient_floor_nt_per_m);
+            let r_tie = (sep_m * g) * (sep_m * g) + 2.0 * self.cfg.noise_nt * self.cfg.noise_nt;
+            let mut h = [0.0f32; N];
+            h[bh] = self.scale[bh];
+            h[clone] = -self.scale[clone];
+            if self.filter.update(&h, 0.0, r_tie).is_some() {
+                applied = true;
+            }
+        }
+        applied
+    }
+}

@@ -50,3 +50,330 @@ impl AlignedSample {
         }
     }
 }
+
+/// Mean Earth radius for the local flat-Earth conversion of position steps (m).
+const EARTH_RADIUS_M: f64 = 6_371_000.0;
+/// Re-reference when the field drifts this far from the reference, keeping f32 resolution
+/// below 1e-4 nT at any value the filter sees (f32 ULP at 4096 nT is ~0.0005 nT).
+const REREFERENCE_LIMIT_NT: f32 = 2000.0;
+
+/// Everything the model terms need at one scalar-sample instant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Epoch {
+    pub t_s: f64,
+    /// Absolute scalar reading (exact), `None` if missing.
+    pub mag: Option<MagCounts>,
+    /// The exact reference subtracted from `mag` to form `dmag_nt`.
+    pub reference: MagCounts,
+    /// `mag − reference` (nT), NaN if missing.
+    pub dmag_nt: f32,
+    /// Time derivative of the scalar reading (nT/s), centred.
+    pub dmag_dt_nt_per_s: f32,
+    /// `|B| / 50 000 nT`: induced and eddy regressors are multiplied by it so one set of
+    /// coefficients holds in another field strength (model.md §2).
+    pub field_ratio: f32,
+    /// Direction cosines of the field in the body frame, from the fluxgate.
+    pub e: [f32; 3],
+    /// Their time derivative (1/s), centred on this instant.
+    pub e_dot_per_s: [f32; 3],
+    /// Field direction predicted from INS attitude and the main-field direction (NaN if
+    /// unavailable): lets a model see fluxgate calibration errors.
+    pub e_ref: [f32; 3],
+    /// Time since the previous epoch (s) and along-track distance covered (m).
+    pub dt_s: f32,
+    pub ds_m: f32,
+    pub speed_mps: f32,
+    /// Height above the reference height `h0` (m).
+    pub dh_m: f32,
+    /// Local horizontal position relative to the first fix (m).
+    pub north_m: f32,
+    pub east_m: f32,
+    pub aux: [f32; MAX_AUX],
+    /// Centred time derivative of each aux channel (unit/s).
+    pub aux_dot: [f32; MAX_AUX],
+    /// Fractional cycles of `∫ aux/60 dt` (an rpm channel's rotation phase, in [0, 1)).
+    pub aux_cycles: [f32; MAX_AUX],
+    pub flags: Flags,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct Slot {
+    s: AlignedSample,
+    e: [f32; 3],
+    e_valid: bool,
+    dt_s: f32,
+    ds_m: f32,
+    north_m: f64,
+    east_m: f64,
+    cycles: [f64; MAX_AUX],
+}
+
+/// Configuration of the epoch builder.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EpochConfig {
+    /// Half-width of the centred derivative in samples (≥ 1); the epoch for sample k is
+    /// emitted when sample k + half_width arrives.
+    pub half_width: usize,
+    /// Main-field direction in NED (unit vector), for `e_ref`; `None` if unknown.
+    pub earth_dir_ned: Option<[f32; 3]>,
+    /// Reference height `h0` (m); `None` → the first valid height.
+    pub h0_m: Option<f32>,
+}
+
+impl EpochConfig {
+    /// A derivative spanning about ±0.05 s, so ė has comparable noise at 10 Hz and 1 kHz.
+    pub fn for_rate(sample_rate_hz: f32) -> Self {
+        let hw = libm::roundf(0.05 * sample_rate_hz.max(1.0)) as usize;
+        Self {
+            half_width: hw.max(1),
+            earth_dir_ned: None,
+            h0_m: None,
+        }
+    }
+}
+
+/// Turns aligned samples into epochs, one per sample, delayed by `half_width` samples.
+/// `W` is the ring capacity and must be ≥ 2·half_width + 1.
+#[derive(Clone, Debug)]
+pub struct EpochBuilder<const W: usize> {
+    cfg: EpochConfig,
+    ring: [Option<Slot>; W],
+    /// Index (sample number) of the next sample to push and the next epoch to emit.
+    pushed: u64,
+    emitted: u64,
+    reference: Option<MagCounts>,
+    h0_m: Option<f32>,
+    origin: Option<(f64, f64, f64)>,
+    last_e: Option<[f32; 3]>,
+    last_cycles: [f64; MAX_AUX],
+}
+
+impl<const W: usize> EpochBuilder<W> {
+    /// `None` when the window does not fit the ring.
+    pub fn new(cfg: EpochConfig) -> Option<Self> {
+        if cfg.half_width == 0 || 2 * cfg.half_width + 1 > W {
+            return None;
+        }
+        Some(Self {
+            cfg,
+            ring: [None; W],
+            pushed: 0,
+            emitted: 0,
+            reference: None,
+            h0_m: cfg.h0_m,
+            origin: None,
+            last_e: None,
+            last_cycles: [0.0; MAX_AUX],
+        })
+    }
+
+    pub fn config(&self) -> &EpochConfig {
+        &self.cfg
+    }
+
+    /// Number of samples pushed but not yet emitted.
+    pub fn pending(&self) -> usize {
+        (self.pushed - self.emitted) as usize
+    }
+
+    fn slot(&self, k: u64) -> Option<&Slot> {
+        self.ring[(k % W as u64) as usize].as_ref()
+    }
+
+    /// Local (north, east) metres of a position relative to the first fix; `None` before it.
+    pub fn local_position(&self, lat_deg: f64, lon_deg: f64) -> Option<(f32, f32)> {
+        let (lat0, lon0, coslat0) = self.origin?;
+        Some((
+            ((lat_deg - lat0).to_radians() * EARTH_RADIUS_M) as f32,
+            ((lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat0) as f32,
+        ))
+    }
+
+    /// Adds a sample; returns the epoch of the sample `half_width` back, if any.
+    pub fn push(&mut self, s: &AlignedSample) -> Option<Epoch> {
+        let prev = if self.pushed > 0 {
+            self.slot(self.pushed - 1).copied()
+        } else {
+            None
+        };
+        let flux = s.flux_nt;
+        let norm = libm::sqrtf(flux[0] * flux[0] + flux[1] * flux[1] + flux[2] * flux[2]);
+        let (e, e_valid) = if norm.is_finite() && norm > 1.0 {
+            let e = [flux[0] / norm, flux[1] / norm, flux[2] / norm];
+            self.last_e = Some(e);
+            (e, true)
+        } else {
+            (self.last_e.unwrap_or([1.0, 0.0, 0.0]), false)
+        };
+        // Local position (f64: lat/lon need it), origin at the first fix.
+        let (north_m, east_m) = if s.lat_deg.is_finite() && s.lon_deg.is_finite() {
+            let (lat0, lon0, coslat0) = *self
+                .origin
+                .get_or_insert_with(|| (s.lat_deg, s.lon_deg, libm::cos(s.lat_deg.to_radians())));
+            (
+                (s.lat_deg - lat0).to_radians() * EARTH_RADIUS_M,
+                (s.lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat0,
+            )
+        } else {
+            prev.map(|p| (p.north_m, p.east_m)).unwrap_or((0.0, 0.0))
+        };
+        let (dt_s, ds_m) = match prev {
+            Some(p) => {
+                let dt = (s.t_s - p.s.t_s) as f32;
+                let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.0 };
+                let ds = if s.ground_speed_mps.is_finite() {
+                    s.ground_speed_mps.abs() * dt
+                } else {
+                    let dn = north_m - p.north_m;
+                    let de = east_m - p.east_m;
+                    libm::sqrt(dn * dn + de * de) as f32
+                };
+                (dt, if ds.is_finite() { ds } else { 0.0 })
+            }
+            None => (0.0, 0.0),
+        };
+        let mut cycles = self.last_cycles;
+        for (c, a) in cycles.iter_mut().zip(s.aux.iter()) {
+            if a.is_finite() {
+                *c += (*a as f64) / 60.0 * dt_s as f64;
+                *c -= libm::floor(*c);
+            }
+        }
+        self.last_cycles = cycles;
+        if self.h0_m.is_none() && s.alt_m.is_finite() {
+            self.h0_m = Some(s.alt_m);
+        }
+        let idx = (self.pushed % W as u64) as usize;
+        self.ring[idx] = Some(Slot {
+            s: *s,
+            e,
+            e_valid,
+            dt_s,
+            ds_m,
+            north_m,
+            east_m,
+            cycles,
+        });
+        self.pushed += 1;
+        if self.pushed - self.emitted > self.cfg.half_width as u64 {
+            self.emit()
+        } else {
+            None
+        }
+    }
+
+    /// Emits the next pending epoch with a one-sided derivative (end of stream).
+    pub fn flush(&mut self) -> Option<Epoch> {
+        if self.emitted < self.pushed {
+            self.emit()
+        } else {
+            None
+        }
+    }
+
+    fn emit(&mut self) -> Option<Epoch> {
+        let k = self.emitted;
+        let hw = self.cfg.half_width as u64;
+        let lo = k.saturating_sub(hw);
+        let hi = (k + hw).min(self.pushed - 1);
+        self.emitted += 1;
+        let c = *self.slot(k)?;
+        let a = *self.slot(lo)?;
+        let b = *self.slot(hi)?;
+        let mut flags = c.s.flags;
+        if lo + hw != k || hi != k + hw {
+            flags.set(Flags::DERIVATIVE_DEGRADED);
+        }
+        if !c.e_valid {
+            flags.set(Flags::FLUX_STALE);
+        }
+        let span_s = (b.s.t_s - a.s.t_s) as f32;
+        let inv_span = if span_s > 0.0 { 1.0 / span_s } else { 0.0 };
+        let mut e_dot = [0.0f32; 3];
+        for (i, v) in e_dot.iter_mut().enumerate() {
+            *v = (b.e[i] - a.e[i]) * inv_span;
+        }
+        let mut aux_dot = [0.0f32; MAX_AUX];
+        for (i, v) in aux_dot.iter_mut().enumerate() {
+            let d = (b.s.aux[i] - a.s.aux[i]) * inv_span;
+            *v = if d.is_finite() { d } else { f32::NAN };
+        }
+        // Exact reference handling: differences of integer counts, never of f32 values.
+        let mut dmag_nt = f32::NAN;
+        if let Some(m) = c.s.mag {
+            let r = *self.reference.get_or_insert(m);
+            let d = m.diff_nt(r);
+            if d.abs() > REREFERENCE_LIMIT_NT {
+                self.reference = Some(m);
+                dmag_nt = 0.0;
+            } else {
+                dmag_nt = d;
+            }
+        } else {
+            flags.set(Flags::MAG_MISSING);
+        }
+        let reference = self.reference.unwrap_or_default();
+        let dmag_dt = match (a.s.mag, b.s.mag) {
+            (Some(ma), Some(mb)) if span_s > 0.0 => mb.diff_nt(ma) * inv_span,
+            _ => 0.0,
+        };
+        let field_ratio = match c.s.mag {
+            Some(m) => (m.to_nt_f64() / 50_000.0) as f32,
+            None => 1.0,
+        };
+        let dh_m = match (self.h0_m, c.s.alt_m.is_finite()) {
+            (Some(h0), true) => c.s.alt_m - h0,
+            _ => 0.0,
+        };
+        let speed = if c.dt_s > 0.0 { c.ds_m / c.dt_s } else { 0.0 };
+        let mut aux_cycles = [0.0f32; MAX_AUX];
+        for (o, v) in aux_cycles.iter_mut().zip(c.cycles.iter()) {
+            *o = *v as f32;
+        }
+        Some(Epoch {
+            t_s: c.s.t_s,
+            mag: c.s.mag,
+            reference,
+            dmag_nt,
+            dmag_dt_nt_per_s: dmag_dt,
+            field_ratio,
+            e: c.e,
+            e_dot_per_s: e_dot,
+            e_ref: self.e_ref(&c.s.attitude_deg),
+            dt_s: c.dt_s,
+            ds_m: c.ds_m,
+            speed_mps: speed,
+            dh_m,
+            north_m: c.north_m as f32,
+            east_m: c.east_m as f32,
+            aux: c.s.aux,
+            aux_dot,
+            aux_cycles,
+            flags,
+        })
+    }
+
+    /// Body-frame field direction from INS attitude: `e = R_nbᵀ·e_ned` (ZYX Euler angles).
+    fn e_ref(&self, att_deg: &[f32; 3]) -> [f32; 3] {
+        let Some(en) = self.cfg.earth_dir_ned else {
+            return [f32::NAN; 3];
+        };
+        if !att_deg.iter().all(|a| a.is_finite()) {
+            return [f32::NAN; 3];
+        }
+        let (sr, cr) = libm::sincosf(att_deg[0].to_radians());
+        let (sp, cp) = libm::sincosf(att_deg[1].to_radians());
+        let (sy, cy) = libm::sincosf(att_deg[2].to_radians());
+        // Rows of R_bn (NED → body).
+        let r = [
+            [cp * cy, cp * sy, -sp],
+            [sr * sp * cy - cr * sy, sr * sp * sy + cr * cy, sr * cp],
+            [cr * sp * cy + sr * sy, cr * sp * sy - sr * cy, cr * cp],
+        ];
+        let mut e = [0.0f32; 3];
+        for (i, row) in r.iter().enumerate() {
+            e[i] = row[0] * en[0] + row[1] * en[1] + row[2] * en[2];
+        }
+        e
+    }
+}

@@ -16,7 +16,7 @@ pub mod protocol;
 pub mod spectrum;
 pub mod units;
 
-
-
+pub use compensator::{Compensator, CompensatorConfig, Output};
+pub use epoch::{AlignedSample, Epoch, EpochBuilder, MAX_AUX};
 pub use flags::Flags;
 pub use units::MagCounts;

@@ -1,1 +1,69 @@
-//! (in progress)
+//! Model terms: each physical effect is one type implementing [`Term`].
+//!
+//! A model is the anomaly `field` (5 dynamic states, optional) plus a list of constant-
+//! coefficient terms. The paper's model is `permanent + induced + eddy + field` (16 + 5).
+//! To add an effect, write one type implementing [`Term`] in `terms.rs` and give it a name
+//! in the host's term registry (`docs/adding-an-effect.md`).
+
+pub mod catalog;
+pub mod terms;
+
+use crate::epoch::Epoch;
+pub use catalog::{AnyTerm, ChannelUse, TermInfo, CATALOG};
+pub use terms::*;
+
+/// Most regressors a single term may have.
+pub const MAX_TERM_STATES: usize = 16;
+
+/// One physical effect with constant coefficients: `contribution = Σ θ_i·φ_i(epoch)`.
+pub trait Term: Sync {
+    /// Base name used in a model spec (`"eddy"`, `"current"`...).
+    fn name(&self) -> &'static str;
+    /// Number of coefficients (states) it adds.
+    fn len(&self) -> usize;
+    /// Writes its regressors for this epoch into `out[..self.len()]`. Returns false when an
+    /// input it needs is missing (the regressors are then zero and the epoch is flagged).
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool;
+    /// Prior 1σ of coefficient `i`, in the coefficient's unit. Also its scale in the filter.
+    fn prior_sigma(&self, i: usize) -> f32;
+    /// Short label of coefficient `i` (e.g. `"e1*de2"`).
+    fn label(&self, i: usize) -> &'static str;
+    /// Unit of coefficient `i` (e.g. `"nT"`, `"nT*s"`, `"nT/A"`).
+    fn unit(&self, i: usize) -> &'static str;
+    /// Aircraft interference (removed by compensation) or part of the environment
+    /// (e.g. diurnal variation: estimated, but not interference).
+    fn is_interference(&self) -> bool {
+        true
+    }
+    /// Auxiliary channel index this term reads, if any.
+    fn channel(&self) -> Option<usize> {
+        None
+    }
+}
+
+/// A model: optional anomaly field plus constant terms. On the board the list is a static
+/// array fixed at compile time; on the host it is built at run time from a spec string.
+#[derive(Clone, Copy)]
+pub struct Model<'a> {
+    pub field: bool,
+    pub terms: &'a [&'a dyn Term],
+}
+
+static PAPER_TERMS: [&dyn Term; 3] = [&Permanent, &Induced, &Eddy];
+
+impl Model<'static> {
+    /// The paper's model: `tl16 + field`, 21 states.
+    pub fn paper() -> Self {
+        Model {
+            field: true,
+            terms: &PAPER_TERMS,
+        }
+    }
+}
+
+impl<'a> Model<'a> {
+    /// Number of constant coefficients.
+    pub fn coefficient_count(&self) -> usize {
+        self.terms.iter().map(|t| t.len()).sum()
+    }
+}

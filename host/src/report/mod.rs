@@ -1,1 +1,29 @@
-//! (in progress)
+//! Report rendering: hand-written SVG plots ([`Plot`]) and a self-contained HTML page
+//! ([`HtmlReport`]) for the `magcomp report` command. No fonts, no scripts, no external
+//! files: the page opens anywhere and can be mailed as one file.
+
+mod html;
+mod plot;
+mod ticks;
+
+pub use html::{HtmlReport, Section};
+pub use plot::{downsample_minmax, Bars, Plot, Series, SeriesStyle, PALETTE};
+pub use ticks::{format_tick, log_minor_ticks, log_ticks, nice_ticks};
+
+/// Escapes text for HTML/SVG element content and attribute values.
+pub fn escape(text: &str) -> String {
+    let mut out = String::with_capacity(text.len());
+    for c in text.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            '\'' => out.push_str("&#39;"),
+            // Control characters are not allowed in XML; drop them rather than emit invalid SVG.
+            c if (c as u32) < 0x20 && c != '\n' && c != '\t' => {}
+            c => out.push(c),
+        }
+    }
+    out
+}

@@ -1,1 +1,1182 @@
-//! (in progress)
+//! Flight simulator behind `magcomp simulate`.
+//!
+//! Deliberately independent of the compensator's equations: the anomaly is a set of buried
+//! dipoles (exactly harmonic), every scalar is an exact vector modulus, the aircraft field is
+//! the full vector Poisson form K + L·B + M·dB/dt with the exact dB/dt, and the sensors carry
+//! errors (fluxgate bias/scale/misalignment, correlated GPS error, INS noise) that the model
+//! does not know. See `docs` in the `SimulateArgs` help for units and defaults.
+
+pub mod anomaly;
+pub mod cli;
+pub mod flight;
+pub mod geo;
+pub mod hidden;
+pub mod signals;
+
+pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
+pub use cli::SimulateArgs;
+pub use flight::{KinState, Plan};
+pub use geo::{EarthField, LocalFrame};
+pub use hidden::{parse_hidden, HiddenEffect, HiddenKind};
+
+use crate::trace::Trace;
+use anyhow::{ensure, Result};
+use flight::{heading_tag, Builder, Manoeuvre};
+use nalgebra::{Matrix3, Rotation3, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal, StandardNormal, UnitSphere};
+use signals::{gauss_markov, CurrentWave, RpmWave, SineSum, SmoothWalk};
+use std::f64::consts::TAU;
+
+/// Reference field for the |B|/B* normalisation (model.md §2).
+pub const B_STAR_NT: f64 = 50_000.0;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FlightKind {
+    Calibration,
+    Survey,
+    CalibrationSurvey,
+}
+
+impl FlightKind {
+    pub fn name(&self) -> &'static str {
+        match self {
+            FlightKind::Calibration => "calibration",
+            FlightKind::Survey => "survey",
+            FlightKind::CalibrationSurvey => "calibration+survey",
+        }
+    }
+    pub fn parse(s: &str) -> Result<Self> {
+        Ok(match s {
+            "calibration" | "cal" => FlightKind::Calibration,
+            "survey" => FlightKind::Survey,
+            "calibration+survey" | "cal+survey" => FlightKind::CalibrationSurvey,
+            other => anyhow::bail!(
+                "unknown flight kind `{other}` (calibration, survey, calibration+survey)"
+            ),
+        })
+    }
+}
+
+/// Everything that defines a simulated flight. `Default` is a realistic high-altitude
+/// (3000 m) cloverleaf calibration flight over quiet geology at 10 Hz.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimConfig {
+    pub flight: FlightKind,
+    pub seed: u64,
+    pub sample_rate_hz: f64,
+    /// Ground speed (m/s).
+    pub speed_mps: f64,
+    pub start_lat_deg: f64,
+    pub start_lon_deg: f64,
+    /// Ground elevation (flat ground), m above sea level.
+    pub ground_elev_m: f64,
+    /// Height above ground of the calibration cloverleaf and of the survey lines.
+    pub cal_altitude_m: f64,
+    pub survey_altitude_m: f64,
+    /// Amplitude of smooth height undulations (terrain drape), 0 = none.
+    pub altitude_swing_m: f64,
+    pub cal_headings_deg: Vec<f64>,
+    pub roll_amp_deg: f64,
+    pub pitch_amp_deg: f64,
+    pub yaw_amp_deg: f64,
+    pub manoeuvre_period_s: f64,
+    pub manoeuvre_cycles: u32,
+    pub level_s: f64,
+    /// Maximum turn rate (deg/s); 3 °/s is a standard-rate turn.
+    pub turn_rate_deg_s: f64,
+    pub survey_lines: usize,
+    pub line_length_m: f64,
+    pub line_spacing_m: f64,
+    pub line_heading_deg: f64,
+    /// Survey block origin relative to the start point (north, east, m), combined flights.
+    pub survey_offset_m: [f64; 2],
+    pub wind_mps: f64,
+    pub turbulence_deg: f64,
+    pub earth: EarthField,
+    pub geology: Geology,
+    /// Rms of the smooth diurnal variation (nT).
+    pub diurnal_nt: f64,
+    /// Multiplies the drawn K, L, M (1 = Cessna Caravan-like).
+    pub interference_scale: f64,
+    pub scalar_noise_nt: f64,
+    pub flux_noise_nt: f64,
+    pub ins_noise_deg: f64,
+    pub gps_sigma_h_m: f64,
+    pub gps_sigma_v_m: f64,
+    pub gps_tau_s: f64,
+    pub hidden: Vec<HiddenEffect>,
+    pub decoys: Vec<String>,
+    /// Target standard deviation (nT) of scaled hidden effects inside their window.
+    pub hidden_std_nt: f64,
+    /// Truncate the flight (s); None = fly the whole plan.
+    pub max_duration_s: Option<f64>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            flight: FlightKind::Calibration,
+            seed: 1,
+            sample_rate_hz: 10.0,
+            speed_mps: 60.0,
+            start_lat_deg: 45.3,
+            start_lon_deg: -75.7,
+            ground_elev_m: 0.0,
+            cal_altitude_m: 3000.0,
+            survey_altitude_m: 300.0,
+            altitude_swing_m: 0.0,
+            cal_headings_deg: vec![45.0, 135.0, 225.0, 315.0],
+            roll_amp_deg: 8.0,
+            pitch_amp_deg: 5.0,
+            yaw_amp_deg: 5.0,
+            manoeuvre_period_s: 6.0,
+            manoeuvre_cycles: 3,
+            level_s: 20.0,
+            turn_rate_deg_s: 3.0,
+            survey_lines: 10,
+            line_length_m: 10_000.0,
+            line_spacing_m: 200.0,
+            line_heading_deg: 0.0,
+            survey_offset_m: [0.0, 8000.0],
+            wind_mps: 5.0,
+            turbulence_deg: 0.3,
+            earth: EarthField::Dipole,
+            geology: Geology::preset(GeologyPreset::Quiet),
+            diurnal_nt: 2.0,
+            interference_scale: 1.0,
+            scalar_noise_nt: 0.01,
+            flux_noise_nt: 0.5,
+            ins_noise_deg: 0.03,
+            gps_sigma_h_m: 1.0,
+            gps_sigma_v_m: 1.5,
+            gps_tau_s: 60.0,
+            hidden: Vec::new(),
+            decoys: Vec::new(),
+            hidden_std_nt: 2.0,
+            max_duration_s: None,
+        }
+    }
+}
+
+fn finite_in(v: f64, lo: f64, hi: f64, what: &str) -> Result<()> {
+    ensure!(v.is_finite() && v >= lo && v <= hi, "{what} = {v} is outside [{lo}, {hi}]");
+    Ok(())
+}
+
+impl SimConfig {
+    pub fn validate(&self) -> Result<()> {
+        finite_in(self.sample_rate_hz, 1.0, 1000.0, "sample rate (Hz)")?;
+        finite_in(self.speed_mps, 20.0, 150.0, "speed (m/s)")?;
+        finite_in(self.start_lat_deg, -80.0, 80.0, "start latitude (deg)")?;
+        finite_in(self.start_lon_deg, -180.0, 360.0, "start longitude (deg)")?;
+        finite_in(self.ground_elev_m, -500.0, 5000.0, "ground elevation (m)")?;
+        finite_in(self.cal_altitude_m, 30.0, 10_000.0, "calibration altitude (m)")?;
+        finite_in(self.survey_altitude_m, 30.0, 10_000.0, "survey altitude (m)")?;
+        finite_in(self.altitude_swing_m, 0.0, 500.0, "altitude swing (m)")?;
+        let min_alt = match self.flight {
+            FlightKind::Calibration => self.cal_altitude_m,
+            FlightKind::Survey => self.survey_altitude_m,
+            FlightKind::CalibrationSurvey => self.cal_altitude_m.min(self.survey_altitude_m),
+        };
+        ensure!(
+            self.altitude_swing_m < min_alt - 20.0,
+            "altitude swing must keep the aircraft at least 20 m above ground"
+        );
+        ensure!(!self.cal_headings_deg.is_empty(), "need at least one calibration heading");
+        for h in &self.cal_headings_deg {
+            finite_in(*h, -360.0, 720.0, "calibration heading (deg)")?;
+        }
+        finite_in(self.roll_amp_deg, 0.0, 30.0, "roll amplitude (deg)")?;
+        finite_in(self.pitch_amp_deg, 0.0, 15.0, "pitch amplitude (deg)")?;
+        finite_in(self.yaw_amp_deg, 0.0, 15.0, "yaw amplitude (deg)")?;
+        finite_in(self.manoeuvre_period_s, 1.0, 60.0, "manoeuvre period (s)")?;
+        ensure!(
+            (1..=50).contains(&self.manoeuvre_cycles),
+            "manoeuvre cycles must be 1–50"
+        );
+        finite_in(self.level_s, 0.0, 600.0, "level segment duration (s)")?;
+        finite_in(self.turn_rate_deg_s, 0.5, 10.0, "turn rate (deg/s)")?;
+        ensure!((1..=500).contains(&self.survey_lines), "survey lines must be 1–500");
+        finite_in(self.line_length_m, 100.0, 500_000.0, "line length (m)")?;
+        finite_in(self.line_spacing_m, 10.0, 50_000.0, "line spacing (m)")?;
+        finite_in(self.line_heading_deg, -360.0, 720.0, "line heading (deg)")?;
+        for v in self.survey_offset_m {
+            finite_in(v, -1e6, 1e6, "survey offset (m)")?;
+        }
+        finite_in(self.wind_mps, 0.0, 0.4 * self.speed_mps, "wind (m/s)")?;
+        finite_in(self.turbulence_deg, 0.0, 5.0, "turbulence (deg)")?;
+        if let EarthField::Fixed {
+            f_nt,
+            inc_deg,
+            dec_deg,
+        } = self.earth
+        {
+            finite_in(f_nt, 20_000.0, 70_000.0, "field intensity F (nT)")?;
+            finite_in(inc_deg, -90.0, 90.0, "inclination (deg)")?;
+            finite_in(dec_deg, -180.0, 360.0, "declination (deg)")?;
+        }
+        self.geology.validate()?;
+        finite_in(self.diurnal_nt, 0.0, 100.0, "diurnal rms (nT)")?;
+        finite_in(self.interference_scale, 0.0, 100.0, "interference scale")?;
+        finite_in(self.scalar_noise_nt, 0.0, 10.0, "scalar noise (nT)")?;
+        finite_in(self.flux_noise_nt, 0.0, 100.0, "fluxgate noise (nT)")?;
+        finite_in(self.ins_noise_deg, 0.0, 5.0, "INS noise (deg)")?;
+        finite_in(self.gps_sigma_h_m, 0.0, 100.0, "GPS horizontal error (m)")?;
+        finite_in(self.gps_sigma_v_m, 0.0, 100.0, "GPS vertical error (m)")?;
+        finite_in(self.gps_tau_s, 1.0, 10_000.0, "GPS correlation time (s)")?;
+        finite_in(self.hidden_std_nt, 0.0, 1000.0, "hidden effect std (nT)")?;
+        if let Some(d) = self.max_duration_s {
+            finite_in(d, 1.0, 1e6, "maximum duration (s)")?;
+        }
+        let mut names: Vec<String> = self.hidden.iter().map(|h| h.name()).collect();
+        let mut chans: Vec<&str> = self.hidden.iter().filter_map(|h| h.channel()).collect();
+        for d in &self.decoys {
+            hidden::check_channel(d)?;
+            chans.push(d);
+        }
+        names.sort();
+        let n0 = names.len();
+        names.dedup();
+        ensure!(names.len() == n0, "the same hidden effect is given twice");
+        chans.sort();
+        let c0 = chans.len();
+        chans.dedup();
+        ensure!(chans.len() == c0, "an auxiliary channel name is used twice");
+        Ok(())
+    }
+}
+
+/// Ground truth behind a simulated trace, for tests and scoring.
+#[derive(Clone, Debug)]
+pub struct SimTruth {
+    pub plan: Plan,
+    pub frame: LocalFrame,
+    pub anomaly: Anomaly,
+    pub ground_elev_m: f64,
+    pub k_nt: Vector3<f64>,
+    pub l: Matrix3<f64>,
+    pub m_s: Matrix3<f64>,
+    /// Per sample: true sensor position (local NED, m), true attitude (roll, pitch, yaw rad),
+    /// external field in body axes (nT) and its exact time derivative (nT/s),
+    /// the aircraft field ΔB = K + L·B + M·dB/dt (nT), and the noise-free scalar (nT).
+    pub pos_ned_m: Vec<Vector3<f64>>,
+    pub att_rad: Vec<[f64; 3]>,
+    pub b_body_nt: Vec<Vector3<f64>>,
+    pub db_body_nt_s: Vec<Vector3<f64>>,
+    pub delta_b_nt: Vec<Vector3<f64>>,
+    pub mag_clean_nt: Vec<f64>,
+}
+
+pub struct SimOutput {
+    pub trace: Trace,
+    pub truth: SimTruth,
+}
+
+/// Simulates a flight and returns the recorded trace (see `trace-format.md`).
+pub fn simulate(cfg: &SimConfig) -> Result<Trace> {
+    Ok(simulate_detailed(cfg)?.trace)
+}
+
+fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
+    let mut r = ChaCha8Rng::seed_from_u64(seed);
+    r.set_stream(stream);
+    r
+}
+
+/// Stream id from a name, so adding one effect never changes another's random draws.
+fn stream_of(name: &str) -> u64 {
+    name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    }) | (1 << 40)
+}
+
+/// Direction cosine matrix NED → body for aerospace ZYX angles.
+pub fn dcm_ned_to_body(roll: f64, pitch: f64, yaw: f64) -> Matrix3<f64> {
+    Rotation3::from_euler_angles(roll, pitch, yaw)
+        .matrix()
+        .transpose()
+}
+
+fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> {
+    let v = cfg.speed_mps;
+    let rate = cfg.turn_rate_deg_s.to_radians();
+    let per = cfg.manoeuvre_period_s;
+    let man_s = per * cfg.manoeuvre_cycles as f64;
+    let lead_m = 600.0;
+    let mut alt_ramps = Vec::new();
+    let centre = [0.0, 0.0];
+    let cal_course: Vec<f64> = cfg
+        .cal_headings_deg
+        .iter()
+        .map(|h| h.to_radians().rem_euclid(TAU))
+        .collect();
+    let line_course = cfg.line_heading_deg.to_radians().rem_euclid(TAU);
+    let do_cal = cfg.flight != FlightKind::Survey;
+    let do_survey = cfg.flight != FlightKind::Calibration;
+    let first_course = if do_cal { cal_course[0] } else { line_course };
+    let survey_origin = if do_cal { cfg.survey_offset_m } else { [0.0, 0.0] };
+    // Distance flown on a leg before reaching the centre: roll + half the level part.
+    let pre_m = (man_s + cfg.level_s / 2.0) * v;
+    let start = if do_cal {
+        [
+            centre[0] - (pre_m + lead_m) * first_course.cos(),
+            centre[1] - (pre_m + lead_m) * first_course.sin(),
+        ]
+    } else {
+        [
+            survey_origin[0] - lead_m * first_course.cos(),
+            survey_origin[1] - lead_m * first_course.sin(),
+        ]
+    };
+    let mut b = Builder::new(start, first_course, v, rate);
+    b.straight(lead_m / v, Manoeuvre::Level, 0.0, per, "turn");
+    if do_cal {
+        for (i, &c) in cal_course.iter().enumerate() {
+            if i > 0 {
+                let d = b.connect(centre, c, pre_m + 300.0)?;
+                b.straight((d - pre_m) / v, Manoeuvre::Level, 0.0, per, "turn");
+            }
+            let tag = heading_tag(c);
+            let (r, p, y) = (
+                cfg.roll_amp_deg.to_radians(),
+                cfg.pitch_amp_deg.to_radians(),
+                cfg.yaw_amp_deg.to_radians(),
+            );
+            b.straight(man_s, Manoeuvre::Roll, r, per, &format!("cal_{tag}_roll"));
+            b.straight(cfg.level_s, Manoeuvre::Level, 0.0, per, &format!("cal_{tag}_level"));
+            b.straight(man_s, Manoeuvre::Pitch, p, per, &format!("cal_{tag}_pitch"));
+            b.straight(man_s, Manoeuvre::Yaw, y, per, &format!("cal_{tag}_yaw"));
+        }
+        b.straight(10.0, Manoeuvre::Level, 0.0, per, "turn");
+    }
+    if do_survey {
+        let perp = line_course + TAU / 4.0;
+        let u = [line_course.cos(), line_course.sin()];
+        let w = [perp.cos(), perp.sin()];
+        for k in 0..cfg.survey_lines {
+            let off = k as f64 * cfg.line_spacing_m;
+            let along = if k % 2 == 0 { 0.0 } else { cfg.line_length_m };
+            let s = [
+                survey_origin[0] + off * w[0] + along * u[0],
+                survey_origin[1] + off * w[1] + along * u[1],
+            ];
+            let c = if k % 2 == 0 {
+                line_course
+            } else {
+                (line_course + TAU / 2.0).rem_euclid(TAU)
+            };
+            if k > 0 || do_cal {
+                // Height change cal → survey happens on the run-in, at ≤ 5 m/s.
+                let dh = if k == 0 {
+                    cfg.survey_altitude_m - cfg.cal_altitude_m
+                } else {
+                    0.0
+                };
+                let ramp_s = std::f64::consts::FRAC_PI_2 * dh.abs() / 4.0;
+                let d = b.connect(s, c, lead_m + ramp_s * v)?;
+                if dh != 0.0 {
+                    alt_ramps.push(flight::AltRamp {
+                        t0_s: b.t_s,
+                        dur_s: ramp_s,
+                        dh_m: dh,
+                    });
+                }
+                b.straight(d / v, Manoeuvre::Level, 0.0, per, "turn");
+            }
+            b.straight(
+                cfg.line_length_m / v,
+                Manoeuvre::Level,
+                0.0,
+                per,
+                &format!("line_{}", 1001 + k),
+            );
+        }
+        b.straight(10.0, Manoeuvre::Level, 0.0, per, "turn");
+    }
+    let swing = (cfg.altitude_swing_m > 0.0).then(|| {
+        // Keep the drape slope ≤ ~6 % (climb ≤ 4 m/s at 60 m/s), like a real drape.
+        let wl = (TAU * cfg.altitude_swing_m / 0.06).max(3000.0) * rng.gen_range(0.9..1.2);
+        (cfg.altitude_swing_m, wl, rng.gen_range(0.0..TAU))
+    });
+    let turb_rad = cfg.turbulence_deg.to_radians();
+    let turb = [
+        SineSum::random(3, 2.0, 15.0, turb_rad, rng),
+        SineSum::random(3, 2.0, 15.0, turb_rad * 0.7, rng),
+        SineSum::random(3, 3.0, 20.0, turb_rad * 0.7, rng),
+    ];
+    Ok(Plan {
+        pieces: b.pieces,
+        speed_mps: v,
+        start_ne_m: start,
+        start_course_rad: first_course,
+        h0_agl_m: if do_cal {
+            cfg.cal_altitude_m
+        } else {
+            cfg.survey_altitude_m
+        },
+        alt_ramps,
+        swing,
+        trim_pitch_rad: rng.gen_range(1.5f64..3.0).to_radians(),
+        turb,
+        wind: (cfg.wind_mps, rng.gen_range(0.0..TAU)),
+        cal_centre_ne_m: do_cal.then_some(centre),
+    })
+}
+
+/// Environment field (main + anomaly) along the path, stored at knots with its exact
+/// time derivative and Hermite-interpolated between them. At ≤ 20 Hz every sample is a
+/// knot; above, knots are every 50 ms, where the cubic's error is < 1e-6 nT (the field
+/// varies over hundreds of metres = seconds of flight).
+struct FieldTrack {
+    t: Vec<f64>,
+    be: Vec<Vector3<f64>>,
+    dbe: Vec<Vector3<f64>>,
+    ba: Vec<Vector3<f64>>,
+    dba: Vec<Vector3<f64>>,
+    dt_knot: f64,
+}
+
+fn hermite(t: f64, t0: f64, t1: f64, f: [&Vector3<f64>; 4]) -> (Vector3<f64>, Vector3<f64>) {
+    let h = t1 - t0;
+    if h <= 0.0 {
+        return (*f[0], *f[1]);
+    }
+    let u = ((t - t0) / h).clamp(0.0, 1.0);
+    let (u2, u3) = (u * u, u * u * u);
+    let v = f[0] * (2.0 * u3 - 3.0 * u2 + 1.0)
+        + f[1] * (h * (u3 - 2.0 * u2 + u))
+        + f[2] * (-2.0 * u3 + 3.0 * u2)
+        + f[3] * (h * (u3 - u2));
+    let d = f[0] * ((6.0 * u2 - 6.0 * u) / h)
+        + f[1] * (3.0 * u2 - 4.0 * u + 1.0)
+        + f[2] * ((-6.0 * u2 + 6.0 * u) / h)
+        + f[3] * (3.0 * u2 - 2.0 * u);
+    (v, d)
+}
+
+impl FieldTrack {
+    /// (main field, its rate, anomaly, its rate) at t.
+    fn at(&self, t: f64) -> [Vector3<f64>; 4] {
+        let n = self.t.len();
+        let i = if n < 2 {
+            0
+        } else {
+            (((t - self.t[0]) / self.dt_knot).floor().max(0.0) as usize).min(n - 2)
+        };
+        if n < 2 {
+            return [self.be[0], self.dbe[0], self.ba[0], self.dba[0]];
+        }
+        let (t0, t1) = (self.t[i], self.t[i + 1]);
+        let (be, dbe) = hermite(t, t0, t1, [&self.be[i], &self.dbe[i], &self.be[i + 1], &self.dbe[i + 1]]);
+        let (ba, dba) = hermite(t, t0, t1, [&self.ba[i], &self.dba[i], &self.ba[i + 1], &self.dba[i + 1]]);
+        [be, dbe, ba, dba]
+    }
+}
+
+/// Random parts of the world that are fixed for a flight.
+struct World {
+    plan: Plan,
+    field: FieldTrack,
+    e0: Vector3<f64>,
+    diurnal: (SineSum, SmoothWalk),
+    micro: Option<(SineSum, Option<(f64, f64)>)>,
+    k: Vector3<f64>,
+    l: Matrix3<f64>,
+    m: Matrix3<f64>,
+}
+
+/// Everything at one instant that does not depend on hidden-effect scaling.
+#[derive(Clone, Copy, Debug, Default)]
+struct Inst {
+    be: Vector3<f64>,
+    ba: Vector3<f64>,
+    d_nt: f64,
+    d_micro_nt: f64,
+    att: [f64; 3],
+    b_body: Vector3<f64>,
+    db_body: Vector3<f64>,
+    delta_b: Vector3<f64>,
+}
+
+impl World {
+    fn diurnal_at(&self, t: f64) -> (f64, f64, f64, f64) {
+        let (w, wd) = self.diurnal.1.eval(t);
+        let d = self.diurnal.0.value(t) + w;
+        let dd = self.diurnal.0.deriv(t) + wd;
+        let (mut m, mut md) = (0.0, 0.0);
+        if let Some((s, win)) = &self.micro {
+            if win.is_none_or(|(a, b)| t >= a && t < b) {
+                m = s.value(t);
+                md = s.deriv(t);
+            }
+        }
+        (d, dd, m, md)
+    }
+
+    fn inst(&self, t: f64) -> Inst {
+        let [be, dbe, ba, dba] = self.field.at(t);
+        let (d, dd, m, md) = self.diurnal_at(t);
+        let b_ned = be + ba + self.e0 * (d + m);
+        let db_ned = dbe + dba + self.e0 * (dd + md);
+        let s = self.plan.state(t);
+        let c = dcm_ned_to_body(s.roll_rad, s.pitch_rad, s.yaw_rad);
+        // Attitude is analytic, so a ±1 ms central difference of the DCM is accurate to
+        // ~1e-7 relative.
+        let h = 1e-3;
+        let (sp, sm) = (self.plan.state(t + h), self.plan.state(t - h));
+        let c_dot = (dcm_ned_to_body(sp.roll_rad, sp.pitch_rad, sp.yaw_rad)
+            - dcm_ned_to_body(sm.roll_rad, sm.pitch_rad, sm.yaw_rad))
+            / (2.0 * h);
+        let b_body = c * b_ned;
+        let db_body = c_dot * b_ned + c * db_ned;
+        let delta_b = self.k + self.l * b_body + self.m * db_body;
+        Inst {
+            be,
+            ba,
+            d_nt: d,
+            d_micro_nt: m,
+            att: [s.roll_rad, s.pitch_rad, s.yaw_rad],
+            b_body,
+            db_body,
+            delta_b,
+        }
+    }
+}
+
+/// A hidden vector effect before scaling: direction/law fixed, amplitude set later.
+enum VecEffect {
+    Current { dir: Vector3<f64>, wave: CurrentWave, rate: bool },
+    Rate { n: Matrix3<f64> },
+    InducedHigh { c: [f64; 10] },
+    Periodic { dir: Vector3<f64>, rpm: RpmWave, phase: [f64; 2], h2: f64 },
+}
+
+impl VecEffect {
+    /// Unscaled field (nT, body axes) at one instant.
+    fn field(&self, t: f64, i: &Inst) -> Vector3<f64> {
+        match self {
+            VecEffect::Current { dir, wave, rate } => {
+                let (v, d) = wave.eval(t);
+                dir * if *rate { d } else { v }
+            }
+            VecEffect::Rate { n } => {
+                let b = i.b_body.norm();
+                let e = i.b_body / b;
+                let bdot = e.dot(&i.db_body);
+                // N·e·d|B|/dt projects on the sensor direction as eᵀNe·d|B|/dt.
+                n * e * bdot
+            }
+            VecEffect::InducedHigh { c } => {
+                let b = i.b_body.norm();
+                let e = i.b_body / b;
+                let mono = [
+                    e.x * e.x * e.x,
+                    e.y * e.y * e.y,
+                    e.z * e.z * e.z,
+                    e.x * e.x * e.y,
+                    e.x * e.x * e.z,
+                    e.y * e.y * e.x,
+                    e.y * e.y * e.z,
+                    e.z * e.z * e.x,
+                    e.z * e.z * e.y,
+                    e.x * e.y * e.z,
+                ];
+                let f: f64 = mono.iter().zip(c).map(|(a, b)| a * b).sum();
+                e * (f * b / B_STAR_NT)
+            }
+            VecEffect::Periodic {
+                dir,
+                rpm,
+                phase,
+                h2,
+            } => {
+                let a = TAU * rpm.cycles(t);
+                dir * ((a + phase[0]).cos() + h2 * (2.0 * a + phase[1]).cos())
+            }
+        }
+    }
+}
+
+fn random_dir(rng: &mut ChaCha8Rng) -> Vector3<f64> {
+    let v: [f64; 3] = UnitSphere.sample(rng);
+    Vector3::from(v)
+}
+
+fn small_rotation(sigma_rad: f64, rng: &mut ChaCha8Rng) -> Matrix3<f64> {
+    let n = Normal::new(0.0, sigma_rad).unwrap_or(Normal::new(0.0, 0.0).expect("zero normal"));
+    Rotation3::from_euler_angles(n.sample(rng), n.sample(rng), n.sample(rng)).into_inner()
+}
+
+fn std_dev(v: impl Iterator<Item = f64> + Clone) -> f64 {
+    let (n, s) = v.clone().fold((0usize, 0.0), |(n, s), x| (n + 1, s + x));
+    if n < 2 {
+        return 0.0;
+    }
+    let m = s / n as f64;
+    (v.map(|x| (x - m) * (x - m)).sum::<f64>() / (n - 1) as f64).sqrt()
+}
+
+/// Tolles–Lawson scalar interference predicted with direction `e` (and rate `e_dot`)
+/// using the true coefficients: eᵀK + |B| eᵀLe + eᵀM(d|B|/dt e + |B| ė).
+fn tl_scalar(
+    k: &Vector3<f64>,
+    l: &Matrix3<f64>,
+    m: &Matrix3<f64>,
+    b: f64,
+    b_dot: f64,
+    e: &Vector3<f64>,
+    e_dot: &Vector3<f64>,
+) -> f64 {
+    e.dot(k) + b * e.dot(&(l * e)) + e.dot(&(m * (e * b_dot + e_dot * b)))
+}
+
+fn unit_and_rate(v: &Vector3<f64>, v_dot: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    let n = v.norm();
+    let e = v / n;
+    (e, (v_dot - e * e.dot(v_dot)) / n)
+}
+
+fn json_vec(v: &Vector3<f64>) -> String {
+    format!("[{:.9e},{:.9e},{:.9e}]", v.x, v.y, v.z)
+}
+
+fn json_mat(m: &Matrix3<f64>) -> String {
+    let rows: Vec<String> = (0..3)
+        .map(|i| format!("[{:.9e},{:.9e},{:.9e}]", m[(i, 0)], m[(i, 1)], m[(i, 2)]))
+        .collect();
+    format!("[{}]", rows.join(","))
+}
+
+/// Simulates a flight and also returns the ground truth behind it.
+pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
+    cfg.validate()?;
+    let seed = cfg.seed;
+    let frame = LocalFrame {
+        lat0_deg: cfg.start_lat_deg,
+        lon0_deg: cfg.start_lon_deg,
+    };
+    let plan = build_plan(cfg, &mut rng_for(seed, 1))?;
+    let mut dur = plan.duration_s();
+    if let Some(m) = cfg.max_duration_s {
+        dur = dur.min(m);
+    }
+    let rate = cfg.sample_rate_hz;
+    let dt = 1.0 / rate;
+    let n = (dur * rate).floor() as usize;
+    ensure!(n >= 2, "the flight is too short");
+    ensure!(
+        n <= 20_000_000,
+        "{n} samples is more than this simulator will hold in memory (20 M)"
+    );
+    let times: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
+
+    // Horizontal track: trapezoid on the analytic velocity with ≤ 5 ms sub-steps.
+    let sub = (dt / 0.005).ceil().max(1.0) as usize;
+    let hs = dt / sub as f64;
+    let mut ne = Vec::with_capacity(n);
+    let mut p = plan.start_ne_m;
+    let mut vel = plan.velocity(0.0);
+    for (k, &t) in times.iter().enumerate() {
+        if k > 0 {
+            for j in 0..sub {
+                let ta = t - dt + j as f64 * hs;
+                let v1 = plan.velocity(ta + hs);
+                p[0] += 0.5 * hs * (vel[0] + v1[0]);
+                p[1] += 0.5 * hs * (vel[1] + v1[1]);
+                vel = v1;
+            }
+        }
+        ne.push(p);
+    }
+    let pos_ned: Vec<Vector3<f64>> = times
+        .iter()
+        .zip(&ne)
+        .map(|(&t, p)| Vector3::new(p[0], p[1], -(cfg.ground_elev_m + plan.height(t).0)))
+        .collect();
+
+    // Earth field direction at the start: induced magnetisation and diurnal direction.
+    let be0 = cfg
+        .earth
+        .field_ned_nt(cfg.start_lat_deg, cfg.start_lon_deg, cfg.ground_elev_m);
+    let e0 = be0.normalize();
+
+    // Geology under the flight, with a margin that reaches the sources that matter.
+    let (mut n0, mut n1, mut e0m, mut e1m) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    let mut hmax: f64 = 0.0;
+    for p in &pos_ned {
+        n0 = n0.min(p.x);
+        n1 = n1.max(p.x);
+        e0m = e0m.min(p.y);
+        e1m = e1m.max(p.y);
+        hmax = hmax.max(-p.z - cfg.ground_elev_m);
+    }
+    let margin = (2.0 * (hmax + cfg.geology.depth_max_m)).clamp(2000.0, 15_000.0);
+    let anomaly = Anomaly::generate(
+        &cfg.geology,
+        ([n0 - margin, n1 + margin], [e0m - margin, e1m + margin]),
+        cfg.ground_elev_m,
+        e0,
+        &mut rng_for(seed, 2),
+    );
+
+    // Field track at knots.
+    let q = (rate / 20.0).ceil().max(1.0) as usize;
+    let mut knots: Vec<usize> = (0..n).step_by(q).collect();
+    if *knots.last().unwrap_or(&0) != n - 1 {
+        knots.push(n - 1);
+    }
+    let mut field = FieldTrack {
+        t: Vec::with_capacity(knots.len()),
+        be: Vec::with_capacity(knots.len()),
+        dbe: Vec::with_capacity(knots.len()),
+        ba: Vec::with_capacity(knots.len()),
+        dba: Vec::with_capacity(knots.len()),
+        dt_knot: q as f64 * dt,
+    };
+    let earth_at = |p: &Vector3<f64>| {
+        let (lat, lon) = frame.to_geo(p.x, p.y);
+        cfg.earth.field_ned_nt(lat, lon, -p.z)
+    };
+    for &k in &knots {
+        let t = times[k];
+        let p = pos_ned[k];
+        let v = plan.velocity(t);
+        let v_ned = Vector3::new(v[0], v[1], -v[2]);
+        // The main field changes over thousands of km: a ±0.5 s difference is exact.
+        let dbe = (earth_at(&(p + v_ned * 0.5)) - earth_at(&(p - v_ned * 0.5))) / 1.0;
+        let (ba, ga) = anomaly.field_and_gradient(&p);
+        field.t.push(t);
+        field.be.push(earth_at(&p));
+        field.dbe.push(dbe);
+        field.ba.push(ba);
+        field.dba.push(ga * v_ned);
+    }
+
+    // Diurnal: slow sinusoids (10 min – 3 h) + a smooth random walk.
+    let mut rd = rng_for(seed, 3);
+    let diurnal = (
+        SineSum::random(3, 600.0, 10_800.0, cfg.diurnal_nt * 0.8, &mut rd),
+        SmoothWalk::random(dur + 10.0, 120.0, cfg.diurnal_nt * 0.15, &mut rd),
+    );
+    let micro = cfg.hidden.iter().find(|h| h.kind == HiddenKind::Diurnal).map(|h| {
+        let mut r = rng_for(seed, stream_of(&h.name()));
+        (SineSum::random(7, 20.0, 300.0, cfg.hidden_std_nt, &mut r), h.window_s)
+    });
+
+    // Aircraft (Cessna Caravan-like). Permanent K: ~10–60 nT per axis; induced L: a few
+    // 1e-4 (×50 000 nT → tens of nT); eddy M: ~1e-4 s (×~1e4 nT/s in a 5° manoeuvre → ~1 nT).
+    let mut ra = rng_for(seed, 4);
+    let ifs = cfg.interference_scale;
+    let sign = |r: &mut ChaCha8Rng| if r.gen_bool(0.5) { 1.0 } else { -1.0 };
+    let k = Vector3::from_fn(|_, _| sign(&mut ra) * ra.gen_range(10.0..60.0)) * ifs;
+    let l = Matrix3::from_fn(|i, j| {
+        let w = if i == j { 4e-4 } else { 2e-4 };
+        ra.sample::<f64, _>(StandardNormal) * w
+    }) * ifs;
+    let m = Matrix3::from_fn(|_, _| ra.sample::<f64, _>(StandardNormal) * 6e-5) * ifs;
+
+    let world = World {
+        plan,
+        field,
+        e0,
+        diurnal,
+        micro,
+        k,
+        l,
+        m,
+    };
+
+    // Pass 1: the instant state at each sample.
+    let insts: Vec<Inst> = times.iter().map(|&t| world.inst(t)).collect();
+
+    // Hidden vector effects and auxiliary channels.
+    let mut aux: Vec<(String, Vec<f64>)> = Vec::new();
+    let mut meta_extra: Vec<(String, String)> = Vec::new();
+    let mut vec_effects: Vec<(usize, VecEffect, f64)> = Vec::new(); // (hidden idx, law, scale)
+    let mut lag: Option<(usize, f64)> = None;
+    let mut fluxcal: Option<usize> = None;
+    for (hi, h) in cfg.hidden.iter().enumerate() {
+        let mut r = rng_for(seed, stream_of(&h.name()));
+        let eff = match &h.kind {
+            HiddenKind::Current { channel } | HiddenKind::CurrentRate { channel } => {
+                let wave = CurrentWave::random(dur, &mut r);
+                aux.push((channel.clone(), times.iter().map(|&t| wave.eval(t).0).collect()));
+                Some(VecEffect::Current {
+                    dir: random_dir(&mut r),
+                    wave,
+                    rate: matches!(h.kind, HiddenKind::CurrentRate { .. }),
+                })
+            }
+            HiddenKind::Periodic { channel } => {
+                let rpm = RpmWave::random(&mut r);
+                aux.push((channel.clone(), times.iter().map(|&t| rpm.rpm(t)).collect()));
+                Some(VecEffect::Periodic {
+                    dir: random_dir(&mut r),
+                    rpm,
+                    phase: [r.gen_range(0.0..TAU), r.gen_range(0.0..TAU)],
+                    h2: r.gen_range(0.2..0.5),
+                })
+            }
+            HiddenKind::Rate => {
+                // N (s): physically unscaled, 0.01–0.03 s on the diagonal, so the term is
+                // ~1 nT only where d|B|/dt is tens of nT/s (low over strong sources).
+                let mut nm = Matrix3::from_fn(|_, _| r.sample::<f64, _>(StandardNormal) * 0.008);
+                nm = (nm + nm.transpose()) / 2.0;
+                for i in 0..3 {
+                    nm[(i, i)] = sign(&mut r) * r.gen_range(0.01..0.03);
+                }
+                meta_extra.push(("truth_N_s".into(), json_mat(&nm)));
+                Some(VecEffect::Rate { n: nm })
+            }
+            HiddenKind::InducedHigh => {
+                let c: [f64; 10] = std::array::from_fn(|_| r.sample::<f64, _>(StandardNormal));
+                Some(VecEffect::InducedHigh { c })
+            }
+            HiddenKind::Lag { lag_s } => {
+                lag = Some((hi, *lag_s));
+                None
+            }
+            HiddenKind::FluxCal => {
+                fluxcal = Some(hi);
+                None
+            }
+            HiddenKind::Diurnal => None,
+        };
+        if let Some(e) = eff {
+            vec_effects.push((hi, e, 1.0));
+        }
+    }
+    for d in &cfg.decoys {
+        let mut r = rng_for(seed, stream_of(&format!("decoy:{d}")));
+        let wave = CurrentWave::random(dur, &mut r);
+        aux.push((d.clone(), times.iter().map(|&t| wave.eval(t).0).collect()));
+    }
+
+    // Scale each effect (except the physical `rate`) to the target std inside its window,
+    // measured on its projection on the field direction (what the scalar sees).
+    for (hi, eff, scale) in vec_effects.iter_mut() {
+        let h = &cfg.hidden[*hi];
+        let target = match eff {
+            VecEffect::Rate { .. } => continue,
+            VecEffect::Periodic { .. } => cfg.hidden_std_nt / 2.0,
+            _ => cfg.hidden_std_nt,
+        };
+        let proj: Vec<f64> = times
+            .iter()
+            .zip(&insts)
+            .filter(|(&t, _)| h.active(t))
+            .map(|(&t, i)| {
+                let tot = i.b_body + i.delta_b;
+                eff.field(t, i).dot(&tot) / tot.norm()
+            })
+            .collect();
+        let sd = std_dev(proj.iter().copied());
+        *scale = if sd > 1e-12 { target / sd } else { 0.0 };
+        match eff {
+            VecEffect::Current { dir, rate, .. } => {
+                let key = if *rate { "nt_per_a_per_s" } else { "nt_per_a" };
+                meta_extra.push((
+                    format!("truth_c_{}_{key}", h.name()),
+                    json_vec(&(*dir * *scale)),
+                ));
+            }
+            VecEffect::Periodic { dir, .. } => {
+                meta_extra.push((format!("truth_c_{}_nt", h.name()), json_vec(&(*dir * *scale))));
+            }
+            _ => {}
+        }
+    }
+
+    // Noise-free scalar at an instant, with per-effect incremental contributions.
+    let scalar_at = |t: f64, i: &Inst, contrib: &mut [f64]| -> f64 {
+        let mut tot = i.b_body + i.delta_b;
+        let mut prev = tot.norm();
+        for (slot, (hi, eff, scale)) in vec_effects.iter().enumerate() {
+            if !cfg.hidden[*hi].active(t) {
+                contrib[slot] = 0.0;
+                continue;
+            }
+            tot += eff.field(t, i) * *scale;
+            let now = tot.norm();
+            contrib[slot] = now - prev;
+            prev = now;
+        }
+        prev
+    };
+
+    // Pass 2: scalar, interference and hidden contributions.
+    let mut mag_clean = vec![0.0; n];
+    let mut hid_cols: Vec<Vec<f64>> = vec![vec![0.0; n]; vec_effects.len()];
+    let mut lag_col = vec![0.0; n];
+    let mut contrib = vec![0.0; vec_effects.len()];
+    let mut scratch = vec![0.0; vec_effects.len()];
+    for (kk, (&t, i)) in times.iter().zip(&insts).enumerate() {
+        let s_now = scalar_at(t, i, &mut contrib);
+        for (col, c) in hid_cols.iter_mut().zip(&contrib) {
+            col[kk] = *c;
+        }
+        let mut s = s_now;
+        if let Some((hi, lag_s)) = lag {
+            if cfg.hidden[hi].active(t) {
+                // The sensor reports at t what it measured at t − τ (clamped at the start).
+                let tl = (t - lag_s).max(0.0);
+                let il = world.inst(tl);
+                s = scalar_at(tl, &il, &mut scratch);
+                lag_col[kk] = s - s_now;
+            }
+        }
+        mag_clean[kk] = s;
+    }
+
+    // Sensors.
+    let mut rn = rng_for(seed, 6);
+    let mag: Vec<f64> = mag_clean
+        .iter()
+        .map(|m| m + cfg.scalar_noise_nt * rn.sample::<f64, _>(StandardNormal))
+        .collect();
+
+    // Fluxgate: own aircraft field, bias, scale, misalignment, white noise.
+    let mut rf = rng_for(seed, 5);
+    let kf = Vector3::from_fn(|_, _| rf.sample::<f64, _>(StandardNormal) * 8.0) * ifs;
+    let lf = Matrix3::from_fn(|_, _| rf.sample::<f64, _>(StandardNormal) * 5e-5) * ifs;
+    let flux_bias = Vector3::from_fn(|_, _| rf.sample::<f64, _>(StandardNormal) * 30.0);
+    let flux_scale = Matrix3::from_diagonal(&Vector3::from_fn(|_, _| {
+        1.0 + rf.sample::<f64, _>(StandardNormal) * 1e-3
+    }));
+    let flux_rot = small_rotation(0.07f64.to_radians(), &mut rf);
+    let mut rfc = rng_for(seed, stream_of("fluxcal"));
+    let bad_bias = Vector3::from_fn(|_, _| sign(&mut rfc) * rfc.gen_range(200.0..500.0));
+    let bad_scale = Matrix3::from_diagonal(&Vector3::from_fn(|_, _| {
+        1.0 + sign(&mut rfc) * rfc.gen_range(0.005..0.01)
+    }));
+    let bad_rot = Rotation3::from_euler_angles(
+        sign(&mut rfc) * rfc.gen_range(0.3f64..0.5).to_radians(),
+        sign(&mut rfc) * rfc.gen_range(0.3f64..0.5).to_radians(),
+        sign(&mut rfc) * rfc.gen_range(0.3f64..0.5).to_radians(),
+    )
+    .into_inner();
+    let mut rfn = rng_for(seed, 7);
+    let mut flux = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+    let mut fluxcal_col = vec![0.0; n];
+    for (kk, (&t, i)) in times.iter().zip(&insts).enumerate() {
+        let bad = fluxcal.is_some_and(|hi| cfg.hidden[hi].active(t));
+        let (sc, rot, bias) = if bad {
+            (&bad_scale, &bad_rot, &bad_bias)
+        } else {
+            (&flux_scale, &flux_rot, &flux_bias)
+        };
+        let a = sc * rot;
+        let f_clean = a * (i.b_body + kf + lf * i.b_body) + bias;
+        for (ax, col) in flux.iter_mut().enumerate() {
+            col[kk] = f_clean[ax] + cfg.flux_noise_nt * rfn.sample::<f64, _>(StandardNormal);
+        }
+        if bad {
+            let f_dot = a * (i.db_body + lf * i.db_body);
+            let (em, emd) = unit_and_rate(&f_clean, &f_dot);
+            let (et, etd) = unit_and_rate(&i.b_body, &i.db_body);
+            let b = i.b_body.norm();
+            let bd = et.dot(&i.db_body);
+            fluxcal_col[kk] = tl_scalar(&k, &l, &m, b, bd, &em, &emd)
+                - tl_scalar(&k, &l, &m, b, bd, &et, &etd);
+        }
+    }
+
+    // INS: correlated drift + white noise.
+    let mut ri = rng_for(seed, 8);
+    let ins_sd = cfg.ins_noise_deg;
+    let ins: Vec<Vec<f64>> = (0..3)
+        .map(|_| {
+            let gm = gauss_markov(n, dt, ins_sd, 100.0, &mut ri);
+            gm.into_iter()
+                .map(|x| x + ins_sd * 0.3 * ri.sample::<f64, _>(StandardNormal))
+                .collect()
+        })
+        .collect();
+
+    // GPS: Gauss–Markov position error + white noise; velocity noise.
+    let mut rg = rng_for(seed, 9);
+    let gps_n = gauss_markov(n, dt, cfg.gps_sigma_h_m, cfg.gps_tau_s, &mut rg);
+    let gps_e = gauss_markov(n, dt, cfg.gps_sigma_h_m, cfg.gps_tau_s, &mut rg);
+    let gps_u = gauss_markov(n, dt, cfg.gps_sigma_v_m, cfg.gps_tau_s, &mut rg);
+    let mut rb = rng_for(seed, 10);
+
+    let mut cols: Vec<(&str, Vec<f64>)> = vec![
+        ("t", times.clone()),
+        ("mag", mag),
+        ("flux_x", std::mem::take(&mut flux[0])),
+        ("flux_y", std::mem::take(&mut flux[1])),
+        ("flux_z", std::mem::take(&mut flux[2])),
+    ];
+    let mut lat = Vec::with_capacity(n);
+    let mut lon = Vec::with_capacity(n);
+    let mut alt = Vec::with_capacity(n);
+    let (mut vn, mut ve, mut vd) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+    for kk in 0..n {
+        let p = &pos_ned[kk];
+        let white = |r: &mut ChaCha8Rng, s: f64| s * r.sample::<f64, _>(StandardNormal);
+        let (la, lo) = frame.to_geo(
+            p.x + gps_n[kk] + white(&mut rg, 0.1),
+            p.y + gps_e[kk] + white(&mut rg, 0.1),
+        );
+        lat.push(la);
+        lon.push(lo);
+        alt.push(-p.z + gps_u[kk] + white(&mut rg, 0.2));
+        let v = world.plan.velocity(times[kk]);
+        vn[kk] = v[0] + white(&mut rg, 0.03);
+        ve[kk] = v[1] + white(&mut rg, 0.03);
+        vd[kk] = -v[2] + white(&mut rg, 0.05);
+    }
+    cols.extend([("lat", lat), ("lon", lon), ("alt", alt), ("vn", vn), ("ve", ve), ("vd", vd)]);
+    for (ax, name) in ["roll", "pitch", "yaw"].iter().enumerate() {
+        let v: Vec<f64> = insts
+            .iter()
+            .zip(&ins[ax])
+            .map(|(i, e)| {
+                let d = i.att[ax].to_degrees() + e;
+                if ax == 2 {
+                    d.rem_euclid(360.0)
+                } else {
+                    d
+                }
+            })
+            .collect();
+        cols.push((name, v));
+    }
+    let base: Vec<f64> = insts
+        .iter()
+        .map(|i| i.d_nt + i.d_micro_nt + 0.01 * rb.sample::<f64, _>(StandardNormal))
+        .collect();
+    cols.push(("base", base));
+    cols.push(("igrf", insts.iter().map(|i| i.be.norm()).collect()));
+
+    let mut trace = Trace::default();
+    let truth_anom: Vec<f64> = insts.iter().map(|i| (i.be + i.ba).norm() - i.be.norm()).collect();
+    let truth_diurnal: Vec<f64> = insts
+        .iter()
+        .map(|i| (i.be + i.ba + e0 * (i.d_nt + i.d_micro_nt)).norm() - (i.be + i.ba).norm())
+        .collect();
+    let truth_interf: Vec<f64> = mag_clean
+        .iter()
+        .zip(&insts)
+        .map(|(m, i)| m - i.b_body.norm())
+        .collect();
+    for (name, v) in cols {
+        trace.set_col(name, v);
+    }
+    for (name, v) in aux {
+        trace.set_col(&name, v);
+    }
+    trace.set_col("truth_interference", truth_interf);
+    trace.set_col("truth_anomaly", truth_anom);
+    trace.set_col("truth_diurnal", truth_diurnal);
+    for (slot, (hi, _, _)) in vec_effects.iter().enumerate() {
+        trace.set_col(&cfg.hidden[*hi].column(), std::mem::take(&mut hid_cols[slot]));
+    }
+    if let Some((hi, _)) = lag {
+        trace.set_col(&cfg.hidden[hi].column(), lag_col);
+    }
+    if let Some(hi) = fluxcal {
+        trace.set_col(&cfg.hidden[hi].column(), fluxcal_col);
+    }
+    if let Some(h) = cfg.hidden.iter().find(|h| h.kind == HiddenKind::Diurnal) {
+        let v: Vec<f64> = insts
+            .iter()
+            .map(|i| {
+                let b0 = i.be + i.ba + e0 * i.d_nt;
+                (b0 + e0 * i.d_micro_nt).norm() - b0.norm()
+            })
+            .collect();
+        trace.set_col(&h.column(), v);
+    }
+    trace.set_text_col(
+        "segment",
+        times.iter().map(|&t| world.plan.label(t).to_string()).collect(),
+    );
+
+    // Metadata.
+    let mut meta: Vec<(String, String)> = vec![
+        ("source".into(), "magcomp simulate".into()),
+        ("sample_rate_hz".into(), format!("{rate}")),
+        ("seed".into(), format!("{seed}")),
+        ("flight".into(), cfg.flight.name().into()),
+        (
+            "altitude_m".into(),
+            format!("{}", world.plan.h0_agl_m),
+        ),
+        ("duration_s".into(), format!("{}", n as f64 * dt)),
+        ("speed_mps".into(), format!("{}", cfg.speed_mps)),
+        ("ground_elev_m".into(), format!("{}", cfg.ground_elev_m)),
+        ("alt_reference".into(), "height above sea level; flat ground at ground_elev_m".into()),
+        (
+            "base_reference".into(),
+            "base column = diurnal variation recorded at the base station (nT, reference removed)".into(),
+        ),
+        (
+            "earth_field_model".into(),
+            match cfg.earth {
+                EarthField::Dipole => "tilted centred dipole, IGRF-2020 degree 1 (g10, g11, h11), spherical Earth".into(),
+                EarthField::Fixed { f_nt, inc_deg, dec_deg } => {
+                    format!("uniform F={f_nt} nT I={inc_deg} deg D={dec_deg} deg")
+                }
+            },
+        ),
+        ("anomaly_sources".into(), format!("{}", anomaly.sources.len())),
+        ("truth_K_nt".into(), json_vec(&k)),
+        ("truth_L".into(), json_mat(&l)),
+        ("truth_M_s".into(), json_mat(&m)),
+    ];
+    if cfg.flight != FlightKind::Survey {
+        meta.push(("cal_altitude_m".into(), format!("{}", cfg.cal_altitude_m)));
+    }
+    if cfg.flight != FlightKind::Calibration {
+        meta.push(("survey_altitude_m".into(), format!("{}", cfg.survey_altitude_m)));
+        meta.push(("line_spacing_m".into(), format!("{}", cfg.line_spacing_m)));
+        meta.push(("line_heading_deg".into(), format!("{}", cfg.line_heading_deg)));
+    }
+    if let Some(c) = world.plan.cal_centre_ne_m {
+        let (la, lo) = frame.to_geo(c[0], c[1]);
+        meta.push(("cal_centre_lat".into(), format!("{la:.9}")));
+        meta.push(("cal_centre_lon".into(), format!("{lo:.9}")));
+    }
+    if cfg.altitude_swing_m > 0.0 {
+        meta.push(("altitude_swing_m".into(), format!("{}", cfg.altitude_swing_m)));
+    }
+    if !cfg.hidden.is_empty() {
+        let specs: Vec<String> = cfg
+            .hidden
+            .iter()
+            .map(|h| match h.window_s {
+                Some((a, b)) => format!("{}@{a}:{b}", h.name()),
+                None => h.name(),
+            })
+            .collect();
+        meta.push(("hidden".into(), specs.join(" ")));
+    }
+    if !cfg.decoys.is_empty() {
+        meta.push(("decoys".into(), cfg.decoys.join(" ")));
+    }
+    if let Some((_, lag_s)) = lag {
+        meta.push(("truth_lag_s".into(), format!("{lag_s}")));
+    }
+    meta.extend(meta_extra);
+    trace.meta = meta;
+
+    let truth = SimTruth {
+        plan: world.plan.clone(),
+        frame,
+        anomaly,
+        ground_elev_m: cfg.ground_elev_m,
+        k_nt: k,
+        l,
+        m_s: m,
+        pos_ned_m: pos_ned,
+        att_rad: insts.iter().map(|i| i.att).collect(),
+        b_body_nt: insts.iter().map(|i| i.b_body).collect(),
+        db_body_nt_s: insts.iter().map(|i| i.db_body).collect(),
+        delta_b_nt: insts.iter().map(|i| i.delta_b).collect(),
+        mag_clean_nt: mag_clean,
+    };
+    Ok(SimOutput { trace, truth })
+}

@@ -1,5 +1,37 @@
 //! The recorded-trace data contract (`shared/docs/trace-format.md`): one row per scalar
 //! sample, named columns, `#` metadata, missing values as NaN (never zero).
+//!
+//! Reading: [`read_trace`] / [`read_trace_from`] (CSV per the contract, or the
+//! whitespace-separated `.xyz` layout of public survey data), with a [`ColumnMap`] that
+//! renames file columns to canonical names. Writing: [`write_trace`] / [`write_trace_to`].
+//!
+//! Column typing rule (decided once per column, streaming):
+//! - `segment` is always text;
+//! - the columns trace-format.md defines as numbers (`t`, `mag`, `flux_*`, `lat`, `lon`,
+//!   `alt`, `vn`, `ve`, `vd`, `roll`, `pitch`, `yaw`, `base`, `igrf`) and every `truth_*`
+//!   column are always numeric, so a bad value there is an error, never a silent text column;
+//! - any other column is numeric if its first non-missing value parses as a number, text
+//!   otherwise; once numeric, a later unparsable value is an error (naming file, line,
+//!   column and text).
+//!
+//! Missing values: an empty field, `nan` (any case) or `*`; stored as NaN in numeric
+//! columns and as an empty string in text columns. Infinite values are rejected.
+//! Names are matched after applying the column map.
+
+mod error;
+mod map;
+mod read;
+mod view;
+mod write;
+
+pub use error::TraceError;
+pub use map::ColumnMap;
+pub use read::{
+    progress_bar, read_trace, read_trace_from, read_trace_from_with, read_trace_with, Layout,
+    ReadOptions,
+};
+pub use view::{aux_column_candidate, column_kind, required_columns, ColumnKind};
+pub use write::{write_trace, write_trace_to};
 
 /// A trace held column-wise in memory. Numeric columns are f64 with NaN for missing values;
 /// text columns (e.g. `segment`) are kept as strings.
@@ -25,13 +57,22 @@ impl Trace {
         self.len() == 0
     }
     pub fn col(&self, name: &str) -> Option<&[f64]> {
-        self.numeric.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+        self.numeric
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
     }
     pub fn text_col(&self, name: &str) -> Option<&[String]> {
-        self.text.iter().find(|(n, _)| n == name).map(|(_, v)| v.as_slice())
+        self.text
+            .iter()
+            .find(|(n, _)| n == name)
+            .map(|(_, v)| v.as_slice())
     }
     pub fn meta(&self, key: &str) -> Option<&str> {
-        self.meta.iter().find(|(k, _)| k == key).map(|(_, v)| v.as_str())
+        self.meta
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
     }
     /// Adds or replaces a numeric column.
     pub fn set_col(&mut self, name: &str, values: Vec<f64>) {

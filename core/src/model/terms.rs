@@ -1,0 +1,445 @@
+//! The catalogue of physical effects. Regressors follow model.md §2 (eq. 10 of the paper);
+//! the extra effects follow model.md §4 and the diagnosis catalogue.
+
+use super::{Term, MAX_TERM_STATES};
+use crate::epoch::Epoch;
+
+/// Permanent magnetisation: `K·e` (3, nT).
+#[derive(Clone, Copy, Debug)]
+pub struct Permanent;
+/// Induced magnetisation: `e_i e_j·|B|/B*` without `e3²` (5, nT).
+#[derive(Clone, Copy, Debug)]
+pub struct Induced;
+/// Eddy currents: `e_i ė_j·|B|/B*` without `e3ė3` (8, nT·s).
+#[derive(Clone, Copy, Debug)]
+pub struct Eddy;
+/// A current-carrying circuit: `I·e_i` (3, nT/A) for auxiliary channel `channel`.
+#[derive(Clone, Copy, Debug)]
+pub struct Current {
+    pub channel: usize,
+}
+/// Inductive coupling of a changing current: `dI/dt·e_i` (3, nT·s/A).
+#[derive(Clone, Copy, Debug)]
+pub struct CurrentRate {
+    pub channel: usize,
+}
+/// Time lag between the scalar sensor and the fluxgate: derivatives of the permanent and
+/// induced regressors, `ė_i` and `d(e_i e_j)/dt·|B|/B*` (8, nT·s; ≈ −lag × coefficient).
+#[derive(Clone, Copy, Debug)]
+pub struct Lag;
+/// The ε⁶ eddy term from flying through gradients: `e_i e_j·d|B|/dt` (6, s), model.md §4.
+#[derive(Clone, Copy, Debug)]
+pub struct Rate;
+/// External (diurnal) variation recorded by a base station: `base − base₀` (1, nT/nT).
+#[derive(Clone, Copy, Debug)]
+pub struct Diurnal {
+    pub channel: usize,
+}
+/// Higher-order induced magnetisation: the 7 independent cubic monomials of e (nT).
+#[derive(Clone, Copy, Debug)]
+pub struct InducedHigh;
+/// Fluxgate calibration error seen against INS attitude: `e_ref − e` (3, nT).
+#[derive(Clone, Copy, Debug)]
+pub struct FluxCal;
+/// Periodic interference locked to a rotation channel (rpm): cos/sin of 1st and 2nd
+/// harmonic of the rotation phase (4, nT).
+#[derive(Clone, Copy, Debug)]
+pub struct Periodic {
+    pub channel: usize,
+}
+/// An unknown constant offset: used when the model has no field states to absorb it.
+#[derive(Clone, Copy, Debug)]
+pub struct Offset;
+
+impl Term for Permanent {
+    fn name(&self) -> &'static str {
+        "permanent"
+    }
+    fn len(&self) -> usize {
+        3
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        out[..3].copy_from_slice(&ep.e);
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        200.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        ["e1", "e2", "e3"][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT"
+    }
+}
+
+fn induced_monomials(e: &[f32; 3]) -> [f32; 5] {
+    [
+        e[0] * e[0],
+        e[1] * e[1],
+        e[0] * e[1],
+        e[0] * e[2],
+        e[1] * e[2],
+    ]
+}
+
+impl Term for Induced {
+    fn name(&self) -> &'static str {
+        "induced"
+    }
+    fn len(&self) -> usize {
+        5
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        let m = induced_monomials(&ep.e);
+        for (o, v) in out.iter_mut().zip(m) {
+            *o = v * ep.field_ratio;
+        }
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        200.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        ["e1*e1", "e2*e2", "e1*e2", "e1*e3", "e2*e3"][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT"
+    }
+}
+
+/// (i, j) pairs of the eddy regressors `e_i·ė_j`, in the paper's order.
+const EDDY_PAIRS: [(usize, usize); 8] = [
+    (0, 0),
+    (1, 1),
+    (0, 1),
+    (1, 0),
+    (0, 2),
+    (2, 0),
+    (1, 2),
+    (2, 1),
+];
+
+impl Term for Eddy {
+    fn name(&self) -> &'static str {
+        "eddy"
+    }
+    fn len(&self) -> usize {
+        8
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        for (o, &(i, j)) in out.iter_mut().zip(EDDY_PAIRS.iter()) {
+            *o = ep.e[i] * ep.e_dot_per_s[j] * ep.field_ratio;
+        }
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        30.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        [
+            "e1*de1", "e2*de2", "e1*de2", "e2*de1", "e1*de3", "e3*de1", "e2*de3", "e3*de2",
+        ][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT*s"
+    }
+}
+
+fn aux_value(ep: &Epoch, channel: usize) -> Option<f32> {
+    ep.aux.get(channel).copied().filter(|v| v.is_finite())
+}
+
+fn aux_rate(ep: &Epoch, channel: usize) -> Option<f32> {
+    ep.aux_dot.get(channel).copied().filter(|v| v.is_finite())
+}
+
+fn fill_scaled_e(out: &mut [f32], e: &[f32; 3], k: Option<f32>) -> bool {
+    match k {
+        Some(k) => {
+            for (o, ei) in out.iter_mut().zip(e) {
+                *o = k * ei;
+            }
+            true
+        }
+        None => {
+            out[..3].fill(0.0);
+            false
+        }
+    }
+}
+
+impl Term for Current {
+    fn name(&self) -> &'static str {
+        "current"
+    }
+    fn len(&self) -> usize {
+        3
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        fill_scaled_e(out, &ep.e, aux_value(ep, self.channel))
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        10.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        ["I*e1", "I*e2", "I*e3"][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT/unit"
+    }
+    fn channel(&self) -> Option<usize> {
+        Some(self.channel)
+    }
+}
+
+impl Term for CurrentRate {
+    fn name(&self) -> &'static str {
+        "current_rate"
+    }
+    fn len(&self) -> usize {
+        3
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        fill_scaled_e(out, &ep.e, aux_rate(ep, self.channel))
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        10.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        ["dI*e1", "dI*e2", "dI*e3"][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT*s/unit"
+    }
+    fn channel(&self) -> Option<usize> {
+        Some(self.channel)
+    }
+}
+
+impl Term for Lag {
+    fn name(&self) -> &'static str {
+        "lag"
+    }
+    fn len(&self) -> usize {
+        8
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        let e = &ep.e;
+        let d = &ep.e_dot_per_s;
+        let k = ep.field_ratio;
+        out[0] = d[0];
+        out[1] = d[1];
+        out[2] = d[2];
+        out[3] = 2.0 * e[0] * d[0] * k;
+        out[4] = 2.0 * e[1] * d[1] * k;
+        out[5] = (e[0] * d[1] + e[1] * d[0]) * k;
+        out[6] = (e[0] * d[2] + e[2] * d[0]) * k;
+        out[7] = (e[1] * d[2] + e[2] * d[1]) * k;
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        30.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        [
+            "de1", "de2", "de3", "d(e1e1)", "d(e2e2)", "d(e1e2)", "d(e1e3)", "d(e2e3)",
+        ][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT*s"
+    }
+}
+
+impl Term for Rate {
+    fn name(&self) -> &'static str {
+        "rate"
+    }
+    fn len(&self) -> usize {
+        6
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        let r = ep.dmag_dt_nt_per_s;
+        let m = induced_monomials(&ep.e);
+        out[0] = r;
+        for (o, v) in out[1..6].iter_mut().zip(m) {
+            *o = r * v;
+        }
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        0.1
+    }
+    fn label(&self, i: usize) -> &'static str {
+        [
+            "dB", "e1*e1*dB", "e2*e2*dB", "e1*e2*dB", "e1*e3*dB", "e2*e3*dB",
+        ][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "s"
+    }
+}
+
+impl Term for Diurnal {
+    fn name(&self) -> &'static str {
+        "diurnal"
+    }
+    fn len(&self) -> usize {
+        1
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        match aux_value(ep, self.channel) {
+            Some(v) => {
+                out[0] = v;
+                true
+            }
+            None => {
+                out[0] = 0.0;
+                false
+            }
+        }
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        2.0
+    }
+    fn label(&self, _: usize) -> &'static str {
+        "base"
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT/nT"
+    }
+    fn is_interference(&self) -> bool {
+        false
+    }
+    fn channel(&self) -> Option<usize> {
+        Some(self.channel)
+    }
+}
+
+impl Term for InducedHigh {
+    fn name(&self) -> &'static str {
+        "induced_high"
+    }
+    fn len(&self) -> usize {
+        7
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        let [a, b, c] = ep.e;
+        let k = ep.field_ratio;
+        let m = [
+            a * a * a,
+            b * b * b,
+            a * a * b,
+            a * b * b,
+            a * a * c,
+            b * b * c,
+            a * b * c,
+        ];
+        for (o, v) in out.iter_mut().zip(m) {
+            *o = v * k;
+        }
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        50.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        [
+            "e1^3", "e2^3", "e1^2e2", "e1e2^2", "e1^2e3", "e2^2e3", "e1e2e3",
+        ][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT"
+    }
+}
+
+impl Term for FluxCal {
+    fn name(&self) -> &'static str {
+        "fluxcal"
+    }
+    fn len(&self) -> usize {
+        3
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        if ep.e_ref.iter().all(|v| v.is_finite()) {
+            for i in 0..3 {
+                out[i] = ep.e_ref[i] - ep.e[i];
+            }
+            true
+        } else {
+            out[..3].fill(0.0);
+            false
+        }
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        200.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        ["de_ref1", "de_ref2", "de_ref3"][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT"
+    }
+}
+
+impl Term for Periodic {
+    fn name(&self) -> &'static str {
+        "periodic"
+    }
+    fn len(&self) -> usize {
+        4
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        if aux_value(ep, self.channel).is_none() {
+            out[..4].fill(0.0);
+            return false;
+        }
+        let phase = 2.0 * core::f32::consts::PI * ep.aux_cycles[self.channel];
+        let (s1, c1) = libm::sincosf(phase);
+        let (s2, c2) = libm::sincosf(2.0 * phase);
+        out[0] = c1;
+        out[1] = s1;
+        out[2] = c2;
+        out[3] = s2;
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        10.0
+    }
+    fn label(&self, i: usize) -> &'static str {
+        ["cos1", "sin1", "cos2", "sin2"][i]
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT"
+    }
+    fn channel(&self) -> Option<usize> {
+        Some(self.channel)
+    }
+}
+
+impl Term for Offset {
+    fn name(&self) -> &'static str {
+        "offset"
+    }
+    fn len(&self) -> usize {
+        1
+    }
+    fn regressors(&self, _: &Epoch, out: &mut [f32]) -> bool {
+        out[0] = 1.0;
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        1000.0
+    }
+    fn label(&self, _: usize) -> &'static str {
+        "1"
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT"
+    }
+    fn is_interference(&self) -> bool {
+        false
+    }
+}
+
+const _: () = assert!(MAX_TERM_STATES >= 8);

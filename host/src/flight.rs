@@ -1,0 +1,270 @@
+//! A trace turned into what the core consumes: one `AlignedSample` per row, with the
+//! absolute field kept exact, plus what the host needs around it (segments, truth,
+//! tie point, main-field direction).
+
+use crate::trace::Trace;
+use anyhow::{bail, Context, Result};
+use magcomp_core::compensator::TiePoint;
+use magcomp_core::{AlignedSample, MagCounts, MAX_AUX};
+use std::collections::HashMap;
+
+/// Columns every trace must have.
+pub const REQUIRED: &[&str] = &[
+    "t", "mag", "flux_x", "flux_y", "flux_z", "lat", "lon", "alt",
+];
+
+#[derive(Clone, Debug)]
+pub struct Flight {
+    pub t_s: Vec<f64>,
+    pub mag_nt: Vec<f64>,
+    pub samples: Vec<AlignedSample>,
+    pub segments: Option<Vec<String>>,
+    pub truth_interference_nt: Option<Vec<f64>>,
+    pub truth_anomaly_nt: Option<Vec<f64>>,
+    /// Aux channel names in aux-index order.
+    pub channels: Vec<String>,
+    pub sample_rate_hz: f64,
+    pub tie_point: Option<TiePoint>,
+    pub earth_dir_ned: Option<[f32; 3]>,
+}
+
+fn col<'a>(trace: &'a Trace, name: &str) -> Result<&'a [f64]> {
+    trace.col(name).with_context(|| {
+        let have: Vec<&str> = trace.numeric.iter().map(|(n, _)| n.as_str()).collect();
+        format!(
+            "the trace has no numeric column '{name}' (it has: {}); use --map {name}=COLUMN to name it",
+            have.join(", ")
+        )
+    })
+}
+
+impl Flight {
+    /// `channels`: aux columns the model reads; `relative`: those whose first value is
+    /// subtracted (e.g. a base-station field).
+    pub fn from_trace(trace: &Trace, channels: &[String], relative: &[String]) -> Result<Self> {
+        for c in REQUIRED {
+            col(trace, c)?;
+        }
+        if channels.len() > MAX_AUX {
+            bail!("at most {MAX_AUX} auxiliary channels can be used at once");
+        }
+        let n = trace.len();
+        if n < 3 {
+            bail!("the trace has {n} rows; at least 3 are needed");
+        }
+        let t = col(trace, "t")?;
+        for i in 1..n {
+            if !(t[i] > t[i - 1]) {
+                bail!(
+                    "time is not strictly increasing at data row {} (t = {} after {})",
+                    i + 1,
+                    t[i],
+                    t[i - 1]
+                );
+            }
+        }
+        let mag = col(trace, "mag")?;
+        let fx = col(trace, "flux_x")?;
+        let fy = col(trace, "flux_y")?;
+        let fz = col(trace, "flux_z")?;
+        let lat = col(trace, "lat")?;
+        let lon = col(trace, "lon")?;
+        let alt = col(trace, "alt")?;
+        let vn = trace.col("vn");
+        let ve = trace.col("ve");
+        let att = match (trace.col("roll"), trace.col("pitch"), trace.col("yaw")) {
+            (Some(r), Some(p), Some(y)) => Some((r, p, y)),
+            _ => None,
+        };
+        let mut aux_cols: Vec<(&[f64], f64)> = Vec::new();
+        for c in channels {
+            let v = col(trace, c).with_context(|| format!("the model reads channel '{c}'"))?;
+            let offset = if relative.contains(c) {
+                v.iter().copied().find(|x| x.is_finite()).unwrap_or(0.0)
+            } else {
+                0.0
+            };
+            aux_cols.push((v, offset));
+        }
+        let mut samples = Vec::with_capacity(n);
+        for i in 0..n {
+            let mut s = AlignedSample::empty(t[i]);
+            s.mag = MagCounts::from_nt_f64(mag[i]);
+            s.flux_nt = [fx[i] as f32, fy[i] as f32, fz[i] as f32];
+            s.lat_deg = lat[i];
+            s.lon_deg = lon[i];
+            s.alt_m = alt[i] as f32;
+            if let (Some(vn), Some(ve)) = (vn, ve) {
+                s.ground_speed_mps = vn[i].hypot(ve[i]) as f32;
+            }
+            if let Some((r, p, y)) = att {
+                s.attitude_deg = [r[i] as f32, p[i] as f32, y[i] as f32];
+            }
+            for (k, (v, off)) in aux_cols.iter().enumerate() {
+                s.aux[k] = (v[i] - off) as f32;
+            }
+            samples.push(s);
+        }
+        let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+        dts.sort_by(|a, b| a.total_cmp(b));
+        let sample_rate_hz = 1.0 / dts[dts.len() / 2];
+        let tie_point = match (
+            trace
+                .meta("cal_centre_lat")
+                .and_then(|v| v.trim().parse().ok()),
+            trace
+                .meta("cal_centre_lon")
+                .and_then(|v| v.trim().parse().ok()),
+        ) {
+            (Some(lat_deg), Some(lon_deg)) => Some(TiePoint { lat_deg, lon_deg }),
+            _ => detect_tie_point(t, lat, lon),
+        };
+        let earth_dir_ned = att.and_then(|(r, p, y)| main_field_direction(fx, fy, fz, r, p, y));
+        Ok(Self {
+            t_s: t.to_vec(),
+            mag_nt: mag.to_vec(),
+            samples,
+            segments: trace.text_col("segment").map(|s| s.to_vec()),
+            truth_interference_nt: trace.col("truth_interference").map(|v| v.to_vec()),
+            truth_anomaly_nt: trace.col("truth_anomaly").map(|v| v.to_vec()),
+            channels: channels.to_vec(),
+            sample_rate_hz,
+            tie_point,
+            earth_dir_ned,
+        })
+    }
+
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// Cumulative along-track distance (m) from positions.
+    pub fn along_track_m(&self) -> Vec<f64> {
+        let mut s = Vec::with_capacity(self.len());
+        let mut acc = 0.0;
+        let mut prev: Option<(f64, f64)> = None;
+        for smp in &self.samples {
+            if smp.lat_deg.is_finite() && smp.lon_deg.is_finite() {
+                if let Some((la, lo)) = prev {
+                    let dn = (smp.lat_deg - la).to_radians() * 6_371_000.0;
+                    let de = (smp.lon_deg - lo).to_radians() * 6_371_000.0 * la.to_radians().cos();
+                    acc += dn.hypot(de);
+                }
+                prev = Some((smp.lat_deg, smp.lon_deg));
+            }
+            s.push(acc);
+        }
+        s
+    }
+
+    /// Indices of the rows whose segment label starts with `prefix`.
+    pub fn segment_rows(&self, prefix: &str) -> Vec<usize> {
+        match &self.segments {
+            Some(seg) => (0..seg.len())
+                .filter(|&i| seg[i].starts_with(prefix))
+                .collect(),
+            None => Vec::new(),
+        }
+    }
+
+    /// Contiguous runs of equal segment labels: (label, first row, last row + 1).
+    pub fn segment_runs(&self) -> Vec<(String, usize, usize)> {
+        let mut runs = Vec::new();
+        if let Some(seg) = &self.segments {
+            let mut start = 0;
+            for i in 1..=seg.len() {
+                if i == seg.len() || seg[i] != seg[start] {
+                    runs.push((seg[start].clone(), start, i));
+                    start = i;
+                }
+            }
+        }
+        runs
+    }
+}
+
+/// The point the track passes most often on distinct passes (≥ 3), e.g. the cloverleaf
+/// centre: a 40 m grid, passes separated by ≥ 30 s.
+pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint> {
+    let cell_m = 40.0;
+    let lat0 = lat.iter().copied().find(|v| v.is_finite())?;
+    let coslat = lat0.to_radians().cos();
+    let mut cells: HashMap<(i64, i64), (Vec<f64>, f64, f64, usize)> = HashMap::new();
+    for i in 0..t.len() {
+        if !(lat[i].is_finite() && lon[i].is_finite()) {
+            continue;
+        }
+        let n = lat[i].to_radians() * 6_371_000.0;
+        let e = lon[i].to_radians() * 6_371_000.0 * coslat;
+        let key = ((n / cell_m).floor() as i64, (e / cell_m).floor() as i64);
+        let c = cells.entry(key).or_default();
+        if c.0.last().is_none_or(|&last| t[i] - last > 30.0) {
+            c.0.push(t[i]);
+        } else if let Some(last) = c.0.last_mut() {
+            *last = t[i];
+        }
+        c.1 += lat[i];
+        c.2 += lon[i];
+        c.3 += 1;
+    }
+    let best = cells.values().max_by_key(|c| (c.0.len(), c.3))?;
+    (best.0.len() >= 3).then(|| TiePoint {
+        lat_deg: best.1 / best.3 as f64,
+        lon_deg: best.2 / best.3 as f64,
+    })
+}
+
+/// Main-field direction in NED: the fluxgate direction rotated by the INS attitude,
+/// averaged over the flight (fluxgate errors fixed in the body frame largely cancel over
+/// the headings of a calibration pattern).
+fn main_field_direction(
+    fx: &[f64],
+    fy: &[f64],
+    fz: &[f64],
+    roll: &[f64],
+    pitch: &[f64],
+    yaw: &[f64],
+) -> Option<[f32; 3]> {
+    let mut acc = [0.0f64; 3];
+    let mut count = 0usize;
+    for i in 0..fx.len() {
+        let b = [fx[i], fy[i], fz[i]];
+        let nb = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+        let a = [roll[i], pitch[i], yaw[i]];
+        if !(nb.is_finite() && nb > 1.0 && a.iter().all(|v| v.is_finite())) {
+            continue;
+        }
+        let r = body_from_ned(a[0].to_radians(), a[1].to_radians(), a[2].to_radians());
+        // e_ned = R_bnᵀ · e_body
+        for (j, acc_j) in acc.iter_mut().enumerate() {
+            *acc_j += (r[0][j] * b[0] + r[1][j] * b[1] + r[2][j] * b[2]) / nb;
+        }
+        count += 1;
+    }
+    if count == 0 {
+        return None;
+    }
+    let norm = (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]).sqrt();
+    (norm > 0.0).then(|| {
+        [
+            (acc[0] / norm) as f32,
+            (acc[1] / norm) as f32,
+            (acc[2] / norm) as f32,
+        ]
+    })
+}
+
+/// Rotation NED → body for ZYX (yaw, pitch, roll) Euler angles.
+pub fn body_from_ned(roll: f64, pitch: f64, yaw: f64) -> [[f64; 3]; 3] {
+    let (sr, cr) = roll.sin_cos();
+    let (sp, cp) = pitch.sin_cos();
+    let (sy, cy) = yaw.sin_cos();
+    [
+        [cp * cy, cp * sy, -sp],
+        [sr * sp * cy - cr * sy, sr * sp * sy + cr * cy, sr * cp],
+        [cr * sp * cy + sr * sy, cr * sp * sy - sr * cy, cr * cp],
+    ]
+}

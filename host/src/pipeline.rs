@@ -1,0 +1,240 @@
+//! Runs the shared core over a flight: post-flight (calibrate on the trace, then apply the
+//! final coefficients to every sample) or real-time (the causal filter's own output).
+
+use crate::flight::Flight;
+use crate::model_spec::{with_model, ModelSpec};
+use anyhow::{bail, Result};
+use magcomp_core::compensator::{Compensator, CompensatorConfig, Output};
+use magcomp_core::epoch::Epoch;
+use magcomp_core::spectrum::{estimate_sigma1, Sigma1Config};
+
+/// Host capacity: 21 paper states + up to 41 extra coefficients + clones.
+pub const HOST_STATES: usize = 64;
+/// Derivative ring: ±50 samples at 1 kHz.
+pub const HOST_WINDOW: usize = 128;
+pub type HostCompensator<'a> = Compensator<'a, HOST_STATES, HOST_WINDOW>;
+
+/// What the user can set; `None` = estimated from the data.
+#[derive(Clone, Debug)]
+pub struct KfOptions {
+    pub model: ModelSpec,
+    pub sigma1: Option<f64>,
+    pub noise_nt: Option<f64>,
+    pub realtime: bool,
+    /// Use the detected/declared tie point (revisited centre of the pattern).
+    pub tie_points: bool,
+    /// Apply these coefficients (survey mode) instead of calibrating.
+    pub coefficients: Option<Vec<f64>>,
+}
+
+impl KfOptions {
+    pub fn new(model: ModelSpec) -> Self {
+        Self {
+            model,
+            sigma1: None,
+            noise_nt: None,
+            realtime: false,
+            tie_points: true,
+            coefficients: None,
+        }
+    }
+}
+
+/// Per-sample results and the estimated coefficients.
+#[derive(Clone, Debug, Default)]
+pub struct KfRun {
+    pub interference_nt: Vec<f64>,
+    pub compensated_nt: Vec<f64>,
+    pub anomaly_nt: Vec<f64>,
+    pub innovation_nt: Vec<f64>,
+    pub innovation_var_nt2: Vec<f64>,
+    pub flags: Vec<u16>,
+    /// Regressors of the interference terms per sample (for oracle floors and diagnosis).
+    pub regressors: Vec<Vec<f32>>,
+    pub coefficient_names: Vec<(String, String)>,
+    pub coefficients: Vec<f64>,
+    pub coefficient_sigmas: Vec<f64>,
+    pub sigma1: f64,
+    pub noise_nt: f64,
+}
+
+/// Robust white-noise level of the scalar: the third difference of white noise has
+/// variance 20σ²; the median absolute deviation ignores manoeuvres and spikes.
+pub fn estimate_noise_nt(mag_nt: &[f64]) -> Option<f64> {
+    let mut d3: Vec<f64> = mag_nt
+        .windows(4)
+        .map(|w| w[3] - 3.0 * w[2] + 3.0 * w[1] - w[0])
+        .filter(|v| v.is_finite())
+        .map(f64::abs)
+        .collect();
+    if d3.len() < 16 {
+        return None;
+    }
+    let mid = d3.len() / 2;
+    d3.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    Some(d3[mid] * 1.4826 / 20f64.sqrt())
+}
+
+fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) -> CompensatorConfig {
+    let mut cfg = CompensatorConfig::for_rate(flight.sample_rate_hz as f32);
+    cfg.sigma1 = sigma1 as f32;
+    cfg.sigma2 = (sigma1 / 10.0) as f32;
+    cfg.noise_nt = noise_nt as f32;
+    cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
+    if opts.tie_points {
+        cfg.tie_points[0] = flight.tie_point;
+    }
+    cfg
+}
+
+/// One pass of the compensator over all samples; exactly one output per sample.
+fn pass(
+    flight: &Flight,
+    spec: &ModelSpec,
+    cfg: CompensatorConfig,
+    coefficients: Option<&[f64]>,
+    keep_regressors: bool,
+) -> Result<(Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>)> {
+    with_model(spec, |model| {
+        let mut comp = HostCompensator::new(model, cfg)
+            .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+        if let Some(c) = coefficients {
+            let c32: Vec<f32> = c.iter().map(|v| *v as f32).collect();
+            comp.set_coefficients(&c32).map_err(|e| {
+                anyhow::anyhow!(
+                    "the coefficients do not fit model '{}' ({} values for {} coefficients): {e:?}",
+                    spec.text(),
+                    c.len(),
+                    model.coefficient_count()
+                )
+            })?;
+        }
+        let interference_terms: Vec<bool> = model
+            .terms
+            .iter()
+            .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
+            .collect();
+        let k = model.coefficient_count();
+        let mut outs = Vec::with_capacity(flight.len());
+        let mut regs = Vec::new();
+        let mut buf = vec![0.0f32; k];
+        let mut keep = |ep: &Epoch, comp: &HostCompensator| {
+            if keep_regressors {
+                comp.term_regressors(ep, &mut buf);
+                regs.push(
+                    buf.iter()
+                        .zip(&interference_terms)
+                        .map(|(v, &i)| if i { *v } else { 0.0 })
+                        .collect::<Vec<f32>>(),
+                );
+            }
+        };
+        for s in &flight.samples {
+            if let Some((ep, out)) = comp.push_epoch(s) {
+                keep(&ep, &comp);
+                outs.push(out);
+            }
+        }
+        while let Some((ep, out)) = comp.flush_epoch() {
+            keep(&ep, &comp);
+            outs.push(out);
+        }
+        if outs.len() != flight.len() {
+            bail!(
+                "internal: {} outputs for {} samples",
+                outs.len(),
+                flight.len()
+            );
+        }
+        let mut c = vec![0.0f32; k];
+        let mut s = vec![0.0f32; k];
+        comp.coefficients(&mut c);
+        comp.coefficient_sigmas(&mut s);
+        Ok((
+            outs,
+            regs,
+            c.iter().map(|v| *v as f64).collect(),
+            s.iter().map(|v| *v as f64).collect(),
+        ))
+    })
+}
+
+/// σ1 from the along-track spectrum of (scalar − interference estimate).
+pub fn estimate_sigma1_for(flight: &Flight, interference_nt: &[f64]) -> Option<f64> {
+    let s = flight.along_track_m();
+    let z: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(interference_nt)
+        .map(|(m, i)| m - i)
+        .collect();
+    let cfg = Sigma1Config::default();
+    let need = 3 * ((s.last().copied().unwrap_or(0.0) / cfg.bin_m) as usize + 2);
+    let mut scratch = vec![0.0; need];
+    estimate_sigma1(&s, &z, &cfg, &mut scratch).map(|e| e.sigma1)
+}
+
+/// Default σ1 when the track is too short for the spectrum (the paper's 1000 m value).
+pub const DEFAULT_SIGMA1: f64 = 1.0e-6;
+
+pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+    if flight.is_empty() {
+        bail!("no samples");
+    }
+    let spec = &opts.model;
+    // The filter's r covers sensor noise plus what the model cannot follow (fluxgate noise
+    // in the regressors, residual model error): never below 5 pT.
+    let noise_nt = match opts.noise_nt {
+        Some(v) => v,
+        None => {
+            let sensor = estimate_noise_nt(&flight.mag_nt).unwrap_or(0.02);
+            (sensor * sensor + 0.005f64.powi(2)).sqrt()
+        }
+    };
+    let sigma1 = match opts.sigma1 {
+        Some(v) => v,
+        None if spec.field => {
+            // A first post-flight pass with the paper's σ1 gives the interference estimate
+            // that is removed before the spectrum is taken.
+            let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
+            let (_, _, c, _) = pass(flight, spec, cfg, None, false)?;
+            let (outs, _, _, _) = pass(flight, spec, cfg, Some(&c), false)?;
+            let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
+            estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1)
+        }
+        None => DEFAULT_SIGMA1,
+    };
+    let cfg = base_config(flight, opts, sigma1, noise_nt);
+    let (cal_outs, regs, coeffs, sigmas) = match &opts.coefficients {
+        Some(c) => pass(flight, spec, cfg, Some(c), true)?,
+        None => pass(flight, spec, cfg, None, true)?,
+    };
+    let (outs, coeffs, sigmas) = if opts.realtime || opts.coefficients.is_some() {
+        (cal_outs, coeffs, sigmas)
+    } else {
+        let (o, _, _, _) = pass(flight, spec, cfg, Some(&coeffs), false)?;
+        (o, coeffs, sigmas)
+    };
+    let mut run = KfRun {
+        coefficient_names: spec.coefficient_names(),
+        coefficients: coeffs,
+        coefficient_sigmas: sigmas,
+        regressors: regs,
+        sigma1,
+        noise_nt,
+        ..Default::default()
+    };
+    for (o, mag) in outs.iter().zip(&flight.mag_nt) {
+        let i = o.interference_nt as f64;
+        run.interference_nt.push(i);
+        run.compensated_nt.push(match o.compensated {
+            Some(c) => c.to_nt_f64(),
+            None => mag - i,
+        });
+        run.anomaly_nt.push(o.anomaly_nt as f64);
+        run.innovation_nt.push(o.innovation_nt as f64);
+        run.innovation_var_nt2.push(o.innovation_var_nt2 as f64);
+        run.flags.push(o.flags.0);
+    }
+    Ok(run)
+}

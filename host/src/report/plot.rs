@@ -1,0 +1,998 @@
+//! A small SVG plot builder: line/scatter series on linear or log axes, shaded windows,
+//! segment labels, bar charts with error bars, legend. Output is plain SVG 1.1 text that
+//! needs no fonts or scripts (text uses the viewer's sans-serif).
+use super::escape;
+use super::ticks::{format_tick, log_minor_ticks, log_ticks, nice_ticks};
+use std::collections::HashSet;
+use std::fmt::Write;
+
+/// Default series colours (Tableau 10: distinct, print well, mostly colour-blind safe).
+pub const PALETTE: [&str; 10] = [
+    "#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+    "#bcbd22", "#17becf",
+];
+
+const FONT_PX: f64 = 12.0;
+/// Mean glyph advance of a sans-serif font, as a fraction of its size (no font metrics
+/// available; used only to leave room for labels).
+const CHAR_W: f64 = 0.6;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SeriesStyle {
+    Line,
+    Scatter,
+}
+
+/// One data series. Non-finite y (missing values) break the line; they are never joined
+/// across or drawn as zero.
+#[derive(Clone, Debug)]
+pub struct Series {
+    pub name: String,
+    pub x: Vec<f64>,
+    pub y: Vec<f64>,
+    pub style: SeriesStyle,
+    /// CSS colour; None takes the next palette colour.
+    pub color: Option<String>,
+    /// SVG `stroke-dasharray`, e.g. "6 3".
+    pub dash: Option<String>,
+    pub width_px: f64,
+}
+
+impl Series {
+    pub fn line(name: &str, x: &[f64], y: &[f64]) -> Self {
+        Series {
+            name: name.into(),
+            x: x.to_vec(),
+            y: y.to_vec(),
+            style: SeriesStyle::Line,
+            color: None,
+            dash: None,
+            width_px: 1.4,
+        }
+    }
+    pub fn scatter(name: &str, x: &[f64], y: &[f64]) -> Self {
+        Series {
+            style: SeriesStyle::Scatter,
+            ..Series::line(name, x, y)
+        }
+    }
+    pub fn color(mut self, css: &str) -> Self {
+        self.color = Some(css.into());
+        self
+    }
+    pub fn dash(mut self, dasharray: &str) -> Self {
+        self.dash = Some(dasharray.into());
+        self
+    }
+    pub fn width_px(mut self, w: f64) -> Self {
+        self.width_px = w;
+        self
+    }
+}
+
+/// A bar chart: one bar per label, optional symmetric error bars (e.g. 1σ).
+#[derive(Clone, Debug)]
+pub struct Bars {
+    pub labels: Vec<String>,
+    pub values: Vec<f64>,
+    pub errors: Option<Vec<f64>>,
+    pub color: String,
+}
+
+#[derive(Clone, Debug)]
+struct Window {
+    x0: f64,
+    x1: f64,
+    label: String,
+    color: String,
+}
+
+#[derive(Clone, Debug)]
+struct Segment {
+    x0: f64,
+    x1: f64,
+    label: String,
+}
+
+/// Plot builder. `id` becomes the SVG's `data-plot` attribute.
+#[derive(Clone, Debug)]
+pub struct Plot {
+    id: String,
+    title: String,
+    x_label: String,
+    y_label: String,
+    x_log: bool,
+    y_log: bool,
+    x_range: Option<(f64, f64)>,
+    y_range: Option<(f64, f64)>,
+    series: Vec<Series>,
+    windows: Vec<Window>,
+    segments: Vec<Segment>,
+    bars: Option<Bars>,
+    legend: Option<bool>,
+}
+
+impl Plot {
+    pub fn new(id: &str, title: &str) -> Self {
+        Plot {
+            id: id.into(),
+            title: title.into(),
+            x_label: String::new(),
+            y_label: String::new(),
+            x_log: false,
+            y_log: false,
+            x_range: None,
+            y_range: None,
+            series: Vec::new(),
+            windows: Vec::new(),
+            segments: Vec::new(),
+            bars: None,
+            legend: None,
+        }
+    }
+    pub fn id(&self) -> &str {
+        &self.id
+    }
+    pub fn title(&self) -> &str {
+        &self.title
+    }
+    /// Axis label with its unit, e.g. "time (s)".
+    pub fn x_label(mut self, label: &str) -> Self {
+        self.x_label = label.into();
+        self
+    }
+    pub fn y_label(mut self, label: &str) -> Self {
+        self.y_label = label.into();
+        self
+    }
+    /// Log x axis; points with x <= 0 are not drawn.
+    pub fn log_x(mut self) -> Self {
+        self.x_log = true;
+        self
+    }
+    /// Log y axis; points with y <= 0 are not drawn.
+    pub fn log_y(mut self) -> Self {
+        self.y_log = true;
+        self
+    }
+    pub fn log_log(self) -> Self {
+        self.log_x().log_y()
+    }
+    /// Fixes the x range (data outside is clipped); default: the data extent.
+    pub fn x_range(mut self, lo: f64, hi: f64) -> Self {
+        self.x_range = Some((lo, hi));
+        self
+    }
+    /// Fixes the y range (data outside is clipped); default: the data extent plus 5 %.
+    pub fn y_range(mut self, lo: f64, hi: f64) -> Self {
+        self.y_range = Some((lo, hi));
+        self
+    }
+    pub fn series(mut self, s: Series) -> Self {
+        self.series.push(s);
+        self
+    }
+    /// Adds a line series in the next palette colour.
+    pub fn line(self, name: &str, x: &[f64], y: &[f64]) -> Self {
+        self.series(Series::line(name, x, y))
+    }
+    pub fn scatter(self, name: &str, x: &[f64], y: &[f64]) -> Self {
+        self.series(Series::scatter(name, x, y))
+    }
+    /// A shaded vertical window [x0, x1] (e.g. a failure window) with a label at its top.
+    pub fn window(self, x0: f64, x1: f64, label: &str) -> Self {
+        self.window_colored(x0, x1, label, "#d62728")
+    }
+    pub fn window_colored(mut self, x0: f64, x1: f64, label: &str, color: &str) -> Self {
+        self.windows.push(Window {
+            x0,
+            x1,
+            label: label.into(),
+            color: color.into(),
+        });
+        self
+    }
+    /// A labelled span along the x axis (flight phase), drawn in a strip above the plot
+    /// with a faint band in the plot.
+    pub fn segment(mut self, x0: f64, x1: f64, label: &str) -> Self {
+        self.segments.push(Segment {
+            x0,
+            x1,
+            label: label.into(),
+        });
+        self
+    }
+    /// Makes this a bar chart (line/scatter series are then not drawn).
+    pub fn bars(mut self, labels: &[&str], values: &[f64], errors: Option<&[f64]>) -> Self {
+        self.bars = Some(Bars {
+            labels: labels.iter().map(|s| s.to_string()).collect(),
+            values: values.to_vec(),
+            errors: errors.map(|e| e.to_vec()),
+            color: PALETTE[0].into(),
+        });
+        self
+    }
+    pub fn bar_color(mut self, css: &str) -> Self {
+        if let Some(b) = self.bars.as_mut() {
+            b.color = css.into();
+        }
+        self
+    }
+    /// Forces the legend on or off (default: shown when a series has a name).
+    pub fn legend(mut self, show: bool) -> Self {
+        self.legend = Some(show);
+        self
+    }
+
+    /// Renders the plot as a standalone `<svg class="plot" data-plot="id">` element.
+    pub fn to_svg(&self, width_px: u32, height_px: u32) -> String {
+        let w = f64::from(width_px.max(120));
+        let h = f64::from(height_px.max(100));
+        let mut out = String::with_capacity(16 * 1024);
+        let _ = write!(
+            out,
+            r#"<svg xmlns="http://www.w3.org/2000/svg" class="plot" data-plot="{id}" width="{w}" height="{h}" viewBox="0 0 {w} {h}" role="img" aria-label="{t}" font-family="sans-serif" font-size="{FONT_PX}">"#,
+            id = escape(&self.id),
+            t = escape(&self.title),
+        );
+        let _ = write!(out, "<title>{}</title>", escape(&self.title));
+        let _ = write!(out, r##"<rect width="{w}" height="{h}" fill="#ffffff"/>"##);
+        let _ = write!(
+            out,
+            r##"<text x="{:.1}" y="18" text-anchor="middle" font-size="14" font-weight="bold" fill="#222">{}</text>"##,
+            w / 2.0,
+            escape(&self.title)
+        );
+        if let Some(bars) = &self.bars {
+            self.bar_chart(&mut out, bars, w, h);
+        } else {
+            self.xy_chart(&mut out, w, h);
+        }
+        out.push_str("</svg>");
+        out
+    }
+
+    fn colors(&self) -> Vec<String> {
+        let mut next = 0;
+        self.series
+            .iter()
+            .map(|s| {
+                s.color.clone().unwrap_or_else(|| {
+                    let c = PALETTE[next % PALETTE.len()];
+                    next += 1;
+                    c.to_string()
+                })
+            })
+            .collect()
+    }
+
+    fn data_extent(&self, axis_x: bool) -> Option<(f64, f64)> {
+        let log = if axis_x { self.x_log } else { self.y_log };
+        let mut lo = f64::INFINITY;
+        let mut hi = f64::NEG_INFINITY;
+        for s in &self.series {
+            for (&x, &y) in s.x.iter().zip(&s.y) {
+                let ok = x.is_finite()
+                    && y.is_finite()
+                    && (!self.x_log || x > 0.0)
+                    && (!self.y_log || y > 0.0);
+                if ok {
+                    let v = if axis_x { x } else { y };
+                    lo = lo.min(v);
+                    hi = hi.max(v);
+                }
+            }
+        }
+        if axis_x && lo > hi {
+            // No data: fall back on windows and segments so they still show.
+            for (a, b) in self
+                .windows
+                .iter()
+                .map(|w| (w.x0, w.x1))
+                .chain(self.segments.iter().map(|s| (s.x0, s.x1)))
+            {
+                for v in [a, b] {
+                    if v.is_finite() && (!log || v > 0.0) {
+                        lo = lo.min(v);
+                        hi = hi.max(v);
+                    }
+                }
+            }
+        }
+        (lo <= hi).then_some((lo, hi))
+    }
+
+    fn xy_chart(&self, out: &mut String, w: f64, h: f64) {
+        let colors = self.colors();
+        // Range: explicit, else data (padded on y), else a placeholder.
+        let x_ext = self.x_range.or_else(|| self.data_extent(true));
+        let y_ext = self.y_range.or_else(|| {
+            self.data_extent(false).map(|(lo, hi)| {
+                if self.y_log {
+                    let pad = (hi / lo).powf(0.05);
+                    (lo / pad, hi * pad)
+                } else {
+                    let pad = 0.05 * (hi - lo);
+                    (lo - pad, hi + pad)
+                }
+            })
+        });
+        let has_data = x_ext.is_some() && y_ext.is_some();
+        let xr = widen(
+            x_ext.unwrap_or(if self.x_log { (1.0, 10.0) } else { (0.0, 1.0) }),
+            self.x_log,
+        );
+        let yr = widen(
+            y_ext.unwrap_or(if self.y_log { (1.0, 10.0) } else { (0.0, 1.0) }),
+            self.y_log,
+        );
+
+        // Vertical layout, top to bottom: title, legend rows, segment strip, plot, ticks, x label.
+        let names: Vec<(usize, &Series)> = self
+            .series
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| !s.name.is_empty())
+            .collect();
+        let show_legend = self.legend.unwrap_or(!names.is_empty()) && !names.is_empty();
+        let y_ticks = if self.y_log {
+            log_ticks(yr.0, yr.1)
+        } else {
+            nice_ticks(yr.0, yr.1, ((h / 60.0) as usize).clamp(3, 10))
+        };
+        let y_step = (!self.y_log).then(|| tick_step(&y_ticks));
+        let y_labels: Vec<String> = y_ticks.iter().map(|&v| format_tick(v, y_step)).collect();
+        let y_label_w = y_labels
+            .iter()
+            .map(|s| text_w(s, FONT_PX))
+            .fold(0.0, f64::max);
+        let left = 8.0 + if self.y_label.is_empty() { 0.0 } else { 20.0 } + y_label_w + 8.0;
+        let right = w - 16.0;
+
+        let mut top = 30.0;
+        let legend_rows = if show_legend {
+            legend_layout(&names, left, right)
+        } else {
+            Vec::new()
+        };
+        let legend_top = top;
+        if !legend_rows.is_empty() {
+            top += 18.0 * (legend_rows.iter().map(|r| r.1).max().unwrap_or(0) + 1) as f64;
+        }
+        let seg_top = top;
+        let (seg_rows, n_seg_rows) = self.segment_rows(xr, left, right);
+        top += 15.0 * n_seg_rows as f64 + if n_seg_rows > 0 { 4.0 } else { 0.0 };
+        top += 6.0;
+        let bottom = h - 22.0 - if self.x_label.is_empty() { 0.0 } else { 18.0 };
+        let bottom = bottom.max(top + 20.0);
+        let plot_w = right - left;
+        let plot_h = bottom - top;
+
+        let tx = |v: f64| if self.x_log { v.log10() } else { v };
+        let ty = |v: f64| if self.y_log { v.log10() } else { v };
+        let (tx0, tx1, ty0, ty1) = (tx(xr.0), tx(xr.1), ty(yr.0), ty(yr.1));
+        let sx = |v: f64| left + (tx(v) - tx0) / (tx1 - tx0) * plot_w;
+        let sy = |v: f64| bottom - (ty(v) - ty0) / (ty1 - ty0) * plot_h;
+
+        let clip = format!("clip-{}", sanitize_id(&self.id));
+        let _ = write!(
+            out,
+            r#"<defs><clipPath id="{clip}"><rect x="{left:.1}" y="{top:.1}" width="{plot_w:.1}" height="{plot_h:.1}"/></clipPath></defs>"#
+        );
+
+        // Grid and ticks.
+        let x_ticks = if self.x_log {
+            log_ticks(xr.0, xr.1)
+        } else {
+            nice_ticks(xr.0, xr.1, ((plot_w / 90.0) as usize).clamp(2, 12))
+        };
+        let x_step = (!self.x_log).then(|| tick_step(&x_ticks));
+        out.push_str(r##"<g stroke="#e4e4e4" stroke-width="1">"##);
+        for &v in &x_ticks {
+            let _ = write!(
+                out,
+                r#"<line x1="{x:.1}" y1="{top:.1}" x2="{x:.1}" y2="{bottom:.1}"/>"#,
+                x = sx(v)
+            );
+        }
+        for &v in &y_ticks {
+            let _ = write!(
+                out,
+                r#"<line x1="{left:.1}" y1="{y:.1}" x2="{right:.1}" y2="{y:.1}"/>"#,
+                y = sy(v)
+            );
+        }
+        out.push_str("</g>");
+
+        // Segment bands (behind data), windows (behind data).
+        let _ = write!(out, r#"<g clip-path="url(#{clip})">"#);
+        for (i, s) in self.segments.iter().enumerate() {
+            if i % 2 == 0 {
+                let (a, b) = (sx(s.x0).max(left), sx(s.x1).min(right));
+                if b > a {
+                    let _ = write!(
+                        out,
+                        r##"<rect x="{a:.1}" y="{top:.1}" width="{:.1}" height="{plot_h:.1}" fill="#000000" fill-opacity="0.035"/>"##,
+                        b - a
+                    );
+                }
+            }
+        }
+        for win in &self.windows {
+            let (a, b) = (sx(win.x0).max(left), sx(win.x1).min(right));
+            if b.is_finite() && a.is_finite() && b >= a {
+                let _ = write!(
+                    out,
+                    r#"<rect class="window" x="{a:.1}" y="{top:.1}" width="{:.1}" height="{plot_h:.1}" fill="{c}" fill-opacity="0.14" stroke="{c}" stroke-opacity="0.5"><title>{t}</title></rect>"#,
+                    (b - a).max(1.0),
+                    c = escape(&win.color),
+                    t = escape(&win.label)
+                );
+                let _ = write!(
+                    out,
+                    r#"<text x="{:.1}" y="{:.1}" font-size="11" fill="{c}">{t}</text>"#,
+                    a + 3.0,
+                    top + 13.0,
+                    c = escape(&win.color),
+                    t = escape(&win.label)
+                );
+            }
+        }
+        out.push_str("</g>");
+
+        // Data.
+        let _ = write!(out, r#"<g clip-path="url(#{clip})" fill="none">"#);
+        for (s, color) in self.series.iter().zip(&colors) {
+            let n = s.x.len().min(s.y.len());
+            // To pixels first; unusable points become gaps.
+            let mut px = Vec::with_capacity(n);
+            let mut py = Vec::with_capacity(n);
+            for i in 0..n {
+                let (x, y) = (s.x[i], s.y[i]);
+                let ok = x.is_finite()
+                    && y.is_finite()
+                    && (!self.x_log || x > 0.0)
+                    && (!self.y_log || y > 0.0);
+                px.push(if ok { sx(x) } else { f64::NAN });
+                py.push(if ok { sy(y) } else { f64::NAN });
+            }
+            match s.style {
+                SeriesStyle::Line => {
+                    let (dx, dy) = if n > 2 * plot_w as usize {
+                        minmax_by_bucket(&px, &py, 0.0, 1.0)
+                    } else {
+                        (px, py)
+                    };
+                    let d = path_data(&dx, &dy);
+                    if !d.is_empty() {
+                        let dash = s
+                            .dash
+                            .as_deref()
+                            .map(|d| format!(r#" stroke-dasharray="{}""#, escape(d)))
+                            .unwrap_or_default();
+                        let _ = write!(
+                            out,
+                            r#"<path class="series" data-name="{}" d="{d}" stroke="{}" stroke-width="{}" stroke-linejoin="round" stroke-linecap="round"{dash}/>"#,
+                            escape(&s.name),
+                            escape(color),
+                            s.width_px
+                        );
+                    }
+                }
+                SeriesStyle::Scatter => {
+                    let _ = write!(
+                        out,
+                        r#"<g class="series" data-name="{}" fill="{}" fill-opacity="0.75">"#,
+                        escape(&s.name),
+                        escape(color)
+                    );
+                    // One dot per (rounded) pixel keeps dense clouds small.
+                    let mut seen = HashSet::new();
+                    for (&x, &y) in px.iter().zip(&py) {
+                        if x.is_finite()
+                            && y.is_finite()
+                            && seen.insert(((x * 2.0) as i64, (y * 2.0) as i64))
+                        {
+                            let _ = write!(out, r#"<circle cx="{x:.1}" cy="{y:.1}" r="2.5"/>"#);
+                        }
+                    }
+                    out.push_str("</g>");
+                }
+            }
+        }
+        out.push_str("</g>");
+        if !has_data {
+            let _ = write!(
+                out,
+                r##"<text x="{:.1}" y="{:.1}" text-anchor="middle" fill="#888">no data</text>"##,
+                left + plot_w / 2.0,
+                top + plot_h / 2.0
+            );
+        }
+
+        // Frame, tick marks and labels.
+        let _ = write!(
+            out,
+            r##"<rect x="{left:.1}" y="{top:.1}" width="{plot_w:.1}" height="{plot_h:.1}" fill="none" stroke="#444"/>"##
+        );
+        out.push_str(r##"<g stroke="#444">"##);
+        if self.x_log {
+            for v in log_minor_ticks(xr.0, xr.1) {
+                let _ = write!(
+                    out,
+                    r#"<line x1="{x:.1}" y1="{bottom:.1}" x2="{x:.1}" y2="{:.1}"/>"#,
+                    bottom + 3.0,
+                    x = sx(v)
+                );
+            }
+        }
+        if self.y_log {
+            for v in log_minor_ticks(yr.0, yr.1) {
+                let _ = write!(
+                    out,
+                    r#"<line x1="{:.1}" y1="{y:.1}" x2="{left:.1}" y2="{y:.1}"/>"#,
+                    left - 3.0,
+                    y = sy(v)
+                );
+            }
+        }
+        for &v in &x_ticks {
+            let _ = write!(
+                out,
+                r#"<line x1="{x:.1}" y1="{bottom:.1}" x2="{x:.1}" y2="{:.1}"/>"#,
+                bottom + 5.0,
+                x = sx(v)
+            );
+        }
+        for &v in &y_ticks {
+            let _ = write!(
+                out,
+                r#"<line x1="{:.1}" y1="{y:.1}" x2="{left:.1}" y2="{y:.1}"/>"#,
+                left - 5.0,
+                y = sy(v)
+            );
+        }
+        out.push_str("</g>");
+        out.push_str(r##"<g class="x-ticks" fill="#333" text-anchor="middle">"##);
+        for &v in &x_ticks {
+            let _ = write!(
+                out,
+                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
+                sx(v),
+                bottom + 17.0,
+                escape(&format_tick(v, x_step))
+            );
+        }
+        out.push_str("</g>");
+        out.push_str(r##"<g class="y-ticks" fill="#333" text-anchor="end">"##);
+        for (&v, label) in y_ticks.iter().zip(&y_labels) {
+            let _ = write!(
+                out,
+                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
+                left - 7.0,
+                sy(v) + 4.0,
+                escape(label)
+            );
+        }
+        out.push_str("</g>");
+        self.axis_labels(out, left, right, top, bottom, h);
+
+        // Legend.
+        for &(i, col, row) in legend_rows
+            .iter()
+            .map(|(i, row, x)| (i, x, row))
+            .collect::<Vec<_>>()
+            .iter()
+        {
+            let s = &self.series[*i];
+            let y = legend_top + 18.0 * *row as f64 + 8.0;
+            let x = *col;
+            let color = escape(&colors[*i]);
+            match s.style {
+                SeriesStyle::Line => {
+                    let dash = s
+                        .dash
+                        .as_deref()
+                        .map(|d| format!(r#" stroke-dasharray="{}""#, escape(d)))
+                        .unwrap_or_default();
+                    let _ = write!(
+                        out,
+                        r#"<line x1="{x:.1}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="{color}" stroke-width="2"{dash}/>"#,
+                        x + 22.0
+                    );
+                }
+                SeriesStyle::Scatter => {
+                    let _ = write!(
+                        out,
+                        r#"<circle cx="{:.1}" cy="{y:.1}" r="3.5" fill="{color}"/>"#,
+                        x + 11.0
+                    );
+                }
+            }
+            let _ = write!(
+                out,
+                r##"<text class="legend" x="{:.1}" y="{:.1}" fill="#222">{}</text>"##,
+                x + 27.0,
+                y + 4.0,
+                escape(&s.name)
+            );
+        }
+
+        // Segment labels.
+        for (s, row) in self.segments.iter().zip(&seg_rows) {
+            let Some(row) = row else { continue };
+            // Inset so the brackets of adjacent segments stay distinct.
+            let (a, b) = (sx(s.x0).max(left) + 1.5, sx(s.x1).min(right) - 1.5);
+            if !(b > a) {
+                continue;
+            }
+            let y = seg_top + 15.0 * *row as f64 + 11.0;
+            let _ = write!(
+                out,
+                r##"<g class="segment"><path d="M{a:.1} {:.1}V{:.1}H{b:.1}V{:.1}" fill="none" stroke="#888"/><text x="{:.1}" y="{:.1}" text-anchor="middle" font-size="11" fill="#444">{}</text></g>"##,
+                y - 6.0,
+                y + 2.0,
+                y - 6.0,
+                (a + b) / 2.0,
+                y - 1.0,
+                escape(&s.label)
+            );
+        }
+    }
+
+    /// Greedy row assignment for segment labels (at most 3 rows; a label that fits in none
+    /// keeps its bracket in row 0 but loses its text, instead of overprinting).
+    fn segment_rows(&self, xr: (f64, f64), left: f64, right: f64) -> (Vec<Option<usize>>, usize) {
+        let tx = |v: f64| {
+            if self.x_log {
+                v.max(f64::MIN_POSITIVE).log10()
+            } else {
+                v
+            }
+        };
+        let span = tx(xr.1) - tx(xr.0);
+        let sx = |v: f64| left + (tx(v) - tx(xr.0)) / span * (right - left);
+        let mut row_end = [f64::NEG_INFINITY; 3];
+        let mut used = 0;
+        let rows = self
+            .segments
+            .iter()
+            .map(|s| {
+                let (a, b) = (sx(s.x0).max(left), sx(s.x1).min(right));
+                let tw = text_w(&s.label, 11.0);
+                let c = (a + b) / 2.0;
+                // Only the texts must not collide; brackets of adjacent segments may touch.
+                let (l, r) = (c - tw / 2.0, c + tw / 2.0);
+                let row = row_end.iter().position(|&e| e + 4.0 <= l);
+                if let Some(k) = row {
+                    row_end[k] = r;
+                    used = used.max(k + 1);
+                }
+                row
+            })
+            .collect();
+        (rows, used)
+    }
+
+    fn axis_labels(&self, out: &mut String, left: f64, right: f64, top: f64, bottom: f64, h: f64) {
+        if !self.x_label.is_empty() {
+            let _ = write!(
+                out,
+                r##"<text class="x-label" x="{:.1}" y="{:.1}" text-anchor="middle" fill="#222">{}</text>"##,
+                (left + right) / 2.0,
+                h - 8.0,
+                escape(&self.x_label)
+            );
+        }
+        if !self.y_label.is_empty() {
+            let cy = (top + bottom) / 2.0;
+            let _ = write!(
+                out,
+                r##"<text class="y-label" x="14" y="{cy:.1}" transform="rotate(-90 14 {cy:.1})" text-anchor="middle" fill="#222">{}</text>"##,
+                escape(&self.y_label)
+            );
+        }
+    }
+
+    fn bar_chart(&self, out: &mut String, bars: &Bars, w: f64, h: f64) {
+        let n = bars.labels.len().min(bars.values.len());
+        let err = |i: usize| {
+            bars.errors
+                .as_ref()
+                .and_then(|e| e.get(i))
+                .copied()
+                .filter(|e| e.is_finite())
+                .unwrap_or(0.0)
+                .abs()
+        };
+        let mut lo: f64 = 0.0;
+        let mut hi: f64 = 0.0;
+        for i in 0..n {
+            let v = bars.values[i];
+            if v.is_finite() {
+                lo = lo.min(v - err(i));
+                hi = hi.max(v + err(i));
+            }
+        }
+        let (lo, hi) = self.y_range.unwrap_or_else(|| {
+            let pad = 0.06 * (hi - lo);
+            (
+                if lo < 0.0 { lo - pad } else { 0.0 },
+                if hi > 0.0 { hi + pad } else { 0.0 },
+            )
+        });
+        let (lo, hi) = widen((lo, hi), false);
+        let y_ticks = nice_ticks(lo, hi, ((h / 60.0) as usize).clamp(3, 10));
+        let step = Some(tick_step(&y_ticks));
+        let y_labels: Vec<String> = y_ticks.iter().map(|&v| format_tick(v, step)).collect();
+        let y_label_w = y_labels
+            .iter()
+            .map(|s| text_w(s, FONT_PX))
+            .fold(0.0, f64::max);
+        let left = 8.0 + if self.y_label.is_empty() { 0.0 } else { 20.0 } + y_label_w + 8.0;
+        let right = w - 16.0;
+        let slot = (right - left) / n.max(1) as f64;
+        let longest = bars
+            .labels
+            .iter()
+            .map(|l| text_w(l, FONT_PX))
+            .fold(0.0, f64::max);
+        // Rotate category labels when they do not fit side by side.
+        let rotate = longest > slot - 4.0;
+        let label_h = if rotate {
+            (longest * 0.64 + 8.0).min(h * 0.35)
+        } else {
+            16.0
+        };
+        let top = 34.0;
+        let bottom =
+            (h - 8.0 - label_h - if self.x_label.is_empty() { 0.0 } else { 18.0 }).max(top + 20.0);
+        let sy = |v: f64| bottom - (v - lo) / (hi - lo) * (bottom - top);
+
+        out.push_str(r##"<g stroke="#e4e4e4">"##);
+        for &v in &y_ticks {
+            let _ = write!(
+                out,
+                r#"<line x1="{left:.1}" y1="{y:.1}" x2="{right:.1}" y2="{y:.1}"/>"#,
+                y = sy(v)
+            );
+        }
+        out.push_str("</g>");
+        let zero = sy(0.0_f64.clamp(lo, hi));
+        for i in 0..n {
+            let v = bars.values[i];
+            let cx = left + slot * (i as f64 + 0.5);
+            let bw = (slot * 0.7).max(1.0);
+            if v.is_finite() {
+                let y = sy(v.clamp(lo, hi));
+                let e = err(i);
+                let tip = if e > 0.0 {
+                    format!("{}: {} ± {}", bars.labels[i], v, e)
+                } else {
+                    format!("{}: {}", bars.labels[i], v)
+                };
+                let _ = write!(
+                    out,
+                    r#"<rect class="bar" x="{:.1}" y="{:.1}" width="{bw:.1}" height="{:.1}" fill="{}"><title>{}</title></rect>"#,
+                    cx - bw / 2.0,
+                    y.min(zero),
+                    (y - zero).abs().max(0.5),
+                    escape(&bars.color),
+                    escape(&tip)
+                );
+                if e > 0.0 {
+                    let (y0, y1) = (sy((v - e).clamp(lo, hi)), sy((v + e).clamp(lo, hi)));
+                    let cap = (bw * 0.3).min(8.0);
+                    let _ = write!(
+                        out,
+                        r##"<path class="error-bar" d="M{cx:.1} {y0:.1}V{y1:.1}M{:.1} {y0:.1}H{:.1}M{:.1} {y1:.1}H{:.1}" stroke="#222" stroke-width="1.2" fill="none"/>"##,
+                        cx - cap,
+                        cx + cap,
+                        cx - cap,
+                        cx + cap
+                    );
+                }
+            } else {
+                let _ = write!(
+                    out,
+                    r##"<text x="{cx:.1}" y="{:.1}" text-anchor="middle" font-size="10" fill="#888">n/a</text>"##,
+                    zero - 3.0
+                );
+            }
+            let label = escape(&bars.labels[i]);
+            if rotate {
+                let y = bottom + 12.0;
+                let _ = write!(
+                    out,
+                    r##"<text x="{cx:.1}" y="{y:.1}" text-anchor="end" transform="rotate(-40 {cx:.1} {y:.1})" fill="#333">{label}</text>"##
+                );
+            } else {
+                let _ = write!(
+                    out,
+                    r##"<text x="{cx:.1}" y="{:.1}" text-anchor="middle" fill="#333">{label}</text>"##,
+                    bottom + 16.0
+                );
+            }
+        }
+        let _ = write!(
+            out,
+            r##"<line x1="{left:.1}" y1="{zero:.1}" x2="{right:.1}" y2="{zero:.1}" stroke="#444"/>"##
+        );
+        let _ = write!(
+            out,
+            r##"<rect x="{left:.1}" y="{top:.1}" width="{:.1}" height="{:.1}" fill="none" stroke="#444"/>"##,
+            right - left,
+            bottom - top
+        );
+        out.push_str(r##"<g class="y-ticks" fill="#333" text-anchor="end">"##);
+        for (&v, label) in y_ticks.iter().zip(&y_labels) {
+            let _ = write!(
+                out,
+                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
+                left - 7.0,
+                sy(v) + 4.0,
+                escape(label)
+            );
+        }
+        out.push_str("</g>");
+        self.axis_labels(out, left, right, top, bottom, h);
+    }
+}
+
+/// Legend placement: (series index, row, x) with wrapping across the plot width.
+fn legend_layout(names: &[(usize, &Series)], left: f64, right: f64) -> Vec<(usize, usize, f64)> {
+    let mut row = 0;
+    let mut x = left;
+    let mut out = Vec::new();
+    for (i, s) in names {
+        let item_w = 27.0 + text_w(&s.name, FONT_PX) + 16.0;
+        if x + item_w > right && x > left {
+            row += 1;
+            x = left;
+        }
+        out.push((*i, row, x));
+        x += item_w;
+    }
+    out
+}
+
+/// Avoids a zero or inverted span (constant data) and non-positive log ranges.
+fn widen((lo, hi): (f64, f64), log: bool) -> (f64, f64) {
+    let (mut lo, mut hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
+    if log {
+        if !(lo > 0.0) {
+            lo = if hi > 0.0 { hi / 10.0 } else { 1.0 };
+        }
+        if !(hi > lo) {
+            hi = lo * 10.0;
+        }
+        if hi == lo {
+            lo /= 3.0;
+            hi *= 3.0;
+        }
+    } else if hi == lo {
+        let d = if lo == 0.0 { 1.0 } else { lo.abs() * 0.01 };
+        lo -= d;
+        hi += d;
+    }
+    (lo, hi)
+}
+
+fn tick_step(ticks: &[f64]) -> f64 {
+    match ticks {
+        [a, b, ..] => b - a,
+        [a] => a.abs().max(1.0),
+        [] => 1.0,
+    }
+}
+
+fn text_w(s: &str, font_px: f64) -> f64 {
+    s.chars().count() as f64 * font_px * CHAR_W
+}
+
+/// Keeps ids usable inside `url(#...)`.
+fn sanitize_id(id: &str) -> String {
+    id.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
+/// SVG path data; NaN points split the path into sub-paths (gaps for missing data).
+fn path_data(x: &[f64], y: &[f64]) -> String {
+    let mut d = String::with_capacity(x.len() * 12);
+    let mut pen_down = false;
+    let mut run = 0;
+    for (&x, &y) in x.iter().zip(y) {
+        if !(x.is_finite() && y.is_finite()) {
+            if run == 1 {
+                d.push_str("l0 0"); // a lone sample still shows as a dot (round caps)
+            }
+            pen_down = false;
+            run = 0;
+            continue;
+        }
+        let _ = write!(d, "{}{x:.1} {y:.1}", if pen_down { "L" } else { "M" });
+        pen_down = true;
+        run += 1;
+    }
+    if run == 1 {
+        d.push_str("l0 0");
+    }
+    d
+}
+
+/// Min/max decimation: per bucket `floor((x - origin) / width)` of consecutive samples,
+/// keeps the sample with the lowest and the one with the highest y, in their original
+/// order, so every spike and dip survives. NaN in x or y is a gap: it flushes the
+/// bucket and is kept as one (NaN, NaN) separator.
+fn minmax_by_bucket(x: &[f64], y: &[f64], origin: f64, width: f64) -> (Vec<f64>, Vec<f64>) {
+    let mut ox = Vec::new();
+    let mut oy = Vec::new();
+    let mut cur: Option<(i64, usize, usize)> = None; // (bucket, argmin, argmax)
+    let flush = |cur: &mut Option<(i64, usize, usize)>, ox: &mut Vec<f64>, oy: &mut Vec<f64>| {
+        if let Some((_, imin, imax)) = cur.take() {
+            let (a, b) = if imin <= imax {
+                (imin, imax)
+            } else {
+                (imax, imin)
+            };
+            ox.push(x[a]);
+            oy.push(y[a]);
+            if b != a {
+                ox.push(x[b]);
+                oy.push(y[b]);
+            }
+        }
+    };
+    for i in 0..x.len().min(y.len()) {
+        if !(x[i].is_finite() && y[i].is_finite()) {
+            flush(&mut cur, &mut ox, &mut oy);
+            if ox.last().is_some_and(|v: &f64| !v.is_nan()) {
+                ox.push(f64::NAN);
+                oy.push(f64::NAN);
+            }
+            continue;
+        }
+        let b = ((x[i] - origin) / width).floor() as i64;
+        match &mut cur {
+            Some((cb, imin, imax)) if *cb == b => {
+                if y[i] < y[*imin] {
+                    *imin = i;
+                }
+                if y[i] > y[*imax] {
+                    *imax = i;
+                }
+            }
+            _ => {
+                flush(&mut cur, &mut ox, &mut oy);
+                cur = Some((b, i, i));
+            }
+        }
+    }
+    flush(&mut cur, &mut ox, &mut oy);
+    (ox, oy)
+}
+
+/// Min/max decimation of a series into `buckets` equal x intervals over its finite x
+/// extent (see the plot: done per pixel column there). Output keeps, per bucket, the
+/// lowest and highest sample in original order; missing values (NaN) stay as gaps.
+pub fn downsample_minmax(x: &[f64], y: &[f64], buckets: usize) -> (Vec<f64>, Vec<f64>) {
+    let (lo, hi) = x
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    if lo >= hi || buckets == 0 {
+        return minmax_by_bucket(x, y, 0.0, f64::INFINITY);
+    }
+    // Slightly wider than the span so the last sample lands in the last bucket.
+    let width = (hi - lo) / buckets as f64 * (1.0 + 1e-12);
+    minmax_by_bucket(x, y, lo, width)
+}

@@ -1,0 +1,337 @@
+//! `magcomp simulate` command-line flags.
+
+use super::{
+    parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, SimConfig,
+};
+use anyhow::{bail, Context, Result};
+use std::path::PathBuf;
+
+/// Simulate an airborne magnetometer flight (calibration cloverleaf and/or survey lines)
+/// with an exact physical model: buried dipole geology, exact field modulus, vector
+/// Tolles–Lawson aircraft field with exact dB/dt, diurnal, and realistic sensor errors.
+#[derive(clap::Args, Clone, Debug)]
+pub struct SimulateArgs {
+    /// Output trace file (CSV, see trace-format.md).
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+
+    /// What to fly: `calibration` (cloverleaf, 4 headings × roll/pitch/yaw), `survey`
+    /// (parallel lines), or `calibration+survey`.
+    #[arg(long, default_value = "calibration", value_name = "KIND")]
+    pub flight: String,
+
+    /// Random seed: the same seed gives the same flight, byte for byte.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+
+    /// Scalar magnetometer sample rate (Hz), 1–1000.
+    #[arg(long, default_value_t = 10.0, value_name = "HZ")]
+    pub rate_hz: f64,
+
+    /// Ground speed (m/s).
+    #[arg(long, default_value_t = 60.0, value_name = "M_PER_S")]
+    pub speed_mps: f64,
+
+    /// Start latitude (deg, WGS-84; the cloverleaf centre / survey origin is here).
+    #[arg(long, default_value_t = 45.3, allow_negative_numbers = true)]
+    pub lat_deg: f64,
+
+    /// Start longitude (deg east; negative = west).
+    #[arg(long, default_value_t = -75.7, allow_negative_numbers = true)]
+    pub lon_deg: f64,
+
+    /// Elevation of the (flat) ground above sea level (m).
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub ground_elev_m: f64,
+
+    /// Height above ground of the calibration cloverleaf (m). High = quiet anomaly.
+    #[arg(long, default_value_t = 3000.0)]
+    pub cal_altitude_m: f64,
+
+    /// Height above ground of the survey lines (m).
+    #[arg(long, default_value_t = 300.0)]
+    pub survey_altitude_m: f64,
+
+    /// Amplitude of smooth height undulations, e.g. a terrain drape (m, 0 = constant
+    /// height). Wavelength is chosen so the climb slope stays ≤ 6 %.
+    #[arg(long, default_value_t = 0.0)]
+    pub altitude_swing_m: f64,
+
+    /// Calibration leg headings (deg, comma separated); all legs cross one centre point.
+    #[arg(long, default_value = "45,135,225,315", value_delimiter = ',', allow_negative_numbers = true)]
+    pub cal_headings_deg: Vec<f64>,
+
+    /// Roll manoeuvre amplitude (deg).
+    #[arg(long, default_value_t = 8.0)]
+    pub roll_amp_deg: f64,
+
+    /// Pitch manoeuvre amplitude (deg).
+    #[arg(long, default_value_t = 5.0)]
+    pub pitch_amp_deg: f64,
+
+    /// Yaw (heading) manoeuvre amplitude (deg).
+    #[arg(long, default_value_t = 5.0)]
+    pub yaw_amp_deg: f64,
+
+    /// Period of the roll/pitch/yaw swings (s).
+    #[arg(long, default_value_t = 6.0)]
+    pub manoeuvre_period_s: f64,
+
+    /// Number of cycles of each manoeuvre.
+    #[arg(long, default_value_t = 3)]
+    pub manoeuvre_cycles: u32,
+
+    /// Straight-and-level part of each calibration leg (s), centred on the centre point.
+    #[arg(long, default_value_t = 20.0)]
+    pub level_s: f64,
+
+    /// Maximum turn rate (deg/s) of the banked, coordinated turns (3 = standard rate).
+    #[arg(long, default_value_t = 3.0)]
+    pub turn_rate_deg_s: f64,
+
+    /// Number of survey lines.
+    #[arg(long, default_value_t = 10)]
+    pub lines: usize,
+
+    /// Survey line length (m).
+    #[arg(long, default_value_t = 10_000.0)]
+    pub line_length_m: f64,
+
+    /// Survey line spacing (m).
+    #[arg(long, default_value_t = 200.0)]
+    pub line_spacing_m: f64,
+
+    /// Heading of the odd lines (deg); even lines fly the reciprocal.
+    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    pub line_heading_deg: f64,
+
+    /// Survey block origin relative to the start point, `NORTH,EAST` (m); combined flights.
+    #[arg(long, default_value = "0,8000", value_delimiter = ',', allow_negative_numbers = true)]
+    pub survey_offset_m: Vec<f64>,
+
+    /// Wind speed (m/s); its direction is random per seed and sets the crab angle.
+    #[arg(long, default_value_t = 5.0)]
+    pub wind_mps: f64,
+
+    /// Rms of the turbulence on roll (pitch, yaw get 0.7×), deg.
+    #[arg(long, default_value_t = 0.3)]
+    pub turbulence_deg: f64,
+
+    /// Use a uniform main field `F,I,D` (nT, deg, deg) instead of the IGRF-2020 dipole.
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true, value_name = "F,I,D")]
+    pub earth_fid: Option<Vec<f64>>,
+
+    /// Geology preset: `quiet` (deep basement: ~0.001–0.01 nT/m at 3000 m), `moderate`,
+    /// `strong` (shallow magnetic rocks: tens–hundreds nT, 0.1–several nT/m at ≤400 m),
+    /// or `none`.
+    #[arg(long, default_value = "quiet")]
+    pub geology: String,
+
+    /// Override: buried dipole sources per km².
+    #[arg(long)]
+    pub sources_per_km2: Option<f64>,
+
+    /// Override: source depth range below ground `MIN,MAX` (m).
+    #[arg(long, value_delimiter = ',')]
+    pub source_depth_m: Option<Vec<f64>>,
+
+    /// Override: induced moment range `MIN,MAX` (A·m², log-uniform). A sphere of radius
+    /// 200 m with susceptibility 0.05 in 50 000 nT has ~7e7 A·m².
+    #[arg(long, value_delimiter = ',')]
+    pub source_moment_am2: Option<Vec<f64>>,
+
+    /// Override: Koenigsberger ratio (remanent/induced moment, random remanent direction).
+    #[arg(long)]
+    pub remanence_q: Option<f64>,
+
+    /// Rms of the slow diurnal variation (nT).
+    #[arg(long, default_value_t = 2.0)]
+    pub diurnal_nt: f64,
+
+    /// Multiplies the aircraft's K, L, M (1 = Cessna Caravan-like; 0 = magnetically clean).
+    #[arg(long, default_value_t = 1.0)]
+    pub interference_scale: f64,
+
+    /// Scalar magnetometer white noise (nT rms).
+    #[arg(long, default_value_t = 0.01)]
+    pub scalar_noise_nt: f64,
+
+    /// Fluxgate white noise (nT rms, per axis).
+    #[arg(long, default_value_t = 0.5)]
+    pub flux_noise_nt: f64,
+
+    /// INS attitude error (deg rms; correlated, τ = 100 s, plus 30 % white).
+    #[arg(long, default_value_t = 0.03)]
+    pub ins_noise_deg: f64,
+
+    /// GPS horizontal position error (m rms, Gauss–Markov).
+    #[arg(long, default_value_t = 1.0)]
+    pub gps_sigma_h_m: f64,
+
+    /// GPS vertical position error (m rms, Gauss–Markov).
+    #[arg(long, default_value_t = 1.5)]
+    pub gps_sigma_v_m: f64,
+
+    /// Correlation time of the GPS errors (s).
+    #[arg(long, default_value_t = 60.0)]
+    pub gps_tau_s: f64,
+
+    /// Add an effect the default model does not know (repeatable): `current:CH`,
+    /// `current_rate:CH`, `lag:SECONDS`, `rate`, `diurnal`, `induced_high`, `fluxcal`,
+    /// `periodic:CH`; suffix `@T0:T1` (s) limits it to a time window. Its contribution is
+    /// written as `truth_hidden_<name>`.
+    #[arg(long = "hidden", value_name = "SPEC")]
+    pub hidden: Vec<String>,
+
+    /// Add an auxiliary channel with a current-like waveform and no magnetic effect
+    /// (repeatable), to test false detections.
+    #[arg(long = "decoy", value_name = "CH")]
+    pub decoys: Vec<String>,
+
+    /// Standard deviation (nT) that hidden effects are scaled to inside their window
+    /// (`rate` is physical and not scaled; `periodic` gets half).
+    #[arg(long, default_value_t = 2.0)]
+    pub hidden_std_nt: f64,
+
+    /// Stop the flight after this many seconds.
+    #[arg(long)]
+    pub max_duration_s: Option<f64>,
+}
+
+fn pair(v: &Option<Vec<f64>>, what: &str) -> Result<Option<(f64, f64)>> {
+    match v {
+        None => Ok(None),
+        Some(v) if v.len() == 2 => Ok(Some((v[0], v[1]))),
+        Some(_) => bail!("{what} needs two values MIN,MAX"),
+    }
+}
+
+impl SimulateArgs {
+    pub fn to_config(&self) -> Result<SimConfig> {
+        let preset = match self.geology.as_str() {
+            "quiet" => GeologyPreset::Quiet,
+            "moderate" => GeologyPreset::Moderate,
+            "strong" => GeologyPreset::Strong,
+            "none" => GeologyPreset::None,
+            other => bail!("unknown geology `{other}` (quiet, moderate, strong, none)"),
+        };
+        let mut geology = Geology::preset(preset);
+        if let Some(d) = self.sources_per_km2 {
+            geology.sources_per_km2 = d;
+        }
+        if let Some((a, b)) = pair(&self.source_depth_m, "--source-depth-m")? {
+            geology.depth_min_m = a;
+            geology.depth_max_m = b;
+        }
+        if let Some((a, b)) = pair(&self.source_moment_am2, "--source-moment-am2")? {
+            geology.moment_min_am2 = a;
+            geology.moment_max_am2 = b;
+        }
+        if let Some(q) = self.remanence_q {
+            geology.remanence_q = q;
+        }
+        let earth = match &self.earth_fid {
+            None => EarthField::Dipole,
+            Some(v) if v.len() == 3 => EarthField::Fixed {
+                f_nt: v[0],
+                inc_deg: v[1],
+                dec_deg: v[2],
+            },
+            Some(_) => bail!("--earth-fid needs three values F,I,D"),
+        };
+        let survey_offset_m = match self.survey_offset_m.as_slice() {
+            [n, e] => [*n, *e],
+            _ => bail!("--survey-offset-m needs two values NORTH,EAST"),
+        };
+        let hidden = self
+            .hidden
+            .iter()
+            .map(|s| parse_hidden(s).with_context(|| format!("--hidden {s}")))
+            .collect::<Result<Vec<_>>>()?;
+        let cfg = SimConfig {
+            flight: FlightKind::parse(&self.flight)?,
+            seed: self.seed,
+            sample_rate_hz: self.rate_hz,
+            speed_mps: self.speed_mps,
+            start_lat_deg: self.lat_deg,
+            start_lon_deg: self.lon_deg,
+            ground_elev_m: self.ground_elev_m,
+            cal_altitude_m: self.cal_altitude_m,
+            survey_altitude_m: self.survey_altitude_m,
+            altitude_swing_m: self.altitude_swing_m,
+            cal_headings_deg: self.cal_headings_deg.clone(),
+            roll_amp_deg: self.roll_amp_deg,
+            pitch_amp_deg: self.pitch_amp_deg,
+            yaw_amp_deg: self.yaw_amp_deg,
+            manoeuvre_period_s: self.manoeuvre_period_s,
+            manoeuvre_cycles: self.manoeuvre_cycles,
+            level_s: self.level_s,
+            turn_rate_deg_s: self.turn_rate_deg_s,
+            survey_lines: self.lines,
+            line_length_m: self.line_length_m,
+            line_spacing_m: self.line_spacing_m,
+            line_heading_deg: self.line_heading_deg,
+            survey_offset_m,
+            wind_mps: self.wind_mps,
+            turbulence_deg: self.turbulence_deg,
+            earth,
+            geology,
+            diurnal_nt: self.diurnal_nt,
+            interference_scale: self.interference_scale,
+            scalar_noise_nt: self.scalar_noise_nt,
+            flux_noise_nt: self.flux_noise_nt,
+            ins_noise_deg: self.ins_noise_deg,
+            gps_sigma_h_m: self.gps_sigma_h_m,
+            gps_sigma_v_m: self.gps_sigma_v_m,
+            gps_tau_s: self.gps_tau_s,
+            hidden,
+            decoys: self.decoys.clone(),
+            hidden_std_nt: self.hidden_std_nt,
+            max_duration_s: self.max_duration_s,
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(clap::Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: SimulateArgs,
+    }
+
+    #[test]
+    fn defaults_match_config_default() {
+        let cli = Cli::try_parse_from(["x"]).unwrap();
+        assert_eq!(cli.args.to_config().unwrap(), SimConfig::default());
+    }
+
+    #[test]
+    fn flags_parse_and_bad_values_error() {
+        let cli = Cli::try_parse_from([
+            "x", "--flight", "survey", "--hidden", "current:cur_pump@10:20", "--decoy", "cur_x",
+            "--earth-fid", "50000,70,-12", "--lon-deg", "-10",
+        ])
+        .unwrap();
+        let c = cli.args.to_config().unwrap();
+        assert_eq!(c.flight, FlightKind::Survey);
+        assert_eq!(c.hidden.len(), 1);
+        for bad in [
+            vec!["x", "--rate-hz", "5000"],
+            vec!["x", "--flight", "loop"],
+            vec!["x", "--geology", "granite"],
+            vec!["x", "--hidden", "nonsense"],
+            vec!["x", "--decoy", "mag"],
+            vec!["x", "--source-depth-m", "100"],
+            vec!["x", "--speed-mps", "NaN"],
+        ] {
+            let r = Cli::try_parse_from(bad.clone()).map(|c| c.args.to_config());
+            assert!(!matches!(r, Ok(Ok(_))), "{bad:?}");
+        }
+    }
+}

@@ -1,0 +1,500 @@
+//! Streaming reader for the CSV trace layout and the whitespace-separated `.xyz` survey
+//! layout. One pass, one reused line buffer, columns built directly (no row structs), so a
+//! multi-million-row file costs about its own size in f64s.
+use super::view::{column_kind, ColumnKind};
+use super::{ColumnMap, Trace, TraceError};
+use std::fs::File;
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+
+/// File layout.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Layout {
+    /// `.xyz`/`.XYZ` extension, or first non-blank character `/`, means [`Layout::Xyz`];
+    /// anything else is [`Layout::Csv`].
+    #[default]
+    Auto,
+    /// trace-format.md CSV.
+    Csv,
+    /// Public survey (Geosoft-style) XYZ: `/` comment lines, the last one before the data
+    /// holding the column names; whitespace-separated fields; `*` = missing. Lines of the
+    /// form `Line 1003.01` / `Tie 10` (line separators) are skipped.
+    Xyz,
+}
+
+/// Options for [`read_trace_with`] / [`read_trace_from_with`].
+pub struct ReadOptions<'a> {
+    pub layout: Layout,
+    /// Check while reading that `t` (after the map) is present and strictly increasing on
+    /// every row, erroring with the file line. Default true. No effect without a `t` column.
+    pub check_time: bool,
+    /// Called as `(bytes_read, total_bytes)` every few MiB and once at the end;
+    /// `total_bytes` is 0 when unknown (a reader that is not a file).
+    pub progress: Option<&'a mut dyn FnMut(u64, u64)>,
+}
+
+impl Default for ReadOptions<'_> {
+    fn default() -> Self {
+        ReadOptions {
+            layout: Layout::Auto,
+            check_time: true,
+            progress: None,
+        }
+    }
+}
+
+/// Reads a trace file (layout detected automatically; `t` checked).
+pub fn read_trace(path: &Path, map: &ColumnMap) -> Result<Trace, TraceError> {
+    read_trace_with(path, map, ReadOptions::default())
+}
+
+/// Reads a trace file with options (layout, time check, progress).
+pub fn read_trace_with(
+    path: &Path,
+    map: &ColumnMap,
+    mut opts: ReadOptions<'_>,
+) -> Result<Trace, TraceError> {
+    let name = path.display().to_string();
+    let io = |source| TraceError::Io {
+        file: name.clone(),
+        source,
+    };
+    let file = File::open(path).map_err(io)?;
+    let total = file.metadata().map(|m| m.len()).unwrap_or(0);
+    if opts.layout == Layout::Auto {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if ext.eq_ignore_ascii_case("xyz") {
+            opts.layout = Layout::Xyz;
+        }
+    }
+    read_impl(file, &name, map, opts, total)
+}
+
+/// Reads a trace from any reader (layout detected from the content); `name_for_errors`
+/// is what error messages call the source.
+pub fn read_trace_from<R: Read>(
+    reader: R,
+    name_for_errors: &str,
+    map: &ColumnMap,
+) -> Result<Trace, TraceError> {
+    read_impl(reader, name_for_errors, map, ReadOptions::default(), 0)
+}
+
+/// [`read_trace_from`] with options; `total_bytes` (0 if unknown) is passed to the
+/// progress callback.
+pub fn read_trace_from_with<R: Read>(
+    reader: R,
+    name_for_errors: &str,
+    map: &ColumnMap,
+    opts: ReadOptions<'_>,
+    total_bytes: u64,
+) -> Result<Trace, TraceError> {
+    read_impl(reader, name_for_errors, map, opts, total_bytes)
+}
+
+/// A progress bar for reading `total_bytes`, drawn on stderr; hidden when stderr is not a
+/// terminal (logs and CI stay clean). Feed it from [`ReadOptions::progress`]:
+/// `|done, total| { bar.set_length(total); bar.set_position(done) }`.
+pub fn progress_bar(total_bytes: u64) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(total_bytes);
+    if let Ok(style) = indicatif::ProgressStyle::with_template(
+        "{msg} [{bar:40}] {bytes}/{total_bytes} {bytes_per_sec} eta {eta}",
+    ) {
+        bar.set_style(style.progress_chars("=> "));
+    }
+    bar
+}
+
+/// Values that mean "missing" in any layout.
+fn is_missing(text: &str) -> bool {
+    text.is_empty() || text == "*" || text.eq_ignore_ascii_case("nan")
+}
+
+/// Some(value) for a number or a missing marker (NaN), None for anything else.
+/// Infinite values are refused: no sensor reports them, so they are corruption.
+fn parse_num(text: &str) -> Option<f64> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() => Some(v),
+        Ok(v) if v.is_nan() => Some(f64::NAN),
+        Ok(_) => None,
+        Err(_) if text.is_empty() || text == "*" => Some(f64::NAN),
+        Err(_) => None,
+    }
+}
+
+enum ColData {
+    /// Type not decided yet (only for `ColumnKind::Auto`): this many leading missing values.
+    Pending(usize),
+    Num(Vec<f64>),
+    Text(Vec<String>),
+}
+
+struct Col {
+    name: String,
+    data: ColData,
+}
+
+impl Col {
+    fn new(name: String) -> Self {
+        let data = match column_kind(&name) {
+            ColumnKind::Numeric => ColData::Num(Vec::new()),
+            ColumnKind::Text => ColData::Text(Vec::new()),
+            ColumnKind::Auto => ColData::Pending(0),
+        };
+        Col { name, data }
+    }
+
+    /// Appends one field; `Err(())` if it is not a number in a numeric column.
+    fn push(&mut self, text: &str) -> Result<(), ()> {
+        match &mut self.data {
+            ColData::Num(v) => v.push(parse_num(text).ok_or(())?),
+            ColData::Text(v) => v.push(if is_missing(text) {
+                String::new()
+            } else {
+                text.to_string()
+            }),
+            ColData::Pending(n) => {
+                if is_missing(text) {
+                    *n += 1;
+                } else if let Some(x) = parse_num(text) {
+                    let mut v = vec![f64::NAN; *n];
+                    v.push(x);
+                    self.data = ColData::Num(v);
+                } else {
+                    let mut v = vec![String::new(); *n];
+                    v.push(text.to_string());
+                    self.data = ColData::Text(v);
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Splits a CSV line into trimmed fields, calling `f(index, field)`; returns the count.
+/// Double-quoted fields (`"a,b"`, `""` for a quote) are accepted because spreadsheets
+/// write them; the fast path is taken when the line has no quote at all.
+fn csv_fields(
+    line: &str,
+    scratch: &mut String,
+    mut f: impl FnMut(usize, &str) -> Result<(), TraceError>,
+) -> Result<usize, TraceError> {
+    if !line.contains('"') {
+        let mut n = 0;
+        for field in line.split(',') {
+            f(n, field.trim_ascii())?;
+            n += 1;
+        }
+        return Ok(n);
+    }
+    let mut n = 0;
+    let mut chars = line.chars().peekable();
+    loop {
+        scratch.clear();
+        let mut quoted = false;
+        // Skip leading blanks so ` "x"` is still a quoted field.
+        while let Some(&c) = chars.peek() {
+            if c == ' ' || c == '\t' {
+                chars.next();
+            } else {
+                break;
+            }
+        }
+        if chars.peek() == Some(&'"') {
+            chars.next();
+            quoted = true;
+            while let Some(c) = chars.next() {
+                if c == '"' {
+                    if chars.peek() == Some(&'"') {
+                        chars.next();
+                        scratch.push('"');
+                    } else {
+                        break;
+                    }
+                } else {
+                    scratch.push(c);
+                }
+            }
+        }
+        let mut end = false;
+        loop {
+            match chars.next() {
+                None => {
+                    end = true;
+                    break;
+                }
+                Some(',') => break,
+                // Blanks after a closing quote are padding, not content.
+                Some(' ' | '\t') if quoted => {}
+                Some(c) => scratch.push(c),
+            }
+        }
+        let field = if quoted {
+            scratch.as_str()
+        } else {
+            scratch.trim_ascii()
+        };
+        f(n, field)?;
+        n += 1;
+        if end {
+            return Ok(n);
+        }
+    }
+}
+
+/// `# key: value` with a one-word key; other comments are not metadata.
+fn parse_meta(comment: &str) -> Option<(String, String)> {
+    let (key, value) = comment.split_once(':')?;
+    let key = key.trim();
+    let ok = !key.is_empty()
+        && key
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.');
+    ok.then(|| (key.to_string(), value.trim().to_string()))
+}
+
+struct Reader<'m> {
+    file: String,
+    map: &'m ColumnMap,
+    check_time: bool,
+    cols: Vec<Col>,
+    t_idx: Option<usize>,
+    prev_t: f64,
+}
+
+impl Reader<'_> {
+    fn set_header(&mut self, names: Vec<String>, line: u64) -> Result<(), TraceError> {
+        for (i, n) in names.iter().enumerate() {
+            if n.is_empty() {
+                return Err(TraceError::Header {
+                    file: self.file.clone(),
+                    line,
+                    msg: format!("column {} has an empty name", i + 1),
+                });
+            }
+            if let Some(j) = names[..i].iter().position(|m| m == n) {
+                return Err(TraceError::Header {
+                    file: self.file.clone(),
+                    line,
+                    msg: format!(
+                        "duplicate column name '{n}' (columns {} and {})",
+                        j + 1,
+                        i + 1
+                    ),
+                });
+            }
+        }
+        let canon = self.map.apply(&names)?;
+        self.t_idx = canon
+            .iter()
+            .position(|n| n == "t")
+            .filter(|_| self.check_time);
+        self.cols = canon.into_iter().map(Col::new).collect();
+        Ok(())
+    }
+
+    fn parse_err(&self, line: u64, i: usize, text: &str) -> TraceError {
+        TraceError::Parse {
+            file: self.file.clone(),
+            line,
+            column: self.cols[i].name.clone(),
+            text: text.to_string(),
+        }
+    }
+
+    fn count_err(&self, line: u64, found: usize) -> TraceError {
+        TraceError::FieldCount {
+            file: self.file.clone(),
+            line,
+            expected: self.cols.len(),
+            found,
+        }
+    }
+
+    /// Pushes one field of a data row; fields beyond the header are only counted.
+    fn field(&mut self, line: u64, i: usize, text: &str) -> Result<(), TraceError> {
+        match self.cols.get_mut(i) {
+            Some(col) => col.push(text).map_err(|()| self.parse_err(line, i, text)),
+            None => Ok(()),
+        }
+    }
+
+    fn end_row(&mut self, line: u64, found: usize) -> Result<(), TraceError> {
+        if found != self.cols.len() {
+            return Err(self.count_err(line, found));
+        }
+        if let Some(ti) = self.t_idx {
+            if let ColData::Num(v) = &self.cols[ti].data {
+                let t = v.last().copied().unwrap_or(f64::NAN);
+                // `!(t > prev)` also catches a missing (NaN) t.
+                if !(t > self.prev_t) {
+                    return Err(TraceError::Time {
+                        file: self.file.clone(),
+                        line,
+                        value: t,
+                        previous: self.prev_t,
+                    });
+                }
+                self.prev_t = t;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn read_impl<R: Read>(
+    reader: R,
+    name: &str,
+    map: &ColumnMap,
+    mut opts: ReadOptions<'_>,
+    total_bytes: u64,
+) -> Result<Trace, TraceError> {
+    let io = |source| TraceError::Io {
+        file: name.to_string(),
+        source,
+    };
+    let mut r = BufReader::with_capacity(1 << 18, reader);
+    let mut layout = opts.layout;
+    if layout == Layout::Auto {
+        let head = r.fill_buf().map_err(io)?;
+        let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
+        let first = head.iter().find(|b| !b.is_ascii_whitespace());
+        layout = if first == Some(&b'/') {
+            Layout::Xyz
+        } else {
+            Layout::Csv
+        };
+    }
+    let mut rd = Reader {
+        file: name.to_string(),
+        map,
+        check_time: opts.check_time,
+        cols: Vec::new(),
+        t_idx: None,
+        prev_t: f64::NEG_INFINITY,
+    };
+    let mut meta = Vec::new();
+    let mut have_header = false;
+    let mut xyz_names: Option<(u64, String)> = None;
+    let mut buf = Vec::with_capacity(4096);
+    let mut scratch = String::new();
+    let mut line_no = 0u64;
+    let mut bytes = 0u64;
+    const PROGRESS_STEP: u64 = 4 << 20;
+    let mut next_progress = PROGRESS_STEP;
+
+    loop {
+        buf.clear();
+        let n = r.read_until(b'\n', &mut buf).map_err(io)?;
+        if n == 0 {
+            break;
+        }
+        bytes += n as u64;
+        line_no += 1;
+        if bytes >= next_progress {
+            if let Some(p) = opts.progress.as_mut() {
+                p(bytes, total_bytes);
+            }
+            next_progress = bytes + PROGRESS_STEP;
+        }
+        let mut raw: &[u8] = &buf;
+        if line_no == 1 {
+            raw = raw.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(raw);
+        }
+        while let [rest @ .., b'\n' | b'\r'] = raw {
+            raw = rest;
+        }
+        let first = raw.iter().find(|b| !b.is_ascii_whitespace()).copied();
+        let Some(first) = first else { continue }; // blank line
+        let comment_char = if layout == Layout::Xyz { b'/' } else { b'#' };
+        if first == comment_char {
+            // Comments may carry any encoding (degree signs...): decode leniently.
+            if have_header {
+                continue;
+            }
+            let text = String::from_utf8_lossy(raw);
+            let body = text.trim_start().get(1..).unwrap_or("");
+            if layout == Layout::Xyz {
+                xyz_names = Some((line_no, body.to_string()));
+            } else if let Some(kv) = parse_meta(body) {
+                meta.push(kv);
+            }
+            continue;
+        }
+        let line = std::str::from_utf8(raw).map_err(|_| TraceError::Utf8 {
+            file: name.to_string(),
+            line: line_no,
+        })?;
+
+        if layout == Layout::Csv {
+            if !have_header {
+                let mut names = Vec::new();
+                csv_fields(line, &mut scratch, |_, f| {
+                    names.push(f.to_string());
+                    Ok(())
+                })?;
+                rd.set_header(names, line_no)?;
+                have_header = true;
+                continue;
+            }
+            let found = csv_fields(line, &mut scratch, |i, f| rd.field(line_no, i, f))?;
+            rd.end_row(line_no, found)?;
+        } else {
+            if !have_header {
+                let Some((hl, names)) = xyz_names.take() else {
+                    return Err(TraceError::NoHeader {
+                        file: name.to_string(),
+                    });
+                };
+                let names: Vec<String> =
+                    names.split_ascii_whitespace().map(str::to_string).collect();
+                if names.is_empty() {
+                    return Err(TraceError::NoHeader {
+                        file: name.to_string(),
+                    });
+                }
+                rd.set_header(names, hl)?;
+                have_header = true;
+            }
+            let mut toks = line.split_ascii_whitespace();
+            let first_tok = toks.next().unwrap_or("");
+            if (first_tok.eq_ignore_ascii_case("line") || first_tok.eq_ignore_ascii_case("tie"))
+                && toks.clone().count() <= 1
+                && rd.cols.len() > 2
+            {
+                continue; // Geosoft line separator, not a data row
+            }
+            let mut found = 0;
+            for (i, f) in line.split_ascii_whitespace().enumerate() {
+                rd.field(line_no, i, f)?;
+                found = i + 1;
+            }
+            rd.end_row(line_no, found)?;
+        }
+    }
+    if let Some(p) = opts.progress.as_mut() {
+        p(bytes, total_bytes);
+    }
+    if !have_header {
+        return Err(TraceError::NoHeader {
+            file: name.to_string(),
+        });
+    }
+    let mut trace = Trace {
+        meta,
+        ..Trace::default()
+    };
+    for col in rd.cols {
+        match col.data {
+            // Never had a value: numeric and all missing.
+            ColData::Pending(n) => trace.numeric.push((col.name, vec![f64::NAN; n])),
+            ColData::Num(v) => trace.numeric.push((col.name, v)),
+            ColData::Text(v) => trace.text.push((col.name, v)),
+        }
+    }
+    Ok(trace)
+}

@@ -1,0 +1,164 @@
+//! MagNav.jl conformance checks for classic Tolles–Lawson (shared/reference-data/README.md).
+//! Skips, with a printed message, where the reference data is absent.
+
+use magcomp::tl::{self, TlConfig, TlTerms};
+use std::path::PathBuf;
+
+fn ref_dir() -> Option<PathBuf> {
+    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/reference-data/magnav-tl");
+    if d.join("raw_1000x6.csv").is_file() {
+        Some(d)
+    } else {
+        eprintln!(
+            "SKIP: MagNav reference data not found at {} — conformance check not run",
+            d.display()
+        );
+        None
+    }
+}
+
+/// Numeric rows of a CSV; a non-numeric first line is taken as the header.
+fn read_csv(dir: &std::path::Path, name: &str) -> Vec<Vec<f64>> {
+    let text = std::fs::read_to_string(dir.join(name)).unwrap();
+    let mut rows = Vec::new();
+    for (k, line) in text.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let parsed: Result<Vec<f64>, _> = line.split(',').map(|v| v.trim().parse()).collect();
+        match parsed {
+            Ok(r) => rows.push(r),
+            Err(_) if k == 0 => {}
+            Err(e) => panic!("{name}:{}: {e}", k + 1),
+        }
+    }
+    rows
+}
+
+struct Ref {
+    flux: Vec<[f64; 3]>,
+    mag_uc: Vec<f64>,
+    mag_c: Vec<f64>,
+    a: Vec<Vec<f64>>,
+    a_f: Vec<Vec<f64>>,
+    mag_f: Vec<f64>,
+    coef: Vec<f64>,
+}
+
+fn load(dir: &std::path::Path) -> Ref {
+    let raw = read_csv(dir, "raw_1000x6.csv");
+    assert_eq!(raw.len(), 1000);
+    Ref {
+        flux: raw.iter().map(|r| [r[0], r[1], r[2]]).collect(),
+        mag_uc: raw.iter().map(|r| r[3]).collect(),
+        mag_c: raw.iter().map(|r| r[4]).collect(),
+        a: read_csv(dir, "A_a_1000x18.csv"),
+        a_f: read_csv(dir, "A_a_f_t_960x18.csv"),
+        mag_f: read_csv(dir, "mag_1_uc_f_t_960.csv").into_iter().map(|r| r[0]).collect(),
+        coef: read_csv(dir, "TL_a_1_18.csv").into_iter().flatten().collect(),
+    }
+}
+
+fn rms(x: impl Iterator<Item = f64> + Clone) -> f64 {
+    let n = x.clone().count() as f64;
+    (x.map(|v| v * v).sum::<f64>() / n).sqrt()
+}
+
+fn std(x: &[f64]) -> f64 {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+}
+
+#[test]
+fn check1_design_matrix_matches_magnav() {
+    let Some(dir) = ref_dir() else { return };
+    let r = load(&dir);
+    let a = tl::design_matrix(&r.flux, &TlTerms::Tl18, tl::BT_SCALE_NT);
+    assert_eq!(a.shape(), (1000, 18));
+    let mut worst = 0.0f64;
+    for j in 0..18 {
+        // Relative to the column's scale, so near-zero entries don't blow the ratio up.
+        let scale = rms(r.a.iter().map(|row| row[j]));
+        for i in 0..1000 {
+            worst = worst.max((a[(i, j)] - r.a[i][j]).abs() / scale);
+        }
+    }
+    println!("check 1: design matrix max |A - A_a| / rms(column) = {worst:.3e}");
+    assert!(worst < 1e-12, "design matrix differs from MagNav: {worst:e}");
+}
+
+#[test]
+fn check2_ridge_on_reference_filtered_arrays() {
+    let Some(dir) = ref_dir() else { return };
+    let r = load(&dir);
+    let a = nalgebra::DMatrix::from_fn(960, 18, |i, j| r.a_f[i][j]);
+    let sol = tl::ridge(&a, &r.mag_f, 0.001).unwrap();
+    let num: f64 = sol
+        .coefficients
+        .iter()
+        .zip(&r.coef)
+        .map(|(c, e)| (c - e).powi(2))
+        .sum();
+    let den: f64 = r.coef.iter().map(|e| e * e).sum();
+    let rel = (num / den).sqrt();
+    let worst_elem = sol
+        .coefficients
+        .iter()
+        .zip(&r.coef)
+        .map(|(c, e)| ((c - e) / e).abs())
+        .fold(0.0, f64::max);
+    println!(
+        "check 2: ridge ‖c - TL_a_1‖/‖TL_a_1‖ = {rel:.3e}, worst element relative {worst_elem:.3e}, cond(AᵀA+λI) = {:.3e}",
+        sol.cond_normal
+    );
+    assert!(rel < 1e-9, "ridge differs from MagNav: {rel:e}");
+}
+
+#[test]
+fn check3_full_pipeline_compensation() {
+    let Some(dir) = ref_dir() else { return };
+    let r = load(&dir);
+    let cfg = TlConfig::default();
+
+    // Filter match: our band-pass of A_a and mag_1_uc against MagNav's filtered arrays.
+    let sos = tl::butterworth_bandpass(4, 0.1, 0.9, 10.0).unwrap();
+    let mut worst_col = 0.0f64;
+    for j in 0..18 {
+        let col: Vec<f64> = r.a.iter().map(|row| row[j]).collect();
+        let f = tl::filtfilt(&sos, &col).unwrap();
+        let scale = rms(r.a_f.iter().map(|row| row[j]));
+        let d = (0..960)
+            .map(|i| (f[i + 20] - r.a_f[i][j]).abs())
+            .fold(0.0, f64::max);
+        worst_col = worst_col.max(d / scale);
+    }
+    let mf = tl::filtfilt(&sos, &r.mag_uc).unwrap();
+    let mag_max = (0..960)
+        .map(|i| (mf[i + 20] - r.mag_f[i]).abs())
+        .fold(0.0, f64::max);
+    println!(
+        "check 3: filter match: columns max |Δ|/rms(column) = {worst_col:.3e}; scalar max |Δ| = {mag_max:.3e} nT (rms {:.3} nT)",
+        rms(r.mag_f.iter().copied())
+    );
+
+    let fit = tl::fit(&r.flux, &r.mag_uc, &cfg, None).unwrap();
+    let num: f64 = fit
+        .coefficients
+        .iter()
+        .zip(&r.coef)
+        .map(|(c, e)| (c - e).powi(2))
+        .sum();
+    let den: f64 = r.coef.iter().map(|e| e * e).sum();
+    let comp = tl::compensate(&fit, &r.flux, &r.mag_uc).unwrap();
+    let diff: Vec<f64> = comp.iter().zip(&r.mag_c).map(|(c, e)| c - e).collect();
+    let sd = std(&diff);
+    let max = diff.iter().map(|d| d.abs()).fold(0.0, f64::max);
+    println!(
+        "check 3: coefficients rel diff {:.3e}; compensated − mag_1_c: std {sd:.3e} nT, max |Δ| {max:.3e} nT ({} rows used)",
+        (num / den).sqrt(),
+        fit.rows_used
+    );
+    assert_eq!(fit.rows_used, 960);
+    assert!(sd < 0.1, "compensated signal differs from MagNav: std {sd} nT");
+}
