@@ -58,7 +58,7 @@ pub(crate) fn hex_val(b: u8) -> Option<u8> {
 pub(crate) const HEX_UPPER: &[u8; 16] = b"0123456789ABCDEF";
 
 /// Parses exactly `s.len()` hex digits (up to 8) into a u32.
-pub(crate) fn parse_hex_u32(s: &[u8]) -> Option<u32> {
+pub fn parse_hex_u32(s: &[u8]) -> Option<u32> {
     if s.is_empty() || s.len() > 8 {
         return None;
     }
@@ -291,6 +291,14 @@ impl<'a> Cursor<'a> {
         let scaled = v * POW10_F64[scale as usize];
         if libm::fabs(scaled) < 9.0e15 {
             return self.fixed(libm::round(scaled) as i64, scale);
+        }
+        self.sci(v)
+    }
+    /// Writes a finite non-zero float as 9 significant digits `<mantissa>E<exp>` (enough
+    /// to round-trip an f32); zero as `0`.
+    pub fn sci(&mut self, v: f64) -> Result<(), BufferFull> {
+        if v == 0.0 || !v.is_finite() {
+            return self.float(if v == 0.0 { 0.0 } else { v }, 0);
         }
         let a = libm::fabs(v);
         let mut e = libm::floor(libm::log10(a)) as i32 - 8;
