@@ -110,10 +110,13 @@ pub fn decode_line(line: &[u8], data_out: &mut [u8]) -> Result<Option<CaptureLin
         (Some(t), Some(p), h, None) => (t, p, h.unwrap_or(b"")),
         _ => return Err(CaptureError::BadLine),
     };
-    if t.is_empty() || t.len() > 19 || !t.iter().all(u8::is_ascii_digit) {
+    if t.is_empty() || !t.iter().all(u8::is_ascii_digit) {
         return Err(CaptureError::BadTime);
     }
-    let t_us = t.iter().fold(0u64, |a, &d| a * 10 + (d - b'0') as u64);
+    let t_us = t
+        .iter()
+        .try_fold(0u64, |a, &d| a.checked_mul(10)?.checked_add((d - b'0') as u64))
+        .ok_or(CaptureError::BadTime)?;
     let port = Port::from_name(p).ok_or(CaptureError::UnknownPort)?;
     if h.len() % 2 != 0 {
         return Err(CaptureError::BadHex);
