@@ -186,7 +186,7 @@ impl Aligner {
 
     /// A scalar sample at `t_us` (`None`: missing/invalid) → its aligned sample.
     pub fn push_scalar(&mut self, t_us: u64, mag: Option<MagCounts>) -> AlignedSample {
-        let mut s = AlignedSample::empty(t_us as f64 * 1e-6);
+        let mut s = AlignedSample::empty(t_us as f64 / 1e6);
         s.mag = mag;
         if mag.is_none() {
             s.flags.set(Flags::MAG_MISSING);
