@@ -2,6 +2,7 @@
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
 pub mod diagnose;
+pub mod nmea_cmd;
 pub mod report;
 pub mod sim;
 pub mod tl;
