@@ -16,7 +16,5 @@ pub mod protocol;
 pub mod spectrum;
 pub mod units;
 
-
-
 pub use flags::Flags;
 pub use units::MagCounts;

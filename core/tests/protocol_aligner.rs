@@ -116,7 +116,11 @@ fn slice_decoders_never_panic() {
         let v: Vec<u8> = (0..n)
             .map(|_| {
                 let r = rng.next();
-                if r % 3 == 0 { (r >> 8) as u8 } else { alphabet[(r >> 8) as usize % alphabet.len()] }
+                // One byte in three fully random, the rest from the protocols' alphabet.
+                match r % 3 {
+                    0 => (r >> 8) as u8,
+                    _ => alphabet[(r >> 8) as usize % alphabet.len()],
+                }
             })
             .collect();
         total += n;

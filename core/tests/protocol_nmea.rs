@@ -17,8 +17,13 @@ fn gga_exact_fields() {
     let mut r = NmeaReader::new();
     let out = feed(&mut r, s.as_bytes());
     assert_eq!(out.len(), 1);
-    let Ok(Sentence::Gga(g)) = out[0] else { panic!("{:?}", out[0]) };
-    assert_eq!(g.time.unwrap().seconds_of_day_s, 17.0 * 3600.0 + 19.0 * 60.0 + 26.25);
+    let Ok(Sentence::Gga(g)) = out[0] else {
+        panic!("{:?}", out[0])
+    };
+    assert_eq!(
+        g.time.unwrap().seconds_of_day_s,
+        17.0 * 3600.0 + 19.0 * 60.0 + 26.25
+    );
     // 44 + 4.14063/60 exactly: compare against the exact rational to 1e-12.
     assert!((g.lat_deg.unwrap() - (44.0 + 414063.0 / 6_000_000.0)).abs() < 1e-12);
     assert!((g.lon_deg.unwrap() + (121.0 + 1885478.0 / 6_000_000.0)).abs() < 1e-12);
@@ -34,7 +39,9 @@ fn gga_exact_fields() {
 fn high_precision_coordinates_do_not_drift() {
     // 10 decimal digits of minutes (RTK receivers send 7-8).
     let s = with_cs("GPGGA,000000,8959.9999999999,S,17959.9999999999,E,4,10,0.5,0.0,M,,M,,");
-    let Ok(Sentence::Gga(g)) = parse_sentence(s.as_bytes()) else { panic!() };
+    let Ok(Sentence::Gga(g)) = parse_sentence(s.as_bytes()) else {
+        panic!()
+    };
     let lat = -(89.0 + 59.9999999999 / 60.0);
     assert!((g.lat_deg.unwrap() - lat).abs() < 1e-12);
     assert!(g.lat_deg.unwrap() > -90.0);
@@ -43,25 +50,40 @@ fn high_precision_coordinates_do_not_drift() {
 #[test]
 fn rmc_vtg_gst() {
     let s = with_cs("GPRMC,235959.999,A,3751.65,S,14507.36,E,10.5,54.7,191194,020.3,E,D");
-    let Ok(Sentence::Rmc(m)) = parse_sentence(s.as_bytes()) else { panic!() };
+    let Ok(Sentence::Rmc(m)) = parse_sentence(s.as_bytes()) else {
+        panic!()
+    };
     assert!(m.valid);
     assert_eq!(m.time.unwrap().seconds_of_day_s, 86399.999);
     assert!((m.speed_mps.unwrap() - 10.5 * 1852.0 / 3600.0).abs() < 1e-12);
     assert_eq!(m.track_deg, Some(54.7));
-    assert_eq!(m.date, Some(Date { year: 1994, month: 11, day: 19 }));
+    assert_eq!(
+        m.date,
+        Some(Date {
+            year: 1994,
+            month: 11,
+            day: 19
+        })
+    );
     assert_eq!(m.mode, Some(b'D'));
     let s = with_cs("GNVTG,54.7,T,34.4,M,,N,36.0,K,A");
-    let Ok(Sentence::Vtg(v)) = parse_sentence(s.as_bytes()) else { panic!() };
+    let Ok(Sentence::Vtg(v)) = parse_sentence(s.as_bytes()) else {
+        panic!()
+    };
     assert_eq!(v.track_deg, Some(54.7));
     assert!((v.speed_mps.unwrap() - 10.0).abs() < 1e-12);
     assert_eq!(v.mode, Some(b'A'));
     let s = with_cs("GNGST,223745.00,228650,2.5,2.4,126,0.98,1.0,3.1");
-    let Ok(Sentence::Gst(g)) = parse_sentence(s.as_bytes()) else { panic!() };
+    let Ok(Sentence::Gst(g)) = parse_sentence(s.as_bytes()) else {
+        panic!()
+    };
     assert_eq!(g.sigma_lat_m, Some(0.98));
     assert_eq!(g.sigma_alt_m, Some(3.1));
     // Empty fields → None.
     let s = with_cs("GPRMC,,V,,,,,,,,,,N");
-    let Ok(Sentence::Rmc(m)) = parse_sentence(s.as_bytes()) else { panic!() };
+    let Ok(Sentence::Rmc(m)) = parse_sentence(s.as_bytes()) else {
+        panic!()
+    };
     assert!(!m.valid && m.time.is_none() && m.lat_deg.is_none() && m.speed_mps.is_none());
 }
 
@@ -69,19 +91,52 @@ fn rmc_vtg_gst() {
 fn typed_errors() {
     use NmeaError::*;
     let bad = |b: &str| parse_sentence(with_cs(b).as_bytes());
-    assert_eq!(bad("GPGGA,120000,9100.0,N,00000.0,E,1,5,1,0,M,0,M,,"), Err(InvalidField(Field::Latitude)));
-    assert_eq!(bad("GPGGA,120000,4560.0,N,00000.0,E,1,5,1,0,M,0,M,,"), Err(InvalidField(Field::Latitude)));
-    assert_eq!(bad("GPGGA,120000,4500.0,N,18100.0,E,1,5,1,0,M,0,M,,"), Err(InvalidField(Field::Longitude)));
-    assert_eq!(bad("GPGGA,120000,4500.0,X,00000.0,E,1,5,1,0,M,0,M,,"), Err(InvalidField(Field::Latitude)));
-    assert_eq!(bad("GPGGA,126000,4500.0,N,00000.0,E,1,5,1,0,M,0,M,,"), Err(InvalidField(Field::Time)));
-    assert_eq!(bad("GPRMC,120000,A,4500.0,N,00000.0,E,1.0,400,010120,,,A"), Err(InvalidField(Field::Track)));
-    assert_eq!(bad("GPRMC,120000,A,4500.0,N,00000.0,E,1.0,40,320120,,,A"), Err(InvalidField(Field::Date)));
+    assert_eq!(
+        bad("GPGGA,120000,9100.0,N,00000.0,E,1,5,1,0,M,0,M,,"),
+        Err(InvalidField(Field::Latitude))
+    );
+    assert_eq!(
+        bad("GPGGA,120000,4560.0,N,00000.0,E,1,5,1,0,M,0,M,,"),
+        Err(InvalidField(Field::Latitude))
+    );
+    assert_eq!(
+        bad("GPGGA,120000,4500.0,N,18100.0,E,1,5,1,0,M,0,M,,"),
+        Err(InvalidField(Field::Longitude))
+    );
+    assert_eq!(
+        bad("GPGGA,120000,4500.0,X,00000.0,E,1,5,1,0,M,0,M,,"),
+        Err(InvalidField(Field::Latitude))
+    );
+    assert_eq!(
+        bad("GPGGA,126000,4500.0,N,00000.0,E,1,5,1,0,M,0,M,,"),
+        Err(InvalidField(Field::Time))
+    );
+    assert_eq!(
+        bad("GPRMC,120000,A,4500.0,N,00000.0,E,1.0,400,010120,,,A"),
+        Err(InvalidField(Field::Track))
+    );
+    assert_eq!(
+        bad("GPRMC,120000,A,4500.0,N,00000.0,E,1.0,40,320120,,,A"),
+        Err(InvalidField(Field::Date))
+    );
     assert!(matches!(bad("GPGGA,120000"), Err(MissingField(_))));
-    assert_eq!(parse_sentence(b"$GPGGA,120000,,,,,0,,,,,,,,"), Err(MissingChecksum));
-    assert!(matches!(parse_sentence(b"$GPGGA,120000,,,,,0,,,,,,,,*00"), Err(Checksum { .. })));
+    assert_eq!(
+        parse_sentence(b"$GPGGA,120000,,,,,0,,,,,,,,"),
+        Err(MissingChecksum)
+    );
+    assert!(matches!(
+        parse_sentence(b"$GPGGA,120000,,,,,0,,,,,,,,*00"),
+        Err(Checksum { .. })
+    ));
     // Other sentence types are counted as unsupported, not errors.
-    assert!(matches!(bad("GPGSV,1,1,00"), Ok(Sentence::Unsupported { .. })));
-    assert!(matches!(bad("PGLOR,4,PWR"), Ok(Sentence::Unsupported { .. })));
+    assert!(matches!(
+        bad("GPGSV,1,1,00"),
+        Ok(Sentence::Unsupported { .. })
+    ));
+    assert!(matches!(
+        bad("PGLOR,4,PWR"),
+        Ok(Sentence::Unsupported { .. })
+    ));
 }
 
 #[test]
@@ -94,7 +149,11 @@ fn every_single_byte_corruption_is_rejected() {
             let mut b = bytes.to_vec();
             b[i] ^= flip;
             // Corrupting the terminator positions or `$` changes framing; all must fail.
-            assert!(parse_sentence(&b).is_err(), "accepted corrupted byte {i}: {:?}", String::from_utf8_lossy(&b));
+            assert!(
+                parse_sentence(&b).is_err(),
+                "accepted corrupted byte {i}: {:?}",
+                String::from_utf8_lossy(&b)
+            );
             rejected += 1;
         }
     }
@@ -108,10 +167,19 @@ fn framing_lf_only_overlong_interrupted_garbage() {
     let long = format!("${}\r\n", "A".repeat(200));
     let input = format!("junk{a}$GPGGA,12{a}{long}{a}");
     let out = feed(&mut r, input.as_bytes());
-    let kinds: Vec<_> = out.iter().map(|o| o.as_ref().map(|s| s.kind()).map_err(|e| *e)).collect();
+    let kinds: Vec<_> = out
+        .iter()
+        .map(|o| o.as_ref().map(|s| s.kind()).map_err(|e| *e))
+        .collect();
     assert_eq!(
         kinds,
-        vec![Ok("VTG"), Err(NmeaError::Interrupted), Ok("VTG"), Err(NmeaError::Overlong), Ok("VTG")]
+        vec![
+            Ok("VTG"),
+            Err(NmeaError::Interrupted),
+            Ok("VTG"),
+            Err(NmeaError::Overlong),
+            Ok("VTG")
+        ]
     );
     assert_eq!(r.stats.garbage_bytes, 4);
     assert_eq!(r.stats.ok, 3);
@@ -182,10 +250,17 @@ fn fuzz_random_bytes_and_mutated_sentences() {
         }
         n_bytes += chunk.len() as u64;
     }
-    assert_eq!(results + r.in_sentence() as u64, dollars, "one result per `$`");
+    assert_eq!(
+        results + r.in_sentence() as u64,
+        dollars,
+        "one result per `$`"
+    );
     let st = r.stats;
     assert_eq!((st.ok + st.unsupported + st.errors()) as u64, results);
-    assert!(st.ok as u64 > clean_ok / 4, "valid sentences still decoded: {st:?}");
+    assert!(
+        st.ok as u64 > clean_ok / 4,
+        "valid sentences still decoded: {st:?}"
+    );
     assert!(st.checksum_errors > 0 && st.garbage_bytes > 0 && st.interrupted > 0);
     println!("{n_bytes} bytes: {st:?}");
 }

@@ -81,11 +81,11 @@ struct Tally {
     disagreements: Vec<String>,
 }
 
-fn latest<'a>(
-    hist: &'a [Decoded],
+fn latest(
+    hist: &[Decoded],
     tod: f64,
     pick: impl Fn(&Decoded) -> Option<f64>,
-) -> Option<(&'a Decoded, f64)> {
+) -> Option<(&Decoded, f64)> {
     hist.iter()
         .rev()
         .take(40)
@@ -124,7 +124,10 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
             continue;
         }
         let Some(star) = line.rfind('*') else {
-            assert!(parse_sentence(line.as_bytes()).is_err(), "{name}: no checksum accepted: {line}");
+            assert!(
+                parse_sentence(line.as_bytes()).is_err(),
+                "{name}: no checksum accepted: {line}"
+            );
             continue;
         };
         let want = line[1..star].bytes().fold(0u8, |a, b| a ^ b);
@@ -132,7 +135,10 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
         if got != Some(want) && line.len() - star == 3 {
             bad_cs += 1;
             assert!(
-                matches!(parse_sentence(line.as_bytes()), Err(NmeaError::Checksum { .. })),
+                matches!(
+                    parse_sentence(line.as_bytes()),
+                    Err(NmeaError::Checksum { .. })
+                ),
                 "{name}: bad checksum accepted: {line}"
             );
         } else if got != Some(want) {
@@ -175,7 +181,11 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
         t.tpv_timed += 1;
         let mut any = false;
         let mut ok = true;
-        let mut cmp = |what: &str, gpsd: Option<f64>, ours: Option<(&Decoded, f64)>, tol: f64, n: &mut usize| {
+        let mut cmp = |what: &str,
+                       gpsd: Option<f64>,
+                       ours: Option<(&Decoded, f64)>,
+                       tol: f64,
+                       n: &mut usize| {
             if let (Some(g), Some((d, o))) = (gpsd, ours) {
                 any = true;
                 if (g - o).abs() <= tol {
@@ -189,13 +199,37 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
                 }
             }
         };
-        cmp("lat", v["lat"].as_f64(), latest(&hist, tod, |d| d.lat), 1e-6, &mut t.pos);
-        cmp("lon", v["lon"].as_f64(), latest(&hist, tod, |d| d.lon), 1e-6, &mut 0);
+        cmp(
+            "lat",
+            v["lat"].as_f64(),
+            latest(&hist, tod, |d| d.lat),
+            1e-6,
+            &mut t.pos,
+        );
+        cmp(
+            "lon",
+            v["lon"].as_f64(),
+            latest(&hist, tod, |d| d.lon),
+            1e-6,
+            &mut 0,
+        );
         let galt = v["altMSL"].as_f64().or(v["alt"].as_f64());
         cmp("alt", galt, latest(&hist, tod, |d| d.alt), 1e-3, &mut t.alt);
         // gpsd prints speed with 3 decimals.
-        cmp("speed", v["speed"].as_f64(), latest(&hist, tod, |d| d.speed), 6e-4, &mut t.speed);
-        cmp("track", v["track"].as_f64(), latest(&hist, tod, |d| d.track), 1e-4, &mut t.track);
+        cmp(
+            "speed",
+            v["speed"].as_f64(),
+            latest(&hist, tod, |d| d.speed),
+            6e-4,
+            &mut t.speed,
+        );
+        cmp(
+            "track",
+            v["track"].as_f64(),
+            latest(&hist, tod, |d| d.track),
+            1e-4,
+            &mut t.track,
+        );
         if any && ok {
             t.matched += 1;
         }

@@ -30,16 +30,31 @@ fn roundtrip(r: &Record) -> (String, Record) {
 fn record_format_and_roundtrip() {
     let r = rec(536_204_401, 12.3456, -3.21, 0.0123, 1234.5, 0x0104);
     let (line, back) = roundtrip(&r);
-    assert!(line.starts_with("$MCREC,4000000000,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0104*"), "{line}");
+    assert!(
+        line.starts_with(
+            "$MCREC,4000000000,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0104*"
+        ),
+        "{line}"
+    );
     assert!(line.ends_with("\r\n"));
     assert_eq!(back.compensated, Some(MagCounts(536_080_945)));
     assert_eq!(back.mag, r.mag);
     assert_eq!(back.seq, r.seq);
     assert_eq!(back.flags, r.flags);
     // Negative values and sub-count fractions.
-    let r = rec(100_000_000, -0.00004, -1234.56789, -0.00005, 0.000001, 0xFFFF);
+    let r = rec(
+        100_000_000,
+        -0.00004,
+        -1234.5679,
+        -0.00005,
+        0.000001,
+        0xFFFF,
+    );
     let (line, back) = roundtrip(&r);
-    assert!(line.contains(",-0.0000,") || line.contains(",0.0000,"), "{line}");
+    assert!(
+        line.contains(",-0.0000,") || line.contains(",0.0000,"),
+        "{line}"
+    );
     assert_eq!(back.anomaly_nt, -1234.5679);
     assert_eq!(back.t_s, 0.000001);
     assert_eq!(back.compensated, Some(MagCounts(100_000_000)));
@@ -47,10 +62,20 @@ fn record_format_and_roundtrip() {
 
 #[test]
 fn record_nan_and_huge() {
-    let mut r = rec(536_204_401, f32::NAN, 3.0e30, f32::NEG_INFINITY, f64::NAN, 0);
+    let mut r = rec(
+        536_204_401,
+        f32::NAN,
+        3.0e30,
+        f32::NEG_INFINITY,
+        f64::NAN,
+        0,
+    );
     r.mag = None;
     let (line, back) = roundtrip(&r);
-    assert!(line.starts_with("$MCREC,4000000000,,,,,299999989E22,-INF,0000*"), "{line}");
+    assert!(
+        line.starts_with("$MCREC,4000000000,,,,,299999989E22,-INF,0000*"),
+        "{line}"
+    );
     assert!(back.t_s.is_nan() && back.interference_nt.is_nan());
     assert_eq!(back.mag, None);
     assert_eq!(back.compensated, None);
@@ -100,8 +125,20 @@ fn commands() {
     assert_eq!(p("MCCMD,STATUS"), Ok(Command::Status));
     assert_eq!(p("MCCMD,GETCOEF"), Ok(Command::GetCoef(None)));
     assert_eq!(p("MCCMD,GETCOEF,20"), Ok(Command::GetCoef(Some(20))));
-    assert_eq!(p("MCCMD,SETCOEF,3,-1.25E-2"), Ok(Command::SetCoef { index: 3, value: -0.0125 }));
-    assert_eq!(p("MCCMD,SETCOEF,3,999999.9"), Ok(Command::SetCoef { index: 3, value: 999_999.9 }));
+    assert_eq!(
+        p("MCCMD,SETCOEF,3,-1.25E-2"),
+        Ok(Command::SetCoef {
+            index: 3,
+            value: -0.0125
+        })
+    );
+    assert_eq!(
+        p("MCCMD,SETCOEF,3,999999.9"),
+        Ok(Command::SetCoef {
+            index: 3,
+            value: 999_999.9
+        })
+    );
     assert_eq!(p("MCCMD,SAVE"), Ok(Command::Save));
     assert_eq!(p("MCCMD,RESET"), Ok(Command::Reset));
     assert_eq!(p("MCCMD,FLUSH"), Ok(Command::Flush));
@@ -123,13 +160,24 @@ fn commands() {
     for c in [
         Command::Mode(Mode::Survey),
         Command::GetCoef(Some(7)),
-        Command::SetCoef { index: 20, value: -1.234_567_8e-5 },
-        Command::SetCoef { index: 0, value: 123_456.79 },
+        Command::SetCoef {
+            index: 20,
+            value: -1.234_567_8e-5,
+        },
+        Command::SetCoef {
+            index: 0,
+            value: 123_456.79,
+        },
         Command::Flush,
     ] {
         let mut b = [0u8; 96];
         let n = encode_command(&c, &mut b).unwrap();
-        assert_eq!(parse_command(&b[..n], 21), Ok(c), "{}", String::from_utf8_lossy(&b[..n]));
+        assert_eq!(
+            parse_command(&b[..n], 21),
+            Ok(c),
+            "{}",
+            String::from_utf8_lossy(&b[..n])
+        );
     }
     let body = b"MCCMD,STATUS";
     let crc = magcomp_core::protocol::common::crc16_ccitt(body);
@@ -148,15 +196,25 @@ fn replies() {
     let n = encode_ack_coef(3, -0.0125, &mut b).unwrap();
     let line = std::str::from_utf8(&b[..n]).unwrap();
     // 9 significant digits of the f32 (-0.0125f32 = -0.012500000186...).
-    assert!(line.starts_with("$MCACK,GETCOEF,3,-125000002E-10*"), "{line}");
+    assert!(
+        line.starts_with("$MCACK,GETCOEF,3,-125000002E-10*"),
+        "{line}"
+    );
     let payload = check_reply(&b[..n]).unwrap();
-    let v = std::str::from_utf8(&payload[16..]).unwrap().parse::<f64>().unwrap() as f32;
+    let v = std::str::from_utf8(&payload[16..])
+        .unwrap()
+        .parse::<f64>()
+        .unwrap() as f32;
     assert_eq!(v, -0.0125f32);
     let n = encode_error(CommandError::IndexOutOfBounds, &mut b).unwrap();
-    assert!(std::str::from_utf8(&b[..n]).unwrap().starts_with("$MCERR,5,INDEX*"));
+    assert!(std::str::from_utf8(&b[..n])
+        .unwrap()
+        .starts_with("$MCERR,5,INDEX*"));
     assert!(check_reply(&b[..n]).is_some());
     let n = encode_ack(b"MODE", &[b"SURVEY"], &mut b).unwrap();
-    assert!(std::str::from_utf8(&b[..n]).unwrap().starts_with("$MCACK,MODE,SURVEY*"));
+    assert!(std::str::from_utf8(&b[..n])
+        .unwrap()
+        .starts_with("$MCACK,MODE,SURVEY*"));
     b[8] ^= 1;
     assert!(check_reply(&b[..n]).is_none());
 }
@@ -175,23 +233,44 @@ fn coefficient_blob() {
     let mut wrong = [0f32; 16];
     assert_eq!(
         decode_blob(&buf[..n], h, &mut wrong),
-        Err(BlobError::WrongCount { expected: 16, found: 21 })
+        Err(BlobError::WrongCount {
+            expected: 16,
+            found: 21
+        })
     );
-    assert!(matches!(decode_blob(&buf[..n], h ^ 1, &mut out), Err(BlobError::ModelMismatch { .. })));
+    assert!(matches!(
+        decode_blob(&buf[..n], h ^ 1, &mut out),
+        Err(BlobError::ModelMismatch { .. })
+    ));
     for i in 0..n {
         let mut c = buf;
         c[i] ^= 0x10;
         let e = decode_blob(&c[..n], h, &mut out).unwrap_err();
-        assert!(matches!(e, BlobError::BadCrc | BlobError::BadMagic | BlobError::Truncated), "byte {i}: {e:?}");
+        assert!(
+            matches!(
+                e,
+                BlobError::BadCrc | BlobError::BadMagic | BlobError::Truncated
+            ),
+            "byte {i}: {e:?}"
+        );
     }
     // A version bump with a valid CRC is reported as such.
     let mut c = buf;
     c[4] = 2;
     let crc = magcomp_core::protocol::common::crc32(&c[..n - 4]);
     c[n - 4..n].copy_from_slice(&crc.to_le_bytes());
-    assert_eq!(decode_blob(&c[..n], h, &mut out), Err(BlobError::WrongVersion(2)));
-    assert_eq!(decode_blob(&buf[..10], h, &mut out), Err(BlobError::Truncated));
-    assert_eq!(encode_blob(h, &coef, &mut [0u8; 40]), Err(BlobError::BufferTooSmall));
+    assert_eq!(
+        decode_blob(&c[..n], h, &mut out),
+        Err(BlobError::WrongVersion(2))
+    );
+    assert_eq!(
+        decode_blob(&buf[..10], h, &mut out),
+        Err(BlobError::Truncated)
+    );
+    assert_eq!(
+        encode_blob(h, &coef, &mut [0u8; 40]),
+        Err(BlobError::BufferTooSmall)
+    );
 }
 
 #[test]
@@ -210,7 +289,10 @@ fn capture_roundtrip() {
     for p in Port::ALL {
         let n = capture::encode_line(u64::MAX, p, &[0, 255, 36], &mut b).unwrap();
         let l = capture::decode_line(&b[..n], &mut data).unwrap().unwrap();
-        assert_eq!((l.t_us, l.port, &data[..l.len]), (u64::MAX, p, &[0u8, 255, 36][..]));
+        assert_eq!(
+            (l.t_us, l.port, &data[..l.len]),
+            (u64::MAX, p, &[0u8, 255, 36][..])
+        );
     }
     use capture::CaptureError::*;
     let mut d = |s: &str| capture::decode_line(s.as_bytes(), &mut data);
@@ -220,6 +302,16 @@ fn capture_roundtrip() {
     assert_eq!(d("12 gps 0"), Err(BadHex));
     assert_eq!(d("12 gps 0g"), Err(BadHex));
     assert_eq!(d("12"), Err(BadLine));
-    assert_eq!(capture::decode_line(b"1 gps 000000", &mut [0u8; 2]), Err(BufferFull));
-    assert_eq!(d("7 out"), Ok(Some(capture::CaptureLine { t_us: 7, port: Port::Out, len: 0 })));
+    assert_eq!(
+        capture::decode_line(b"1 gps 000000", &mut [0u8; 2]),
+        Err(BufferFull)
+    );
+    assert_eq!(
+        d("7 out"),
+        Ok(Some(capture::CaptureLine {
+            t_us: 7,
+            port: Port::Out,
+            len: 0
+        }))
+    );
 }

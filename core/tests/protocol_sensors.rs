@@ -13,8 +13,14 @@ fn scalar_exact_digits() {
     let f = parse_scalar_line(b"53620.4401\r\n", &cfg()).unwrap();
     assert_eq!(f.mag, MagCounts(536_204_401));
     assert_eq!(f.quality, None);
-    assert_eq!(parse_scalar_line(b"53620.440", &cfg()).unwrap().mag, MagCounts(536_204_400));
-    assert_eq!(parse_scalar_line(b"99999.9999", &cfg()).unwrap().mag, MagCounts(999_999_999));
+    assert_eq!(
+        parse_scalar_line(b"53620.440", &cfg()).unwrap().mag,
+        MagCounts(536_204_400)
+    );
+    assert_eq!(
+        parse_scalar_line(b"99999.9999", &cfg()).unwrap().mag,
+        MagCounts(999_999_999)
+    );
     let g = parse_scalar_line(b"$ 53620.441,0999", &cfg()).unwrap();
     assert_eq!(g.mag, MagCounts(536_204_410));
     assert_eq!(g.quality, Some(999));
@@ -37,13 +43,20 @@ fn larmor_conversion_exact() {
     for (extra_tenths, want) in [(4i128, 536_204_401i64), (6, 536_204_402)] {
         // f(Hz) × 1e14 = (c·10 + extra) × 3498570000 × 1e-5 ... use 1e-14 Hz resolution.
         let num = (536_204_401i128 * 10 + extra_tenths) * 3_498_570_000; // Hz × 1e14
-        let s = format!("{}.{:014}", num / 100_000_000_000_000, num % 100_000_000_000_000);
+        let s = format!(
+            "{}.{:014}",
+            num / 100_000_000_000_000,
+            num % 100_000_000_000_000
+        );
         // 18 significant digits max: trim trailing zeros.
         let s = s.trim_end_matches('0');
         let got = larmor_to_counts(s.as_bytes(), CS133_HZ_PER_NT_NANO);
         assert_eq!(got, Ok(MagCounts(want)), "{s}");
     }
-    assert_eq!(larmor_to_counts(b"174928.5", 0), Err(ScalarError::NoLarmorRatio));
+    assert_eq!(
+        larmor_to_counts(b"174928.5", 0),
+        Err(ScalarError::NoLarmorRatio)
+    );
 }
 
 #[test]
@@ -86,7 +99,11 @@ fn scalar_fuzz_resync() {
                 _ => b'0' + (rng.next() % 75) as u8,
             })
             .collect();
-        let good = format!("\n{}.{:04}\r\n", 20_000 + rng.next() % 60_000, rng.next() % 10_000);
+        let good = format!(
+            "\n{}.{:04}\r\n",
+            20_000 + rng.next() % 60_000,
+            rng.next() % 10_000
+        );
         good_sent += 1;
         for chunk in [&junk[..], good.as_bytes()] {
             for &b in chunk {
@@ -111,8 +128,14 @@ fn scalar_fuzz_resync() {
         }
     }
     assert_eq!(results, lines, "one result per non-empty line");
-    assert_eq!((r.stats.ok + r.stats.errors + r.stats.overlong) as u64, results);
-    assert_eq!(good_back, good_sent, "every clean line after a newline decodes");
+    assert_eq!(
+        (r.stats.ok + r.stats.errors + r.stats.overlong) as u64,
+        results
+    );
+    assert_eq!(
+        good_back, good_sent,
+        "every clean line after a newline decodes"
+    );
 }
 
 #[test]
@@ -123,7 +146,11 @@ fn spi_frame_roundtrip_crc_and_saturation() {
     for &b in &f[..12] {
         crc ^= (b as u16) << 8;
         for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 { (crc << 1) ^ 0x1021 } else { crc << 1 };
+            crc = if crc & 0x8000 != 0 {
+                (crc << 1) ^ 0x1021
+            } else {
+                crc << 1
+            };
         }
     }
     assert_eq!(u16::from_be_bytes([f[12], f[13]]), crc);
@@ -140,9 +167,15 @@ fn spi_frame_roundtrip_crc_and_saturation() {
     }
     assert_eq!(decode_spi_frame(&f[..14]), Err(FluxError::BadLength));
     let s = encode_spi_frame(0x0007, [0, 8_388_607, 0]);
-    assert_eq!(decode_spi_frame(&s), Err(FluxError::Saturated { channel: 1 }));
+    assert_eq!(
+        decode_spi_frame(&s),
+        Err(FluxError::Saturated { channel: 1 })
+    );
     let s = encode_spi_frame(0x0007, [-8_388_608, 0, 0]);
-    assert_eq!(decode_spi_frame(&s), Err(FluxError::Saturated { channel: 0 }));
+    assert_eq!(
+        decode_spi_frame(&s),
+        Err(FluxError::Saturated { channel: 0 })
+    );
     let s = encode_spi_frame(0x0003, [0, 0, 0]);
     assert_eq!(decode_spi_frame(&s), Err(FluxError::NotReady));
 }
@@ -151,30 +184,61 @@ fn spi_frame_roundtrip_crc_and_saturation() {
 fn scaling_and_axis_map() {
     let mut cal = FluxgateCal::full_scale(100_000.0);
     // Half scale is 50 000 nT exactly (power-of-two scale).
-    assert_eq!(cal.scale([4_194_304, -4_194_304, 0]), [50_000.0, -50_000.0, 0.0]);
+    assert_eq!(
+        cal.scale([4_194_304, -4_194_304, 0]),
+        [50_000.0, -50_000.0, 0.0]
+    );
     // Sensor mounted with x aft, y up, z starboard → body x = -s0, y = s2, z = -s1.
     cal.axis_map = [
-        AxisMap { sensor_channel: 0, negate: true },
-        AxisMap { sensor_channel: 2, negate: false },
-        AxisMap { sensor_channel: 1, negate: true },
+        AxisMap {
+            sensor_channel: 0,
+            negate: true,
+        },
+        AxisMap {
+            sensor_channel: 2,
+            negate: false,
+        },
+        AxisMap {
+            sensor_channel: 1,
+            negate: true,
+        },
     ];
     let lsb = 100_000.0 / 8_388_608.0;
     let b = cal.scale([1000, 2000, 3000]);
-    assert_eq!(b, [-(1000.0 * lsb) as f32, (3000.0 * lsb) as f32, -(2000.0 * lsb) as f32]);
+    assert_eq!(
+        b,
+        [
+            -(1000.0 * lsb) as f32,
+            (3000.0 * lsb) as f32,
+            -(2000.0 * lsb) as f32
+        ]
+    );
 }
 
 #[test]
 fn ascii_fluxgate() {
-    assert_eq!(parse_ascii_line(b"12345.6,-2345.25,40000\r\n"), Ok([12345.6, -2345.25, 40000.0]));
+    assert_eq!(
+        parse_ascii_line(b"12345.6,-2345.25,40000\r\n"),
+        Ok([12345.6, -2345.25, 40000.0])
+    );
     let body = "1.5,2.5,-3.5";
     let x = body.bytes().fold(0u8, |a, b| a ^ b);
-    assert_eq!(parse_ascii_line(format!("{body}*{x:02X}").as_bytes()), Ok([1.5, 2.5, -3.5]));
-    assert_eq!(parse_ascii_line(format!("{body}*{:02X}", x ^ 1).as_bytes()), Err(FluxError::Checksum));
+    assert_eq!(
+        parse_ascii_line(format!("{body}*{x:02X}").as_bytes()),
+        Ok([1.5, 2.5, -3.5])
+    );
+    assert_eq!(
+        parse_ascii_line(format!("{body}*{:02X}", x ^ 1).as_bytes()),
+        Err(FluxError::Checksum)
+    );
     assert_eq!(parse_ascii_line(b"1,2"), Err(FluxError::BadLength));
     assert_eq!(parse_ascii_line(b"1,2,3,4"), Err(FluxError::BadLength));
     assert_eq!(parse_ascii_line(b"1,x,3"), Err(FluxError::BadNumber));
     assert_eq!(parse_ascii_line(b"1,2,300000"), Err(FluxError::OutOfRange));
     let mut r = FluxAsciiReader::new();
-    let out: Vec<_> = b"garbage\n1,2,3\r\n".iter().filter_map(|&b| r.push(b)).collect();
+    let out: Vec<_> = b"garbage\n1,2,3\r\n"
+        .iter()
+        .filter_map(|&b| r.push(b))
+        .collect();
     assert_eq!(out, vec![Err(FluxError::BadNumber), Ok([1.0, 2.0, 3.0])]);
 }

@@ -200,8 +200,7 @@ impl Aligner {
             Some(g) => {
                 let age_us = t_us.abs_diff(g.t_us);
                 let (mut lat, mut lon) = (g.lat_deg, g.lon_deg);
-                if self.cfg.extrapolate_gps && g.speed_mps.is_finite() && g.track_deg.is_finite()
-                {
+                if self.cfg.extrapolate_gps && g.speed_mps.is_finite() && g.track_deg.is_finite() {
                     let dt_s = (t_us as f64 - g.t_us as f64) * 1e-6;
                     let d_m = g.speed_mps as f64 * dt_s;
                     let tr = (g.track_deg as f64).to_radians();

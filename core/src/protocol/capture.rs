@@ -115,7 +115,9 @@ pub fn decode_line(line: &[u8], data_out: &mut [u8]) -> Result<Option<CaptureLin
     }
     let t_us = t
         .iter()
-        .try_fold(0u64, |a, &d| a.checked_mul(10)?.checked_add((d - b'0') as u64))
+        .try_fold(0u64, |a, &d| {
+            a.checked_mul(10)?.checked_add((d - b'0') as u64)
+        })
         .ok_or(CaptureError::BadTime)?;
     let port = Port::from_name(p).ok_or(CaptureError::UnknownPort)?;
     if h.len() % 2 != 0 {

@@ -11,8 +11,8 @@
 //! `$MCERR,<code>,<TEXT>*HHHH`.
 
 use super::common::{
-    crc16_ccitt, crc32, fields, hex_val, parse_float_field, parse_hex_u32, parse_u32,
-    xor_checksum, Cursor,
+    crc16_ccitt, crc32, fields, hex_val, parse_float_field, parse_hex_u32, parse_u32, xor_checksum,
+    Cursor,
 };
 
 /// Longest command line.
@@ -32,7 +32,10 @@ pub enum Command {
     Status,
     /// One coefficient, or all when `None`.
     GetCoef(Option<u16>),
-    SetCoef { index: u16, value: f32 },
+    SetCoef {
+        index: u16,
+        value: f32,
+    },
     Save,
     Reset,
     /// Emit pending records now.

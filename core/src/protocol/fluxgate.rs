@@ -138,8 +138,7 @@ impl FluxgateCal {
         let mut s = [0f32; 3];
         for i in 0..3 {
             // f64 so 24-bit counts times the scale lose nothing before the final rounding.
-            s[i] = (counts[i] as f64 * self.nt_per_lsb[i] as f64 - self.offset_nt[i] as f64)
-                as f32;
+            s[i] = (counts[i] as f64 * self.nt_per_lsb[i] as f64 - self.offset_nt[i] as f64) as f32;
         }
         self.to_body(s)
     }

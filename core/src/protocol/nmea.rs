@@ -144,7 +144,9 @@ pub enum Sentence {
     Vtg(Vtg),
     Gst(Gst),
     /// Valid checksum, type we do not decode (GSV, GSA, proprietary...): counted, not an error.
-    Unsupported { address: [u8; 5] },
+    Unsupported {
+        address: [u8; 5],
+    },
 }
 
 impl Sentence {
@@ -456,11 +458,7 @@ pub fn parse_time(s: &[u8]) -> Result<Option<UtcTime>, NmeaError> {
 
 /// `[d]ddmm.mmmm` + hemisphere → signed degrees. Minutes are kept as an exact integer
 /// `mm·10^k + frac`, so the only rounding is one division and one addition (< 1e-13 deg).
-pub fn parse_coord(
-    value: &[u8],
-    hemi: &[u8],
-    is_lat: bool,
-) -> Result<Option<f64>, NmeaError> {
+pub fn parse_coord(value: &[u8], hemi: &[u8], is_lat: bool) -> Result<Option<f64>, NmeaError> {
     let which = if is_lat {
         Field::Latitude
     } else {
@@ -533,7 +531,11 @@ fn parse_gga(talker: Talker, f: &[&[u8]]) -> Result<Gga, NmeaError> {
     Ok(Gga {
         talker,
         time: parse_time(get(f, 0, Field::Time)?)?,
-        lat_deg: parse_coord(get(f, 1, Field::Latitude)?, get(f, 2, Field::Latitude)?, true)?,
+        lat_deg: parse_coord(
+            get(f, 1, Field::Latitude)?,
+            get(f, 2, Field::Latitude)?,
+            true,
+        )?,
         lon_deg: parse_coord(
             get(f, 3, Field::Longitude)?,
             get(f, 4, Field::Longitude)?,
@@ -562,7 +564,11 @@ fn parse_date(s: &[u8]) -> Result<Option<Date>, NmeaError> {
         return Err(bad);
     }
     Ok(Some(Date {
-        year: if y < 80 { 2000 + y as u16 } else { 1900 + y as u16 },
+        year: if y < 80 {
+            2000 + y as u16
+        } else {
+            1900 + y as u16
+        },
         month: m as u8,
         day: d as u8,
     }))
@@ -579,7 +585,11 @@ fn parse_rmc(talker: Talker, f: &[&[u8]]) -> Result<Rmc, NmeaError> {
         talker,
         time: parse_time(get(f, 0, Field::Time)?)?,
         valid,
-        lat_deg: parse_coord(get(f, 2, Field::Latitude)?, get(f, 3, Field::Latitude)?, true)?,
+        lat_deg: parse_coord(
+            get(f, 2, Field::Latitude)?,
+            get(f, 3, Field::Latitude)?,
+            true,
+        )?,
         lon_deg: parse_coord(
             get(f, 4, Field::Longitude)?,
             get(f, 5, Field::Longitude)?,

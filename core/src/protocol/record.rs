@@ -48,7 +48,10 @@ pub enum RecordError {
     BufferFull,
     /// Not `$MCREC,...*hhhh`.
     Framing,
-    Crc { received: u16, computed: u16 },
+    Crc {
+        received: u16,
+        computed: u16,
+    },
     /// Not exactly 8 data fields.
     FieldCount,
     /// Field `n` (0 = seq) unparseable.
@@ -150,7 +153,9 @@ pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
         .or_else(|| {
             // seq may use all 10 digits of a u32.
             let d = parse_decimal(f[0]).ok()?;
-            (d.scale == 0).then_some(d.mantissa).and_then(|m| u32::try_from(m).ok())
+            (d.scale == 0)
+                .then_some(d.mantissa)
+                .and_then(|m| u32::try_from(m).ok())
         })
         .ok_or(RecordError::BadField(0))?;
     let flags = match f[7] {
