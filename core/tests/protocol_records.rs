@@ -315,3 +315,31 @@ fn capture_roundtrip() {
         }))
     );
 }
+
+#[test]
+fn documented_examples_decode() {
+    let r = decode_record(
+        b"$MCREC,42,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0104*CB4A\r\n",
+    )
+    .unwrap();
+    assert_eq!(
+        (r.seq, r.mag, r.flags),
+        (42, Some(MagCounts(536_204_401)), Flags(0x0104))
+    );
+    let r = decode_record(b"$MCREC,43,1234.600000,,,,,,0008*5FDF").unwrap();
+    assert!(r.mag.is_none() && r.interference_nt.is_nan());
+    assert_eq!(
+        parse_command(b"$MCCMD,SETCOEF,3,-1.25E-2*79", 21),
+        Ok(Command::SetCoef {
+            index: 3,
+            value: -0.0125
+        })
+    );
+    assert_eq!(parse_command(b"$MCCMD,FLUSH*2C", 21), Ok(Command::Flush));
+    assert!(check_reply(b"$MCERR,5,INDEX*376F").is_some());
+    let f = magcomp_core::protocol::fluxgate::decode_spi_frame(&[
+        0x00, 0x07, 0x00, 0x00, 0x00, 0x01, 0xFF, 0xFF, 0xFF, 0x40, 0x00, 0x00, 0x4D, 0x3B, 0x00,
+    ])
+    .unwrap();
+    assert_eq!(f.counts, [1, -1, 4_194_304]);
+}

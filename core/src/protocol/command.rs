@@ -371,7 +371,7 @@ pub fn encode_blob(model_hash: u32, coef: &[f32], out: &mut [u8]) -> Result<usiz
 }
 
 /// Decodes a blob into `coef_out` (its length is the expected count) after checking
-/// magic, CRC, version, model hash and count.
+/// magic, CRC, version, model hash, count and finiteness; `coef_out` is unchanged on error.
 pub fn decode_blob(data: &[u8], model_hash: u32, coef_out: &mut [f32]) -> Result<(), BlobError> {
     if data.len() < BLOB_HEADER_LEN + 4 {
         return Err(BlobError::Truncated);
@@ -405,13 +405,16 @@ pub fn decode_blob(data: &[u8], model_hash: u32, coef_out: &mut [f32]) -> Result
             found: n,
         });
     }
-    for (i, c) in coef_out.iter_mut().enumerate() {
+    let coef = |i: usize| {
         let o = 12 + 4 * i;
-        let v = f32::from_le_bytes([data[o], data[o + 1], data[o + 2], data[o + 3]]);
-        if !v.is_finite() {
-            return Err(BlobError::NonFinite { index: i as u16 });
-        }
-        *c = v;
+        f32::from_le_bytes([data[o], data[o + 1], data[o + 2], data[o + 3]])
+    };
+    // Validate everything before writing, so `coef_out` is untouched on any error.
+    if let Some(i) = (0..n as usize).find(|&i| !coef(i).is_finite()) {
+        return Err(BlobError::NonFinite { index: i as u16 });
+    }
+    for (i, c) in coef_out.iter_mut().enumerate() {
+        *c = coef(i);
     }
     Ok(())
 }
