@@ -1,9 +1,10 @@
 //! NMEA 0183 reader for GGA, RMC, VTG and GST.
 //!
-//! Written here rather than using the `nmea` crate: that crate parses coordinates through
-//! float arithmetic on `f32`/`f64` pieces (drift in the last digits), pulls in `nom` and
-//! `chrono`, and keeps state for sentences we do not need. What the compensator needs is
-//! small: exact digits → f64, typed counted errors, and a byte-at-a-time framer.
+//! Written here rather than using the `nmea` crate (0.7, evaluated): it parses numeric
+//! fields with `nom::number::complete::float` (f32: altitude, speed, track lose digits),
+//! pulls in `nom` and `chrono` (time as `NaiveTime`), keeps a merged fix state we do not
+//! want, and has no byte-at-a-time framer or per-kind error counters. What the compensator
+//! needs is small: exact digits → f64, typed counted errors, and a framer that resyncs.
 //!
 //! Framing: a sentence starts at `$` and ends at `\r` or `\n` (`\r\n` per the standard;
 //! a lone `\n` or `\r` is tolerated). A `$` inside a sentence abandons it (error
