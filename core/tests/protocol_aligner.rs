@@ -135,3 +135,47 @@ fn slice_decoders_never_panic() {
         let _ = common::parse_float_field(&v);
     }
 }
+
+#[test]
+fn line_readers_fuzz_account_for_every_line() {
+    use magcomp_core::protocol::{
+        command::CommandReader, fluxgate::FluxAsciiReader, scalar::ScalarReader,
+    };
+    let mut rng = Rng(99);
+    let mut s = ScalarReader::new(Default::default());
+    let mut f = FluxAsciiReader::new();
+    let mut c = CommandReader::new(21);
+    let alphabet = b"$*,.-0123456789EFQ=MCMDSAVE\r\n";
+    let (mut lines, mut rs, mut rf, mut rc) = (0u64, 0u64, 0u64, 0u64);
+    let mut pending = false;
+    for i in 0..1_200_000u64 {
+        let r = rng.next();
+        let b = match r % 4 {
+            0 => (r >> 8) as u8,
+            _ => alphabet[(r >> 8) as usize % alphabet.len()],
+        };
+        // Inject long runs without a newline now and then to exercise the overlong paths.
+        let b = if i % 50_000 < 300 && (b == b'\n' || b == b'\r') {
+            b'7'
+        } else {
+            b
+        };
+        if b == b'\n' || b == b'\r' {
+            lines += pending as u64;
+            pending = false;
+        } else {
+            pending = true;
+        }
+        rs += s.push(b).is_some() as u64;
+        rf += f.push(b).is_some() as u64;
+        rc += c.push(b).is_some() as u64;
+    }
+    assert_eq!((rs, rf, rc), (lines, lines, lines));
+    assert_eq!(
+        (s.stats.ok + s.stats.errors + s.stats.overlong) as u64,
+        lines
+    );
+    assert_eq!((f.stats.ok + f.stats.errors) as u64, lines);
+    assert_eq!((c.ok + c.errors) as u64, lines);
+    assert!(s.stats.overlong > 0);
+}
