@@ -5,6 +5,7 @@ pub mod diagnose;
 pub mod flight;
 pub mod metrics;
 pub mod model_spec;
+pub mod nmea_cmd;
 pub mod pipeline;
 pub mod report;
 pub mod sim;
