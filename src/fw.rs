@@ -1,6 +1,5 @@
 //! The embassy tasks and their channels.
 
-use core::fmt::Write as _;
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use embassy_executor::Spawner;
@@ -11,30 +10,90 @@ use embassy_sync::channel::Channel;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use magcomp_core::epoch::AlignedSample;
+use magcomp_core::protocol::command::{
+    Command, CommandError, CommandReader, Mode, decode_blob, encode_ack_coef, encode_blob,
+    encode_error,
+};
+use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
+#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+use magcomp_core::protocol::fluxgate::FluxAsciiReader;
+use magcomp_core::protocol::fluxgate::{FluxError, FluxgateCal};
+use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
+use magcomp_core::protocol::record::{Record, encode_record};
+use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
 
 #[cfg(feature = "board-emu")]
 use defmt_semihosting as _;
 #[cfg(feature = "board-acq")]
 use {defmt_rtt as _, panic_probe as _};
 
-use crate::aligner::{Aligner, AlignerConfig, Event, Port};
 use crate::board;
-use crate::pipeline::{N_COEF, Pipeline};
-use crate::wire::{self, CmdError, Command, LineBuf, LineEvent, Mode};
+use crate::pipeline::{Filter, N_COEF, model_id};
+use crate::timebase::{Rates, SampleAligner};
 
-/// Nominal sensor rates (Hz) of the reference installation. The scalar rate sets the
-/// time base; the fluxgate and GPS rates only set the staleness limits.
-pub const SCALAR_RATE_HZ: f64 = 10.0;
-pub const FLUX_RATE_HZ: f64 = 10.0;
-pub const GPS_RATE_HZ: f64 = 1.0;
+/// Nominal sensor rates of the reference installation. The scalar rate sets the time base;
+/// the fluxgate and GPS rates set the staleness limits (2.5 periods).
+pub const RATES: Rates = Rates {
+    scalar_hz: 10.0,
+    flux_hz: 10.0,
+    gps_hz: 1.0,
+};
+/// Fluxgate full scale (±nT over ±2^23 ADC codes); the ASCII alternative sends nT.
+pub const FLUX_FULL_SCALE_NT: f32 = 100_000.0;
+
+/// One frame (or parse failure) from a sensor port, in arrival order.
+pub enum Event {
+    Scalar(Result<ScalarFrame, ScalarError>),
+    /// Body frame (x forward, y starboard, z down), nT.
+    Flux(Result<[f32; 3], FluxError>),
+    Gps(Result<Sentence, NmeaError>),
+}
+
+/// A line for the output port (records < 192 bytes; GETCOEF of all 16 coefficients < 320).
+pub struct Line {
+    buf: [u8; 320],
+    len: usize,
+}
+
+impl Line {
+    const fn new() -> Self {
+        Self {
+            buf: [0; 320],
+            len: 0,
+        }
+    }
+    fn bytes(&self) -> &[u8] {
+        &self.buf[..self.len]
+    }
+    /// Fills the line with `f(out) -> Option<len>`; an empty line if it did not fit.
+    fn fill(f: impl FnOnce(&mut [u8]) -> Option<usize>) -> Self {
+        let mut l = Self::new();
+        l.len = f(&mut l.buf).unwrap_or(0);
+        l
+    }
+    /// `$<body>*CRC16\r\n` with `body` written by `f` (replies and the boot banner).
+    fn sentence(f: impl FnOnce(&mut Cursor) -> Result<(), BufferFull>) -> Self {
+        Self::fill(|out| {
+            let mut c = Cursor::new(out);
+            c.byte(b'$').ok()?;
+            f(&mut c).ok()?;
+            let crc = crc16_ccitt(&c.written()[1..]);
+            c.byte(b'*').ok()?;
+            c.hex_u16(crc).ok()?;
+            c.bytes(b"\r\n").ok()?;
+            Some(c.pos())
+        })
+    }
+}
 
 type Mutex = CriticalSectionRawMutex;
-static EVENTS: Channel<Mutex, Event, 32> = Channel::new();
+static EVENTS: Channel<Mutex, Event, 16> = Channel::new();
 static SAMPLES: Channel<Mutex, (u32, AlignedSample), 8> = Channel::new();
 static COMMANDS: Channel<Mutex, Command, 4> = Channel::new();
-static OUT: Channel<Mutex, wire::Line, 8> = Channel::new();
+static OUT: Channel<Mutex, Line, 6> = Channel::new();
 
-/// Counters shown by `STATUS` (parser errors are kept by the aligner, in event order).
+/// Counters shown by `STATUS`: parser errors per port (kept in event order by the
+/// aligner), UART errors (overrun/framing/noise) and rejected commands.
 static PARSE_ERRORS: [AtomicU32; 3] = [AtomicU32::new(0), AtomicU32::new(0), AtomicU32::new(0)];
 static UART_ERRORS: AtomicU32 = AtomicU32::new(0);
 static CMD_ERRORS: AtomicU32 = AtomicU32::new(0);
@@ -45,110 +104,127 @@ async fn main(spawner: Spawner) {
     defmt::info!(
         "magcomp firmware on {}, scalar rate {} Hz",
         board::NAME,
-        SCALAR_RATE_HZ
+        RATES.scalar_hz
     );
-
-    let mut banner = wire::Line::new();
-    let _ = write!(
-        banner,
-        "$MCBOOT,{},{}",
-        board::NAME,
-        env!("CARGO_PKG_VERSION")
-    );
-    wire::finish_sentence(&mut banner);
-    OUT.send(banner).await;
+    OUT.send(Line::sentence(|c| {
+        c.bytes(b"MCBOOT,")?;
+        c.bytes(board::NAME.as_bytes())?;
+        c.byte(b',')?;
+        c.bytes(env!("CARGO_PKG_VERSION").as_bytes())
+    }))
+    .await;
 
     spawner.spawn(watchdog_task(b.watchdog).unwrap());
     spawner.spawn(output_task(b.out_tx).unwrap());
     spawner.spawn(command_task(b.out_rx).unwrap());
     spawner.spawn(filter_task(b.store).unwrap());
     spawner.spawn(aligner_task().unwrap());
-    spawner.spawn(line_task(b.scalar, Port::Scalar).unwrap());
-    spawner.spawn(line_task(b.gps, Port::Gps).unwrap());
+    spawner.spawn(scalar_task(b.scalar).unwrap());
+    spawner.spawn(gps_task(b.gps).unwrap());
     #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
-    spawner.spawn(line_task(b.flux, Port::Flux).unwrap());
+    spawner.spawn(flux_uart_task(b.flux).unwrap());
     #[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
     spawner.spawn(flux_spi_task(b.flux).unwrap());
 }
 
-/// One ASCII sensor port: bytes → lines → parsed frames → `EVENTS`.
-#[embassy_executor::task(pool_size = 3)]
-async fn line_task(mut rx: BufferedUartRx<'static>, port: Port) {
-    let mut lines = LineBuf::new();
-    let mut buf = [0u8; 64];
+/// Reads a UART into `buf`; UART errors (overrun/framing/noise) are counted and the
+/// parser resynchronises on the next line.
+async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
     loop {
-        let n = match rx.read(&mut buf).await {
-            Ok(n) => n,
+        match rx.read(buf).await {
+            Ok(n) => return n,
             Err(_) => {
-                // overrun/framing/noise: the bytes are lost, the line parser will resync
                 UART_ERRORS.fetch_add(1, Ordering::Relaxed);
-                continue;
             }
-        };
-        for &byte in &buf[..n] {
-            let ev = match lines.push(byte) {
-                LineEvent::Pending => continue,
-                LineEvent::Line(len) => parse_line(port, lines.line(len)),
-                LineEvent::Overflow => match port {
-                    Port::Scalar => Event::Scalar(Err(wire::ParseError::Overflow)),
-                    Port::Flux => Event::Flux(Err(wire::ParseError::Overflow)),
-                    Port::Gps => Event::Gps(Err(wire::ParseError::Overflow)),
-                },
-            };
-            EVENTS.send(ev).await;
         }
     }
 }
 
-fn parse_line(port: Port, line: &[u8]) -> Event {
-    match port {
-        Port::Scalar => Event::Scalar(wire::parse_scalar(line)),
-        Port::Flux => Event::Flux(wire::parse_flux(line)),
-        Port::Gps => Event::Gps(wire::parse_nmea(line)),
+#[embassy_executor::task]
+async fn scalar_task(mut rx: BufferedUartRx<'static>) {
+    let mut reader = ScalarReader::new(ScalarConfig::default());
+    let mut buf = [0u8; 64];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            if let Some(r) = reader.push(b) {
+                EVENTS.send(Event::Scalar(r)).await;
+            }
+        }
     }
 }
 
-/// Fluxgate 24-bit ADC on SPI: on each data-ready edge read 3 × 24-bit big-endian
-/// two's-complement channels (x forward, y starboard, z down).
+#[embassy_executor::task]
+async fn gps_task(mut rx: BufferedUartRx<'static>) {
+    let mut reader = NmeaReader::new();
+    let mut buf = [0u8; 64];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            match reader.push(b) {
+                // GSV, GSA, proprietary…: valid but unused, not worth a channel slot
+                Some(Ok(Sentence::Unsupported { .. })) | None => {}
+                Some(r) => EVENTS.send(Event::Gps(r)).await,
+            }
+        }
+    }
+}
+
+/// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the calibration).
+#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+#[embassy_executor::task]
+async fn flux_uart_task(mut rx: BufferedUartRx<'static>) {
+    let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
+    let mut reader = FluxAsciiReader::new();
+    let mut buf = [0u8; 64];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            if let Some(r) = reader.push(b) {
+                EVENTS.send(Event::Flux(r.map(|v| cal.to_body(v)))).await;
+            }
+        }
+    }
+}
+
+/// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame
+/// (status, 3 × 24-bit channels, CRC-16) and scale it to the body frame.
 #[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
 #[embassy_executor::task]
 async fn flux_spi_task(mut f: board::FluxPort) {
-    /// ±100 000 nT full scale over ±2^23 counts.
-    const NT_PER_LSB: f32 = 100_000.0 / 8_388_608.0;
+    use magcomp_core::protocol::fluxgate::{SPI_FRAME_LEN, decode_spi_frame};
+    let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
     loop {
         f.drdy.wait_for_falling_edge().await;
-        let mut frame = [0u8; 9];
+        let mut frame = [0u8; SPI_FRAME_LEN];
         f.cs.set_low();
         let r = f.spi.blocking_transfer_in_place(&mut frame);
         f.cs.set_high();
         let ev = match r {
-            Ok(()) => {
-                let ch = |i: usize| {
-                    let raw =
-                        i32::from_be_bytes([frame[3 * i], frame[3 * i + 1], frame[3 * i + 2], 0])
-                            >> 8;
-                    raw as f32 * NT_PER_LSB
-                };
-                Event::Flux(Ok([ch(0), ch(1), ch(2)]))
-            }
-            Err(_) => Event::Flux(Err(wire::ParseError::Syntax)),
+            Ok(()) => decode_spi_frame(&frame).map(|a| cal.scale(a.counts)),
+            Err(_) => Err(FluxError::BadLength),
         };
-        EVENTS.send(ev).await;
+        EVENTS.send(Event::Flux(ev)).await;
     }
 }
 
-/// Frames in arrival order → one aligned sample per scalar line.
+/// Frames in arrival order → one aligned sample per scalar line (board time base).
 #[embassy_executor::task]
 async fn aligner_task() {
-    let mut aligner = Aligner::new(AlignerConfig::for_rates(
-        SCALAR_RATE_HZ,
-        FLUX_RATE_HZ,
-        GPS_RATE_HZ,
-    ));
+    let mut al = SampleAligner::new(RATES);
     loop {
-        let ev = EVENTS.receive().await;
-        let sample = aligner.push(ev);
-        for (c, n) in PARSE_ERRORS.iter().zip(aligner.errors) {
+        let sample = match EVENTS.receive().await {
+            Event::Scalar(r) => Some(al.scalar(r)),
+            Event::Flux(r) => {
+                al.flux(r);
+                None
+            }
+            Event::Gps(r) => {
+                al.nmea(r);
+                None
+            }
+        };
+        for (c, n) in PARSE_ERRORS.iter().zip(al.errors) {
             c.store(n, Ordering::Relaxed);
         }
         if let Some(s) = sample {
@@ -160,162 +236,161 @@ async fn aligner_task() {
 /// The compensator at the scalar rate, plus the commands that touch its state.
 #[embassy_executor::task]
 async fn filter_task(mut store: board::CoefStore) {
-    let Ok(mut pipe) = Pipeline::new(SCALAR_RATE_HZ as f32) else {
+    let Ok(mut filter) = Filter::new(RATES.scalar_hz as f32) else {
         defmt::error!("compensator init failed");
         board::exit(false)
     };
-    // survey-ready: take the stored coefficients if the blob is valid
-    if load_coefficients(&mut store, &mut pipe).is_ok() {
-        defmt::info!("coefficients loaded from store");
+    match load_coefficients(&mut store, &mut filter) {
+        Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
+        Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
     }
-    let mut line = wire::Line::new();
     loop {
         match select(SAMPLES.receive(), COMMANDS.receive()).await {
-            Either::First((_sample_seq, s)) => {
-                if let Some(r) = pipe.push(&s) {
-                    send_record(&r, &mut line).await;
+            Either::First((_seq, s)) => {
+                if let Some(r) = filter.push(&s) {
+                    send_record(&r).await;
                 }
             }
-            Either::Second(cmd) => handle_command(cmd, &mut pipe, &mut store, &mut line).await,
+            Either::Second(cmd) => handle_command(cmd, &mut filter, &mut store).await,
         }
     }
 }
 
-async fn send_record(r: &wire::Record, line: &mut wire::Line) {
-    if wire::encode_record(r, line) {
-        OUT.send(core::mem::take(line)).await;
-    } else {
-        defmt::error!("record {} does not fit a line", r.seq);
+async fn send_record(r: &Record) {
+    let line = Line::fill(|out| encode_record(r, out).ok());
+    if line.len == 0 {
+        // cannot happen (MAX_RECORD_LEN < 320): a bug, logged, the record still counted
+        defmt::error!("record {} did not encode", r.seq);
     }
+    OUT.send(line).await;
 }
 
-fn load_coefficients(store: &mut board::CoefStore, pipe: &mut Pipeline) -> Result<(), CmdError> {
+fn load_coefficients(store: &mut board::CoefStore, filter: &mut Filter) -> Result<(), ()> {
     let mut blob = [0u8; crate::COEF_BLOB_MAX];
-    store.read(&mut blob).map_err(|_| CmdError::Storage)?;
+    store.read(&mut blob).map_err(|_| ())?;
     let mut c = [0f32; N_COEF];
-    wire::decode_blob(&blob, &mut c).map_err(|_| CmdError::Storage)?;
-    if pipe.set_coefficients(&c) {
-        Ok(())
-    } else {
-        Err(CmdError::Bounds)
+    decode_blob(&blob, model_id(), &mut c).map_err(|_| ())?;
+    filter.set_coefficients(&c).map_err(|_| ())
+}
+
+fn mode_word(m: Mode) -> &'static [u8] {
+    match m {
+        Mode::Survey => b"SURVEY",
+        Mode::Cal => b"CAL",
     }
 }
 
-async fn handle_command(
-    cmd: Command,
-    pipe: &mut Pipeline,
-    store: &mut board::CoefStore,
-    line: &mut wire::Line,
-) {
-    line.clear();
-    let r: Result<(), CmdError> = (|| {
-        match cmd {
-            Command::Ping => {
-                let _ = write!(line, "$MCACK,PING");
+async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::CoefStore) {
+    let reply = match cmd {
+        Command::Mode(m) => {
+            filter.set_mode(m);
+            Line::sentence(|c| {
+                c.bytes(b"MCACK,MODE,")?;
+                c.bytes(mode_word(m))
+            })
+        }
+        Command::Status => Line::sentence(|c| {
+            c.bytes(b"MCACK,STATUS,")?;
+            c.bytes(mode_word(filter.mode()))?;
+            c.byte(b',')?;
+            c.u64(filter.records().into())?;
+            for e in &PARSE_ERRORS {
+                c.byte(b',')?;
+                c.u64(e.load(Ordering::Relaxed).into())?;
             }
-            Command::Status => {
-                let mode = match pipe.mode() {
-                    Mode::Calibrate => "CAL",
-                    Mode::Survey => "SURVEY",
-                };
-                let e = |i: usize| PARSE_ERRORS[i].load(Ordering::Relaxed);
-                let _ = write!(
-                    line,
-                    "$MCACK,STATUS,{mode},{},{},{},{},{},{}",
-                    pipe.records(),
-                    e(0),
-                    e(1),
-                    e(2),
-                    UART_ERRORS.load(Ordering::Relaxed),
-                    CMD_ERRORS.load(Ordering::Relaxed)
-                );
-            }
-            Command::Mode(m) => {
-                pipe.set_mode(m);
-                let _ = write!(
-                    line,
-                    "$MCACK,MODE,{}",
-                    if m == Mode::Survey { "SURVEY" } else { "CAL" }
-                );
-            }
-            Command::GetCoef { index } => {
-                let v = pipe
-                    .coefficients()
-                    .get(usize::from(index))
-                    .copied()
-                    .ok_or(CmdError::Bounds)?;
-                let _ = write!(line, "$MCACK,GETC,{index},{v:e}");
-            }
-            Command::SetCoef { index, value } => {
-                let mut c = [0f32; N_COEF];
-                let cur = pipe.coefficients();
-                let n = cur.len().min(N_COEF);
-                c[..n].copy_from_slice(&cur[..n]);
-                *c.get_mut(usize::from(index)).ok_or(CmdError::Bounds)? = value;
-                if !pipe.set_coefficients(&c) {
-                    return Err(CmdError::Bounds);
+            c.byte(b',')?;
+            c.u64(UART_ERRORS.load(Ordering::Relaxed).into())?;
+            c.byte(b',')?;
+            c.u64(CMD_ERRORS.load(Ordering::Relaxed).into())
+        }),
+        Command::GetCoef(Some(i)) => {
+            let v = filter
+                .coefficients()
+                .get(usize::from(i))
+                .copied()
+                .unwrap_or(f32::NAN);
+            Line::fill(|out| encode_ack_coef(i, v, out))
+        }
+        Command::GetCoef(None) => {
+            let c = filter.coefficients();
+            Line::sentence(|cur| {
+                cur.bytes(b"MCACK,GETCOEF")?;
+                for v in c {
+                    cur.byte(b',')?;
+                    cur.sci(v.into())?;
                 }
-                let _ = write!(line, "$MCACK,SETC,{index},{value:e}");
+                Ok(())
+            })
+        }
+        Command::SetCoef { index, value } => {
+            let mut c = filter.coefficients();
+            if let Some(slot) = c.get_mut(usize::from(index)) {
+                *slot = value;
             }
-            Command::Save => {
-                let mut blob = [0u8; crate::COEF_BLOB_MAX];
-                let n =
-                    wire::encode_blob(pipe.coefficients(), &mut blob).ok_or(CmdError::Storage)?;
-                store.write(&blob[..n]).map_err(|_| CmdError::Storage)?;
-                let _ = write!(line, "$MCACK,SAVE,{n}");
-            }
-            Command::Load => {
-                load_coefficients(store, pipe)?;
-                let _ = write!(line, "$MCACK,LOAD");
-            }
-            Command::Flush => {
-                // handled below: records must go out before the ACK
-                let _ = write!(line, "$MCACK,FLUSH");
+            match filter.set_coefficients(&c) {
+                Ok(()) => Line::sentence(|c| {
+                    c.bytes(b"MCACK,SETCOEF,")?;
+                    c.u64(index.into())?;
+                    c.byte(b',')?;
+                    c.sci(value.into())
+                }),
+                Err(_) => Line::fill(|out| encode_error(CommandError::ValueOutOfBounds, out)),
             }
         }
-        Ok(())
-    })();
-    if cmd == Command::Flush {
-        let mut rec = wire::Line::new();
-        while let Some(r) = pipe.flush() {
-            send_record(&r, &mut rec).await;
+        Command::Save => {
+            let mut blob = [0u8; crate::COEF_BLOB_MAX];
+            let ok = encode_blob(model_id(), &filter.coefficients(), &mut blob)
+                .ok()
+                .is_some_and(|n| store.write(&blob[..n]).is_ok());
+            if ok {
+                Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
+            } else {
+                // flash failure is not a command error: say so in the ACK's place
+                Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
+            }
         }
-        line.clear();
-        let _ = write!(line, "$MCACK,FLUSH,{}", pipe.records());
-    }
-    if let Err(e) = r {
-        CMD_ERRORS.fetch_add(1, Ordering::Relaxed);
-        line.clear();
-        let _ = write!(line, "$MCERR,{}", e.word());
-    }
-    wire::finish_sentence(line);
-    OUT.send(core::mem::take(line)).await;
+        Command::Reset | Command::Flush => {
+            // every sample keeps its record: emit the held ones before anything else
+            while let Some(r) = filter.flush() {
+                send_record(&r).await;
+            }
+            if cmd == Command::Reset {
+                if filter.reset().is_err() {
+                    defmt::error!("compensator re-init failed");
+                    board::exit(false)
+                }
+                let _ = load_coefficients(store, filter);
+            }
+            let name: &[u8] = if cmd == Command::Reset {
+                b"RESET"
+            } else {
+                b"FLUSH"
+            };
+            Line::sentence(|c| {
+                c.bytes(b"MCACK,")?;
+                c.bytes(name)?;
+                c.byte(b',')?;
+                c.u64(filter.records().into())
+            })
+        }
+    };
+    OUT.send(reply).await;
 }
 
 /// Commands arrive on the output port's RX line; malformed ones are answered here.
 #[embassy_executor::task]
 async fn command_task(mut rx: BufferedUartRx<'static>) {
-    let mut lines = LineBuf::new();
+    let mut reader = CommandReader::new(N_COEF);
     let mut buf = [0u8; 32];
     loop {
-        let Ok(n) = rx.read(&mut buf).await else {
-            UART_ERRORS.fetch_add(1, Ordering::Relaxed);
-            continue;
-        };
-        for &byte in &buf[..n] {
-            let r = match lines.push(byte) {
-                LineEvent::Pending => continue,
-                LineEvent::Line(len) => wire::parse_command(lines.line(len), N_COEF),
-                LineEvent::Overflow => Err(CmdError::Overflow),
-            };
-            match r {
-                Ok(cmd) => COMMANDS.send(cmd).await,
-                Err(e) => {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            match reader.push(b) {
+                None => {}
+                Some(Ok(cmd)) => COMMANDS.send(cmd).await,
+                Some(Err(e)) => {
                     CMD_ERRORS.fetch_add(1, Ordering::Relaxed);
-                    let mut line = wire::Line::new();
-                    let _ = write!(line, "$MCERR,{}", e.word());
-                    wire::finish_sentence(&mut line);
-                    OUT.send(line).await;
+                    OUT.send(Line::fill(|out| encode_error(e, out))).await;
                 }
             }
         }
@@ -327,7 +402,7 @@ async fn command_task(mut rx: BufferedUartRx<'static>) {
 async fn output_task(mut tx: BufferedUartTx<'static>) {
     loop {
         let line = OUT.receive().await;
-        if tx.write_all(line.as_bytes()).await.is_err() {
+        if tx.write_all(line.bytes()).await.is_err() {
             UART_ERRORS.fetch_add(1, Ordering::Relaxed);
         }
     }

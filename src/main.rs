@@ -23,13 +23,9 @@ fn main() {
 }
 
 #[cfg(target_os = "none")]
-mod aligner;
-#[cfg(target_os = "none")]
 mod pipeline;
 #[cfg(target_os = "none")]
-mod placeholder_comp;
-#[cfg(target_os = "none")]
-mod wire;
+mod timebase;
 
 #[cfg(all(target_os = "none", feature = "board-acq", feature = "board-emu"))]
 compile_error!(
@@ -47,6 +43,8 @@ mod board;
 mod fw;
 
 /// Watchdog timeout (µs): long enough for a flash sector erase on the real board.
+#[cfg(target_os = "none")]
 pub const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
-/// Largest coefficient blob (bytes): header + 64 coefficients + CRC.
-pub const COEF_BLOB_MAX: usize = 8 + 4 * 64 + 4;
+/// Size of the coefficient blob of the board's model (header, coefficients, CRC-32).
+#[cfg(target_os = "none")]
+pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(pipeline::N_COEF);

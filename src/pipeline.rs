@@ -1,37 +1,61 @@
-//! The filter stage: aligned samples in, output records out, with the mode and the
-//! coefficients. The only module that touches the compensator API, so wiring the real
-//! core means changing the `use` below.
+//! The filter stage, pure (no embassy) so the host replay and hil-tests run the same code:
+//! aligned samples in, output records out, plus the mode and the coefficients.
 
-use crate::wire::{Mode, Record};
+use magcomp_core::compensator::CompensatorError;
 use magcomp_core::epoch::AlignedSample;
+use magcomp_core::model::Model;
+use magcomp_core::protocol::command::{Mode, model_hash};
+use magcomp_core::protocol::record::Record;
+use magcomp_core::{Compensator, CompensatorConfig, Output};
 
-// PLACEHOLDER: switch to `magcomp_core::{Compensator, CompensatorConfig, Output, model::Model}`
-// when the core's compensator lands on `main`.
-pub use crate::placeholder_comp::N_COEF;
-use crate::placeholder_comp::{Compensator, CompensatorConfig, Output, model::Model};
+/// The model compiled into the board (the paper's: 16 TL coefficients + 5 field states).
+pub const MODEL_SPEC: &[u8] = b"tl16+field";
+/// Coefficients of `MODEL_SPEC` (the index bound of GETCOEF/SETCOEF).
+pub const N_COEF: usize = 16;
+/// State capacity and derivative-window capacity of the on-board filter.
+pub const STATE_CAPACITY: usize = 32;
+pub const WINDOW: usize = 16;
 
-/// State capacity and derivative window of the on-board filter (paper model: 21 states).
-pub type BoardCompensator = Compensator<32, 16>;
+pub type BoardCompensator = Compensator<'static, STATE_CAPACITY, WINDOW>;
 
-pub struct Pipeline {
+/// Model id stored in the coefficient blob.
+pub fn model_id() -> u32 {
+    model_hash(MODEL_SPEC)
+}
+
+pub struct Filter {
     comp: BoardCompensator,
     mode: Mode,
+    rate_hz: f32,
     /// Sequence number of the next record (= records emitted so far).
     next_seq: u32,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct InitError;
+fn config(rate_hz: f32) -> CompensatorConfig {
+    let mut cfg = CompensatorConfig::for_rate(rate_hz);
+    // the ring holds 2·half_width + 1 samples: above ~150 Hz the derivative spans fewer
+    // than ±0.05 s rather than the filter refusing to start
+    cfg.epoch.half_width = cfg.epoch.half_width.min((WINDOW - 1) / 2);
+    cfg
+}
 
-impl Pipeline {
-    pub fn new(rate_hz: f32) -> Result<Self, InitError> {
-        let comp = Compensator::new(Model::paper(), CompensatorConfig::for_rate(rate_hz))
-            .map_err(|_| InitError)?;
+impl Filter {
+    pub fn new(rate_hz: f32) -> Result<Self, CompensatorError> {
+        let comp = Compensator::new(Model::paper(), config(rate_hz))?;
         Ok(Self {
             comp,
-            mode: Mode::Calibrate,
+            mode: Mode::Cal,
+            rate_hz,
             next_seq: 0,
         })
+    }
+
+    /// Restarts the filter (priors, derivative window); sequence numbers keep counting.
+    /// The caller flushes first so no sample loses its record.
+    pub fn reset(&mut self) -> Result<(), CompensatorError> {
+        self.comp = Compensator::new(Model::paper(), config(self.rate_hz))?;
+        self.mode = Mode::Cal;
+        Ok(())
     }
 
     pub fn mode(&self) -> Mode {
@@ -47,12 +71,17 @@ impl Pipeline {
         self.next_seq
     }
 
-    pub fn coefficients(&self) -> &[f32] {
-        self.comp.coefficients()
+    pub fn coefficients(&self) -> [f32; N_COEF] {
+        let mut c = [0f32; N_COEF];
+        self.comp.coefficients(&mut c);
+        c
     }
 
-    pub fn set_coefficients(&mut self, c: &[f32]) -> bool {
-        self.comp.set_coefficients(c).is_ok()
+    /// Loads coefficients; the compensator then applies them (survey mode).
+    pub fn set_coefficients(&mut self, c: &[f32]) -> Result<(), CompensatorError> {
+        self.comp.set_coefficients(c)?;
+        self.mode = Mode::Survey;
+        Ok(())
     }
 
     fn record(&mut self, o: Output) -> Record {
@@ -70,7 +99,7 @@ impl Pipeline {
         }
     }
 
-    /// One sample in; the record of an earlier sample out once the derivative window is full.
+    /// One sample in; the record of the sample `half_width` back out.
     pub fn push(&mut self, s: &AlignedSample) -> Option<Record> {
         self.comp.push(s).map(|o| self.record(o))
     }

@@ -11,7 +11,8 @@
 //! `MAGCOMP_HIL_GPS` (115200 Bd), set raw with `stty`. `MAGCOMP_FW_ELF` names the ELF.
 
 use crate::capture::{Capture, Port};
-use crate::wire::{self, Record};
+use magcomp_core::protocol::common::xor_checksum;
+use magcomp_core::protocol::record::{decode_record, Record};
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::os::unix::net::UnixStream;
@@ -105,6 +106,11 @@ pub fn firmware_elf() -> Result<PathBuf> {
         }
     })
     .clone()
+}
+
+/// `$<body>*HH\r\n` with the NMEA XOR checksum (how an operator types a command).
+pub fn sentence(body: &str) -> Vec<u8> {
+    format!("${body}*{:02X}\r\n", xor_checksum(body.as_bytes())).into_bytes()
 }
 
 pub struct Board {
@@ -354,11 +360,7 @@ impl Board {
 
     /// Sends `$<body>*HH` and returns the next `$MCACK`/`$MCERR` reply line.
     pub fn command(&mut self, body: &str) -> Result<String> {
-        let mut line = wire::Line::new();
-        if !wire::sentence(body, &mut line) {
-            return Err(format!("command too long: {body}"));
-        }
-        self.command_raw(line.as_bytes())
+        self.command_raw(&sentence(body))
     }
 
     /// Sends raw bytes and returns the next reply line.
@@ -429,9 +431,9 @@ impl Board {
         let mut bad = Vec::new();
         for l in self.output() {
             if l.starts_with("$MCREC") {
-                match wire::decode_record(l.as_bytes()) {
-                    Some(r) => recs.push(r),
-                    None => bad.push(l),
+                match decode_record(l.as_bytes()) {
+                    Ok(r) => recs.push(r),
+                    Err(_) => bad.push(l),
                 }
             }
         }

@@ -7,7 +7,7 @@
 //! Everything comes from a seeded PRNG, so a seed names a capture.
 
 use crate::prng::Prng;
-use std::fmt::Write as _;
+use magcomp_core::protocol::capture as cap_fmt;
 use std::io::{self, BufRead, Write};
 
 /// Sensor input ports of the board.
@@ -29,6 +29,21 @@ impl Port {
     }
     pub fn from_name(s: &str) -> Option<Port> {
         Port::ALL.into_iter().find(|p| p.name() == s)
+    }
+    fn to_core(self) -> cap_fmt::Port {
+        match self {
+            Port::Scalar => cap_fmt::Port::Scalar,
+            Port::Flux => cap_fmt::Port::Flux,
+            Port::Gps => cap_fmt::Port::Gps,
+        }
+    }
+    fn from_core(p: cap_fmt::Port) -> Option<Port> {
+        match p {
+            cap_fmt::Port::Scalar => Some(Port::Scalar),
+            cap_fmt::Port::Flux => Some(Port::Flux),
+            cap_fmt::Port::Gps => Some(Port::Gps),
+            _ => None,
+        }
     }
 }
 
@@ -176,7 +191,7 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
         chunks.push(Chunk {
             t_us: (t * 1e6) as u64,
             port: Port::Scalar,
-            bytes: format!("$ {total:.4},99\r\n").into_bytes(),
+            bytes: format!("$ {total:.4},0999\r\n").into_bytes(),
         });
         scalar_t_s.push(t);
     }
@@ -279,54 +294,56 @@ impl Capture {
         self.chunks.iter().filter(move |c| c.port == port)
     }
 
-    /// Writes the raw capture text format: `<t_us> <port> <hex>` per chunk.
+    /// Writes the raw capture format of `magcomp_core::protocol::capture` (`# magcomp-capture v1`,
+    /// then `<t_us> <port> <HEX>` per chunk).
     pub fn write_raw<W: Write>(&self, mut w: W) -> io::Result<()> {
+        let mut buf = vec![0u8; cap_fmt::MAX_LINE + 2];
+        let n = cap_fmt::encode_header(&mut buf).ok_or_else(|| io::Error::other("header"))?;
+        w.write_all(&buf[..n])?;
         for c in &self.chunks {
-            let mut hex = String::with_capacity(2 * c.bytes.len());
-            for b in &c.bytes {
-                let _ = write!(hex, "{b:02x}");
+            for part in c.bytes.chunks(cap_fmt::MAX_CHUNK) {
+                let n = cap_fmt::encode_line(c.t_us, c.port.to_core(), part, &mut buf)
+                    .ok_or_else(|| io::Error::other("line"))?;
+                w.write_all(&buf[..n])?;
             }
-            writeln!(w, "{} {} {}", c.t_us, c.port.name(), hex)?;
         }
         Ok(())
     }
 
-    /// Reads the raw capture text format (scalar sample times are taken from the scalar chunks,
-    /// one sample per line terminator).
+    /// Reads a raw capture (sensor ports only; `cmd`/`out` lines are skipped). Scalar sample
+    /// times are the scalar chunks' times, one sample per line terminator.
     pub fn read_raw<R: BufRead>(r: R) -> io::Result<Capture> {
-        let bad = |m: &str| io::Error::new(io::ErrorKind::InvalidData, m.to_string());
         let mut cap = Capture::default();
-        for line in r.lines() {
+        let mut data = vec![0u8; cap_fmt::MAX_CHUNK];
+        for (n, line) in r.lines().enumerate() {
             let line = line?;
-            let line = line.trim();
-            if line.is_empty() || line.starts_with('#') {
+            let parsed = cap_fmt::decode_line(line.as_bytes(), &mut data).map_err(|e| {
+                io::Error::new(
+                    io::ErrorKind::InvalidData,
+                    format!("capture line {}: {e:?}", n + 1),
+                )
+            })?;
+            let Some(cl) = parsed else { continue };
+            let Some(port) = Port::from_core(cl.port) else {
                 continue;
-            }
-            let mut it = line.split_whitespace();
-            let t_us: u64 = it
-                .next()
-                .and_then(|s| s.parse().ok())
-                .ok_or_else(|| bad("t_us"))?;
-            let port = it
-                .next()
-                .and_then(Port::from_name)
-                .ok_or_else(|| bad("port"))?;
-            let hex = it.next().unwrap_or("");
-            if hex.len() % 2 != 0 {
-                return Err(bad("odd hex"));
-            }
-            let bytes = (0..hex.len())
-                .step_by(2)
-                .map(|i| u8::from_str_radix(&hex[i..i + 2], 16))
-                .collect::<Result<Vec<u8>, _>>()
-                .map_err(|_| bad("hex"))?;
+            };
+            let bytes = data[..cl.len].to_vec();
             if port == Port::Scalar {
-                for _ in bytes.iter().filter(|&&b| b == b'\n') {
-                    cap.scalar_t_s.push(t_us as f64 * 1e-6);
+                // "\r\n" is one terminator, as in the firmware's reader
+                let mut prev = 0u8;
+                for &b in &bytes {
+                    if (b == b'\n' && prev != b'\r') || b == b'\r' {
+                        cap.scalar_t_s.push(cl.t_us as f64 * 1e-6);
+                    }
+                    prev = b;
                 }
             }
             cap.payload_bytes += bytes.iter().filter(|&&b| b != b'\r' && b != b'\n').count();
-            cap.chunks.push(Chunk { t_us, port, bytes });
+            cap.chunks.push(Chunk {
+                t_us: cl.t_us,
+                port,
+                bytes,
+            });
         }
         Ok(cap)
     }

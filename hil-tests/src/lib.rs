@@ -6,14 +6,16 @@ pub mod board;
 pub mod capture;
 pub mod prng;
 
-/// The firmware's wire formats, shared with it source-for-source (placeholder until
-/// `magcomp_core::protocol` lands; then this becomes `pub use magcomp_core::protocol::...`).
-#[path = "../../src/wire.rs"]
-#[allow(clippy::all)]
-pub mod wire;
+#[path = "../../src/pipeline.rs"]
+pub mod pipeline;
+pub mod replay;
+/// The firmware's time base and filter stage, source-for-source (pure, no embassy): the
+/// reference replay below runs exactly what the board runs.
+#[path = "../../src/timebase.rs"]
+pub mod timebase;
 
+pub use magcomp_core::protocol::record::{decode_record, Record};
 use std::io::{self, BufRead, Write};
-use wire::Record;
 
 /// CSV header of decoded records (the same columns `magcomp replay` is to write).
 pub const CSV_HEADER: &str =
@@ -21,9 +23,9 @@ pub const CSV_HEADER: &str =
 
 fn counts(c: Option<magcomp_core::MagCounts>) -> String {
     c.map(|c| {
-        let mut s = String::new();
-        let _ = wire::write_counts(&mut s, c);
-        s
+        let sign = if c.0 < 0 { "-" } else { "" };
+        let a = c.0.unsigned_abs();
+        format!("{sign}{}.{:04}", a / 10_000, a % 10_000)
     })
     .unwrap_or_default()
 }
@@ -42,7 +44,7 @@ pub fn write_csv<W: Write>(mut w: W, recs: &[Record]) -> io::Result<()> {
     for r in recs {
         writeln!(
             w,
-            "{},{:.4},{},{},{},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{}",
             r.seq,
             r.t_s,
             counts(r.mag),
@@ -73,9 +75,10 @@ pub fn read_csv<R: BufRead>(r: R) -> io::Result<Vec<Record>> {
             if s.is_empty() {
                 Ok(None)
             } else {
-                wire::parse_counts(s.as_bytes())
-                    .map(|c| Some(magcomp_core::MagCounts(c)))
-                    .map_err(|_| bad(n))
+                let v: f64 = s.parse().map_err(|_| bad(n))?;
+                magcomp_core::MagCounts::from_nt_f64(v)
+                    .map(Some)
+                    .ok_or_else(|| bad(n))
             }
         };
         let opt_f = |s: &str| -> io::Result<f32> {

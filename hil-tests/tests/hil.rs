@@ -3,11 +3,26 @@
 //! Each test SKIPs (passes with a message) when qemu-system-arm is missing, unless
 //! `MAGCOMP_REQUIRE_QEMU=1`.
 
-use hil_tests::board::{self, Board};
+use hil_tests::board::{self, sentence, Board};
 use hil_tests::capture::{synthetic_flight, Capture, FlightSpec, Port, GPS_T0_S};
-use hil_tests::wire::{self, Record};
+use hil_tests::replay::{replay, BOARD_RATES};
+use hil_tests::Record;
+use magcomp_core::protocol::command::check_reply;
+use magcomp_core::protocol::scalar::{parse_scalar_line, ScalarConfig};
 use magcomp_core::Flags;
 use std::time::{Duration, Instant};
+
+/// The core's scalar parser on one captured line (terminator stripped).
+fn scalar_line(
+    b: &[u8],
+) -> Result<magcomp_core::protocol::scalar::ScalarFrame, magcomp_core::protocol::scalar::ScalarError>
+{
+    let end = b
+        .iter()
+        .position(|&c| c == b'\r' || c == b'\n')
+        .unwrap_or(b.len());
+    parse_scalar_line(&b[..end], &ScalarConfig::default())
+}
 
 /// Speed factor of the stream (1.0 = real time). `MAGCOMP_HIL_SPEED` can raise it for a
 /// quick local run; CI keeps the sensors' real rates.
@@ -54,6 +69,15 @@ fn run_flight(name: &str, cap: &Capture) -> Option<(Board, Vec<Record>)> {
         &recs,
     )
     .unwrap();
+    // values: the board's records equal the host run of the same code on the same bytes
+    let reference = replay(cap, BOARD_RATES);
+    hil_tests::write_csv(
+        std::io::BufWriter::new(std::fs::File::create(b.dir.join("reference.csv")).unwrap()),
+        &reference,
+    )
+    .unwrap();
+    hil_tests::compare_records(&recs, &reference, 1e-3)
+        .unwrap_or_else(|e| panic!("{name}: board vs reference replay: {e}"));
     if let Some(replay) = hil_tests::host_replay(&cap_path, &b.dir.join("replay.csv")) {
         hil_tests::compare_records(&recs, &replay, 1e-3)
             .unwrap_or_else(|e| panic!("{name}: board vs replay: {e}"));
@@ -105,7 +129,7 @@ fn flight_one_record_per_sample_with_dropout_and_outage_flags() {
 
     let sent: Vec<_> = cap
         .lines(Port::Scalar)
-        .map(|c| wire::parse_scalar(&c.bytes).ok())
+        .map(|c| scalar_line(&c.bytes).ok().map(|f| f.mag))
         .collect();
     for (r, t) in recs.iter().zip(&cap.scalar_t_s) {
         let t = *t;
@@ -182,7 +206,7 @@ fn corrupted_bytes_are_flagged_and_counted_without_loss_or_reset() {
     // a scalar line the parser rejects is a sample with no value, flagged, never dropped
     let bad_scalar: Vec<bool> = cap
         .lines(Port::Scalar)
-        .map(|c| wire::parse_scalar(&c.bytes).is_err())
+        .map(|c| scalar_line(&c.bytes).is_err())
         .collect();
     let n_bad = bad_scalar.iter().filter(|&&x| x).count();
     assert!(
@@ -237,56 +261,62 @@ fn malformed_commands_rejected_valid_ones_applied() {
     let mut expect_err = |b: &mut Board, bytes: &[u8], reason: &str| {
         let r = b.command_raw(bytes).unwrap();
         assert!(
-            r.starts_with(&format!("$MCERR,{reason}")),
+            r.starts_with("$MCERR,") && r.contains(&format!(",{reason}*")),
             "{:?} → {r}, want {reason}",
             String::from_utf8_lossy(bytes)
         );
-        assert!(
-            wire::checked_body(r.as_bytes()).is_ok(),
-            "reply checksum: {r}"
-        );
+        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
         rejected += 1;
     };
-    let with_cs = |body: &str| {
-        let mut l = wire::Line::new();
-        assert!(wire::sentence(body, &mut l));
-        l.as_bytes().to_vec()
-    };
-    let mut bad_cs = with_cs("MCCMD,PING");
+    let mut bad_cs = sentence("MCCMD,STATUS");
     let k = bad_cs.len() - 3;
     bad_cs[k] = if bad_cs[k] == b'0' { b'1' } else { b'0' };
     expect_err(&mut b, &bad_cs, "CHECKSUM");
-    expect_err(&mut b, b"$MCCMD,PING\r\n", "CHECKSUM");
-    expect_err(&mut b, &with_cs("MCCMD,SELFDESTRUCT"), "UNKNOWN");
-    expect_err(&mut b, &with_cs("MCXYZ,PING"), "UNKNOWN");
-    expect_err(&mut b, &with_cs("MCCMD,SETC,99,1.0"), "BOUNDS");
-    expect_err(&mut b, &with_cs("MCCMD,SETC,1,1e9"), "BOUNDS");
-    expect_err(&mut b, &with_cs("MCCMD,SETC,1,NaN"), "BOUNDS");
-    expect_err(&mut b, &with_cs("MCCMD,MODE,TURBO"), "BOUNDS");
-    expect_err(&mut b, &with_cs("MCCMD,GETC"), "SYNTAX");
-    expect_err(&mut b, &with_cs("MCCMD,GETC,x"), "SYNTAX");
-    expect_err(&mut b, &with_cs("MCCMD,PING,extra"), "SYNTAX");
-    expect_err(&mut b, b"garbage \x01\x02\xff\r\n", "SYNTAX");
+    expect_err(&mut b, b"$MCCMD,STATUS\r\n", "CHECKSUM");
+    expect_err(&mut b, b"$MCCMD,STATUS*FFFF\r\n", "CHECKSUM");
+    expect_err(&mut b, &sentence("MCCMD,SELFDESTRUCT"), "UNKNOWN");
+    expect_err(&mut b, &sentence("MCXYZ,STATUS"), "FRAMING");
+    expect_err(&mut b, b"garbage \x01\x02\xff\r\n", "FRAMING");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,99,1.0"), "INDEX");
+    expect_err(&mut b, &sentence("MCCMD,GETCOEF,16"), "INDEX");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,1,1E9"), "VALUE");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,1,NaN"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,MODE,TURBO"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,1"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,GETCOEF,x"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,STATUS,extra"), "BADARG");
     let mut long = vec![b'A'; 300];
     long.extend_from_slice(b"\r\n");
-    expect_err(&mut b, &long, "OVERFLOW");
+    expect_err(&mut b, &long, "OVERLONG");
 
     let ack = |b: &mut Board, body: &str| {
         let r = b.command(body).unwrap();
         assert!(r.starts_with("$MCACK"), "{body} → {r}");
+        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
         r
     };
-    assert!(ack(&mut b, "MCCMD,PING").starts_with("$MCACK,PING"));
-    ack(&mut b, "MCCMD,SETC,0,5.25");
-    assert!(ack(&mut b, "MCCMD,GETC,0").starts_with("$MCACK,GETC,0,5.25e0"));
-    ack(&mut b, "MCCMD,SAVE");
-    ack(&mut b, "MCCMD,SETC,0,0");
-    ack(&mut b, "MCCMD,LOAD");
-    let g = ack(&mut b, "MCCMD,GETC,0");
-    assert!(
-        g.starts_with("$MCACK,GETC,0,5.25e0"),
-        "store round trip: {g}"
+    let coef = |r: &str| -> f64 {
+        r.split(['*', ','])
+            .nth(3)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(f64::NAN)
+    };
+    assert!(ack(&mut b, "MCCMD,STATUS").starts_with("$MCACK,STATUS,CAL,0,"));
+    let all = ack(&mut b, "MCCMD,GETCOEF");
+    assert_eq!(
+        all.split(',').count(),
+        2 + 16,
+        "GETCOEF returns 16 coefficients: {all}"
     );
+    assert!(ack(&mut b, "MCCMD,SETCOEF,0,5.25").starts_with("$MCACK,SETCOEF,0,"));
+    assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 5.25);
+    ack(&mut b, "MCCMD,SAVE");
+    ack(&mut b, "MCCMD,SETCOEF,0,0");
+    assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 0.0);
+    // RESET re-initialises the filter and reloads the stored blob (checked: CRC, version, model)
+    assert!(ack(&mut b, "MCCMD,RESET").starts_with("$MCACK,RESET,0"));
+    let g = ack(&mut b, "MCCMD,GETCOEF,0");
+    assert_eq!(coef(&g), 5.25, "store round trip: {g}");
     assert!(ack(&mut b, "MCCMD,MODE,SURVEY").starts_with("$MCACK,MODE,SURVEY"));
 
     // records flow while commands are handled, and carry the mode
