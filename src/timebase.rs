@@ -16,7 +16,7 @@ use magcomp_core::Flags;
 use magcomp_core::epoch::AlignedSample;
 use magcomp_core::protocol::aligner::{Aligner, AlignerConfig};
 use magcomp_core::protocol::fluxgate::FluxError;
-use magcomp_core::protocol::nmea::{NmeaError, Sentence};
+use magcomp_core::protocol::nmea::{Gga, NmeaError, Sentence};
 use magcomp_core::protocol::scalar::{ScalarError, ScalarFrame};
 
 /// Nominal sensor rates (Hz).
@@ -92,12 +92,15 @@ impl SampleAligner {
         match r {
             Ok(s) => {
                 let now = self.now_us();
-                if let Sentence::Gga(g) = &s {
-                    if let (Some(1..), Some(t), Some(_), Some(_)) =
-                        (g.fix_quality, g.time, g.lat_deg, g.lon_deg)
-                    {
-                        self.last_fix = Some((t.seconds_of_day_s, now));
-                    }
+                if let Sentence::Gga(Gga {
+                    fix_quality: Some(1..),
+                    time: Some(t),
+                    lat_deg: Some(_),
+                    lon_deg: Some(_),
+                    ..
+                }) = &s
+                {
+                    self.last_fix = Some((t.seconds_of_day_s, now));
                 }
                 self.aligner.push_nmea(now, &s);
             }
@@ -114,10 +117,10 @@ impl SampleAligner {
                 self.errors[Port::Scalar as usize].saturating_add(1);
         }
         let mut s = self.aligner.push_scalar_result(t_us, r);
-        if self.anchor.is_none() && !s.flags.contains(Flags::NO_GPS) {
-            if let Some((tod, at_us)) = self.last_fix {
-                self.anchor = Some((tod + (t_us - at_us) as f64 * 1e-6, k));
-            }
+        if let (None, false, Some((tod, at_us))) =
+            (self.anchor, s.flags.contains(Flags::NO_GPS), self.last_fix)
+        {
+            self.anchor = Some((tod + (t_us - at_us) as f64 * 1e-6, k));
         }
         s.t_s = match self.anchor {
             Some((t0, k0)) => t0 + f64::from(k.wrapping_sub(k0)) / self.rate_hz,

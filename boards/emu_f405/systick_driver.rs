@@ -1,3 +1,4 @@
+// Copied from shared/docs/qemu/systick_driver.rs (proven on QEMU 10 netduinoplus2).
 //! Minimal embassy-time driver on the Cortex-M SysTick (for QEMU, where the STM32 TIMx
 //! used by embassy-stm32's time driver is missing (L4x5) or only partly emulated (F405)).
 //! SysTick interrupts every 1 ms; now() interpolates with the current value register,
@@ -38,7 +39,6 @@ pub fn init(mut syst: SYST, core_hz: u32) {
         syst.clear_current();
         syst.enable_interrupt();
         syst.enable_counter();
-        core::mem::forget(syst);
     });
 }
 
