@@ -213,7 +213,8 @@ impl<const N: usize> PlainKf<N> {
             ph[i] = (0..n).map(|j| self.p[i][j] * h[j]).sum();
         }
         let s: f32 = (0..n).map(|i| h[i] * ph[i]).sum::<f32>() + r;
-        if !(s > 0.0) {
+        // also rejects NaN
+        if s.partial_cmp(&0.0) != Some(core::cmp::Ordering::Greater) {
             return;
         }
         let innov = z - (0..n).map(|i| h[i] * self.x[i]).sum::<f32>();
