@@ -12,7 +12,7 @@
 
 use crate::capture::{Capture, Port};
 use magcomp_core::protocol::common::xor_checksum;
-use magcomp_core::protocol::record::{decode_record, Record};
+use magcomp_core::protocol::record::{Record, decode_record};
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::os::unix::net::UnixStream;
@@ -65,7 +65,13 @@ pub fn firmware_elf() -> Result<PathBuf> {
     static ELF: OnceLock<std::result::Result<PathBuf, String>> = OnceLock::new();
     ELF.get_or_init(|| {
         if let Ok(p) = std::env::var("MAGCOMP_FW_ELF") {
-            return Ok(PathBuf::from(p));
+            // relative paths are taken from the repository root (tests run in hil-tests/)
+            let p = PathBuf::from(p);
+            return Ok(if p.is_relative() && !p.exists() {
+                repo_root().join(p)
+            } else {
+                p
+            });
         }
         let root = repo_root();
         let out = if emulated() {
@@ -113,9 +119,36 @@ pub fn sentence(body: &str) -> Vec<u8> {
     format!("${body}*{:02X}\r\n", xor_checksum(body.as_bytes())).into_bytes()
 }
 
+/// A sensor input of the board and how to know the board has taken what was written.
+struct Input {
+    file: std::fs::File,
+    /// FIFO into QEMU (drained when QEMU has read every byte into the UART) or a tty
+    /// (drained when the adapter has sent every byte).
+    fifo: bool,
+}
+
+impl Input {
+    /// Waits until the written bytes left our side. QEMU's UART takes one byte at a time
+    /// and, when the host stalls, interleaves pending bytes of different ports: waiting here
+    /// before writing another port keeps the capture's byte order on the board.
+    fn drain(&self, timeout: Duration) -> Result<()> {
+        if !self.fifo {
+            return rustix::termios::tcdrain(&self.file).map_err(|e| format!("tcdrain: {e}"));
+        }
+        let end = Instant::now() + timeout;
+        while rustix::io::ioctl_fionread(&self.file).map_err(|e| format!("FIONREAD: {e}"))? > 0 {
+            if Instant::now() > end {
+                return Err("the board stopped reading a sensor port".into());
+            }
+            thread::sleep(Duration::from_micros(200));
+        }
+        Ok(())
+    }
+}
+
 pub struct Board {
     child: Option<Child>,
-    inputs: HashMap<Port, Box<dyn Write + Send>>,
+    inputs: HashMap<Port, Input>,
     cmd: Box<dyn Write + Send>,
     lines: Arc<Mutex<Vec<String>>>,
     /// Working directory of this run (sockets, QEMU logs, CSVs).
@@ -154,7 +187,7 @@ fn connect(path: &Path, deadline: Instant) -> Result<UnixStream> {
         match UnixStream::connect(path) {
             Ok(s) => return Ok(s),
             Err(e) if Instant::now() > deadline => {
-                return Err(format!("connect {}: {e}", path.display()))
+                return Err(format!("connect {}: {e}", path.display()));
             }
             Err(_) => thread::sleep(Duration::from_millis(20)),
         }
@@ -173,8 +206,16 @@ impl Board {
         } else {
             Self::start_serial(&elf, dir)?
         };
-        b.wait_line(|l| l.starts_with("$MCBOOT"), Duration::from_secs(20))
-            .ok_or("no $MCBOOT banner from the firmware")?;
+        if b.wait_line(|l| l.starts_with("$MCBOOT"), Duration::from_secs(20))
+            .is_none()
+        {
+            let qemu = std::fs::read_to_string(b.dir.join("qemu-stderr.txt")).unwrap_or_default();
+            return Err(format!(
+                "no $MCBOOT banner from the firmware ({}) {}",
+                b.dir.display(),
+                qemu.trim()
+            ));
+        }
         Ok(b)
     }
 
@@ -197,12 +238,28 @@ impl Board {
         for (i, role) in roles.iter().enumerate() {
             if role.is_empty() {
                 cmd.args(["-serial", "null"]);
-            } else {
-                let p = dir.join(format!("{role}.sock"));
+            } else if *role == "out" {
+                let p = dir.join("out.sock");
                 cmd.arg("-chardev").arg(format!(
                     "socket,id=s{i},path={},server=on,wait=off",
                     p.display()
                 ));
+                cmd.args(["-serial", &format!("chardev:s{i}")]);
+            } else {
+                // sensor inputs: FIFOs, whose fill level tells when QEMU has taken the bytes
+                let p = dir.join(role);
+                for ext in ["in", "out"] {
+                    let f = p.with_extension(ext);
+                    let ok = Command::new("mkfifo")
+                        .arg(&f)
+                        .status()
+                        .is_ok_and(|s| s.success());
+                    if !ok {
+                        return Err(format!("mkfifo {}", f.display()));
+                    }
+                }
+                cmd.arg("-chardev")
+                    .arg(format!("pipe,id=s{i},path={}", p.display()));
                 cmd.args(["-serial", &format!("chardev:s{i}")]);
             }
         }
@@ -219,12 +276,19 @@ impl Board {
             .map_err(|e| format!("qemu: {e}"))?;
         let deadline = Instant::now() + Duration::from_secs(10);
         let out = connect(&dir.join("out.sock"), deadline)?;
-        let mut inputs: HashMap<Port, Box<dyn Write + Send>> = HashMap::new();
+        let mut inputs = HashMap::new();
         for p in Port::ALL {
-            inputs.insert(
-                p,
-                Box::new(connect(&dir.join(format!("{}.sock", p.name())), deadline)?),
-            );
+            // read+write, so opening a FIFO never blocks (QEMU holds both ends open as well)
+            let open = |ext: &str| {
+                std::fs::OpenOptions::new()
+                    .read(true)
+                    .write(true)
+                    .open(dir.join(p.name()).with_extension(ext))
+                    .map_err(|e| format!("{} FIFO: {e}", p.name()))
+            };
+            let file = open("in")?;
+            // the firmware never transmits on a sensor port; its .out end needs no reader
+            inputs.insert(p, Input { file, fifo: true });
         }
         let lines = Arc::new(Mutex::new(Vec::new()));
         spawn_reader(
@@ -259,19 +323,15 @@ impl Board {
                 .map_err(|e| format!("{path}: {e}"))
         };
         let out = open(&dev("MAGCOMP_HIL_OUT")?, "921600")?;
-        let mut inputs: HashMap<Port, Box<dyn Write + Send>> = HashMap::new();
-        inputs.insert(
-            Port::Scalar,
-            Box::new(open(&dev("MAGCOMP_HIL_SCALAR")?, "115200")?),
-        );
-        inputs.insert(
-            Port::Flux,
-            Box::new(open(&dev("MAGCOMP_HIL_FLUX")?, "115200")?),
-        );
-        inputs.insert(
-            Port::Gps,
-            Box::new(open(&dev("MAGCOMP_HIL_GPS")?, "115200")?),
-        );
+        let mut inputs = HashMap::new();
+        for (p, var) in [
+            (Port::Scalar, "MAGCOMP_HIL_SCALAR"),
+            (Port::Flux, "MAGCOMP_HIL_FLUX"),
+            (Port::Gps, "MAGCOMP_HIL_GPS"),
+        ] {
+            let file = open(&dev(var)?, "115200")?;
+            inputs.insert(p, Input { file, fifo: false });
+        }
         let lines = Arc::new(Mutex::new(Vec::new()));
         spawn_reader(
             Box::new(out.try_clone().map_err(|e| e.to_string())?),
@@ -324,10 +384,10 @@ impl Board {
     ) -> Option<String> {
         let end = Instant::now() + timeout;
         loop {
-            if let Ok(l) = self.lines.lock() {
-                if let Some(s) = l.iter().skip(from).find(|s| pred(s)) {
-                    return Some(s.clone());
-                }
+            if let Ok(l) = self.lines.lock()
+                && let Some(s) = l.iter().skip(from).find(|s| pred(s))
+            {
+                return Some(s.clone());
             }
             if Instant::now() > end {
                 return None;
@@ -338,7 +398,8 @@ impl Board {
 
     /// Streams a capture into the sensor ports at its own timing divided by `speed`
     /// (1.0 = the sensors' real rates; QEMU's UARTs have no baud timing, so pacing is ours).
-    /// One thread writes all ports in capture order, which keeps the byte order of the capture.
+    /// One thread writes all ports in capture order and lets each chunk drain before the
+    /// next: the board sees the capture's byte order, which is what the replay reproduces.
     pub fn stream(&mut self, cap: &Capture, speed: f64) -> Result<()> {
         let t0 = Instant::now();
         for c in &cap.chunks {
@@ -347,8 +408,10 @@ impl Board {
                 thread::sleep(d);
             }
             let w = self.inputs.get_mut(&c.port).ok_or("port missing")?;
-            w.write_all(&c.bytes)
+            w.file
+                .write_all(&c.bytes)
                 .map_err(|e| format!("write {}: {e}", c.port.name()))?;
+            w.drain(Duration::from_secs(10))?;
         }
         Ok(())
     }

@@ -14,7 +14,7 @@ pub mod replay;
 #[path = "../../src/timebase.rs"]
 pub mod timebase;
 
-pub use magcomp_core::protocol::record::{decode_record, Record};
+pub use magcomp_core::protocol::record::{Record, decode_record};
 use std::io::{self, BufRead, Write};
 
 /// CSV header of decoded records (the same columns `magcomp replay` is to write).

@@ -3,13 +3,13 @@
 //! Each test SKIPs (passes with a message) when qemu-system-arm is missing, unless
 //! `MAGCOMP_REQUIRE_QEMU=1`.
 
-use hil_tests::board::{self, sentence, Board};
-use hil_tests::capture::{synthetic_flight, Capture, FlightSpec, Port, GPS_T0_S};
-use hil_tests::replay::{replay, BOARD_RATES};
 use hil_tests::Record;
-use magcomp_core::protocol::command::check_reply;
-use magcomp_core::protocol::scalar::{parse_scalar_line, ScalarConfig};
+use hil_tests::board::{self, Board, sentence};
+use hil_tests::capture::{Capture, FlightSpec, GPS_T0_S, Port, synthetic_flight};
+use hil_tests::replay::{BOARD_RATES, replay};
 use magcomp_core::Flags;
+use magcomp_core::protocol::command::check_reply;
+use magcomp_core::protocol::scalar::{ScalarConfig, parse_scalar_line};
 use std::time::{Duration, Instant};
 
 /// The core's scalar parser on one captured line (terminator stripped).
@@ -246,7 +246,10 @@ fn corrupted_bytes_are_flagged_and_counted_without_loss_or_reset() {
     assert_eq!(num(3) as usize, recs.len(), "status record count: {s}");
     assert_eq!(num(4) as usize, n_bad, "scalar error counter: {s}");
     assert!(num(5) > 0 && num(6) > 0, "flux/GPS error counters: {s}");
-    eprintln!("{name}: {:.2} % bytes corrupted, {n_bad} scalar lines rejected, {flagged} records flagged PARSE_ERROR; {s}", 100.0 * frac);
+    eprintln!(
+        "{name}: {:.2} % bytes corrupted, {n_bad} scalar lines rejected, {flagged} records flagged PARSE_ERROR; {s}",
+        100.0 * frac
+    );
 }
 
 #[test]

@@ -1,8 +1,8 @@
 //! Host-only checks of the harness pieces (no QEMU needed): the synthetic capture, its raw
 //! format, the reference replay and the CSV hand-off to `magcomp replay`.
 
-use hil_tests::capture::{synthetic_flight, Capture, FlightSpec, Port};
-use hil_tests::replay::{replay, BOARD_RATES};
+use hil_tests::capture::{Capture, FlightSpec, Port, synthetic_flight};
+use hil_tests::replay::{BOARD_RATES, replay};
 use magcomp_core::Flags;
 
 #[test]
