@@ -31,7 +31,7 @@ cp Cargo.lock "$EMU/Cargo.lock.orig"
 restore() { cp "$EMU/Cargo.lock.orig" Cargo.lock; }
 trap restore EXIT
 cargo build --config "$CFG" --target-dir "$EMU" --profile fw --target thumbv7em-none-eabihf \
-  -p magcomp-firmware --no-default-features --features board-emu "$@" >&2
+  -p magcomp-firmware --no-default-features --features board-emu,hil-sync "$@" >&2
 BIN=magcomp-firmware
 prev=""
 for a in "$@"; do [ "$prev" = "--bin" ] && BIN=$a; prev=$a; done

@@ -110,7 +110,12 @@ async fn main(spawner: Spawner) {
         c.bytes(b"MCBOOT,")?;
         c.bytes(board::NAME.as_bytes())?;
         c.byte(b',')?;
-        c.bytes(env!("CARGO_PKG_VERSION").as_bytes())
+        c.bytes(env!("CARGO_PKG_VERSION").as_bytes())?;
+        // tells the harness that frames are acknowledged (`$MCSYN`)
+        if cfg!(feature = "hil-sync") {
+            c.bytes(b",SYNC")?;
+        }
+        Ok(())
     }))
     .await;
 
@@ -212,8 +217,18 @@ async fn flux_spi_task(mut f: board::FluxPort) {
 #[embassy_executor::task]
 async fn aligner_task() {
     let mut al = SampleAligner::new(RATES);
+    // `hil-sync`: frames taken per port (scalar, flux, GPS), acknowledged after each one
+    #[cfg(feature = "hil-sync")]
+    let mut taken = [0u64; 3];
     loop {
-        let sample = match EVENTS.receive().await {
+        let ev = EVENTS.receive().await;
+        #[cfg(feature = "hil-sync")]
+        let port = match ev {
+            Event::Scalar(_) => 0,
+            Event::Flux(_) => 1,
+            Event::Gps(_) => 2,
+        };
+        let sample = match ev {
             Event::Scalar(r) => Some(al.scalar(r)),
             Event::Flux(r) => {
                 al.flux(r);
@@ -229,6 +244,19 @@ async fn aligner_task() {
         }
         if let Some(s) = sample {
             SAMPLES.send(s).await;
+        }
+        #[cfg(feature = "hil-sync")]
+        {
+            taken[port] += 1;
+            OUT.send(Line::sentence(|c| {
+                c.bytes(b"MCSYN")?;
+                for n in taken {
+                    c.byte(b',')?;
+                    c.u64(n)?;
+                }
+                Ok(())
+            }))
+            .await;
         }
     }
 }

@@ -12,7 +12,10 @@
 
 use crate::capture::{Capture, Port};
 use magcomp_core::protocol::common::xor_checksum;
+use magcomp_core::protocol::fluxgate::FluxAsciiReader;
+use magcomp_core::protocol::nmea::{NmeaReader, Sentence};
 use magcomp_core::protocol::record::{Record, decode_record};
+use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 use std::collections::HashMap;
 use std::io::{Read, Write};
 use std::os::unix::net::UnixStream;
@@ -119,6 +122,42 @@ pub fn sentence(body: &str) -> Vec<u8> {
     format!("${body}*{:02X}\r\n", xor_checksum(body.as_bytes())).into_bytes()
 }
 
+/// Frames the board will take from the bytes sent so far, per port (scalar, flux, GPS):
+/// the core's readers on the same bytes, as the firmware's port tasks run them.
+struct FrameCounter {
+    scalar: ScalarReader,
+    flux: FluxAsciiReader,
+    gps: NmeaReader,
+    n: [u64; 3],
+}
+
+impl Default for FrameCounter {
+    fn default() -> Self {
+        Self {
+            scalar: ScalarReader::new(ScalarConfig::default()),
+            flux: FluxAsciiReader::new(),
+            gps: NmeaReader::new(),
+            n: [0; 3],
+        }
+    }
+}
+
+impl FrameCounter {
+    fn feed(&mut self, port: Port, bytes: &[u8]) {
+        for &b in bytes {
+            match port {
+                Port::Scalar => self.n[0] += u64::from(self.scalar.push(b).is_some()),
+                Port::Flux => self.n[1] += u64::from(self.flux.push(b).is_some()),
+                // the firmware does not forward valid-but-unused sentences
+                Port::Gps => match self.gps.push(b) {
+                    None | Some(Ok(Sentence::Unsupported { .. })) => {}
+                    Some(_) => self.n[2] += 1,
+                },
+            }
+        }
+    }
+}
+
 /// A sensor input of the board and how to know the board has taken what was written.
 struct Input {
     file: std::fs::File,
@@ -153,6 +192,10 @@ pub struct Board {
     lines: Arc<Mutex<Vec<String>>>,
     /// Working directory of this run (sockets, QEMU logs, CSVs).
     pub dir: PathBuf,
+    /// The firmware acknowledges frames (`$MCSYN`, feature `hil-sync`).
+    sync: bool,
+    /// Output lines already searched for `$MCSYN`.
+    syn_from: usize,
     pub started: Instant,
 }
 
@@ -201,14 +244,14 @@ impl Board {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
         let elf = firmware_elf()?;
-        let b = if emulated() {
+        let mut b = if emulated() {
             Self::start_qemu(&elf, dir)?
         } else {
             Self::start_serial(&elf, dir)?
         };
-        if b.wait_line(|l| l.starts_with("$MCBOOT"), Duration::from_secs(20))
-            .is_none()
-        {
+        let banner = b.wait_line(|l| l.starts_with("$MCBOOT"), Duration::from_secs(20));
+        b.sync = banner.as_deref().is_some_and(|l| l.contains(",SYNC*"));
+        if banner.is_none() {
             let qemu = std::fs::read_to_string(b.dir.join("qemu-stderr.txt")).unwrap_or_default();
             return Err(format!(
                 "no $MCBOOT banner from the firmware ({}) {}",
@@ -301,6 +344,8 @@ impl Board {
             cmd: Box::new(out),
             lines,
             dir,
+            sync: false,
+            syn_from: 0,
             started: Instant::now(),
         })
     }
@@ -358,6 +403,8 @@ impl Board {
             cmd: Box::new(out),
             lines,
             dir,
+            sync: false,
+            syn_from: 0,
             started: Instant::now(),
         })
     }
@@ -402,6 +449,7 @@ impl Board {
     /// next: the board sees the capture's byte order, which is what the replay reproduces.
     pub fn stream(&mut self, cap: &Capture, speed: f64) -> Result<()> {
         let t0 = Instant::now();
+        let mut expect = FrameCounter::default();
         for c in &cap.chunks {
             let due = t0 + Duration::from_secs_f64(c.t_us as f64 * 1e-6 / speed);
             if let Some(d) = due.checked_duration_since(Instant::now()) {
@@ -412,8 +460,41 @@ impl Board {
                 .write_all(&c.bytes)
                 .map_err(|e| format!("write {}: {e}", c.port.name()))?;
             w.drain(Duration::from_secs(10))?;
+            expect.feed(c.port, &c.bytes);
+            if self.sync {
+                self.wait_frames(expect.n, Duration::from_secs(10))?;
+            }
         }
         Ok(())
+    }
+
+    /// Waits until the board acknowledged at least `n` frames per port (`$MCSYN`).
+    fn wait_frames(&mut self, n: [u64; 3], timeout: Duration) -> Result<()> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Ok(l) = self.lines.lock() {
+                for line in &l[self.syn_from..] {
+                    if let Some(body) = line.strip_prefix("$MCSYN,") {
+                        let got: Vec<u64> = body
+                            .split(['*', ','])
+                            .take(3)
+                            .filter_map(|v| v.parse().ok())
+                            .collect();
+                        if got.len() == 3 && (0..3).all(|i| got[i] >= n[i]) {
+                            return Ok(());
+                        }
+                    }
+                }
+                self.syn_from = l.len();
+            }
+            if Instant::now() > end {
+                return Err(format!(
+                    "the board did not take frame {n:?} (last seen in {})",
+                    self.dir.display()
+                ));
+            }
+            thread::sleep(Duration::from_micros(300));
+        }
     }
 
     /// Sends raw bytes on the command port.
