@@ -623,7 +623,7 @@ impl Plot {
             let Some(row) = row else { continue };
             // Inset so the brackets of adjacent segments stay distinct.
             let (a, b) = (sx(s.x0).max(left) + 1.5, sx(s.x1).min(right) - 1.5);
-            if !(b > a) {
+            if b.is_nan() || a.is_nan() || b <= a {
                 continue;
             }
             let y = seg_top + 15.0 * *row as f64 + 11.0;
@@ -860,10 +860,10 @@ fn legend_layout(names: &[(usize, &Series)], left: f64, right: f64) -> Vec<(usiz
 fn widen((lo, hi): (f64, f64), log: bool) -> (f64, f64) {
     let (mut lo, mut hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
     if log {
-        if !(lo > 0.0) {
+        if lo.is_nan() || lo <= 0.0 {
             lo = if hi > 0.0 { hi / 10.0 } else { 1.0 };
         }
-        if !(hi > lo) {
+        if hi.is_nan() || hi <= lo {
             hi = lo * 10.0;
         }
         if hi == lo {
