@@ -11,6 +11,13 @@ fn main() -> anyhow::Result<()> {
     let low = args.get(1).map(|s| s == "low").unwrap_or(false);
     let seed: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
     let mut cfg = SimConfig { seed, ..Default::default() };
+    if std::env::var("CLEAN").is_ok() {
+        cfg.geology = Geology::preset(GeologyPreset::None);
+        cfg.diurnal_nt = 0.0;
+    }
+    if std::env::var("NOFLUXNOISE").is_ok() {
+        cfg.flux_noise_nt = 0.0;
+    }
     if low {
         cfg.cal_altitude_m = 300.0;
         cfg.altitude_swing_m = 100.0;
@@ -24,6 +31,7 @@ fn main() -> anyhow::Result<()> {
     println!("tie point {:?}, fs {}", flight.tie_point, flight.sample_rate_hz);
     let truth = flight.truth_interference_nt.clone().unwrap();
     let mut opts = KfOptions::new(spec.clone());
+    if std::env::var("NOTIE").is_ok() { opts.tie_points = false; }
     if let Some(s) = args.get(4) { opts.sigma1 = Some(s.parse()?); }
     if let Some(s) = args.get(5) { opts.noise_nt = Some(s.parse()?); }
     let t0 = std::time::Instant::now();
