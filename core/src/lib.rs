@@ -16,5 +16,7 @@ pub mod protocol;
 pub mod spectrum;
 pub mod units;
 
+
+
 pub use flags::Flags;
 pub use units::MagCounts;
