@@ -2,15 +2,18 @@ use magcomp::flight::Flight;
 use magcomp::metrics::*;
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::sim::{simulate, GeologyPreset, SimConfig};
 use magcomp::sim::anomaly::Geology;
+use magcomp::sim::{simulate, GeologyPreset, SimConfig};
 use magcomp::tl;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let low = args.get(1).map(|s| s == "low").unwrap_or(false);
     let seed: u64 = args.get(2).and_then(|s| s.parse().ok()).unwrap_or(1);
-    let mut cfg = SimConfig { seed, ..Default::default() };
+    let mut cfg = SimConfig {
+        seed,
+        ..Default::default()
+    };
     if std::env::var("CLEAN").is_ok() {
         cfg.geology = Geology::preset(GeologyPreset::None);
         cfg.diurnal_nt = 0.0;
@@ -28,30 +31,76 @@ fn main() -> anyhow::Result<()> {
     println!("simulated {} rows in {:.2?}", trace.len(), t0.elapsed());
     let spec = ModelSpec::parse(args.get(3).map(|s| s.as_str()).unwrap_or("tl16+field"))?;
     let flight = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels())?;
-    println!("tie point {:?}, fs {}", flight.tie_point, flight.sample_rate_hz);
+    println!(
+        "tie point {:?}, fs {}",
+        flight.tie_point, flight.sample_rate_hz
+    );
     let truth = flight.truth_interference_nt.clone().unwrap();
     let mut opts = KfOptions::new(spec.clone());
-    if std::env::var("NOTIE").is_ok() { opts.tie_points = false; }
-    if let Some(s) = args.get(4) { opts.sigma1 = Some(s.parse()?); }
-    if let Some(s) = args.get(5) { opts.noise_nt = Some(s.parse()?); }
+    if std::env::var("NOTIE").is_ok() {
+        opts.tie_points = false;
+    }
+    if let Some(s) = args.get(4) {
+        opts.sigma1 = Some(s.parse()?);
+    }
+    if let Some(s) = args.get(5) {
+        opts.noise_nt = Some(s.parse()?);
+    }
     let t0 = std::time::Instant::now();
     let run = run_kf(&flight, &opts)?;
-    println!("kf in {:.2?}: sigma1 {:.2e} noise {:.4}", t0.elapsed(), run.sigma1, run.noise_nt);
+    println!(
+        "kf in {:.2?}: sigma1 {:.2e} noise {:.4}",
+        t0.elapsed(),
+        run.sigma1,
+        run.noise_nt
+    );
     let err = error_rms_nt(&run.interference_nt, &truth, None);
     let oracle = oracle_floor_nt(&run.regressors, &truth).unwrap();
     let fom_kf = fom(&flight, &run.compensated_nt).map(|f| f.0);
-    println!("KF post: error {err:.4} oracle {oracle:.4} ratio {:.2} fom {fom_kf:?} IR {:?}", err / oracle, improvement_ratio(&flight, &run.compensated_nt));
+    println!(
+        "KF post: error {err:.4} oracle {oracle:.4} ratio {:.2} fom {fom_kf:?} IR {:?}",
+        err / oracle,
+        improvement_ratio(&flight, &run.compensated_nt)
+    );
     opts.realtime = true;
     let rt = run_kf(&flight, &opts)?;
-    let last_man = flight.segments.as_ref().unwrap().iter().rposition(|s| is_manoeuvre(s)).unwrap();
+    let last_man = flight
+        .segments
+        .as_ref()
+        .unwrap()
+        .iter()
+        .rposition(|s| is_manoeuvre(s))
+        .unwrap();
     let rows: Vec<usize> = (last_man..flight.len()).collect();
-    println!("KF realtime after last manoeuvre: {:.4} ({} rows); whole {:.4}", error_rms_nt(&rt.interference_nt, &truth, Some(&rows)), rows.len(), error_rms_nt(&rt.interference_nt, &truth, None));
-    let flux: Vec<[f64;3]> = flight.samples.iter().map(|s| [s.flux_nt[0] as f64, s.flux_nt[1] as f64, s.flux_nt[2] as f64]).collect();
-    let tcfg = tl::TlConfig { fs_hz: flight.sample_rate_hz, ..Default::default() };
+    println!(
+        "KF realtime after last manoeuvre: {:.4} ({} rows); whole {:.4}",
+        error_rms_nt(&rt.interference_nt, &truth, Some(&rows)),
+        rows.len(),
+        error_rms_nt(&rt.interference_nt, &truth, None)
+    );
+    let flux: Vec<[f64; 3]> = flight
+        .samples
+        .iter()
+        .map(|s| {
+            [
+                s.flux_nt[0] as f64,
+                s.flux_nt[1] as f64,
+                s.flux_nt[2] as f64,
+            ]
+        })
+        .collect();
+    let tcfg = tl::TlConfig {
+        fs_hz: flight.sample_rate_hz,
+        ..Default::default()
+    };
     let f = tl::fit(&flux, &flight.mag_nt, &tcfg, None)?;
     let ti = tl::interference(&f, &flux);
-    let comp_tl: Vec<f64> = flight.mag_nt.iter().zip(&ti).map(|(m,i)| m-i).collect();
-    println!("TL18: error {:.4} fom {:?}", error_rms_nt(&ti, &truth, None), fom(&flight, &comp_tl).map(|f| f.0));
+    let comp_tl: Vec<f64> = flight.mag_nt.iter().zip(&ti).map(|(m, i)| m - i).collect();
+    println!(
+        "TL18: error {:.4} fom {:?}",
+        error_rms_nt(&ti, &truth, None),
+        fom(&flight, &comp_tl).map(|f| f.0)
+    );
     println!("truth interference rms {:.3}", rms_demeaned(&truth));
     Ok(())
 }

@@ -54,8 +54,14 @@ fn load(dir: &std::path::Path) -> Ref {
         mag_c: raw.iter().map(|r| r[4]).collect(),
         a: read_csv(dir, "A_a_1000x18.csv"),
         a_f: read_csv(dir, "A_a_f_t_960x18.csv"),
-        mag_f: read_csv(dir, "mag_1_uc_f_t_960.csv").into_iter().map(|r| r[0]).collect(),
-        coef: read_csv(dir, "TL_a_1_18.csv").into_iter().flatten().collect(),
+        mag_f: read_csv(dir, "mag_1_uc_f_t_960.csv")
+            .into_iter()
+            .map(|r| r[0])
+            .collect(),
+        coef: read_csv(dir, "TL_a_1_18.csv")
+            .into_iter()
+            .flatten()
+            .collect(),
     }
 }
 
@@ -85,7 +91,10 @@ fn check1_design_matrix_matches_magnav() {
         }
     }
     println!("check 1: design matrix max |A - A_a| / rms(column) = {worst:.3e}");
-    assert!(worst < 1e-12, "design matrix differs from MagNav: {worst:e}");
+    assert!(
+        worst < 1e-12,
+        "design matrix differs from MagNav: {worst:e}"
+    );
 }
 
 #[test]
@@ -160,5 +169,8 @@ fn check3_full_pipeline_compensation() {
         fit.rows_used
     );
     assert_eq!(fit.rows_used, 960);
-    assert!(sd < 0.1, "compensated signal differs from MagNav: std {sd} nT");
+    assert!(
+        sd < 0.1,
+        "compensated signal differs from MagNav: std {sd} nT"
+    );
 }
