@@ -2,14 +2,11 @@
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
 pub mod diagnose;
-<<<<<<< HEAD
 pub mod flight;
 pub mod metrics;
 pub mod model_spec;
-pub mod pipeline;
-=======
 pub mod nmea_cmd;
->>>>>>> proto
+pub mod pipeline;
 pub mod report;
 pub mod sim;
 pub mod tl;

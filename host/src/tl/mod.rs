@@ -346,7 +346,11 @@ pub fn ridge(a: &DMatrix<f64>, y: &[f64], lambda: f64) -> Result<Ridge> {
             .collect();
         let rank = s_inv.iter().filter(|&&v| v > 0.0).count();
         ensure!(rank > 0, "least squares: design matrix is all zero");
-        let s_min = s.iter().copied().filter(|&v| v > tol).fold(f64::MAX, f64::min);
+        let s_min = s
+            .iter()
+            .copied()
+            .filter(|&v| v > tol)
+            .fold(f64::MAX, f64::min);
         let uty = u.tr_mul(&yv);
         let mut w = DVector::zeros(s.len());
         for k in 0..s.len() {
@@ -367,7 +371,9 @@ pub fn ridge(a: &DMatrix<f64>, y: &[f64], lambda: f64) -> Result<Ridge> {
         "ridge: {m} rows leave no residual degrees of freedom for {rank} terms"
     );
     let s2 = resid.norm_squared() / dof as f64;
-    let sigma = (0..p).map(|i| (s2 * cov_unscaled[(i, i)].max(0.0)).sqrt()).collect();
+    let sigma = (0..p)
+        .map(|i| (s2 * cov_unscaled[(i, i)].max(0.0)).sqrt())
+        .collect();
     Ok(Ridge {
         coefficients: coef.iter().copied().collect(),
         sigma,
