@@ -346,16 +346,17 @@ pub fn ridge(a: &DMatrix<f64>, y: &[f64], lambda: f64) -> Result<Ridge> {
             .collect();
         let rank = s_inv.iter().filter(|&&v| v > 0.0).count();
         ensure!(rank > 0, "least squares: design matrix is all zero");
-        let s_min = s.iter().copied().filter(|&v| v > tol).fold(f64::MAX, f64::min);
+        let s_min = s
+            .iter()
+            .copied()
+            .filter(|&v| v > tol)
+            .fold(f64::MAX, f64::min);
         let uty = u.tr_mul(&yv);
-        let mut w = DVector::zeros(s.len());
-        for k in 0..s.len() {
-            w[k] = uty[k] * s_inv[k];
-        }
+        let w = DVector::from_iterator(s.len(), uty.iter().zip(&s_inv).map(|(a, b)| a * b));
         let coef = v_t.tr_mul(&w);
         let mut vs = v_t.transpose();
-        for k in 0..s.len() {
-            vs.column_mut(k).scale_mut(s_inv[k]);
+        for (k, &si) in s_inv.iter().enumerate() {
+            vs.column_mut(k).scale_mut(si);
         }
         let cov = &vs * vs.transpose();
         (coef, cov, (s_max / s_min).powi(2), rank)
@@ -367,7 +368,9 @@ pub fn ridge(a: &DMatrix<f64>, y: &[f64], lambda: f64) -> Result<Ridge> {
         "ridge: {m} rows leave no residual degrees of freedom for {rank} terms"
     );
     let s2 = resid.norm_squared() / dof as f64;
-    let sigma = (0..p).map(|i| (s2 * cov_unscaled[(i, i)].max(0.0)).sqrt()).collect();
+    let sigma = (0..p)
+        .map(|i| (s2 * cov_unscaled[(i, i)].max(0.0)).sqrt())
+        .collect();
     Ok(Ridge {
         coefficients: coef.iter().copied().collect(),
         sigma,
