@@ -225,6 +225,7 @@ fn check3_full_pipeline_compensation() {
         (num / den).sqrt(),
         fit.rows_used
     );
+    println!("{fit}");
     assert_eq!(fit.rows_used, 960);
     assert!(
         sd < 0.1,
