@@ -165,6 +165,8 @@ fn tl16_recovers_known_coefficients() {
     .unwrap();
     assert_eq!(raw.rows_used, 3600);
     assert_eq!(raw.noise_gain, 1.0);
+    assert_eq!(TlConfig::for_rate(10.0), TlConfig::default());
+    assert_eq!(TlConfig::for_rate(160.0).trim, 320);
 }
 
 #[test]

@@ -154,6 +154,17 @@ impl Default for TlConfig {
 }
 
 impl TlConfig {
+    /// MagNav's defaults for data sampled at `fs_hz`: same 0.1–0.9 Hz band, and the trim
+    /// kept at MagNav's 2 s (20 samples at 10 Hz) rather than 20 samples, because the
+    /// filter start-up lasts a fixed time, not a fixed number of samples.
+    pub fn for_rate(fs_hz: f64) -> Self {
+        TlConfig {
+            fs_hz,
+            trim: (2.0 * fs_hz).round().max(0.0) as usize,
+            ..TlConfig::default()
+        }
+    }
+
     fn validate(&self) -> Result<()> {
         ensure!(
             self.fs_hz.is_finite() && self.fs_hz > 0.0,
