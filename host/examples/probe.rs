@@ -101,6 +101,22 @@ fn main() -> anyhow::Result<()> {
         error_rms_nt(&ti, &truth, None),
         fom(&flight, &comp_tl).map(|f| f.0)
     );
+    let rf = magcomp::reference_kf::run_reference(
+        &flight,
+        &spec,
+        run.sigma1,
+        run.sigma1 / 10.0,
+        run.noise_nt,
+    )?;
+    println!(
+        "f64 reference realtime: after last manoeuvre {:.4}, final-coeff diff vs f32 {:?}",
+        error_rms_nt(&rf.interference_nt, &truth, Some(&rows)),
+        rf.coefficients
+            .iter()
+            .zip(&run.coefficients)
+            .map(|(a, b)| ((a - b) * 1000.0).round() / 1000.0)
+            .collect::<Vec<_>>()
+    );
     println!("truth interference rms {:.3}", rms_demeaned(&truth));
     Ok(())
 }

@@ -7,6 +7,7 @@ pub mod metrics;
 pub mod model_spec;
 pub mod nmea_cmd;
 pub mod pipeline;
+pub mod reference_kf;
 pub mod report;
 pub mod sim;
 pub mod tl;

@@ -146,6 +146,27 @@ fn tl16_recovers_known_coefficients() {
     );
     assert!(std_on(&err, &manoeuvre) < 0.05);
     assert!(fit.residual_std_nt < 0.03, "band-passed residual ≈ noise");
+    assert_eq!(fit.coefficient("eddy_zy"), Some(fit.coefficients[15]));
+    assert_eq!(fit.coefficient("eddy_zz"), None);
+    let report = fit.to_string();
+    assert!(report.contains("rows used 3440 in 4 run(s)"), "{report}");
+
+    // Without the band-pass (no trim) the fit still works: the drift is then absorbed by
+    // nothing and biases the coefficients, so only check it runs and uses every row.
+    let raw = tl::fit(
+        &flux,
+        &mag,
+        &TlConfig {
+            pass_hz: None,
+            ..cfg
+        },
+        Some(&manoeuvre),
+    )
+    .unwrap();
+    assert_eq!(raw.rows_used, 3600);
+    assert_eq!(raw.noise_gain, 1.0);
+    assert_eq!(TlConfig::for_rate(10.0), TlConfig::default());
+    assert_eq!(TlConfig::for_rate(160.0).trim, 320);
 }
 
 #[test]
