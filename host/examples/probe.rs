@@ -18,6 +18,12 @@ fn main() -> anyhow::Result<()> {
         cfg.geology = Geology::preset(GeologyPreset::None);
         cfg.diurnal_nt = 0.0;
     }
+    if std::env::var("NOGEO").is_ok() {
+        cfg.geology = Geology::preset(GeologyPreset::None);
+    }
+    if std::env::var("NODIURNAL").is_ok() {
+        cfg.diurnal_nt = 0.0;
+    }
     if std::env::var("NOFLUXNOISE").is_ok() {
         cfg.flux_noise_nt = 0.0;
     }
@@ -53,6 +59,13 @@ fn main() -> anyhow::Result<()> {
         t0.elapsed(),
         run.sigma1,
         run.noise_nt
+    );
+    println!(
+        "tie flags: {}",
+        run.flags
+            .iter()
+            .filter(|f| **f & magcomp_core::Flags::TIE_POINT != 0)
+            .count()
     );
     let err = error_rms_nt(&run.interference_nt, &truth, None);
     let oracle = oracle_floor_nt(&run.regressors, &truth).unwrap();
@@ -117,6 +130,31 @@ fn main() -> anyhow::Result<()> {
             .map(|(a, b)| ((a - b) * 1000.0).round() / 1000.0)
             .collect::<Vec<_>>()
     );
+    {
+        let igrf = trace.col("igrf").unwrap();
+        let ta = trace.col("truth_anomaly").unwrap();
+        let td = trace.col("truth_diurnal").unwrap();
+        let y: Vec<f64> = (0..flight.len())
+            .map(|i| flight.mag_nt[i] - igrf[i] - ta[i] - td[i])
+            .collect();
+        // LS of y on regressors -> fitted interference
+        let p = run.regressors[0].len() + 1;
+        let a = nalgebra::DMatrix::from_fn(y.len(), p, |r, c| {
+            if c == 0 {
+                1.0
+            } else {
+                run.regressors[r][c - 1] as f64
+            }
+        });
+        let yv = nalgebra::DVector::from_vec(y.clone());
+        let x = a.clone().svd(true, true).solve(&yv, 1e-12).unwrap();
+        let fit = &a * &x;
+        let est: Vec<f64> = (0..y.len()).map(|i| fit[i] - x[0]).collect();
+        println!(
+            "noise-limited LS floor (anomaly known): {:.4}",
+            error_rms_nt(&est, &truth, None)
+        );
+    }
     println!("truth interference rms {:.3}", rms_demeaned(&truth));
     Ok(())
 }

@@ -70,6 +70,9 @@ impl Flight {
         let lat = col(trace, "lat")?;
         let lon = col(trace, "lon")?;
         let alt = col(trace, "alt")?;
+        let igrf = trace.col("igrf");
+        let base = trace.col("base");
+        let base0 = base.and_then(|b| b.iter().copied().find(|v| v.is_finite()));
         let vn = trace.col("vn");
         let ve = trace.col("ve");
         let att = match (trace.col("roll"), trace.col("pitch"), trace.col("yaw")) {
@@ -94,6 +97,12 @@ impl Flight {
             s.lat_deg = lat[i];
             s.lon_deg = lon[i];
             s.alt_m = alt[i] as f32;
+            if let (Some(b), Some(b0)) = (base, base0) {
+                s.base_nt = (b[i] - b0) as f32;
+            }
+            if let Some(g) = igrf {
+                s.igrf_nt = g[i];
+            }
             if let (Some(vn), Some(ve)) = (vn, ve) {
                 s.ground_speed_mps = vn[i].hypot(ve[i]) as f32;
             }

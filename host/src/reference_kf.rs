@@ -6,7 +6,6 @@ use crate::flight::Flight;
 use crate::model_spec::{with_model, ModelSpec};
 use anyhow::{bail, Result};
 use magcomp_core::epoch::{EpochBuilder, EpochConfig};
-use magcomp_core::model::Term;
 use nalgebra::{DMatrix, DVector};
 
 /// Per-sample output of the reference filter (real-time, causal).
