@@ -32,3 +32,37 @@ fn timing_long_flights() {
         t0.elapsed()
     );
 }
+
+#[test]
+#[ignore = "prints default magnitudes over seeds"]
+fn magnitudes_over_seeds() {
+    for seed in 1..=6 {
+        let out = simulate_detailed(&SimConfig {
+            seed,
+            ..SimConfig::default()
+        })
+        .unwrap();
+        let tr = &out.trace;
+        let seg = tr.text_col("segment").unwrap();
+        let ti = tr.col("truth_interference").unwrap();
+        let cal: Vec<usize> = (0..tr.len())
+            .filter(|&i| seg[i].starts_with("cal_"))
+            .collect();
+        let ptp = |v: &mut dyn Iterator<Item = f64>| {
+            let v: Vec<f64> = v.collect();
+            v.iter().cloned().fold(f64::MIN, f64::max) - v.iter().cloned().fold(f64::MAX, f64::min)
+        };
+        let p_int = ptp(&mut cal.iter().map(|&i| ti[i]));
+        let p_eddy = ptp(&mut cal
+            .iter()
+            .filter(|&&i| !seg[i].ends_with("_level"))
+            .map(|&i| {
+                let b = out.truth.b_body_nt[i];
+                (b / b.norm()).dot(&(out.truth.m_s * out.truth.db_body_nt_s[i]))
+            }));
+        let an = tr.col("truth_anomaly").unwrap();
+        let g: Vec<f64> = an.windows(2).map(|w| (w[1] - w[0]) / 6.0).collect();
+        let gr = (g.iter().map(|x| x * x).sum::<f64>() / g.len() as f64).sqrt();
+        println!("seed {seed}: interference p-p {p_int:.1} nT, eddy p-p {p_eddy:.2} nT, anomaly p-p {:.2} nT, grad rms {gr:.4} nT/m, |K| {:.1}", ptp(&mut an.iter().cloned()), out.truth.k_nt.norm());
+    }
+}
