@@ -66,3 +66,34 @@ fn magnitudes_over_seeds() {
         println!("seed {seed}: interference p-p {p_int:.1} nT, eddy p-p {p_eddy:.2} nT, anomaly p-p {:.2} nT, grad rms {gr:.4} nT/m, |K| {:.1}", ptp(&mut an.iter().cloned()), out.truth.k_nt.norm());
     }
 }
+
+#[test]
+#[ignore = "prints anomaly magnitudes for survey presets"]
+fn survey_anomaly_magnitudes() {
+    for (preset, alt) in [
+        (GeologyPreset::Strong, 150.0),
+        (GeologyPreset::Strong, 300.0),
+        (GeologyPreset::Moderate, 300.0),
+        (GeologyPreset::Moderate, 1000.0),
+    ] {
+        for seed in 1..=3 {
+            let cfg = SimConfig {
+                seed,
+                flight: FlightKind::Survey,
+                survey_lines: 3,
+                line_length_m: 5000.0,
+                survey_altitude_m: alt,
+                geology: Geology::preset(preset),
+                ..SimConfig::default()
+            };
+            let tr = simulate(&cfg).unwrap();
+            let an = tr.col("truth_anomaly").unwrap();
+            let g: Vec<f64> = an.windows(2).map(|w| (w[1] - w[0]) / 6.0).collect();
+            let gr = (g.iter().map(|x| x * x).sum::<f64>() / g.len() as f64).sqrt();
+            let gm = g.iter().map(|x| x.abs()).fold(0.0, f64::max);
+            let p = an.iter().cloned().fold(f64::MIN, f64::max)
+                - an.iter().cloned().fold(f64::MAX, f64::min);
+            println!("{preset:?} {alt} m seed {seed}: anomaly p-p {p:.1} nT, grad rms {gr:.3} max {gm:.3} nT/m");
+        }
+    }
+}

@@ -17,7 +17,7 @@ pub enum GeologyPreset {
     Quiet,
     /// Basement at a few hundred metres to a few kilometres.
     Moderate,
-    /// Shallow, strongly magnetic rocks (ore bodies, mafic intrusions): tens to hundreds
+    /// Shallow, strongly magnetic rocks (ore bodies, mafic intrusions): hundreds
     /// of nT and 0.1–several nT/m at 150–400 m survey altitude.
     Strong,
     /// No anomaly at all.
@@ -43,9 +43,9 @@ pub struct Geology {
 impl Geology {
     pub fn preset(p: GeologyPreset) -> Self {
         let (density, dmin, dmax, mmin, mmax, q) = match p {
-            GeologyPreset::Quiet => (0.05, 2000.0, 6000.0, 1e9, 1e10, 0.2),
-            GeologyPreset::Moderate => (0.2, 500.0, 3000.0, 1e8, 3e9, 0.3),
-            GeologyPreset::Strong => (1.0, 200.0, 1500.0, 1e7, 5e8, 0.5),
+            GeologyPreset::Quiet => (0.08, 2000.0, 6000.0, 2e9, 2e10, 0.2),
+            GeologyPreset::Moderate => (0.2, 500.0, 3000.0, 5e7, 1e9, 0.3),
+            GeologyPreset::Strong => (1.5, 150.0, 1200.0, 3e7, 5e8, 0.5),
             GeologyPreset::None => (0.0, 1000.0, 1000.0, 1.0, 1.0, 0.0),
         };
         Geology {

@@ -135,7 +135,7 @@ pub struct SimulateArgs {
     pub earth_fid: Option<Vec<f64>>,
 
     /// Geology preset: `quiet` (deep basement: ~0.001–0.01 nT/m at 3000 m), `moderate`,
-    /// `strong` (shallow magnetic rocks: tens–hundreds nT, 0.1–several nT/m at ≤400 m),
+    /// `strong` (shallow magnetic rocks: hundreds of nT, 0.1–several nT/m at ≤400 m),
     /// or `none`.
     #[arg(long, default_value = "quiet")]
     pub geology: String,
