@@ -65,12 +65,16 @@ impl Geology {
             "source density must be within 0–50 per km²"
         );
         anyhow::ensure!(
-            self.depth_min_m > 0.0 && self.depth_max_m >= self.depth_min_m,
-            "source depths must be positive with min ≤ max"
+            self.depth_min_m > 0.0
+                && self.depth_max_m >= self.depth_min_m
+                && self.depth_max_m <= 100_000.0,
+            "source depths must be within (0, 100 km] with min ≤ max"
         );
         anyhow::ensure!(
-            self.moment_min_am2 > 0.0 && self.moment_max_am2 >= self.moment_min_am2,
-            "source moments must be positive with min ≤ max"
+            self.moment_min_am2 > 0.0
+                && self.moment_max_am2 >= self.moment_min_am2
+                && self.moment_max_am2 <= 1e16,
+            "source moments must be within (0, 1e16] A·m² with min ≤ max"
         );
         anyhow::ensure!(
             (0.0..=20.0).contains(&self.remanence_q),

@@ -319,6 +319,13 @@ mod tests {
     }
 
     #[test]
+    fn help_renders() {
+        use clap::CommandFactory;
+        let help = Cli::command().render_long_help().to_string();
+        assert!(help.contains("--hidden <SPEC>") && help.contains("--cal-altitude-m"));
+    }
+
+    #[test]
     fn defaults_match_config_default() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         assert_eq!(cli.args.to_config().unwrap(), SimConfig::default());
@@ -351,6 +358,9 @@ mod tests {
             vec!["x", "--decoy", "mag"],
             vec!["x", "--source-depth-m", "100"],
             vec!["x", "--speed-mps", "NaN"],
+            vec!["x", "--source-depth-m", "100,inf"],
+            vec!["x", "--source-moment-am2", "1e9,1e6"],
+            vec!["x", "--survey-offset-m", "1"],
         ] {
             let r = Cli::try_parse_from(bad.clone()).map(|c| c.args.to_config());
             assert!(!matches!(r, Ok(Ok(_))), "{bad:?}");
