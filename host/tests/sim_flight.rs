@@ -189,4 +189,14 @@ fn combined_flight_and_rate() {
     assert!((mean - 300.0).abs() < 5.0, "survey altitude {mean}");
     let t = tr.col("t").unwrap();
     assert!((t[1] - t[0] - 0.05).abs() < 1e-12);
+    // The 2700 m descent peaks at 6 m/s (spiralling over the cloverleaf if needed), and
+    // does not make the transit absurdly long.
+    let vd = tr.col("vd").unwrap();
+    let max_vd = (0..tr.len())
+        .filter(|&i| !seg[i].starts_with("cal_"))
+        .map(|i| vd[i].abs())
+        .fold(0.0, f64::max);
+    assert!((5.0..6.5).contains(&max_vd), "descent rate {max_vd}");
+    let dur: f64 = tr.meta("duration_s").unwrap().parse().unwrap();
+    assert!(dur < 2400.0, "combined flight lasts {dur} s");
 }

@@ -423,21 +423,31 @@ fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> {
                 (line_course + TAU / 2.0).rem_euclid(TAU)
             };
             if k > 0 || do_cal {
-                // Height change cal → survey happens on the run-in, at ≤ 5 m/s.
+                // Height change cal → survey: a smooth climb/descent peaking at 6 m/s,
+                // started over the cloverleaf; when it outlasts the transit the aircraft
+                // spirals (full orbits, labelled `turn`) before heading for the block.
                 let dh = if k == 0 {
                     cfg.survey_altitude_m - cfg.cal_altitude_m
                 } else {
                     0.0
                 };
-                let ramp_s = std::f64::consts::FRAC_PI_2 * dh.abs() / 4.0;
-                let d = b.connect(s, c, lead_m + ramp_s * v)?;
+                let ramp_s = std::f64::consts::FRAC_PI_2 * dh.abs() / 6.0;
+                let ramp_end = b.t_s + ramp_s;
                 if dh != 0.0 {
                     alt_ramps.push(flight::AltRamp {
                         t0_s: b.t_s,
                         dur_s: ramp_s,
                         dh_m: dh,
                     });
+                    let dist = ((s[0] - b.pos[0]).powi(2) + (s[1] - b.pos[1]).powi(2)).sqrt();
+                    let orbit_s = TAU / rate + 3.0;
+                    let n_orb = ((ramp_s - dist / v) / orbit_s).floor().max(0.0) as usize;
+                    for _ in 0..n_orb {
+                        b.turn(-TAU);
+                    }
                 }
+                let left_s = (ramp_end - b.t_s).max(0.0);
+                let d = b.connect(s, c, lead_m + left_s * v)?;
                 b.straight(d / v, Manoeuvre::Level, 0.0, per, "turn");
             }
             b.straight(
