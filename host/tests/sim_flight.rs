@@ -200,3 +200,48 @@ fn combined_flight_and_rate() {
     let dur: f64 = tr.meta("duration_s").unwrap().parse().unwrap();
     assert!(dur < 2400.0, "combined flight lasts {dur} s");
 }
+
+#[test]
+fn geometry_variants_are_flyable() {
+    let variants = [
+        SimConfig {
+            cal_headings_deg: vec![0.0, 90.0, 180.0, 270.0],
+            ..SimConfig::default()
+        },
+        SimConfig {
+            cal_headings_deg: vec![30.0, 210.0],
+            turn_rate_deg_s: 1.5,
+            speed_mps: 90.0,
+            ..SimConfig::default()
+        },
+        SimConfig {
+            flight: FlightKind::Survey,
+            line_spacing_m: 100.0,
+            line_heading_deg: 45.0,
+            survey_lines: 6,
+            ..SimConfig::default()
+        },
+        SimConfig {
+            flight: FlightKind::CalibrationSurvey,
+            survey_offset_m: [-3000.0, -500.0],
+            cal_altitude_m: 1000.0,
+            survey_altitude_m: 1200.0,
+            line_spacing_m: 300.0,
+            speed_mps: 40.0,
+            ..SimConfig::default()
+        },
+    ];
+    for cfg in variants {
+        let out = simulate_detailed(&SimConfig {
+            max_duration_s: Some(30.0),
+            ..cfg.clone()
+        })
+        .unwrap_or_else(|e| panic!("{e:#} for {cfg:?}"));
+        let plan = &out.truth.plan;
+        // Pieces are contiguous in time.
+        for w in plan.pieces.windows(2) {
+            assert!((w[0].t0_s + w[0].dur_s - w[1].t0_s).abs() < 1e-9);
+        }
+        assert_eq!(out.trace.len(), 30 * 10);
+    }
+}
