@@ -1,6 +1,8 @@
 //! magcomp host library: everything the `magcomp` command does, reusable from tests and
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
+pub mod commands;
+pub mod demo;
 pub mod diagnose;
 pub mod flight;
 pub mod metrics;
