@@ -179,3 +179,22 @@ fn line_readers_fuzz_account_for_every_line() {
     assert_eq!((c.ok + c.errors) as u64, lines);
     assert!(s.stats.overlong > 0);
 }
+
+#[test]
+fn state_sizes_fit_the_board() {
+    use core::mem::size_of;
+    use magcomp_core::protocol::*;
+    let sizes = [
+        ("NmeaReader", size_of::<nmea::NmeaReader>()),
+        ("ScalarReader", size_of::<scalar::ScalarReader>()),
+        ("FluxAsciiReader", size_of::<fluxgate::FluxAsciiReader>()),
+        ("CommandReader", size_of::<command::CommandReader>()),
+        ("Aligner", size_of::<Aligner>()),
+        ("Sentence", size_of::<nmea::Sentence>()),
+    ];
+    for (n, s) in sizes {
+        println!("{n}: {s} bytes");
+    }
+    let total: usize = sizes.iter().map(|s| s.1).sum();
+    assert!(total < 1024, "protocol state {total} bytes");
+}

@@ -274,3 +274,44 @@ fn html_report_escapes_and_tags_plots() {
                 == html.matches("xmlns=\"http://www.w3.org/2000/svg\"").count()
     );
 }
+
+#[test]
+fn odd_inputs_give_valid_svg_without_panics() {
+    let nan = f64::NAN;
+    let inf = f64::INFINITY;
+    let plots = vec![
+        Plot::new("a", "")
+            .x_range(5.0, 5.0)
+            .y_range(nan, 1.0)
+            .line("s", &[1.0, 2.0], &[3.0, 4.0]),
+        Plot::new("b", "")
+            .x_range(10.0, 1.0)
+            .line("", &[1.0, 2.0, 3.0], &[3.0]),
+        Plot::new("c", "")
+            .log_log()
+            .line("neg", &[-1.0, 0.0, 2.0], &[-5.0, 0.0, -1.0]),
+        Plot::new("d", "").line("huge", &[-1e308, 1e308], &[-1e308, 1e308]),
+        Plot::new("e", "")
+            .line("x", &[0.0, inf, 2.0], &[inf, 1.0, -inf])
+            .window(nan, inf, "w"),
+        Plot::new("f", "").bars(&[], &[], None),
+        Plot::new("g", "").bars(&["a", "b"], &[nan, inf], Some(&[nan])),
+        Plot::new("h", "")
+            .segment(nan, 1.0, "s")
+            .segment(3.0, 1.0, "back")
+            .window(2.0, 1.0, "rev"),
+        Plot::new("i", "tiny").line("t", &[0.0, 1e-300], &[1e-300, 2e-300]),
+        Plot::new("j x\"y", "id with odd chars").line("s", &[1.0, 2.0], &[1.0, 2.0]),
+    ];
+    for p in &plots {
+        for (w, h) in [(0, 0), (50, 30), (800, 300)] {
+            let svg = p.to_svg(w, h);
+            roxmltree::Document::parse(&svg).unwrap_or_else(|e| panic!("{}: {e}", p.id()));
+            assert!(
+                !svg.contains("NaN") && !svg.contains("inf"),
+                "{} {w}x{h}: non-finite in {svg}",
+                p.id()
+            );
+        }
+    }
+}

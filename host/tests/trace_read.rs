@@ -272,14 +272,16 @@ fn write_then_read_round_trips_exactly() {
     let mut out = Vec::new();
     write_trace_to(&mut out, &tr).unwrap();
     let text = String::from_utf8(out.clone()).unwrap();
-    assert!(
-        !text.contains('e')
-            || !text
-                .lines()
-                .skip(3)
-                .any(|l| l.split(',').any(|f| f.contains("e-") || f.contains("e+"))),
-        "no scientific notation"
-    );
+    // Numeric fields (the first 4 columns) are plain decimals, even for 1e22 and 1e-10.
+    for line in text.lines().skip(3) {
+        for f in line.split(',').take(4) {
+            assert!(
+                f.chars()
+                    .all(|c| c.is_ascii_digit() || c == '.' || c == '-'),
+                "{f:?} in {line}"
+            );
+        }
+    }
     assert!(text.starts_with(
         "# sample_rate_hz: 10\n# aircraft: Cessna 208: C-GNRC\nt,mag,cur_tiny,cur_huge,segment\n"
     ));
@@ -559,4 +561,32 @@ fn never_panics_on_garbage_or_truncated_input() {
         }
     }
     assert!(cases > 1000);
+}
+
+#[test]
+fn progress_bar_is_hidden_without_a_terminal() {
+    use std::io::IsTerminal;
+    let bar = progress_bar(1000);
+    if !std::io::stderr().is_terminal() {
+        assert!(bar.is_hidden(), "no bar drawn into logs or CI output");
+    }
+    bar.set_position(10);
+    bar.finish_and_clear();
+}
+
+#[test]
+fn layout_is_detected_from_xyz_extension_even_without_slash_comments() {
+    // A .xyz file whose first line is data cannot be read (no column names), and the error
+    // says so instead of misreading it as CSV.
+    let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no_header.XYZ");
+    std::fs::write(&path, "1 2 3\n").unwrap();
+    let e = read_trace(&path, &ColumnMap::new()).unwrap_err();
+    assert!(matches!(e, TraceError::NoHeader { .. }), "{e}");
+    // The same bytes as .csv are one header line with one column named "1 2 3".
+    let path = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no_header.csv");
+    std::fs::write(&path, "1 2 3\n").unwrap();
+    assert_eq!(
+        read_trace(&path, &ColumnMap::new()).unwrap().column_names(),
+        vec!["1 2 3"]
+    );
 }

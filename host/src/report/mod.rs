@@ -1,6 +1,20 @@
 //! Report rendering: hand-written SVG plots ([`Plot`]) and a self-contained HTML page
 //! ([`HtmlReport`]) for the `magcomp report` command. No fonts, no scripts, no external
 //! files: the page opens anywhere and can be mailed as one file.
+//!
+//! ```text
+//! let plot = Plot::new("mag", "Total field")
+//!     .x_label("time (s)").y_label("B (nT)")
+//!     .line("uncompensated", &t_s, &mag_nt)
+//!     .series(Series::line("compensated", &t_s, &comp_nt).color("#111").dash("6 3"))
+//!     .window(t0_s, t1_s, "fluxgate dropout")
+//!     .segment(0.0, 600.0, "cal_h000");
+//! let html = HtmlReport::new("Flight 1003")
+//!     .section(Section::new("Time series").paragraph("...").plot(plot))
+//!     .to_html();
+//! ```
+//! Every plot is `<svg class="plot" data-plot="ID">`; long series are reduced to the
+//! min and max sample per pixel column, so a 1 h 10 Hz line is a few tens of kB.
 
 mod html;
 mod plot;

@@ -419,7 +419,11 @@ impl Plot {
             }
         }
         for win in &self.windows {
-            let (a, b) = (sx(win.x0).max(left), sx(win.x1).min(right));
+            if win.x0.is_nan() || win.x1.is_nan() {
+                continue;
+            }
+            let (x0, x1) = (win.x0.min(win.x1), win.x0.max(win.x1));
+            let (a, b) = (sx(x0).max(left), sx(x1).min(right));
             if b.is_finite() && a.is_finite() && b >= a {
                 let _ = write!(
                     out,
@@ -453,8 +457,9 @@ impl Plot {
                     && y.is_finite()
                     && (!self.x_log || x > 0.0)
                     && (!self.y_log || y > 0.0);
-                px.push(if ok { sx(x) } else { f64::NAN });
-                py.push(if ok { sy(y) } else { f64::NAN });
+                // Far off-plot points are pinned so coordinates stay short numbers.
+                px.push(if ok { sx(x).clamp(-1e6, 1e6) } else { f64::NAN });
+                py.push(if ok { sy(y).clamp(-1e6, 1e6) } else { f64::NAN });
             }
             match s.style {
                 SeriesStyle::Line => {
@@ -623,7 +628,7 @@ impl Plot {
             let Some(row) = row else { continue };
             // Inset so the brackets of adjacent segments stay distinct.
             let (a, b) = (sx(s.x0).max(left) + 1.5, sx(s.x1).min(right) - 1.5);
-            if !(b > a) {
+            if b.is_nan() || a.is_nan() || b <= a {
                 continue;
             }
             let y = seg_top + 15.0 * *row as f64 + 11.0;
@@ -858,12 +863,18 @@ fn legend_layout(names: &[(usize, &Series)], left: f64, right: f64) -> Vec<(usiz
 
 /// Avoids a zero or inverted span (constant data) and non-positive log ranges.
 fn widen((lo, hi): (f64, f64), log: bool) -> (f64, f64) {
+    if lo.is_nan() || hi.is_nan() {
+        return if log { (1.0, 10.0) } else { (0.0, 1.0) };
+    }
+    // Keeps hi - lo finite, so pixel scaling never divides by infinity.
+    const LIM: f64 = f64::MAX / 4.0;
+    let (lo, hi) = (lo.clamp(-LIM, LIM), hi.clamp(-LIM, LIM));
     let (mut lo, mut hi) = if lo <= hi { (lo, hi) } else { (hi, lo) };
     if log {
-        if !(lo > 0.0) {
+        if lo.is_nan() || lo <= 0.0 {
             lo = if hi > 0.0 { hi / 10.0 } else { 1.0 };
         }
-        if !(hi > lo) {
+        if hi.is_nan() || hi <= lo {
             hi = lo * 10.0;
         }
         if hi == lo {

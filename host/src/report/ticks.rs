@@ -11,8 +11,14 @@ pub fn nice_ticks(lo: f64, hi: f64, max_ticks: usize) -> Vec<f64> {
         return vec![lo];
     }
     let step = nice_step(lo, hi, max_ticks);
+    if !(step.is_finite() && step > 0.0) {
+        return Vec::new();
+    }
     let first = (lo / step).ceil() as i64;
     let last = (hi / step).floor() as i64;
+    if last.saturating_sub(first) > 1000 {
+        return Vec::new(); // only possible with degenerate float ranges
+    }
     // Multiples of an integer index, not repeated addition, so 0.1 + 0.2 drift never shows.
     (first..=last).map(|k| clean(k as f64 * step)).collect()
 }

@@ -330,8 +330,7 @@ impl Reader<'_> {
         if let Some(ti) = self.t_idx {
             if let ColData::Num(v) = &self.cols[ti].data {
                 let t = v.last().copied().unwrap_or(f64::NAN);
-                // `!(t > prev)` also catches a missing (NaN) t.
-                if !(t > self.prev_t) {
+                if t.is_nan() || t <= self.prev_t {
                     return Err(TraceError::Time {
                         file: self.file.clone(),
                         line,

@@ -122,8 +122,7 @@ impl Trace {
         })?;
         let mut prev = f64::NEG_INFINITY;
         for (i, &v) in t.iter().enumerate() {
-            // `!(v > prev)` is also true for NaN, which is what we want.
-            if !(v > prev) {
+            if v.is_nan() || v <= prev {
                 return Err(TraceError::Time {
                     file: String::new(),
                     line: i as u64 + 1,

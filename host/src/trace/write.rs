@@ -1,5 +1,5 @@
-//! CSV writer: metadata, header, rows. Numbers use Rust's shortest round-trip decimal
-//! form, which never switches to scientific notation, so values read back bit-exact and
+//! CSV writer: metadata, header, rows. Numbers use the shortest decimal form that
+//! round-trips the f64 exactly, never in scientific notation, so values read back bit-exact and
 //! a spreadsheet shows plain decimals. NaN is written as an empty field.
 use super::{Trace, TraceError};
 use std::fs::File;
@@ -96,6 +96,7 @@ pub fn write_trace_to<W: Write>(mut w: W, trace: &Trace) -> Result<(), TraceErro
         let numeric: Vec<&[f64]> = trace.numeric.iter().map(|(_, v)| v.as_slice()).collect();
         let text: Vec<&[String]> = trace.text.iter().map(|(_, v)| v.as_slice()).collect();
         let lone_column = names.len() == 1;
+        let mut fast = zmij::Buffer::new();
         for row in 0..trace.len() {
             let mut first = true;
             for col in &numeric {
@@ -106,7 +107,15 @@ pub fn write_trace_to<W: Write>(mut w: W, trace: &Trace) -> Result<(), TraceErro
                 let v = col[row];
                 // Infinities are not data the reader accepts; write them as missing.
                 if v.is_finite() {
-                    write!(w, "{v}")?;
+                    // zmij gives the same shortest round-trip digits ~3x faster than
+                    // Display, but switches to exponent form for very large/small
+                    // magnitudes; those (rare in traces) go through Display, which never does.
+                    let s = fast.format_finite(v);
+                    if s.contains(['e', 'E']) {
+                        write!(w, "{v}")?;
+                    } else {
+                        w.write_all(s.as_bytes())?;
+                    }
                 } else if lone_column {
                     // An empty line would be skipped as blank: spell the missing value.
                     w.write_all(b"nan")?;
