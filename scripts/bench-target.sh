@@ -29,7 +29,7 @@ desc() { case $1 in
   mu21) echo "UD scalar measurement update (Bierman), n=21";;
   tu27) echo "UD time update, n=27";;
   mu27) echo "UD scalar measurement update, n=27";;
-  kf21) echo "plain covariance KF step (same structure), n=21";;
+  kf21) echo "plain covariance KF step (core CovFilter), n=21";;
   kf27) echo "plain covariance KF step, n=27";;
   sample21) echo "board per-sample path: parse+align+push+encode, 21";;
 esac; }
@@ -41,6 +41,9 @@ for r in empty comp21 comp27 tu21 mu21 tu27 mu27 kf21 kf27 sample21; do
   [ "$r" = empty ] && ov=0
   printf '%-10s %-58s %10s %8s %8s\n' "$r" "$(desc $r)" "$(( ${m%.*} - ov ))" "$(( ${mn:-0} - ov ))" "$(( ${mx:-0} - ov ))"
 done
+e=${MEAN[empty]}
+printf '%-10s %-58s %10s\n' "ud21" "UD step = time + measurement update, n=21" "$(( ${MEAN[tu21]} + ${MEAN[mu21]} - 2 * e ))"
+printf '%-10s %-58s %10s\n' "ud27" "UD step = time + measurement update, n=27" "$(( ${MEAN[tu27]} + ${MEAN[mu27]} - 2 * e ))"
 s=$(( ${MEAN[sample21]} - ${MEAN[empty]} ))
 echo
 echo "highest scalar rate, CPU bound, at 168 MHz and 1.2-1.6 cycles/instruction, 50 % CPU budget:"

@@ -7,8 +7,11 @@
 # generated --config file with [patch.crates-io]. It has its own target dir (target/emu),
 # so it never invalidates the real-board build, and Cargo.lock is restored afterwards
 # because the [patch] rewrites embassy-stm32's source line (keep it out of --locked builds).
-# usage: scripts/build-emu.sh [extra cargo args, e.g. --bin kf_bench --features bench]
+# usage: scripts/build-emu.sh [--clippy] [extra cargo args, e.g. --bin kf_bench]
+#   --clippy: lint the emulated build (all its binaries) with -D warnings instead of building
 set -euo pipefail
+CMD=build; LINT=()
+if [ "${1:-}" = "--clippy" ]; then CMD=clippy; LINT=(--bins --no-deps -- -D warnings); shift; fi
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 cd "$ROOT"
 EMU="$ROOT/target/emu"
@@ -30,8 +33,8 @@ TOML
 cp Cargo.lock "$EMU/Cargo.lock.orig"
 restore() { cp "$EMU/Cargo.lock.orig" Cargo.lock; }
 trap restore EXIT
-cargo build --config "$CFG" --target-dir "$EMU" --profile fw --target thumbv7em-none-eabihf \
-  -p magcomp-firmware --no-default-features --features board-emu,hil-sync "$@" >&2
+cargo $CMD --config "$CFG" --target-dir "$EMU" --profile fw --target thumbv7em-none-eabihf \
+  -p magcomp-firmware --no-default-features --features board-emu,hil-sync "$@" "${LINT[@]}" >&2
 BIN=magcomp-firmware
 prev=""
 for a in "$@"; do [ "$prev" = "--bin" ] && BIN=$a; prev=$a; done

@@ -25,6 +25,7 @@ step "lint: firmware (acq, acq+flux-uart) and hil-tests"
 cargo clippy --locked --no-deps -p magcomp-firmware --target thumbv7em-none-eabihf -- -D warnings
 cargo clippy --locked --no-deps -p magcomp-firmware --target thumbv7em-none-eabihf --features flux-uart -- -D warnings
 cargo clippy --locked --no-deps -p hil-tests --tests -- -D warnings
+bash scripts/build-emu.sh --clippy >/dev/null
 
 step "emulated board (emu-f405, QEMU netduinoplus2): build"
 ELF=$(bash scripts/build-emu.sh | tail -1)

@@ -7,8 +7,8 @@
 //!   Bierman measurement update, output) for tl16+field (21 states) and tl16+field+rate (27);
 //! - `tu21`/`mu21`, `tu27`/`mu27`: the UD filter's time update (5 field states) and scalar
 //!   measurement update alone;
-//! - `kf21` / `kf27`: a plain covariance Kalman step (same structure: 5 dynamic states,
-//!   scalar measurement) written here, because the core exposes none;
+//! - `kf21` / `kf27`: one step (time + measurement update) of the core's plain covariance
+//!   filter `CovFilter`, the yardstick: same structure (5 dynamic states, scalar measurement);
 //! - `sample21`: the board's whole per-sample path: scalar + fluxgate line parsing, the
 //!   aligner, `Compensator::push` and the record encoding;
 //! - `empty`: the markers alone (overhead to subtract).
@@ -30,6 +30,7 @@ use cortex_m_rt::entry;
 use cortex_m_semihosting::debug;
 use magcomp_core::epoch::AlignedSample;
 use magcomp_core::filter::UdFilter;
+use magcomp_core::filter::covariance::CovFilter;
 use magcomp_core::filter::ud::{MAX_DYNAMIC, MAX_NOISE};
 use magcomp_core::model::{Eddy, Induced, Model, Permanent, Rate, Term};
 use magcomp_core::protocol::fluxgate::FluxAsciiReader;
@@ -154,92 +155,24 @@ fn bench_ud<const N: usize>(
     }
 }
 
-/// Plain covariance Kalman filter with the same structure as the compensator's: `m`
-/// dynamic states (block `Φ`) followed by constant states, one scalar measurement.
-struct PlainKf<const N: usize> {
-    n: usize,
-    x: [f32; N],
-    p: [[f32; N]; N],
-}
-
-// index loops read like the matrix algebra they implement
-#[allow(clippy::needless_range_loop)]
-impl<const N: usize> PlainKf<N> {
-    fn new(n: usize) -> Self {
-        let mut p = [[0f32; N]; N];
-        for (i, row) in p.iter_mut().enumerate().take(n) {
-            row[i] = 1.0;
-        }
-        Self { n, x: [0.0; N], p }
-    }
-
-    /// `P ← ΦPΦᵀ + Q` with Φ = identity except the leading m×m block (only the m rows/columns
-    /// it touches are recomputed), then the scalar update `K = Ph/(hᵀPh + r)`, `P ← P − K hᵀP`.
-    fn step(
-        &mut self,
-        m: usize,
-        phi: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
-        q: f32,
-        h: &[f32],
-        z: f32,
-        r: f32,
-    ) {
-        let n = self.n;
-        let mut xm = [0f32; MAX_DYNAMIC];
-        for i in 0..m {
-            xm[i] = (0..m).map(|k| phi[i][k] * self.x[k]).sum();
-        }
-        self.x[..m].copy_from_slice(&xm[..m]);
-        // rows 0..m: Φ·P
-        let mut rows = [[0f32; N]; MAX_DYNAMIC];
-        for i in 0..m {
-            for j in 0..n {
-                rows[i][j] = (0..m).map(|k| phi[i][k] * self.p[k][j]).sum();
-            }
-        }
-        // (ΦP)Φᵀ for the m×m block, ΦP for the coupling, then symmetric copy
-        for i in 0..m {
-            for j in 0..m {
-                self.p[i][j] = (0..m).map(|k| rows[i][k] * phi[j][k]).sum::<f32>()
-                    + if i == j { q } else { 0.0 };
-            }
-            for j in m..n {
-                self.p[i][j] = rows[i][j];
-                self.p[j][i] = rows[i][j];
-            }
-        }
-        let mut ph = [0f32; N];
-        for i in 0..n {
-            ph[i] = (0..n).map(|j| self.p[i][j] * h[j]).sum();
-        }
-        let s: f32 = (0..n).map(|i| h[i] * ph[i]).sum::<f32>() + r;
-        // also rejects NaN
-        if s.partial_cmp(&0.0) != Some(core::cmp::Ordering::Greater) {
-            return;
-        }
-        let innov = z - (0..n).map(|i| h[i] * self.x[i]).sum::<f32>();
-        for i in 0..n {
-            let k = ph[i] / s;
-            self.x[i] += k * innov;
-            for j in i..n {
-                let v = self.p[i][j] - k * ph[j];
-                self.p[i][j] = v;
-                self.p[j][i] = v;
-            }
-        }
-    }
-}
-
+/// The core's plain covariance filter (`filter::covariance::CovFilter`, the yardstick) on
+/// the same problem as `bench_ud`: one step = time update + scalar measurement update.
 #[allow(clippy::needless_range_loop)]
 fn bench_kf<const N: usize>(n: usize, b: extern "C" fn(), e: extern "C" fn()) {
-    let mut kf = PlainKf::<N>::new(n);
+    let Some(mut f) = CovFilter::<N>::new(n, &[1.0; N]) else {
+        fail()
+    };
+    let m = 5;
     let mut phi = [[0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
-    for i in 0..5 {
+    let mut g = [[0f32; MAX_DYNAMIC]; MAX_NOISE];
+    for i in 0..m {
         phi[i][i] = 1.0;
-        if i + 1 < 5 {
+        if i + 1 < m {
             phi[i][i + 1] = 0.06;
         }
+        g[i][i] = 1.0;
     }
+    let dq = [1e-6f32; 5];
     let mut h = [0f32; N];
     for k in 0..WARMUP + STEPS {
         for (i, v) in h.iter_mut().enumerate().take(n) {
@@ -249,12 +182,13 @@ fn bench_kf<const N: usize>(n: usize, b: extern "C" fn(), e: extern "C" fn()) {
         if k >= WARMUP {
             b();
         }
-        kf.step(5, black_box(&phi), 1e-6, black_box(&h[..n]), z, 4e-4);
+        f.time_update(m, black_box(&phi), &g, &dq);
+        black_box(f.update(black_box(&h[..n]), z, 4e-4));
         if k >= WARMUP {
             e();
         }
     }
-    black_box(&kf.x);
+    black_box(f.state());
 }
 
 /// The board's per-sample work from bytes to an encoded record.
