@@ -143,22 +143,30 @@ pub fn check_contiguous(recs: &[Record]) -> Result<(), String> {
     Ok(())
 }
 
-/// Runs the host replay of a capture, if the host tool has it (`magcomp replay CAPTURE --csv OUT`),
-/// and returns its records. `None` while `magcomp replay` does not exist yet.
+/// Runs the host replay of a capture when `MAGCOMP_BIN` names a `magcomp` executable:
+/// `magcomp replay CAPTURE --records OUT` writes the records as the board sends them
+/// (`$MCREC` lines), decoded here with the core's decoder. `None` when not configured.
 pub fn host_replay(
     capture_path: &std::path::Path,
-    out_csv: &std::path::Path,
-) -> Option<Vec<Record>> {
+    out: &std::path::Path,
+) -> Option<Result<Vec<Record>, String>> {
     let exe = std::env::var("MAGCOMP_BIN").ok()?;
-    let st = std::process::Command::new(exe)
-        .arg("replay")
-        .arg(capture_path)
-        .arg("--csv")
-        .arg(out_csv)
-        .status()
-        .ok()?;
-    if !st.success() {
-        return None;
-    }
-    read_csv(io::BufReader::new(std::fs::File::open(out_csv).ok()?)).ok()
+    let run = || -> Result<Vec<Record>, String> {
+        let st = std::process::Command::new(&exe)
+            .arg("replay")
+            .arg(capture_path)
+            .arg("--records")
+            .arg(out)
+            .status()
+            .map_err(|e| format!("{exe}: {e}"))?;
+        if !st.success() {
+            return Err(format!("{exe} replay failed ({st})"));
+        }
+        let text = std::fs::read_to_string(out).map_err(|e| e.to_string())?;
+        text.lines()
+            .filter(|l| l.starts_with("$MCREC"))
+            .map(|l| decode_record(l.as_bytes()).map_err(|e| format!("{l}: {e:?}")))
+            .collect()
+    };
+    Some(run())
 }

@@ -78,11 +78,12 @@ fn run_flight(name: &str, cap: &Capture) -> Option<(Board, Vec<Record>)> {
     .unwrap();
     hil_tests::compare_records(&recs, &reference, 1e-3)
         .unwrap_or_else(|e| panic!("{name}: board vs reference replay: {e}"));
-    if let Some(replay) = hil_tests::host_replay(&cap_path, &b.dir.join("replay.csv")) {
-        hil_tests::compare_records(&recs, &replay, 1e-3)
-            .unwrap_or_else(|e| panic!("{name}: board vs replay: {e}"));
+    if let Some(host) = hil_tests::host_replay(&cap_path, &b.dir.join("replay.txt")) {
+        let host = host.unwrap_or_else(|e| panic!("{name}: magcomp replay: {e}"));
+        hil_tests::compare_records(&recs, &host, 1e-3)
+            .unwrap_or_else(|e| panic!("{name}: board vs magcomp replay: {e}"));
         eprintln!(
-            "{name}: {} records equal to the host replay within 1e-3 nT",
+            "{name}: {} records equal to `magcomp replay` within 1e-3 nT",
             recs.len()
         );
     }
