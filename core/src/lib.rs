@@ -7,6 +7,7 @@
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
 
+pub mod acquisition;
 pub mod compensator;
 pub mod epoch;
 pub mod filter;
