@@ -73,9 +73,10 @@ impl AcqConfig {
         }
     }
 
-    /// Scalar period in whole µs (the virtual clock's step).
+    /// Scalar period in whole µs (the virtual clock's step), rounded so a rate measured
+    /// as 9.999999999 Hz still steps 100 000 µs.
     pub fn period_us(&self) -> u64 {
-        (1e6 / self.scalar_hz) as u64
+        libm::round(1e6 / self.scalar_hz) as u64
     }
 
     fn valid(&self) -> bool {

@@ -294,7 +294,8 @@ pub fn write_capture<W: Write>(
     let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
     dts.sort_by(|a, b| a.total_cmp(b));
     let period_s = dts[dts.len() / 2];
-    let scalar_hz = 1.0 / period_s;
+    // Rounded to µHz: 1/0.1 in f64 is 10.000000000000036.
+    let scalar_hz = (1e6 / period_s).round() / 1e6;
     // Velocity: the trace's, else from position differences.
     let (vn, ve): (Vec<f64>, Vec<f64>) = match (trace.col("vn"), trace.col("ve")) {
         (Some(a), Some(b)) => (a.to_vec(), b.to_vec()),

@@ -9,6 +9,7 @@ pub mod model_spec;
 pub mod nmea_cmd;
 pub mod pipeline;
 pub mod reference_kf;
+pub mod replay;
 pub mod report;
 pub mod sim;
 pub mod tl;
