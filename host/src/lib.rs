@@ -6,6 +6,7 @@ pub mod diagnose;
 pub mod flight;
 pub mod metrics;
 pub mod model_spec;
+pub mod monitor;
 pub mod nmea_cmd;
 pub mod pipeline;
 pub mod reference_kf;
