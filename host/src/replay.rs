@@ -163,7 +163,10 @@ pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
     } else {
         text.split(|c: char| c == ',' || c.is_whitespace())
             .filter(|s| !s.is_empty())
-            .map(|s| s.parse::<f64>().with_context(|| format!("'{s}' is not a number")))
+            .map(|s| {
+                s.parse::<f64>()
+                    .with_context(|| format!("'{s}' is not a number"))
+            })
             .collect::<Result<_>>()?
     };
     if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
@@ -377,7 +380,8 @@ pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
     .with_context(|| format!("replaying {}", args.capture.display()))?;
     for (w, p) in [(csv.as_mut(), &args.output), (txt.as_mut(), &args.records)] {
         if let (Some(w), Some(p)) = (w, p) {
-            w.flush().with_context(|| format!("writing {}", p.display()))?;
+            w.flush()
+                .with_context(|| format!("writing {}", p.display()))?;
         }
     }
     eprintln!("replay: {stats}");
@@ -390,7 +394,10 @@ mod tests {
 
     #[test]
     fn coefficient_files() {
-        assert_eq!(parse_coefficients("1, 2.5\n-3").unwrap(), vec![1.0, 2.5, -3.0]);
+        assert_eq!(
+            parse_coefficients("1, 2.5\n-3").unwrap(),
+            vec![1.0, 2.5, -3.0]
+        );
         let j = r#"{"format":"magcomp-coefficients-v1","coefficients":[{"name":"a","value":0.5},{"value":-2}]}"#;
         assert_eq!(parse_coefficients(j).unwrap(), vec![0.5, -2.0]);
         assert!(parse_coefficients("1, x").is_err());
@@ -401,7 +408,12 @@ mod tests {
     #[test]
     fn meta_comments() {
         let mut m = CaptureMeta::default();
-        for l in ["# scalar_hz: 20", "# gps_hz: 5", "# flux_format: spi", "# other: x"] {
+        for l in [
+            "# scalar_hz: 20",
+            "# gps_hz: 5",
+            "# flux_format: spi",
+            "# other: x",
+        ] {
             m.take(l);
         }
         assert_eq!(m.scalar_hz, Some(20.0));
