@@ -263,6 +263,10 @@ impl XorShift {
         self.0 ^= self.0 << 17;
         self.0
     }
+    /// Uniform in 0..n (modulo bias is irrelevant here).
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
 }
 
 #[test]
@@ -276,7 +280,7 @@ fn corrupted_bytes_give_flagged_records_and_counted_errors_never_a_lost_sample()
             total += 1;
             // 2 % of bytes replaced; line ends are kept (they frame the samples), and no
             // byte becomes one.
-            if *b != b'\r' && *b != b'\n' && rng.next() % 50 == 0 {
+            if *b != b'\r' && *b != b'\n' && rng.below(50) == 0 {
                 let mut v = (rng.next() & 0xFF) as u8;
                 if v == b'\r' || v == b'\n' {
                     v = b'#';
@@ -335,7 +339,7 @@ fn random_bytes_never_panic_and_every_line_is_a_record() {
             if a.push_byte(port, b).is_some() {
                 out += 1;
             }
-            if x % 997 == 0 {
+            if rng.below(997) == 0 {
                 let mut f = [0u8; 15];
                 for v in f.iter_mut() {
                     *v = rng.next() as u8;

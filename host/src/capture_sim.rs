@@ -287,7 +287,8 @@ pub fn write_capture<W: Write>(
     ensure!(n >= 2, "the trace has {n} rows; a capture needs at least 2");
     let t0 = t[0];
     for i in 1..n {
-        if !(t[i] > t[i - 1]) {
+        // Also rejects NaN times.
+        if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
             bail!("time is not strictly increasing at data row {}", i + 1);
         }
     }
