@@ -83,7 +83,6 @@ impl AcqConfig {
         [self.scalar_hz, self.flux_hz, self.gps_hz]
             .iter()
             .all(|r| r.is_finite() && *r > 0.0 && *r <= MAX_RATE_HZ)
-            && (1e6 / self.gps_hz) < 1e12
     }
 }
 

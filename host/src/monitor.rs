@@ -47,6 +47,10 @@ pub struct MonitorArgs {
     /// No live output: only the final summary.
     #[arg(long)]
     pub quiet: bool,
+
+    /// Keep reading at the end of a file that a logger is still writing (stop with Ctrl-C).
+    #[arg(long)]
+    pub follow: bool,
 }
 
 /// Flag bits as words, in bit order.
@@ -348,10 +352,12 @@ pub enum Display {
 }
 
 /// Reads `input` to its end, showing progress on `out` and saving records to `save`.
+/// With `follow`, the end of `input` is waited on (polled every 200 ms), never reached.
 pub fn monitor_stream<R: Read, W: Write>(
     mut input: R,
     source: &str,
     display: Display,
+    follow: bool,
     out: &mut W,
     mut save: Option<&mut dyn Write>,
 ) -> Result<MonitorStats> {
@@ -369,25 +375,33 @@ pub fn monitor_stream<R: Read, W: Write>(
     let mut overlong = false;
     let mut last_draw = Instant::now();
     let mut next_summary_t: Option<f64> = None;
-    let mut handle = |m: &mut Monitor, l: &[u8], out: &mut W| -> Result<()> {
-        if let Some(r) = m.push_line(l) {
-            if let Some(w) = save.as_mut() {
-                writeln!(w, "{}", save_row(&r))?;
-            }
-            if let (Display::Summary(p), true) = (display, r.t_s.is_finite()) {
-                let due = *next_summary_t.get_or_insert(r.t_s + p);
-                if r.t_s >= due {
-                    writeln!(out, "{}", m.summary_line())?;
-                    // Skip forward over silent stretches instead of printing a burst.
-                    let k = ((r.t_s - due) / p).floor() + 1.0;
-                    next_summary_t = Some(due + k * p);
+    let mut handle =
+        |m: &mut Monitor, l: &[u8], out: &mut W, save: &mut Option<&mut dyn Write>| -> Result<()> {
+            if let Some(r) = m.push_line(l) {
+                if let Some(w) = save.as_mut() {
+                    writeln!(w, "{}", save_row(&r))?;
+                }
+                if let (Display::Summary(p), true) = (display, r.t_s.is_finite()) {
+                    let due = *next_summary_t.get_or_insert(r.t_s + p);
+                    if r.t_s >= due {
+                        writeln!(out, "{}", m.summary_line())?;
+                        // Skip forward over silent stretches instead of printing a burst.
+                        let k = ((r.t_s - due) / p).floor() + 1.0;
+                        next_summary_t = Some(due + k * p);
+                    }
                 }
             }
-        }
-        Ok(())
-    };
+            Ok(())
+        };
     loop {
         let n = match input.read(&mut buf) {
+            Ok(0) if follow => {
+                if let Some(w) = save.as_mut() {
+                    w.flush()?;
+                }
+                std::thread::sleep(Duration::from_millis(200));
+                0
+            }
             Ok(0) => break,
             Ok(n) => n,
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
@@ -398,7 +412,7 @@ pub fn monitor_stream<R: Read, W: Write>(
                 if overlong {
                     m.push_line(&[b'?'; MAX_LINE + 1]);
                 } else {
-                    handle(&mut m, &line, out)?;
+                    handle(&mut m, &line, out, &mut save)?;
                 }
                 line.clear();
                 overlong = false;
@@ -418,7 +432,7 @@ pub fn monitor_stream<R: Read, W: Write>(
     if overlong {
         m.push_line(&[b'?'; MAX_LINE + 1]);
     } else if !line.is_empty() {
-        handle(&mut m, &line, out)?;
+        handle(&mut m, &line, out, &mut save)?;
     }
     match display {
         Display::Live(_) => draw(out, &m, source)?,
@@ -463,11 +477,18 @@ pub fn run_monitor(args: &MonitorArgs) -> Result<MonitorStats> {
     let save: Option<&mut dyn Write> = save_file.as_mut().map(|w| w as &mut dyn Write);
     let mut out = stdout.lock();
     let stats = if args.input == "-" {
-        monitor_stream(std::io::stdin().lock(), "stdin", display, &mut out, save)?
+        monitor_stream(
+            std::io::stdin().lock(),
+            "stdin",
+            display,
+            args.follow,
+            &mut out,
+            save,
+        )?
     } else {
         let f =
             std::fs::File::open(&args.input).with_context(|| format!("opening {}", args.input))?;
-        monitor_stream(f, &args.input, display, &mut out, save)?
+        monitor_stream(f, &args.input, display, args.follow, &mut out, save)?
     };
     if let (Some(w), Some(p)) = (save_file.as_mut(), &args.save) {
         w.flush()

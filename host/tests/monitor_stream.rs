@@ -99,6 +99,7 @@ fn counts_gaps_and_saved_rows_are_exact() {
         &bytes[..],
         "test",
         Display::Summary(10.0),
+        false,
         &mut out,
         Some(&mut save),
     )
@@ -177,6 +178,7 @@ fn restart_and_live_panel() {
         &bytes[..],
         "dev",
         Display::Live(std::time::Duration::ZERO),
+        false,
         &mut out,
         None,
     )
@@ -203,6 +205,7 @@ fn run_monitor_reads_a_file_and_saves() {
         save: Some(dir.join("trace.csv")),
         interval_s: 1.0,
         quiet: true,
+        follow: false,
     };
     let st = run_monitor(&args).unwrap();
     assert_eq!(st.records, e.records);
@@ -214,4 +217,43 @@ fn run_monitor_reads_a_file_and_saves() {
     })
     .is_err());
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// Returns its parts one per read, an end-of-file in between, then an error.
+struct Growing(Vec<Vec<u8>>);
+impl std::io::Read for Growing {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        if self.0.is_empty() {
+            return Err(std::io::Error::other("unplugged"));
+        }
+        let p = self.0.remove(0);
+        buf[..p.len()].copy_from_slice(&p);
+        Ok(p.len())
+    }
+}
+
+#[test]
+fn follow_reads_past_the_end_of_a_growing_file() {
+    let part = |a: u32, b: u32| (a..b).flat_map(|s| line(&rec(s))).collect::<Vec<u8>>();
+    // A record split across the end of file is joined when the rest arrives.
+    let mut p1 = part(0, 5);
+    let mut tail = line(&rec(5));
+    let rest = tail.split_off(20);
+    p1.extend(tail);
+    let mut p2 = rest;
+    p2.extend(part(6, 10));
+    let input = Growing(vec![p1, Vec::new(), p2]);
+    let mut save = Vec::new();
+    let mut out = Vec::new();
+    let r = monitor_stream(
+        input,
+        "log",
+        Display::Quiet,
+        true,
+        &mut out,
+        Some(&mut save),
+    );
+    assert!(r.is_err());
+    let rows = String::from_utf8(save).unwrap();
+    assert_eq!(rows.lines().count(), 3 + 10);
 }
