@@ -2,6 +2,8 @@
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
 pub mod capture_sim;
+pub mod commands;
+pub mod demo;
 pub mod diagnose;
 pub mod flight;
 pub mod metrics;

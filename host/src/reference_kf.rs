@@ -62,7 +62,7 @@ pub fn run_reference(
         let mut x = DVector::<f64>::zeros(n);
         let r = noise_nt * noise_nt;
         let mut out = ReferenceRun::default();
-        let mut buf = vec![0.0f32; 16];
+        let mut buf = [0.0f32; 16];
         let mut last_ref = None;
         let mut step = |ep: magcomp_core::Epoch, x: &mut DVector<f64>, p: &mut DMatrix<f64>| {
             // Keep B_h continuous across re-referencing, as the core does.

@@ -135,7 +135,7 @@ pub struct SimulateArgs {
     pub earth_fid: Option<Vec<f64>>,
 
     /// Geology preset: `quiet` (deep basement: ~0.001–0.01 nT/m at 3000 m), `moderate`,
-    /// `strong` (shallow magnetic rocks: tens–hundreds nT, 0.1–several nT/m at ≤400 m),
+    /// `strong` (shallow magnetic rocks: hundreds of nT, 0.1–several nT/m at ≤400 m),
     /// or `none`.
     #[arg(long, default_value = "quiet")]
     pub geology: String,
@@ -319,6 +319,13 @@ mod tests {
     }
 
     #[test]
+    fn help_renders() {
+        use clap::CommandFactory;
+        let help = Cli::command().render_long_help().to_string();
+        assert!(help.contains("--hidden <SPEC>") && help.contains("--cal-altitude-m"));
+    }
+
+    #[test]
     fn defaults_match_config_default() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         assert_eq!(cli.args.to_config().unwrap(), SimConfig::default());
@@ -351,6 +358,9 @@ mod tests {
             vec!["x", "--decoy", "mag"],
             vec!["x", "--source-depth-m", "100"],
             vec!["x", "--speed-mps", "NaN"],
+            vec!["x", "--source-depth-m", "100,inf"],
+            vec!["x", "--source-moment-am2", "1e9,1e6"],
+            vec!["x", "--survey-offset-m", "1"],
         ] {
             let r = Cli::try_parse_from(bad.clone()).map(|c| c.args.to_config());
             assert!(!matches!(r, Ok(Ok(_))), "{bad:?}");
