@@ -139,9 +139,38 @@ impl fmt::Display for ReplayStats {
 
 /// Reads coefficients: a `calibrate` JSON file or plain numbers.
 pub fn read_coefficients(path: &Path) -> Result<Vec<f32>> {
+    read_coefficients_for(path, None)
+}
+
+/// As [`read_coefficients`]; a JSON file must also be a Kalman-filter calibration of
+/// `model` (Tolles–Lawson coefficients follow other conventions than the board's filter).
+pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<Vec<f32>> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    parse_coefficients(&text).with_context(|| format!("coefficients in {}", path.display()))
+    let ctx = || format!("coefficients in {}", path.display());
+    if let (Some(spec), Ok(v)) = (model, serde_json::from_str::<serde_json::Value>(&text)) {
+        if let Some(m) = v.get("method").and_then(|m| m.as_str()) {
+            if m != "kf" {
+                bail!(
+                    "{}: method '{m}' coefficients cannot be loaded into the board's filter; calibrate with the Kalman filter",
+                    path.display()
+                );
+            }
+        }
+        if let Some(m) = v.get("model").and_then(|m| m.as_str()) {
+            let theirs = ModelSpec::parse(m).with_context(ctx)?;
+            if theirs.text() != spec.text() {
+                bail!(
+                    "{} was calibrated for model '{}', the replay runs '{}' (use --model {})",
+                    path.display(),
+                    theirs.text(),
+                    spec.text(),
+                    theirs.text()
+                );
+            }
+        }
+    }
+    parse_coefficients(&text).with_context(ctx)
 }
 
 pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
@@ -353,8 +382,13 @@ fn create(path: &Path) -> Result<BufWriter<std::fs::File>> {
 
 pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
     let model = ModelSpec::parse(&args.model)?;
+    let coefficients = args
+        .coeffs
+        .as_deref()
+        .map(|p| read_coefficients_for(p, Some(&model)))
+        .transpose()?;
     let mut opts = ReplayOptions::new(model);
-    opts.coefficients = args.coeffs.as_deref().map(read_coefficients).transpose()?;
+    opts.coefficients = coefficients;
     opts.rate_hz = args.rate;
     opts.flux_rate_hz = args.flux_rate;
     opts.gps_rate_hz = args.gps_rate;

@@ -338,5 +338,20 @@ fn run_replay_writes_csv_and_mcrec_lines() {
     std::fs::write(dir.join("c.txt"), "1,2,3").unwrap();
     let e = run_replay(&args).unwrap_err();
     assert!(format!("{e:#}").contains("do not fit model"), "{e:#}");
+    // A calibrate file for another model or method: refused with the reason.
+    let j = |model: &str, method: &str| {
+        format!(
+            r#"{{"format":"magcomp-coefficients-v1","model":"{model}","method":"{method}","sample_rate_hz":10,"coefficients":[{}]}}"#,
+            vec![r#"{"name":"c","unit":"nT","value":0.5,"sigma":0.1}"#; 16].join(",")
+        )
+    };
+    std::fs::write(dir.join("c.txt"), j("permanent+induced+eddy+field", "kf")).unwrap();
+    assert_eq!(run_replay(&args).unwrap().records as usize, trace.len());
+    std::fs::write(dir.join("c.txt"), j("tl16", "kf")).unwrap();
+    let e = format!("{:#}", run_replay(&args).unwrap_err());
+    assert!(e.contains("calibrated for model 'tl16'"), "{e}");
+    std::fs::write(dir.join("c.txt"), j("tl16+field", "tl")).unwrap();
+    let e = format!("{:#}", run_replay(&args).unwrap_err());
+    assert!(e.contains("method 'tl'"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
