@@ -31,8 +31,12 @@ step "emulated board (emu-f405, QEMU netduinoplus2): build"
 ELF=$(bash scripts/build-emu.sh | tail -1)
 echo "$ELF"
 
+step "host replay (magcomp replay: the board's records must equal it)"
+cargo build --locked --release -p magcomp --bin magcomp
+
 step "hil-tests on QEMU"
-MAGCOMP_FW_ELF="$ELF" MAGCOMP_REQUIRE_QEMU=1 cargo test --locked -p hil-tests -- --nocapture
+MAGCOMP_BIN="$ROOT/target/release/magcomp" MAGCOMP_FW_ELF="$ELF" MAGCOMP_REQUIRE_QEMU=1 \
+  cargo test --locked -p hil-tests -- --nocapture
 
 if [ "${MAGCOMP_SKIP_BENCH:-0}" != 1 ]; then
   step "target benchmarks"
