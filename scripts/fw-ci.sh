@@ -36,7 +36,7 @@ cargo build --locked --release -p magcomp --bin magcomp
 
 step "hil-tests on QEMU"
 MAGCOMP_BIN="$ROOT/target/release/magcomp" MAGCOMP_FW_ELF="$ELF" MAGCOMP_REQUIRE_QEMU=1 \
-  cargo test --locked -p hil-tests -- --nocapture
+  cargo test --locked -p hil-tests -- --nocapture --test-threads=4
 
 if [ "${MAGCOMP_SKIP_BENCH:-0}" != 1 ]; then
   step "target benchmarks"

@@ -282,9 +282,11 @@ impl Board {
             if role.is_empty() {
                 cmd.args(["-serial", "null"]);
             } else if *role == "out" {
+                // wait=on: the machine starts only once the harness is connected, so the
+                // boot banner cannot be sent into an unconnected socket and lost
                 let p = dir.join("out.sock");
                 cmd.arg("-chardev").arg(format!(
-                    "socket,id=s{i},path={},server=on,wait=off",
+                    "socket,id=s{i},path={},server=on,wait=on",
                     p.display()
                 ));
                 cmd.args(["-serial", &format!("chardev:s{i}")]);

@@ -344,3 +344,52 @@ fn malformed_commands_rejected_valid_ones_applied() {
         .unwrap_or(u32::MAX);
     assert_eq!(cmd_errors, rejected, "command error counter: {s}");
 }
+
+/// A flight from the project's simulator (`magcomp simulate --capture`: cloverleaf leg with
+/// manoeuvres, real NMEA, fluxgate `X,Y,Z*hh` lines), when `MAGCOMP_BIN` names `magcomp`.
+#[test]
+fn simulated_flight_from_magcomp_simulate() {
+    let name = "simulated";
+    let Ok(bin) = std::env::var("MAGCOMP_BIN") else {
+        eprintln!(
+            "SKIP: {name}: set MAGCOMP_BIN=path/to/magcomp to stream a `magcomp simulate` capture"
+        );
+        return;
+    };
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let path = std::env::temp_dir().join(format!("magcomp-hil-{}-sim.cap", std::process::id()));
+    let st = std::process::Command::new(&bin)
+        .args([
+            "simulate",
+            "--seed",
+            "11",
+            "--max-duration-s",
+            "45",
+            "--capture-gps-hz",
+            "1",
+            "--capture",
+        ])
+        .arg(&path)
+        .arg("-o")
+        .arg(path.with_extension("csv"))
+        .stdout(std::process::Stdio::null())
+        .status()
+        .expect("run magcomp simulate");
+    assert!(st.success(), "magcomp simulate failed");
+    let cap =
+        Capture::read_raw(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).unwrap();
+    assert_eq!(cap.scalar_t_s.len(), 450);
+    let Some((b, recs)) = run_flight(name, &cap) else {
+        return;
+    };
+    assert_one_record_per_sample(name, &b, &cap, &recs);
+    assert!(
+        recs.iter()
+            .all(|r| r.mag.is_some() && !r.flags.contains(Flags::PARSE_ERROR))
+    );
+    let _ = std::fs::remove_file(&path);
+    let _ = std::fs::remove_file(path.with_extension("csv"));
+}
