@@ -411,6 +411,11 @@ impl Board {
         })
     }
 
+    /// The shared log of output lines (for a live view from another thread).
+    pub fn line_log(&self) -> Arc<Mutex<Vec<String>>> {
+        self.lines.clone()
+    }
+
     /// All output lines so far.
     pub fn output(&self) -> Vec<String> {
         self.lines.lock().map(|l| l.clone()).unwrap_or_default()
