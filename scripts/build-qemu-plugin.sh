@@ -1,16 +1,18 @@
 #!/bin/bash
-# Builds the TCG instruction-count plugin (hil-tests/qemu/regioncount.c) against the plugin
+# Builds the TCG plugins (hil-tests/qemu/regioncount.c: instructions between two markers;
+# stackmin.c: stack high-water mark) against the plugin
 # header of the installed QEMU. Debian ships no plugin header, so the header is taken from
 # the matching Debian source package (`apt-get source`, deb-src stanza in a private sources
 # dir derived from the machine's own; /etc is not touched, no mirror address is written).
-# Idempotent. Output: target/qemu-plugins/libregioncount.so (path printed on stdout).
+# Idempotent. Output: target/qemu-plugins/lib{regioncount,stackmin}.so (the first path printed).
 set -euo pipefail
 ROOT=$(cd "$(dirname "$0")/.." && pwd)
 OUT="$ROOT/target/qemu-plugins"
 SO="$OUT/libregioncount.so"
 SRC="$ROOT/hil-tests/qemu/regioncount.c"
 mkdir -p "$OUT"
-if [ -f "$SO" ] && [ "$SO" -nt "$SRC" ]; then echo "$SO"; exit 0; fi
+SO2="$OUT/libstackmin.so"; SRC2="$ROOT/hil-tests/qemu/stackmin.c"
+if [ -f "$SO" ] && [ "$SO" -nt "$SRC" ] && [ -f "$SO2" ] && [ "$SO2" -nt "$SRC2" ]; then echo "$SO"; exit 0; fi
 SUDO=""; [ "$(id -u)" = 0 ] || SUDO="sudo"
 pkg-config --exists glib-2.0 2>/dev/null || DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libglib2.0-dev >&2
 HDR="$OUT/include/qemu-plugin.h"
@@ -43,4 +45,5 @@ if [ ! -f "$HDR" ]; then
   rm -rf "$work"
 fi
 gcc -O2 -shared -fPIC -I"$OUT/include" $(pkg-config --cflags glib-2.0) "$SRC" -o "$SO"
+gcc -O2 -shared -fPIC -I"$OUT/include" $(pkg-config --cflags glib-2.0) "$SRC2" -o "$SO2"
 echo "$SO"

@@ -30,6 +30,8 @@ use {defmt_rtt as _, panic_probe as _};
 use crate::board;
 use crate::pipeline::{Filter, N_COEF, model_id};
 use crate::timebase::{Rates, SampleAligner};
+use magcomp_core::compensator::CompensatorError;
+use static_cell::StaticCell;
 
 /// Nominal sensor rates of the reference installation. The scalar rate sets the time base;
 /// the fluxgate and GPS rates set the staleness limits (2.5 periods).
@@ -122,7 +124,15 @@ async fn main(spawner: Spawner) {
     spawner.spawn(watchdog_task(b.watchdog).unwrap());
     spawner.spawn(output_task(b.out_tx).unwrap());
     spawner.spawn(command_task(b.out_rx).unwrap());
-    spawner.spawn(filter_task(b.store).unwrap());
+    // the filter lives in a static, built once here: not in a task future, whose poll
+    // function would otherwise reserve stack for building it on every sample
+    // (the cell holds the whole Result so the ~7 KB filter is built in place, not copied)
+    static FILTER: StaticCell<Result<Filter, CompensatorError>> = StaticCell::new();
+    let Ok(filter) = FILTER.init_with(|| Filter::new(RATES.scalar_hz as f32)) else {
+        defmt::error!("compensator init failed");
+        board::exit(false)
+    };
+    spawner.spawn(filter_task(filter, b.store).unwrap());
     spawner.spawn(aligner_task().unwrap());
     spawner.spawn(scalar_task(b.scalar).unwrap());
     spawner.spawn(gps_task(b.gps).unwrap());
@@ -263,12 +273,8 @@ async fn aligner_task() {
 
 /// The compensator at the scalar rate, plus the commands that touch its state.
 #[embassy_executor::task]
-async fn filter_task(mut store: board::CoefStore) {
-    let Ok(mut filter) = Filter::new(RATES.scalar_hz as f32) else {
-        defmt::error!("compensator init failed");
-        board::exit(false)
-    };
-    match load_coefficients(&mut store, &mut filter) {
+async fn filter_task(filter: &'static mut Filter, mut store: board::CoefStore) {
+    match load_coefficients(&mut store, filter) {
         Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
         Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
     }
@@ -279,7 +285,7 @@ async fn filter_task(mut store: board::CoefStore) {
                     send_record(&r).await;
                 }
             }
-            Either::Second(cmd) => handle_command(cmd, &mut filter, &mut store).await,
+            Either::Second(cmd) => handle_command(cmd, filter, &mut store).await,
         }
     }
 }

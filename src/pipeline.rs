@@ -12,8 +12,9 @@ use magcomp_core::{Compensator, CompensatorConfig, Output};
 pub const MODEL_SPEC: &[u8] = b"tl16+field";
 /// Coefficients of `MODEL_SPEC` (the index bound of GETCOEF/SETCOEF).
 pub const N_COEF: usize = 16;
-/// State capacity and derivative-window capacity of the on-board filter.
-pub const STATE_CAPACITY: usize = 32;
+/// State capacity and derivative-window capacity of the on-board filter. 24 holds the paper
+/// model (21) plus two tie-point clones; RAM and stack scale with its square.
+pub const STATE_CAPACITY: usize = 24;
 pub const WINDOW: usize = 16;
 
 pub type BoardCompensator = Compensator<'static, STATE_CAPACITY, WINDOW>;
@@ -40,9 +41,12 @@ fn config(rate_hz: f32) -> CompensatorConfig {
 }
 
 impl Filter {
+    // not inlined: the compensator is built on the stack, so keep that frame out of callers
+    // that run every sample (an async task's poll function)
+    #[inline(never)]
     pub fn new(rate_hz: f32) -> Result<Self, CompensatorError> {
-        let comp = Compensator::new(Model::paper(), config(rate_hz))?;
-        Ok(Self {
+        // built straight into the result (no intermediate copy of the ~7 KB compensator)
+        Compensator::new(Model::paper(), config(rate_hz)).map(|comp| Self {
             comp,
             mode: Mode::Cal,
             rate_hz,
@@ -52,6 +56,7 @@ impl Filter {
 
     /// Restarts the filter (priors, derivative window); sequence numbers keep counting.
     /// The caller flushes first so no sample loses its record.
+    #[inline(never)]
     pub fn reset(&mut self) -> Result<(), CompensatorError> {
         self.comp = Compensator::new(Model::paper(), config(self.rate_hz))?;
         self.mode = Mode::Cal;

@@ -17,7 +17,7 @@ mod systick_driver;
 use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, peripherals};
-use static_cell::StaticCell;
+use static_cell::ConstStaticCell;
 
 pub const NAME: &str = "emu-f405";
 
@@ -56,9 +56,10 @@ fn uart_config(baud: u32) -> usart::Config {
 
 macro_rules! buffers {
     ($tx:literal, $rx:literal) => {{
-        static TX: StaticCell<[u8; $tx]> = StaticCell::new();
-        static RX: StaticCell<[u8; $rx]> = StaticCell::new();
-        (TX.init([0; $tx]), RX.init([0; $rx]))
+        // const-initialised (in .bss): no array built on the stack and copied
+        static TX: ConstStaticCell<[u8; $tx]> = ConstStaticCell::new([0; $tx]);
+        static RX: ConstStaticCell<[u8; $rx]> = ConstStaticCell::new([0; $rx]);
+        (TX.take(), RX.take())
     }};
 }
 

@@ -308,6 +308,10 @@ impl Board {
                 cmd.args(["-serial", &format!("chardev:s{i}")]);
             }
         }
+        // extra QEMU arguments, e.g. a TCG plugin: `-plugin target/qemu-plugins/libstackmin.so`
+        if let Ok(extra) = std::env::var("MAGCOMP_HIL_QEMU_ARGS") {
+            cmd.args(extra.split_whitespace());
+        }
         let log = |n: &str| {
             std::fs::File::create(dir.join(n))
                 .map(Stdio::from)
