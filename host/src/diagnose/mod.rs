@@ -13,6 +13,7 @@
 //! share of the residual variance: with 10⁴ samples a statistically detectable 0.2 % is not
 //! a missing physical effect.
 
+pub mod custom;
 mod innovations;
 pub mod stats;
 
@@ -30,6 +31,19 @@ use magcomp_core::MAX_AUX;
 use serde::Serialize;
 use stats::{ar_filter, chi2_isf, chi2_sf, fit_ar, gram_lstsq, gram_of, lag1_autocorr, median};
 use std::path::PathBuf;
+
+/// A term that is not (yet) in the core catalogue, tested alongside it: how a user checks
+/// a new physical effect before pasting it into `core/src/model` (docs/adding-an-effect.md).
+pub struct ExtraTerm {
+    /// Base name as it would appear in a model spec (`scalar_lag`).
+    pub name: &'static str,
+    /// One line a geophysicist understands.
+    pub effect: &'static str,
+    /// Channel term: instantiated for every auxiliary column, like `current:CH`.
+    pub needs_channel: bool,
+    /// Builds the term; the argument is the aux index of its channel.
+    pub make: fn(usize) -> Box<dyn Term>,
+}
 
 /// Settings of the diagnosis.
 #[derive(Clone, Debug)]
@@ -267,7 +281,14 @@ struct TermColumns {
     geometry: Geometry,
 }
 
-fn build_columns(trace: &Trace, terms: &[TermSpec], fs_hz: f64) -> Result<TermColumns> {
+/// A term to build columns for: a catalogue term by spec, or a user's extra term.
+struct ColTerm<'a> {
+    spec: TermSpec,
+    extra: Option<&'a ExtraTerm>,
+}
+
+fn build_columns(trace: &Trace, cterms: &[ColTerm], fs_hz: f64) -> Result<TermColumns> {
+    let terms: Vec<TermSpec> = cterms.iter().map(|c| c.spec.clone()).collect();
     let n = trace.len();
     let mut cols: Vec<Vec<Vec<f64>>> = vec![Vec::new(); terms.len()];
     let mut geometry: Option<Geometry> = None;
@@ -329,8 +350,13 @@ fn build_columns(trace: &Trace, terms: &[TermSpec], fs_hz: f64) -> Result<TermCo
                 .as_ref()
                 .and_then(|c| chans.iter().position(|x| x == c))
                 .unwrap_or(0);
-            let term =
-                AnyTerm::make(&t.name, ch).with_context(|| format!("unknown term '{}'", t.name))?;
+            let term: Box<dyn Term> = match cterms[i].extra {
+                Some(x) => (x.make)(ch),
+                None => Box::new(
+                    AnyTerm::make(&t.name, ch)
+                        .with_context(|| format!("unknown term '{}'", t.name))?,
+                ),
+            };
             let l = term.len();
             let mut c = vec![vec![0.0f64; n]; l];
             let mut buf = [0.0f32; magcomp_core::model::MAX_TERM_STATES];
@@ -423,22 +449,81 @@ fn nested_test(
 
 /// Diagnoses `trace` under `model`.
 pub fn diagnose(trace: &Trace, model: &ModelSpec, opts: &DiagnoseOptions) -> Result<Diagnosis> {
+    diagnose_with(trace, model, opts, &[])
+}
+
+/// Like [`diagnose`], also testing user terms that are not in the core catalogue.
+pub fn diagnose_with(
+    trace: &Trace,
+    model: &ModelSpec,
+    opts: &DiagnoseOptions,
+    extra: &[ExtraTerm],
+) -> Result<Diagnosis> {
     let flight = Flight::from_trace(trace, &model.channels(), &model.relative_channels())?;
     let run = run_kf(&flight, &KfOptions::new(model.clone()))?;
     let n = flight.len();
     let fs = flight.sample_rate_hz;
     let cand_texts = candidate_terms(trace, model);
-    let mut cand_specs: Vec<(String, Option<TermSpec>)> = Vec::new();
+    let mut cand_specs: Vec<(String, Option<ColTerm>)> = Vec::new();
     for c in &cand_texts {
         if c == "field" {
             cand_specs.push((c.clone(), None));
         } else {
             let spec = ModelSpec::parse(c)?;
-            cand_specs.push((c.clone(), spec.terms.into_iter().next()));
+            let t = spec
+                .terms
+                .into_iter()
+                .next()
+                .context("internal: empty candidate")?;
+            cand_specs.push((
+                c.clone(),
+                Some(ColTerm {
+                    spec: t,
+                    extra: None,
+                }),
+            ));
         }
     }
-    let mut all_terms: Vec<TermSpec> = model.terms.clone();
-    all_terms.extend(cand_specs.iter().filter_map(|(_, t)| t.clone()));
+    for x in extra {
+        let chans: Vec<Option<String>> = if x.needs_channel {
+            trace
+                .aux_columns()
+                .iter()
+                .map(|c| Some(c.to_string()))
+                .collect()
+        } else {
+            vec![None]
+        };
+        for ch in chans {
+            let spec = TermSpec {
+                name: x.name.to_string(),
+                channel: ch,
+            };
+            cand_specs.push((
+                spec.text(),
+                Some(ColTerm {
+                    spec,
+                    extra: Some(x),
+                }),
+            ));
+        }
+    }
+    let mut all_terms: Vec<ColTerm> = model
+        .terms
+        .iter()
+        .map(|t| ColTerm {
+            spec: t.clone(),
+            extra: None,
+        })
+        .collect();
+    for (_, c) in &cand_specs {
+        if let Some(c) = c {
+            all_terms.push(ColTerm {
+                spec: c.spec.clone(),
+                extra: c.extra,
+            });
+        }
+    }
     let tc = build_columns(trace, &all_terms, fs)?;
     // Column 0: the scalar relative to its first value (exact in f64).
     let m0 = flight
@@ -450,7 +535,7 @@ pub fn diagnose(trace: &Trace, model: &ModelSpec, opts: &DiagnoseOptions) -> Res
     let y: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
     let mut columns: Vec<&[f64]> = vec![&y];
     let mut blocks: Vec<Block> = Vec::new();
-    for (ti, t) in all_terms.iter().enumerate() {
+    for (ti, t) in all_terms.iter().map(|c| &c.spec).enumerate() {
         let start = columns.len();
         for c in &tc.cols[ti] {
             columns.push(c);
@@ -484,11 +569,13 @@ pub fn diagnose(trace: &Trace, model: &ModelSpec, opts: &DiagnoseOptions) -> Res
     let m = cand_specs.len().max(1) as f64;
     let mut candidates = Vec::new();
     let mut bi = n_model;
+    let mut cand_cols: std::collections::HashMap<String, Vec<usize>> = Default::default();
     for (text, spec) in &cand_specs {
         let (effect, explained, after, q, f, p) = match spec {
             Some(_) => {
                 let b = &blocks[bi];
                 bi += 1;
+                cand_cols.insert(text.clone(), b.idx.clone());
                 let mut full = base_idx.clone();
                 full.extend_from_slice(&b.idx);
                 // Explained share in the whitened domain (what the test sees: samples
@@ -502,7 +589,10 @@ pub fn diagnose(trace: &Trace, model: &ModelSpec, opts: &DiagnoseOptions) -> Res
                 let after = residual_rms * (1.0 - explained).sqrt();
                 let (f, p, q) = nested_test(&inn.cols, &rows, &base_idx, &b.idx, opts.ar_order);
                 let name = text.split(':').next().unwrap_or(text);
-                let effect = info(name).map(|i| i.effect).unwrap_or("");
+                let effect = match spec.as_ref().and_then(|c| c.extra) {
+                    Some(x) => x.effect,
+                    None => info(name).map(|i| i.effect).unwrap_or(""),
+                };
                 (effect.to_string(), explained, after, q, f, p)
             }
             None => {
@@ -570,11 +660,57 @@ pub fn diagnose(trace: &Trace, model: &ModelSpec, opts: &DiagnoseOptions) -> Res
             p_value: p,
         });
     }
+    // Significant first; then by explained share penalised for the parameters added
+    // (BIC): a 6-parameter term that explains 0.1 % more than a 1-parameter one nested in
+    // it is not the better explanation.
+    let n_rows = rows.len() as f64;
+    let bic = |c: &Candidate| {
+        n_rows * (1.0 / (1.0 - c.explained_fraction).max(1e-12)).ln()
+            - c.added_parameters as f64 * n_rows.ln()
+    };
     candidates.sort_by(|a, b| {
         b.significant
             .cmp(&a.significant)
-            .then(b.explained_fraction.total_cmp(&a.explained_fraction))
+            .then(bic(b).total_cmp(&bic(a)))
     });
+    // Parsimony: if a significant candidate with fewer parameters leaves the leader nothing
+    // material to add (< min_explained of what remains), the smaller one is the better
+    // explanation (e.g. a 1-regressor lag inside the 6-regressor rate term's span).
+    for _ in 0..3 {
+        let Some(top) = candidates.first() else { break };
+        let Some(top_idx) = cand_cols.get(&top.term) else {
+            break;
+        };
+        let mut best: Option<usize> = None;
+        for (j, c) in candidates.iter().enumerate().skip(1) {
+            if !c.significant || c.added_parameters >= top.added_parameters {
+                continue;
+            }
+            let Some(ci) = cand_cols.get(&c.term) else {
+                continue;
+            };
+            let mut with_c = base_idx.clone();
+            with_c.extend_from_slice(ci);
+            let (_, rss_c, _, _) = fit(&inn.cols, &rows, &with_c);
+            with_c.extend_from_slice(top_idx);
+            let (_, rss_ct, _, _) = fit(&inn.cols, &rows, &with_c);
+            let inc = if rss_c > 0.0 {
+                1.0 - rss_ct / rss_c
+            } else {
+                0.0
+            };
+            if inc < opts.min_explained && best.is_none_or(|b| bic(c) > bic(&candidates[b])) {
+                best = Some(j);
+            }
+        }
+        match best {
+            Some(j) => {
+                let c = candidates.remove(j);
+                candidates.insert(0, c);
+            }
+            None => break,
+        }
+    }
 
     // Where it fails.
     let t_rows: Vec<f64> = rows.iter().map(|&k| flight.t_s[k]).collect();
