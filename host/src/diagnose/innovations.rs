@@ -127,6 +127,8 @@ pub fn filter_columns(geo: &Geometry, columns: &[&[f64]], fs: FieldSettings) -> 
                         p[i][j] -= kg[i] * ph[j];
                     }
                 }
+                // Keep P symmetric against rounding.
+                #[allow(clippy::needless_range_loop)]
                 for i in 0..ns {
                     for j in 0..i {
                         let a = 0.5 * (p[i][j] + p[j][i]);

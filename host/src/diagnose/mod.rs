@@ -439,7 +439,7 @@ fn nested_test(
     let q = r1.saturating_sub(r0);
     let n = pw[0].len();
     let dof2 = n.saturating_sub(r1 + a.len()) as f64;
-    if q == 0 || dof2 < 1.0 || !(rss1 > 0.0) {
+    if q == 0 || dof2 < 1.0 || rss1.is_nan() || rss1 <= 0.0 {
         return (0.0, 1.0, q);
     }
     let f = ((rss0 - rss1).max(0.0) / q as f64) / (rss1 / dof2);
@@ -785,7 +785,7 @@ fn time_failures(flight: &Flight, t: &[f64], e: &[f64], window_s: f64) -> Vec<Fa
         *m = if *c > 0 { *m / *c as f64 } else { f64::NAN };
     }
     let typical = median(&ms);
-    if !(typical > 0.0) {
+    if typical.is_nan() || typical <= 0.0 {
         return Vec::new();
     }
     let rho = lag1_autocorr(e).clamp(0.0, 0.99);
@@ -977,8 +977,12 @@ pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
     };
     let d = diagnose(&trace, &model, &opts)?;
     if let Some(dir) = &args.report {
-        let path =
-            crate::report::flight_report::write_report(&trace, &[model.clone()], Some(&d), dir)?;
+        let path = crate::report::flight_report::write_report(
+            &trace,
+            std::slice::from_ref(&model),
+            Some(&d),
+            dir,
+        )?;
         if !args.json {
             println!("report written to {}", path.display());
         }

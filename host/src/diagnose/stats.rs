@@ -32,7 +32,7 @@ fn ln_gamma(x: f64) -> f64 {
 /// Regularised upper incomplete gamma Q(a, x) (Numerical Recipes: series below a + 1,
 /// continued fraction above).
 pub fn gamma_q(a: f64, x: f64) -> f64 {
-    if !(a > 0.0) || x.is_nan() {
+    if a.is_nan() || a <= 0.0 || x.is_nan() {
         return f64::NAN;
     }
     if x <= 0.0 {
@@ -126,7 +126,7 @@ pub fn fit_ar(x: &[f64], p: usize) -> Vec<f64> {
                 / n as f64
         })
         .collect();
-    if !(r[0] > 0.0) {
+    if r[0].is_nan() || r[0] <= 0.0 {
         return Vec::new();
     }
     let mut a = vec![0.0; p];
@@ -239,7 +239,7 @@ pub fn lag1_autocorr(x: &[f64]) -> f64 {
     }
     let m = x.iter().sum::<f64>() / n as f64;
     let v: f64 = x.iter().map(|a| (a - m) * (a - m)).sum();
-    if !(v > 0.0) {
+    if v.is_nan() || v <= 0.0 {
         return 0.0;
     }
     (1..n).map(|i| (x[i] - m) * (x[i - 1] - m)).sum::<f64>() / v

@@ -484,7 +484,7 @@ fn along_track_plot(flight: &Flight, run: &crate::pipeline::KfRun, i: usize) -> 
         .map(|w| w[1] - w[0])
         .filter(|d| *d > 0.0)
         .collect();
-    if ds.len() < 64 || !(total > 0.0) {
+    if ds.len() < 64 || total.is_nan() || total <= 0.0 {
         return None;
     }
     let mid = ds.len() / 2;
