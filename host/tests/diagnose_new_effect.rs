@@ -104,6 +104,9 @@ fn periodic_vector_is_found_added_and_the_error_falls() {
             &[PERIODIC_VECTOR],
         )
         .expect("diagnose");
+        if seed == 1 {
+            eprintln!("{}", d.table());
+        }
         assert_eq!(
             d.candidates[0].term,
             "periodic_vector:rpm",
