@@ -45,6 +45,9 @@ pub struct CompensatorConfig {
     pub tie_radius_m: f32,
     /// Lower bound of the horizontal gradient assumed in the tie variance (nT/m).
     pub tie_gradient_floor_nt_per_m: f32,
+    /// External-field drift assumed between two passes when no base station is recorded
+    /// (nT/s; 10 nT/h, a quiet day). With a base station the tie uses its difference.
+    pub tie_drift_nt_per_s: f32,
 }
 
 impl CompensatorConfig {
@@ -62,6 +65,7 @@ impl CompensatorConfig {
             tie_points: [None; MAX_TIE_POINTS],
             tie_radius_m: 60.0,
             tie_gradient_floor_nt_per_m: 0.001,
+            tie_drift_nt_per_s: 10.0 / 3600.0,
         }
     }
 }
@@ -104,6 +108,8 @@ struct TieState {
     last_dist_m: f32,
     north_m: f32,
     east_m: f32,
+    t_s: f64,
+    base_nt: f32,
     local: Option<(f32, f32)>,
 }
 
@@ -501,6 +507,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 st.cloned = true;
                 st.north_m = ep.north_m;
                 st.east_m = ep.east_m;
+                st.t_s = ep.t_s;
+                st.base_nt = ep.base_nt;
                 self.filter.clone_state(clone, bh);
                 continue;
             }
@@ -513,11 +521,20 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             let g_est = libm::fabsf(self.filter.state()[bh + 1] * g_scale)
                 + 2.0 * libm::sqrtf(self.filter.variance(bh + 1).max(0.0)) * g_scale;
             let g = g_est.max(self.cfg.tie_gradient_floor_nt_per_m);
-            let r_tie = (sep_m * g) * (sep_m * g) + 2.0 * self.cfg.noise_nt * self.cfg.noise_nt;
+            // The field at the point also changed in time (diurnal): measured by the base
+            // station when there is one, otherwise allowed for at a quiet-day drift rate.
+            let (z_tie, r_time) = if ep.base_nt.is_finite() && st.base_nt.is_finite() {
+                (ep.base_nt - st.base_nt, 0.03 * 0.03)
+            } else {
+                let drift = self.cfg.tie_drift_nt_per_s * (ep.t_s - st.t_s) as f32;
+                (0.0, drift * drift)
+            };
+            let r_tie =
+                (sep_m * g) * (sep_m * g) + r_time + 2.0 * self.cfg.noise_nt * self.cfg.noise_nt;
             let mut h = [0.0f32; N];
             h[bh] = self.scale[bh];
             h[clone] = -self.scale[clone];
-            if self.filter.update(&h, 0.0, r_tie).is_some() {
+            if self.filter.update(&h, z_tie, r_tie).is_some() {
                 applied = true;
             }
         }

@@ -32,6 +32,13 @@ pub struct AlignedSample {
     pub aux: [f32; MAX_AUX],
     /// Flags set upstream (stale fluxgate, no GPS fix, parser errors).
     pub flags: Flags,
+    /// Core-field model value (IGRF) at the sample (nT), NaN if unknown. Its change since
+    /// the first sample is removed from the scalar before the filter sees it, as survey
+    /// processing always does: the main-field gradient is not the anomaly.
+    pub igrf_nt: f64,
+    /// External (diurnal) field from a base station, relative to its first value (nT);
+    /// NaN if none. Used to tie revisited points across time, not subtracted.
+    pub base_nt: f32,
 }
 
 impl AlignedSample {
@@ -47,6 +54,8 @@ impl AlignedSample {
             attitude_deg: [f32::NAN; 3],
             aux: [f32::NAN; MAX_AUX],
             flags: Flags::empty(),
+            igrf_nt: f64::NAN,
+            base_nt: f32::NAN,
         }
     }
 }
@@ -93,6 +102,8 @@ pub struct Epoch {
     pub aux_dot: [f32; MAX_AUX],
     /// Fractional cycles of `∫ aux/60 dt` (an rpm channel's rotation phase, in [0, 1)).
     pub aux_cycles: [f32; MAX_AUX],
+    /// Base-station external field (nT, relative), NaN if none.
+    pub base_nt: f32,
     pub flags: Flags,
 }
 
@@ -146,6 +157,7 @@ pub struct EpochBuilder<const W: usize> {
     origin: Option<(f64, f64, f64)>,
     last_e: Option<[f32; 3]>,
     last_cycles: [f64; MAX_AUX],
+    igrf0_nt: Option<f64>,
 }
 
 impl<const W: usize> EpochBuilder<W> {
@@ -164,6 +176,7 @@ impl<const W: usize> EpochBuilder<W> {
             origin: None,
             last_e: None,
             last_cycles: [0.0; MAX_AUX],
+            igrf0_nt: None,
         })
     }
 
@@ -299,13 +312,21 @@ impl<const W: usize> EpochBuilder<W> {
             *v = if d.is_finite() { d } else { f32::NAN };
         }
         // Exact reference handling: differences of integer counts, never of f32 values.
+        let core_delta_nt = if c.s.igrf_nt.is_finite() {
+            let i0 = *self.igrf0_nt.get_or_insert(c.s.igrf_nt);
+            (c.s.igrf_nt - i0) as f32
+        } else {
+            0.0
+        };
         let mut dmag_nt = f32::NAN;
         if let Some(m) = c.s.mag {
             let r = *self.reference.get_or_insert(m);
-            let d = m.diff_nt(r);
+            let d = m.diff_nt(r) - core_delta_nt;
             if d.abs() > REREFERENCE_LIMIT_NT {
-                self.reference = Some(m);
-                dmag_nt = 0.0;
+                // New exact reference such that the residual core delta stays continuous.
+                let r = m.minus_nt(core_delta_nt);
+                self.reference = Some(r);
+                dmag_nt = m.diff_nt(r) - core_delta_nt;
             } else {
                 dmag_nt = d;
             }
@@ -349,6 +370,7 @@ impl<const W: usize> EpochBuilder<W> {
             aux: c.s.aux,
             aux_dot,
             aux_cycles,
+            base_nt: c.s.base_nt,
             flags,
         })
     }

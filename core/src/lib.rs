@@ -6,6 +6,11 @@
 //! `compensator` (one output record per scalar sample).
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
+// Numeric kernels index several arrays in lockstep (U, D, h, Φ); iterator chains would hide
+// the algebra that the comments refer to.
+#![allow(clippy::needless_range_loop)]
+// `!(x > 0.0)` is deliberate: it rejects NaN together with non-positive values.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod compensator;
 pub mod epoch;

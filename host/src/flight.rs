@@ -54,7 +54,7 @@ impl Flight {
         }
         let t = col(trace, "t")?;
         for i in 1..n {
-            if !(t[i] > t[i - 1]) {
+            if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
                 bail!(
                     "time is not strictly increasing at data row {} (t = {} after {})",
                     i + 1,
@@ -70,6 +70,9 @@ impl Flight {
         let lat = col(trace, "lat")?;
         let lon = col(trace, "lon")?;
         let alt = col(trace, "alt")?;
+        let igrf = trace.col("igrf");
+        let base = trace.col("base");
+        let base0 = base.and_then(|b| b.iter().copied().find(|v| v.is_finite()));
         let vn = trace.col("vn");
         let ve = trace.col("ve");
         let att = match (trace.col("roll"), trace.col("pitch"), trace.col("yaw")) {
@@ -94,6 +97,12 @@ impl Flight {
             s.lat_deg = lat[i];
             s.lon_deg = lon[i];
             s.alt_m = alt[i] as f32;
+            if let (Some(b), Some(b0)) = (base, base0) {
+                s.base_nt = (b[i] - b0) as f32;
+            }
+            if let Some(g) = igrf {
+                s.igrf_nt = g[i];
+            }
             if let (Some(vn), Some(ve)) = (vn, ve) {
                 s.ground_speed_mps = vn[i].hypot(ve[i]) as f32;
             }
@@ -192,7 +201,9 @@ pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint>
     let cell_m = 40.0;
     let lat0 = lat.iter().copied().find(|v| v.is_finite())?;
     let coslat = lat0.to_radians().cos();
-    let mut cells: HashMap<(i64, i64), (Vec<f64>, f64, f64, usize)> = HashMap::new();
+    // Per cell: start times of distinct passes, Σlat, Σlon, sample count.
+    type Cell = (Vec<f64>, f64, f64, usize);
+    let mut cells: HashMap<(i64, i64), Cell> = HashMap::new();
     for i in 0..t.len() {
         if !(lat[i].is_finite() && lon[i].is_finite()) {
             continue;

@@ -1,3 +1,150 @@
-fn main() {
-    println!("magcomp (in progress)");
+//! `magcomp`: airborne magnetometer compensation on the ground, with the same core that
+//! flies on the board.
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use magcomp::commands::{
+    compensate_trace, read_coefficients, summarise, write_output_csv, EstimatorArgs, Summary,
+    TraceInput,
+};
+use magcomp::sim::SimulateArgs;
+use std::path::PathBuf;
+
+#[derive(Parser)]
+#[command(
+    name = "magcomp",
+    version,
+    about = "Airborne magnetometer compensation: Tolles–Lawson deviation + stochastic anomaly model, estimated by a Kalman filter (Karshakov & Kharichkin)"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Simulate a calibration and/or survey flight with known truth.
+    Simulate(SimulateArgs),
+    /// Estimate the deviation coefficients (with 1σ) from a calibration flight.
+    Calibrate(CalibrateArgs),
+    /// Remove the aircraft interference from a flight.
+    Compensate(CompensateArgs),
+    /// Decode a GPS receiver log with the board's NMEA reader (one JSON object per line).
+    Nmea {
+        /// NMEA log file (`-` for stdin).
+        file: PathBuf,
+    },
+    /// End-to-end demonstration on built-in simulated data (nothing to download).
+    Demo(magcomp::demo::DemoArgs),
+}
+
+#[derive(clap::Args)]
+struct CalibrateArgs {
+    #[command(flatten)]
+    input: TraceInput,
+    #[command(flatten)]
+    est: EstimatorArgs,
+    /// Where to write the coefficients (JSON).
+    #[arg(short, long, value_name = "COEFFS.json")]
+    output: PathBuf,
+}
+
+#[derive(clap::Args)]
+struct CompensateArgs {
+    #[command(flatten)]
+    input: TraceInput,
+    #[command(flatten)]
+    est: EstimatorArgs,
+    /// Apply these coefficients (from `calibrate`) instead of calibrating on this trace.
+    #[arg(long, value_name = "COEFFS.json")]
+    coeffs: Option<PathBuf>,
+    /// The causal filter's output sample by sample, as the board produces it (default:
+    /// post-flight — calibrate on the whole trace, then apply the final coefficients).
+    #[arg(long)]
+    realtime: bool,
+    /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags].
+    #[arg(long, value_name = "OUT.csv")]
+    out: PathBuf,
+    /// Print one JSON object with the summary on stdout.
+    #[arg(long)]
+    json: bool,
+}
+
+fn print_summary(s: &Summary) {
+    println!("model {} ({:?}), {} samples", s.model, s.method, s.samples);
+    println!(
+        "  residual in manoeuvre band: {:.4} nT rms",
+        s.residual_rms_nt
+    );
+    if let Some(ir) = s.improvement_ratio {
+        println!("  improvement ratio:          {ir:.2}");
+    }
+    if let Some(f) = s.fom_nt {
+        println!("  figure of merit (12 man.):  {f:.3} nT");
+    }
+    if let Some(e) = s.error_rms_nt {
+        println!("  error vs truth:             {e:.4} nT rms");
+    }
+    if let Some(o) = s.oracle_floor_nt {
+        println!("  oracle floor of the model:  {o:.4} nT rms");
+    }
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Simulate(args) => {
+            let cfg = args.to_config()?;
+            let trace = magcomp::sim::simulate(&cfg)?;
+            let out = args
+                .output
+                .clone()
+                .unwrap_or_else(|| PathBuf::from("flight.csv"));
+            magcomp::trace::write_trace(&out, &trace)?;
+            eprintln!("wrote {} rows to {}", trace.len(), out.display());
+        }
+        Command::Calibrate(a) => {
+            let trace = a.input.read()?;
+            let (flight, comp) = compensate_trace(&trace, &a.est, None, false)?;
+            let file = comp.coefficients.clone().context("no coefficients")?;
+            std::fs::write(&a.output, serde_json::to_string_pretty(&file)?)
+                .with_context(|| format!("writing {}", a.output.display()))?;
+            println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
+            for c in &file.coefficients {
+                println!(
+                    "{:<28} {:>12.4} {:>10.4}  {}",
+                    c.name, c.value, c.sigma, c.unit
+                );
+            }
+            print_summary(&summarise(&flight, &comp));
+            eprintln!("wrote {}", a.output.display());
+        }
+        Command::Compensate(a) => {
+            let trace = a.input.read()?;
+            let coeffs = a.coeffs.as_deref().map(read_coefficients).transpose()?;
+            let (flight, comp) = compensate_trace(&trace, &a.est, coeffs.as_ref(), a.realtime)?;
+            write_output_csv(&a.out, &flight, &comp)?;
+            let s = summarise(&flight, &comp);
+            if a.json {
+                println!("{}", serde_json::to_string(&s)?);
+            } else {
+                print_summary(&s);
+                eprintln!("wrote {}", a.out.display());
+            }
+        }
+        Command::Nmea { file } => {
+            let stdout = std::io::stdout();
+            let out = std::io::BufWriter::new(stdout.lock());
+            let stats = if file.as_os_str() == "-" {
+                magcomp::nmea_cmd::decode_log(std::io::stdin().lock(), out)?
+            } else {
+                let f = std::fs::File::open(&file)
+                    .with_context(|| format!("opening {}", file.display()))?;
+                magcomp::nmea_cmd::decode_log(std::io::BufReader::new(f), out)?
+            };
+            eprintln!("{stats:?}");
+        }
+        Command::Demo(a) => magcomp::demo::run(&a)?,
+    }
+    Ok(())
 }

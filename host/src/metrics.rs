@@ -102,8 +102,15 @@ pub fn improvement_ratio(flight: &Flight, compensated_nt: &[f64]) -> Option<f64>
 /// Compensation error against the simulator's truth: `interference − truth`, mean removed.
 pub fn error_rms_nt(interference_nt: &[f64], truth_nt: &[f64], rows: Option<&[usize]>) -> f64 {
     let d: Vec<f64> = match rows {
-        Some(r) => r.iter().map(|&i| interference_nt[i] - truth_nt[i]).collect(),
-        None => interference_nt.iter().zip(truth_nt).map(|(a, b)| a - b).collect(),
+        Some(r) => r
+            .iter()
+            .map(|&i| interference_nt[i] - truth_nt[i])
+            .collect(),
+        None => interference_nt
+            .iter()
+            .zip(truth_nt)
+            .map(|(a, b)| a - b)
+            .collect(),
     };
     rms_demeaned(&d)
 }

@@ -29,8 +29,9 @@ fn cloverleaf() -> (Vec<[f64; 3]>, Vec<bool>) {
             for i in 0..300 {
                 let t = i as f64 * dt_s;
                 // Two tones so the swings are not a single sinusoid.
-                let a = swing * (0.7 * (2.0 * std::f64::consts::PI * 0.2 * t).sin()
-                    + 0.3 * (2.0 * std::f64::consts::PI * 0.45 * t + 0.5).sin());
+                let a = swing
+                    * (0.7 * (2.0 * std::f64::consts::PI * 0.2 * t).sin()
+                        + 0.3 * (2.0 * std::f64::consts::PI * 0.45 * t + 0.5).sin());
                 let (r, p, y) = match axis {
                     0 => (a, 0.0, 0.0),
                     1 => (0.0, a, 0.0),
@@ -80,7 +81,12 @@ fn synthetic_mag(flux: &[[f64; 3]], coef16: &[f64], noise_nt: f64, seed: u64) ->
 
 /// Std of `x` over the rows where `mask` holds.
 fn std_on(x: &[f64], mask: &[bool]) -> f64 {
-    let v: Vec<f64> = x.iter().zip(mask).filter(|(_, &m)| m).map(|(v, _)| *v).collect();
+    let v: Vec<f64> = x
+        .iter()
+        .zip(mask)
+        .filter(|(_, &m)| m)
+        .map(|(v, _)| *v)
+        .collect();
     std(&v)
 }
 
@@ -140,6 +146,27 @@ fn tl16_recovers_known_coefficients() {
     );
     assert!(std_on(&err, &manoeuvre) < 0.05);
     assert!(fit.residual_std_nt < 0.03, "band-passed residual ≈ noise");
+    assert_eq!(fit.coefficient("eddy_zy"), Some(fit.coefficients[15]));
+    assert_eq!(fit.coefficient("eddy_zz"), None);
+    let report = fit.to_string();
+    assert!(report.contains("rows used 3440 in 4 run(s)"), "{report}");
+
+    // Without the band-pass (no trim) the fit still works: the drift is then absorbed by
+    // nothing and biases the coefficients, so only check it runs and uses every row.
+    let raw = tl::fit(
+        &flux,
+        &mag,
+        &TlConfig {
+            pass_hz: None,
+            ..cfg
+        },
+        Some(&manoeuvre),
+    )
+    .unwrap();
+    assert_eq!(raw.rows_used, 3600);
+    assert_eq!(raw.noise_gain, 1.0);
+    assert_eq!(TlConfig::for_rate(10.0), TlConfig::default());
+    assert_eq!(TlConfig::for_rate(160.0).trim, 320);
 }
 
 #[test]
@@ -152,7 +179,9 @@ fn tl18_ridge_and_least_squares() {
     // Interference error est − truth (what is left after compensation, minus |B|+drift+noise).
     let err_of = |fit: &tl::TlFit| -> f64 {
         let comp = tl::compensate(fit, &flux, &mag).unwrap();
-        let e: Vec<f64> = (0..flux.len()).map(|i| (mag[i] - tru[i]) - comp[i]).collect();
+        let e: Vec<f64> = (0..flux.len())
+            .map(|i| (mag[i] - tru[i]) - comp[i])
+            .collect();
         std_on(&e, &manoeuvre)
     };
 
@@ -217,9 +246,18 @@ fn nan_rows_are_excluded_and_counted() {
         .map(|i| manoeuvre[i] && interf[i].is_finite())
         .collect();
     let d: Vec<f64> = (0..flux.len())
-        .map(|i| if ok[i] { interf[i] - interf_clean[i] } else { 0.0 })
+        .map(|i| {
+            if ok[i] {
+                interf[i] - interf_clean[i]
+            } else {
+                0.0
+            }
+        })
         .collect();
-    println!("NaN fit vs clean fit: interference std diff {:.4} nT", std_on(&d, &ok));
+    println!(
+        "NaN fit vs clean fit: interference std diff {:.4} nT",
+        std_on(&d, &ok)
+    );
     assert!(std_on(&d, &ok) < 0.05);
     assert!(interf[150].is_nan() && interf[149].is_nan() && interf[152].is_finite());
 }
@@ -231,11 +269,15 @@ fn bad_inputs_are_errors_not_panics() {
     let cfg = TlConfig::default();
 
     let nan_mag = vec![f64::NAN; flux.len()];
-    let e = tl::fit(&flux, &nan_mag, &cfg, None).unwrap_err().to_string();
+    let e = tl::fit(&flux, &nan_mag, &cfg, None)
+        .unwrap_err()
+        .to_string();
     println!("all NaN: {e}");
     assert!(e.contains("non-finite"), "{e}");
 
-    let e = tl::fit(&flux[..30], &mag[..30], &cfg, None).unwrap_err().to_string();
+    let e = tl::fit(&flux[..30], &mag[..30], &cfg, None)
+        .unwrap_err()
+        .to_string();
     println!("too short: {e}");
     assert!(e.contains("usable rows"), "{e}");
 
@@ -280,7 +322,10 @@ fn term_selection_and_names() {
             eddy: false
         }
     );
-    assert_eq!(pi.names()[3..], ["ind_xx", "ind_xy", "ind_xz", "ind_yy", "ind_yz", "ind_zz"]);
+    assert_eq!(
+        pi.names()[3..],
+        ["ind_xx", "ind_xy", "ind_xz", "ind_yy", "ind_yz", "ind_zz"]
+    );
     assert_eq!("TL16".parse::<TlTerms>().unwrap(), TlTerms::Tl16);
     assert!("perm+magic".parse::<TlTerms>().is_err());
 
@@ -298,7 +343,9 @@ fn term_selection_and_names() {
     let comp = tl::compensate(&fit, &flux, &mag).unwrap();
     let a = tl::design_matrix(&flux, &TlTerms::Tl16, tl::BT_SCALE_NT);
     let tru = a * DVector::from_column_slice(&truth);
-    let err: Vec<f64> = (0..flux.len()).map(|i| (mag[i] - tru[i]) - comp[i]).collect();
+    let err: Vec<f64> = (0..flux.len())
+        .map(|i| (mag[i] - tru[i]) - comp[i])
+        .collect();
     println!(
         "permanent+induced: interference error std {:.4} nT on manoeuvres, {:.4} nT whole flight",
         std_on(&err, &manoeuvre),
@@ -316,7 +363,9 @@ fn induced_diagonal_is_collinear_after_bandpass() {
     let sos = tl::butterworth_bandpass(4, 0.1, 0.9, FS_HZ).unwrap();
     let col = |j: usize| tl::filtfilt(&sos, a.column(j).as_slice()).unwrap();
     let (xx, yy, zz) = (col(3), col(6), col(8));
-    let sum = (0..flux.len()).map(|i| (xx[i] + yy[i] + zz[i]).abs()).fold(0.0, f64::max);
+    let sum = (0..flux.len())
+        .map(|i| (xx[i] + yy[i] + zz[i]).abs())
+        .fold(0.0, f64::max);
     let scale = zz.iter().map(|v| v.abs()).fold(0.0, f64::max);
     println!("max |Σ filtered induced diagonal| = {sum:.2e} (column scale {scale:.2e})");
     assert!(sum < 1e-9 * scale.max(1e-300) + 1e-15);

@@ -6,6 +6,7 @@
 //! modified weighted Gram–Schmidt (MWGS) time update — O(n·m²) with m ≤ 7 instead of O(n³)
 //! (model.md §5). The scalar measurement update is Bierman's, O(n²).
 
+pub mod covariance;
 pub mod field;
 pub mod ud;
 

@@ -213,12 +213,13 @@ impl<const N: usize> UdFilter<N> {
         let mut y = [[0.0f32; W]; MAX_DYNAMIC];
         let mut w = [0.0f32; W];
         for i in 0..m {
-            for j in i..m {
-                // (ΦU)_ij = Σ_{i≤k≤j} Φ_ik U_kj
-                let mut s = 0.0;
-                for k in i..=j {
-                    let phik = if k == i { 1.0 } else { phi[i][k] };
-                    s += phik * self.u(k, j);
+            y[i][i] = 1.0;
+            for j in i + 1..m {
+                // (ΦU)_ij = U_ij + Σ_{i<k<j} Φ_ik U_kj + Φ_ij (Φ_ii = U_jj = 1)
+                let col = &self.u[j];
+                let mut s = col[i] + phi[i][j];
+                for k in i + 1..j {
+                    s += phi[i][k] * col[k];
                 }
                 y[i][j] = s;
             }

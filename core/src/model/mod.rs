@@ -21,6 +21,9 @@ pub trait Term: Sync {
     fn name(&self) -> &'static str;
     /// Number of coefficients (states) it adds.
     fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
     /// Writes its regressors for this epoch into `out[..self.len()]`. Returns false when an
     /// input it needs is missing (the regressors are then zero and the epoch is flagged).
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool;

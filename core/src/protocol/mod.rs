@@ -1,1 +1,14 @@
-//! (in progress)
+//! Sensor and port protocols: bytes → typed frames, and records/commands → bytes.
+//!
+//! Every parser is `no_std`, allocation-free and total: any byte sequence yields frames or
+//! typed, counted errors, never a panic, and the parser resynchronises at the next frame
+//! start. Formats are documented in `docs/protocols.md`.
+
+pub mod aligner;
+pub mod capture;
+pub mod command;
+pub mod common;
+pub mod fluxgate;
+pub mod nmea;
+pub mod record;
+pub mod scalar;

@@ -17,7 +17,7 @@ pub enum GeologyPreset {
     Quiet,
     /// Basement at a few hundred metres to a few kilometres.
     Moderate,
-    /// Shallow, strongly magnetic rocks (ore bodies, mafic intrusions): tens to hundreds
+    /// Shallow, strongly magnetic rocks (ore bodies, mafic intrusions): hundreds
     /// of nT and 0.1–several nT/m at 150–400 m survey altitude.
     Strong,
     /// No anomaly at all.
@@ -43,9 +43,9 @@ pub struct Geology {
 impl Geology {
     pub fn preset(p: GeologyPreset) -> Self {
         let (density, dmin, dmax, mmin, mmax, q) = match p {
-            GeologyPreset::Quiet => (0.05, 2000.0, 6000.0, 1e9, 1e10, 0.2),
-            GeologyPreset::Moderate => (0.2, 500.0, 3000.0, 1e8, 3e9, 0.3),
-            GeologyPreset::Strong => (0.5, 100.0, 1500.0, 1e8, 3e9, 0.5),
+            GeologyPreset::Quiet => (0.08, 2000.0, 6000.0, 2e9, 2e10, 0.2),
+            GeologyPreset::Moderate => (0.2, 500.0, 3000.0, 5e7, 1e9, 0.3),
+            GeologyPreset::Strong => (1.5, 150.0, 1200.0, 3e7, 5e8, 0.5),
             GeologyPreset::None => (0.0, 1000.0, 1000.0, 1.0, 1.0, 0.0),
         };
         Geology {
@@ -65,12 +65,16 @@ impl Geology {
             "source density must be within 0–50 per km²"
         );
         anyhow::ensure!(
-            self.depth_min_m > 0.0 && self.depth_max_m >= self.depth_min_m,
-            "source depths must be positive with min ≤ max"
+            self.depth_min_m > 0.0
+                && self.depth_max_m >= self.depth_min_m
+                && self.depth_max_m <= 100_000.0,
+            "source depths must be within (0, 100 km] with min ≤ max"
         );
         anyhow::ensure!(
-            self.moment_min_am2 > 0.0 && self.moment_max_am2 >= self.moment_min_am2,
-            "source moments must be positive with min ≤ max"
+            self.moment_min_am2 > 0.0
+                && self.moment_max_am2 >= self.moment_min_am2
+                && self.moment_max_am2 <= 1e16,
+            "source moments must be within (0, 1e16] A·m² with min ≤ max"
         );
         anyhow::ensure!(
             (0.0..=20.0).contains(&self.remanence_q),
@@ -133,37 +137,41 @@ impl Anomaly {
 
     /// Anomaly field vector (nT, NED) at `p` (local frame, m).
     pub fn field_ned_nt(&self, p: &Vector3<f64>) -> Vector3<f64> {
-        let mut b = Vector3::zeros();
-        for s in &self.sources {
-            let r = p - s.pos_ned_m;
-            let r2 = r.norm_squared();
-            let inv_r = 1.0 / r2.sqrt();
-            let inv_r3 = inv_r * inv_r * inv_r;
-            let mr = s.moment_am2.dot(&r);
-            b += (r * (3.0 * mr / r2) - s.moment_am2) * (MU0_4PI_NT_M3_PER_AM2 * inv_r3);
-        }
-        b
+        self.field_and_gradient(p).0
     }
 
     /// Field (nT) and its exact spatial gradient tensor G_ij = ∂B_i/∂x_j (nT/m); G is
     /// symmetric and traceless for every source (curl- and divergence-free).
     pub fn field_and_gradient(&self, p: &Vector3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
-        let mut b = Vector3::zeros();
-        let mut g = Matrix3::zeros();
+        // Plain arrays: this is the simulator's hot loop (sources × knots).
+        let k = MU0_4PI_NT_M3_PER_AM2;
+        let mut b = [0.0f64; 3];
+        let mut g = [[0.0f64; 3]; 3];
         for s in &self.sources {
-            let r = p - s.pos_ned_m;
-            let m = &s.moment_am2;
-            let r2 = r.norm_squared();
+            let r = [
+                p.x - s.pos_ned_m.x,
+                p.y - s.pos_ned_m.y,
+                p.z - s.pos_ned_m.z,
+            ];
+            let m = [s.moment_am2.x, s.moment_am2.y, s.moment_am2.z];
+            let r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
             let inv_r = 1.0 / r2.sqrt();
             let inv_r3 = inv_r * inv_r * inv_r;
             let inv_r5 = inv_r3 / r2;
-            let mr = m.dot(&r);
-            let k = MU0_4PI_NT_M3_PER_AM2;
-            b += (r * (3.0 * mr / r2) - m) * (k * inv_r3);
-            let outer = m * r.transpose() + r * m.transpose();
-            g += (Matrix3::identity() * mr + outer) * (3.0 * k * inv_r5)
-                - (r * r.transpose()) * (15.0 * k * mr * inv_r5 / r2);
+            let mr = m[0] * r[0] + m[1] * r[1] + m[2] * r[2];
+            let c1 = 3.0 * k * inv_r5;
+            let c2 = 15.0 * k * mr * inv_r5 / r2;
+            for i in 0..3 {
+                b[i] += k * inv_r3 * (3.0 * mr * r[i] / r2 - m[i]);
+                for j in 0..3 {
+                    let delta = if i == j { mr } else { 0.0 };
+                    g[i][j] += c1 * (delta + m[i] * r[j] + r[i] * m[j]) - c2 * r[i] * r[j];
+                }
+            }
         }
-        (b, g)
+        (
+            Vector3::new(b[0], b[1], b[2]),
+            Matrix3::from_fn(|i, j| g[i][j]),
+        )
     }
 }

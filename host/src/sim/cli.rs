@@ -1,8 +1,6 @@
 //! `magcomp simulate` command-line flags.
 
-use super::{
-    parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, SimConfig,
-};
+use super::{parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, SimConfig};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 
@@ -58,7 +56,12 @@ pub struct SimulateArgs {
     pub altitude_swing_m: f64,
 
     /// Calibration leg headings (deg, comma separated); all legs cross one centre point.
-    #[arg(long, default_value = "45,135,225,315", value_delimiter = ',', allow_negative_numbers = true)]
+    #[arg(
+        long,
+        default_value = "45,135,225,315",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
     pub cal_headings_deg: Vec<f64>,
 
     /// Roll manoeuvre amplitude (deg).
@@ -106,7 +109,12 @@ pub struct SimulateArgs {
     pub line_heading_deg: f64,
 
     /// Survey block origin relative to the start point, `NORTH,EAST` (m); combined flights.
-    #[arg(long, default_value = "0,8000", value_delimiter = ',', allow_negative_numbers = true)]
+    #[arg(
+        long,
+        default_value = "0,8000",
+        value_delimiter = ',',
+        allow_negative_numbers = true
+    )]
     pub survey_offset_m: Vec<f64>,
 
     /// Wind speed (m/s); its direction is random per seed and sets the crab angle.
@@ -118,11 +126,16 @@ pub struct SimulateArgs {
     pub turbulence_deg: f64,
 
     /// Use a uniform main field `F,I,D` (nT, deg, deg) instead of the IGRF-2020 dipole.
-    #[arg(long, value_delimiter = ',', allow_negative_numbers = true, value_name = "F,I,D")]
+    #[arg(
+        long,
+        value_delimiter = ',',
+        allow_negative_numbers = true,
+        value_name = "F,I,D"
+    )]
     pub earth_fid: Option<Vec<f64>>,
 
     /// Geology preset: `quiet` (deep basement: ~0.001–0.01 nT/m at 3000 m), `moderate`,
-    /// `strong` (shallow magnetic rocks: tens–hundreds nT, 0.1–several nT/m at ≤400 m),
+    /// `strong` (shallow magnetic rocks: hundreds of nT, 0.1–several nT/m at ≤400 m),
     /// or `none`.
     #[arg(long, default_value = "quiet")]
     pub geology: String,
@@ -306,6 +319,13 @@ mod tests {
     }
 
     #[test]
+    fn help_renders() {
+        use clap::CommandFactory;
+        let help = Cli::command().render_long_help().to_string();
+        assert!(help.contains("--hidden <SPEC>") && help.contains("--cal-altitude-m"));
+    }
+
+    #[test]
     fn defaults_match_config_default() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         assert_eq!(cli.args.to_config().unwrap(), SimConfig::default());
@@ -314,8 +334,17 @@ mod tests {
     #[test]
     fn flags_parse_and_bad_values_error() {
         let cli = Cli::try_parse_from([
-            "x", "--flight", "survey", "--hidden", "current:cur_pump@10:20", "--decoy", "cur_x",
-            "--earth-fid", "50000,70,-12", "--lon-deg", "-10",
+            "x",
+            "--flight",
+            "survey",
+            "--hidden",
+            "current:cur_pump@10:20",
+            "--decoy",
+            "cur_x",
+            "--earth-fid",
+            "50000,70,-12",
+            "--lon-deg",
+            "-10",
         ])
         .unwrap();
         let c = cli.args.to_config().unwrap();
@@ -329,6 +358,9 @@ mod tests {
             vec!["x", "--decoy", "mag"],
             vec!["x", "--source-depth-m", "100"],
             vec!["x", "--speed-mps", "NaN"],
+            vec!["x", "--source-depth-m", "100,inf"],
+            vec!["x", "--source-moment-am2", "1e9,1e6"],
+            vec!["x", "--survey-offset-m", "1"],
         ] {
             let r = Cli::try_parse_from(bad.clone()).map(|c| c.args.to_config());
             assert!(!matches!(r, Ok(Ok(_))), "{bad:?}");

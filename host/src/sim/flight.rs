@@ -163,7 +163,14 @@ impl Builder {
         }
     }
 
-    pub fn straight(&mut self, dur_s: f64, man: Manoeuvre, amp_rad: f64, period_s: f64, label: &str) {
+    pub fn straight(
+        &mut self,
+        dur_s: f64,
+        man: Manoeuvre,
+        amp_rad: f64,
+        period_s: f64,
+        label: &str,
+    ) {
         if dur_s <= 1e-9 {
             return;
         }
@@ -188,7 +195,14 @@ impl Builder {
             return;
         }
         let (rate, plateau, dur) = turn_shape(delta, self.max_rate, self.ramp_s);
-        let d = turn_displacement(self.course, delta, self.speed, self.max_rate, self.ramp_s, 4000);
+        let d = turn_displacement(
+            self.course,
+            delta,
+            self.speed,
+            self.max_rate,
+            self.ramp_s,
+            4000,
+        );
         self.pieces.push(Piece {
             t0_s: self.t_s,
             dur_s: dur,
@@ -265,7 +279,8 @@ impl Builder {
         self.turn(d2);
         // Remaining distance along the new course; the cross-track miss is only the
         // integration error of the turns (millimetres).
-        let rem = (target[0] - self.pos[0]) * course1.cos() + (target[1] - self.pos[1]) * course1.sin();
+        let rem =
+            (target[0] - self.pos[0]) * course1.cos() + (target[1] - self.pos[1]) * course1.sin();
         Ok(rem)
     }
 }
@@ -371,7 +386,9 @@ impl Plan {
             }
         }
         let (w_speed, w_from) = self.wind;
-        let crab = (w_speed * (w_from - course).sin() / v).clamp(-0.5, 0.5).asin();
+        let crab = (w_speed * (w_from - course).sin() / v)
+            .clamp(-0.5, 0.5)
+            .asin();
         KinState {
             course_rad: course,
             roll_rad: bank + man_roll + self.turb[0].value(t),
@@ -408,7 +425,9 @@ mod tests {
         let h = 1e-5;
         for k in 1..40 {
             let t = k as f64 * dur / 40.0;
-            let num = (turn_progress(t + h, rate, 3.0, plateau).0 - turn_progress(t - h, rate, 3.0, plateau).0) / (2.0 * h);
+            let num = (turn_progress(t + h, rate, 3.0, plateau).0
+                - turn_progress(t - h, rate, 3.0, plateau).0)
+                / (2.0 * h);
             assert!((num - turn_progress(t, rate, 3.0, plateau).1).abs() < 1e-6);
         }
     }
@@ -420,6 +439,10 @@ mod tests {
         let d = b.connect(tgt, PI, 300.0).unwrap();
         assert!(d >= 300.0 - 1e-6);
         b.straight(d / 60.0, Manoeuvre::Level, 0.0, 1.0, "x");
-        assert!((b.pos[0] - tgt[0]).abs() < 0.01 && (b.pos[1] - tgt[1]).abs() < 0.01, "{:?}", b.pos);
+        assert!(
+            (b.pos[0] - tgt[0]).abs() < 0.01 && (b.pos[1] - tgt[1]).abs() < 0.01,
+            "{:?}",
+            b.pos
+        );
     }
 }

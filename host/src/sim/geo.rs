@@ -21,7 +21,11 @@ pub enum EarthField {
     /// Tilted centred dipole (IGRF-2020 degree 1), evaluated at every sample.
     Dipole,
     /// A uniform field given by total intensity, inclination and declination.
-    Fixed { f_nt: f64, inc_deg: f64, dec_deg: f64 },
+    Fixed {
+        f_nt: f64,
+        inc_deg: f64,
+        dec_deg: f64,
+    },
 }
 
 impl EarthField {

@@ -86,8 +86,14 @@ pub fn parse_hidden(spec: &str) -> Result<HiddenEffect> {
             let (a, c) = w
                 .split_once(':')
                 .with_context(|| format!("window `{w}` must be T0:T1 (seconds)"))?;
-            let t0: f64 = a.trim().parse().with_context(|| format!("bad window start `{a}`"))?;
-            let t1: f64 = c.trim().parse().with_context(|| format!("bad window end `{c}`"))?;
+            let t0: f64 = a
+                .trim()
+                .parse()
+                .with_context(|| format!("bad window start `{a}`"))?;
+            let t1: f64 = c
+                .trim()
+                .parse()
+                .with_context(|| format!("bad window end `{c}`"))?;
             ensure!(
                 t0.is_finite() && t1.is_finite() && t0 >= 0.0 && t1 > t0,
                 "window must satisfy 0 ≤ T0 < T1"
@@ -101,7 +107,8 @@ pub fn parse_hidden(spec: &str) -> Result<HiddenEffect> {
         None => (body.trim(), None),
     };
     let need_ch = |a: Option<&str>| -> Result<String> {
-        let ch = a.with_context(|| format!("`{kind}` needs a channel name, e.g. `{kind}:cur_pump`"))?;
+        let ch =
+            a.with_context(|| format!("`{kind}` needs a channel name, e.g. `{kind}:cur_pump`"))?;
         check_channel(ch)?;
         Ok(ch.to_string())
     };
@@ -169,9 +176,23 @@ mod tests {
         );
         assert_eq!(h.window_s, Some((100.0, 400.0)));
         assert_eq!(h.column(), "truth_hidden_current_cur_pump");
-        assert_eq!(parse_hidden("lag:0.1").unwrap().kind, HiddenKind::Lag { lag_s: 0.1 });
+        assert_eq!(
+            parse_hidden("lag:0.1").unwrap().kind,
+            HiddenKind::Lag { lag_s: 0.1 }
+        );
         assert_eq!(parse_hidden("rate").unwrap().kind, HiddenKind::Rate);
-        for bad in ["", "foo", "current", "lag:x", "lag:-1", "rate:3", "current:a b", "current:mag", "diurnal@5:1", "fluxcal@a:b"] {
+        for bad in [
+            "",
+            "foo",
+            "current",
+            "lag:x",
+            "lag:-1",
+            "rate:3",
+            "current:a b",
+            "current:mag",
+            "diurnal@5:1",
+            "fluxcal@a:b",
+        ] {
             assert!(parse_hidden(bad).is_err(), "{bad}");
         }
     }

@@ -204,7 +204,10 @@ mod tests {
         while t < t1 {
             let num = (f(t + h).0 - f(t - h).0) / (2.0 * h);
             let (_, d) = f(t);
-            assert!((num - d).abs() < 1e-5 * (1.0 + d.abs()), "t={t} {num} vs {d}");
+            assert!(
+                (num - d).abs() < 1e-5 * (1.0 + d.abs()),
+                "t={t} {num} vs {d}"
+            );
             t += 0.37;
         }
     }

@@ -129,7 +129,8 @@ pub struct TlConfig {
     pub fs_hz: f64,
     /// Poles of the Butterworth prototype (the band-pass has twice this order).
     pub poles: usize,
-    /// Samples dropped at each end of every filtered run (filter start-up).
+    /// Samples dropped at each end of every filtered run (filter start-up); unused when
+    /// `pass_hz` is `None`.
     pub trim: usize,
     /// Ridge parameter λ; 0 gives plain least squares (SVD, minimum-norm if rank deficient).
     pub lambda: f64,
@@ -153,6 +154,17 @@ impl Default for TlConfig {
 }
 
 impl TlConfig {
+    /// MagNav's defaults for data sampled at `fs_hz`: same 0.1–0.9 Hz band, and the trim
+    /// kept at MagNav's 2 s (20 samples at 10 Hz) rather than 20 samples, because the
+    /// filter start-up lasts a fixed time, not a fixed number of samples.
+    pub fn for_rate(fs_hz: f64) -> Self {
+        TlConfig {
+            fs_hz,
+            trim: (2.0 * fs_hz).round().max(0.0) as usize,
+            ..TlConfig::default()
+        }
+    }
+
     fn validate(&self) -> Result<()> {
         ensure!(
             self.fs_hz.is_finite() && self.fs_hz > 0.0,
@@ -214,6 +226,49 @@ pub struct TlFit {
     pub rank: usize,
     /// White-noise power gain of the band-pass (1 without filtering), see `sigma`.
     pub noise_gain: f64,
+}
+
+impl TlFit {
+    /// Coefficient by name (`"perm_x"`, `"eddy_zy"`, ...).
+    pub fn coefficient(&self, name: &str) -> Option<f64> {
+        self.names
+            .iter()
+            .position(|n| n == name)
+            .map(|k| self.coefficients[k])
+    }
+}
+
+impl std::fmt::Display for TlFit {
+    /// Human-readable fit report: data accounting first, then one line per coefficient.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let c = &self.config;
+        let band = match c.pass_hz {
+            Some((lo, hi)) => format!("{lo}–{hi} Hz band-pass ({} poles)", c.poles),
+            None => "no band-pass".to_string(),
+        };
+        writeln!(
+            f,
+            "Tolles–Lawson {:?}: {} terms, λ = {}, {band} at {} Hz",
+            c.terms,
+            self.names.len(),
+            c.lambda,
+            c.fs_hz
+        )?;
+        writeln!(
+            f,
+            "rows used {} in {} run(s); excluded: {} non-finite, {} in too-short runs",
+            self.rows_used, self.runs_used, self.rows_nonfinite, self.rows_short_runs
+        )?;
+        writeln!(
+            f,
+            "residual std {:.4} nT (filtered), rank {}, cond(normal) {:.3e}",
+            self.residual_std_nt, self.rank, self.cond_normal
+        )?;
+        for ((n, v), s) in self.names.iter().zip(&self.coefficients).zip(&self.sigma) {
+            writeln!(f, "  {n:8} {v:14.6} ± {s:.6}")?;
+        }
+        Ok(())
+    }
 }
 
 /// Central difference per sample, one-sided at the ends (MagNav's `fdm`).
@@ -346,16 +401,17 @@ pub fn ridge(a: &DMatrix<f64>, y: &[f64], lambda: f64) -> Result<Ridge> {
             .collect();
         let rank = s_inv.iter().filter(|&&v| v > 0.0).count();
         ensure!(rank > 0, "least squares: design matrix is all zero");
-        let s_min = s.iter().copied().filter(|&v| v > tol).fold(f64::MAX, f64::min);
+        let s_min = s
+            .iter()
+            .copied()
+            .filter(|&v| v > tol)
+            .fold(f64::MAX, f64::min);
         let uty = u.tr_mul(&yv);
-        let mut w = DVector::zeros(s.len());
-        for k in 0..s.len() {
-            w[k] = uty[k] * s_inv[k];
-        }
+        let w = DVector::from_iterator(s.len(), uty.iter().zip(&s_inv).map(|(a, b)| a * b));
         let coef = v_t.tr_mul(&w);
         let mut vs = v_t.transpose();
-        for k in 0..s.len() {
-            vs.column_mut(k).scale_mut(s_inv[k]);
+        for (k, &si) in s_inv.iter().enumerate() {
+            vs.column_mut(k).scale_mut(si);
         }
         let cov = &vs * vs.transpose();
         (coef, cov, (s_max / s_min).powi(2), rank)
@@ -367,7 +423,9 @@ pub fn ridge(a: &DMatrix<f64>, y: &[f64], lambda: f64) -> Result<Ridge> {
         "ridge: {m} rows leave no residual degrees of freedom for {rank} terms"
     );
     let s2 = resid.norm_squared() / dof as f64;
-    let sigma = (0..p).map(|i| (s2 * cov_unscaled[(i, i)].max(0.0)).sqrt()).collect();
+    let sigma = (0..p)
+        .map(|i| (s2 * cov_unscaled[(i, i)].max(0.0)).sqrt())
+        .collect();
     Ok(Ridge {
         coefficients: coef.iter().copied().collect(),
         sigma,
@@ -448,13 +506,14 @@ pub fn fit(
             i += 1;
         }
     }
+    let trim = if sos.is_some() { cfg.trim } else { 0 };
     let min_len = match &sos {
-        Some(s) => (2 * cfg.trim + 1).max(s.default_pad_len() + 1),
-        None => 2 * cfg.trim + 1,
+        Some(s) => (2 * trim + 1).max(s.default_pad_len() + 1),
+        None => (p + 1).min(n_selected).max(1),
     };
     let (good, short): (Vec<_>, Vec<_>) = runs.into_iter().partition(|r| r.len() >= min_len);
     let rows_short_runs: usize = short.iter().map(|r| r.len()).sum();
-    let rows_used: usize = good.iter().map(|r| r.len() - 2 * cfg.trim).sum();
+    let rows_used: usize = good.iter().map(|r| r.len() - 2 * trim).sum();
     ensure!(
         rows_used > p,
         "only {rows_used} usable rows for {p} Tolles–Lawson terms ({} selected, {rows_nonfinite} non-finite, {rows_short_runs} in runs shorter than {min_len} samples)",
@@ -465,7 +524,7 @@ pub fn fit(
     let mut yf = Vec::with_capacity(rows_used);
     let mut row0 = 0;
     for r in &good {
-        let len = r.len() - 2 * cfg.trim;
+        let len = r.len() - 2 * trim;
         for c in 0..p {
             let col: Vec<f64> = a.column(c).rows(r.start, r.len()).iter().copied().collect();
             let col = match &sos {
@@ -474,14 +533,14 @@ pub fn fit(
             };
             af.column_mut(c)
                 .rows_mut(row0, len)
-                .copy_from_slice(&col[cfg.trim..cfg.trim + len]);
+                .copy_from_slice(&col[trim..trim + len]);
         }
         let y = &mag_nt[r.clone()];
         let y = match &sos {
             Some(s) => filtfilt(s, y)?,
             None => y.to_vec(),
         };
-        yf.extend_from_slice(&y[cfg.trim..cfg.trim + len]);
+        yf.extend_from_slice(&y[trim..trim + len]);
         row0 += len;
     }
 

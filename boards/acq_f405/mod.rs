@@ -1,0 +1,191 @@
+//! The acquisition board: STM32F405RG (LQFP64), 8 MHz HSE crystal, 168 MHz sysclk.
+//! Pin and peripheral map (see boards/README.md):
+//!
+//! | function                 | peripheral  | pins                         | notes                     |
+//! |--------------------------|-------------|------------------------------|---------------------------|
+//! | output / command port    | USART1      | PA9 TX, PA10 RX              | 921 600 Bd (APB2, 84 MHz) |
+//! | scalar magnetometer      | USART2      | PA2 TX, PA3 RX               | 115 200 Bd                |
+//! | fluxgate ADC (24-bit)    | SPI1        | PA5 SCK, PA6 MISO, PA7 MOSI  | 1 MHz, mode 1             |
+//! | fluxgate chip select     | GPIO        | PA4                          | active low                |
+//! | fluxgate DRDY            | EXTI1       | PB1                          | falling edge              |
+//! | fluxgate UART (alt.)     | USART3      | PB10 TX, PB11 RX             | feature `flux-uart`       |
+//! | GPS NMEA                 | UART4       | PA0 TX, PA1 RX               | 115 200 Bd                |
+//! | GPS PPS (optional)       | EXTI0       | PB0                          | reserved, not used yet    |
+//! | SWD + RTT (defmt)        | SWD         | PA13 SWDIO, PA14 SWCLK       | probe-rs                  |
+//! | HSE crystal              | OSC         | PH0, PH1                     | 8 MHz                     |
+//! | coefficients             | FLASH       | sector 11, 0x080E_0000       | 128 KiB, kept out of memory.x |
+//! | watchdog                 | IWDG        | LSI 32 kHz                   | 2 s                       |
+
+use embassy_stm32::rcc::*;
+use embassy_stm32::time::Hertz;
+use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::wdg::IndependentWatchdog;
+use embassy_stm32::{bind_interrupts, flash, peripherals};
+use static_cell::StaticCell;
+
+pub const NAME: &str = "acq-f405";
+
+#[cfg(not(feature = "flux-uart"))]
+bind_interrupts!(struct Irqs {
+    USART1 => usart::BufferedInterruptHandler<peripherals::USART1>;
+    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
+    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
+    EXTI1 => embassy_stm32::exti::InterruptHandler<embassy_stm32::interrupt::typelevel::EXTI1>;
+});
+#[cfg(feature = "flux-uart")]
+bind_interrupts!(struct Irqs {
+    USART1 => usart::BufferedInterruptHandler<peripherals::USART1>;
+    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
+    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
+    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
+});
+
+pub type Watchdog = IndependentWatchdog<'static, peripherals::IWDG>;
+
+/// Fluxgate port: the 24-bit SPI ADC with its data-ready line.
+#[cfg(not(feature = "flux-uart"))]
+pub struct FluxPort {
+    pub spi: embassy_stm32::spi::Spi<
+        'static,
+        embassy_stm32::mode::Blocking,
+        embassy_stm32::spi::mode::Master,
+    >,
+    pub cs: embassy_stm32::gpio::Output<'static>,
+    pub drdy: embassy_stm32::exti::ExtiInput<'static, embassy_stm32::mode::Async>,
+}
+/// Fluxgate port: the serial ASCII alternative.
+#[cfg(feature = "flux-uart")]
+pub type FluxPort = BufferedUartRx<'static>;
+
+pub struct Board {
+    pub scalar: BufferedUartRx<'static>,
+    pub flux: FluxPort,
+    pub gps: BufferedUartRx<'static>,
+    pub out_tx: BufferedUartTx<'static>,
+    pub out_rx: BufferedUartRx<'static>,
+    pub watchdog: Watchdog,
+    pub store: CoefStore,
+}
+
+fn uart_config(baud: u32) -> usart::Config {
+    let mut c = usart::Config::default();
+    c.baudrate = baud;
+    c
+}
+
+macro_rules! buffers {
+    ($tx:literal, $rx:literal) => {{
+        static TX: StaticCell<[u8; $tx]> = StaticCell::new();
+        static RX: StaticCell<[u8; $rx]> = StaticCell::new();
+        (TX.init([0; $tx]), RX.init([0; $rx]))
+    }};
+}
+
+fn clocks() -> embassy_stm32::Config {
+    let mut config = embassy_stm32::Config::default();
+    // 8 MHz HSE / 4 × 168 / 2 = 168 MHz sysclk, /7 = 48 MHz for USB; APB1 42 MHz, APB2 84 MHz
+    config.rcc.hse = Some(Hse {
+        freq: Hertz(8_000_000),
+        mode: HseMode::Oscillator,
+    });
+    config.rcc.pll_src = PllSource::HSE;
+    config.rcc.pll = Some(Pll {
+        prediv: PllPreDiv::DIV4,
+        mul: PllMul::MUL168,
+        divp: Some(PllPDiv::DIV2),
+        divq: Some(PllQDiv::DIV7),
+        divr: None,
+    });
+    config.rcc.sys = Sysclk::PLL1_P;
+    config.rcc.ahb_pre = AHBPrescaler::DIV1;
+    config.rcc.apb1_pre = APBPrescaler::DIV4;
+    config.rcc.apb2_pre = APBPrescaler::DIV2;
+    config
+}
+
+pub fn init() -> Board {
+    let p = embassy_stm32::init(clocks());
+
+    let (tx, rx) = buffers!(512, 256);
+    let out = BufferedUart::new(p.USART1, p.PA10, p.PA9, tx, rx, Irqs, uart_config(921_600));
+    let (tx, rx) = buffers!(8, 512);
+    let scalar = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(115_200));
+    let (tx, rx) = buffers!(8, 1024);
+    let gps = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(115_200));
+    // a UART that cannot be configured is a firmware bug, not an input condition
+    let (out_tx, out_rx) = defmt::unwrap!(out.map_err(|_| ())).split();
+    let (_, scalar) = defmt::unwrap!(scalar.map_err(|_| ())).split();
+    let (_, gps) = defmt::unwrap!(gps.map_err(|_| ())).split();
+
+    #[cfg(not(feature = "flux-uart"))]
+    let flux = {
+        use embassy_stm32::gpio::{Level, Output, Pull, Speed};
+        let mut cfg = embassy_stm32::spi::Config::default();
+        cfg.frequency = Hertz(1_000_000);
+        cfg.mode = embassy_stm32::spi::MODE_1;
+        FluxPort {
+            spi: embassy_stm32::spi::Spi::new_blocking(p.SPI1, p.PA5, p.PA7, p.PA6, cfg),
+            cs: Output::new(p.PA4, Level::High, Speed::VeryHigh),
+            drdy: embassy_stm32::exti::ExtiInput::new(p.PB1, p.EXTI1, Pull::Up, Irqs),
+        }
+    };
+    #[cfg(feature = "flux-uart")]
+    let flux = {
+        let (tx, rx) = buffers!(8, 512);
+        let f = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, uart_config(115_200));
+        defmt::unwrap!(f.map_err(|_| ())).split().1
+    };
+
+    let watchdog = IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US);
+    let store = CoefStore {
+        flash: flash::Flash::new_blocking(p.FLASH),
+    };
+    Board {
+        scalar,
+        flux,
+        gps,
+        out_tx,
+        out_rx,
+        watchdog,
+        store,
+    }
+}
+
+/// Offset of the coefficient sector (sector 11) from the start of flash.
+const COEF_SECTOR_OFFSET: u32 = 0x000E_0000;
+const COEF_SECTOR_SIZE: u32 = 128 * 1024;
+
+/// Coefficient store: flash sector 11 (the blob carries its format version and CRC).
+pub struct CoefStore {
+    flash: flash::Flash<'static, flash::Blocking>,
+}
+
+#[derive(Debug, defmt::Format)]
+pub struct StoreError;
+
+impl CoefStore {
+    pub fn read(&mut self, buf: &mut [u8]) -> Result<(), StoreError> {
+        self.flash
+            .blocking_read(COEF_SECTOR_OFFSET, buf)
+            .map_err(|_| StoreError)
+    }
+    /// Erases the sector (~1–2 s on F405: the watchdog timeout allows it) and writes `data`.
+    pub fn write(&mut self, data: &[u8]) -> Result<(), StoreError> {
+        // flash programming needs a multiple of the 4-byte write size
+        let mut buf = [0xFFu8; crate::COEF_BLOB_MAX];
+        let n = data.len().div_ceil(4) * 4;
+        let dst = buf.get_mut(..data.len()).ok_or(StoreError)?;
+        dst.copy_from_slice(data);
+        self.flash
+            .blocking_erase(COEF_SECTOR_OFFSET, COEF_SECTOR_OFFSET + COEF_SECTOR_SIZE)
+            .map_err(|_| StoreError)?;
+        self.flash
+            .blocking_write(COEF_SECTOR_OFFSET, &buf[..n])
+            .map_err(|_| StoreError)
+    }
+}
+
+/// The real board has nowhere to exit to: reset.
+pub fn exit(_ok: bool) -> ! {
+    cortex_m::peripheral::SCB::sys_reset()
+}

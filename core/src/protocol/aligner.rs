@@ -1,0 +1,245 @@
+//! Sensor aligner: asynchronous scalar, fluxgate and GPS frames → one
+//! [`AlignedSample`] per scalar frame.
+//!
+//! Timestamps are the caller's (the board's µs clock at frame arrival, or the capture's
+//! `t_us` in replay), so live and replayed runs give identical samples.
+//! - Fluxgate: linear interpolation between the two frames bracketing the scalar time
+//!   when both are already in (a caller that wants bracketing every time delays its scalar
+//!   by one fluxgate period); otherwise the nearest frame is held. `FLUX_STALE` when the
+//!   held frame, or the gap being interpolated across, exceeds `flux_stale_us`.
+//! - GPS: position/height/speed from the latest valid GGA/RMC/VTG, held or (optionally)
+//!   extrapolated along track; `NO_GPS` with no fix or a fix older than `gps_stale_us`.
+//! - `PARSE_ERROR` when any parser error was reported since the previous scalar sample.
+
+use super::nmea::Sentence;
+use super::scalar::{ScalarError, ScalarFrame};
+use crate::epoch::AlignedSample;
+use crate::flags::Flags;
+use crate::units::MagCounts;
+
+const FLUX_HISTORY: usize = 4;
+/// Mean Earth radius (m): along-track extrapolation over a few seconds only.
+const EARTH_RADIUS_M: f64 = 6_371_008.8;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AlignerConfig {
+    pub flux_stale_us: u64,
+    pub gps_stale_us: u64,
+    /// Extrapolate position with speed and track to the scalar time.
+    pub extrapolate_gps: bool,
+}
+
+impl Default for AlignerConfig {
+    fn default() -> Self {
+        Self {
+            // A few periods of a 100 Hz+ fluxgate / a 1–10 Hz receiver.
+            flux_stale_us: 50_000,
+            gps_stale_us: 2_000_000,
+            extrapolate_gps: true,
+        }
+    }
+}
+
+/// A GPS fix as the aligner keeps it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GpsFix {
+    pub t_us: u64,
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// Height above mean sea level (m); NaN if unknown.
+    pub alt_m: f32,
+    /// NaN if unknown.
+    pub speed_mps: f32,
+    /// NaN if unknown.
+    pub track_deg: f32,
+}
+
+#[derive(Clone, Debug)]
+pub struct Aligner {
+    pub cfg: AlignerConfig,
+    flux: [(u64, [f32; 3]); FLUX_HISTORY],
+    n_flux: usize,
+    gps: Option<GpsFix>,
+    gps_valid: bool,
+    parse_error: bool,
+    /// Scalar samples emitted.
+    pub samples: u32,
+}
+
+impl Aligner {
+    pub const fn new(cfg: AlignerConfig) -> Self {
+        Self {
+            cfg,
+            flux: [(0, [0.0; 3]); FLUX_HISTORY],
+            n_flux: 0,
+            gps: None,
+            gps_valid: false,
+            parse_error: false,
+            samples: 0,
+        }
+    }
+
+    /// A fluxgate vector (body frame, nT) received at `t_us`.
+    pub fn push_flux(&mut self, t_us: u64, flux_nt: [f32; 3]) {
+        if !flux_nt.iter().all(|v| v.is_finite()) {
+            self.parse_error = true;
+            return;
+        }
+        if self.n_flux > 0 && t_us < self.flux[self.n_flux - 1].0 {
+            // Clock went backwards (restart, new replay): forget the history.
+            self.n_flux = 0;
+        }
+        if self.n_flux == FLUX_HISTORY {
+            self.flux.copy_within(1.., 0);
+            self.n_flux -= 1;
+        }
+        self.flux[self.n_flux] = (t_us, flux_nt);
+        self.n_flux += 1;
+    }
+
+    /// Any parser error on any port: flags the next sample.
+    pub fn note_parse_error(&mut self) {
+        self.parse_error = true;
+    }
+
+    /// A decoded NMEA sentence received at `t_us`.
+    pub fn push_nmea(&mut self, t_us: u64, s: &Sentence) {
+        match s {
+            Sentence::Gga(g) => {
+                let q = g.fix_quality.unwrap_or(0);
+                match (q, g.lat_deg, g.lon_deg) {
+                    (1.., Some(lat), Some(lon)) => {
+                        let prev = self.gps;
+                        self.gps = Some(GpsFix {
+                            t_us,
+                            lat_deg: lat,
+                            lon_deg: lon,
+                            alt_m: g.alt_msl_m.map_or(f32::NAN, |a| a as f32),
+                            speed_mps: prev.map_or(f32::NAN, |p| p.speed_mps),
+                            track_deg: prev.map_or(f32::NAN, |p| p.track_deg),
+                        });
+                        self.gps_valid = true;
+                    }
+                    _ => self.gps_valid = false,
+                }
+            }
+            Sentence::Rmc(r) => match (r.valid, r.lat_deg, r.lon_deg) {
+                (true, Some(lat), Some(lon)) => {
+                    let prev = self.gps;
+                    self.gps = Some(GpsFix {
+                        t_us,
+                        lat_deg: lat,
+                        lon_deg: lon,
+                        alt_m: prev.map_or(f32::NAN, |p| p.alt_m),
+                        speed_mps: r.speed_mps.map_or(f32::NAN, |v| v as f32),
+                        track_deg: r.track_deg.map_or(f32::NAN, |v| v as f32),
+                    });
+                    self.gps_valid = true;
+                }
+                _ => self.gps_valid = false,
+            },
+            Sentence::Vtg(v) => {
+                if v.mode == Some(b'N') {
+                    return;
+                }
+                if let Some(g) = &mut self.gps {
+                    if let Some(s) = v.speed_mps {
+                        g.speed_mps = s as f32;
+                    }
+                    if let Some(t) = v.track_deg {
+                        g.track_deg = t as f32;
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// A fix from another source (INS, simulator).
+    pub fn push_gps(&mut self, fix: GpsFix) {
+        self.gps = Some(fix);
+        self.gps_valid = true;
+    }
+
+    fn flux_at(&self, t_us: u64) -> ([f32; 3], bool) {
+        let h = &self.flux[..self.n_flux];
+        let after = h.iter().position(|f| f.0 > t_us);
+        let limit = self.cfg.flux_stale_us;
+        match after {
+            None => match h.last() {
+                Some(&(t, v)) => (v, t_us - t > limit),
+                None => ([f32::NAN; 3], true),
+            },
+            Some(0) => {
+                let (t, v) = h[0];
+                (v, t - t_us > limit)
+            }
+            Some(i) => {
+                let (t0, v0) = h[i - 1];
+                let (t1, v1) = h[i];
+                let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
+                let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
+                (v, t1 - t0 > limit)
+            }
+        }
+    }
+
+    /// A scalar sample at `t_us` (`None`: missing/invalid) → its aligned sample.
+    pub fn push_scalar(&mut self, t_us: u64, mag: Option<MagCounts>) -> AlignedSample {
+        let mut s = AlignedSample::empty(t_us as f64 / 1e6);
+        s.mag = mag;
+        if mag.is_none() {
+            s.flags.set(Flags::MAG_MISSING);
+        }
+        let (flux, stale) = self.flux_at(t_us);
+        s.flux_nt = flux;
+        if stale {
+            s.flags.set(Flags::FLUX_STALE);
+        }
+        match self.gps {
+            Some(g) => {
+                let age_us = t_us.abs_diff(g.t_us);
+                let (mut lat, mut lon) = (g.lat_deg, g.lon_deg);
+                if self.cfg.extrapolate_gps && g.speed_mps.is_finite() && g.track_deg.is_finite() {
+                    let dt_s = (t_us as f64 - g.t_us as f64) * 1e-6;
+                    let d_m = g.speed_mps as f64 * dt_s;
+                    let tr = (g.track_deg as f64).to_radians();
+                    let dlat = d_m * libm::cos(tr) / EARTH_RADIUS_M;
+                    let coslat = libm::cos(lat.to_radians()).max(1e-6);
+                    let dlon = d_m * libm::sin(tr) / (EARTH_RADIUS_M * coslat);
+                    lat += dlat.to_degrees();
+                    lon += dlon.to_degrees();
+                }
+                s.lat_deg = lat;
+                s.lon_deg = lon;
+                s.alt_m = g.alt_m;
+                s.ground_speed_mps = g.speed_mps;
+                if !self.gps_valid || age_us > self.cfg.gps_stale_us {
+                    s.flags.set(Flags::NO_GPS);
+                }
+            }
+            None => s.flags.set(Flags::NO_GPS),
+        }
+        if self.parse_error {
+            s.flags.set(Flags::PARSE_ERROR);
+            self.parse_error = false;
+        }
+        self.samples = self.samples.wrapping_add(1);
+        s
+    }
+
+    /// Convenience for a scalar reader result: an error still yields one (flagged) sample.
+    pub fn push_scalar_result(
+        &mut self,
+        t_us: u64,
+        r: Result<ScalarFrame, ScalarError>,
+    ) -> AlignedSample {
+        match r {
+            Ok(f) => self.push_scalar(t_us, Some(f.mag)),
+            Err(_) => {
+                self.parse_error = true;
+                self.push_scalar(t_us, None)
+            }
+        }
+    }
+}

@@ -1,0 +1,229 @@
+//! Scalar magnetometer / Larmor counter ASCII lines → exact [`MagCounts`].
+//!
+//! Accepted line formats (one sample per line, `\r\n`, `\n` or `\r` terminated):
+//! - plain field, nT, 1–4 decimals: `53620.4401`
+//! - Geometrics style (G-822A / G-858 serial output): `$ 53620.441,0999` — `$`, a space,
+//!   the field, a comma, a 4-digit signal-strength/status word 0000–9999.
+//! - quality suffix: `53620.4401,Q=97` — signal quality in percent 0–100.
+//! - Larmor frequency: `F,174928.51234` in Hz (any number of decimals up to 18 digits),
+//!   converted with the configured gyromagnetic ratio (Cs-133: 3.49857 Hz/nT).
+//!
+//! The field never passes through a float: digits → i64 counts of 1e-4 nT, and the Larmor
+//! conversion is an exact rational division in i128 with round-half-up.
+
+use super::common::{parse_decimal, parse_u32, DecimalError, POW10};
+use crate::units::MagCounts;
+
+/// Longest accepted line (excluding the terminator).
+pub const MAX_SCALAR_LINE: usize = 48;
+/// Plausible geomagnetic field range (nT).
+pub const MIN_FIELD_NT: i64 = 10_000;
+pub const MAX_FIELD_NT: i64 = 100_000;
+/// Caesium-133 gyromagnetic ratio, Hz/nT × 1e9 (3.49857 Hz/nT).
+pub const CS133_HZ_PER_NT_NANO: u64 = 3_498_570_000;
+/// Potassium-39: 6.99812 Hz/nT.
+pub const K39_HZ_PER_NT_NANO: u64 = 6_998_120_000;
+/// Helium-4 (metastable): 28.02356 Hz/nT.
+pub const HE4_HZ_PER_NT_NANO: u64 = 28_023_560_000;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScalarError {
+    /// The field value has no digit.
+    NoDigits,
+    /// More than 4 decimals on a field in nT, or more than 18 digits.
+    TooManyDigits,
+    /// A character that does not belong to any accepted format.
+    BadCharacter,
+    /// Field outside 10 000–100 000 nT.
+    OutOfRange,
+    /// The status/quality suffix is malformed or out of its range.
+    BadStatus,
+    /// Line longer than [`MAX_SCALAR_LINE`].
+    Overlong,
+    /// A Larmor line arrived but no gyromagnetic ratio is configured.
+    NoLarmorRatio,
+}
+
+/// One scalar sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ScalarFrame {
+    pub mag: MagCounts,
+    /// Signal quality/status as sent (Geometrics 0–9999, `Q=` 0–100), if present.
+    pub quality: Option<u16>,
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ScalarStats {
+    pub ok: u32,
+    pub errors: u32,
+    pub overlong: u32,
+}
+
+/// Line parser configuration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ScalarConfig {
+    /// Gyromagnetic ratio for `F,` lines, Hz/nT × 1e9; 0 = Larmor lines rejected.
+    pub larmor_hz_per_nt_nano: u64,
+}
+
+impl Default for ScalarConfig {
+    fn default() -> Self {
+        Self {
+            larmor_hz_per_nt_nano: CS133_HZ_PER_NT_NANO,
+        }
+    }
+}
+
+fn map_dec(e: DecimalError) -> ScalarError {
+    match e {
+        DecimalError::NoDigits => ScalarError::NoDigits,
+        DecimalError::TooManyDigits => ScalarError::TooManyDigits,
+        DecimalError::BadCharacter => ScalarError::BadCharacter,
+    }
+}
+
+fn check_range(c: i64) -> Result<MagCounts, ScalarError> {
+    if (MIN_FIELD_NT * 10_000..=MAX_FIELD_NT * 10_000).contains(&c) {
+        Ok(MagCounts(c))
+    } else {
+        Err(ScalarError::OutOfRange)
+    }
+}
+
+/// Field in nT with at most 4 decimals → counts, exactly.
+pub fn parse_field_nt(s: &[u8]) -> Result<MagCounts, ScalarError> {
+    let d = parse_decimal(s).map_err(map_dec)?;
+    if d.scale > 4 {
+        return Err(ScalarError::TooManyDigits);
+    }
+    // scale ≤ 4 and ≤ 18 digits: rescale cannot overflow past i64 for 14-digit integers,
+    // and overflow is reported as out of range.
+    check_range(d.rescale(4).ok_or(ScalarError::OutOfRange)?)
+}
+
+/// Larmor frequency (Hz, digits) / ratio → counts, exact rational rounding.
+pub fn larmor_to_counts(freq_hz: &[u8], hz_per_nt_nano: u64) -> Result<MagCounts, ScalarError> {
+    if hz_per_nt_nano == 0 {
+        return Err(ScalarError::NoLarmorRatio);
+    }
+    let d = parse_decimal(freq_hz).map_err(map_dec)?;
+    if d.mantissa < 0 {
+        return Err(ScalarError::OutOfRange);
+    }
+    // counts = f·1e4 / γ = mant·1e4·1e9 / (γ_nano·10^scale); < 1e18·1e13 fits i128.
+    let num = d.mantissa as i128 * 10_000 * 1_000_000_000;
+    let den = hz_per_nt_nano as i128 * POW10[d.scale as usize] as i128;
+    let c = (2 * num + den) / (2 * den);
+    check_range(i64::try_from(c).map_err(|_| ScalarError::OutOfRange)?)
+}
+
+/// Parses one line (terminator stripped or not) in any of the accepted formats.
+pub fn parse_scalar_line(line: &[u8], cfg: &ScalarConfig) -> Result<ScalarFrame, ScalarError> {
+    let mut line = line;
+    while let [rest @ .., b'\r' | b'\n' | b' '] = line {
+        line = rest;
+    }
+    if let [b'$', b' ', rest @ ..] = line {
+        let comma = rest
+            .iter()
+            .position(|&b| b == b',')
+            .ok_or(ScalarError::BadStatus)?;
+        let mag = parse_field_nt(&rest[..comma])?;
+        let st = &rest[comma + 1..];
+        if st.len() != 4 {
+            return Err(ScalarError::BadStatus);
+        }
+        let q = parse_u32(st).ok_or(ScalarError::BadStatus)?;
+        return Ok(ScalarFrame {
+            mag,
+            quality: Some(q as u16),
+        });
+    }
+    if let [b'F', b',', rest @ ..] = line {
+        return Ok(ScalarFrame {
+            mag: larmor_to_counts(rest, cfg.larmor_hz_per_nt_nano)?,
+            quality: None,
+        });
+    }
+    match line.iter().position(|&b| b == b',') {
+        None => Ok(ScalarFrame {
+            mag: parse_field_nt(line)?,
+            quality: None,
+        }),
+        Some(c) => {
+            let mag = parse_field_nt(&line[..c])?;
+            let q = match &line[c + 1..] {
+                [b'Q', b'=', d @ ..] if !d.is_empty() && d.len() <= 3 => {
+                    parse_u32(d).filter(|&q| q <= 100)
+                }
+                _ => None,
+            }
+            .ok_or(ScalarError::BadStatus)?;
+            Ok(ScalarFrame {
+                mag,
+                quality: Some(q as u16),
+            })
+        }
+    }
+}
+
+/// Byte-at-a-time line reader for the scalar port.
+#[derive(Clone, Debug)]
+pub struct ScalarReader {
+    buf: [u8; MAX_SCALAR_LINE],
+    len: usize,
+    overlong: bool,
+    pub cfg: ScalarConfig,
+    pub stats: ScalarStats,
+}
+
+impl ScalarReader {
+    pub const fn new(cfg: ScalarConfig) -> Self {
+        Self {
+            buf: [0; MAX_SCALAR_LINE],
+            len: 0,
+            overlong: false,
+            cfg,
+            stats: ScalarStats {
+                ok: 0,
+                errors: 0,
+                overlong: 0,
+            },
+        }
+    }
+
+    /// Feeds one byte; a non-empty line yields exactly one result at its terminator.
+    pub fn push(&mut self, b: u8) -> Option<Result<ScalarFrame, ScalarError>> {
+        if b == b'\r' || b == b'\n' {
+            let r = if self.overlong {
+                Err(ScalarError::Overlong)
+            } else if self.len == 0 {
+                return None;
+            } else {
+                parse_scalar_line(&self.buf[..self.len], &self.cfg)
+            };
+            self.len = 0;
+            self.overlong = false;
+            match &r {
+                Ok(_) => self.stats.ok = self.stats.ok.saturating_add(1),
+                Err(ScalarError::Overlong) => {
+                    self.stats.overlong = self.stats.overlong.saturating_add(1)
+                }
+                Err(_) => self.stats.errors = self.stats.errors.saturating_add(1),
+            }
+            return Some(r);
+        }
+        if self.len == MAX_SCALAR_LINE {
+            self.overlong = true;
+        } else {
+            self.buf[self.len] = b;
+            self.len += 1;
+        }
+        None
+    }
+
+    /// Bytes buffered for a line not yet terminated.
+    pub fn pending(&self) -> bool {
+        self.len > 0 || self.overlong
+    }
+}

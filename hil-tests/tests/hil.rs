@@ -1,0 +1,342 @@
+//! Hardware-in-the-loop tests: the firmware on the emulated board (or a real one, see
+//! `board.rs`) against synthetic captures streamed at the sensors' real rates.
+//! Each test SKIPs (passes with a message) when qemu-system-arm is missing, unless
+//! `MAGCOMP_REQUIRE_QEMU=1`.
+
+use hil_tests::board::{self, sentence, Board};
+use hil_tests::capture::{synthetic_flight, Capture, FlightSpec, Port, GPS_T0_S};
+use hil_tests::replay::{replay, BOARD_RATES};
+use hil_tests::Record;
+use magcomp_core::protocol::command::check_reply;
+use magcomp_core::protocol::scalar::{parse_scalar_line, ScalarConfig};
+use magcomp_core::Flags;
+use std::time::{Duration, Instant};
+
+/// The core's scalar parser on one captured line (terminator stripped).
+fn scalar_line(
+    b: &[u8],
+) -> Result<magcomp_core::protocol::scalar::ScalarFrame, magcomp_core::protocol::scalar::ScalarError>
+{
+    let end = b
+        .iter()
+        .position(|&c| c == b'\r' || c == b'\n')
+        .unwrap_or(b.len());
+    parse_scalar_line(&b[..end], &ScalarConfig::default())
+}
+
+/// Speed factor of the stream (1.0 = real time). `MAGCOMP_HIL_SPEED` can raise it for a
+/// quick local run; CI keeps the sensors' real rates.
+fn speed() -> f64 {
+    std::env::var("MAGCOMP_HIL_SPEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|&v: &f64| v > 0.0)
+        .unwrap_or(1.0)
+}
+
+/// Starts the board, streams the capture, flushes, and returns the board and its records.
+/// Also writes the capture (raw format) and the decoded records (CSV) to the run directory,
+/// and compares with the host replay when `MAGCOMP_BIN` names a `magcomp` with `replay`.
+fn run_flight(name: &str, cap: &Capture) -> Option<(Board, Vec<Record>)> {
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return None;
+    }
+    let t0 = Instant::now();
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: board start: {e}"));
+    b.stream(cap, speed())
+        .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
+    let n = cap.scalar_t_s.len();
+    // all but the few samples the centred derivative holds should be out promptly
+    b.wait_records(n.saturating_sub(8), Duration::from_secs(10));
+    b.flush().unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (recs, bad) = b.records();
+    let out = b.save_output();
+    assert!(
+        bad.is_empty(),
+        "{name}: undecodable record lines (see {}): {:?}",
+        out.display(),
+        &bad[..bad.len().min(3)]
+    );
+    let cap_path = b.dir.join("capture.txt");
+    cap.write_raw(std::io::BufWriter::new(
+        std::fs::File::create(&cap_path).unwrap(),
+    ))
+    .unwrap();
+    let csv = b.dir.join("board.csv");
+    hil_tests::write_csv(
+        std::io::BufWriter::new(std::fs::File::create(&csv).unwrap()),
+        &recs,
+    )
+    .unwrap();
+    // values: the board's records equal the host run of the same code on the same bytes
+    let reference = replay(cap, BOARD_RATES);
+    hil_tests::write_csv(
+        std::io::BufWriter::new(std::fs::File::create(b.dir.join("reference.csv")).unwrap()),
+        &reference,
+    )
+    .unwrap();
+    hil_tests::compare_records(&recs, &reference, 1e-3)
+        .unwrap_or_else(|e| panic!("{name}: board vs reference replay: {e}"));
+    if let Some(replay) = hil_tests::host_replay(&cap_path, &b.dir.join("replay.csv")) {
+        hil_tests::compare_records(&recs, &replay, 1e-3)
+            .unwrap_or_else(|e| panic!("{name}: board vs replay: {e}"));
+        eprintln!(
+            "{name}: {} records equal to the host replay within 1e-3 nT",
+            recs.len()
+        );
+    }
+    eprintln!(
+        "{name}: {} samples in, {} records out, {:.1} s wall, logs in {}",
+        n,
+        recs.len(),
+        t0.elapsed().as_secs_f64(),
+        b.dir.display()
+    );
+    Some((b, recs))
+}
+
+fn assert_one_record_per_sample(name: &str, b: &Board, cap: &Capture, recs: &[Record]) {
+    assert_eq!(
+        recs.len(),
+        cap.scalar_t_s.len(),
+        "{name}: records out != scalar samples in (output in {})",
+        b.dir.display()
+    );
+    hil_tests::check_contiguous(recs).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let boots = b
+        .output()
+        .iter()
+        .filter(|l| l.starts_with("$MCBOOT"))
+        .count();
+    assert_eq!(
+        boots, 1,
+        "{name}: the firmware restarted ({boots} boot banners)"
+    );
+}
+
+#[test]
+fn flight_one_record_per_sample_with_dropout_and_outage_flags() {
+    let name = "flight";
+    let mut spec = FlightSpec::new(0x5EED_0001, 40.0);
+    spec.flux_dropout_s = Some((12.0, 17.0));
+    spec.gps_outage_s = Some((22.0, 30.0));
+    let cap = synthetic_flight(&spec);
+    let Some((b, recs)) = run_flight(name, &cap) else {
+        return;
+    };
+    assert_one_record_per_sample(name, &b, &cap, &recs);
+
+    let sent: Vec<_> = cap
+        .lines(Port::Scalar)
+        .map(|c| scalar_line(&c.bytes).ok().map(|f| f.mag))
+        .collect();
+    for (r, t) in recs.iter().zip(&cap.scalar_t_s) {
+        let t = *t;
+        // exact value: the absolute field never goes through a float
+        assert_eq!(r.mag, sent[r.seq as usize], "seq {}: mag", r.seq);
+        // time base: the sample counter at 10 Hz anchored to the first GPS fix
+        let want_t = GPS_T0_S + f64::from(r.seq) / 10.0;
+        assert!(
+            (r.t_s - want_t).abs() < 1e-6,
+            "seq {}: t {} want {}",
+            r.seq,
+            r.t_s,
+            want_t
+        );
+        let stale = r.flags.contains(Flags::FLUX_STALE);
+        if (12.5..17.0).contains(&t) {
+            assert!(
+                stale,
+                "seq {} t={t:.2}: fluxgate dropout not flagged",
+                r.seq
+            );
+        } else if !(12.0..17.1).contains(&t) {
+            assert!(
+                !stale,
+                "seq {} t={t:.2}: FLUX_STALE outside the dropout",
+                r.seq
+            );
+        }
+        let no_gps = r.flags.contains(Flags::NO_GPS);
+        if (22.05..30.0).contains(&t) {
+            assert!(no_gps, "seq {} t={t:.2}: GPS outage not flagged", r.seq);
+        } else if !(22.0..30.05).contains(&t) {
+            assert!(!no_gps, "seq {} t={t:.2}: NO_GPS outside the outage", r.seq);
+        }
+        assert!(
+            !r.flags.contains(Flags::PARSE_ERROR | Flags::MAG_MISSING),
+            "seq {}: clean input flagged {:?}",
+            r.seq,
+            r.flags
+        );
+        assert!(
+            r.compensated.is_some(),
+            "seq {}: no compensated value",
+            r.seq
+        );
+    }
+    let status = Board::command;
+    let mut b = b;
+    let s = status(&mut b, "MCCMD,STATUS").unwrap();
+    assert!(
+        s.starts_with(&format!("$MCACK,STATUS,CAL,{},0,0,0,", recs.len())),
+        "status {s}"
+    );
+}
+
+#[test]
+fn corrupted_bytes_are_flagged_and_counted_without_loss_or_reset() {
+    let name = "corrupt";
+    let mut spec = FlightSpec::new(0xBAD_B17E5, 20.0);
+    spec.corrupt_fraction = 0.015;
+    let cap = synthetic_flight(&spec);
+    let frac = cap.corrupted_bytes as f64 / cap.payload_bytes as f64;
+    assert!(
+        frac >= 0.01,
+        "capture corrupts only {:.2} % of the bytes",
+        100.0 * frac
+    );
+    let Some((mut b, recs)) = run_flight(name, &cap) else {
+        return;
+    };
+    assert!(b.alive(), "{name}: QEMU exited");
+    assert_one_record_per_sample(name, &b, &cap, &recs);
+
+    // a scalar line the parser rejects is a sample with no value, flagged, never dropped
+    let bad_scalar: Vec<bool> = cap
+        .lines(Port::Scalar)
+        .map(|c| scalar_line(&c.bytes).is_err())
+        .collect();
+    let n_bad = bad_scalar.iter().filter(|&&x| x).count();
+    assert!(
+        n_bad > 0,
+        "no scalar line was corrupted into an error: raise the fraction"
+    );
+    for r in &recs {
+        let bad = bad_scalar[r.seq as usize];
+        assert_eq!(
+            r.flags.contains(Flags::MAG_MISSING),
+            bad,
+            "seq {}: MAG_MISSING {:?}",
+            r.seq,
+            r.flags
+        );
+        assert_eq!(r.mag.is_none(), bad, "seq {}: mag {:?}", r.seq, r.mag);
+        if bad {
+            assert!(
+                r.flags.contains(Flags::PARSE_ERROR),
+                "seq {}: PARSE_ERROR missing",
+                r.seq
+            );
+        }
+    }
+    let flagged = recs
+        .iter()
+        .filter(|r| r.flags.contains(Flags::PARSE_ERROR))
+        .count();
+    let s = b.command("MCCMD,STATUS").unwrap();
+    let f: Vec<&str> = s.split(['*', ',']).collect();
+    // $MCACK,STATUS,mode,records,err_scalar,err_flux,err_gps,err_uart,err_cmd
+    let num = |i: usize| {
+        f.get(i)
+            .and_then(|v| v.parse::<u32>().ok())
+            .unwrap_or_else(|| panic!("status {s}"))
+    };
+    assert_eq!(num(3) as usize, recs.len(), "status record count: {s}");
+    assert_eq!(num(4) as usize, n_bad, "scalar error counter: {s}");
+    assert!(num(5) > 0 && num(6) > 0, "flux/GPS error counters: {s}");
+    eprintln!("{name}: {:.2} % bytes corrupted, {n_bad} scalar lines rejected, {flagged} records flagged PARSE_ERROR; {s}", 100.0 * frac);
+}
+
+#[test]
+fn malformed_commands_rejected_valid_ones_applied() {
+    let name = "commands";
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let mut rejected = 0;
+    let mut expect_err = |b: &mut Board, bytes: &[u8], reason: &str| {
+        let r = b.command_raw(bytes).unwrap();
+        assert!(
+            r.starts_with("$MCERR,") && r.contains(&format!(",{reason}*")),
+            "{:?} → {r}, want {reason}",
+            String::from_utf8_lossy(bytes)
+        );
+        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
+        rejected += 1;
+    };
+    let mut bad_cs = sentence("MCCMD,STATUS");
+    let k = bad_cs.len() - 3;
+    bad_cs[k] = if bad_cs[k] == b'0' { b'1' } else { b'0' };
+    expect_err(&mut b, &bad_cs, "CHECKSUM");
+    expect_err(&mut b, b"$MCCMD,STATUS\r\n", "CHECKSUM");
+    expect_err(&mut b, b"$MCCMD,STATUS*FFFF\r\n", "CHECKSUM");
+    expect_err(&mut b, &sentence("MCCMD,SELFDESTRUCT"), "UNKNOWN");
+    expect_err(&mut b, &sentence("MCXYZ,STATUS"), "FRAMING");
+    expect_err(&mut b, b"garbage \x01\x02\xff\r\n", "FRAMING");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,99,1.0"), "INDEX");
+    expect_err(&mut b, &sentence("MCCMD,GETCOEF,16"), "INDEX");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,1,1E9"), "VALUE");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,1,NaN"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,MODE,TURBO"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,SETCOEF,1"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,GETCOEF,x"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,STATUS,extra"), "BADARG");
+    let mut long = vec![b'A'; 300];
+    long.extend_from_slice(b"\r\n");
+    expect_err(&mut b, &long, "OVERLONG");
+
+    let ack = |b: &mut Board, body: &str| {
+        let r = b.command(body).unwrap();
+        assert!(r.starts_with("$MCACK"), "{body} → {r}");
+        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
+        r
+    };
+    let coef = |r: &str| -> f64 {
+        r.split(['*', ','])
+            .nth(3)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(f64::NAN)
+    };
+    assert!(ack(&mut b, "MCCMD,STATUS").starts_with("$MCACK,STATUS,CAL,0,"));
+    let all = ack(&mut b, "MCCMD,GETCOEF");
+    assert_eq!(
+        all.split(',').count(),
+        2 + 16,
+        "GETCOEF returns 16 coefficients: {all}"
+    );
+    assert!(ack(&mut b, "MCCMD,SETCOEF,0,5.25").starts_with("$MCACK,SETCOEF,0,"));
+    assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 5.25);
+    ack(&mut b, "MCCMD,SAVE");
+    ack(&mut b, "MCCMD,SETCOEF,0,0");
+    assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 0.0);
+    // RESET re-initialises the filter and reloads the stored blob (checked: CRC, version, model)
+    assert!(ack(&mut b, "MCCMD,RESET").starts_with("$MCACK,RESET,0"));
+    let g = ack(&mut b, "MCCMD,GETCOEF,0");
+    assert_eq!(coef(&g), 5.25, "store round trip: {g}");
+    assert!(ack(&mut b, "MCCMD,MODE,SURVEY").starts_with("$MCACK,MODE,SURVEY"));
+
+    // records flow while commands are handled, and carry the mode
+    let cap = synthetic_flight(&FlightSpec::new(7, 3.0));
+    b.stream(&cap, speed()).unwrap();
+    b.flush().unwrap();
+    let (recs, bad) = b.records();
+    assert!(bad.is_empty());
+    assert_eq!(recs.len(), cap.scalar_t_s.len());
+    hil_tests::check_contiguous(&recs).unwrap();
+    assert!(
+        recs.iter().all(|r| r.flags.contains(Flags::SURVEY_MODE)),
+        "survey mode not flagged"
+    );
+    let s = ack(&mut b, "MCCMD,STATUS");
+    assert!(s.starts_with("$MCACK,STATUS,SURVEY,"), "{s}");
+    let cmd_errors: u32 = s
+        .split(['*', ','])
+        .nth(8)
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(u32::MAX);
+    assert_eq!(cmd_errors, rejected, "command error counter: {s}");
+}

@@ -1,0 +1,404 @@
+//! The `magcomp` subcommands that calibrate and compensate, as library functions.
+
+use crate::flight::Flight;
+use crate::metrics::{
+    error_rms_nt, fom, improvement_ratio, manoeuvre_band, oracle_floor_nt, rms_demeaned,
+    ManoeuvreFom,
+};
+use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
+use crate::pipeline::{run_kf, KfOptions};
+use crate::tl;
+use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Estimation method.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Method {
+    /// The Kalman filter of the paper: deviation coefficients and the anomaly together.
+    Kf,
+    /// Classic Tolles–Lawson: band-passed least squares (MagNav.jl conventions).
+    Tl,
+}
+
+/// Options shared by every command that reads a trace.
+#[derive(clap::Args, Clone, Debug)]
+pub struct TraceInput {
+    /// Flight trace: CSV per trace-format.md, or whitespace XYZ survey data (`/` comments, `*` missing).
+    pub trace: PathBuf,
+    /// Column names of your file, e.g. `mag=mag_4_uc,flux_x=flux_b_x,flux_y=flux_b_y,flux_z=flux_b_z,t=tt`.
+    #[arg(long, value_name = "CANONICAL=FILE,...")]
+    pub map: Option<String>,
+}
+
+impl TraceInput {
+    pub fn read(&self) -> Result<Trace> {
+        let map = match &self.map {
+            Some(m) => ColumnMap::parse(m)?,
+            None => ColumnMap::new(),
+        };
+        let bar = progress_bar(0);
+        let mut cb = |done: u64, total: u64| {
+            bar.set_length(total);
+            bar.set_position(done);
+        };
+        let opts = ReadOptions {
+            progress: Some(&mut cb),
+            ..Default::default()
+        };
+        let t = read_trace_with(&self.trace, &map, opts)
+            .with_context(|| format!("reading {}", self.trace.display()))?;
+        bar.finish_and_clear();
+        Ok(t)
+    }
+}
+
+/// Estimator settings shared by calibrate and compensate.
+#[derive(clap::Args, Clone, Debug)]
+pub struct EstimatorArgs {
+    /// Model: `+`-joined terms, e.g. `tl16+field` (the paper's), `tl16+field+current:cur_pump`.
+    /// Terms: tl16 (= permanent+induced+eddy), field, current:CH, current_rate:CH, lag, rate,
+    /// diurnal[:base], induced_high, fluxcal, periodic:CH.
+    #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
+    pub model: String,
+    /// kf: the paper's Kalman filter; tl: classic Tolles–Lawson (18 terms, band-passed).
+    #[arg(long, value_enum, default_value_t = Method::Kf)]
+    pub method: Method,
+    /// Field-model roughness σ1 (nT/m^2.5); default: fitted to the along-track spectrum.
+    #[arg(long, value_name = "NT_PER_M2_5")]
+    pub sigma1: Option<f64>,
+    /// Scalar measurement noise 1σ (nT); default: estimated from the data.
+    #[arg(long, value_name = "NT")]
+    pub noise_nt: Option<f64>,
+    /// Tolles–Lawson terms for --method tl: tl18 (MagNav), tl16, or groups like permanent+induced.
+    #[arg(long, default_value = "tl18", value_name = "TERMS")]
+    pub tl_terms: String,
+}
+
+/// One coefficient with its 1σ.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Coefficient {
+    pub name: String,
+    pub unit: String,
+    pub value: f64,
+    pub sigma: f64,
+}
+
+/// The file `calibrate` writes and `compensate --coeffs` reads.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct CoefficientFile {
+    pub format: String,
+    pub model: String,
+    pub method: Method,
+    pub sample_rate_hz: f64,
+    #[serde(default)]
+    pub sigma1: Option<f64>,
+    #[serde(default)]
+    pub noise_nt: Option<f64>,
+    #[serde(default)]
+    pub tl_config: Option<tl::TlConfig>,
+    pub coefficients: Vec<Coefficient>,
+}
+
+pub const COEFF_FORMAT: &str = "magcomp-coefficients-v1";
+
+/// Per-sample result of either method.
+#[derive(Clone, Debug, Default)]
+pub struct Compensation {
+    pub model: String,
+    pub method: Option<Method>,
+    pub interference_nt: Vec<f64>,
+    pub compensated_nt: Vec<f64>,
+    pub anomaly_nt: Option<Vec<f64>>,
+    pub innovation_nt: Option<Vec<f64>>,
+    pub flags: Option<Vec<u16>>,
+    pub coefficients: CoefficientFileOpt,
+    pub regressors: Vec<Vec<f32>>,
+}
+
+pub type CoefficientFileOpt = Option<CoefficientFile>;
+
+/// Summary numbers (`compensate --json`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub model: String,
+    pub method: Method,
+    pub samples: usize,
+    /// RMS of the compensated signal in the manoeuvre band (0.1–0.9 Hz) over the flight:
+    /// what is left where aircraft interference lives.
+    pub residual_rms_nt: f64,
+    pub improvement_ratio: Option<f64>,
+    pub fom_nt: Option<f64>,
+    pub error_rms_nt: Option<f64>,
+    pub oracle_floor_nt: Option<f64>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub manoeuvres: Vec<ManoeuvreFom>,
+}
+
+fn flux_of(flight: &Flight) -> Vec<[f64; 3]> {
+    flight
+        .samples
+        .iter()
+        .map(|s| {
+            [
+                s.flux_nt[0] as f64,
+                s.flux_nt[1] as f64,
+                s.flux_nt[2] as f64,
+            ]
+        })
+        .collect()
+}
+
+fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
+    let terms: tl::TlTerms = est.tl_terms.parse()?;
+    let mut cfg = tl::TlConfig::for_rate(flight.sample_rate_hz);
+    cfg.terms = terms;
+    let (lo, hi) = manoeuvre_band(flight.sample_rate_hz);
+    cfg.pass_hz = Some((lo, hi));
+    Ok(cfg)
+}
+
+/// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace.
+pub fn compensate_trace(
+    trace: &Trace,
+    est: &EstimatorArgs,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+) -> Result<(Flight, Compensation)> {
+    let method = coeffs.map(|c| c.method).unwrap_or(est.method);
+    let model_text = coeffs.map(|c| c.model.clone()).unwrap_or(est.model.clone());
+    match method {
+        Method::Kf => {
+            let spec = ModelSpec::parse(&model_text)?;
+            let flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
+            let mut opts = KfOptions::new(spec.clone());
+            opts.sigma1 = est.sigma1.or(coeffs.and_then(|c| c.sigma1));
+            opts.noise_nt = est.noise_nt;
+            opts.realtime = realtime;
+            if let Some(c) = coeffs {
+                opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
+            }
+            let run = run_kf(&flight, &opts)?;
+            let file = CoefficientFile {
+                format: COEFF_FORMAT.into(),
+                model: spec.text(),
+                method: Method::Kf,
+                sample_rate_hz: flight.sample_rate_hz,
+                sigma1: Some(run.sigma1),
+                noise_nt: Some(run.noise_nt),
+                tl_config: None,
+                coefficients: run
+                    .coefficient_names
+                    .iter()
+                    .zip(run.coefficients.iter().zip(&run.coefficient_sigmas))
+                    .map(|((n, u), (v, s))| Coefficient {
+                        name: n.clone(),
+                        unit: u.clone(),
+                        value: *v,
+                        sigma: *s,
+                    })
+                    .collect(),
+            };
+            let comp = Compensation {
+                model: spec.text(),
+                method: Some(Method::Kf),
+                interference_nt: run.interference_nt,
+                compensated_nt: run.compensated_nt,
+                anomaly_nt: Some(run.anomaly_nt),
+                innovation_nt: Some(run.innovation_nt),
+                flags: Some(run.flags),
+                coefficients: Some(file),
+                regressors: run.regressors,
+            };
+            Ok((flight, comp))
+        }
+        Method::Tl => {
+            let flight = Flight::from_trace(trace, &[], &[])?;
+            let flux = flux_of(&flight);
+            let fit = match coeffs {
+                Some(c) => {
+                    let cfg = c
+                        .tl_config
+                        .clone()
+                        .context("the coefficient file has no Tolles–Lawson configuration")?;
+                    tl::TlFit {
+                        coefficients: c.coefficients.iter().map(|c| c.value).collect(),
+                        sigma: c.coefficients.iter().map(|c| c.sigma).collect(),
+                        names: c.coefficients.iter().map(|c| c.name.clone()).collect(),
+                        config: cfg,
+                        rows_used: 0,
+                        rows_nonfinite: 0,
+                        rows_short_runs: 0,
+                        runs_used: 0,
+                        residual_std_nt: f64::NAN,
+                        cond_normal: f64::NAN,
+                        rank: 0,
+                        noise_gain: 1.0,
+                    }
+                }
+                None => tl::fit(&flux, &flight.mag_nt, &tl_config(&flight, est)?, None)?,
+            };
+            if fit.coefficients.len() != fit.config.terms.columns().len() {
+                bail!(
+                    "{} Tolles–Lawson coefficients for {} terms",
+                    fit.coefficients.len(),
+                    fit.config.terms.columns().len()
+                );
+            }
+            let interference = tl::interference(&fit, &flux);
+            let compensated = flight
+                .mag_nt
+                .iter()
+                .zip(&interference)
+                .map(|(m, i)| m - i)
+                .collect();
+            let a = tl::design_matrix_scaled(
+                &flux,
+                &fit.config.terms,
+                fit.config.bt_scale_nt,
+                match fit.config.eddy_rate {
+                    tl::EddyRate::PerSample => 1.0,
+                    tl::EddyRate::PerSecond => fit.config.fs_hz,
+                },
+            );
+            let regressors = (0..a.nrows())
+                .map(|r| (0..a.ncols()).map(|c| a[(r, c)] as f32).collect())
+                .collect();
+            let file = CoefficientFile {
+                format: COEFF_FORMAT.into(),
+                model: format!("{:?}", fit.config.terms).to_lowercase(),
+                method: Method::Tl,
+                sample_rate_hz: flight.sample_rate_hz,
+                sigma1: None,
+                noise_nt: None,
+                tl_config: Some(fit.config.clone()),
+                coefficients: fit
+                    .names
+                    .iter()
+                    .zip(fit.coefficients.iter().zip(&fit.sigma))
+                    .map(|(n, (v, s))| Coefficient {
+                        name: n.clone(),
+                        unit: "nT".into(),
+                        value: *v,
+                        sigma: *s,
+                    })
+                    .collect(),
+            };
+            let comp = Compensation {
+                model: file.model.clone(),
+                method: Some(Method::Tl),
+                interference_nt: interference,
+                compensated_nt: compensated,
+                coefficients: Some(file),
+                regressors,
+                ..Default::default()
+            };
+            Ok((flight, comp))
+        }
+    }
+}
+
+/// FOM, IR, residual, and error/oracle against truth when the trace has it.
+pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
+    let (lo, hi) = manoeuvre_band(flight.sample_rate_hz);
+    let residual = crate::tl::bandpass(&comp.compensated_nt, 4, lo, hi, flight.sample_rate_hz)
+        .map(|v| rms_demeaned(&v))
+        .unwrap_or(f64::NAN);
+    let f = fom(flight, &comp.compensated_nt);
+    let (error, oracle) = match &flight.truth_interference_nt {
+        Some(t) => (
+            Some(error_rms_nt(&comp.interference_nt, t, None)),
+            oracle_floor_nt(&comp.regressors, t),
+        ),
+        None => (None, None),
+    };
+    Summary {
+        model: comp.model.clone(),
+        method: comp.method.unwrap_or(Method::Kf),
+        samples: flight.len(),
+        residual_rms_nt: residual,
+        improvement_ratio: improvement_ratio(flight, &comp.compensated_nt),
+        fom_nt: f.as_ref().map(|f| f.0),
+        error_rms_nt: error,
+        oracle_floor_nt: oracle,
+        manoeuvres: f.map(|f| f.1).unwrap_or_default(),
+    }
+}
+
+/// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`.
+pub fn write_output_csv(path: &Path, flight: &Flight, comp: &Compensation) -> Result<()> {
+    use std::io::Write;
+    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+    let mut w = std::io::BufWriter::new(f);
+    writeln!(w, "# model: {}", comp.model)?;
+    writeln!(
+        w,
+        "# method: {}",
+        if comp.method == Some(Method::Tl) {
+            "tl"
+        } else {
+            "kf"
+        }
+    )?;
+    let kf = comp.anomaly_nt.is_some();
+    if kf {
+        writeln!(w, "t,mag,interference,compensated,anomaly,innovation,flags")?;
+    } else {
+        writeln!(w, "t,mag,interference,compensated")?;
+    }
+    let num = |v: f64, d: usize| {
+        if v.is_finite() {
+            format!("{v:.d$}")
+        } else {
+            String::new()
+        }
+    };
+    for i in 0..flight.len() {
+        write!(
+            w,
+            "{},{},{},{}",
+            flight.t_s[i],
+            num(flight.mag_nt[i], 4),
+            num(comp.interference_nt[i], 4),
+            num(comp.compensated_nt[i], 4)
+        )?;
+        if kf {
+            write!(
+                w,
+                ",{},{},{:#06x}",
+                num(
+                    comp.anomaly_nt.as_ref().map(|v| v[i]).unwrap_or(f64::NAN),
+                    4
+                ),
+                num(
+                    comp.innovation_nt
+                        .as_ref()
+                        .map(|v| v[i])
+                        .unwrap_or(f64::NAN),
+                    5
+                ),
+                comp.flags.as_ref().map(|v| v[i]).unwrap_or(0)
+            )?;
+        }
+        writeln!(w)?;
+    }
+    w.flush()?;
+    Ok(())
+}
+
+/// Reads a coefficient file written by `calibrate`.
+pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let c: CoefficientFile = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a magcomp coefficient file", path.display()))?;
+    if c.format != COEFF_FORMAT {
+        bail!("{}: unknown format '{}'", path.display(), c.format);
+    }
+    if c.coefficients.iter().any(|c| !c.value.is_finite()) {
+        bail!("{}: a coefficient is not finite", path.display());
+    }
+    Ok(c)
+}

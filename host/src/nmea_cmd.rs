@@ -1,0 +1,182 @@
+//! `magcomp nmea FILE`: decode an NMEA log with the board's own reader
+//! (`magcomp_core::protocol::nmea`) and print one JSON object per decoded or rejected line.
+
+use anyhow::Result;
+use magcomp_core::protocol::nmea::{parse_sentence, NmeaError, Sentence};
+use serde_json::{Map, Value};
+use std::io::{BufRead, Write};
+
+/// What [`decode_log`] saw.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct NmeaLogStats {
+    /// Lines read (including blank and `#` comment lines).
+    pub lines: u64,
+    /// GGA/RMC/VTG/GST decoded.
+    pub decoded: u64,
+    /// Valid checksum, sentence type not decoded.
+    pub unsupported: u64,
+    /// Lines rejected (bad checksum, no checksum, bad field...).
+    pub errors: u64,
+    /// Of which checksum mismatches.
+    pub checksum_errors: u64,
+}
+
+fn error_text(e: &NmeaError) -> String {
+    match e {
+        NmeaError::Checksum { received, computed } => {
+            format!("checksum: received {received:02X}, computed {computed:02X}")
+        }
+        NmeaError::MissingChecksum => "missing checksum".into(),
+        NmeaError::Overlong => "overlong sentence".into(),
+        NmeaError::Interrupted => "interrupted sentence".into(),
+        NmeaError::BadCharacter => "non-printable character".into(),
+        NmeaError::BadAddress => "bad address field".into(),
+        NmeaError::MissingField(f) => format!("missing field: {f:?}"),
+        NmeaError::InvalidField(f) => format!("invalid field: {f:?}"),
+    }
+}
+
+fn put(m: &mut Map<String, Value>, k: &str, v: Option<f64>) {
+    if let Some(v) = v.filter(|v| v.is_finite()) {
+        m.insert(k.into(), Value::from(v));
+    }
+}
+
+/// JSON object for a decoded sentence (`None` for unsupported types).
+pub fn sentence_json(line: u64, s: &Sentence) -> Option<Value> {
+    let mut m = Map::new();
+    m.insert("line".into(), line.into());
+    m.insert("sentence".into(), s.kind().into());
+    match s {
+        Sentence::Gga(g) => {
+            put(&mut m, "time_s", g.time.map(|t| t.seconds_of_day_s));
+            put(&mut m, "lat_deg", g.lat_deg);
+            put(&mut m, "lon_deg", g.lon_deg);
+            put(&mut m, "alt_msl_m", g.alt_msl_m);
+            put(&mut m, "geoid_sep_m", g.geoid_sep_m);
+            if let Some(q) = g.fix_quality {
+                m.insert("fix".into(), q.into());
+            }
+            if let Some(n) = g.satellites {
+                m.insert("sats".into(), n.into());
+            }
+            put(&mut m, "hdop", g.hdop.map(|h| h as f64));
+        }
+        Sentence::Rmc(r) => {
+            put(&mut m, "time_s", r.time.map(|t| t.seconds_of_day_s));
+            put(&mut m, "lat_deg", r.lat_deg);
+            put(&mut m, "lon_deg", r.lon_deg);
+            put(&mut m, "speed_mps", r.speed_mps);
+            put(&mut m, "track_deg", r.track_deg);
+            m.insert("status".into(), if r.valid { "A" } else { "V" }.into());
+            if let Some(d) = r.date {
+                m.insert(
+                    "date".into(),
+                    format!("{:04}-{:02}-{:02}", d.year, d.month, d.day).into(),
+                );
+            }
+            if let Some(c) = r.mode {
+                m.insert("mode".into(), (c as char).to_string().into());
+            }
+        }
+        Sentence::Vtg(v) => {
+            put(&mut m, "speed_mps", v.speed_mps);
+            put(&mut m, "track_deg", v.track_deg);
+            if let Some(c) = v.mode {
+                m.insert("mode".into(), (c as char).to_string().into());
+            }
+        }
+        Sentence::Gst(g) => {
+            put(&mut m, "time_s", g.time.map(|t| t.seconds_of_day_s));
+            put(&mut m, "rms_m", g.rms_m);
+            put(&mut m, "sigma_lat_m", g.sigma_lat_m);
+            put(&mut m, "sigma_lon_m", g.sigma_lon_m);
+            put(&mut m, "sigma_alt_m", g.sigma_alt_m);
+        }
+        Sentence::Unsupported { .. } => return None,
+    }
+    Some(Value::Object(m))
+}
+
+/// Decodes every line of `input`; blank and `#` lines are skipped silently.
+pub fn decode_log(mut input: impl BufRead, mut out: impl Write) -> Result<NmeaLogStats> {
+    let mut st = NmeaLogStats::default();
+    let mut buf = Vec::new();
+    loop {
+        buf.clear();
+        if input.read_until(b'\n', &mut buf)? == 0 {
+            break;
+        }
+        st.lines += 1;
+        let line = buf.trim_ascii();
+        if line.is_empty() || line[0] == b'#' {
+            continue;
+        }
+        match parse_sentence(line) {
+            Ok(s) => match sentence_json(st.lines, &s) {
+                Some(v) => {
+                    st.decoded += 1;
+                    writeln!(out, "{v}")?;
+                }
+                None => st.unsupported += 1,
+            },
+            Err(e) => {
+                st.errors += 1;
+                if matches!(e, NmeaError::Checksum { .. }) {
+                    st.checksum_errors += 1;
+                }
+                let v = serde_json::json!({"line": st.lines, "error": error_text(&e)});
+                writeln!(out, "{v}")?;
+            }
+        }
+    }
+    Ok(st)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decodes_and_rejects() {
+        let input = "# header\n\
+$GNGGA,171926.00,4404.14063,N,12118.85478,W,1,12,0.91,1147.2,M,-21.3,M,,*44\r\n\
+$GNRMC,171926.00,A,4404.14063,N,12118.85478,W,0.117,,180315,,,A*76\r\n\
+$GNVTG,,T,,M,0.117,N,0.216,K,A*3F\r\n\
+$GNGGA,171926.00,4404.14063,N,12118.85478,W,1,12,0.91,1147.2,M,-21.3,M,,*45\r\n\
+$GPGSV,4,4,13,32,76,331,31*48\r\n\
+garbage\n";
+        let mut out = Vec::new();
+        let st = decode_log(input.as_bytes(), &mut out).unwrap();
+        assert_eq!(
+            st,
+            NmeaLogStats {
+                lines: 7,
+                decoded: 3,
+                unsupported: 1,
+                errors: 2,
+                checksum_errors: 1
+            }
+        );
+        let v: Vec<Value> = String::from_utf8(out)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(v.len(), 5);
+        assert_eq!(v[0]["line"], 2);
+        assert_eq!(v[0]["sentence"], "GGA");
+        assert_eq!(v[0]["time_s"], 62366.0);
+        assert!((v[0]["lat_deg"].as_f64().unwrap() - 44.069_010_5).abs() < 1e-9);
+        assert!((v[0]["lon_deg"].as_f64().unwrap() + 121.314_246_333).abs() < 1e-9);
+        assert_eq!(v[0]["alt_msl_m"], 1147.2);
+        assert_eq!(v[0]["fix"], 1);
+        assert!(v[0].get("speed_mps").is_none());
+        assert!((v[1]["speed_mps"].as_f64().unwrap() - 0.117 * 1852.0 / 3600.0).abs() < 1e-12);
+        assert!(v[1].get("track_deg").is_none());
+        assert_eq!(v[2]["sentence"], "VTG");
+        assert_eq!(v[3]["line"], 5);
+        assert!(v[3]["error"].as_str().unwrap().starts_with("checksum"));
+        assert_eq!(v[4]["line"], 7);
+    }
+}

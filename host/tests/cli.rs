@@ -1,0 +1,289 @@
+//! The `magcomp` command as a user runs it: simulate → calibrate → compensate, the JSON
+//! contract, rows in = rows out, and clear errors on bad input.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_magcomp"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("magcomp-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run_ok(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run magcomp");
+    assert!(
+        out.status.success(),
+        "magcomp failed: {}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+fn run_err(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run magcomp");
+    assert!(!out.status.success(), "magcomp should have failed");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn simulate(dir: &Path, extra: &[&str]) -> PathBuf {
+    let p = dir.join("flight.csv");
+    let mut c = bin();
+    c.args(["simulate", "--seed", "3", "-o"])
+        .arg(&p)
+        .args(extra);
+    run_ok(&mut c);
+    p
+}
+
+fn data_rows(p: &Path) -> usize {
+    std::fs::read_to_string(p)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .count()
+        - 1
+}
+
+#[test]
+fn simulate_calibrate_compensate_json_contract() {
+    let d = tmp("contract");
+    let trace = simulate(&d, &[]);
+    let rows_in = data_rows(&trace);
+    let coeffs = d.join("coeffs.json");
+    run_ok(bin().args(["calibrate"]).arg(&trace).arg("-o").arg(&coeffs));
+    let cf: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+    let list = cf["coefficients"].as_array().unwrap();
+    assert_eq!(list.len(), 16, "tl16 has 16 coefficients");
+    for c in list {
+        assert!(c["value"].as_f64().unwrap().is_finite());
+        let s = c["sigma"].as_f64().unwrap();
+        assert!(s > 0.0 && s < 100.0, "1σ {s}");
+    }
+    for method in ["kf", "tl"] {
+        let out = d.join(format!("out-{method}.csv"));
+        let stdout = run_ok(
+            bin()
+                .args(["compensate"])
+                .arg(&trace)
+                .args(["--method", method, "--json", "--out"])
+                .arg(&out),
+        );
+        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        for key in [
+            "model",
+            "method",
+            "samples",
+            "residual_rms_nt",
+            "improvement_ratio",
+            "fom_nt",
+            "error_rms_nt",
+        ] {
+            assert!(!j[key].is_null(), "{method}: missing {key} in {j}");
+        }
+        assert_eq!(j["samples"].as_u64().unwrap() as usize, rows_in);
+        assert_eq!(data_rows(&out), rows_in, "rows in = rows out");
+        let header = std::fs::read_to_string(&out)
+            .unwrap()
+            .lines()
+            .find(|l| !l.starts_with('#'))
+            .unwrap()
+            .to_string();
+        assert!(header.starts_with("t,mag,interference,compensated"));
+        if method == "kf" {
+            assert!(header.ends_with("anomaly,innovation,flags"), "{header}");
+        }
+        let err = j["error_rms_nt"].as_f64().unwrap();
+        println!("{method}: error {err:.4} nT, FOM {}", j["fom_nt"]);
+        assert!(err < 0.2, "{method} error {err}");
+    }
+    // Apply the calibration's coefficients to the same flight in survey mode.
+    let out = d.join("applied.csv");
+    let stdout = run_ok(
+        bin()
+            .args(["compensate"])
+            .arg(&trace)
+            .arg("--coeffs")
+            .arg(&coeffs)
+            .args(["--json", "--out"])
+            .arg(&out),
+    );
+    let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert!(j["error_rms_nt"].as_f64().unwrap() < 0.05, "{j}");
+}
+
+#[test]
+fn bad_input_gives_clear_errors() {
+    let d = tmp("bad");
+    let trace = simulate(&d, &["--max-duration-s", "60"]);
+    let text = std::fs::read_to_string(&trace).unwrap();
+    let out = d.join("o.csv");
+    // A missing required column, named in the error.
+    let no_flux = d.join("noflux.csv");
+    let mut lines: Vec<String> = Vec::new();
+    let mut idx = None;
+    for l in text.lines() {
+        if l.starts_with('#') {
+            lines.push(l.into());
+            continue;
+        }
+        let f: Vec<&str> = l.split(',').collect();
+        let i = *idx.get_or_insert_with(|| f.iter().position(|c| *c == "flux_y").unwrap());
+        lines.push(
+            f.iter()
+                .enumerate()
+                .filter(|(k, _)| *k != i)
+                .map(|(_, v)| *v)
+                .collect::<Vec<_>>()
+                .join(","),
+        );
+    }
+    std::fs::write(&no_flux, lines.join("\n")).unwrap();
+    let e = run_err(bin().arg("compensate").arg(&no_flux).arg("--out").arg(&out));
+    assert!(e.contains("flux_y"), "{e}");
+    // An unparsable number, with line and column.
+    let bad_num = d.join("badnum.csv");
+    let mut ls: Vec<String> = text.lines().map(String::from).collect();
+    let first_data = ls.iter().position(|l| !l.starts_with('#')).unwrap() + 5;
+    let mut f: Vec<String> = ls[first_data].split(',').map(String::from).collect();
+    f[1] = "53x12.1".into();
+    ls[first_data] = f.join(",");
+    std::fs::write(&bad_num, ls.join("\n")).unwrap();
+    let e = run_err(bin().arg("compensate").arg(&bad_num).arg("--out").arg(&out));
+    assert!(
+        e.contains("53x12.1") && e.contains(&format!(":{}", first_data + 1)),
+        "{e}"
+    );
+    // Time going backwards.
+    let back = d.join("back.csv");
+    let mut ls: Vec<String> = text.lines().map(String::from).collect();
+    let mut f: Vec<String> = ls[first_data].split(',').map(String::from).collect();
+    f[0] = "0".into();
+    ls[first_data] = f.join(",");
+    std::fs::write(&back, ls.join("\n")).unwrap();
+    let e = run_err(bin().arg("compensate").arg(&back).arg("--out").arg(&out));
+    assert!(e.contains("increasing"), "{e}");
+    // Unknown model term.
+    let e = run_err(
+        bin()
+            .arg("compensate")
+            .arg(&trace)
+            .args(["--model", "tl16+wobble", "--out"])
+            .arg(&out),
+    );
+    assert!(e.contains("wobble"), "{e}");
+}
+
+#[test]
+fn nan_and_gaps_are_flagged_not_dropped() {
+    let d = tmp("nan");
+    let trace = simulate(&d, &["--max-duration-s", "120"]);
+    let text = std::fs::read_to_string(&trace).unwrap();
+    let mut ls: Vec<String> = text.lines().map(String::from).collect();
+    let header_i = ls.iter().position(|l| !l.starts_with('#')).unwrap();
+    let header: Vec<String> = ls[header_i].split(',').map(String::from).collect();
+    let mag_i = header.iter().position(|c| c == "mag").unwrap();
+    let fx_i = header.iter().position(|c| c == "flux_x").unwrap();
+    // NaN magnetometer on 10 rows, empty fluxgate on 10 others.
+    for k in 0..10 {
+        let r = header_i + 200 + k;
+        let mut f: Vec<String> = ls[r].split(',').map(String::from).collect();
+        f[mag_i] = "nan".into();
+        ls[r] = f.join(",");
+        let r = header_i + 400 + k;
+        let mut f: Vec<String> = ls[r].split(',').map(String::from).collect();
+        f[fx_i] = String::new();
+        ls[r] = f.join(",");
+    }
+    let p = d.join("holes.csv");
+    std::fs::write(&p, ls.join("\n")).unwrap();
+    let out = d.join("o.csv");
+    run_ok(
+        bin()
+            .arg("compensate")
+            .arg(&p)
+            .args(["--realtime", "--out"])
+            .arg(&out),
+    );
+    let rows: Vec<Vec<String>> = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(1)
+        .map(|l| l.split(',').map(String::from).collect())
+        .collect();
+    assert_eq!(
+        rows.len(),
+        ls.len() - header_i - 1,
+        "every row has an output"
+    );
+    let flag = |r: usize| u16::from_str_radix(rows[r][6].trim_start_matches("0x"), 16).unwrap();
+    for k in 0..10 {
+        assert!(
+            flag(199 + k) & magcomp_core::Flags::MAG_MISSING != 0,
+            "row {}",
+            199 + k
+        );
+        assert!(
+            rows[199 + k][3].is_empty(),
+            "no compensated value without mag"
+        );
+        assert!(flag(399 + k) & magcomp_core::Flags::FLUX_STALE != 0);
+        assert!(
+            !rows[399 + k][3].is_empty(),
+            "held direction still compensates"
+        );
+    }
+    // The compensated values stay finite around the holes.
+    for r in rows.iter().skip(450).take(100) {
+        let v: f64 = r[3].parse().unwrap();
+        assert!(v.is_finite());
+    }
+}
+
+#[test]
+fn public_xyz_survey_data_with_a_column_map() {
+    let xyz = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/reference-data/Flt1003_sample.xyz");
+    if !xyz.exists() {
+        eprintln!("SKIP: {} absent", xyz.display());
+        return;
+    }
+    let d = tmp("xyz");
+    // Coefficients from a simulated calibration, applied to the real survey rows.
+    let trace = simulate(&d, &["--max-duration-s", "600"]);
+    let coeffs = d.join("c.json");
+    run_ok(bin().arg("calibrate").arg(&trace).arg("-o").arg(&coeffs));
+    let out = d.join("xyz-out.csv");
+    let stdout = run_ok(
+        bin()
+            .arg("compensate")
+            .arg(&xyz)
+            .args([
+                "--map",
+                "t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=MSL-Z",
+                "--coeffs",
+            ])
+            .arg(&coeffs)
+            .args(["--json", "--out"])
+            .arg(&out),
+    );
+    let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert_eq!(j["samples"], 9);
+    assert_eq!(data_rows(&out), 9);
+    // A wrong map names the missing file column.
+    let e = run_err(
+        bin()
+            .arg("compensate")
+            .arg(&xyz)
+            .args(["--map", "mag=NOPE", "--out"])
+            .arg(&out),
+    );
+    assert!(e.contains("NOPE"), "{e}");
+}

@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Runs every test of the project on a fresh machine: installs what it needs (Rust target,
+# QEMU 10, Chromium, ARM binutils), checks formatting and lints on host and target,
+# runs the host tests, builds the board firmware and runs the firmware in QEMU (hil-tests).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export CARGO_TERM_COLOR=${CARGO_TERM_COLOR:-never}
+
+step() { printf '\n=== %s ===\n' "$*"; }
+
+step "toolchain and system packages"
+scripts/install-deps.sh
+
+step "format"
+cargo fmt --all -- --check
+
+step "clippy (host)"
+cargo clippy -p magcomp-core -p magcomp --all-targets -- -D warnings
+
+step "core builds for the board (no_std, thumbv7em-none-eabihf)"
+cargo build -p magcomp-core --target thumbv7em-none-eabihf --release
+
+step "host tests (release: the accuracy tests fly whole simulated flights)"
+cargo test --release -p magcomp-core -p magcomp
+
+if [ -x scripts/fw-ci.sh ]; then
+    step "firmware: build, size, QEMU hil-tests"
+    MAGCOMP_REQUIRE_QEMU=${MAGCOMP_REQUIRE_QEMU:-1} scripts/fw-ci.sh
+fi
+
+step "benchmarks compile"
+cargo bench -p magcomp --no-run
+
+echo
+echo "all checks passed"

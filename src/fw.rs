@@ -1,0 +1,420 @@
+//! The embassy tasks and their channels.
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use embassy_executor::Spawner;
+use embassy_futures::select::{Either, select};
+use embassy_stm32::usart::{BufferedUartRx, BufferedUartTx};
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_time::Timer;
+use embedded_io_async::{Read, Write};
+use magcomp_core::epoch::AlignedSample;
+use magcomp_core::protocol::command::{
+    Command, CommandError, CommandReader, Mode, decode_blob, encode_ack_coef, encode_blob,
+    encode_error,
+};
+use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
+#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+use magcomp_core::protocol::fluxgate::FluxAsciiReader;
+use magcomp_core::protocol::fluxgate::{FluxError, FluxgateCal};
+use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
+use magcomp_core::protocol::record::{Record, encode_record};
+use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
+
+#[cfg(feature = "board-emu")]
+use defmt_semihosting as _;
+#[cfg(feature = "board-acq")]
+use {defmt_rtt as _, panic_probe as _};
+
+use crate::board;
+use crate::pipeline::{Filter, N_COEF, model_id};
+use crate::timebase::{Rates, SampleAligner};
+
+/// Nominal sensor rates of the reference installation. The scalar rate sets the time base;
+/// the fluxgate and GPS rates set the staleness limits (2.5 periods).
+pub const RATES: Rates = Rates {
+    scalar_hz: 10.0,
+    flux_hz: 10.0,
+    gps_hz: 1.0,
+};
+/// Fluxgate full scale (±nT over ±2^23 ADC codes); the ASCII alternative sends nT.
+pub const FLUX_FULL_SCALE_NT: f32 = 100_000.0;
+
+/// One frame (or parse failure) from a sensor port, in arrival order.
+pub enum Event {
+    Scalar(Result<ScalarFrame, ScalarError>),
+    /// Body frame (x forward, y starboard, z down), nT.
+    Flux(Result<[f32; 3], FluxError>),
+    Gps(Result<Sentence, NmeaError>),
+}
+
+/// A line for the output port (records < 192 bytes; GETCOEF of all 16 coefficients < 320).
+pub struct Line {
+    buf: [u8; 320],
+    len: usize,
+}
+
+impl Line {
+    const fn new() -> Self {
+        Self {
+            buf: [0; 320],
+            len: 0,
+        }
+    }
+    fn bytes(&self) -> &[u8] {
+        &self.buf[..self.len]
+    }
+    /// Fills the line with `f(out) -> Option<len>`; an empty line if it did not fit.
+    fn fill(f: impl FnOnce(&mut [u8]) -> Option<usize>) -> Self {
+        let mut l = Self::new();
+        l.len = f(&mut l.buf).unwrap_or(0);
+        l
+    }
+    /// `$<body>*CRC16\r\n` with `body` written by `f` (replies and the boot banner).
+    fn sentence(f: impl FnOnce(&mut Cursor) -> Result<(), BufferFull>) -> Self {
+        Self::fill(|out| {
+            let mut c = Cursor::new(out);
+            c.byte(b'$').ok()?;
+            f(&mut c).ok()?;
+            let crc = crc16_ccitt(&c.written()[1..]);
+            c.byte(b'*').ok()?;
+            c.hex_u16(crc).ok()?;
+            c.bytes(b"\r\n").ok()?;
+            Some(c.pos())
+        })
+    }
+}
+
+type Mutex = CriticalSectionRawMutex;
+static EVENTS: Channel<Mutex, Event, 16> = Channel::new();
+static SAMPLES: Channel<Mutex, (u32, AlignedSample), 8> = Channel::new();
+static COMMANDS: Channel<Mutex, Command, 4> = Channel::new();
+static OUT: Channel<Mutex, Line, 6> = Channel::new();
+
+/// Counters shown by `STATUS`: parser errors per port (kept in event order by the
+/// aligner), UART errors (overrun/framing/noise) and rejected commands.
+static PARSE_ERRORS: [AtomicU32; 3] = [AtomicU32::new(0), AtomicU32::new(0), AtomicU32::new(0)];
+static UART_ERRORS: AtomicU32 = AtomicU32::new(0);
+static CMD_ERRORS: AtomicU32 = AtomicU32::new(0);
+
+#[embassy_executor::main]
+async fn main(spawner: Spawner) {
+    let b = board::init();
+    defmt::info!(
+        "magcomp firmware on {}, scalar rate {} Hz",
+        board::NAME,
+        RATES.scalar_hz
+    );
+    OUT.send(Line::sentence(|c| {
+        c.bytes(b"MCBOOT,")?;
+        c.bytes(board::NAME.as_bytes())?;
+        c.byte(b',')?;
+        c.bytes(env!("CARGO_PKG_VERSION").as_bytes())
+    }))
+    .await;
+
+    spawner.spawn(watchdog_task(b.watchdog).unwrap());
+    spawner.spawn(output_task(b.out_tx).unwrap());
+    spawner.spawn(command_task(b.out_rx).unwrap());
+    spawner.spawn(filter_task(b.store).unwrap());
+    spawner.spawn(aligner_task().unwrap());
+    spawner.spawn(scalar_task(b.scalar).unwrap());
+    spawner.spawn(gps_task(b.gps).unwrap());
+    #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+    spawner.spawn(flux_uart_task(b.flux).unwrap());
+    #[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
+    spawner.spawn(flux_spi_task(b.flux).unwrap());
+}
+
+/// Reads a UART into `buf`; UART errors (overrun/framing/noise) are counted and the
+/// parser resynchronises on the next line.
+async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
+    loop {
+        match rx.read(buf).await {
+            Ok(n) => return n,
+            Err(_) => {
+                UART_ERRORS.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+#[embassy_executor::task]
+async fn scalar_task(mut rx: BufferedUartRx<'static>) {
+    let mut reader = ScalarReader::new(ScalarConfig::default());
+    let mut buf = [0u8; 64];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            if let Some(r) = reader.push(b) {
+                EVENTS.send(Event::Scalar(r)).await;
+            }
+        }
+    }
+}
+
+#[embassy_executor::task]
+async fn gps_task(mut rx: BufferedUartRx<'static>) {
+    let mut reader = NmeaReader::new();
+    let mut buf = [0u8; 64];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            match reader.push(b) {
+                // GSV, GSA, proprietary…: valid but unused, not worth a channel slot
+                Some(Ok(Sentence::Unsupported { .. })) | None => {}
+                Some(r) => EVENTS.send(Event::Gps(r)).await,
+            }
+        }
+    }
+}
+
+/// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the calibration).
+#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+#[embassy_executor::task]
+async fn flux_uart_task(mut rx: BufferedUartRx<'static>) {
+    let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
+    let mut reader = FluxAsciiReader::new();
+    let mut buf = [0u8; 64];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            if let Some(r) = reader.push(b) {
+                EVENTS.send(Event::Flux(r.map(|v| cal.to_body(v)))).await;
+            }
+        }
+    }
+}
+
+/// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame
+/// (status, 3 × 24-bit channels, CRC-16) and scale it to the body frame.
+#[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
+#[embassy_executor::task]
+async fn flux_spi_task(mut f: board::FluxPort) {
+    use magcomp_core::protocol::fluxgate::{SPI_FRAME_LEN, decode_spi_frame};
+    let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
+    loop {
+        f.drdy.wait_for_falling_edge().await;
+        let mut frame = [0u8; SPI_FRAME_LEN];
+        f.cs.set_low();
+        let r = f.spi.blocking_transfer_in_place(&mut frame);
+        f.cs.set_high();
+        let ev = match r {
+            Ok(()) => decode_spi_frame(&frame).map(|a| cal.scale(a.counts)),
+            Err(_) => Err(FluxError::BadLength),
+        };
+        EVENTS.send(Event::Flux(ev)).await;
+    }
+}
+
+/// Frames in arrival order → one aligned sample per scalar line (board time base).
+#[embassy_executor::task]
+async fn aligner_task() {
+    let mut al = SampleAligner::new(RATES);
+    loop {
+        let sample = match EVENTS.receive().await {
+            Event::Scalar(r) => Some(al.scalar(r)),
+            Event::Flux(r) => {
+                al.flux(r);
+                None
+            }
+            Event::Gps(r) => {
+                al.nmea(r);
+                None
+            }
+        };
+        for (c, n) in PARSE_ERRORS.iter().zip(al.errors) {
+            c.store(n, Ordering::Relaxed);
+        }
+        if let Some(s) = sample {
+            SAMPLES.send(s).await;
+        }
+    }
+}
+
+/// The compensator at the scalar rate, plus the commands that touch its state.
+#[embassy_executor::task]
+async fn filter_task(mut store: board::CoefStore) {
+    let Ok(mut filter) = Filter::new(RATES.scalar_hz as f32) else {
+        defmt::error!("compensator init failed");
+        board::exit(false)
+    };
+    match load_coefficients(&mut store, &mut filter) {
+        Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
+        Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
+    }
+    loop {
+        match select(SAMPLES.receive(), COMMANDS.receive()).await {
+            Either::First((_seq, s)) => {
+                if let Some(r) = filter.push(&s) {
+                    send_record(&r).await;
+                }
+            }
+            Either::Second(cmd) => handle_command(cmd, &mut filter, &mut store).await,
+        }
+    }
+}
+
+async fn send_record(r: &Record) {
+    let line = Line::fill(|out| encode_record(r, out).ok());
+    if line.len == 0 {
+        // cannot happen (MAX_RECORD_LEN < 320): a bug, logged, the record still counted
+        defmt::error!("record {} did not encode", r.seq);
+    }
+    OUT.send(line).await;
+}
+
+fn load_coefficients(store: &mut board::CoefStore, filter: &mut Filter) -> Result<(), ()> {
+    let mut blob = [0u8; crate::COEF_BLOB_MAX];
+    store.read(&mut blob).map_err(|_| ())?;
+    let mut c = [0f32; N_COEF];
+    decode_blob(&blob, model_id(), &mut c).map_err(|_| ())?;
+    filter.set_coefficients(&c).map_err(|_| ())
+}
+
+fn mode_word(m: Mode) -> &'static [u8] {
+    match m {
+        Mode::Survey => b"SURVEY",
+        Mode::Cal => b"CAL",
+    }
+}
+
+async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::CoefStore) {
+    let reply = match cmd {
+        Command::Mode(m) => {
+            filter.set_mode(m);
+            Line::sentence(|c| {
+                c.bytes(b"MCACK,MODE,")?;
+                c.bytes(mode_word(m))
+            })
+        }
+        Command::Status => Line::sentence(|c| {
+            c.bytes(b"MCACK,STATUS,")?;
+            c.bytes(mode_word(filter.mode()))?;
+            c.byte(b',')?;
+            c.u64(filter.records().into())?;
+            for e in &PARSE_ERRORS {
+                c.byte(b',')?;
+                c.u64(e.load(Ordering::Relaxed).into())?;
+            }
+            c.byte(b',')?;
+            c.u64(UART_ERRORS.load(Ordering::Relaxed).into())?;
+            c.byte(b',')?;
+            c.u64(CMD_ERRORS.load(Ordering::Relaxed).into())
+        }),
+        Command::GetCoef(Some(i)) => {
+            let v = filter
+                .coefficients()
+                .get(usize::from(i))
+                .copied()
+                .unwrap_or(f32::NAN);
+            Line::fill(|out| encode_ack_coef(i, v, out))
+        }
+        Command::GetCoef(None) => {
+            let c = filter.coefficients();
+            Line::sentence(|cur| {
+                cur.bytes(b"MCACK,GETCOEF")?;
+                for v in c {
+                    cur.byte(b',')?;
+                    cur.sci(v.into())?;
+                }
+                Ok(())
+            })
+        }
+        Command::SetCoef { index, value } => {
+            let mut c = filter.coefficients();
+            if let Some(slot) = c.get_mut(usize::from(index)) {
+                *slot = value;
+            }
+            match filter.set_coefficients(&c) {
+                Ok(()) => Line::sentence(|c| {
+                    c.bytes(b"MCACK,SETCOEF,")?;
+                    c.u64(index.into())?;
+                    c.byte(b',')?;
+                    c.sci(value.into())
+                }),
+                Err(_) => Line::fill(|out| encode_error(CommandError::ValueOutOfBounds, out)),
+            }
+        }
+        Command::Save => {
+            let mut blob = [0u8; crate::COEF_BLOB_MAX];
+            let ok = encode_blob(model_id(), &filter.coefficients(), &mut blob)
+                .ok()
+                .is_some_and(|n| store.write(&blob[..n]).is_ok());
+            if ok {
+                Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
+            } else {
+                // flash failure is not a command error: say so in the ACK's place
+                Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
+            }
+        }
+        Command::Reset | Command::Flush => {
+            // every sample keeps its record: emit the held ones before anything else
+            while let Some(r) = filter.flush() {
+                send_record(&r).await;
+            }
+            if cmd == Command::Reset {
+                if filter.reset().is_err() {
+                    defmt::error!("compensator re-init failed");
+                    board::exit(false)
+                }
+                let _ = load_coefficients(store, filter);
+            }
+            let name: &[u8] = if cmd == Command::Reset {
+                b"RESET"
+            } else {
+                b"FLUSH"
+            };
+            Line::sentence(|c| {
+                c.bytes(b"MCACK,")?;
+                c.bytes(name)?;
+                c.byte(b',')?;
+                c.u64(filter.records().into())
+            })
+        }
+    };
+    OUT.send(reply).await;
+}
+
+/// Commands arrive on the output port's RX line; malformed ones are answered here.
+#[embassy_executor::task]
+async fn command_task(mut rx: BufferedUartRx<'static>) {
+    let mut reader = CommandReader::new(N_COEF);
+    let mut buf = [0u8; 32];
+    loop {
+        let n = read_some(&mut rx, &mut buf).await;
+        for &b in &buf[..n] {
+            match reader.push(b) {
+                None => {}
+                Some(Ok(cmd)) => COMMANDS.send(cmd).await,
+                Some(Err(e)) => {
+                    CMD_ERRORS.fetch_add(1, Ordering::Relaxed);
+                    OUT.send(Line::fill(|out| encode_error(e, out))).await;
+                }
+            }
+        }
+    }
+}
+
+/// The single writer of the output port: records and replies, in channel order.
+#[embassy_executor::task]
+async fn output_task(mut tx: BufferedUartTx<'static>) {
+    loop {
+        let line = OUT.receive().await;
+        if tx.write_all(line.bytes()).await.is_err() {
+            UART_ERRORS.fetch_add(1, Ordering::Relaxed);
+        }
+    }
+}
+
+/// Pets the IWDG while the executor keeps running: a task stuck in a loop (or a hard
+/// fault) stops the petting and the board resets.
+#[embassy_executor::task]
+async fn watchdog_task(mut wdg: board::Watchdog) {
+    wdg.unleash();
+    loop {
+        wdg.pet();
+        Timer::after_millis(500).await;
+    }
+}
