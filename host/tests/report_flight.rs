@@ -56,7 +56,7 @@ fn page_has_every_plot_and_the_comparison() {
     let html = page.to_html();
     assert!(!html.contains("<script"), "self-contained, no scripts");
     assert!(
-        !html.contains("http://") && !html.contains("https://"),
+        !html.contains("src=\"http") && !html.contains("href=\"http") && !html.contains("url(http"),
         "no external files"
     );
     assert!(html.contains("error vs truth (nT)"));

@@ -532,7 +532,22 @@ pub fn diagnose_with(
         .copied()
         .find(|v| v.is_finite())
         .unwrap_or(0.0);
-    let y: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
+    // The core-field model's change is removed as the core's epoch builder does (the
+    // main-field gradient is not the anomaly).
+    let igrf0 = flight
+        .samples
+        .iter()
+        .map(|s| s.igrf_nt)
+        .find(|v| v.is_finite());
+    let y: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(&flight.samples)
+        .map(|(v, s)| match igrf0 {
+            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
+            _ => v - m0,
+        })
+        .collect();
     let mut columns: Vec<&[f64]> = vec![&y];
     let mut blocks: Vec<Block> = Vec::new();
     for (ti, t) in all_terms.iter().map(|c| &c.spec).enumerate() {
@@ -767,7 +782,7 @@ fn span_label(flight: &Flight, t0: f64, t1: f64) -> String {
 
 /// Windows whose residual mean square exceeds the flight's typical (median) window level
 /// by more than a χ² bound with the window's effective sample count (Bonferroni over the
-/// windows), and by at least 2×; adjacent windows are merged.
+/// windows), and by at least 3×; adjacent windows are merged.
 fn time_failures(flight: &Flight, t: &[f64], e: &[f64], window_s: f64) -> Vec<Failure> {
     if t.len() < 10 {
         return Vec::new();
@@ -791,7 +806,7 @@ fn time_failures(flight: &Flight, t: &[f64], e: &[f64], window_s: f64) -> Vec<Fa
     let rho = lag1_autocorr(e).clamp(0.0, 0.99);
     let per = t.len() as f64 / nw as f64;
     let n_eff = (per * (1.0 - rho) / (1.0 + rho)).max(2.0);
-    let bound = (chi2_isf(0.01 / nw as f64, n_eff) / n_eff).max(2.0);
+    let bound = (chi2_isf(0.01 / nw as f64, n_eff) / n_eff).max(3.0);
     let bad: Vec<bool> = ms.iter().map(|m| *m > typical * bound).collect();
     let mut out = Vec::new();
     let mut w = 0;
