@@ -14,7 +14,7 @@ const CHROMIUM: &str = "/usr/bin/chromium";
 fn trace() -> magcomp::trace::Trace {
     let cfg = SimConfig {
         seed: 5,
-        hidden: vec![parse_hidden("current:cur_pump@300:600").expect("hidden")],
+        hidden: vec![parse_hidden("current:cur_pump").expect("hidden")],
         decoys: vec!["cur_fan".into()],
         ..SimConfig::default()
     };

@@ -525,29 +525,8 @@ pub fn diagnose_with(
         }
     }
     let tc = build_columns(trace, &all_terms, fs)?;
-    // Column 0: the scalar relative to its first value (exact in f64).
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
-    // The core-field model's change is removed as the core's epoch builder does (the
-    // main-field gradient is not the anomaly).
-    let igrf0 = flight
-        .samples
-        .iter()
-        .map(|s| s.igrf_nt)
-        .find(|v| v.is_finite());
-    let y: Vec<f64> = flight
-        .mag_nt
-        .iter()
-        .zip(&flight.samples)
-        .map(|(v, s)| match igrf0 {
-            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
-            _ => v - m0,
-        })
-        .collect();
+    // Column 0: the scalar relative to its first value, core-field change removed.
+    let y = scalar_relative_nt(&flight);
     let mut columns: Vec<&[f64]> = vec![&y];
     let mut blocks: Vec<Block> = Vec::new();
     for (ti, t) in all_terms.iter().map(|c| &c.spec).enumerate() {
@@ -755,6 +734,32 @@ pub fn diagnose_with(
         },
         run,
     })
+}
+
+/// The scalar relative to its first value, with the core-field model's change removed as
+/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
+/// filter's interference + field states model. f64, exact.
+pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
+    let m0 = flight
+        .mag_nt
+        .iter()
+        .copied()
+        .find(|v| v.is_finite())
+        .unwrap_or(0.0);
+    let igrf0 = flight
+        .samples
+        .iter()
+        .map(|s| s.igrf_nt)
+        .find(|v| v.is_finite());
+    flight
+        .mag_nt
+        .iter()
+        .zip(&flight.samples)
+        .map(|(v, s)| match igrf0 {
+            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
+            _ => v - m0,
+        })
+        .collect()
 }
 
 fn explained_of(before: f64, after: f64) -> f64 {

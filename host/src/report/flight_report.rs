@@ -3,7 +3,9 @@
 //! the coefficients with 1σ; for two or more models, the before/after comparison.
 
 use super::{HtmlReport, Plot, Section, Series, PALETTE};
-use crate::diagnose::{diagnose, load_trace, residual_spectrum, DiagnoseOptions, Diagnosis};
+use crate::diagnose::{
+    diagnose, load_trace, residual_spectrum, scalar_relative_nt, DiagnoseOptions, Diagnosis,
+};
 use crate::flight::Flight;
 use crate::metrics::{error_rms_nt, fom, improvement_ratio};
 use crate::model_spec::ModelSpec;
@@ -229,13 +231,7 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
     let d = &r.diag;
     let run = &d.run;
     let t = &flight.t_s;
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
-    let measured: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
+    let measured = scalar_relative_nt(flight);
     let modelled: Vec<f64> = run
         .interference_nt
         .iter()
@@ -251,7 +247,7 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
         &format!("Measured vs modelled — {title}"),
     )
     .x_label("time (s)")
-    .y_label("scalar − first sample (nT)")
+    .y_label("scalar − first sample − IGRF change (nT)")
     .series(
         Series::line("measured", t, &measured)
             .color(PALETTE[7])
