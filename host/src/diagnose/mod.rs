@@ -45,6 +45,9 @@ pub struct ExtraTerm {
     pub make: fn(usize) -> Box<dyn Term>,
 }
 
+/// Most f64 values (regressor columns + innovations) the diagnosis holds: 2 GB.
+const MAX_VALUES: usize = 250_000_000;
+
 /// Settings of the diagnosis.
 #[derive(Clone, Debug)]
 pub struct DiagnoseOptions {
@@ -523,6 +526,23 @@ pub fn diagnose_with(
                 extra: c.extra,
             });
         }
+    }
+    // Every regressor column and its innovations are held in memory (f64): refuse what
+    // would not fit rather than thrash (1 h at 1 kHz with 20 candidates ≈ 40 GB).
+    let total_cols: usize = all_terms
+        .iter()
+        .map(|c| match c.extra {
+            Some(x) => (x.make)(0).len(),
+            None => AnyTerm::make(&c.spec.name, 0).map_or(0, |t| t.len()),
+        })
+        .sum::<usize>()
+        + 1;
+    let values = 2 * n * total_cols;
+    if values > MAX_VALUES {
+        bail!(
+            "the trace is too large to diagnose at once ({n} rows × {total_cols} columns): \
+             split it into flights or resample it to ≤ 20 Hz"
+        );
     }
     let tc = build_columns(trace, &all_terms, fs)?;
     // Column 0: the scalar relative to its first value, core-field change removed.
