@@ -10,8 +10,11 @@
 //! misfit does not pass for many independent samples, with the rank the candidate really
 //! adds as its degrees of freedom. Family-wise error over all candidates is held by
 //! Bonferroni (α / number of candidates), and a candidate must also explain a material
-//! share of the residual variance: with 10⁴ samples a statistically detectable 0.2 % is not
-//! a missing physical effect.
+//! share (default 15 %) of the residual variance. The second condition is what holds the
+//! false-positive rate on real data: the paper's model is an approximation, and on clean
+//! simulated flights its residual holds a genuine ~0.005 nT misfit that behaves like a
+//! scalar lag (−τ·dB/dt; `rate` explains up to 10.7 % of the residual over 40 seeds) and is
+//! "significant" by any test that counts 7000 samples.
 
 pub mod custom;
 mod innovations;
@@ -65,7 +68,7 @@ impl Default for DiagnoseOptions {
     fn default() -> Self {
         Self {
             alpha: 0.01,
-            min_explained: 0.02,
+            min_explained: 0.15,
             window_s: 20.0,
             ar_order: 10,
         }
@@ -403,14 +406,23 @@ fn fit(w: &[Vec<f64>], rows: &[usize], idx: &[usize]) -> (Vec<f64>, f64, usize, 
     let refs: Vec<&[f64]> = sel.iter().map(|v| v.as_slice()).collect();
     let g = gram_of(&refs);
     let local: Vec<usize> = (1..all.len()).collect();
-    let (theta, rss, rank) = gram_lstsq(&g, &local);
+    let (theta, _, rank) = gram_lstsq(&g, &local);
+    let e = residual_of(&sel, &theta);
+    // RSS from the explicit residual, not yy − θ·b: near-collinear columns (e.g. `lag`'s
+    // d(e_i e_j)/dt against the eddy terms) make the latter cancel catastrophically.
+    let rss = e.iter().map(|v| v * v).sum();
+    (e, rss, rank, theta)
+}
+
+/// `sel[0] − Σ θ_j·sel[j+1]`.
+fn residual_of(sel: &[Vec<f64>], theta: &[f64]) -> Vec<f64> {
     let mut e = sel[0].clone();
     for (j, th) in theta.iter().enumerate() {
         for (ek, xk) in e.iter_mut().zip(&sel[j + 1]) {
             *ek -= th * xk;
         }
     }
-    (e, rss, rank, theta)
+    e
 }
 
 /// Nested F-test of `base ∪ cand` against `base` on AR-prewhitened data.
@@ -437,8 +449,10 @@ fn nested_test(
     let refs: Vec<&[f64]> = pw.iter().map(|v| v.as_slice()).collect();
     let g = gram_of(&refs);
     let nb = base.len();
-    let (_, rss0, r0) = gram_lstsq(&g, &(1..=nb).collect::<Vec<_>>());
-    let (_, rss1, r1) = gram_lstsq(&g, &(1..all.len()).collect::<Vec<_>>());
+    let (th0, _, r0) = gram_lstsq(&g, &(1..=nb).collect::<Vec<_>>());
+    let (th1, _, r1) = gram_lstsq(&g, &(1..all.len()).collect::<Vec<_>>());
+    let rss_of = |th: &[f64]| residual_of(&pw, th).iter().map(|v| v * v).sum::<f64>();
+    let (rss0, rss1) = (rss_of(&th0), rss_of(&th1));
     let q = r1.saturating_sub(r0);
     let n = pw[0].len();
     let dof2 = n.saturating_sub(r1 + a.len()) as f64;
@@ -985,7 +999,7 @@ pub struct DiagnoseArgs {
     #[arg(long, default_value_t = 0.01)]
     pub alpha: f64,
     /// Smallest share of the residual variance a significant candidate must explain.
-    #[arg(long, default_value_t = 0.02)]
+    #[arg(long, default_value_t = 0.15)]
     pub min_explained: f64,
 }
 

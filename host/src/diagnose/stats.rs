@@ -190,7 +190,7 @@ pub fn gram_lstsq(gram: &DMatrix<f64>, cols: &[usize]) -> (Vec<f64>, f64, usize)
     let b = DVector::from_fn(k, |i, _| gram[(cols[i], 0)] * d[i]);
     let eig = SymmetricEigen::new(a);
     let lmax = eig.eigenvalues.iter().cloned().fold(0.0f64, f64::max);
-    let tol = lmax * 1e-10;
+    let tol = lmax * 1e-9;
     let mut z = DVector::zeros(k);
     let mut rank = 0;
     let ub = eig.eigenvectors.transpose() * &b;
