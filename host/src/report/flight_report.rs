@@ -119,6 +119,30 @@ pub fn build_report(
             .collect::<Vec<_>>()
             .join(" | ")
     ));
+    // One line per model: what the diagnosis says, so the page answers the question first.
+    for r in &results {
+        let verdict = match r.diag.candidates.iter().find(|c| c.significant) {
+            Some(c) => format!(
+                "missing effect: {} explains {:.0} % of the residual ({}); try --model \"{}+{}\"",
+                c.term,
+                100.0 * c.explained_fraction,
+                c.effect,
+                r.spec.text(),
+                c.term
+            ),
+            None => "no candidate term is significant: the model explains the data".into(),
+        };
+        let err = r
+            .error_nt
+            .map(|e| format!(", error against truth {e:.4} nT"))
+            .unwrap_or_default();
+        page = page.paragraph(&format!(
+            "{}: residual rms {:.4} nT{err}; {} time window(s) stand out; {verdict}.",
+            r.spec.text(),
+            r.diag.residual_rms_nt,
+            r.diag.failures.len()
+        ));
+    }
     if results.len() >= 2 {
         page = page.section(comparison(&flight, &results));
     }
