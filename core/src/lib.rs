@@ -12,6 +12,7 @@
 // `!(x > 0.0)` is deliberate: it rejects NaN together with non-positive values.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod acquisition;
 pub mod compensator;
 pub mod epoch;
 pub mod filter;

@@ -1,15 +1,18 @@
 //! magcomp host library: everything the `magcomp` command does, reusable from tests and
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
+pub mod capture_sim;
 pub mod commands;
 pub mod demo;
 pub mod diagnose;
 pub mod flight;
 pub mod metrics;
 pub mod model_spec;
+pub mod monitor;
 pub mod nmea_cmd;
 pub mod pipeline;
 pub mod reference_kf;
+pub mod replay;
 pub mod report;
 pub mod sim;
 pub mod tl;

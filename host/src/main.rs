@@ -23,8 +23,14 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Simulate a calibration and/or survey flight with known truth.
-    Simulate(SimulateArgs),
+    /// Simulate a calibration and/or survey flight with known truth (and, with --capture,
+    /// the raw bytes its sensors would have sent).
+    Simulate {
+        #[command(flatten)]
+        sim: SimulateArgs,
+        #[command(flatten)]
+        capture: magcomp::capture_sim::CaptureArgs,
+    },
     /// Estimate the deviation coefficients (with 1σ) from a calibration flight.
     Calibrate(CalibrateArgs),
     /// Remove the aircraft interference from a flight.
@@ -34,6 +40,10 @@ enum Command {
         /// NMEA log file (`-` for stdin).
         file: PathBuf,
     },
+    /// Run a raw sensor capture through the board's parsers, aligner and filter.
+    Replay(magcomp::replay::ReplayArgs),
+    /// Decode and show the board's output stream live (a port, a file, or `-`).
+    Monitor(magcomp::monitor::MonitorArgs),
     /// End-to-end demonstration on built-in simulated data (nothing to download).
     Demo(magcomp::demo::DemoArgs),
 }
@@ -93,15 +103,24 @@ fn print_summary(s: &Summary) {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
-        Command::Simulate(args) => {
-            let cfg = args.to_config()?;
+        Command::Simulate { sim, capture } => {
+            let cfg = sim.to_config()?;
             let trace = magcomp::sim::simulate(&cfg)?;
-            let out = args
+            let out = sim
                 .output
                 .clone()
                 .unwrap_or_else(|| PathBuf::from("flight.csv"));
             magcomp::trace::write_trace(&out, &trace)?;
             eprintln!("wrote {} rows to {}", trace.len(), out.display());
+            if let Some(c) = capture.write_if_requested(&trace)? {
+                eprintln!("{c:?}");
+            }
+        }
+        Command::Replay(a) => {
+            magcomp::replay::run_replay(&a)?;
+        }
+        Command::Monitor(a) => {
+            magcomp::monitor::run_monitor(&a)?;
         }
         Command::Calibrate(a) => {
             let trace = a.input.read()?;

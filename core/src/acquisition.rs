@@ -1,0 +1,393 @@
+//! Acquisition: sensor bytes in, output records out. The one path from the scalar,
+//! fluxgate and GPS ports to `$MCREC` records, shared by the firmware and `magcomp replay`
+//! so that both emit the same records for the same bytes in the same order.
+//!
+//! ```text
+//! scalar bytes ─ ScalarReader ─┐
+//! flux bytes/SPI frames ─ Flux ─┼─ time base + Aligner ─ Compensator ─ Record (seq, t, …)
+//! GPS bytes ─ NmeaReader ───────┘
+//! ```
+//!
+//! Time base (the firmware's rule, `docs/protocols.md` §10): only the *order* of frames
+//! matters, never when their bytes arrived, so jitter on the UARTs cannot change a record.
+//! - Every scalar line is one sample `k` = 0, 1, 2, … (a rejected line is a sample with
+//!   `mag = None`, flagged `MAG_MISSING | PARSE_ERROR`): nothing is dropped.
+//! - Virtual clock: sample `k` is at `T_k = k · P` (P = 1 / scalar rate, whole µs). A
+//!   fluxgate or GPS frame is stamped `T_k` of the next scalar sample, so each sample is
+//!   paired with the latest frames received before it and their ages are whole periods.
+//!   Staleness limits are 2.5 nominal periods of each sensor (one missed frame tolerated).
+//! - Output time: `t = k / rate` until the first sample with a valid fix; from then on
+//!   `t = t_fix + (T_k − T_fix) + (k − k_anchor) / rate`, anchored once to the GGA time of
+//!   day, so records carry GPS time and stay evenly spaced through outages.
+//! - Records are delayed by the compensator's derivative half-width; [`Acquisition::flush`]
+//!   emits the held ones at the end of a stream.
+
+use crate::compensator::{Compensator, CompensatorConfig, CompensatorError};
+use crate::flags::Flags;
+use crate::protocol::aligner::{Aligner, AlignerConfig};
+use crate::protocol::capture::Port;
+use crate::protocol::fluxgate::{
+    decode_spi_frame, FluxAsciiReader, FluxError, FluxStats, FluxgateCal,
+};
+use crate::protocol::nmea::{Gga, NmeaError, NmeaReader, NmeaStats, Sentence};
+use crate::protocol::record::Record;
+use crate::protocol::scalar::{ScalarConfig, ScalarReader, ScalarStats};
+
+/// Fluxgate full scale of the reference board (±nT over ±2^23 ADC codes).
+pub const FLUX_FULL_SCALE_NT: f32 = 100_000.0;
+/// Highest accepted nominal rate of any sensor (Hz): the virtual clock counts whole µs.
+pub const MAX_RATE_HZ: f64 = 100_000.0;
+
+/// Nominal rates and sensor settings.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AcqConfig {
+    /// Scalar sample rate: sets the time base.
+    pub scalar_hz: f64,
+    /// Fluxgate and GPS frame rates: set the staleness limits only.
+    pub flux_hz: f64,
+    pub gps_hz: f64,
+    pub scalar: ScalarConfig,
+    /// ADC counts (SPI) or sensor-frame nT (ASCII) → body frame.
+    pub flux_cal: FluxgateCal,
+}
+
+impl AcqConfig {
+    /// Default scalar parser and a ±100 000 nT fluxgate with identity axes.
+    pub fn new(scalar_hz: f64, flux_hz: f64, gps_hz: f64) -> Self {
+        Self {
+            scalar_hz,
+            flux_hz,
+            gps_hz,
+            scalar: ScalarConfig::default(),
+            flux_cal: FluxgateCal::full_scale(FLUX_FULL_SCALE_NT),
+        }
+    }
+
+    /// Stale after 2.5 periods of the sensor: one missed frame is tolerated, two are not.
+    /// Position is held, not extrapolated: the virtual clock carries no sub-sample timing.
+    pub fn aligner_config(&self) -> AlignerConfig {
+        AlignerConfig {
+            flux_stale_us: (2.5e6 / self.flux_hz) as u64,
+            gps_stale_us: (2.5e6 / self.gps_hz) as u64,
+            extrapolate_gps: false,
+        }
+    }
+
+    /// Scalar period in whole µs (the virtual clock's step), rounded so a rate measured
+    /// as 9.999999999 Hz still steps 100 000 µs.
+    pub fn period_us(&self) -> u64 {
+        libm::round(1e6 / self.scalar_hz) as u64
+    }
+
+    fn valid(&self) -> bool {
+        [self.scalar_hz, self.flux_hz, self.gps_hz]
+            .iter()
+            .all(|r| r.is_finite() && *r > 0.0 && *r <= MAX_RATE_HZ)
+    }
+}
+
+/// Compensator settings for a rate and a derivative ring of `window` samples: the ring
+/// holds `2·half_width + 1` samples, so above ~`window`/0.1 Hz the derivative spans fewer
+/// than ±0.05 s rather than the filter refusing to start. Board and replay both use this.
+pub fn compensator_config(scalar_hz: f32, window: usize) -> CompensatorConfig {
+    let mut cfg = CompensatorConfig::for_rate(scalar_hz);
+    cfg.epoch.half_width = cfg
+        .epoch
+        .half_width
+        .min(window.saturating_sub(1) / 2)
+        .max(1);
+    cfg
+}
+
+/// Why an acquisition could not be set up.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AcqError {
+    /// A rate is not finite, ≤ 0, or above [`MAX_RATE_HZ`].
+    BadRate,
+    Compensator(CompensatorError),
+}
+
+/// Frame, error and flag counters (saturating).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct AcqCounters {
+    /// Scalar lines seen (= samples = records once flushed) and those rejected.
+    pub scalar_lines: u32,
+    pub scalar_errors: u32,
+    /// Fluxgate frames accepted / rejected (ASCII lines or SPI frames).
+    pub flux_frames: u32,
+    pub flux_errors: u32,
+    /// NMEA sentences accepted (including unsupported types) / rejected.
+    pub gps_sentences: u32,
+    pub gps_errors: u32,
+    /// Records emitted.
+    pub records: u32,
+    /// Records carrying each degradation flag.
+    pub flux_stale: u32,
+    pub no_gps: u32,
+    pub mag_missing: u32,
+    pub parse_error: u32,
+}
+
+impl AcqCounters {
+    /// Parser errors on all ports.
+    pub fn errors(&self) -> u32 {
+        self.scalar_errors
+            .saturating_add(self.flux_errors)
+            .saturating_add(self.gps_errors)
+    }
+}
+
+fn inc(c: &mut u32) {
+    *c = c.saturating_add(1);
+}
+
+/// Sensor bytes → records. `N`, `W`: the compensator's state and derivative-ring capacity.
+pub struct Acquisition<'a, const N: usize, const W: usize> {
+    cfg: AcqConfig,
+    scalar: ScalarReader,
+    flux: FluxAsciiReader,
+    flux_spi: FluxStats,
+    nmea: NmeaReader,
+    aligner: Aligner,
+    comp: Compensator<'a, N, W>,
+    period_us: u64,
+    /// Next scalar sample index.
+    k: u32,
+    /// Next record sequence number.
+    seq: u32,
+    /// GGA time of day (s) of the latest valid fix and the virtual time it was stamped with.
+    last_fix: Option<(f64, u64)>,
+    /// `(t at k_anchor, k_anchor)`.
+    anchor: Option<(f64, u32)>,
+    counters: AcqCounters,
+}
+
+impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
+    /// `comp` is built by the caller (the board from its static model, the host from a
+    /// model spec), normally with [`compensator_config`].
+    pub fn new(cfg: AcqConfig, comp: Compensator<'a, N, W>) -> Result<Self, AcqError> {
+        if !cfg.valid() {
+            return Err(AcqError::BadRate);
+        }
+        Ok(Self {
+            cfg,
+            scalar: ScalarReader::new(cfg.scalar),
+            flux: FluxAsciiReader::new(),
+            flux_spi: FluxStats::default(),
+            nmea: NmeaReader::new(),
+            aligner: Aligner::new(cfg.aligner_config()),
+            comp,
+            period_us: cfg.period_us().max(1),
+            k: 0,
+            seq: 0,
+            last_fix: None,
+            anchor: None,
+            counters: AcqCounters::default(),
+        })
+    }
+
+    pub fn config(&self) -> &AcqConfig {
+        &self.cfg
+    }
+    pub fn counters(&self) -> AcqCounters {
+        self.counters
+    }
+    pub fn scalar_stats(&self) -> ScalarStats {
+        self.scalar.stats
+    }
+    pub fn nmea_stats(&self) -> NmeaStats {
+        self.nmea.stats
+    }
+    /// ASCII and SPI fluxgate frames together.
+    pub fn flux_stats(&self) -> FluxStats {
+        FluxStats {
+            ok: self.flux.stats.ok.saturating_add(self.flux_spi.ok),
+            errors: self.flux.stats.errors.saturating_add(self.flux_spi.errors),
+        }
+    }
+    /// Scalar samples taken so far (records emitted + records still held).
+    pub fn samples(&self) -> u32 {
+        self.k
+    }
+    /// Sequence number of the next record.
+    pub fn next_seq(&self) -> u32 {
+        self.seq
+    }
+
+    pub fn compensator(&self) -> &Compensator<'a, N, W> {
+        &self.comp
+    }
+    pub fn compensator_mut(&mut self) -> &mut Compensator<'a, N, W> {
+        &mut self.comp
+    }
+    /// Swaps in a fresh compensator (filter reset); sequence numbers and the time base
+    /// continue. Call [`flush`](Self::flush) first so no sample loses its record.
+    pub fn replace_compensator(&mut self, comp: Compensator<'a, N, W>) -> Compensator<'a, N, W> {
+        core::mem::replace(&mut self.comp, comp)
+    }
+    pub fn set_survey_mode(&mut self, on: bool) {
+        self.comp.set_survey_mode(on);
+    }
+    pub fn is_survey_mode(&self) -> bool {
+        self.comp.is_survey_mode()
+    }
+    /// Loads coefficients (physical units, model order) and switches to survey mode.
+    pub fn set_coefficients(&mut self, c: &[f32]) -> Result<(), CompensatorError> {
+        self.comp.set_coefficients(c)
+    }
+    pub fn coefficients(&self, out: &mut [f32]) -> usize {
+        self.comp.coefficients(out)
+    }
+
+    /// Virtual time of the next scalar sample.
+    fn now_us(&self) -> u64 {
+        u64::from(self.k).saturating_mul(self.period_us)
+    }
+
+    /// One byte from the scalar port; a line end yields the sample's record (or the record
+    /// of the sample `half_width` back, which is what the compensator has ready).
+    pub fn push_scalar_byte(&mut self, b: u8) -> Option<Record> {
+        let r = self.scalar.push(b)?;
+        let k = self.k;
+        let t_us = self.now_us();
+        inc(&mut self.counters.scalar_lines);
+        if r.is_err() {
+            inc(&mut self.counters.scalar_errors);
+        }
+        let mut s = self.aligner.push_scalar_result(t_us, r);
+        if let (None, false, Some((tod_s, at_us))) =
+            (self.anchor, s.flags.contains(Flags::NO_GPS), self.last_fix)
+        {
+            self.anchor = Some((tod_s + t_us.saturating_sub(at_us) as f64 * 1e-6, k));
+        }
+        s.t_s = match self.anchor {
+            Some((t0, k0)) => t0 + f64::from(k.wrapping_sub(k0)) / self.cfg.scalar_hz,
+            None => f64::from(k) / self.cfg.scalar_hz,
+        };
+        self.k = self.k.wrapping_add(1);
+        let out = self.comp.push(&s)?;
+        Some(self.record(out))
+    }
+
+    /// One byte from the fluxgate's serial ASCII port (sensor frame, nT).
+    pub fn push_flux_byte(&mut self, b: u8) {
+        if let Some(r) = self.flux.push(b) {
+            let cal = self.cfg.flux_cal;
+            self.flux_result(r.map(|v| cal.to_body(v)));
+        }
+    }
+
+    /// One complete SPI frame from the fluxgate ADC (15 bytes, see `fluxgate`).
+    pub fn push_flux_frame(&mut self, frame: &[u8]) {
+        let r = decode_spi_frame(frame).map(|a| self.cfg.flux_cal.scale(a.counts));
+        let c = if r.is_ok() {
+            &mut self.flux_spi.ok
+        } else {
+            &mut self.flux_spi.errors
+        };
+        inc(c);
+        self.flux_result(r);
+    }
+
+    /// A fluxgate vector already decoded and in the body frame (nT), or its error.
+    pub fn flux_result(&mut self, r: Result<[f32; 3], FluxError>) {
+        match r {
+            Ok(v) => {
+                inc(&mut self.counters.flux_frames);
+                self.aligner.push_flux(self.now_us(), v);
+            }
+            Err(_) => {
+                inc(&mut self.counters.flux_errors);
+                self.aligner.note_parse_error();
+            }
+        }
+    }
+
+    /// One byte from the GPS port.
+    pub fn push_gps_byte(&mut self, b: u8) {
+        if let Some(r) = self.nmea.push(b) {
+            self.nmea_result(r);
+        }
+    }
+
+    /// A sentence from an NMEA reader the caller runs itself, or its error. Unsupported
+    /// sentence types are counted as sentences, not errors.
+    pub fn nmea_result(&mut self, r: Result<Sentence, NmeaError>) {
+        match r {
+            Ok(s) => {
+                inc(&mut self.counters.gps_sentences);
+                let now = self.now_us();
+                if let Sentence::Gga(Gga {
+                    fix_quality: Some(1..),
+                    time: Some(t),
+                    lat_deg: Some(_),
+                    lon_deg: Some(_),
+                    ..
+                }) = &s
+                {
+                    self.last_fix = Some((t.seconds_of_day_s, now));
+                }
+                self.aligner.push_nmea(now, &s);
+            }
+            Err(_) => {
+                inc(&mut self.counters.gps_errors);
+                self.aligner.note_parse_error();
+            }
+        }
+    }
+
+    /// Dispatches a byte by port (`cmd`/`out` bytes are not sensor data: ignored).
+    /// SPI fluxgate frames go through [`push_flux_frame`](Self::push_flux_frame).
+    pub fn push_byte(&mut self, port: Port, b: u8) -> Option<Record> {
+        match port {
+            Port::Scalar => return self.push_scalar_byte(b),
+            Port::Flux => self.push_flux_byte(b),
+            Port::Gps => self.push_gps_byte(b),
+            Port::Cmd | Port::Out => {}
+        }
+        None
+    }
+
+    /// A chunk of bytes from one port (a capture line); every record goes to `sink`.
+    pub fn push_bytes(&mut self, port: Port, bytes: &[u8], mut sink: impl FnMut(Record)) {
+        for &b in bytes {
+            if let Some(r) = self.push_byte(port, b) {
+                sink(r);
+            }
+        }
+    }
+
+    /// End of stream: the records still held for the centred derivative, one per call.
+    /// A scalar line left unterminated is not a sample (its end never arrived).
+    pub fn flush(&mut self) -> Option<Record> {
+        let out = self.comp.flush()?;
+        Some(self.record(out))
+    }
+
+    fn record(&mut self, o: crate::compensator::Output) -> Record {
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        let c = &mut self.counters;
+        inc(&mut c.records);
+        for (bit, n) in [
+            (Flags::FLUX_STALE, &mut c.flux_stale),
+            (Flags::NO_GPS, &mut c.no_gps),
+            (Flags::MAG_MISSING, &mut c.mag_missing),
+            (Flags::PARSE_ERROR, &mut c.parse_error),
+        ] {
+            if o.flags.contains(bit) {
+                inc(n);
+            }
+        }
+        Record {
+            seq,
+            t_s: o.t_s,
+            mag: o.mag,
+            interference_nt: o.interference_nt,
+            compensated: o.compensated,
+            anomaly_nt: o.anomaly_nt,
+            innovation_nt: o.innovation_nt,
+            flags: o.flags,
+        }
+    }
+}

@@ -1,0 +1,510 @@
+//! `magcomp monitor PORT_OR_FILE`: decodes the board's `$MCREC` stream and shows it live.
+//!
+//! Input: a serial device opened as a file (set it up first, e.g.
+//! `stty -F /dev/ttyUSB0 115200 raw -echo`), a recorded file, or `-` for stdin
+//! (`socat - /dev/ttyUSB0,b115200,raw | magcomp monitor -`).
+//! On a terminal the panel is redrawn in place every `--interval-s` of wall-clock time;
+//! otherwise one summary line is printed per `--interval-s` of record time (deterministic
+//! for files and logs), and a final summary at the end of the stream.
+//! Every line is accounted for: records, CRC failures, malformed records, replies
+//! (`$MCACK`/`$MCERR`), other lines. Missing sequence numbers are counted and listed.
+
+use crate::replay::{counts_text, nt_text};
+use anyhow::{Context, Result};
+use magcomp_core::protocol::record::{decode_record, Record, RecordError};
+use magcomp_core::Flags;
+use std::collections::VecDeque;
+use std::fmt::Write as _;
+use std::io::{IsTerminal, Read, Write};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// Lines longer than this are not records (`MAX_RECORD_LEN` is 192): counted, skipped.
+pub const MAX_LINE: usize = 512;
+/// Gap list kept for display (the count is exact beyond it).
+pub const MAX_GAPS: usize = 1000;
+/// A jump forward larger than this is a restart or a corrupted-but-valid line, not a gap.
+pub const MAX_GAP: u32 = 1_000_000;
+/// Records used for the rate estimate.
+const RATE_WINDOW: usize = 100;
+
+/// Decode and show the compensator's output stream live (values, flags, rates, errors).
+#[derive(clap::Args, Clone, Debug)]
+pub struct MonitorArgs {
+    /// Serial device (configure it with `stty`), a recorded file, or `-` for stdin.
+    #[arg(value_name = "PORT_OR_FILE")]
+    pub input: String,
+
+    /// Save the decoded records as a trace-like CSV
+    /// (t,mag,interference,compensated,anomaly,innovation,flags,seq).
+    #[arg(long, value_name = "TRACE.csv")]
+    pub save: Option<PathBuf>,
+
+    /// Refresh period on a terminal (wall-clock s); summary period otherwise (record s).
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    pub interval_s: f64,
+
+    /// No live output: only the final summary.
+    #[arg(long)]
+    pub quiet: bool,
+
+    /// Keep reading at the end of a file that a logger is still writing (stop with Ctrl-C).
+    #[arg(long)]
+    pub follow: bool,
+}
+
+/// Flag bits as words, in bit order.
+pub const FLAG_NAMES: [&str; 11] = [
+    "FLUX_STALE",
+    "NO_GPS",
+    "PARSE_ERROR",
+    "MAG_MISSING",
+    "INNOVATION_REJECTED",
+    "FILTER_RESET",
+    "TIE_POINT",
+    "AUX_MISSING",
+    "SURVEY_MODE",
+    "NOT_CONVERGED",
+    "DERIVATIVE_DEGRADED",
+];
+
+/// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT12`.
+pub fn flag_words(f: Flags) -> String {
+    let mut s = String::new();
+    for bit in 0..16 {
+        if f.0 & (1 << bit) == 0 {
+            continue;
+        }
+        if !s.is_empty() {
+            s.push('|');
+        }
+        match FLAG_NAMES.get(bit) {
+            Some(n) => s.push_str(n),
+            None => {
+                let _ = write!(s, "BIT{bit}");
+            }
+        }
+    }
+    if s.is_empty() {
+        s.push('-');
+    }
+    s
+}
+
+/// Counters over the whole stream.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MonitorStats {
+    /// Non-empty lines read.
+    pub lines: u64,
+    pub records: u64,
+    /// `$MCREC` lines whose CRC failed.
+    pub crc_errors: u64,
+    /// `$MCREC` lines with a good CRC but bad fields, or without a valid frame.
+    pub parse_errors: u64,
+    /// `$MCACK` / `$MCERR` replies.
+    pub replies: u64,
+    /// Anything else (boot text, noise, overlong lines).
+    pub other_lines: u64,
+    /// Sequence numbers never seen, and the gaps `(first, last)` (first `MAX_GAPS`).
+    pub missing: u64,
+    pub gaps: Vec<(u32, u32)>,
+    /// Sequence going backwards or jumping > `MAX_GAP` (board restart, duplicate).
+    pub restarts: u64,
+    /// Records carrying each flag bit.
+    pub flag_counts: [u64; 16],
+    pub first_t_s: Option<f64>,
+    pub last: Option<Record>,
+}
+
+/// The decoder state behind the display.
+#[derive(Clone, Debug, Default)]
+pub struct Monitor {
+    stats: MonitorStats,
+    expected: Option<u32>,
+    recent_t_s: VecDeque<f64>,
+}
+
+impl Monitor {
+    pub fn new() -> Self {
+        Self::default()
+    }
+    pub fn stats(&self) -> &MonitorStats {
+        &self.stats
+    }
+
+    /// One line (with or without its terminator); returns the record if it is one.
+    pub fn push_line(&mut self, line: &[u8]) -> Option<Record> {
+        let mut l = line;
+        while let [rest @ .., b'\r' | b'\n' | b' ' | b'\t'] = l {
+            l = rest;
+        }
+        // Idle-line NULs and blanks before a record are not part of it.
+        while let [b' ' | b'\t' | b'\r' | 0, rest @ ..] = l {
+            l = rest;
+        }
+        if l.is_empty() {
+            return None;
+        }
+        let s = &mut self.stats;
+        s.lines += 1;
+        if l.len() > MAX_LINE {
+            s.other_lines += 1;
+            return None;
+        }
+        if l.starts_with(b"$MCACK") || l.starts_with(b"$MCERR") {
+            s.replies += 1;
+            return None;
+        }
+        if !l.starts_with(b"$MCREC") {
+            // A record whose `$` or prefix was corrupted: its CRC cannot be checked.
+            if l.windows(6).any(|w| w == b"MCREC,") {
+                s.parse_errors += 1;
+            } else {
+                s.other_lines += 1;
+            }
+            return None;
+        }
+        match decode_record(l) {
+            Ok(r) => {
+                self.record(&r);
+                Some(r)
+            }
+            Err(RecordError::Crc { .. }) => {
+                s.crc_errors += 1;
+                None
+            }
+            Err(_) => {
+                s.parse_errors += 1;
+                None
+            }
+        }
+    }
+
+    fn record(&mut self, r: &Record) {
+        let s = &mut self.stats;
+        s.records += 1;
+        for (bit, c) in s.flag_counts.iter_mut().enumerate() {
+            if r.flags.0 & (1 << bit) != 0 {
+                *c += 1;
+            }
+        }
+        match self.expected {
+            Some(e) if r.seq == e => {}
+            Some(e) if r.seq > e && r.seq - e <= MAX_GAP => {
+                s.missing += u64::from(r.seq - e);
+                if s.gaps.len() < MAX_GAPS {
+                    s.gaps.push((e, r.seq - 1));
+                }
+            }
+            Some(_) => s.restarts += 1,
+            None => {}
+        }
+        self.expected = Some(r.seq.wrapping_add(1));
+        if r.t_s.is_finite() {
+            s.first_t_s.get_or_insert(r.t_s);
+            if self.recent_t_s.len() == RATE_WINDOW {
+                self.recent_t_s.pop_front();
+            }
+            self.recent_t_s.push_back(r.t_s);
+        }
+        s.last = Some(*r);
+    }
+
+    /// Record rate (Hz) from the time stamps of the last records.
+    pub fn rate_hz(&self) -> Option<f64> {
+        let (a, b) = (self.recent_t_s.front()?, self.recent_t_s.back()?);
+        let span = b - a;
+        (span > 0.0).then(|| (self.recent_t_s.len() - 1) as f64 / span)
+    }
+
+    fn gap_text(&self) -> String {
+        let g = &self.stats.gaps;
+        let mut s = String::new();
+        for (a, b) in g.iter().rev().take(5).rev() {
+            if !s.is_empty() {
+                s.push_str(", ");
+            }
+            if a == b {
+                let _ = write!(s, "{a}");
+            } else {
+                let _ = write!(s, "{a}-{b}");
+            }
+        }
+        if g.len() > 5 {
+            s = format!("… {s}");
+        }
+        s
+    }
+
+    /// One line: counts, rate, errors, last values.
+    pub fn summary_line(&self) -> String {
+        let s = &self.stats;
+        let mut o = format!(
+            "records {} rate {} Hz | crc {} bad {} other {} replies {} | missing {}",
+            s.records,
+            self.rate_hz().map_or("-".into(), |r| format!("{r:.2}")),
+            s.crc_errors,
+            s.parse_errors,
+            s.other_lines,
+            s.replies,
+            s.missing
+        );
+        if s.restarts > 0 {
+            let _ = write!(o, " restarts {}", s.restarts);
+        }
+        if let Some(r) = &s.last {
+            let _ = write!(
+                o,
+                " | seq {} t {:.3} comp {} flags {}",
+                r.seq,
+                r.t_s,
+                counts_text(r.compensated),
+                flag_words(r.flags)
+            );
+        }
+        o
+    }
+
+    /// The live panel (one string of lines).
+    pub fn panel(&self, source: &str) -> String {
+        let s = &self.stats;
+        let mut o = String::new();
+        let _ = writeln!(o, "magcomp monitor — {source}");
+        match &s.last {
+            Some(r) => {
+                let _ = writeln!(o, "  seq            {}", r.seq);
+                let _ = writeln!(o, "  t              {:.6} s", r.t_s);
+                let _ = writeln!(o, "  mag            {} nT", counts_text(r.mag));
+                let _ = writeln!(o, "  interference   {} nT", nt_text(r.interference_nt));
+                let _ = writeln!(o, "  compensated    {} nT", counts_text(r.compensated));
+                let _ = writeln!(o, "  anomaly        {} nT", nt_text(r.anomaly_nt));
+                let _ = writeln!(o, "  innovation     {} nT", nt_text(r.innovation_nt));
+                let _ = writeln!(
+                    o,
+                    "  flags          {:04X} {}",
+                    r.flags.0,
+                    flag_words(r.flags)
+                );
+            }
+            None => {
+                let _ = writeln!(o, "  (no record yet)");
+            }
+        }
+        let _ = writeln!(
+            o,
+            "  rate           {} Hz",
+            self.rate_hz().map_or("-".into(), |r| format!("{r:.2}"))
+        );
+        let _ = writeln!(
+            o,
+            "  records {}  crc errors {}  malformed {}  other lines {}  replies {}",
+            s.records, s.crc_errors, s.parse_errors, s.other_lines, s.replies
+        );
+        let _ = writeln!(
+            o,
+            "  missing seq {} in {} gaps{}{}",
+            s.missing,
+            s.gaps.len(),
+            if s.gaps.is_empty() { "" } else { ": " },
+            self.gap_text()
+        );
+        if s.restarts > 0 {
+            let _ = writeln!(o, "  restarts/out of order {}", s.restarts);
+        }
+        let mut fl = String::new();
+        for (bit, c) in s.flag_counts.iter().enumerate() {
+            if *c > 0 {
+                let name = FLAG_NAMES.get(bit).copied().unwrap_or("?");
+                let _ = write!(fl, " {name} {c}");
+            }
+        }
+        let _ = writeln!(o, "  flagged:{}", if fl.is_empty() { " none" } else { &fl });
+        o
+    }
+}
+
+/// Header and rows of the saved CSV (a trace-like file: `t` first, `#` metadata).
+pub const SAVE_HEADER: &str = "t,mag,interference,compensated,anomaly,innovation,flags,seq";
+
+pub fn save_row(r: &Record) -> String {
+    format!(
+        "{:.6},{},{},{},{},{},{},{}",
+        r.t_s,
+        counts_text(r.mag),
+        nt_text(r.interference_nt),
+        counts_text(r.compensated),
+        nt_text(r.anomaly_nt),
+        nt_text(r.innovation_nt),
+        r.flags.0,
+        r.seq
+    )
+}
+
+/// How the stream is shown.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Display {
+    /// Redraw the panel in place (ANSI) every period of wall-clock time.
+    Live(Duration),
+    /// A summary line per this many seconds of record time.
+    Summary(f64),
+    /// Nothing until the end.
+    Quiet,
+}
+
+/// Reads `input` to its end, showing progress on `out` and saving records to `save`.
+/// With `follow`, the end of `input` is waited on (polled every 200 ms), never reached.
+pub fn monitor_stream<R: Read, W: Write>(
+    mut input: R,
+    source: &str,
+    display: Display,
+    follow: bool,
+    out: &mut W,
+    mut save: Option<&mut dyn Write>,
+) -> Result<MonitorStats> {
+    let mut m = Monitor::new();
+    if let Some(w) = save.as_mut() {
+        writeln!(w, "# source: magcomp monitor")?;
+        writeln!(w, "# input: {source}")?;
+        writeln!(w, "{SAVE_HEADER}")?;
+    }
+    if let Display::Live(_) = display {
+        write!(out, "\x1b[2J")?;
+    }
+    let mut buf = [0u8; 4096];
+    let mut line: Vec<u8> = Vec::with_capacity(256);
+    let mut overlong = false;
+    let mut last_draw = Instant::now();
+    let mut next_summary_t: Option<f64> = None;
+    let mut handle =
+        |m: &mut Monitor, l: &[u8], out: &mut W, save: &mut Option<&mut dyn Write>| -> Result<()> {
+            if let Some(r) = m.push_line(l) {
+                if let Some(w) = save.as_mut() {
+                    writeln!(w, "{}", save_row(&r))?;
+                }
+                if let (Display::Summary(p), true) = (display, r.t_s.is_finite()) {
+                    let due = *next_summary_t.get_or_insert(r.t_s + p);
+                    if r.t_s >= due {
+                        writeln!(out, "{}", m.summary_line())?;
+                        // Skip forward over silent stretches instead of printing a burst.
+                        let k = ((r.t_s - due) / p).floor() + 1.0;
+                        next_summary_t = Some(due + k * p);
+                    }
+                }
+            }
+            Ok(())
+        };
+    loop {
+        let n = match input.read(&mut buf) {
+            Ok(0) if follow => {
+                if let Some(w) = save.as_mut() {
+                    w.flush()?;
+                }
+                std::thread::sleep(Duration::from_millis(200));
+                0
+            }
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e).context(format!("reading {source}")),
+        };
+        for &b in &buf[..n] {
+            if b == b'\n' {
+                if overlong {
+                    m.push_line(&[b'?'; MAX_LINE + 1]);
+                } else {
+                    handle(&mut m, &line, out, &mut save)?;
+                }
+                line.clear();
+                overlong = false;
+            } else if line.len() > MAX_LINE {
+                overlong = true;
+            } else {
+                line.push(b);
+            }
+        }
+        if let Display::Live(period) = display {
+            if last_draw.elapsed() >= period {
+                draw(out, &m, source)?;
+                last_draw = Instant::now();
+            }
+        }
+    }
+    if overlong {
+        m.push_line(&[b'?'; MAX_LINE + 1]);
+    } else if !line.is_empty() {
+        handle(&mut m, &line, out, &mut save)?;
+    }
+    match display {
+        Display::Live(_) => draw(out, &m, source)?,
+        _ => writeln!(out, "end of stream: {}", m.summary_line())?,
+    }
+    out.flush()?;
+    Ok(m.stats().clone())
+}
+
+fn draw<W: Write>(out: &mut W, m: &Monitor, source: &str) -> Result<()> {
+    // Home, each line cleared to its end, then the rest of the screen.
+    let mut s = String::from("\x1b[H");
+    for l in m.panel(source).lines() {
+        s.push_str(l);
+        s.push_str("\x1b[K\n");
+    }
+    s.push_str("\x1b[J");
+    out.write_all(s.as_bytes())?;
+    out.flush()?;
+    Ok(())
+}
+
+pub fn run_monitor(args: &MonitorArgs) -> Result<MonitorStats> {
+    anyhow::ensure!(
+        args.interval_s.is_finite() && args.interval_s > 0.0,
+        "--interval-s must be > 0"
+    );
+    let stdout = std::io::stdout();
+    let display = if args.quiet {
+        Display::Quiet
+    } else if stdout.is_terminal() {
+        Display::Live(Duration::from_secs_f64(args.interval_s))
+    } else {
+        Display::Summary(args.interval_s)
+    };
+    let mut save_file = match &args.save {
+        Some(p) => Some(std::io::BufWriter::new(
+            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
+        )),
+        None => None,
+    };
+    let save: Option<&mut dyn Write> = save_file.as_mut().map(|w| w as &mut dyn Write);
+    let mut out = stdout.lock();
+    let stats = if args.input == "-" {
+        monitor_stream(
+            std::io::stdin().lock(),
+            "stdin",
+            display,
+            args.follow,
+            &mut out,
+            save,
+        )?
+    } else {
+        let f =
+            std::fs::File::open(&args.input).with_context(|| format!("opening {}", args.input))?;
+        monitor_stream(f, &args.input, display, args.follow, &mut out, save)?
+    };
+    if let (Some(w), Some(p)) = (save_file.as_mut(), &args.save) {
+        w.flush()
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flag_words_decode_bits() {
+        assert_eq!(flag_words(Flags(0)), "-");
+        assert_eq!(flag_words(Flags(0b11)), "FLUX_STALE|NO_GPS");
+        assert_eq!(flag_words(Flags(1 << 8 | 1 << 12)), "SURVEY_MODE|BIT12");
+    }
+}

@@ -1,0 +1,458 @@
+//! `magcomp replay CAPTURE`: a raw sensor capture through `magcomp_core::acquisition`, the
+//! code the firmware runs, in capture-line order; writes the records the board would send.
+//!
+//! Same as the board: readers, time base (virtual clock from the scalar line count, GPS
+//! time of day anchor), staleness limits of 2.5 sensor periods, the derivative window of a
+//! 16-sample ring, `CompensatorConfig::for_rate` defaults. Only the order of the chunks
+//! matters, not their timestamps (the board's records do not depend on UART jitter either).
+//! Rates come from `--rate`/`--flux-rate`/`--gps-rate`, else from the capture's
+//! `# scalar_hz:` / `# flux_hz:` / `# gps_hz:` comments, else the board's 10/10/1 Hz.
+
+use crate::capture_sim::FluxFormat;
+use crate::model_spec::{with_model, ModelSpec, DEFAULT_MODEL};
+use anyhow::{bail, Context, Result};
+use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
+use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
+use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
+use magcomp_core::{Compensator, MagCounts};
+use std::fmt;
+use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// State capacity of the host replay (any model the host can build).
+pub const REPLAY_STATES: usize = 64;
+/// Derivative ring of the board (`WINDOW` in the firmware): same half-width clamp.
+pub const REPLAY_WINDOW: usize = 16;
+/// The board's nominal rates when neither the flags nor the capture say otherwise.
+pub const BOARD_RATES_HZ: (f64, f64, f64) = (10.0, 10.0, 1.0);
+
+/// Columns of the records CSV.
+pub const CSV_HEADER: &str = "seq,t,mag,interference,compensated,anomaly,innovation,flags";
+
+/// Replay a raw sensor capture through the board's acquisition code (parsers, aligner,
+/// time base, compensator) and write the output records.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ReplayArgs {
+    /// Capture file (`# magcomp-capture v1`, e.g. from `magcomp simulate --capture`).
+    #[arg(value_name = "CAPTURE")]
+    pub capture: PathBuf,
+
+    /// Model spec (terms joined by `+`). Channel terms see no channels in a capture and
+    /// are flagged AUX_MISSING.
+    #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
+    pub model: String,
+
+    /// Apply these coefficients (survey mode): a `calibrate` JSON file
+    /// (`"coefficients": [{"value": …}]`) or plain numbers separated by commas/whitespace.
+    #[arg(long, value_name = "FILE")]
+    pub coeffs: Option<PathBuf>,
+
+    /// Scalar sample rate (Hz) of the time base; default from the capture header.
+    #[arg(long, value_name = "HZ")]
+    pub rate: Option<f64>,
+
+    /// Fluxgate frame rate (Hz; staleness limit 2.5 periods); default from the capture.
+    #[arg(long, value_name = "HZ")]
+    pub flux_rate: Option<f64>,
+
+    /// GPS epoch rate (Hz; staleness limit 2.5 periods); default from the capture.
+    #[arg(long, value_name = "HZ")]
+    pub gps_rate: Option<f64>,
+
+    /// Fluxgate bytes are ASCII lines or SPI frames; default from the capture.
+    #[arg(long, value_enum, value_name = "FORMAT")]
+    pub flux: Option<FluxFormat>,
+
+    /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,flags.
+    #[arg(short, long, value_name = "OUT.csv")]
+    pub output: Option<PathBuf>,
+
+    /// Records as the board sends them (`$MCREC,…*CRC` lines).
+    #[arg(long, value_name = "OUT.txt")]
+    pub records: Option<PathBuf>,
+}
+
+/// Everything the replay needs besides the bytes.
+#[derive(Clone, Debug)]
+pub struct ReplayOptions {
+    pub model: ModelSpec,
+    pub coefficients: Option<Vec<f32>>,
+    pub rate_hz: Option<f64>,
+    pub flux_rate_hz: Option<f64>,
+    pub gps_rate_hz: Option<f64>,
+    pub flux: Option<FluxFormat>,
+}
+
+impl ReplayOptions {
+    pub fn new(model: ModelSpec) -> Self {
+        Self {
+            model,
+            coefficients: None,
+            rate_hz: None,
+            flux_rate_hz: None,
+            gps_rate_hz: None,
+            flux: None,
+        }
+    }
+}
+
+/// What a replay read and produced.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReplayStats {
+    pub records: u64,
+    pub counters: AcqCounters,
+    /// Capture data lines read, and those that could not be decoded (skipped).
+    pub capture_lines: u64,
+    pub bad_capture_lines: u64,
+    pub scalar_hz: f64,
+    pub flux_hz: f64,
+    pub gps_hz: f64,
+    pub flux_format: Option<FluxFormat>,
+    pub first_t_s: Option<f64>,
+    pub last_t_s: Option<f64>,
+}
+
+impl fmt::Display for ReplayStats {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.counters;
+        write!(
+            f,
+            "{} records from {} scalar lines (rates {}/{}/{} Hz, fluxgate {}); errors: scalar {}, flux {}, gps {}; \
+             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines",
+            self.records,
+            c.scalar_lines,
+            self.scalar_hz,
+            self.flux_hz,
+            self.gps_hz,
+            self.flux_format.map_or("?", |x| x.name()),
+            c.scalar_errors,
+            c.flux_errors,
+            c.gps_errors,
+            c.flux_stale,
+            c.no_gps,
+            c.mag_missing,
+            c.parse_error,
+            self.bad_capture_lines
+        )
+    }
+}
+
+/// Reads coefficients: a `calibrate` JSON file or plain numbers.
+pub fn read_coefficients(path: &Path) -> Result<Vec<f32>> {
+    read_coefficients_for(path, None)
+}
+
+/// As [`read_coefficients`]; a JSON file must also be a Kalman-filter calibration of
+/// `model` (Tolles–Lawson coefficients follow other conventions than the board's filter).
+pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<Vec<f32>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let ctx = || format!("coefficients in {}", path.display());
+    if let (Some(spec), Ok(v)) = (model, serde_json::from_str::<serde_json::Value>(&text)) {
+        if let Some(m) = v.get("method").and_then(|m| m.as_str()) {
+            if m != "kf" {
+                bail!(
+                    "{}: method '{m}' coefficients cannot be loaded into the board's filter; calibrate with the Kalman filter",
+                    path.display()
+                );
+            }
+        }
+        if let Some(m) = v.get("model").and_then(|m| m.as_str()) {
+            let theirs = ModelSpec::parse(m).with_context(ctx)?;
+            if theirs.text() != spec.text() {
+                bail!(
+                    "{} was calibrated for model '{}', the replay runs '{}' (use --model {})",
+                    path.display(),
+                    theirs.text(),
+                    spec.text(),
+                    theirs.text()
+                );
+            }
+        }
+    }
+    parse_coefficients(&text).with_context(ctx)
+}
+
+pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
+    let vals: Vec<f64> = if text.trim_start().starts_with('{') || text.trim_start().starts_with('[')
+    {
+        let v: serde_json::Value = serde_json::from_str(text).context("not valid JSON")?;
+        let list = v.get("coefficients").unwrap_or(&v);
+        let Some(arr) = list.as_array() else {
+            bail!("no \"coefficients\" array");
+        };
+        arr.iter()
+            .map(|c| {
+                c.get("value")
+                    .unwrap_or(c)
+                    .as_f64()
+                    .context("a coefficient is not a number")
+            })
+            .collect::<Result<_>>()?
+    } else {
+        text.split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                s.parse::<f64>()
+                    .with_context(|| format!("'{s}' is not a number"))
+            })
+            .collect::<Result<_>>()?
+    };
+    if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
+        bail!("a coefficient is not finite or |v| ≥ 1e6");
+    }
+    Ok(vals.iter().map(|v| *v as f32).collect())
+}
+
+/// `# key: value` metadata from the capture's leading comments.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaptureMeta {
+    pub scalar_hz: Option<f64>,
+    pub flux_hz: Option<f64>,
+    pub gps_hz: Option<f64>,
+    pub flux_format: Option<FluxFormat>,
+}
+
+impl CaptureMeta {
+    fn take(&mut self, line: &str) {
+        let Some((k, v)) = line.trim_start_matches('#').split_once(':') else {
+            return;
+        };
+        let num = v.trim().parse::<f64>().ok();
+        match k.trim() {
+            "scalar_hz" => self.scalar_hz = num,
+            "flux_hz" => self.flux_hz = num,
+            "gps_hz" => self.gps_hz = num,
+            "flux_format" => self.flux_format = FluxFormat::parse(v),
+            _ => {}
+        }
+    }
+}
+
+/// Replays a capture from `input`; every record goes to `sink` in order.
+pub fn replay_capture<R: BufRead>(
+    mut input: R,
+    opts: &ReplayOptions,
+    mut sink: impl FnMut(&Record) -> Result<()>,
+) -> Result<ReplayStats> {
+    // Leading comments carry the rates the capture was made with.
+    let mut meta = CaptureMeta::default();
+    let mut first_data: Option<Vec<u8>> = None;
+    let mut line = Vec::new();
+    let mut lineno = 0u64;
+    loop {
+        line.clear();
+        if input.read_until(b'\n', &mut line)? == 0 {
+            break;
+        }
+        lineno += 1;
+        if line.first() == Some(&b'#') {
+            if decode_line(&line, &mut []).is_err() {
+                bail!("line {lineno}: unsupported capture version");
+            }
+            meta.take(&String::from_utf8_lossy(&line));
+            continue;
+        }
+        if line.iter().all(u8::is_ascii_whitespace) {
+            continue;
+        }
+        first_data = Some(std::mem::take(&mut line));
+        break;
+    }
+    let (d_scalar, d_flux, d_gps) = BOARD_RATES_HZ;
+    let scalar_hz = opts.rate_hz.or(meta.scalar_hz).unwrap_or(d_scalar);
+    let flux_hz = opts.flux_rate_hz.or(meta.flux_hz).unwrap_or(d_flux);
+    let gps_hz = opts.gps_rate_hz.or(meta.gps_hz).unwrap_or(d_gps);
+    let flux_format = opts.flux.or(meta.flux_format).unwrap_or(FluxFormat::Ascii);
+    let cfg = AcqConfig::new(scalar_hz, flux_hz, gps_hz);
+    let spec = &opts.model;
+    with_model(spec, |model| -> Result<ReplayStats> {
+        let comp = Compensator::<REPLAY_STATES, REPLAY_WINDOW>::new(
+            model,
+            compensator_config(scalar_hz as f32, REPLAY_WINDOW),
+        )
+        .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+        let mut acq = Acquisition::new(cfg, comp)
+            .map_err(|e| anyhow::anyhow!("rates {scalar_hz}/{flux_hz}/{gps_hz} Hz: {e:?}"))?;
+        if let Some(c) = &opts.coefficients {
+            acq.set_coefficients(c).map_err(|_| {
+                anyhow::anyhow!(
+                    "{} coefficients do not fit model '{}' ({} coefficients)",
+                    c.len(),
+                    spec.text(),
+                    model.coefficient_count()
+                )
+            })?;
+        }
+        let mut stats = ReplayStats {
+            scalar_hz,
+            flux_hz,
+            gps_hz,
+            flux_format: Some(flux_format),
+            ..Default::default()
+        };
+        let mut emit = |r: &Record, stats: &mut ReplayStats| -> Result<()> {
+            stats.records += 1;
+            stats.first_t_s.get_or_insert(r.t_s);
+            stats.last_t_s = Some(r.t_s);
+            sink(r)
+        };
+        let mut data = [0u8; MAX_CHUNK];
+        let mut pending = first_data;
+        loop {
+            let l = match pending.take() {
+                Some(l) => l,
+                None => {
+                    line.clear();
+                    if input.read_until(b'\n', &mut line)? == 0 {
+                        break;
+                    }
+                    std::mem::take(&mut line)
+                }
+            };
+            let c = match decode_line(&l, &mut data) {
+                Ok(Some(c)) => c,
+                Ok(None) => continue,
+                Err(_) => {
+                    stats.bad_capture_lines += 1;
+                    continue;
+                }
+            };
+            stats.capture_lines += 1;
+            let bytes = &data[..c.len];
+            if c.port == Port::Flux && flux_format == FluxFormat::Spi {
+                acq.push_flux_frame(bytes);
+                continue;
+            }
+            for &b in bytes {
+                if let Some(r) = acq.push_byte(c.port, b) {
+                    emit(&r, &mut stats)?;
+                }
+            }
+        }
+        while let Some(r) = acq.flush() {
+            emit(&r, &mut stats)?;
+        }
+        stats.counters = acq.counters();
+        Ok(stats)
+    })
+}
+
+/// `12.3456` from counts, exactly; empty when missing.
+pub fn counts_text(c: Option<MagCounts>) -> String {
+    match c {
+        Some(c) => {
+            let sign = if c.0 < 0 { "-" } else { "" };
+            let a = c.0.unsigned_abs();
+            format!("{sign}{}.{:04}", a / 10_000, a % 10_000)
+        }
+        None => String::new(),
+    }
+}
+
+/// 4 decimals, empty when not finite.
+pub fn nt_text(v: f32) -> String {
+    if v.is_finite() {
+        format!("{v:.4}")
+    } else {
+        String::new()
+    }
+}
+
+/// One CSV row (flags as a decimal integer, like the HIL harness reads them).
+pub fn csv_row(r: &Record) -> String {
+    format!(
+        "{},{:.6},{},{},{},{},{},{}",
+        r.seq,
+        r.t_s,
+        counts_text(r.mag),
+        nt_text(r.interference_nt),
+        counts_text(r.compensated),
+        nt_text(r.anomaly_nt),
+        nt_text(r.innovation_nt),
+        r.flags.0
+    )
+}
+
+fn create(path: &Path) -> Result<BufWriter<std::fs::File>> {
+    Ok(BufWriter::new(
+        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
+    ))
+}
+
+pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
+    let model = ModelSpec::parse(&args.model)?;
+    let coefficients = args
+        .coeffs
+        .as_deref()
+        .map(|p| read_coefficients_for(p, Some(&model)))
+        .transpose()?;
+    let mut opts = ReplayOptions::new(model);
+    opts.coefficients = coefficients;
+    opts.rate_hz = args.rate;
+    opts.flux_rate_hz = args.flux_rate;
+    opts.gps_rate_hz = args.gps_rate;
+    opts.flux = args.flux;
+    let f = std::fs::File::open(&args.capture)
+        .with_context(|| format!("opening {}", args.capture.display()))?;
+    let mut csv = args.output.as_deref().map(create).transpose()?;
+    let mut txt = args.records.as_deref().map(create).transpose()?;
+    if let Some(w) = csv.as_mut() {
+        writeln!(w, "{CSV_HEADER}")?;
+    }
+    let mut buf = [0u8; MAX_RECORD_LEN];
+    let stats = replay_capture(BufReader::new(f), &opts, |r| {
+        if let Some(w) = csv.as_mut() {
+            writeln!(w, "{}", csv_row(r))?;
+        }
+        if let Some(w) = txt.as_mut() {
+            let n = encode_record(r, &mut buf).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            w.write_all(&buf[..n])?;
+        }
+        Ok(())
+    })
+    .with_context(|| format!("replaying {}", args.capture.display()))?;
+    for (w, p) in [(csv.as_mut(), &args.output), (txt.as_mut(), &args.records)] {
+        if let (Some(w), Some(p)) = (w, p) {
+            w.flush()
+                .with_context(|| format!("writing {}", p.display()))?;
+        }
+    }
+    eprintln!("replay: {stats}");
+    Ok(stats)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coefficient_files() {
+        assert_eq!(
+            parse_coefficients("1, 2.5\n-3").unwrap(),
+            vec![1.0, 2.5, -3.0]
+        );
+        let j = r#"{"format":"magcomp-coefficients-v1","coefficients":[{"name":"a","value":0.5},{"value":-2}]}"#;
+        assert_eq!(parse_coefficients(j).unwrap(), vec![0.5, -2.0]);
+        assert!(parse_coefficients("1, x").is_err());
+        assert!(parse_coefficients("1e7").is_err());
+        assert!(parse_coefficients("{\"c\": 1}").is_err());
+    }
+
+    #[test]
+    fn meta_comments() {
+        let mut m = CaptureMeta::default();
+        for l in [
+            "# scalar_hz: 20",
+            "# gps_hz: 5",
+            "# flux_format: spi",
+            "# other: x",
+        ] {
+            m.take(l);
+        }
+        assert_eq!(m.scalar_hz, Some(20.0));
+        assert_eq!(m.gps_hz, Some(5.0));
+        assert_eq!(m.flux_hz, None);
+        assert_eq!(m.flux_format, Some(FluxFormat::Spi));
+    }
+}
