@@ -111,10 +111,45 @@ fn current_rate_is_named_with_its_channel_among_decoys() {
 fn diurnal_is_named_and_removing_it_cuts_the_error() {
     // Micropulsations are mostly absorbed by the field states; what is left explains
     // 12 % of the residual on seeds 2–3 but only 2.3 % on seed 1: named first there,
-    // below the 15 % materiality bar.
-    check_effect_with("diurnal", "diurnal:base", 1, false, false);
-    for seed in [2, 3] {
+    // below the 15 % materiality bar (so not required to be significant). The interference
+    // error stays ≤ 0.1 nT (0.007 → 0.018 nT): the bar is met, but see the next test.
+    for seed in [1, 2, 3] {
         check_effect_with("diurnal", "diurnal:base", seed, false, false);
+    }
+}
+
+/// The diurnal term is not interference: its job is the anomaly map (scalar − core-field
+/// change − interference − β·base) against truth_anomaly.
+#[test]
+#[ignore = "the KF estimates β ≈ 0.06 (0.15 without tie points) instead of 1: at 3000 m the field states follow everything slower than ~0.2 Hz, so the diurnal is credited to the field; map error 2.06 → 1.95 nT (seed 1)"]
+fn diurnal_anomaly_map_full_bar() {
+    for seed in [1, 2, 3] {
+        let trace = flight("diurnal", seed, false);
+        let anomaly_error = |spec: &str| {
+            let spec = ModelSpec::parse(spec).expect("spec");
+            let f = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels())
+                .expect("flight");
+            let run = run_kf(&f, &KfOptions::new(spec)).expect("kf");
+            let beta = run
+                .coefficient_names
+                .iter()
+                .position(|(n, _)| n.starts_with("diurnal"))
+                .map_or(0.0, |i| run.coefficients[i]);
+            let base = trace.col("base").expect("base");
+            let map: Vec<f64> = magcomp::diagnose::scalar_relative_nt(&f)
+                .iter()
+                .zip(&run.interference_nt)
+                .zip(base)
+                .map(|((m, i), b)| m - i - beta * (b - base[0]))
+                .collect();
+            error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None)
+        };
+        let before = anomaly_error("tl16+field");
+        let after = anomaly_error("tl16+field+diurnal");
+        assert!(
+            after <= 0.1 || before / after >= 5.0,
+            "seed {seed}: anomaly error {before:.4} → {after:.4} nT"
+        );
     }
 }
 
