@@ -1,0 +1,60 @@
+//! Post-flight compensation with terms that are not in the core catalogue (yet): the
+//! same two passes as `pipeline::run_kf` (calibrate on the flight, then apply the final
+//! coefficients), with a model built from any `Term` values. Lets a user check a new
+//! effect end to end before it is pasted into `core/src/model` (docs/adding-an-effect.md).
+
+use crate::flight::Flight;
+use crate::pipeline::HostCompensator;
+use anyhow::{anyhow, bail, Result};
+use magcomp_core::compensator::CompensatorConfig;
+use magcomp_core::model::{Model, Term};
+
+/// Interference estimate per sample (nT) and the final coefficients, post-flight.
+/// `sigma1`/`noise_nt` as in [`crate::pipeline::KfRun`] (take them from a run of the
+/// catalogue model on the same flight).
+pub fn post_flight_with_terms(
+    flight: &Flight,
+    field: bool,
+    terms: &[&dyn Term],
+    sigma1: f64,
+    noise_nt: f64,
+) -> Result<(Vec<f64>, Vec<f64>)> {
+    let mut cfg = CompensatorConfig::for_rate(flight.sample_rate_hz as f32);
+    cfg.sigma1 = sigma1 as f32;
+    cfg.sigma2 = (sigma1 / 10.0) as f32;
+    cfg.noise_nt = noise_nt as f32;
+    cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
+    cfg.tie_points[0] = flight.tie_point;
+    let model = Model { field, terms };
+    let k = model.coefficient_count();
+    let mut comp =
+        HostCompensator::new(model, cfg).map_err(|e| anyhow!("cannot build the filter: {e:?}"))?;
+    for s in &flight.samples {
+        comp.push(s);
+    }
+    while comp.flush().is_some() {}
+    let mut c = vec![0.0f32; k];
+    comp.coefficients(&mut c);
+    let mut apply =
+        HostCompensator::new(model, cfg).map_err(|e| anyhow!("cannot build the filter: {e:?}"))?;
+    apply
+        .set_coefficients(&c)
+        .map_err(|e| anyhow!("coefficients rejected: {e:?}"))?;
+    let mut out = Vec::with_capacity(flight.len());
+    for s in &flight.samples {
+        if let Some(o) = apply.push(s) {
+            out.push(o.interference_nt as f64);
+        }
+    }
+    while let Some(o) = apply.flush() {
+        out.push(o.interference_nt as f64);
+    }
+    if out.len() != flight.len() {
+        bail!(
+            "internal: {} outputs for {} samples",
+            out.len(),
+            flight.len()
+        );
+    }
+    Ok((out, c.iter().map(|v| *v as f64).collect()))
+}

@@ -1,0 +1,288 @@
+//! Small statistics kit for the diagnosis: χ² tail probabilities and quantiles, AR
+//! prewhitening, least squares through a Gram matrix.
+
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+
+/// ln Γ(x) (Lanczos, g = 7), x > 0.
+fn ln_gamma(x: f64) -> f64 {
+    const C: [f64; 9] = [
+        0.999_999_999_999_809_9,
+        676.520_368_121_885_1,
+        -1_259.139_216_722_402_8,
+        771.323_428_777_653_1,
+        -176.615_029_162_140_6,
+        12.507_343_278_686_905,
+        -0.138_571_095_265_720_12,
+        9.984_369_578_019_572e-6,
+        1.505_632_735_149_311_6e-7,
+    ];
+    if x < 0.5 {
+        let pi = std::f64::consts::PI;
+        return (pi / (pi * x).sin()).ln() - ln_gamma(1.0 - x);
+    }
+    let x = x - 1.0;
+    let mut a = C[0];
+    let t = x + 7.5;
+    for (i, c) in C.iter().enumerate().skip(1) {
+        a += c / (x + i as f64);
+    }
+    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
+}
+
+/// Regularised upper incomplete gamma Q(a, x) (Numerical Recipes: series below a + 1,
+/// continued fraction above).
+pub fn gamma_q(a: f64, x: f64) -> f64 {
+    if a.is_nan() || a <= 0.0 || x.is_nan() {
+        return f64::NAN;
+    }
+    if x <= 0.0 {
+        return 1.0;
+    }
+    let gln = ln_gamma(a);
+    if x < a + 1.0 {
+        let mut ap = a;
+        let mut sum = 1.0 / a;
+        let mut del = sum;
+        for _ in 0..1000 {
+            ap += 1.0;
+            del *= x / ap;
+            sum += del;
+            if del.abs() < sum.abs() * 1e-15 {
+                break;
+            }
+        }
+        (1.0 - sum * (-x + a * x.ln() - gln).exp()).clamp(0.0, 1.0)
+    } else {
+        let tiny = 1e-300;
+        let mut b = x + 1.0 - a;
+        let mut c = 1.0 / tiny;
+        let mut d = 1.0 / b;
+        let mut h = d;
+        for i in 1..1000 {
+            let an = -(i as f64) * (i as f64 - a);
+            b += 2.0;
+            d = an * d + b;
+            if d.abs() < tiny {
+                d = tiny;
+            }
+            c = b + an / c;
+            if c.abs() < tiny {
+                c = tiny;
+            }
+            d = 1.0 / d;
+            let del = d * c;
+            h *= del;
+            if (del - 1.0).abs() < 1e-15 {
+                break;
+            }
+        }
+        ((-x + a * x.ln() - gln).exp() * h).clamp(0.0, 1.0)
+    }
+}
+
+/// P(χ²_k > x).
+pub fn chi2_sf(x: f64, k: f64) -> f64 {
+    gamma_q(k / 2.0, x / 2.0)
+}
+
+/// Upper quantile: the x with P(χ²_k > x) = p (bisection on the exact tail).
+pub fn chi2_isf(p: f64, k: f64) -> f64 {
+    let p = p.clamp(1e-300, 1.0);
+    let (mut lo, mut hi) = (0.0f64, k.max(1.0));
+    while chi2_sf(hi, k) > p {
+        hi *= 2.0;
+        if hi > 1e9 {
+            return hi;
+        }
+    }
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if chi2_sf(mid, k) > p {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+        if hi - lo < 1e-9 * hi {
+            break;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// AR(p) coefficients `a` of `x` (Yule–Walker via Levinson–Durbin), so that
+/// `e_t = x_t − Σ a_i x_{t−i}` is close to white. Returns an empty vector when the series
+/// is degenerate.
+pub fn fit_ar(x: &[f64], p: usize) -> Vec<f64> {
+    let n = x.len();
+    if n <= 2 * p + 2 {
+        return Vec::new();
+    }
+    let mean = x.iter().sum::<f64>() / n as f64;
+    let r: Vec<f64> = (0..=p)
+        .map(|k| {
+            (k..n)
+                .map(|i| (x[i] - mean) * (x[i - k] - mean))
+                .sum::<f64>()
+                / n as f64
+        })
+        .collect();
+    if r[0].is_nan() || r[0] <= 0.0 {
+        return Vec::new();
+    }
+    let mut a = vec![0.0; p];
+    let mut err = r[0];
+    for m in 0..p {
+        let mut acc = r[m + 1];
+        for j in 0..m {
+            acc -= a[j] * r[m - j];
+        }
+        let k = acc / err;
+        if !k.is_finite() || k.abs() >= 1.0 {
+            a.truncate(m);
+            break;
+        }
+        let prev = a.clone();
+        a[m] = k;
+        for j in 0..m {
+            a[j] = prev[j] - k * prev[m - 1 - j];
+        }
+        err *= 1.0 - k * k;
+    }
+    a
+}
+
+/// Applies the AR whitening filter: `y_t = x_t − Σ a_i x_{t−i}` for t ≥ p.
+pub fn ar_filter(x: &[f64], a: &[f64]) -> Vec<f64> {
+    let p = a.len();
+    (p..x.len())
+        .map(|t| {
+            x[t] - a
+                .iter()
+                .enumerate()
+                .map(|(i, ai)| ai * x[t - 1 - i])
+                .sum::<f64>()
+        })
+        .collect()
+}
+
+/// Least squares of `y` on the columns `cols` through their Gram matrix, robust to
+/// collinear columns (eigen-decomposition with a relative cut-off). `gram` is the Gram of
+/// [y, X...] (index 0 = y); `cols` index into it. Returns (coefficients, RSS, rank).
+pub fn gram_lstsq(gram: &DMatrix<f64>, cols: &[usize]) -> (Vec<f64>, f64, usize) {
+    let k = cols.len();
+    let yy = gram[(0, 0)];
+    if k == 0 {
+        return (Vec::new(), yy, 0);
+    }
+    // Normalise columns so the cut-off is scale-free (currents in A, rates in nT/s...).
+    let d: Vec<f64> = cols
+        .iter()
+        .map(|&c| {
+            let v = gram[(c, c)];
+            if v > 0.0 {
+                1.0 / v.sqrt()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let a = DMatrix::from_fn(k, k, |i, j| gram[(cols[i], cols[j])] * d[i] * d[j]);
+    let b = DVector::from_fn(k, |i, _| gram[(cols[i], 0)] * d[i]);
+    let eig = SymmetricEigen::new(a);
+    let lmax = eig.eigenvalues.iter().cloned().fold(0.0f64, f64::max);
+    let tol = lmax * 1e-9;
+    let mut z = DVector::zeros(k);
+    let mut rank = 0;
+    let ub = eig.eigenvectors.transpose() * &b;
+    for i in 0..k {
+        let l = eig.eigenvalues[i];
+        if l > tol {
+            rank += 1;
+            z += eig.eigenvectors.column(i) * (ub[i] / l);
+        }
+    }
+    let explained: f64 = z.dot(&b);
+    let theta: Vec<f64> = (0..k).map(|i| z[i] * d[i]).collect();
+    (theta, (yy - explained).max(0.0), rank)
+}
+
+/// Gram matrix of the given column vectors (all the same length).
+pub fn gram_of(cols: &[&[f64]]) -> DMatrix<f64> {
+    let k = cols.len();
+    let mut g = DMatrix::zeros(k, k);
+    for i in 0..k {
+        for j in i..k {
+            let v: f64 = cols[i].iter().zip(cols[j]).map(|(a, b)| a * b).sum();
+            g[(i, j)] = v;
+            g[(j, i)] = v;
+        }
+    }
+    g
+}
+
+/// Median of finite values (NaN if none).
+pub fn median(v: &[f64]) -> f64 {
+    let mut f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if f.is_empty() {
+        return f64::NAN;
+    }
+    let m = f.len() / 2;
+    f.select_nth_unstable_by(m, |a, b| a.total_cmp(b));
+    f[m]
+}
+
+/// Lag-1 autocorrelation.
+pub fn lag1_autocorr(x: &[f64]) -> f64 {
+    let n = x.len();
+    if n < 3 {
+        return 0.0;
+    }
+    let m = x.iter().sum::<f64>() / n as f64;
+    let v: f64 = x.iter().map(|a| (a - m) * (a - m)).sum();
+    if v.is_nan() || v <= 0.0 {
+        return 0.0;
+    }
+    (1..n).map(|i| (x[i] - m) * (x[i - 1] - m)).sum::<f64>() / v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn chi2_matches_known_values() {
+        // χ²₁ > 3.841 has p = 0.05; χ²₁₀ > 18.307 has p = 0.05.
+        assert!((chi2_sf(3.841_458_8, 1.0) - 0.05).abs() < 1e-6);
+        assert!((chi2_sf(18.307_038, 10.0) - 0.05).abs() < 1e-6);
+        assert!((chi2_isf(0.05, 10.0) - 18.307).abs() < 1e-2);
+        assert!(chi2_sf(400.0, 3.0) < 1e-80);
+    }
+
+    #[test]
+    fn ar_whitens_an_ar1_series() {
+        let mut x = vec![0.0f64; 5000];
+        let mut s = 1u64;
+        for i in 1..x.len() {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let u = ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+            x[i] = 0.9 * x[i - 1] + u;
+        }
+        let a = fit_ar(&x, 3);
+        assert!((a[0] - 0.9).abs() < 0.03, "{a:?}");
+        let w = ar_filter(&x, &a);
+        assert!(lag1_autocorr(&w).abs() < 0.05);
+    }
+
+    #[test]
+    fn lstsq_handles_collinear_columns() {
+        let x1: Vec<f64> = (0..100).map(|i| (i as f64 * 0.1).sin()).collect();
+        let x2: Vec<f64> = x1.iter().map(|v| 2.0 * v).collect();
+        let y: Vec<f64> = x1.iter().map(|v| 3.0 * v).collect();
+        let g = gram_of(&[&y, &x1, &x2]);
+        let (_, rss, rank) = gram_lstsq(&g, &[1, 2]);
+        assert_eq!(rank, 1);
+        assert!(rss < 1e-9);
+    }
+}

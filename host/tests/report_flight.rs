@@ -1,0 +1,188 @@
+//! `magcomp report` on a flight with a hidden effect, before/after two models: the page is
+//! self-contained, holds every plot the issue asks for, and renders in headless Chromium
+//! (skipped with a message when Chromium is absent). Run in release.
+use magcomp::model_spec::ModelSpec;
+use magcomp::report::flight_report::{build_report, run_report, write_report, ReportArgs};
+use magcomp::sim::{parse_hidden, simulate, SimConfig};
+use magcomp::trace::write_trace;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+const CHROMIUM: &str = "/usr/bin/chromium";
+
+fn trace() -> magcomp::trace::Trace {
+    let cfg = SimConfig {
+        seed: 5,
+        hidden: vec![parse_hidden("current:cur_pump").expect("hidden")],
+        decoys: vec!["cur_fan".into()],
+        ..SimConfig::default()
+    };
+    simulate(&cfg).expect("simulate")
+}
+
+fn models() -> Vec<ModelSpec> {
+    ["tl16+field", "tl16+field+current:cur_pump"]
+        .iter()
+        .map(|m| ModelSpec::parse(m).expect("spec"))
+        .collect()
+}
+
+#[test]
+fn page_has_every_plot_and_the_comparison() {
+    let page = build_report(&trace(), &models(), None).expect("report");
+    let ids = page.plot_ids();
+    for want in [
+        "compare-residual-rms",
+        "compare-error",
+        "compare-residual",
+        "signal-0",
+        "residual-0",
+        "spectrum-0",
+        "residual-psd-0",
+        "fom-0",
+        "coefficients-0",
+        "signal-1",
+        "residual-1",
+        "spectrum-1",
+        "fom-1",
+        "coefficients-1",
+    ] {
+        assert!(
+            ids.iter().any(|i| i == want),
+            "plot {want} missing: {ids:?}"
+        );
+    }
+    let html = page.to_html();
+    assert!(!html.contains("<script"), "self-contained, no scripts");
+    assert!(
+        !html.contains("src=\"http") && !html.contains("href=\"http") && !html.contains("url(http"),
+        "no external files"
+    );
+    assert!(html.contains("error vs truth (nT)"));
+    assert!(html.contains("current:cur_pump"));
+    // The failure window is shaded on the residual plot (a window label with nT).
+    assert!(html.contains("class=\"window\""), "no failure window drawn");
+    assert!(html.len() < 2_000_000, "page is {} bytes", html.len());
+}
+
+#[test]
+fn run_report_writes_index_html_and_rejects_bad_input() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report-flight-cli");
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("dir");
+    let csv = dir.join("flight.csv");
+    write_trace(&csv, &trace()).expect("write");
+    let args = ReportArgs {
+        trace: csv.clone(),
+        model: vec!["tl16+field".into()],
+        out: dir.join("out"),
+        map: None,
+    };
+    run_report(&args).expect("report");
+    assert!(dir.join("out/index.html").exists());
+    let bad = ReportArgs {
+        model: vec!["tl16+wobble".into()],
+        ..args.clone()
+    };
+    let e = format!("{:#}", run_report(&bad).unwrap_err());
+    assert!(e.contains("wobble"), "{e}");
+    let missing = ReportArgs {
+        trace: dir.join("nope.csv"),
+        ..args
+    };
+    let e = format!("{:#}", run_report(&missing).unwrap_err());
+    assert!(e.contains("nope.csv"), "{e}");
+}
+
+fn chromium(args: &[String], profile: &Path) -> Option<std::process::Output> {
+    let mut cmd = Command::new(CHROMIUM);
+    cmd.args([
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--hide-scrollbars",
+    ]);
+    cmd.arg(format!("--user-data-dir={}", profile.display()));
+    cmd.args(args);
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .ok()?;
+    let mut stdout = child.stdout.take()?;
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        std::io::Read::read_to_end(&mut stdout, &mut buf).ok();
+        buf
+    });
+    let start = Instant::now();
+    loop {
+        match child.try_wait() {
+            Ok(Some(status)) => {
+                return Some(std::process::Output {
+                    status,
+                    stdout: reader.join().unwrap_or_default(),
+                    stderr: Vec::new(),
+                })
+            }
+            Ok(None) if start.elapsed() < Duration::from_secs(90) => {
+                std::thread::sleep(Duration::from_millis(100))
+            }
+            _ => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return None;
+            }
+        }
+    }
+}
+
+#[test]
+fn report_renders_in_headless_chromium() {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report-flight");
+    let t = trace();
+    let page = build_report(&t, &models(), None).expect("report");
+    let path = write_report(&t, &models(), None, &dir).expect("write");
+    if !Path::new(CHROMIUM).exists() {
+        println!("SKIP report_renders_in_headless_chromium: {CHROMIUM} not installed (apt-get install chromium)");
+        return;
+    }
+    let profile = dir.join(format!("profile-{}", std::process::id()));
+    std::fs::create_dir_all(&profile).expect("profile");
+    let url = format!("file://{}", path.display());
+    let shot = dir.join("report.png");
+    let _ = std::fs::remove_file(&shot);
+    let out = chromium(
+        &[
+            format!("--screenshot={}", shot.display()),
+            "--window-size=1200,6000".into(),
+            url.clone(),
+        ],
+        &profile,
+    )
+    .expect("chromium --screenshot timed out");
+    assert!(out.status.success(), "chromium --screenshot failed");
+    let png = std::fs::read(&shot).expect("no screenshot written");
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 50_000,
+        "screenshot looks empty"
+    );
+    println!("screenshot: {}", shot.display());
+    let out = chromium(&["--dump-dom".into(), url], &profile).expect("dump-dom timed out");
+    assert!(out.status.success());
+    let dom = String::from_utf8_lossy(&out.stdout);
+    for id in page.plot_ids() {
+        assert!(
+            dom.contains(&format!("data-plot=\"{id}\"")),
+            "plot {id} not rendered"
+        );
+    }
+    assert_eq!(dom.matches("class=\"plot\"").count(), page.plot_ids().len());
+    let _ = std::fs::remove_dir_all(&profile);
+}
