@@ -27,19 +27,24 @@ enum Command {
     /// the raw bytes its sensors would have sent).
     Simulate {
         #[command(flatten)]
-        sim: SimulateArgs,
+        sim: Box<SimulateArgs>,
         #[command(flatten)]
-        capture: magcomp::capture_sim::CaptureArgs,
+        capture: Box<magcomp::capture_sim::CaptureArgs>,
     },
     /// Estimate the deviation coefficients (with 1σ) from a calibration flight.
-    Calibrate(CalibrateArgs),
+    Calibrate(Box<CalibrateArgs>),
     /// Remove the aircraft interference from a flight.
-    Compensate(CompensateArgs),
+    Compensate(Box<CompensateArgs>),
     /// Decode a GPS receiver log with the board's NMEA reader (one JSON object per line).
     Nmea {
         /// NMEA log file (`-` for stdin).
         file: PathBuf,
     },
+    /// Compare the model with the measurements, find where it fails and which physical
+    /// effect is missing (ranked, with significance).
+    Diagnose(Box<magcomp::diagnose::DiagnoseArgs>),
+    /// Write a self-contained HTML report with plots for one or more models.
+    Report(Box<magcomp::report::flight_report::ReportArgs>),
     /// Run a raw sensor capture through the board's parsers, aligner and filter.
     Replay(magcomp::replay::ReplayArgs),
     /// Decode and show the board's output stream live (a port, a file, or `-`).
@@ -104,6 +109,7 @@ fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.command {
         Command::Simulate { sim, capture } => {
+            let (sim, capture) = (*sim, *capture);
             let cfg = sim.to_config()?;
             let trace = magcomp::sim::simulate(&cfg)?;
             let out = sim
@@ -115,6 +121,12 @@ fn main() -> Result<()> {
             if let Some(c) = capture.write_if_requested(&trace)? {
                 eprintln!("{c:?}");
             }
+        }
+        Command::Diagnose(a) => {
+            magcomp::diagnose::run_diagnose(&a)?;
+        }
+        Command::Report(a) => {
+            magcomp::report::flight_report::run_report(&a)?;
         }
         Command::Replay(a) => {
             magcomp::replay::run_replay(&a)?;
