@@ -281,6 +281,21 @@ impl<const N: usize> UdFilter<N> {
         self.d[c] = 0.0;
     }
 
+    /// Exact change of variables `x_a ← x_a + c·x_b` with `a < b` (the transformation
+    /// `T = I + c·e_a·e_bᵀ` is unit upper triangular, so `U ← T·U` stays unit upper
+    /// triangular and `D` is unchanged).
+    pub fn add_scaled_state(&mut self, a: usize, b: usize, c: f32) {
+        if a >= b || b >= self.n || !c.is_finite() {
+            return;
+        }
+        self.x[a] += c * self.x[b];
+        self.u[b][a] += c;
+        for j in b + 1..self.n {
+            let ubj = self.u[j][b];
+            self.u[j][a] += c * ubj;
+        }
+    }
+
     /// Forgets every correlation between states `0..m` and `m..n` (sets U₁₂ = 0).
     /// Used when the constant states become known (survey mode, loaded coefficients):
     /// afterwards measurement updates with zero regressors on `m..n` leave them unchanged.
