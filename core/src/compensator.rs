@@ -143,6 +143,8 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     updates: u32,
     /// Sum of all `h0` re-anchoring shifts (m).
     h0_shift_m: f32,
+    /// Multiplier on the measurement noise σ for the next epochs (1 = as configured).
+    noise_scale: f32,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
@@ -215,6 +217,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             ties: [TieState::default(); MAX_TIE_POINTS],
             updates: 0,
             h0_shift_m: 0.0,
+            noise_scale: 1.0,
         })
     }
 
@@ -246,6 +249,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             self.filter.decouple(self.n_dyn);
         }
         self.survey = on;
+    }
+
+    /// Multiplies the measurement noise σ of the epochs processed from now on (e.g. to
+    /// down-weight stretches the user knows the model follows poorly). Non-finite or
+    /// non-positive values reset it to 1.
+    pub fn set_noise_scale(&mut self, k: f32) {
+        self.noise_scale = if k.is_finite() && k > 0.0 { k } else { 1.0 };
     }
 
     /// Term coefficients in physical units (nT, nT·s, …), model order.
@@ -392,7 +402,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         for i in 0..upto {
             h[i] = phys[i] * self.scale[i];
         }
-        let r = self.cfg.noise_nt * self.cfg.noise_nt;
+        let sigma = self.cfg.noise_nt * self.noise_scale;
+        let r = sigma * sigma;
         let mut innovation_nt = f32::NAN;
         let mut innovation_var = f32::NAN;
         if ep.dmag_nt.is_finite() {

@@ -39,6 +39,8 @@ pub struct KfOptions {
     /// signal has the least FOM over the labelled manoeuvres wins (fewer than two, or no
     /// labels = the spectral σ1 as is).
     pub sigma1_candidates: Vec<f64>,
+    /// Measurement-noise multiplier on samples labelled as turns (1 = none).
+    pub turn_noise_scale: f64,
 }
 
 impl KfOptions {
@@ -56,6 +58,7 @@ impl KfOptions {
             half_width: None,
             h0_reanchor_m: 0.0,
             sigma1_candidates: SIGMA1_CANDIDATES.to_vec(),
+            turn_noise_scale: 1.0,
         }
     }
 }
@@ -115,11 +118,19 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
 /// One pass of the compensator over all samples; exactly one output per sample.
 fn pass(
     flight: &Flight,
-    spec: &ModelSpec,
+    opts: &KfOptions,
     cfg: CompensatorConfig,
     coefficients: Option<&[f64]>,
     keep_regressors: bool,
 ) -> Result<(Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>)> {
+    let spec = &opts.model;
+    let turn = |i: usize| -> bool {
+        opts.turn_noise_scale != 1.0
+            && flight
+                .segments
+                .as_ref()
+                .is_some_and(|s| s[i].contains("turn"))
+    };
     with_model(spec, |model| {
         let mut comp = HostCompensator::new(model, cfg)
             .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
@@ -154,7 +165,12 @@ fn pass(
                 );
             }
         };
-        for s in &flight.samples {
+        for (i, s) in flight.samples.iter().enumerate() {
+            comp.set_noise_scale(if turn(i) {
+                opts.turn_noise_scale as f32
+            } else {
+                1.0
+            });
             if let Some((ep, out)) = comp.push_epoch(s) {
                 keep(&ep, &comp);
                 outs.push(out);
@@ -202,14 +218,14 @@ pub fn estimate_sigma1_for(flight: &Flight, interference_nt: &[f64]) -> Option<f
 /// The trade's FOM of the compensated signal over the labelled calibration manoeuvres
 /// (`None` without labels). A label-free score (residual power in the manoeuvre band over
 /// the most active stretches) was tried and picked σ1 far too small at 3000 m.
-fn selection_score(flight: &Flight, interference_nt: &[f64]) -> Option<f64> {
+fn selection_score(flight: &Flight, interference_nt: &[f64]) -> Option<(f64, usize)> {
     let comp: Vec<f64> = flight
         .mag_nt
         .iter()
         .zip(interference_nt)
         .map(|(m, i)| m - i)
         .collect();
-    crate::metrics::fom(flight, &comp).map(|f| f.0)
+    crate::metrics::fom(flight, &comp).map(|(f, parts)| (f, parts.len()))
 }
 
 /// Post-flight choice of σ1 among `spectral × candidate`: the spectral fit matches the
@@ -226,15 +242,18 @@ fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64
     if opts.sigma1_candidates.len() < 2 || opts.realtime || !labelled {
         return Ok(spectral);
     }
+    // A candidate must beat the best so far by more than the sensor noise can explain
+    // (one noise σ per manoeuvre): at 3000 m all candidates tie within noise and the
+    // FOM's own scatter would otherwise pick a needlessly rigid field.
     let mut best = (f64::INFINITY, spectral);
     for &m in &opts.sigma1_candidates {
         let s1 = spectral * m;
         let cfg = base_config(flight, opts, s1, noise_nt);
-        let (_, _, c, _) = pass(flight, &opts.model, cfg, None, false)?;
-        let (outs, _, _, _) = pass(flight, &opts.model, cfg, Some(&c), false)?;
+        let (_, _, c, _) = pass(flight, opts, cfg, None, false)?;
+        let (outs, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
         let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
-        if let Some(score) = selection_score(flight, &interf) {
-            if score < best.0 {
+        if let Some((score, parts)) = selection_score(flight, &interf) {
+            if score < best.0 - parts as f64 * noise_nt {
                 best = (score, s1);
             }
         }
@@ -268,8 +287,8 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             // A first post-flight pass with the paper's σ1 gives the interference estimate
             // that is removed before the spectrum is taken.
             let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
-            let (_, _, c, _) = pass(flight, spec, cfg, None, false)?;
-            let (outs, _, _, _) = pass(flight, spec, cfg, Some(&c), false)?;
+            let (_, _, c, _) = pass(flight, opts, cfg, None, false)?;
+            let (outs, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
             let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
             let spectral =
                 estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1) * opts.sigma1_scale;
@@ -279,13 +298,13 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
     let (cal_outs, regs, coeffs, sigmas) = match &opts.coefficients {
-        Some(c) => pass(flight, spec, cfg, Some(c), true)?,
-        None => pass(flight, spec, cfg, None, true)?,
+        Some(c) => pass(flight, opts, cfg, Some(c), true)?,
+        None => pass(flight, opts, cfg, None, true)?,
     };
     let (outs, coeffs, sigmas) = if opts.realtime || opts.coefficients.is_some() {
         (cal_outs, coeffs, sigmas)
     } else {
-        let (o, _, _, _) = pass(flight, spec, cfg, Some(&coeffs), false)?;
+        let (o, _, _, _) = pass(flight, opts, cfg, Some(&coeffs), false)?;
         (o, coeffs, sigmas)
     };
     let mut run = KfRun {
