@@ -39,6 +39,11 @@ pub struct KfOptions {
     /// signal has the least FOM over the labelled manoeuvres wins (fewer than two, or no
     /// labels = the spectral σ1 as is).
     pub sigma1_candidates: Vec<f64>,
+    /// Real time with segment labels: freeze the coefficients (survey mode) at the first
+    /// sample labelled as a survey line, i.e. once the operator has left the calibration
+    /// pattern. Without it the filter keeps calibrating on the lines, where the along-track
+    /// field and the interference of a single heading cannot be told apart.
+    pub freeze_on_survey: bool,
     /// Measurement-noise multiplier on samples labelled as turns (1 = none).
     pub turn_noise_scale: f64,
 }
@@ -59,6 +64,7 @@ impl KfOptions {
             h0_reanchor_m: 0.0,
             sigma1_candidates: SIGMA1_CANDIDATES.to_vec(),
             turn_noise_scale: 1.0,
+            freeze_on_survey: true,
         }
     }
 }
@@ -79,6 +85,9 @@ pub struct KfRun {
     pub coefficient_sigmas: Vec<f64>,
     pub sigma1: f64,
     pub noise_nt: f64,
+    /// The filter's UD factors stayed finite with non-negative D (covariance positive
+    /// semi-definite) after every sample of the final pass.
+    pub filter_healthy: bool,
 }
 
 /// Robust white-noise level of the scalar: the third difference of white noise has
@@ -122,7 +131,7 @@ fn pass(
     cfg: CompensatorConfig,
     coefficients: Option<&[f64]>,
     keep_regressors: bool,
-) -> Result<(Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>)> {
+) -> Result<(Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>, bool)> {
     let spec = &opts.model;
     let turn = |i: usize| -> bool {
         opts.turn_noise_scale != 1.0
@@ -130,6 +139,14 @@ fn pass(
                 .segments
                 .as_ref()
                 .is_some_and(|s| s[i].contains("turn"))
+    };
+    let freeze_at = if opts.realtime && opts.freeze_on_survey && coefficients.is_none() {
+        flight.segments.as_ref().and_then(|s| {
+            let last = s.iter().rposition(|l| crate::metrics::is_manoeuvre(l))?;
+            Some(last + 1)
+        })
+    } else {
+        None
     };
     with_model(spec, |model| {
         let mut comp = HostCompensator::new(model, cfg)
@@ -152,6 +169,7 @@ fn pass(
             .collect();
         let k = model.coefficient_count();
         let mut outs = Vec::with_capacity(flight.len());
+        let mut healthy = true;
         let mut regs = Vec::new();
         let mut buf = vec![0.0f32; k];
         let mut keep = |ep: &Epoch, comp: &HostCompensator| {
@@ -166,6 +184,9 @@ fn pass(
             }
         };
         for (i, s) in flight.samples.iter().enumerate() {
+            if freeze_at == Some(i) {
+                comp.set_survey_mode(true);
+            }
             comp.set_noise_scale(if turn(i) {
                 opts.turn_noise_scale as f32
             } else {
@@ -175,6 +196,7 @@ fn pass(
                 keep(&ep, &comp);
                 outs.push(out);
             }
+            healthy &= comp.filter().is_healthy();
         }
         while let Some((ep, out)) = comp.flush_epoch() {
             keep(&ep, &comp);
@@ -191,11 +213,13 @@ fn pass(
         let mut s = vec![0.0f32; k];
         comp.coefficients(&mut c);
         comp.coefficient_sigmas(&mut s);
+        healthy &= comp.filter().is_healthy();
         Ok((
             outs,
             regs,
             c.iter().map(|v| *v as f64).collect(),
             s.iter().map(|v| *v as f64).collect(),
+            healthy,
         ))
     })
 }
@@ -249,8 +273,8 @@ fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64
     for &m in &opts.sigma1_candidates {
         let s1 = spectral * m;
         let cfg = base_config(flight, opts, s1, noise_nt);
-        let (_, _, c, _) = pass(flight, opts, cfg, None, false)?;
-        let (outs, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
+        let (_, _, c, _, _) = pass(flight, opts, cfg, None, false)?;
+        let (outs, _, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
         let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
         if let Some((score, parts)) = selection_score(flight, &interf) {
             if score < best.0 - parts as f64 * noise_nt {
@@ -287,8 +311,8 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             // A first post-flight pass with the paper's σ1 gives the interference estimate
             // that is removed before the spectrum is taken.
             let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
-            let (_, _, c, _) = pass(flight, opts, cfg, None, false)?;
-            let (outs, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
+            let (_, _, c, _, _) = pass(flight, opts, cfg, None, false)?;
+            let (outs, _, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
             let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
             let spectral =
                 estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1) * opts.sigma1_scale;
@@ -297,15 +321,15 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         None => DEFAULT_SIGMA1,
     };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
-    let (cal_outs, regs, coeffs, sigmas) = match &opts.coefficients {
+    let (cal_outs, regs, coeffs, sigmas, cal_healthy) = match &opts.coefficients {
         Some(c) => pass(flight, opts, cfg, Some(c), true)?,
         None => pass(flight, opts, cfg, None, true)?,
     };
-    let (outs, coeffs, sigmas) = if opts.realtime || opts.coefficients.is_some() {
-        (cal_outs, coeffs, sigmas)
+    let (outs, coeffs, sigmas, healthy) = if opts.realtime || opts.coefficients.is_some() {
+        (cal_outs, coeffs, sigmas, cal_healthy)
     } else {
-        let (o, _, _, _) = pass(flight, opts, cfg, Some(&coeffs), false)?;
-        (o, coeffs, sigmas)
+        let (o, _, _, _, h) = pass(flight, opts, cfg, Some(&coeffs), false)?;
+        (o, coeffs, sigmas, cal_healthy && h)
     };
     let mut run = KfRun {
         coefficient_names: spec.coefficient_names(),
@@ -314,6 +338,7 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         regressors: regs,
         sigma1,
         noise_nt,
+        filter_healthy: healthy,
         ..Default::default()
     };
     for (o, mag) in outs.iter().zip(&flight.mag_nt) {

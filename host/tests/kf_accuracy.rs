@@ -138,3 +138,92 @@ fn high_altitude_post_flight() {
         assert!(p.kf < 0.015, "seed {seed}: KF {:.4} nT", p.kf);
     }
 }
+
+/// Low altitude over a strong anomaly with altitude changes.
+#[test]
+fn low_altitude_strong_anomaly() {
+    for (seed, alt, swing) in [
+        (1, 300.0, 100.0),
+        (2, 300.0, 100.0),
+        (3, 300.0, 100.0),
+        (1, 400.0, 50.0),
+        (2, 400.0, 50.0),
+        (3, 400.0, 50.0),
+    ] {
+        let p = post_flight(&low(seed, alt, swing));
+        println!(
+            "low seed {seed} {alt} m ±{swing} m: KF {:.4} nT, oracle {:.4} ({:.1}x), TL18 {:.4}, σ1 {:.2e}",
+            p.kf,
+            p.oracle,
+            p.kf / p.oracle,
+            p.tl18,
+            p.sigma1
+        );
+    }
+}
+
+fn survey_cfg(seed: u64, kind: FlightKind, lines: usize) -> SimConfig {
+    SimConfig {
+        seed,
+        flight: kind,
+        survey_lines: lines,
+        ..Default::default()
+    }
+}
+
+/// Coefficients from a calibration flight applied to survey lines on other headings.
+#[test]
+fn transfer_calibration_to_survey() {
+    for seed in 1..=3 {
+        let cal = flight_of(&high(seed, 0.01));
+        let cal_run = run_kf(&cal, &opts()).expect("calibration");
+        let survey = flight_of(&survey_cfg(seed, FlightKind::Survey, 4));
+        let t = truth(&survey);
+        let mut o = opts();
+        o.coefficients = Some(cal_run.coefficients.clone());
+        let run = run_kf(&survey, &o).expect("survey");
+        let kf = error_rms_nt(&run.interference_nt, &t, None);
+        let oracle = oracle_floor_nt(&run.regressors, &t).unwrap();
+        let tcfg = tl::TlConfig {
+            fs_hz: cal.sample_rate_hz,
+            ..Default::default()
+        };
+        let fit = tl::fit(&flux(&cal), &cal.mag_nt, &tcfg, None).expect("tl");
+        let tl18 = error_rms_nt(&tl::interference(&fit, &flux(&survey)), &t, None);
+        println!(
+            "transfer seed {seed}: KF {kf:.4} nT, oracle {oracle:.4}, TL18 {tl18:.4} ({} survey rows)",
+            survey.len()
+        );
+    }
+}
+
+fn rows_after_last_manoeuvre(f: &Flight) -> Vec<usize> {
+    let segs = f.segments.as_ref().expect("labels");
+    let last = segs
+        .iter()
+        .rposition(|s| is_manoeuvre(s))
+        .expect("manoeuvres");
+    (last + 1..f.len()).collect()
+}
+
+/// Real time: the causal output after the pattern's last manoeuvre.
+#[test]
+fn realtime_after_calibration() {
+    for seed in 1..=3 {
+        let f = flight_of(&survey_cfg(seed, FlightKind::CalibrationSurvey, 4));
+        let t = truth(&f);
+        let rows = rows_after_last_manoeuvre(&f);
+        let post = run_kf(&f, &opts()).expect("post");
+        let mut o = opts();
+        o.realtime = true;
+        let rt = run_kf(&f, &o).expect("realtime");
+        let e_post = error_rms_nt(&post.interference_nt, &t, Some(&rows));
+        let e_rt = error_rms_nt(&rt.interference_nt, &t, Some(&rows));
+        let e_cal = error_rms_nt(&apply(&post, &post.coefficients), &t, Some(&rows));
+        println!(
+            "realtime seed {seed}: after last manoeuvre ({} rows) RT {e_rt:.4} nT, post-flight {e_post:.4} ({e_cal:.4}), TL18 {:.4}",
+            rows.len(),
+            tl18_error(&f, Some(&rows))
+        );
+    }
+}
