@@ -44,6 +44,8 @@ pub struct KfOptions {
     /// pattern. Without it the filter keeps calibrating on the lines, where the along-track
     /// field and the interference of a single heading cannot be told apart.
     pub freeze_on_survey: bool,
+    /// Innovation gate in σ (0 = off; the core's default is 8).
+    pub gate_sigma: f64,
     /// Measurement-noise multiplier on samples labelled as turns (1 = none).
     pub turn_noise_scale: f64,
 }
@@ -65,6 +67,7 @@ impl KfOptions {
             sigma1_candidates: SIGMA1_CANDIDATES.to_vec(),
             turn_noise_scale: 1.0,
             freeze_on_survey: true,
+            gate_sigma: 8.0,
         }
     }
 }
@@ -114,6 +117,7 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     cfg.noise_nt = noise_nt as f32;
     cfg.prior_scale = opts.prior_scale as f32;
     cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
+    cfg.gate_sigma = opts.gate_sigma as f32;
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }

