@@ -228,6 +228,21 @@ fn pass(
     })
 }
 
+/// Calibrates on the whole flight and applies the final coefficients to every sample
+/// (the interference regressors of the calibration pass times the final coefficients:
+/// the same numbers a second, survey-mode pass would give).
+fn calibrated_interference(
+    flight: &Flight,
+    opts: &KfOptions,
+    cfg: CompensatorConfig,
+) -> Result<Vec<f64>> {
+    let (_, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
+    Ok(regs
+        .iter()
+        .map(|r| r.iter().zip(&c).map(|(a, b)| *a as f64 * b).sum())
+        .collect())
+}
+
 /// σ1 from the along-track spectrum of (scalar − interference estimate).
 pub fn estimate_sigma1_for(flight: &Flight, interference_nt: &[f64]) -> Option<f64> {
     let s = flight.along_track_m();
@@ -277,9 +292,7 @@ fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64
     for &m in &opts.sigma1_candidates {
         let s1 = spectral * m;
         let cfg = base_config(flight, opts, s1, noise_nt);
-        let (_, _, c, _, _) = pass(flight, opts, cfg, None, false)?;
-        let (outs, _, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
-        let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
+        let interf = calibrated_interference(flight, opts, cfg)?;
         if let Some((score, parts)) = selection_score(flight, &interf) {
             if score < best.0 - parts as f64 * noise_nt {
                 best = (score, s1);
@@ -315,9 +328,7 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             // A first post-flight pass with the paper's σ1 gives the interference estimate
             // that is removed before the spectrum is taken.
             let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
-            let (_, _, c, _, _) = pass(flight, opts, cfg, None, false)?;
-            let (outs, _, _, _, _) = pass(flight, opts, cfg, Some(&c), false)?;
-            let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
+            let interf = calibrated_interference(flight, opts, cfg)?;
             let spectral =
                 estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1) * opts.sigma1_scale;
             select_sigma1(flight, opts, spectral, noise_nt)?
