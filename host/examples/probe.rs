@@ -257,7 +257,7 @@ fn main() -> anyhow::Result<()> {
                 max_wavelength_m: hi,
             };
             let mut scr = vec![0.0; 3 * (sd.last().unwrap() / bin) as usize + 6];
-            let a = estimate_sigma1(&sd, &ta, &c, &mut scr).map(|e| e.sigma1);
+            let a = estimate_sigma1(&sd, ta, &c, &mut scr).map(|e| e.sigma1);
             let b = estimate_sigma1(&sd, &zk, &c, &mut scr).map(|e| e.sigma1);
             println!(
                 "sigma1 band {lo}-{hi}: truth anomaly {:.2e} residual {:.2e}",

@@ -128,6 +128,9 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     cfg
 }
 
+/// Outputs, interference regressors, coefficients, their 1σ, filter health.
+type Pass = (Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>, bool);
+
 /// One pass of the compensator over all samples; exactly one output per sample.
 fn pass(
     flight: &Flight,
@@ -135,7 +138,7 @@ fn pass(
     cfg: CompensatorConfig,
     coefficients: Option<&[f64]>,
     keep_regressors: bool,
-) -> Result<(Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>, bool)> {
+) -> Result<Pass> {
     let spec = &opts.model;
     let turn = |i: usize| -> bool {
         opts.turn_noise_scale != 1.0

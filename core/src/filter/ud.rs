@@ -1,5 +1,9 @@
 //! The UD filter proper. States are scaled by the caller so priors are O(1).
 
+// Index loops mirror the equations (several arrays indexed together, triangular ranges)
+// and compile to the fixed-length loops the instruction counts in model.md §5 were taken on.
+#![allow(clippy::needless_range_loop)]
+
 /// Innovation of one scalar measurement update.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Innovation {
@@ -100,7 +104,7 @@ impl<const N: usize> UdFilter<N> {
     /// a non-positive innovation variance leaves the filter untouched and returns `None`.
     pub fn update(&mut self, h: &[f32], z: f32, r: f32) -> Option<Innovation> {
         let n = self.n;
-        if h.len() < n || !z.is_finite() || !(r > 0.0) {
+        if h.len() < n || !z.is_finite() || r.is_nan() || r <= 0.0 {
             return None;
         }
         // f = Uᵀh, g = D f
