@@ -318,3 +318,43 @@ impl<const N: usize> UdFilter<N> {
             && self.x[..self.n].iter().all(|x| x.is_finite())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::UdFilter;
+
+    #[test]
+    fn add_scaled_state_is_the_exact_change_of_variables() {
+        let mut f = UdFilter::<4>::new(4, &[1.0, 2.0, 3.0, 4.0], &[1.0, 2.0, 0.5, 1.5]).unwrap();
+        // Correlate the states with two updates.
+        f.update(&[1.0, 0.5, -0.3, 0.2], 1.0, 0.1).unwrap();
+        f.update(&[0.2, -1.0, 0.7, 0.4], -0.5, 0.2).unwrap();
+        let mut p = [[0.0f32; 4]; 4];
+        for (i, row) in p.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = f.covariance(i, j);
+            }
+        }
+        let x: [f32; 4] = f.state().try_into().unwrap();
+        let (a, b, c) = (1, 3, -0.7f32);
+        f.add_scaled_state(a, b, c);
+        // T = I + c·e_a·e_bᵀ: x' = T x, P' = T P Tᵀ.
+        let t = |i: usize, k: usize| -> f32 {
+            (if i == k { 1.0 } else { 0.0 }) + if i == a && k == b { c } else { 0.0 }
+        };
+        for i in 0..4 {
+            let xi: f32 = (0..4).map(|k| t(i, k) * x[k]).sum();
+            assert!((f.state()[i] - xi).abs() < 1e-5);
+            for j in 0..4 {
+                let mut pij = 0.0;
+                for k in 0..4 {
+                    for l in 0..4 {
+                        pij += t(i, k) * p[k][l] * t(j, l);
+                    }
+                }
+                assert!((f.covariance(i, j) - pij).abs() < 1e-5, "P[{i}][{j}]");
+            }
+        }
+        assert!(f.is_healthy());
+    }
+}
