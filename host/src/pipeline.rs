@@ -35,7 +35,8 @@ pub struct KfOptions {
     pub half_width: Option<usize>,
     /// Re-anchor `h0` when `|h − h0|` exceeds this (m; 0 = fixed h0).
     pub h0_reanchor_m: f64,
-    /// Multipliers of the spectral σ1 tried post-flight; the one whose compensated
+    /// Multipliers of the spectral σ1 tried (a whole-flight calibration each, also before a
+    /// real-time replay, like the spectral σ1 itself); the one whose compensated
     /// signal has the least FOM over the labelled manoeuvres wins (fewer than two, or no
     /// labels = the spectral σ1 as is).
     pub sigma1_candidates: Vec<f64>,
@@ -285,7 +286,7 @@ fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64
         .segments
         .as_ref()
         .is_some_and(|s| s.iter().any(|l| crate::metrics::is_manoeuvre(l)));
-    if opts.sigma1_candidates.len() < 2 || opts.realtime || !labelled {
+    if opts.sigma1_candidates.len() < 2 || !labelled {
         return Ok(spectral);
     }
     // A candidate must beat the best so far by more than the sensor noise can explain
