@@ -120,6 +120,8 @@ struct TieState {
     local: Option<(f32, f32)>,
     /// Cumulative `h0` shift when the clone was taken.
     h0_shift_m: f32,
+    /// Height relative to the first `h0` when the clone was taken (m).
+    h_m: f32,
 }
 
 /// The real-time compensator. `N`: state capacity; `W`: derivative ring capacity.
@@ -552,12 +554,18 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 st.t_s = ep.t_s;
                 st.base_nt = ep.base_nt;
                 st.h0_shift_m = self.h0_shift_m;
+                st.h_m = ep.dh_m + self.h0_shift_m;
                 self.filter.clone_state(clone, bh);
                 continue;
             }
             let sep_n = ep.north_m - st.north_m;
             let sep_e = ep.east_m - st.east_m;
-            let sep_m = libm::sqrtf(sep_n * sep_n + sep_e * sep_e);
+            // The separation of the two passes is three-dimensional: the tie holds the
+            // field at one height, and B_z·(h − h0) is only a linearisation of how it
+            // changes with height, so a height difference counts like a horizontal one.
+            let sep_u = ep.dh_m + self.h0_shift_m - st.h_m;
+            let sep_u = if sep_u.is_finite() { sep_u } else { 0.0 };
+            let sep_m = libm::sqrtf(sep_n * sep_n + sep_e * sep_e + sep_u * sep_u);
             // Horizontal gradient: the along-track estimate plus 2σ, never below the floor
             // (the cross-track gradient is unobserved; isotropy makes them alike).
             let g_scale = field.scale[1];
