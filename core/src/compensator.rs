@@ -48,6 +48,12 @@ pub struct CompensatorConfig {
     /// External-field drift assumed between two passes when no base station is recorded
     /// (nT/s; 10 nT/h, a quiet day). With a base station the tie uses its difference.
     pub tie_drift_nt_per_s: f32,
+    /// Re-anchor the reference height `h0` to the flown height whenever `|h − h0|`
+    /// exceeds this (m; 0 = never). `B_h` is then re-expressed exactly as the field at the
+    /// new `h0` (`B_h ← B_h + B_z·Δh0`), so `B_z·(h − h0)` stays a local linearisation:
+    /// with a fixed `h0` and altitude changes of ±100 m over strong anomalies the secant
+    /// slope the filter learns differs from the local gradient that pitch manoeuvres see.
+    pub h0_reanchor_m: f32,
 }
 
 impl CompensatorConfig {
@@ -66,6 +72,7 @@ impl CompensatorConfig {
             tie_radius_m: 60.0,
             tie_gradient_floor_nt_per_m: 0.001,
             tie_drift_nt_per_s: 10.0 / 3600.0,
+            h0_reanchor_m: 0.0,
         }
     }
 }
@@ -111,6 +118,10 @@ struct TieState {
     t_s: f64,
     base_nt: f32,
     local: Option<(f32, f32)>,
+    /// Cumulative `h0` shift when the clone was taken.
+    h0_shift_m: f32,
+    /// Height relative to the first `h0` when the clone was taken (m).
+    h_m: f32,
 }
 
 /// The real-time compensator. `N`: state capacity; `W`: derivative ring capacity.
@@ -132,6 +143,10 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     reject_run: u32,
     ties: [TieState; MAX_TIE_POINTS],
     updates: u32,
+    /// Sum of all `h0` re-anchoring shifts (m).
+    h0_shift_m: f32,
+    /// Multiplier on the measurement noise σ for the next epochs (1 = as configured).
+    noise_scale: f32,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
@@ -203,6 +218,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             reject_run: 0,
             ties: [TieState::default(); MAX_TIE_POINTS],
             updates: 0,
+            h0_shift_m: 0.0,
+            noise_scale: 1.0,
         })
     }
 
@@ -234,6 +251,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             self.filter.decouple(self.n_dyn);
         }
         self.survey = on;
+    }
+
+    /// Multiplies the measurement noise σ of the epochs processed from now on (e.g. to
+    /// down-weight stretches the user knows the model follows poorly). Non-finite or
+    /// non-positive values reset it to 1.
+    pub fn set_noise_scale(&mut self, k: f32) {
+        self.noise_scale = if k.is_finite() && k > 0.0 { k } else { 1.0 };
     }
 
     /// Term coefficients in physical units (nT, nT·s, …), model order.
@@ -380,7 +404,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         for i in 0..upto {
             h[i] = phys[i] * self.scale[i];
         }
-        let r = self.cfg.noise_nt * self.cfg.noise_nt;
+        let sigma = self.cfg.noise_nt * self.noise_scale;
+        let r = sigma * sigma;
         let mut innovation_nt = f32::NAN;
         let mut innovation_var = f32::NAN;
         if ep.dmag_nt.is_finite() {
@@ -411,6 +436,15 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if self.tie_points(ep) {
             flags.set(Flags::TIE_POINT);
         }
+        let mut dh_out = ep.dh_m;
+        if self.field.is_some()
+            && self.cfg.h0_reanchor_m > 0.0
+            && ep.dh_m.is_finite()
+            && libm::fabsf(ep.dh_m) > self.cfg.h0_reanchor_m
+        {
+            self.reanchor_h0(ep.dh_m);
+            dh_out = 0.0;
+        }
         // Outputs from the updated state.
         let x = self.filter.state();
         if !self.survey {
@@ -427,7 +461,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         }
         let anomaly_nt = if self.field.is_some() {
             let a = self.field_at;
-            x[a] * self.scale[a] + x[a + 3] * self.scale[a + 3] * ep.dh_m
+            x[a] * self.scale[a] + x[a + 3] * self.scale[a + 3] * dh_out
         } else {
             x[0] * self.scale[0]
         };
@@ -441,6 +475,16 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             innovation_var_nt2: innovation_var,
             flags,
         }
+    }
+
+    /// Moves `h0` by `delta_m` (to the current height): `B_h ← B_h + B_z·Δ`, exactly.
+    fn reanchor_h0(&mut self, delta_m: f32) {
+        let bh = self.field_at;
+        let bz = self.field_at + 3;
+        let c = delta_m * self.scale[bz] / self.scale[bh];
+        self.filter.add_scaled_state(bh, bz, c);
+        self.builder.shift_h0(delta_m);
+        self.h0_shift_m += delta_m;
     }
 
     /// Keeps the field states continuous when the builder moves its exact reference.
@@ -509,12 +553,19 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 st.east_m = ep.east_m;
                 st.t_s = ep.t_s;
                 st.base_nt = ep.base_nt;
+                st.h0_shift_m = self.h0_shift_m;
+                st.h_m = ep.dh_m + self.h0_shift_m;
                 self.filter.clone_state(clone, bh);
                 continue;
             }
             let sep_n = ep.north_m - st.north_m;
             let sep_e = ep.east_m - st.east_m;
-            let sep_m = libm::sqrtf(sep_n * sep_n + sep_e * sep_e);
+            // The separation of the two passes is three-dimensional: the tie holds the
+            // field at one height, and B_z·(h − h0) is only a linearisation of how it
+            // changes with height, so a height difference counts like a horizontal one.
+            let sep_u = ep.dh_m + self.h0_shift_m - st.h_m;
+            let sep_u = if sep_u.is_finite() { sep_u } else { 0.0 };
+            let sep_m = libm::sqrtf(sep_n * sep_n + sep_e * sep_e + sep_u * sep_u);
             // Horizontal gradient: the along-track estimate plus 2σ, never below the floor
             // (the cross-track gradient is unobserved; isotropy makes them alike).
             let g_scale = field.scale[1];
@@ -531,9 +582,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             };
             let r_tie =
                 (sep_m * g) * (sep_m * g) + r_time + 2.0 * self.cfg.noise_nt * self.cfg.noise_nt;
+            // Both B_h are fields at their own h0: bring the clone to today's h0 with the
+            // current vertical gradient (its uncertainty is carried by the filter).
+            let dh0 = self.h0_shift_m - st.h0_shift_m;
             let mut h = [0.0f32; N];
             h[bh] = self.scale[bh];
             h[clone] = -self.scale[clone];
+            h[bh + 3] = -dh0 * self.scale[bh + 3];
             if self.filter.update(&h, z_tie, r_tie).is_some() {
                 applied = true;
             }

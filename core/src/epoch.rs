@@ -184,6 +184,19 @@ impl<const W: usize> EpochBuilder<W> {
         &self.cfg
     }
 
+    /// Current reference height `h0` (m), once known.
+    pub fn h0_m(&self) -> Option<f32> {
+        self.h0_m
+    }
+
+    /// Moves the reference height by `delta_m` for every epoch emitted from now on (the
+    /// compensator re-anchors `h0` near the flown height and re-expresses `B_h` exactly).
+    pub fn shift_h0(&mut self, delta_m: f32) {
+        if let Some(h0) = self.h0_m.as_mut() {
+            *h0 += delta_m;
+        }
+    }
+
     /// Number of samples pushed but not yet emitted.
     pub fn pending(&self) -> usize {
         (self.pushed - self.emitted) as usize

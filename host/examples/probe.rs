@@ -27,10 +27,30 @@ fn main() -> anyhow::Result<()> {
     if std::env::var("NOFLUXNOISE").is_ok() {
         cfg.flux_noise_nt = 0.0;
     }
+    let envf = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f64>().ok());
     if low {
-        cfg.cal_altitude_m = 300.0;
-        cfg.altitude_swing_m = 100.0;
-        cfg.geology = Geology::preset(GeologyPreset::Strong);
+        cfg.cal_altitude_m = envf("ALT").unwrap_or(300.0);
+        cfg.altitude_swing_m = envf("SWING").unwrap_or(100.0);
+        cfg.geology = Geology::preset(match std::env::var("GEO").as_deref() {
+            Ok("moderate") => GeologyPreset::Moderate,
+            Ok("quiet") => GeologyPreset::Quiet,
+            _ => GeologyPreset::Strong,
+        });
+    }
+    if let Some(v) = envf("YAW") {
+        cfg.yaw_amp_deg = v;
+    }
+    if let Some(v) = envf("PITCH") {
+        cfg.pitch_amp_deg = v;
+    }
+    if let Some(v) = envf("WIND") {
+        cfg.wind_mps = v;
+    }
+    if let Some(v) = envf("TURB") {
+        cfg.turbulence_deg = v;
+    }
+    if let Some(v) = envf("NOISE") {
+        cfg.scalar_noise_nt = v;
     }
     let t0 = std::time::Instant::now();
     let trace = simulate(&cfg)?;
@@ -46,8 +66,29 @@ fn main() -> anyhow::Result<()> {
     if std::env::var("NOTIE").is_ok() {
         opts.tie_points = false;
     }
-    if let Some(s) = args.get(4) {
+    if let Some(s) = args.get(4).filter(|s| *s != "-") {
         opts.sigma1 = Some(s.parse()?);
+    }
+    if let Some(v) = envf("S2R") {
+        opts.sigma2_ratio = v;
+    }
+    if let Some(v) = envf("S1X") {
+        opts.sigma1_scale = v;
+    }
+    if let Some(v) = envf("PRIOR") {
+        opts.prior_scale = v;
+    }
+    if let Ok(v) = std::env::var("CANDS") {
+        opts.sigma1_candidates = v.split(',').filter_map(|x| x.parse().ok()).collect();
+    }
+    if let Some(v) = envf("TURNR") {
+        opts.turn_noise_scale = v;
+    }
+    if let Some(v) = envf("H0R") {
+        opts.h0_reanchor_m = v;
+    }
+    if let Some(v) = envf("HW") {
+        opts.half_width = Some(v as usize);
     }
     if let Some(s) = args.get(5) {
         opts.noise_nt = Some(s.parse()?);
@@ -75,6 +116,28 @@ fn main() -> anyhow::Result<()> {
         err / oracle,
         improvement_ratio(&flight, &run.compensated_nt)
     );
+    if std::env::var("SEGS").is_ok() {
+        let d: Vec<f64> = run
+            .interference_nt
+            .iter()
+            .zip(&truth)
+            .map(|(a, b)| a - b)
+            .collect();
+        let m = d.iter().sum::<f64>() / d.len() as f64;
+        let mut acc: std::collections::BTreeMap<String, (f64, usize)> = Default::default();
+        for (i, lab) in flight.segments.as_ref().unwrap().iter().enumerate() {
+            let key = lab.rsplit('_').next().unwrap_or(lab).to_string();
+            let e = acc.entry(key).or_default();
+            e.0 += (d[i] - m).powi(2);
+            e.1 += 1;
+        }
+        for (k, (s2, n)) in acc {
+            println!(
+                "  seg {k:>10}: rms {:.4} ({n} rows)",
+                (s2 / n as f64).sqrt()
+            );
+        }
+    }
     opts.realtime = true;
     let rt = run_kf(&flight, &opts)?;
     let last_man = flight
@@ -118,7 +181,7 @@ fn main() -> anyhow::Result<()> {
         &flight,
         &spec,
         run.sigma1,
-        run.sigma1 / 10.0,
+        run.sigma1 * opts.sigma2_ratio,
         run.noise_nt,
     )?;
     println!(
@@ -130,6 +193,22 @@ fn main() -> anyhow::Result<()> {
             .map(|(a, b)| ((a - b) * 1000.0).round() / 1000.0)
             .collect::<Vec<_>>()
     );
+    {
+        let ri: Vec<f64> = run
+            .regressors
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .zip(&rf.coefficients)
+                    .map(|(a, c)| *a as f64 * c)
+                    .sum()
+            })
+            .collect();
+        println!(
+            "f64 reference post-flight (final coeffs applied): {:.4}",
+            error_rms_nt(&ri, &truth, None)
+        );
+    }
     {
         let igrf = trace.col("igrf").unwrap();
         let ta = trace.col("truth_anomaly").unwrap();
@@ -154,6 +233,38 @@ fn main() -> anyhow::Result<()> {
             "noise-limited LS floor (anomaly known): {:.4}",
             error_rms_nt(&est, &truth, None)
         );
+    }
+    {
+        use magcomp_core::spectrum::{estimate_sigma1, Sigma1Config};
+        let sd = flight.along_track_m();
+        let ta = trace.col("truth_anomaly").unwrap();
+        let zk: Vec<f64> = flight
+            .mag_nt
+            .iter()
+            .zip(&run.interference_nt)
+            .map(|(m, i)| m - i)
+            .collect();
+        for (lo, hi, bin) in [
+            (200.0, 500.0, 50.0),
+            (500.0, 1000.0, 50.0),
+            (1000.0, 2000.0, 100.0),
+            (1000.0, 8000.0, 100.0),
+            (2000.0, 8000.0, 100.0),
+        ] {
+            let c = Sigma1Config {
+                bin_m: bin,
+                min_wavelength_m: lo,
+                max_wavelength_m: hi,
+            };
+            let mut scr = vec![0.0; 3 * (sd.last().unwrap() / bin) as usize + 6];
+            let a = estimate_sigma1(&sd, ta, &c, &mut scr).map(|e| e.sigma1);
+            let b = estimate_sigma1(&sd, &zk, &c, &mut scr).map(|e| e.sigma1);
+            println!(
+                "sigma1 band {lo}-{hi}: truth anomaly {:.2e} residual {:.2e}",
+                a.unwrap_or(f64::NAN),
+                b.unwrap_or(f64::NAN)
+            );
+        }
     }
     println!("truth interference rms {:.3}", rms_demeaned(&truth));
     Ok(())

@@ -25,6 +25,30 @@ pub struct KfOptions {
     pub tie_points: bool,
     /// Apply these coefficients (survey mode) instead of calibrating.
     pub coefficients: Option<Vec<f64>>,
+    /// σ2 = `sigma2_ratio` × σ1 (model.md §3 findings: 0.1).
+    pub sigma2_ratio: f64,
+    /// Multiplier on the spectrally estimated σ1 (ignored when `sigma1` is given).
+    pub sigma1_scale: f64,
+    /// Multiplier on every term's prior 1σ.
+    pub prior_scale: f64,
+    /// Half-width of the centred derivative (samples); `None` = the rate's default.
+    pub half_width: Option<usize>,
+    /// Re-anchor `h0` when `|h − h0|` exceeds this (m; 0 = fixed h0).
+    pub h0_reanchor_m: f64,
+    /// Multipliers of the spectral σ1 tried (a whole-flight calibration each, also before a
+    /// real-time replay, like the spectral σ1 itself); the one whose compensated
+    /// signal has the least FOM over the labelled manoeuvres wins (fewer than two, or no
+    /// labels = the spectral σ1 as is).
+    pub sigma1_candidates: Vec<f64>,
+    /// Real time with segment labels: freeze the coefficients (survey mode) at the first
+    /// sample labelled as a survey line, i.e. once the operator has left the calibration
+    /// pattern. Without it the filter keeps calibrating on the lines, where the along-track
+    /// field and the interference of a single heading cannot be told apart.
+    pub freeze_on_survey: bool,
+    /// Innovation gate in σ (0 = off; the core's default is 8).
+    pub gate_sigma: f64,
+    /// Measurement-noise multiplier on samples labelled as turns (1 = none).
+    pub turn_noise_scale: f64,
 }
 
 impl KfOptions {
@@ -36,6 +60,15 @@ impl KfOptions {
             realtime: false,
             tie_points: true,
             coefficients: None,
+            sigma2_ratio: 0.1,
+            sigma1_scale: 1.0,
+            prior_scale: 1.0,
+            half_width: None,
+            h0_reanchor_m: 0.0,
+            sigma1_candidates: SIGMA1_CANDIDATES.to_vec(),
+            turn_noise_scale: 1.0,
+            freeze_on_survey: true,
+            gate_sigma: 8.0,
         }
     }
 }
@@ -56,6 +89,9 @@ pub struct KfRun {
     pub coefficient_sigmas: Vec<f64>,
     pub sigma1: f64,
     pub noise_nt: f64,
+    /// The filter's UD factors stayed finite with non-negative D (covariance positive
+    /// semi-definite) after every sample of the final pass.
+    pub filter_healthy: bool,
 }
 
 /// Robust white-noise level of the scalar: the third difference of white noise has
@@ -78,8 +114,14 @@ pub fn estimate_noise_nt(mag_nt: &[f64]) -> Option<f64> {
 fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) -> CompensatorConfig {
     let mut cfg = CompensatorConfig::for_rate(flight.sample_rate_hz as f32);
     cfg.sigma1 = sigma1 as f32;
-    cfg.sigma2 = (sigma1 / 10.0) as f32;
+    cfg.sigma2 = (sigma1 * opts.sigma2_ratio) as f32;
     cfg.noise_nt = noise_nt as f32;
+    cfg.prior_scale = opts.prior_scale as f32;
+    cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
+    cfg.gate_sigma = opts.gate_sigma as f32;
+    if let Some(hw) = opts.half_width {
+        cfg.epoch.half_width = hw.max(1);
+    }
     cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
     if opts.tie_points {
         cfg.tie_points[0] = flight.tie_point;
@@ -87,14 +129,33 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     cfg
 }
 
+/// Outputs, interference regressors, coefficients, their 1σ, filter health.
+type Pass = (Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>, bool);
+
 /// One pass of the compensator over all samples; exactly one output per sample.
 fn pass(
     flight: &Flight,
-    spec: &ModelSpec,
+    opts: &KfOptions,
     cfg: CompensatorConfig,
     coefficients: Option<&[f64]>,
     keep_regressors: bool,
-) -> Result<(Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>)> {
+) -> Result<Pass> {
+    let spec = &opts.model;
+    let turn = |i: usize| -> bool {
+        opts.turn_noise_scale != 1.0
+            && flight
+                .segments
+                .as_ref()
+                .is_some_and(|s| s[i].contains("turn"))
+    };
+    let freeze_at = if opts.realtime && opts.freeze_on_survey && coefficients.is_none() {
+        flight.segments.as_ref().and_then(|s| {
+            let last = s.iter().rposition(|l| crate::metrics::is_manoeuvre(l))?;
+            Some(last + 1)
+        })
+    } else {
+        None
+    };
     with_model(spec, |model| {
         let mut comp = HostCompensator::new(model, cfg)
             .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
@@ -116,6 +177,7 @@ fn pass(
             .collect();
         let k = model.coefficient_count();
         let mut outs = Vec::with_capacity(flight.len());
+        let mut healthy = true;
         let mut regs = Vec::new();
         let mut buf = vec![0.0f32; k];
         let mut keep = |ep: &Epoch, comp: &HostCompensator| {
@@ -129,11 +191,20 @@ fn pass(
                 );
             }
         };
-        for s in &flight.samples {
+        for (i, s) in flight.samples.iter().enumerate() {
+            if freeze_at == Some(i) {
+                comp.set_survey_mode(true);
+            }
+            comp.set_noise_scale(if turn(i) {
+                opts.turn_noise_scale as f32
+            } else {
+                1.0
+            });
             if let Some((ep, out)) = comp.push_epoch(s) {
                 keep(&ep, &comp);
                 outs.push(out);
             }
+            healthy &= comp.filter().is_healthy();
         }
         while let Some((ep, out)) = comp.flush_epoch() {
             keep(&ep, &comp);
@@ -150,13 +221,30 @@ fn pass(
         let mut s = vec![0.0f32; k];
         comp.coefficients(&mut c);
         comp.coefficient_sigmas(&mut s);
+        healthy &= comp.filter().is_healthy();
         Ok((
             outs,
             regs,
             c.iter().map(|v| *v as f64).collect(),
             s.iter().map(|v| *v as f64).collect(),
+            healthy,
         ))
     })
+}
+
+/// Calibrates on the whole flight and applies the final coefficients to every sample
+/// (the interference regressors of the calibration pass times the final coefficients:
+/// the same numbers a second, survey-mode pass would give).
+fn calibrated_interference(
+    flight: &Flight,
+    opts: &KfOptions,
+    cfg: CompensatorConfig,
+) -> Result<Vec<f64>> {
+    let (_, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
+    Ok(regs
+        .iter()
+        .map(|r| r.iter().zip(&c).map(|(a, b)| *a as f64 * b).sum())
+        .collect())
 }
 
 /// σ1 from the along-track spectrum of (scalar − interference estimate).
@@ -173,6 +261,53 @@ pub fn estimate_sigma1_for(flight: &Flight, interference_nt: &[f64]) -> Option<f
     let mut scratch = vec![0.0; need];
     estimate_sigma1(&s, &z, &cfg, &mut scratch).map(|e| e.sigma1)
 }
+
+/// The trade's FOM of the compensated signal over the labelled calibration manoeuvres
+/// (`None` without labels). A label-free score (residual power in the manoeuvre band over
+/// the most active stretches) was tried and picked σ1 far too small at 3000 m.
+fn selection_score(flight: &Flight, interference_nt: &[f64]) -> Option<(f64, usize)> {
+    let comp: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(interference_nt)
+        .map(|(m, i)| m - i)
+        .collect();
+    crate::metrics::fom(flight, &comp).map(|(f, parts)| (f, parts.len()))
+}
+
+/// Post-flight choice of σ1 among `spectral × candidate`: the spectral fit matches the
+/// anomaly's power at 1–8 km, but a potential field's spectrum falls faster than k⁻⁶
+/// towards the manoeuvre wavelengths, so at low altitude the k⁻⁶ model with that σ1 lets
+/// the field absorb manoeuvre-band interference. Each candidate is a full calibration;
+/// the least FOM over the labelled manoeuvres wins (segment labels are user data of a
+/// calibration flight); without labels the spectral σ1 is kept.
+fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64) -> Result<f64> {
+    let labelled = flight
+        .segments
+        .as_ref()
+        .is_some_and(|s| s.iter().any(|l| crate::metrics::is_manoeuvre(l)));
+    if opts.sigma1_candidates.len() < 2 || !labelled {
+        return Ok(spectral);
+    }
+    // A candidate must beat the best so far by more than the sensor noise can explain
+    // (one noise σ per manoeuvre): at 3000 m all candidates tie within noise and the
+    // FOM's own scatter would otherwise pick a needlessly rigid field.
+    let mut best = (f64::INFINITY, spectral);
+    for &m in &opts.sigma1_candidates {
+        let s1 = spectral * m;
+        let cfg = base_config(flight, opts, s1, noise_nt);
+        let interf = calibrated_interference(flight, opts, cfg)?;
+        if let Some((score, parts)) = selection_score(flight, &interf) {
+            if score < best.0 - parts as f64 * noise_nt {
+                best = (score, s1);
+            }
+        }
+    }
+    Ok(best.1)
+}
+
+/// Default σ1 multipliers searched post-flight.
+pub const SIGMA1_CANDIDATES: [f64; 4] = [1.0, 0.3, 0.1, 0.03];
 
 /// Default σ1 when the track is too short for the spectrum (the paper's 1000 m value).
 pub const DEFAULT_SIGMA1: f64 = 1.0e-6;
@@ -197,23 +332,23 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             // A first post-flight pass with the paper's σ1 gives the interference estimate
             // that is removed before the spectrum is taken.
             let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
-            let (_, _, c, _) = pass(flight, spec, cfg, None, false)?;
-            let (outs, _, _, _) = pass(flight, spec, cfg, Some(&c), false)?;
-            let interf: Vec<f64> = outs.iter().map(|o| o.interference_nt as f64).collect();
-            estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1)
+            let interf = calibrated_interference(flight, opts, cfg)?;
+            let spectral =
+                estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1) * opts.sigma1_scale;
+            select_sigma1(flight, opts, spectral, noise_nt)?
         }
         None => DEFAULT_SIGMA1,
     };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
-    let (cal_outs, regs, coeffs, sigmas) = match &opts.coefficients {
-        Some(c) => pass(flight, spec, cfg, Some(c), true)?,
-        None => pass(flight, spec, cfg, None, true)?,
+    let (cal_outs, regs, coeffs, sigmas, cal_healthy) = match &opts.coefficients {
+        Some(c) => pass(flight, opts, cfg, Some(c), true)?,
+        None => pass(flight, opts, cfg, None, true)?,
     };
-    let (outs, coeffs, sigmas) = if opts.realtime || opts.coefficients.is_some() {
-        (cal_outs, coeffs, sigmas)
+    let (outs, coeffs, sigmas, healthy) = if opts.realtime || opts.coefficients.is_some() {
+        (cal_outs, coeffs, sigmas, cal_healthy)
     } else {
-        let (o, _, _, _) = pass(flight, spec, cfg, Some(&coeffs), false)?;
-        (o, coeffs, sigmas)
+        let (o, _, _, _, h) = pass(flight, opts, cfg, Some(&coeffs), false)?;
+        (o, coeffs, sigmas, cal_healthy && h)
     };
     let mut run = KfRun {
         coefficient_names: spec.coefficient_names(),
@@ -222,6 +357,7 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         regressors: regs,
         sigma1,
         noise_nt,
+        filter_healthy: healthy,
         ..Default::default()
     };
     for (o, mag) in outs.iter().zip(&flight.mag_nt) {

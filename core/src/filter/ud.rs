@@ -1,5 +1,9 @@
 //! The UD filter proper. States are scaled by the caller so priors are O(1).
 
+// Index loops mirror the equations (several arrays indexed together, triangular ranges)
+// and compile to the fixed-length loops the instruction counts in model.md §5 were taken on.
+#![allow(clippy::needless_range_loop)]
+
 /// Innovation of one scalar measurement update.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Innovation {
@@ -100,7 +104,7 @@ impl<const N: usize> UdFilter<N> {
     /// a non-positive innovation variance leaves the filter untouched and returns `None`.
     pub fn update(&mut self, h: &[f32], z: f32, r: f32) -> Option<Innovation> {
         let n = self.n;
-        if h.len() < n || !z.is_finite() || !(r > 0.0) {
+        if h.len() < n || !z.is_finite() || r.is_nan() || r <= 0.0 {
             return None;
         }
         // f = Uᵀh, g = D f
@@ -282,6 +286,21 @@ impl<const N: usize> UdFilter<N> {
         self.d[c] = 0.0;
     }
 
+    /// Exact change of variables `x_a ← x_a + c·x_b` with `a < b` (the transformation
+    /// `T = I + c·e_a·e_bᵀ` is unit upper triangular, so `U ← T·U` stays unit upper
+    /// triangular and `D` is unchanged).
+    pub fn add_scaled_state(&mut self, a: usize, b: usize, c: f32) {
+        if a >= b || b >= self.n || !c.is_finite() {
+            return;
+        }
+        self.x[a] += c * self.x[b];
+        self.u[b][a] += c;
+        for j in b + 1..self.n {
+            let ubj = self.u[j][b];
+            self.u[j][a] += c * ubj;
+        }
+    }
+
     /// Forgets every correlation between states `0..m` and `m..n` (sets U₁₂ = 0).
     /// Used when the constant states become known (survey mode, loaded coefficients):
     /// afterwards measurement updates with zero regressors on `m..n` leave them unchanged.
@@ -298,5 +317,45 @@ impl<const N: usize> UdFilter<N> {
     pub fn is_healthy(&self) -> bool {
         self.d[..self.n].iter().all(|d| d.is_finite() && *d >= 0.0)
             && self.x[..self.n].iter().all(|x| x.is_finite())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::UdFilter;
+
+    #[test]
+    fn add_scaled_state_is_the_exact_change_of_variables() {
+        let mut f = UdFilter::<4>::new(4, &[1.0, 2.0, 3.0, 4.0], &[1.0, 2.0, 0.5, 1.5]).unwrap();
+        // Correlate the states with two updates.
+        f.update(&[1.0, 0.5, -0.3, 0.2], 1.0, 0.1).unwrap();
+        f.update(&[0.2, -1.0, 0.7, 0.4], -0.5, 0.2).unwrap();
+        let mut p = [[0.0f32; 4]; 4];
+        for (i, row) in p.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = f.covariance(i, j);
+            }
+        }
+        let x: [f32; 4] = f.state().try_into().unwrap();
+        let (a, b, c) = (1, 3, -0.7f32);
+        f.add_scaled_state(a, b, c);
+        // T = I + c·e_a·e_bᵀ: x' = T x, P' = T P Tᵀ.
+        let t = |i: usize, k: usize| -> f32 {
+            (if i == k { 1.0 } else { 0.0 }) + if i == a && k == b { c } else { 0.0 }
+        };
+        for i in 0..4 {
+            let xi: f32 = (0..4).map(|k| t(i, k) * x[k]).sum();
+            assert!((f.state()[i] - xi).abs() < 1e-5);
+            for j in 0..4 {
+                let mut pij = 0.0;
+                for k in 0..4 {
+                    for l in 0..4 {
+                        pij += t(i, k) * p[k][l] * t(j, l);
+                    }
+                }
+                assert!((f.covariance(i, j) - pij).abs() < 1e-5, "P[{i}][{j}]");
+            }
+        }
+        assert!(f.is_healthy());
     }
 }
