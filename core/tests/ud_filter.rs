@@ -1,4 +1,5 @@
 //! The UD filter against a dense f64 covariance Kalman filter on the same problem.
+#![allow(clippy::needless_range_loop)] // dense reference matrices indexed in lockstep
 
 use magcomp_core::filter::field::{FieldProcess, FIELD_STATES};
 use magcomp_core::filter::ud::{UdFilter, MAX_DYNAMIC, MAX_NOISE};
