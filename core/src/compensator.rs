@@ -143,6 +143,8 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     reject_run: u32,
     ties: [TieState; MAX_TIE_POINTS],
     updates: u32,
+    /// The model has a term for the external (diurnal) field.
+    models_diurnal: bool,
     /// Sum of all `h0` re-anchoring shifts (m).
     h0_shift_m: f32,
     /// Multiplier on the measurement noise σ for the next epochs (1 = as configured).
@@ -199,7 +201,15 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if scale[..n].iter().any(|s| !(s.is_finite() && *s > 0.0)) {
             return Err(CompensatorError::BadConfig);
         }
-        let filter = UdFilter::new(n, &[0.0; N], &[1.0; N]).ok_or(CompensatorError::BadConfig)?;
+        let mut x0 = [0.0f32; N];
+        let mut at = terms_at;
+        for t in model.terms {
+            for i in 0..t.len() {
+                x0[at + i] = t.prior_mean(i) / scale[at + i];
+            }
+            at += t.len();
+        }
+        let filter = UdFilter::new(n, &x0, &[1.0; N]).ok_or(CompensatorError::BadConfig)?;
         Ok(Self {
             model,
             cfg,
@@ -218,6 +228,10 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             reject_run: 0,
             ties: [TieState::default(); MAX_TIE_POINTS],
             updates: 0,
+            models_diurnal: model
+                .terms
+                .iter()
+                .any(|t| !t.is_interference() && t.name() == "diurnal"),
             h0_shift_m: 0.0,
             noise_scale: 1.0,
         })
@@ -574,8 +588,15 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             let g = g_est.max(self.cfg.tie_gradient_floor_nt_per_m);
             // The field at the point also changed in time (diurnal): measured by the base
             // station when there is one, otherwise allowed for at a quiet-day drift rate.
+            // With a `diurnal` term the external variation is already a term of its own and
+            // not in B_h: the tie is then B_h(now) = B_h(then), uncertain by the term's ±10 %.
             let (z_tie, r_time) = if ep.base_nt.is_finite() && st.base_nt.is_finite() {
-                (ep.base_nt - st.base_nt, 0.03 * 0.03)
+                let d_base = ep.base_nt - st.base_nt;
+                if self.models_diurnal {
+                    (0.0, 0.03 * 0.03 + (0.1 * d_base) * (0.1 * d_base))
+                } else {
+                    (d_base, 0.03 * 0.03)
+                }
             } else {
                 let drift = self.cfg.tie_drift_nt_per_s * (ep.t_s - st.t_s) as f32;
                 (0.0, drift * drift)

@@ -258,10 +258,16 @@ impl<const W: usize> EpochBuilder<W> {
             }
             None => (0.0, 0.0),
         };
+        // Rotation phase by the trapezoid rule: the rectangle rule drifts by up to ~15° per
+        // sample at 10 Hz when the rpm changes.
         let mut cycles = self.last_cycles;
-        for (c, a) in cycles.iter_mut().zip(s.aux.iter()) {
+        for (k, (c, a)) in cycles.iter_mut().zip(s.aux.iter()).enumerate() {
             if a.is_finite() {
-                *c += (*a as f64) / 60.0 * dt_s as f64;
+                let prev_a = prev
+                    .map(|p| p.s.aux[k])
+                    .filter(|v| v.is_finite())
+                    .unwrap_or(*a);
+                *c += 0.5 * (*a as f64 + prev_a as f64) / 60.0 * dt_s as f64;
                 *c -= libm::floor(*c);
             }
         }

@@ -52,14 +52,19 @@ pub fn run_reference(
         }
         let mut at = nf;
         let mut interference_mask = vec![false; n];
+        let mut x_prior: Vec<(usize, f64)> = Vec::new();
         for t in model.terms {
             for i in 0..t.len() {
                 p[(at + i, at + i)] = (t.prior_sigma(i) as f64).powi(2);
+                x_prior.push((at + i, t.prior_mean(i) as f64));
                 interference_mask[at + i] = t.is_interference();
             }
             at += t.len();
         }
         let mut x = DVector::<f64>::zeros(n);
+        for (i, m) in &x_prior {
+            x[*i] = *m;
+        }
         let r = noise_nt * noise_nt;
         let mut out = ReferenceRun::default();
         let mut buf = [0.0f32; 16];

@@ -35,12 +35,12 @@ pub const CATALOG: &[TermInfo] = &[
     TermInfo { name: "eddy", channel: ChannelUse::None, effect: "eddy currents in the airframe driven by manoeuvres: e_i·de_j/dt·|B|", relative_channel: false },
     TermInfo { name: "current", channel: ChannelUse::Required, effect: "field of a current-carrying circuit, proportional to the current channel: I·e", relative_channel: false },
     TermInfo { name: "current_rate", channel: ChannelUse::Required, effect: "inductive coupling of a switching current: dI/dt·e", relative_channel: false },
-    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: d/dt of the permanent and induced regressors", relative_channel: false },
+    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: −τ·d/dt of the field and of the permanent and induced regressors", relative_channel: false },
     TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
     TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
     TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
     TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, misalignment) seen against INS attitude: e_ins − e_flux", relative_channel: false },
-    TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic interference locked to a rotating machine (rpm channel): cos/sin of its phase", relative_channel: false },
+    TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
 ];
 
 /// Looks up an entry by name.
@@ -113,6 +113,9 @@ impl Term for AnyTerm {
     }
     fn prior_sigma(&self, i: usize) -> f32 {
         self.inner().prior_sigma(i)
+    }
+    fn prior_mean(&self, i: usize) -> f32 {
+        self.inner().prior_mean(i)
     }
     fn label(&self, i: usize) -> &'static str {
         self.inner().label(i)

@@ -29,6 +29,11 @@ pub trait Term: Sync {
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool;
     /// Prior 1σ of coefficient `i`, in the coefficient's unit. Also its scale in the filter.
     fn prior_sigma(&self, i: usize) -> f32;
+    /// Prior mean of coefficient `i` (0 unless physics fixes it, e.g. a base station sees
+    /// the same external field as the aircraft: coefficient 1).
+    fn prior_mean(&self, _i: usize) -> f32 {
+        0.0
+    }
     /// Short label of coefficient `i` (e.g. `"e1*de2"`).
     fn label(&self, i: usize) -> &'static str;
     /// Unit of coefficient `i` (e.g. `"nT"`, `"nT*s"`, `"nT/A"`).

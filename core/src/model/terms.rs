@@ -23,11 +23,13 @@ pub struct Current {
 pub struct CurrentRate {
     pub channel: usize,
 }
-/// Time lag between the scalar sensor and the fluxgate: derivatives of the permanent and
-/// induced regressors, `ė_i` and `d(e_i e_j)/dt·|B|/B*` (8, nT·s; ≈ −lag × coefficient).
+/// Time lag between the scalar sensor and the fluxgate/GPS: a scalar sample tagged τ late
+/// reads `B(t−τ) ≈ B(t) − τ·dB/dt`, so the regressors are the time derivatives of what the
+/// scalar sees: `d|B|/dt` (coefficient −τ, s) and of the permanent and induced regressors,
+/// `ė_i` and `d(e_i e_j)/dt·|B|/B*` (≈ −τ × those coefficients, nT·s) — 9 in all.
 #[derive(Clone, Copy, Debug)]
 pub struct Lag;
-/// The ε⁶ eddy term from flying through gradients: `e_i e_j·d|B|/dt` (6, s), model.md §4.
+/// The ε⁶ eddy term from flying through gradients: `e_i e_j·d|B|/dt` (5, s), model.md §4.
 #[derive(Clone, Copy, Debug)]
 pub struct Rate;
 /// External (diurnal) variation recorded by a base station: `base − base₀` (1, nT/nT).
@@ -41,8 +43,9 @@ pub struct InducedHigh;
 /// Fluxgate calibration error seen against INS attitude: `e_ref − e` (3, nT).
 #[derive(Clone, Copy, Debug)]
 pub struct FluxCal;
-/// Periodic interference locked to a rotation channel (rpm): cos/sin of 1st and 2nd
-/// harmonic of the rotation phase (4, nT).
+/// Periodic interference locked to a rotation channel (rpm): an engine or propeller field is
+/// a vector in the body frame, so the scalar sees its projection on the field direction:
+/// `e_i·cos/sin` of the 1st and 2nd harmonic of the rotation phase (12, nT).
 #[derive(Clone, Copy, Debug)]
 pub struct Periodic {
     pub channel: usize,
@@ -222,32 +225,41 @@ impl Term for Lag {
         "lag"
     }
     fn len(&self) -> usize {
-        8
+        9
     }
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
         let e = &ep.e;
         let d = &ep.e_dot_per_s;
         let k = ep.field_ratio;
-        out[0] = d[0];
-        out[1] = d[1];
-        out[2] = d[2];
-        out[3] = 2.0 * e[0] * d[0] * k;
-        out[4] = 2.0 * e[1] * d[1] * k;
-        out[5] = (e[0] * d[1] + e[1] * d[0]) * k;
-        out[6] = (e[0] * d[2] + e[2] * d[0]) * k;
-        out[7] = (e[1] * d[2] + e[2] * d[1]) * k;
+        out[0] = ep.dmag_dt_nt_per_s;
+        out[1] = d[0];
+        out[2] = d[1];
+        out[3] = d[2];
+        out[4] = 2.0 * e[0] * d[0] * k;
+        out[5] = 2.0 * e[1] * d[1] * k;
+        out[6] = (e[0] * d[1] + e[1] * d[0]) * k;
+        out[7] = (e[0] * d[2] + e[2] * d[0]) * k;
+        out[8] = (e[1] * d[2] + e[2] * d[1]) * k;
         true
     }
-    fn prior_sigma(&self, _: usize) -> f32 {
-        30.0
+    fn prior_sigma(&self, i: usize) -> f32 {
+        if i == 0 {
+            1.0
+        } else {
+            30.0
+        }
     }
     fn label(&self, i: usize) -> &'static str {
         [
-            "de1", "de2", "de3", "d(e1e1)", "d(e2e2)", "d(e1e2)", "d(e1e3)", "d(e2e3)",
+            "dB", "de1", "de2", "de3", "d(e1e1)", "d(e2e2)", "d(e1e2)", "d(e1e3)", "d(e2e3)",
         ][i]
     }
-    fn unit(&self, _: usize) -> &'static str {
-        "nT*s"
+    fn unit(&self, i: usize) -> &'static str {
+        if i == 0 {
+            "s"
+        } else {
+            "nT*s"
+        }
     }
 }
 
@@ -256,13 +268,14 @@ impl Term for Rate {
         "rate"
     }
     fn len(&self) -> usize {
-        6
+        5
     }
+    // The 5 induced monomials only: with e3² (or a constant) the set would span d|B|/dt
+    // itself (Σe_i² = 1), which is a lag, not an eddy effect of the gradient.
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
         let r = ep.dmag_dt_nt_per_s;
         let m = induced_monomials(&ep.e);
-        out[0] = r;
-        for (o, v) in out[1..6].iter_mut().zip(m) {
+        for (o, v) in out[..5].iter_mut().zip(m) {
             *o = r * v;
         }
         true
@@ -271,9 +284,7 @@ impl Term for Rate {
         0.1
     }
     fn label(&self, i: usize) -> &'static str {
-        [
-            "dB", "e1*e1*dB", "e2*e2*dB", "e1*e2*dB", "e1*e3*dB", "e2*e3*dB",
-        ][i]
+        ["e1*e1*dB", "e2*e2*dB", "e1*e2*dB", "e1*e3*dB", "e2*e3*dB"][i]
     }
     fn unit(&self, _: usize) -> &'static str {
         "s"
@@ -299,8 +310,14 @@ impl Term for Diurnal {
             }
         }
     }
+    // The base station records the same external variation the aircraft flies through
+    // (it is uniform over tens of km): coefficient 1, allowed ±0.1 for gain differences.
+    // Left free, the field states take most of the slow variation and β drifts to ~0.1.
     fn prior_sigma(&self, _: usize) -> f32 {
-        2.0
+        0.1
+    }
+    fn prior_mean(&self, _: usize) -> f32 {
+        1.0
     }
     fn label(&self, _: usize) -> &'static str {
         "base"
@@ -387,27 +404,31 @@ impl Term for Periodic {
         "periodic"
     }
     fn len(&self) -> usize {
-        4
+        12
     }
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
         if aux_value(ep, self.channel).is_none() {
-            out[..4].fill(0.0);
+            out[..12].fill(0.0);
             return false;
         }
         let phase = 2.0 * core::f32::consts::PI * ep.aux_cycles[self.channel];
         let (s1, c1) = libm::sincosf(phase);
         let (s2, c2) = libm::sincosf(2.0 * phase);
-        out[0] = c1;
-        out[1] = s1;
-        out[2] = c2;
-        out[3] = s2;
+        for (k, w) in [c1, s1, c2, s2].into_iter().enumerate() {
+            for i in 0..3 {
+                out[3 * k + i] = w * ep.e[i];
+            }
+        }
         true
     }
     fn prior_sigma(&self, _: usize) -> f32 {
         10.0
     }
     fn label(&self, i: usize) -> &'static str {
-        ["cos1", "sin1", "cos2", "sin2"][i]
+        [
+            "cos1*e1", "cos1*e2", "cos1*e3", "sin1*e1", "sin1*e2", "sin1*e3", "cos2*e1", "cos2*e2",
+            "cos2*e3", "sin2*e1", "sin2*e2", "sin2*e3",
+        ][i]
     }
     fn unit(&self, _: usize) -> &'static str {
         "nT"
