@@ -21,7 +21,7 @@ step "core builds for the board (no_std, thumbv7em-none-eabihf)"
 cargo build -p magcomp-core --target thumbv7em-none-eabihf --release
 
 step "host tests (release: the accuracy tests fly whole simulated flights)"
-cargo test --release -p magcomp-core -p magcomp
+cargo test --release --no-fail-fast -p magcomp-core -p magcomp
 
 if [ -x scripts/fw-ci.sh ]; then
     step "firmware: build, size, QEMU hil-tests"
