@@ -40,7 +40,12 @@ pub struct Diurnal {
 /// Higher-order induced magnetisation: the 7 independent cubic monomials of e (nT).
 #[derive(Clone, Copy, Debug)]
 pub struct InducedHigh;
-/// Fluxgate calibration error seen against INS attitude: `e_ref − e` (3, nT).
+/// Fluxgate calibration error (bias, scale, misalignment) seen against INS attitude. The
+/// TL regressors are computed with the fluxgate's direction `e`; with a calibration error it
+/// is `e_true + δe`, and the model misses `−∇_e(TL)·δe`. `δe ≈ e − e_ref` is measured from
+/// the INS attitude and the main-field direction, so the term is the linearised effect of
+/// `d = e_ref − e` on the permanent and induced regressors: `d_i` (3, ≈ K) and
+/// `(e_i d_j + e_j d_i)·|B|/B*` (6, ≈ the induced coefficients) — 9, nT.
 #[derive(Clone, Copy, Debug)]
 pub struct FluxCal;
 /// Periodic interference locked to a rotation channel (rpm): an engine or propeller field is
@@ -375,24 +380,32 @@ impl Term for FluxCal {
         "fluxcal"
     }
     fn len(&self) -> usize {
-        3
+        9
     }
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
-        if ep.e_ref.iter().all(|v| v.is_finite()) {
-            for i in 0..3 {
-                out[i] = ep.e_ref[i] - ep.e[i];
-            }
-            true
-        } else {
-            out[..3].fill(0.0);
-            false
+        if !ep.e_ref.iter().all(|v| v.is_finite()) {
+            out[..9].fill(0.0);
+            return false;
         }
+        let e = &ep.e;
+        let k = ep.field_ratio;
+        let d = [ep.e_ref[0] - e[0], ep.e_ref[1] - e[1], ep.e_ref[2] - e[2]];
+        out[..3].copy_from_slice(&d);
+        out[3] = 2.0 * e[0] * d[0] * k;
+        out[4] = 2.0 * e[1] * d[1] * k;
+        out[5] = 2.0 * e[2] * d[2] * k;
+        out[6] = (e[0] * d[1] + e[1] * d[0]) * k;
+        out[7] = (e[0] * d[2] + e[2] * d[0]) * k;
+        out[8] = (e[1] * d[2] + e[2] * d[1]) * k;
+        true
     }
     fn prior_sigma(&self, _: usize) -> f32 {
         200.0
     }
     fn label(&self, i: usize) -> &'static str {
-        ["de_ref1", "de_ref2", "de_ref3"][i]
+        [
+            "d1", "d2", "d3", "e1*d1", "e2*d2", "e3*d3", "e1*d2", "e1*d3", "e2*d3",
+        ][i]
     }
     fn unit(&self, _: usize) -> &'static str {
         "nT"

@@ -918,8 +918,13 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
                 })
             }
             HiddenKind::Rate => {
-                // N (s): physically unscaled, 0.01–0.03 s on the diagonal, so the term is
-                // ~1 nT only where d|B|/dt is tens of nT/s (low over strong sources).
+                // N (s): not scaled to a target std, 0.01–0.03 s on the diagonal, so the term
+                // is ~1 nT only where d|B|/dt is tens of nT/s (low over strong sources). This
+                // is a deliberately exaggerated *extra* eddy path: the airframe's own eddy
+                // response to flying through gradients is already in every flight through
+                // `M·dB/dt` (db_body includes the anomaly gradient · velocity), and M is only
+                // ~6e-5–1e-4 s, i.e. ~0.001 nT here. Even at this size `rate` is not
+                // observable on the simulated flights (tests/diagnose_effects.rs).
                 let mut nm = Matrix3::from_fn(|_, _| r.sample::<f64, _>(StandardNormal) * 0.008);
                 nm = (nm + nm.transpose()) / 2.0;
                 for i in 0..3 {
