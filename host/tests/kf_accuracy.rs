@@ -301,7 +301,8 @@ fn realtime_after_calibration() {
 /// asserted separately below.
 #[test]
 fn f32_ud_matches_f64_reference_over_an_hour() {
-    let mut cfg = survey_cfg(1, FlightKind::CalibrationSurvey, 4);
+    // 8 lines: the calibration, the climb-down spiral and the lines make > 1 h.
+    let mut cfg = survey_cfg(1, FlightKind::CalibrationSurvey, 8);
     long_flight_geology(&mut cfg);
     let f = flight_of(&cfg);
     let hours = (f.t_s[f.len() - 1] - f.t_s[0]) / 3600.0;

@@ -99,6 +99,9 @@ fn board_kf() -> KfOptions {
     ko.sigma1 = Some(1.0e-6);
     ko.noise_nt = Some(0.02);
     ko.tie_points = false;
+    // The board keeps calibrating until told `MODE,SURVEY`; the host's label-driven
+    // freeze at the end of the pattern is an operator action it does not take by itself.
+    ko.freeze_on_survey = false;
     ko
 }
 
