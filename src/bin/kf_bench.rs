@@ -227,10 +227,8 @@ fn bench_sample() {
             }
         }
         for &b in sl {
-            if let Some(r) = scalar.push(b) {
-                if let Some(rec) = al.scalar_result(r) {
-                    black_box(encode_record(&rec, &mut out).ok());
-                }
+            if let Some(rec) = scalar.push(b).and_then(|r| al.scalar_result(r)) {
+                black_box(encode_record(&rec, &mut out).ok());
             }
         }
         if k >= WARMUP {
