@@ -174,6 +174,8 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// `NOT_CONVERGED` as last evaluated, and epochs until the next evaluation.
     not_converged: bool,
     converged_countdown: u32,
+    /// Predicted 1σ of the interference estimate at the last evaluation (nT; NaN before).
+    interference_sigma_nt: f32,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
@@ -234,6 +236,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             noise_scale: 1.0,
             not_converged: false,
             converged_countdown: 0,
+            interference_sigma_nt: f32::NAN,
         }
     }
 
@@ -332,6 +335,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.noise_scale = 1.0;
         self.not_converged = false;
         self.converged_countdown = 0;
+        self.interference_sigma_nt = f32::NAN;
         Ok(())
     }
 
@@ -356,6 +360,11 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 at += t.len();
             }
             let var = self.filter.predicted_variance(&h[..self.n], 0.0);
+            self.interference_sigma_nt = if var > 0.0 {
+                libm::sqrtf(var)
+            } else {
+                var.max(0.0)
+            };
             let lim = self.cfg.converged_sigma_nt;
             // NaN (a broken filter) counts as not converged
             self.not_converged = !(var <= lim * lim);
@@ -364,6 +373,12 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if self.not_converged {
             flags.set(Flags::NOT_CONVERGED);
         }
+    }
+
+    /// Predicted 1σ of the interference estimate (nT) at the last `NOT_CONVERGED`
+    /// evaluation (calibrate mode, every `cfg.converged_every` epochs; NaN before the first).
+    pub fn interference_sigma_nt(&self) -> f32 {
+        self.interference_sigma_nt
     }
 
     pub fn model(&self) -> &Model<'a> {
