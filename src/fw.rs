@@ -9,7 +9,6 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
-use magcomp_core::epoch::AlignedSample;
 use magcomp_core::protocol::command::{
     Command, CommandError, CommandReader, Mode, decode_blob, encode_ack_coef, encode_blob,
     encode_error,
@@ -28,20 +27,10 @@ use defmt_semihosting as _;
 use {defmt_rtt as _, panic_probe as _};
 
 use crate::board;
-use crate::pipeline::{Filter, N_COEF, model_id};
-use crate::timebase::{Rates, SampleAligner};
-use magcomp_core::compensator::CompensatorError;
-use static_cell::StaticCell;
-
-/// Nominal sensor rates of the reference installation. The scalar rate sets the time base;
-/// the fluxgate and GPS rates set the staleness limits (2.5 periods).
-pub const RATES: Rates = Rates {
-    scalar_hz: 10.0,
-    flux_hz: 10.0,
-    gps_hz: 1.0,
-};
-/// Fluxgate full scale (±nT over ±2^23 ADC codes); the ASCII alternative sends nT.
-pub const FLUX_FULL_SCALE_NT: f32 = 100_000.0;
+use crate::board_config::{self as bc, BoardAcquisition, N_COEF, model_id};
+use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
+use magcomp_core::model::Model;
+use static_cell::ConstStaticCell;
 
 /// One frame (or parse failure) from a sensor port, in arrival order.
 pub enum Event {
@@ -90,13 +79,11 @@ impl Line {
 
 type Mutex = CriticalSectionRawMutex;
 static EVENTS: Channel<Mutex, Event, 16> = Channel::new();
-static SAMPLES: Channel<Mutex, (u32, AlignedSample), 8> = Channel::new();
 static COMMANDS: Channel<Mutex, Command, 4> = Channel::new();
 static OUT: Channel<Mutex, Line, 6> = Channel::new();
 
-/// Counters shown by `STATUS`: parser errors per port (kept in event order by the
-/// aligner), UART errors (overrun/framing/noise) and rejected commands.
-static PARSE_ERRORS: [AtomicU32; 3] = [AtomicU32::new(0), AtomicU32::new(0), AtomicU32::new(0)];
+/// Counters shown by `STATUS` besides the acquisition's own (records, parser errors per
+/// port): UART errors (overrun/framing/noise) and rejected commands.
 static UART_ERRORS: AtomicU32 = AtomicU32::new(0);
 static CMD_ERRORS: AtomicU32 = AtomicU32::new(0);
 
@@ -106,7 +93,7 @@ async fn main(spawner: Spawner) {
     defmt::info!(
         "magcomp firmware on {}, scalar rate {} Hz",
         board::NAME,
-        RATES.scalar_hz
+        bc::SCALAR_HZ
     );
     OUT.send(Line::sentence(|c| {
         c.bytes(b"MCBOOT,")?;
@@ -124,16 +111,20 @@ async fn main(spawner: Spawner) {
     spawner.spawn(watchdog_task(b.watchdog).unwrap());
     spawner.spawn(output_task(b.out_tx).unwrap());
     spawner.spawn(command_task(b.out_rx).unwrap());
-    // the filter lives in a static, built once here: not in a task future, whose poll
-    // function would otherwise reserve stack for building it on every sample
-    // (the cell holds the whole Result so the ~7 KB filter is built in place, not copied)
-    static FILTER: StaticCell<Result<Filter, CompensatorError>> = StaticCell::new();
-    let Ok(filter) = FILTER.init_with(|| Filter::new(RATES.scalar_hz as f32)) else {
+    // the acquisition (parsers' state, time base, ~7 KB compensator) lives in a static
+    // initialised at compile time and started in place: the filter is never built on the
+    // stack nor moved (stack peak = steady state)
+    static ACQ: ConstStaticCell<BoardAcquisition> =
+        ConstStaticCell::new(BoardAcquisition::placeholder(Model {
+            field: false,
+            terms: &[],
+        }));
+    let acq = ACQ.take();
+    if bc::start(acq).is_err() {
         defmt::error!("compensator init failed");
         board::exit(false)
-    };
-    spawner.spawn(filter_task(filter, b.store).unwrap());
-    spawner.spawn(aligner_task().unwrap());
+    }
+    spawner.spawn(acq_task(acq, b.store).unwrap());
     spawner.spawn(scalar_task(b.scalar).unwrap());
     spawner.spawn(gps_task(b.gps).unwrap());
     #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
@@ -223,37 +214,45 @@ async fn flux_spi_task(mut f: board::FluxPort) {
     }
 }
 
-/// Frames in arrival order → one aligned sample per scalar line (board time base).
+/// Frames in arrival order → `magcomp_core::acquisition` (time base, aligner, compensator,
+/// exactly as `magcomp replay`) → one record per scalar line; plus the commands that touch
+/// the filter's state.
 #[embassy_executor::task]
-async fn aligner_task() {
-    let mut al = SampleAligner::new(RATES);
+async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStore) {
+    match load_coefficients(&mut store, acq) {
+        Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
+        Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
+    }
     // `hil-sync`: frames taken per port (scalar, flux, GPS), acknowledged after each one
     #[cfg(feature = "hil-sync")]
     let mut taken = [0u64; 3];
     loop {
-        let ev = EVENTS.receive().await;
+        let ev = match select(EVENTS.receive(), COMMANDS.receive()).await {
+            Either::First(ev) => ev,
+            Either::Second(cmd) => {
+                handle_command(cmd, acq, &mut store).await;
+                continue;
+            }
+        };
         #[cfg(feature = "hil-sync")]
         let port = match ev {
             Event::Scalar(_) => 0,
             Event::Flux(_) => 1,
             Event::Gps(_) => 2,
         };
-        let sample = match ev {
-            Event::Scalar(r) => Some(al.scalar(r)),
+        let record = match ev {
+            Event::Scalar(r) => acq.scalar_result(r),
             Event::Flux(r) => {
-                al.flux(r);
+                acq.flux_result(r);
                 None
             }
             Event::Gps(r) => {
-                al.nmea(r);
+                acq.nmea_result(r);
                 None
             }
         };
-        for (c, n) in PARSE_ERRORS.iter().zip(al.errors) {
-            c.store(n, Ordering::Relaxed);
-        }
-        if let Some(s) = sample {
-            SAMPLES.send(s).await;
+        if let Some(r) = record {
+            send_record(&r).await;
         }
         #[cfg(feature = "hil-sync")]
         {
@@ -271,25 +270,6 @@ async fn aligner_task() {
     }
 }
 
-/// The compensator at the scalar rate, plus the commands that touch its state.
-#[embassy_executor::task]
-async fn filter_task(filter: &'static mut Filter, mut store: board::CoefStore) {
-    match load_coefficients(&mut store, filter) {
-        Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
-        Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
-    }
-    loop {
-        match select(SAMPLES.receive(), COMMANDS.receive()).await {
-            Either::First((_seq, s)) => {
-                if let Some(r) = filter.push(&s) {
-                    send_record(&r).await;
-                }
-            }
-            Either::Second(cmd) => handle_command(cmd, filter, &mut store).await,
-        }
-    }
-}
-
 async fn send_record(r: &Record) {
     let line = Line::fill(|out| encode_record(r, out).ok());
     if line.len == 0 {
@@ -299,12 +279,26 @@ async fn send_record(r: &Record) {
     OUT.send(line).await;
 }
 
-fn load_coefficients(store: &mut board::CoefStore, filter: &mut Filter) -> Result<(), ()> {
+fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut blob = [0u8; crate::COEF_BLOB_MAX];
     store.read(&mut blob).map_err(|_| ())?;
     let mut c = [0f32; N_COEF];
     decode_blob(&blob, model_id(), &mut c).map_err(|_| ())?;
-    filter.set_coefficients(&c).map_err(|_| ())
+    acq.set_coefficients(&c).map_err(|_| ())
+}
+
+fn mode(acq: &BoardAcquisition) -> Mode {
+    if acq.is_survey_mode() {
+        Mode::Survey
+    } else {
+        Mode::Cal
+    }
+}
+
+fn coefficients(acq: &BoardAcquisition) -> [f32; N_COEF] {
+    let mut c = [0f32; N_COEF];
+    acq.coefficients(&mut c);
+    c
 }
 
 fn mode_word(m: Mode) -> &'static [u8] {
@@ -314,10 +308,10 @@ fn mode_word(m: Mode) -> &'static [u8] {
     }
 }
 
-async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::CoefStore) {
+async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut board::CoefStore) {
     let reply = match cmd {
         Command::Mode(m) => {
-            filter.set_mode(m);
+            acq.set_survey_mode(m == Mode::Survey);
             Line::sentence(|c| {
                 c.bytes(b"MCACK,MODE,")?;
                 c.bytes(mode_word(m))
@@ -325,12 +319,11 @@ async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::Co
         }
         Command::Status => Line::sentence(|c| {
             c.bytes(b"MCACK,STATUS,")?;
-            c.bytes(mode_word(filter.mode()))?;
-            c.byte(b',')?;
-            c.u64(filter.records().into())?;
-            for e in &PARSE_ERRORS {
+            let n = acq.counters();
+            c.bytes(mode_word(mode(acq)))?;
+            for v in [n.records, n.scalar_errors, n.flux_errors, n.gps_errors] {
                 c.byte(b',')?;
-                c.u64(e.load(Ordering::Relaxed).into())?;
+                c.u64(v.into())?;
             }
             c.byte(b',')?;
             c.u64(UART_ERRORS.load(Ordering::Relaxed).into())?;
@@ -338,15 +331,14 @@ async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::Co
             c.u64(CMD_ERRORS.load(Ordering::Relaxed).into())
         }),
         Command::GetCoef(Some(i)) => {
-            let v = filter
-                .coefficients()
+            let v = coefficients(acq)
                 .get(usize::from(i))
                 .copied()
                 .unwrap_or(f32::NAN);
             Line::fill(|out| encode_ack_coef(i, v, out))
         }
         Command::GetCoef(None) => {
-            let c = filter.coefficients();
+            let c = coefficients(acq);
             Line::sentence(|cur| {
                 cur.bytes(b"MCACK,GETCOEF")?;
                 for v in c {
@@ -357,11 +349,11 @@ async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::Co
             })
         }
         Command::SetCoef { index, value } => {
-            let mut c = filter.coefficients();
+            let mut c = coefficients(acq);
             if let Some(slot) = c.get_mut(usize::from(index)) {
                 *slot = value;
             }
-            match filter.set_coefficients(&c) {
+            match acq.set_coefficients(&c) {
                 Ok(()) => Line::sentence(|c| {
                     c.bytes(b"MCACK,SETCOEF,")?;
                     c.u64(index.into())?;
@@ -373,7 +365,7 @@ async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::Co
         }
         Command::Save => {
             let mut blob = [0u8; crate::COEF_BLOB_MAX];
-            let ok = encode_blob(model_id(), &filter.coefficients(), &mut blob)
+            let ok = encode_blob(model_id(), &coefficients(acq), &mut blob)
                 .ok()
                 .is_some_and(|n| store.write(&blob[..n]).is_ok());
             if ok {
@@ -385,15 +377,16 @@ async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::Co
         }
         Command::Reset | Command::Flush => {
             // every sample keeps its record: emit the held ones before anything else
-            while let Some(r) = filter.flush() {
+            while let Some(r) = acq.flush() {
                 send_record(&r).await;
             }
             if cmd == Command::Reset {
-                if filter.reset().is_err() {
+                // in place: no second filter on the stack
+                if bc::restart_filter(acq).is_err() {
                     defmt::error!("compensator re-init failed");
                     board::exit(false)
                 }
-                let _ = load_coefficients(store, filter);
+                let _ = load_coefficients(store, acq);
             }
             let name: &[u8] = if cmd == Command::Reset {
                 b"RESET"
@@ -404,7 +397,7 @@ async fn handle_command(cmd: Command, filter: &mut Filter, store: &mut board::Co
                 c.bytes(b"MCACK,")?;
                 c.bytes(name)?;
                 c.byte(b',')?;
-                c.u64(filter.records().into())
+                c.u64(acq.next_seq().into())
             })
         }
     };

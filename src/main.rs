@@ -23,9 +23,7 @@ fn main() {
 }
 
 #[cfg(target_os = "none")]
-mod pipeline;
-#[cfg(target_os = "none")]
-mod timebase;
+mod board_config;
 
 #[cfg(all(target_os = "none", feature = "board-acq", feature = "board-emu"))]
 compile_error!(
@@ -47,4 +45,4 @@ mod fw;
 pub const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
 /// Size of the coefficient blob of the board's model (header, coefficients, CRC-32).
 #[cfg(target_os = "none")]
-pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(pipeline::N_COEF);
+pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(board_config::N_COEF);

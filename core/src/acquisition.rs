@@ -24,14 +24,18 @@
 
 use crate::compensator::{Compensator, CompensatorConfig, CompensatorError};
 use crate::flags::Flags;
+use crate::model::Model;
 use crate::protocol::aligner::{Aligner, AlignerConfig};
 use crate::protocol::capture::Port;
+use crate::protocol::fluxgate::AxisMap;
 use crate::protocol::fluxgate::{
     decode_spi_frame, FluxAsciiReader, FluxError, FluxStats, FluxgateCal,
 };
 use crate::protocol::nmea::{Gga, NmeaError, NmeaReader, NmeaStats, Sentence};
 use crate::protocol::record::Record;
-use crate::protocol::scalar::{ScalarConfig, ScalarReader, ScalarStats};
+use crate::protocol::scalar::{
+    ScalarConfig, ScalarError, ScalarFrame, ScalarReader, ScalarStats, CS133_HZ_PER_NT_NANO,
+};
 
 /// Fluxgate full scale of the reference board (±nT over ±2^23 ADC codes).
 pub const FLUX_FULL_SCALE_NT: f32 = 100_000.0;
@@ -137,6 +141,20 @@ impl AcqCounters {
     }
 }
 
+const COUNTERS_ZERO: AcqCounters = AcqCounters {
+    scalar_lines: 0,
+    scalar_errors: 0,
+    flux_frames: 0,
+    flux_errors: 0,
+    gps_sentences: 0,
+    gps_errors: 0,
+    records: 0,
+    flux_stale: 0,
+    no_gps: 0,
+    mag_missing: 0,
+    parse_error: 0,
+};
+
 fn inc(c: &mut u32) {
     *c = c.saturating_add(1);
 }
@@ -184,6 +202,101 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             anchor: None,
             counters: AcqCounters::default(),
         })
+    }
+
+    /// An acquisition with a [`Compensator::placeholder`], usable in a `static`
+    /// initialiser (`const`), so a board never builds the ~N² filter on its stack: call
+    /// [`reset_in_place`](Self::reset_in_place) before use.
+    pub const fn placeholder(model: Model<'a>) -> Self {
+        const AXES: [AxisMap; 3] = [
+            AxisMap {
+                sensor_channel: 0,
+                negate: false,
+            },
+            AxisMap {
+                sensor_channel: 1,
+                negate: false,
+            },
+            AxisMap {
+                sensor_channel: 2,
+                negate: false,
+            },
+        ];
+        let cfg = AcqConfig {
+            scalar_hz: 1.0,
+            flux_hz: 1.0,
+            gps_hz: 1.0,
+            scalar: ScalarConfig {
+                larmor_hz_per_nt_nano: CS133_HZ_PER_NT_NANO,
+            },
+            flux_cal: FluxgateCal {
+                nt_per_lsb: [0.0; 3],
+                offset_nt: [0.0; 3],
+                axis_map: AXES,
+            },
+        };
+        let aligner = AlignerConfig {
+            flux_stale_us: 0,
+            gps_stale_us: 0,
+            extrapolate_gps: false,
+        };
+        Self {
+            cfg,
+            scalar: ScalarReader::new(cfg.scalar),
+            flux: FluxAsciiReader::new(),
+            flux_spi: FluxStats { ok: 0, errors: 0 },
+            nmea: NmeaReader::new(),
+            aligner: Aligner::new(aligner),
+            comp: Compensator::placeholder(model),
+            period_us: 1,
+            k: 0,
+            seq: 0,
+            last_fix: None,
+            anchor: None,
+            counters: COUNTERS_ZERO,
+        }
+    }
+
+    /// (Re)starts in place: parsers, time base, counters, sequence numbers and the
+    /// compensator (via [`Compensator::reset_in_place`]), as [`new`](Self::new) would
+    /// build them. On error nothing is changed.
+    pub fn reset_in_place(
+        &mut self,
+        cfg: AcqConfig,
+        model: Model<'a>,
+        comp: CompensatorConfig,
+    ) -> Result<(), AcqError> {
+        if !cfg.valid() {
+            return Err(AcqError::BadRate);
+        }
+        self.comp
+            .reset_in_place(model, comp)
+            .map_err(AcqError::Compensator)?;
+        self.cfg = cfg;
+        self.scalar = ScalarReader::new(cfg.scalar);
+        self.flux = FluxAsciiReader::new();
+        self.flux_spi = FluxStats::default();
+        self.nmea = NmeaReader::new();
+        self.aligner = Aligner::new(cfg.aligner_config());
+        self.period_us = cfg.period_us().max(1);
+        self.k = 0;
+        self.seq = 0;
+        self.last_fix = None;
+        self.anchor = None;
+        self.counters = AcqCounters::default();
+        Ok(())
+    }
+
+    /// Restarts the compensator alone, in place (priors, derivative window, calibrate
+    /// mode); the time base, counters and sequence numbers continue. Call
+    /// [`flush`](Self::flush) first so no sample loses its record. On error the
+    /// compensator is unchanged.
+    pub fn reset_compensator(
+        &mut self,
+        model: Model<'a>,
+        comp: CompensatorConfig,
+    ) -> Result<(), CompensatorError> {
+        self.comp.reset_in_place(model, comp)
     }
 
     pub fn config(&self) -> &AcqConfig {
@@ -248,6 +361,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     /// of the sample `half_width` back, which is what the compensator has ready).
     pub fn push_scalar_byte(&mut self, b: u8) -> Option<Record> {
         let r = self.scalar.push(b)?;
+        self.scalar_result(r)
+    }
+
+    /// A scalar line's result from a reader the caller runs itself (the board parses in
+    /// its UART task): exactly one sample per line, rejected lines included.
+    pub fn scalar_result(&mut self, r: Result<ScalarFrame, ScalarError>) -> Option<Record> {
         let k = self.k;
         let t_us = self.now_us();
         inc(&mut self.counters.scalar_lines);

@@ -54,6 +54,12 @@ pub struct CompensatorConfig {
     /// with a fixed `h0` and altitude changes of ±100 m over strong anomalies the secant
     /// slope the filter learns differs from the local gradient that pitch manoeuvres see.
     pub h0_reanchor_m: f32,
+    /// Calibrate mode: `NOT_CONVERGED` is set while the predicted 1σ of the interference
+    /// estimate, `sqrt(hᵀ P h)` over the interference regressors only, exceeds this (nT;
+    /// 0 = never set). The survey requirement is 0.1 nT.
+    pub converged_sigma_nt: f32,
+    /// The 1σ above is evaluated every this many epochs (≥ 1); the flag holds in between.
+    pub converged_every: u32,
 }
 
 impl CompensatorConfig {
@@ -73,6 +79,8 @@ impl CompensatorConfig {
             tie_gradient_floor_nt_per_m: 0.001,
             tie_drift_nt_per_s: 10.0 / 3600.0,
             h0_reanchor_m: 0.0,
+            converged_sigma_nt: 0.1,
+            converged_every: 8,
         }
     }
 }
@@ -106,6 +114,20 @@ pub enum CompensatorError {
     /// Coefficient slice of the wrong length or with non-finite values.
     BadCoefficients,
 }
+
+const TIE_STATE_INIT: TieState = TieState {
+    cloned: false,
+    inside: false,
+    acted: false,
+    last_dist_m: 0.0,
+    north_m: 0.0,
+    east_m: 0.0,
+    t_s: 0.0,
+    base_nt: 0.0,
+    local: None,
+    h0_shift_m: 0.0,
+    h_m: 0.0,
+};
 
 #[derive(Clone, Copy, Debug, Default)]
 struct TieState {
@@ -149,14 +171,89 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     h0_shift_m: f32,
     /// Multiplier on the measurement noise σ for the next epochs (1 = as configured).
     noise_scale: f32,
+    /// `NOT_CONVERGED` as last evaluated, and epochs until the next evaluation.
+    not_converged: bool,
+    converged_countdown: u32,
+    /// Predicted 1σ of the interference estimate at the last evaluation (nT; NaN before).
+    interference_sigma_nt: f32,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
+    /// Builds a compensator (host use: returned by value, so it passes through the stack;
+    /// a board keeps one in a `static` with [`placeholder`](Self::placeholder) and
+    /// [`reset_in_place`](Self::reset_in_place) instead).
     pub fn new(model: Model<'a>, cfg: CompensatorConfig) -> Result<Self, CompensatorError> {
+        let mut c = Self::placeholder(model);
+        c.reset_in_place(model, cfg)?;
+        Ok(c)
+    }
+
+    /// A compensator with no states, usable in a `static` initialiser (`const`): call
+    /// [`reset_in_place`](Self::reset_in_place) before use (until then `push` only
+    /// delays samples and outputs zero interference).
+    pub const fn placeholder(model: Model<'a>) -> Self {
+        Self {
+            model,
+            cfg: CompensatorConfig {
+                epoch: EpochConfig {
+                    half_width: 1,
+                    earth_dir_ned: None,
+                    h0_m: None,
+                },
+                noise_nt: 1.0,
+                sigma1: 1.0,
+                sigma2: 1.0,
+                field_length_m: 1.0,
+                bh_prior_nt: 1.0,
+                prior_scale: 1.0,
+                gate_sigma: 0.0,
+                gate_max_run: 0,
+                tie_points: [None; MAX_TIE_POINTS],
+                tie_radius_m: 0.0,
+                tie_gradient_floor_nt_per_m: 0.0,
+                tie_drift_nt_per_s: 0.0,
+                h0_reanchor_m: 0.0,
+                converged_sigma_nt: 0.0,
+                converged_every: 1,
+            },
+            builder: EpochBuilder::empty(),
+            filter: UdFilter::empty(),
+            field: None,
+            scale: [1.0; N],
+            n_offset: 0,
+            n_clone: 0,
+            field_at: 0,
+            terms_at: 0,
+            n_dyn: 0,
+            n: 0,
+            survey: false,
+            last_reference: None,
+            reject_run: 0,
+            ties: [TIE_STATE_INIT; MAX_TIE_POINTS],
+            updates: 0,
+            models_diurnal: false,
+            h0_shift_m: 0.0,
+            noise_scale: 1.0,
+            not_converged: false,
+            converged_countdown: 0,
+            interference_sigma_nt: f32::NAN,
+        }
+    }
+
+    /// (Re)initialises in place for `model` and `cfg`: afterwards the compensator is
+    /// exactly what [`new`](Self::new) returns, without a second ~N² filter on the stack.
+    /// On error it is left unchanged.
+    pub fn reset_in_place(
+        &mut self,
+        model: Model<'a>,
+        cfg: CompensatorConfig,
+    ) -> Result<(), CompensatorError> {
         if !(cfg.noise_nt > 0.0 && cfg.prior_scale > 0.0 && cfg.sigma1 > 0.0 && cfg.sigma2 > 0.0) {
             return Err(CompensatorError::BadConfig);
         }
-        let builder = EpochBuilder::new(cfg.epoch).ok_or(CompensatorError::WindowTooLarge)?;
+        if cfg.epoch.half_width == 0 || 2 * cfg.epoch.half_width + 1 > W {
+            return Err(CompensatorError::WindowTooLarge);
+        }
         let n_offset = usize::from(!model.field);
         let n_clone = if model.field {
             cfg.tie_points.iter().filter(|t| t.is_some()).count()
@@ -209,32 +306,79 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             }
             at += t.len();
         }
-        let filter = UdFilter::new(n, &x0, &[1.0; N]).ok_or(CompensatorError::BadConfig)?;
-        Ok(Self {
-            model,
-            cfg,
-            builder,
-            filter,
-            field,
-            scale,
-            n_offset,
-            n_clone,
-            field_at,
-            terms_at,
-            n_dyn: terms_at,
-            n,
-            survey: false,
-            last_reference: None,
-            reject_run: 0,
-            ties: [TieState::default(); MAX_TIE_POINTS],
-            updates: 0,
-            models_diurnal: model
-                .terms
-                .iter()
-                .any(|t| !t.is_interference() && t.name() == "diurnal"),
-            h0_shift_m: 0.0,
-            noise_scale: 1.0,
-        })
+        if x0[..n].iter().any(|v| !v.is_finite()) {
+            return Err(CompensatorError::BadConfig);
+        }
+        // everything checked: nothing below can fail
+        let ok = self.filter.reset(n, &x0, &[1.0; N]) && self.builder.reset(cfg.epoch);
+        debug_assert!(ok);
+        self.model = model;
+        self.cfg = cfg;
+        self.field = field;
+        self.scale = scale;
+        self.n_offset = n_offset;
+        self.n_clone = n_clone;
+        self.field_at = field_at;
+        self.terms_at = terms_at;
+        self.n_dyn = terms_at;
+        self.n = n;
+        self.survey = false;
+        self.last_reference = None;
+        self.reject_run = 0;
+        self.ties = [TIE_STATE_INIT; MAX_TIE_POINTS];
+        self.updates = 0;
+        self.models_diurnal = model
+            .terms
+            .iter()
+            .any(|t| !t.is_interference() && t.name() == "diurnal");
+        self.h0_shift_m = 0.0;
+        self.noise_scale = 1.0;
+        self.not_converged = false;
+        self.converged_countdown = 0;
+        self.interference_sigma_nt = f32::NAN;
+        Ok(())
+    }
+
+    /// Calibrate mode: sets `NOT_CONVERGED` while the predicted 1σ of the interference
+    /// estimate for this epoch's regressors exceeds `cfg.converged_sigma_nt`. Evaluated
+    /// every `cfg.converged_every` epochs (an O(n²) product), the flag held in between.
+    /// `phys`: the epoch's physical regressors (as in `process`).
+    fn convergence(&mut self, phys: &[f32; N], flags: &mut Flags) {
+        if self.survey || !(self.cfg.converged_sigma_nt > 0.0) {
+            return;
+        }
+        if self.converged_countdown == 0 {
+            self.converged_countdown = self.cfg.converged_every.max(1);
+            let mut h = [0.0f32; N];
+            let mut at = self.terms_at;
+            for t in self.model.terms {
+                if t.is_interference() {
+                    for i in at..at + t.len() {
+                        h[i] = phys[i] * self.scale[i];
+                    }
+                }
+                at += t.len();
+            }
+            let var = self.filter.predicted_variance(&h[..self.n], 0.0);
+            self.interference_sigma_nt = if var > 0.0 {
+                libm::sqrtf(var)
+            } else {
+                var.max(0.0)
+            };
+            let lim = self.cfg.converged_sigma_nt;
+            // NaN (a broken filter) counts as not converged
+            self.not_converged = !(var <= lim * lim);
+        }
+        self.converged_countdown -= 1;
+        if self.not_converged {
+            flags.set(Flags::NOT_CONVERGED);
+        }
+    }
+
+    /// Predicted 1σ of the interference estimate (nT) at the last `NOT_CONVERGED`
+    /// evaluation (calibrate mode, every `cfg.converged_every` epochs; NaN before the first).
+    pub fn interference_sigma_nt(&self) -> f32 {
+        self.interference_sigma_nt
     }
 
     pub fn model(&self) -> &Model<'a> {
@@ -450,6 +594,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if self.tie_points(ep) {
             flags.set(Flags::TIE_POINT);
         }
+        self.convergence(&phys, &mut flags);
         let mut dh_out = ep.dh_m;
         if self.field.is_some()
             && self.cfg.h0_reanchor_m > 0.0

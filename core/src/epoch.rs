@@ -418,3 +418,47 @@ impl<const W: usize> EpochBuilder<W> {
         e
     }
 }
+
+/// In-place (re)initialisation, so a board can keep the builder in a `static` and restart
+/// it without building a second ring on the stack.
+impl<const W: usize> EpochBuilder<W> {
+    /// An empty builder (half-width 1), usable in a `static` initialiser; call
+    /// [`reset`](Self::reset) with the real configuration before use.
+    pub const fn empty() -> Self {
+        Self {
+            cfg: EpochConfig {
+                half_width: 1,
+                earth_dir_ned: None,
+                h0_m: None,
+            },
+            ring: [None; W],
+            pushed: 0,
+            emitted: 0,
+            reference: None,
+            h0_m: None,
+            origin: None,
+            last_e: None,
+            last_cycles: [0.0; MAX_AUX],
+            igrf0_nt: None,
+        }
+    }
+
+    /// Re-initialises in place to exactly what [`new`](Self::new) builds from `cfg`.
+    /// Returns false, leaving the builder unchanged, where `new` returns `None`.
+    pub fn reset(&mut self, cfg: EpochConfig) -> bool {
+        if cfg.half_width == 0 || 2 * cfg.half_width + 1 > W {
+            return false;
+        }
+        self.cfg = cfg;
+        self.ring.fill(None);
+        self.pushed = 0;
+        self.emitted = 0;
+        self.reference = None;
+        self.h0_m = cfg.h0_m;
+        self.origin = None;
+        self.last_e = None;
+        self.last_cycles = [0.0; MAX_AUX];
+        self.igrf0_nt = None;
+        true
+    }
+}

@@ -6,13 +6,11 @@ pub mod board;
 pub mod capture;
 pub mod prng;
 
-#[path = "../../src/pipeline.rs"]
-pub mod pipeline;
+/// The firmware's constants (model, capacities, rates), source-for-source (pure, no
+/// embassy): the reference replay runs the board's `magcomp_core::acquisition` with them.
+#[path = "../../src/board_config.rs"]
+pub mod board_config;
 pub mod replay;
-/// The firmware's time base and filter stage, source-for-source (pure, no embassy): the
-/// reference replay below runs exactly what the board runs.
-#[path = "../../src/timebase.rs"]
-pub mod timebase;
 
 pub use magcomp_core::protocol::record::{Record, decode_record};
 use std::io::{self, BufRead, Write};

@@ -6,7 +6,7 @@
 use hil_tests::Record;
 use hil_tests::board::{self, Board, sentence};
 use hil_tests::capture::{Capture, FlightSpec, GPS_T0_S, Port, synthetic_flight};
-use hil_tests::replay::{BOARD_RATES, replay};
+use hil_tests::replay::replay;
 use magcomp_core::Flags;
 use magcomp_core::protocol::command::check_reply;
 use magcomp_core::protocol::scalar::{ScalarConfig, parse_scalar_line};
@@ -70,7 +70,7 @@ fn run_flight(name: &str, cap: &Capture) -> Option<(Board, Vec<Record>)> {
     )
     .unwrap();
     // values: the board's records equal the host run of the same code on the same bytes
-    let reference = replay(cap, BOARD_RATES);
+    let reference = replay(cap);
     hil_tests::write_csv(
         std::io::BufWriter::new(std::fs::File::create(b.dir.join("reference.csv")).unwrap()),
         &reference,

@@ -2,7 +2,7 @@
 //! format, the reference replay and the CSV hand-off to `magcomp replay`.
 
 use hil_tests::capture::{Capture, FlightSpec, Port, synthetic_flight};
-use hil_tests::replay::{BOARD_RATES, replay};
+use hil_tests::replay::replay;
 use magcomp_core::Flags;
 
 #[test]
@@ -46,7 +46,7 @@ fn reference_replay_gives_one_flagged_record_per_sample() {
     spec.flux_dropout_s = Some((5.0, 8.0));
     spec.gps_outage_s = Some((10.0, 15.0));
     let cap = synthetic_flight(&spec);
-    let recs = replay(&cap, BOARD_RATES);
+    let recs = replay(&cap);
     assert_eq!(recs.len(), cap.scalar_t_s.len());
     hil_tests::check_contiguous(&recs).unwrap();
     let flagged = |bit: u16, a: f64, b: f64| {
@@ -58,13 +58,13 @@ fn reference_replay_gives_one_flagged_record_per_sample() {
     assert!(flagged(Flags::FLUX_STALE, 5.5, 8.0));
     assert!(flagged(Flags::NO_GPS, 10.05, 15.0));
     // and deterministic: a second run is bit-identical
-    assert_eq!(replay(&cap, BOARD_RATES), recs);
+    assert_eq!(replay(&cap), recs);
 }
 
 #[test]
 fn csv_round_trip_keeps_values_within_the_comparison_tolerance() {
     let cap = synthetic_flight(&FlightSpec::new(5, 3.0));
-    let recs = replay(&cap, BOARD_RATES);
+    let recs = replay(&cap);
     let mut csv = Vec::new();
     hil_tests::write_csv(&mut csv, &recs).unwrap();
     let back = hil_tests::read_csv(std::io::Cursor::new(csv)).unwrap();

@@ -7,10 +7,13 @@
 //! otherwise one summary line is printed per `--interval-s` of record time (deterministic
 //! for files and logs), and a final summary at the end of the stream.
 //! Every line is accounted for: records, CRC failures, malformed records, replies
-//! (`$MCACK`/`$MCERR`), other lines. Missing sequence numbers are counted and listed.
+//! (`$MCACK`/`$MCERR`), boot banners (`$MCBOOT`), frame acknowledgements (`$MCSYN`, HIL
+//! builds), other lines. Missing sequence numbers are counted and listed; the last `STATUS`
+//! reply's counters are shown (docs/protocols.md §5).
 
 use crate::replay::{counts_text, nt_text};
 use anyhow::{Context, Result};
+use magcomp_core::protocol::common::crc16_ccitt;
 use magcomp_core::protocol::record::{decode_record, Record, RecordError};
 use magcomp_core::Flags;
 use std::collections::VecDeque;
@@ -103,8 +106,18 @@ pub struct MonitorStats {
     pub parse_errors: u64,
     /// `$MCACK` / `$MCERR` replies.
     pub replies: u64,
-    /// Anything else (boot text, noise, overlong lines).
+    /// Anything else (noise, overlong lines, board lines with a bad CRC).
     pub other_lines: u64,
+    /// `$MCBOOT` banners (more than one: the board restarted) and the last one.
+    pub boots: u64,
+    pub boot: Option<BootBanner>,
+    /// `$MCSYN` frame acknowledgements (HIL builds) and the last counts (scalar, flux, GPS).
+    pub syncs: u64,
+    pub sync: Option<[u64; 3]>,
+    /// The last `$MCACK,STATUS` reply.
+    pub status: Option<BoardStatus>,
+    /// `$MCERR,8,STORAGE` replies: the board could not write its flash.
+    pub storage_errors: u64,
     /// Sequence numbers never seen, and the gaps `(first, last)` (first `MAX_GAPS`).
     pub missing: u64,
     pub gaps: Vec<(u32, u32)>,
@@ -114,6 +127,99 @@ pub struct MonitorStats {
     pub flag_counts: [u64; 16],
     pub first_t_s: Option<f64>,
     pub last: Option<Record>,
+}
+
+/// `$MCBOOT,<board>,<version>[,SYNC]*HHHH`.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BootBanner {
+    pub board: String,
+    pub version: String,
+    /// The firmware acknowledges frames with `$MCSYN` (feature `hil-sync`).
+    pub sync: bool,
+}
+
+/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>*HHHH`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BoardStatus {
+    pub survey: bool,
+    /// Records emitted so far.
+    pub records: u64,
+    /// Lines/frames/sentences the parsers rejected, per sensor port.
+    pub err_scalar: u64,
+    pub err_flux: u64,
+    pub err_gps: u64,
+    /// UART overrun/framing/noise errors (all ports).
+    pub err_uart: u64,
+    /// Commands rejected with `$MCERR`.
+    pub err_cmd: u64,
+}
+
+/// The body of `$<body>*HHHH` (line end optional) when its CRC-16 is right.
+pub fn checked_body(l: &[u8]) -> Option<&[u8]> {
+    let mut l = l.strip_prefix(b"$")?;
+    while let [rest @ .., b'\r' | b'\n'] = l {
+        l = rest;
+    }
+    let star = l.iter().rposition(|&b| b == b'*')?;
+    let (body, crc) = (&l[..star], &l[star + 1..]);
+    let crc = std::str::from_utf8(crc).ok()?;
+    if crc.len() != 4 {
+        return None;
+    }
+    (u16::from_str_radix(crc, 16).ok()? == crc16_ccitt(body)).then_some(body)
+}
+
+/// `$MCBOOT` banner fields (CRC checked).
+pub fn parse_boot(l: &[u8]) -> Option<BootBanner> {
+    let body = std::str::from_utf8(checked_body(l)?).ok()?;
+    let mut f = body.strip_prefix("MCBOOT,")?.split(',');
+    let board = f.next()?.to_string();
+    let version = f.next()?.to_string();
+    let sync = match f.next() {
+        None => false,
+        Some("SYNC") => true,
+        Some(_) => return None,
+    };
+    f.next().is_none().then_some(BootBanner {
+        board,
+        version,
+        sync,
+    })
+}
+
+/// `$MCSYN` frame counts (scalar, fluxgate, GPS), CRC checked.
+pub fn parse_sync(l: &[u8]) -> Option<[u64; 3]> {
+    let body = std::str::from_utf8(checked_body(l)?).ok()?;
+    let mut f = body.strip_prefix("MCSYN,")?.split(',');
+    let mut n = [0u64; 3];
+    for v in &mut n {
+        *v = f.next()?.parse().ok()?;
+    }
+    f.next().is_none().then_some(n)
+}
+
+/// `$MCACK,STATUS` fields (CRC checked).
+pub fn parse_status(l: &[u8]) -> Option<BoardStatus> {
+    let body = std::str::from_utf8(checked_body(l)?).ok()?;
+    let mut f = body.strip_prefix("MCACK,STATUS,")?.split(',');
+    let survey = match f.next()? {
+        "CAL" => false,
+        "SURVEY" => true,
+        _ => return None,
+    };
+    let mut n = [0u64; 6];
+    for v in &mut n {
+        *v = f.next()?.parse().ok()?;
+    }
+    f.next().is_none().then_some(BoardStatus {
+        survey,
+        records: n[0],
+        err_scalar: n[1],
+        err_flux: n[2],
+        err_gps: n[3],
+        err_uart: n[4],
+        err_cmd: n[5],
+    })
 }
 
 /// The decoder state behind the display.
@@ -153,6 +259,31 @@ impl Monitor {
         }
         if l.starts_with(b"$MCACK") || l.starts_with(b"$MCERR") {
             s.replies += 1;
+            if let Some(st) = parse_status(l) {
+                s.status = Some(st);
+            } else if checked_body(l) == Some(b"MCERR,8,STORAGE") {
+                s.storage_errors += 1;
+            }
+            return None;
+        }
+        if l.starts_with(b"$MCBOOT") {
+            match parse_boot(l) {
+                Some(b) => {
+                    s.boots += 1;
+                    s.boot = Some(b);
+                }
+                None => s.other_lines += 1,
+            }
+            return None;
+        }
+        if l.starts_with(b"$MCSYN") {
+            match parse_sync(l) {
+                Some(n) => {
+                    s.syncs += 1;
+                    s.sync = Some(n);
+                }
+                None => s.other_lines += 1,
+            }
             return None;
         }
         if !l.starts_with(b"$MCREC") {
@@ -252,6 +383,15 @@ impl Monitor {
         if s.restarts > 0 {
             let _ = write!(o, " restarts {}", s.restarts);
         }
+        if s.boots > 1 {
+            let _ = write!(o, " boots {}", s.boots);
+        }
+        if s.storage_errors > 0 {
+            let _ = write!(o, " storage errors {}", s.storage_errors);
+        }
+        if let Some(st) = &s.status {
+            let _ = write!(o, " | status {}", status_text(st));
+        }
         if let Some(r) = &s.last {
             let _ = write!(
                 o,
@@ -270,6 +410,16 @@ impl Monitor {
         let s = &self.stats;
         let mut o = String::new();
         let _ = writeln!(o, "magcomp monitor — {source}");
+        if let Some(b) = &s.boot {
+            let _ = writeln!(
+                o,
+                "  board          {} {}{} (boots {})",
+                b.board,
+                b.version,
+                if b.sync { " SYNC" } else { "" },
+                s.boots
+            );
+        }
         match &s.last {
             Some(r) => {
                 let _ = writeln!(o, "  seq            {}", r.seq);
@@ -311,6 +461,19 @@ impl Monitor {
         if s.restarts > 0 {
             let _ = writeln!(o, "  restarts/out of order {}", s.restarts);
         }
+        if let Some(st) = &s.status {
+            let _ = writeln!(o, "  board status   {}", status_text(st));
+        }
+        if s.storage_errors > 0 {
+            let _ = writeln!(o, "  flash write failures {}", s.storage_errors);
+        }
+        if let Some(n) = &s.sync {
+            let _ = writeln!(
+                o,
+                "  frames taken   scalar {} flux {} gps {} ($MCSYN {})",
+                n[0], n[1], n[2], s.syncs
+            );
+        }
         let mut fl = String::new();
         for (bit, c) in s.flag_counts.iter().enumerate() {
             if *c > 0 {
@@ -321,6 +484,20 @@ impl Monitor {
         let _ = writeln!(o, "  flagged:{}", if fl.is_empty() { " none" } else { &fl });
         o
     }
+}
+
+/// `CAL records 400 | errors scalar 0 flux 0 gps 0 uart 0 cmd 0`.
+pub fn status_text(st: &BoardStatus) -> String {
+    format!(
+        "{} records {} | errors scalar {} flux {} gps {} uart {} cmd {}",
+        if st.survey { "SURVEY" } else { "CAL" },
+        st.records,
+        st.err_scalar,
+        st.err_flux,
+        st.err_gps,
+        st.err_uart,
+        st.err_cmd
+    )
 }
 
 /// Header and rows of the saved CSV (a trace-like file: `t` first, `#` metadata).

@@ -1,36 +1,45 @@
-//! `magcomp replay` (via `core::acquisition`) against the firmware's own host-testable
-//! stages (`src/timebase.rs`, `src/pipeline.rs`, as hil-tests includes them): the same
-//! capture must give bit-identical records, including under corruption and faults.
+//! `magcomp replay` against the firmware's wiring of the same core: the board parses in its
+//! UART tasks (one reader per port, unsupported NMEA sentences dropped) and feeds the results
+//! to `magcomp_core::acquisition`, started in place from a `const` placeholder with the
+//! board's constants (`src/board_config.rs`, as hil-tests includes it); `magcomp replay`
+//! feeds bytes to an `Acquisition::new`. Same capture → bit-identical records, including
+//! under corruption and faults, and after an in-place restart.
 
 // `rustfmt::skip`: the firmware formats its files with its own settings; `cargo fmt -p
 // magcomp` must not rewrite them.
-#[path = "../../src/pipeline.rs"]
+#[path = "../../src/board_config.rs"]
 #[allow(dead_code)]
 #[rustfmt::skip]
-mod fw_pipeline;
-#[path = "../../src/timebase.rs"]
-#[allow(dead_code)]
-#[rustfmt::skip]
-mod fw_timebase;
+mod fw_config;
 
+use fw_config::BoardAcquisition;
 use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
 use magcomp::model_spec::ModelSpec;
 use magcomp::replay::{replay_capture, ReplayOptions};
 use magcomp::sim::{simulate, SimConfig};
+use magcomp_core::model::Model;
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::{FluxAsciiReader, FluxgateCal};
 use magcomp_core::protocol::nmea::{NmeaReader, Sentence};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 
-/// The firmware's tasks in capture order (as `fw.rs` wires them).
-fn firmware(cap: &[u8], rates: fw_timebase::Rates) -> Vec<Record> {
+/// The board's acquisition as `fw.rs` makes it: a `const` placeholder started in place.
+fn board_acquisition() -> Box<BoardAcquisition> {
+    let mut acq = Box::new(BoardAcquisition::placeholder(Model {
+        field: false,
+        terms: &[],
+    }));
+    fw_config::start(&mut acq).unwrap();
+    acq
+}
+
+/// The firmware's tasks in capture order (as `fw.rs` wires them), into `acq`.
+fn firmware(cap: &[u8], acq: &mut BoardAcquisition) -> Vec<Record> {
     let mut scalar = ScalarReader::new(ScalarConfig::default());
     let mut flux = FluxAsciiReader::new();
     let mut gps = NmeaReader::new();
     let cal = FluxgateCal::full_scale(100_000.0);
-    let mut al = fw_timebase::SampleAligner::new(rates);
-    let mut filter = fw_pipeline::Filter::new(rates.scalar_hz as f32).unwrap();
     let mut out = Vec::new();
     let mut buf = [0u8; MAX_CHUNK];
     for l in cap.split(|&b| b == b'\n') {
@@ -41,27 +50,40 @@ fn firmware(cap: &[u8], rates: fw_timebase::Rates) -> Vec<Record> {
             match c.port {
                 Port::Scalar => {
                     if let Some(r) = scalar.push(b) {
-                        let (_, s) = al.scalar(r);
-                        out.extend(filter.push(&s));
+                        out.extend(acq.scalar_result(r));
                     }
                 }
                 Port::Flux => {
                     if let Some(r) = flux.push(b) {
-                        al.flux(r.map(|v| cal.to_body(v)));
+                        acq.flux_result(r.map(|v| cal.to_body(v)));
                     }
                 }
                 Port::Gps => match gps.push(b) {
                     Some(Ok(Sentence::Unsupported { .. })) | None => {}
-                    Some(r) => al.nmea(r),
+                    Some(r) => acq.nmea_result(r),
                 },
                 Port::Cmd | Port::Out => {}
             }
         }
     }
-    while let Some(r) = filter.flush() {
+    while let Some(r) = acq.flush() {
         out.push(r);
     }
     out
+}
+
+fn assert_identical(fw: &[Record], rep: &[Record]) {
+    assert_eq!(rep.len(), fw.len());
+    for (a, b) in fw.iter().zip(rep) {
+        assert_eq!(a.seq, b.seq);
+        assert_eq!(a.t_s.to_bits(), b.t_s.to_bits(), "seq {}", a.seq);
+        assert_eq!(a.mag, b.mag);
+        assert_eq!(a.compensated, b.compensated, "seq {}", a.seq);
+        assert_eq!(a.interference_nt.to_bits(), b.interference_nt.to_bits());
+        assert_eq!(a.anomaly_nt.to_bits(), b.anomaly_nt.to_bits());
+        assert_eq!(a.innovation_nt.to_bits(), b.innovation_nt.to_bits());
+        assert_eq!(a.flags, b.flags, "seq {}", a.seq);
+    }
 }
 
 #[test]
@@ -79,17 +101,12 @@ fn replay_equals_the_firmware_bit_for_bit() {
         ..CaptureOptions::default()
     };
     let cap = trace_to_capture(&trace, &o).unwrap();
-    // The reference firmware's constants (fw.rs RATES): GPS staleness from 1 Hz.
-    let rates = fw_timebase::Rates {
-        scalar_hz: 10.0,
-        flux_hz: 10.0,
-        gps_hz: 1.0,
-    };
-    let fw = firmware(&cap, rates);
+    let mut acq = board_acquisition();
+    let fw = firmware(&cap, &mut acq);
     let mut ro = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
-    ro.rate_hz = Some(rates.scalar_hz);
-    ro.flux_rate_hz = Some(rates.flux_hz);
-    ro.gps_rate_hz = Some(rates.gps_hz);
+    ro.rate_hz = Some(fw_config::SCALAR_HZ);
+    ro.flux_rate_hz = Some(fw_config::FLUX_HZ);
+    ro.gps_rate_hz = Some(fw_config::GPS_HZ);
     let mut rep = Vec::new();
     replay_capture(&cap[..], &ro, |r| {
         rep.push(*r);
@@ -97,15 +114,31 @@ fn replay_equals_the_firmware_bit_for_bit() {
     })
     .unwrap();
     assert_eq!(fw.len(), trace.len());
-    assert_eq!(rep.len(), fw.len());
-    for (a, b) in fw.iter().zip(&rep) {
-        assert_eq!(a.seq, b.seq);
-        assert_eq!(a.t_s.to_bits(), b.t_s.to_bits(), "seq {}", a.seq);
-        assert_eq!(a.mag, b.mag);
-        assert_eq!(a.compensated, b.compensated, "seq {}", a.seq);
-        assert_eq!(a.interference_nt.to_bits(), b.interference_nt.to_bits());
-        assert_eq!(a.anomaly_nt.to_bits(), b.anomaly_nt.to_bits());
-        assert_eq!(a.innovation_nt.to_bits(), b.innovation_nt.to_bits());
-        assert_eq!(a.flags, b.flags, "seq {}", a.seq);
+    assert_identical(&fw, &rep);
+    // the STATUS counters the board reports
+    let n = acq.counters();
+    assert_eq!(n.records as usize, fw.len());
+    assert!(
+        n.scalar_errors > 0 && n.flux_errors > 0 && n.gps_errors > 0,
+        "{n:?}"
+    );
+
+    // restarted in place after a whole flight (the board's RESET path, then a fresh
+    // start): the same records again, no trace of the first run
+    fw_config::start(&mut acq).unwrap();
+    assert_identical(&firmware(&cap, &mut acq), &rep);
+    // the filter alone restarted in place = a fresh compensator (sequence numbers go on)
+    fw_config::start(&mut acq).unwrap();
+    let half = firmware(&cap[..cap.len() / 2], &mut acq);
+    fw_config::restart_filter(&mut acq).unwrap();
+    let mut fresh = board_acquisition();
+    let a = firmware(&cap, &mut acq);
+    let b = firmware(&cap, &mut fresh);
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.seq, y.seq + half.len() as u32);
+        assert_eq!(x.interference_nt.to_bits(), y.interference_nt.to_bits());
+        assert_eq!(x.anomaly_nt.to_bits(), y.anomaly_nt.to_bits());
+        assert_eq!(x.flags, y.flags);
     }
 }

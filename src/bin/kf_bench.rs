@@ -15,12 +15,9 @@
 #![no_std]
 #![no_main]
 
-#[path = "../pipeline.rs"]
+#[path = "../board_config.rs"]
 #[allow(dead_code)]
-mod pipeline;
-#[path = "../timebase.rs"]
-#[allow(dead_code)]
-mod timebase;
+mod board_config;
 
 // the interrupt vector table (cortex-m-rt is built with its `device` feature)
 use embassy_stm32 as _;
@@ -193,15 +190,15 @@ fn bench_kf<const N: usize>(n: usize, b: extern "C" fn(), e: extern "C" fn()) {
 
 /// The board's per-sample work from bytes to an encoded record.
 fn bench_sample() {
-    use timebase::{Rates, SampleAligner};
-    let Ok(mut filter) = pipeline::Filter::new(10.0) else {
+    static ACQ: static_cell::ConstStaticCell<board_config::BoardAcquisition> =
+        static_cell::ConstStaticCell::new(board_config::BoardAcquisition::placeholder(Model {
+            field: false,
+            terms: &[],
+        }));
+    let al = ACQ.take();
+    if board_config::start(al).is_err() {
         fail()
-    };
-    let mut al = SampleAligner::new(Rates {
-        scalar_hz: 10.0,
-        flux_hz: 10.0,
-        gps_hz: 1.0,
-    });
+    }
     let mut scalar = ScalarReader::new(ScalarConfig::default());
     let mut flux = FluxAsciiReader::new();
     let mut out = [0u8; MAX_RECORD_LEN];
@@ -226,15 +223,12 @@ fn bench_sample() {
         }
         for &b in fl {
             if let Some(r) = flux.push(b) {
-                al.flux(r);
+                al.flux_result(r);
             }
         }
         for &b in sl {
-            if let Some(r) = scalar.push(b) {
-                let (_, smp) = al.scalar(r);
-                if let Some(rec) = filter.push(&smp) {
-                    black_box(encode_record(&rec, &mut out).ok());
-                }
+            if let Some(rec) = scalar.push(b).and_then(|r| al.scalar_result(r)) {
+                black_box(encode_record(&rec, &mut out).ok());
             }
         }
         if k >= WARMUP {

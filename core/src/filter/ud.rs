@@ -320,6 +320,44 @@ impl<const N: usize> UdFilter<N> {
     }
 }
 
+/// In-place (re)initialisation, so a board can keep the filter in a `static` and restart
+/// it without building a second one on the stack (the filter is N² floats).
+impl<const N: usize> UdFilter<N> {
+    /// A filter with no states, usable in a `static` initialiser; [`reset`](Self::reset)
+    /// gives it its states.
+    pub const fn empty() -> Self {
+        Self {
+            x: [0.0; N],
+            u: [[0.0; N]; N],
+            d: [0.0; N],
+            n: 0,
+        }
+    }
+
+    /// Re-initialises in place to exactly what [`new`](Self::new) builds with the same
+    /// arguments. Returns false, leaving the filter unchanged, where `new` returns `None`.
+    pub fn reset(&mut self, n: usize, x0: &[f32], sigma0: &[f32]) -> bool {
+        if n > N || x0.len() < n || sigma0.len() < n {
+            return false;
+        }
+        if (0..n).any(|i| !(sigma0[i].is_finite() && sigma0[i] > 0.0 && x0[i].is_finite())) {
+            return false;
+        }
+        self.x.fill(0.0);
+        self.d.fill(0.0);
+        for col in self.u.iter_mut() {
+            col.fill(0.0);
+        }
+        for i in 0..n {
+            self.x[i] = x0[i];
+            self.u[i][i] = 1.0;
+            self.d[i] = sigma0[i] * sigma0[i];
+        }
+        self.n = n;
+        true
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::UdFilter;
