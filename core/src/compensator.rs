@@ -55,11 +55,16 @@ pub struct CompensatorConfig {
     /// slope the filter learns differs from the local gradient that pitch manoeuvres see.
     pub h0_reanchor_m: f32,
     /// Calibrate mode: `NOT_CONVERGED` is set while the predicted 1σ of the interference
-    /// estimate, `sqrt(hᵀ P h)` over the interference regressors only, exceeds this (nT;
-    /// 0 = never set). The survey requirement is 0.1 nT.
+    /// *variation* exceeds this (nT; 0 = never set): `sqrt(dᵀ P d)` with `d` the
+    /// interference regressors minus their running mean over `converged_window_epochs`.
+    /// The constant part of the interference is inseparable from the anomaly level (it
+    /// stays ~2 nT uncertain for ever) and is removed by levelling anyway; what a survey
+    /// needs at 0.1 nT is the part that moves with attitude.
     pub converged_sigma_nt: f32,
     /// The 1σ above is evaluated every this many epochs (≥ 1); the flag holds in between.
     pub converged_every: u32,
+    /// Length of the running mean the variation is taken about (epochs; ~60 s).
+    pub converged_window_epochs: u32,
 }
 
 impl CompensatorConfig {
@@ -81,6 +86,7 @@ impl CompensatorConfig {
             h0_reanchor_m: 0.0,
             converged_sigma_nt: 0.1,
             converged_every: 8,
+            converged_window_epochs: (60.0 * sample_rate_hz.max(1.0)) as u32,
         }
     }
 }
@@ -176,6 +182,9 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     converged_countdown: u32,
     /// Predicted 1σ of the interference estimate at the last evaluation (nT; NaN before).
     interference_sigma_nt: f32,
+    /// Running mean of the physical interference regressors (for `NOT_CONVERGED`).
+    regressor_mean: [f32; N],
+    regressor_mean_count: u32,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
@@ -215,6 +224,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 h0_reanchor_m: 0.0,
                 converged_sigma_nt: 0.0,
                 converged_every: 1,
+                converged_window_epochs: 1,
             },
             builder: EpochBuilder::empty(),
             filter: UdFilter::empty(),
@@ -237,6 +247,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             not_converged: false,
             converged_countdown: 0,
             interference_sigma_nt: f32::NAN,
+            regressor_mean: [0.0; N],
+            regressor_mean_count: 0,
         }
     }
 
@@ -336,6 +348,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.not_converged = false;
         self.converged_countdown = 0;
         self.interference_sigma_nt = f32::NAN;
+        self.regressor_mean = [0.0; N];
+        self.regressor_mean_count = 0;
         Ok(())
     }
 
@@ -347,27 +361,38 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if self.survey || !(self.cfg.converged_sigma_nt > 0.0) {
             return;
         }
+        // Running mean: a plain average until the window fills, then exponential.
+        self.regressor_mean_count = self
+            .regressor_mean_count
+            .saturating_add(1)
+            .min(self.cfg.converged_window_epochs.max(1));
+        let alpha = 1.0 / self.regressor_mean_count as f32;
+        for i in self.terms_at..self.n {
+            self.regressor_mean[i] += alpha * (phys[i] - self.regressor_mean[i]);
+        }
         if self.converged_countdown == 0 {
             self.converged_countdown = self.cfg.converged_every.max(1);
-            let mut h = [0.0f32; N];
+            let mut d = [0.0f32; N];
             let mut at = self.terms_at;
             for t in self.model.terms {
                 if t.is_interference() {
                     for i in at..at + t.len() {
-                        h[i] = phys[i] * self.scale[i];
+                        d[i] = (phys[i] - self.regressor_mean[i]) * self.scale[i];
                     }
                 }
                 at += t.len();
             }
-            let var = self.filter.predicted_variance(&h[..self.n], 0.0);
+            let var = self.filter.predicted_variance(&d[..self.n], 0.0);
             self.interference_sigma_nt = if var > 0.0 {
                 libm::sqrtf(var)
             } else {
                 var.max(0.0)
             };
             let lim = self.cfg.converged_sigma_nt;
-            // NaN (a broken filter) counts as not converged
-            self.not_converged = !(var <= lim * lim);
+            // NaN (a broken filter) counts as not converged; so does the first window,
+            // before there is any variation to judge.
+            self.not_converged = !(var <= lim * lim)
+                || self.regressor_mean_count < self.cfg.converged_window_epochs / 4;
         }
         self.converged_countdown -= 1;
         if self.not_converged {

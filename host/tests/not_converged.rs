@@ -51,10 +51,14 @@ fn summary(r: &[(bool, f32)]) -> String {
 }
 
 #[test]
-fn not_converged_while_the_pattern_is_flown_cleared_once_below_the_threshold() {
-    // a threshold the simulated 700 s cloverleaf reaches (see the test below for 0.1 nT)
-    let r = calibration(3.0);
-    eprintln!("σ_interference (3 nT threshold): {}", summary(&r));
+fn not_converged_while_the_pattern_is_flown_cleared_after_it_at_the_survey_requirement() {
+    let thr = CompensatorConfig::for_rate(10.0).converged_sigma_nt;
+    assert_eq!(thr, 0.1);
+    let r = calibration(thr);
+    eprintln!(
+        "σ of the interference variation (0.1 nT threshold): {}",
+        summary(&r)
+    );
     let nc: Vec<bool> = r.iter().map(|x| x.0).collect();
     // set from the start (the priors allow tens of nT of interference) …
     assert!(nc[..100].iter().all(|&f| f));
@@ -70,25 +74,10 @@ fn not_converged_while_the_pattern_is_flown_cleared_once_below_the_threshold() {
             assert_eq!(k % 8, 0, "changed at {k}");
         }
     }
-    // the flag is exactly "σ above the threshold" at the evaluations
-    for (k, (f, s)) in r.iter().enumerate().step_by(8) {
-        assert_eq!(*f, *s > 3.0, "epoch {k}: σ {s}");
+    // after the first quarter-window the flag is exactly "σ above the threshold"
+    for (k, (f, s)) in r.iter().enumerate().step_by(8).skip(20) {
+        assert_eq!(*f, *s > thr, "epoch {k}: σ {s}");
     }
-}
-
-#[test]
-fn survey_requirement_default_threshold() {
-    let r = calibration(CompensatorConfig::for_rate(10.0).converged_sigma_nt);
-    eprintln!("σ_interference (0.1 nT threshold): {}", summary(&r));
-    assert!(r[..100].iter().all(|x| x.0));
-    // the pattern shrinks the interference σ by more than an order of magnitude …
-    let (s0, s1) = (r[100].1, r[r.len() - 1].1);
-    assert!(s1 < s0 / 10.0, "{s0} → {s1}");
-    // … but the part of the interference that stays constant over the pattern (the
-    // vertical field direction barely changes) is indistinguishable from the anomaly
-    // level B_h: the interference alone stays above 0.1 nT on this flight, so the flag
-    // stays set (docs/protocols.md, NOT_CONVERGED).
-    assert!(r.iter().all(|x| x.0));
 }
 
 #[test]
