@@ -6,6 +6,7 @@ use crate::model_spec::{with_model, ModelSpec};
 use anyhow::{bail, Result};
 use magcomp_core::compensator::{Compensator, CompensatorConfig, Output};
 use magcomp_core::epoch::Epoch;
+use magcomp_core::model::Term;
 use magcomp_core::spectrum::{estimate_sigma1, Sigma1Config};
 
 /// Host capacity: 21 paper states + up to 41 extra coefficients + clones.
@@ -249,12 +250,53 @@ fn calibrated_interference(
 
 /// σ1 from the along-track spectrum of (scalar − interference estimate).
 pub fn estimate_sigma1_for(flight: &Flight, interference_nt: &[f64]) -> Option<f64> {
+    estimate_sigma1_with(flight, interference_nt, None)
+}
+
+/// What the scalar holds that is neither anomaly nor interference and that the model
+/// attributes to its own environment terms: for single-channel ones (`diurnal`) their prior
+/// mean × channel (β₀ = 1 × base). Left in, a base-station micropulsation would raise σ1
+/// and the field states would take it instead of the term. (The core-field change is left
+/// in: the σ1 selection and the consistency checks were validated with it there.)
+pub fn known_environment_nt(flight: &Flight, spec: &ModelSpec) -> Vec<f64> {
+    let terms = spec.build_terms();
+    let env_terms: Vec<(usize, f64)> = terms
+        .iter()
+        .filter(|t| !t.is_interference() && t.len() == 1)
+        .filter_map(|t| t.channel().map(|c| (c, t.prior_mean(0) as f64)))
+        .collect();
+    flight
+        .samples
+        .iter()
+        .map(|s| {
+            env_terms
+                .iter()
+                .map(|&(c, m)| {
+                    let v = s.aux[c] as f64;
+                    if v.is_finite() {
+                        m * v
+                    } else {
+                        0.0
+                    }
+                })
+                .sum()
+        })
+        .collect()
+}
+
+/// σ1 from (scalar − interference − known environment) against along-track distance.
+pub fn estimate_sigma1_with(
+    flight: &Flight,
+    interference_nt: &[f64],
+    environment_nt: Option<&[f64]>,
+) -> Option<f64> {
     let s = flight.along_track_m();
     let z: Vec<f64> = flight
         .mag_nt
         .iter()
         .zip(interference_nt)
-        .map(|(m, i)| m - i)
+        .enumerate()
+        .map(|(k, (m, i))| m - i - environment_nt.map_or(0.0, |e| e[k]))
         .collect();
     let cfg = Sigma1Config::default();
     let need = 3 * ((s.last().copied().unwrap_or(0.0) / cfg.bin_m) as usize + 2);
@@ -334,7 +376,9 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
             let interf = calibrated_interference(flight, opts, cfg)?;
             let spectral =
-                estimate_sigma1_for(flight, &interf).unwrap_or(DEFAULT_SIGMA1) * opts.sigma1_scale;
+                estimate_sigma1_with(flight, &interf, Some(&known_environment_nt(flight, spec)))
+                    .unwrap_or(DEFAULT_SIGMA1)
+                    * opts.sigma1_scale;
             select_sigma1(flight, opts, spectral, noise_nt)?
         }
         None => DEFAULT_SIGMA1,

@@ -122,7 +122,6 @@ fn diurnal_is_named_and_removing_it_cuts_the_error() {
 /// The diurnal term is not interference: its job is the anomaly map (scalar − core-field
 /// change − interference − β·base) against truth_anomaly.
 #[test]
-#[ignore = "needs host/src/pipeline.rs: run_kf estimates σ1 from the spectrum of scalar − interference only, which still holds the micropulsations the diurnal term models (σ1 9.0e-7 / 5.2e-7 instead of ~1e-7); with field states that agile the KF credits the diurnal to the field and β falls to 0.20 / 0.38 despite its prior 1 ± 0.1; map error 2.06 → 1.64 / 2.28 → 1.40 nT. Removing the non-interference terms (β₀·base, β₀ = prior mean) before the spectrum gives σ1 8.9e-8 / 7.0e-8, β 0.95 / 0.97 and 2.06 → 0.11 / 2.28 → 0.076 nT: see diurnal_anomaly_map_with_sigma1_from_the_environment_corrected_scalar"]
 fn diurnal_anomaly_map_full_bar() {
     for seed in [1, 2, 3] {
         let trace = flight("diurnal", seed, false);
