@@ -103,55 +103,65 @@ impl<const N: usize> UdFilter<N> {
     /// noise variance `r`. Returns the innovation before the update. A non-finite input or
     /// a non-positive innovation variance leaves the filter untouched and returns `None`.
     pub fn update(&mut self, h: &[f32], z: f32, r: f32) -> Option<Innovation> {
+        // A gate that never rejects: the gate's own variance sum is dead code then.
+        self.update_gated(h, z, r, |_, _| false)?.ok()
+    }
+
+    /// [`update`](Self::update) with an innovation gate decided in between: `reject(ν, s)`
+    /// sees the innovation `ν = z − h·x̂⁻` and its predicted variance
+    /// `s = r + Σ (Uᵀh)_j²·d_j` (the same numbers [`predict`](Self::predict) and
+    /// [`predicted_variance`](Self::predicted_variance) give) before anything changes.
+    /// One pass over `U` instead of three: `Uᵀh` is the largest part of the update.
+    /// `None`: bad input (filter untouched); `Some(Err(ν, s))`: rejected (untouched);
+    /// `Some(Ok(innovation))`: updated.
+    pub fn update_gated(
+        &mut self,
+        h: &[f32],
+        z: f32,
+        r: f32,
+        reject: impl FnOnce(f32, f32) -> bool,
+    ) -> Option<Result<Innovation, Innovation>> {
         let n = self.n;
         if h.len() < n || !z.is_finite() || r.is_nan() || r <= 0.0 {
             return None;
         }
-        // f = Uᵀh, g = D f
         let mut f = [0.0f32; N];
-        let mut g = [0.0f32; N];
-        let mut pred = 0.0f32;
-        for j in 0..n {
-            let col = &self.u[j];
-            let mut fj = h[j];
-            for i in 0..j {
-                fj += col[i] * h[i];
-            }
-            if !fj.is_finite() {
-                return None;
-            }
-            f[j] = fj;
-            g[j] = self.d[j] * fj;
-            pred += h[j] * self.x[j];
-        }
+        let (pred, s_gate) = bierman_prepare(
+            self.u.as_flattened(),
+            N,
+            &self.x[..n],
+            &self.d,
+            h,
+            r,
+            &mut f,
+        )?;
         let innovation = z - pred;
-        let mut alpha = r;
-        let mut b = [0.0f32; N];
-        for j in 0..n {
-            let alpha_prev = alpha;
-            alpha += f[j] * g[j];
-            let lambda = -f[j] / alpha_prev;
-            self.d[j] *= alpha_prev / alpha;
-            let col = &mut self.u[j];
-            let gj = g[j];
-            for i in 0..j {
-                let uij = col[i];
-                col[i] = uij + lambda * b[i];
-                b[i] += uij * gj;
-            }
-            b[j] = gj;
+        if reject(innovation, s_gate) {
+            return Some(Err(Innovation {
+                value: innovation,
+                variance: s_gate,
+            }));
         }
+        let mut b = [0.0f32; N];
+        let alpha = bierman_apply(
+            self.u.as_flattened_mut(),
+            N,
+            &mut self.d[..n],
+            &f,
+            r,
+            &mut b,
+        );
         if !(alpha > 0.0 && alpha.is_finite()) {
             return None;
         }
         let k = innovation / alpha;
-        for i in 0..n {
-            self.x[i] += b[i] * k;
+        for (xi, bi) in self.x[..n].iter_mut().zip(&b[..n]) {
+            *xi += bi * k;
         }
-        Some(Innovation {
+        Some(Ok(Innovation {
             value: innovation,
             variance: alpha,
-        })
+        }))
     }
 
     /// Innovation variance `h·P·hᵀ + r` without updating (for gating and diagnostics).
@@ -188,11 +198,40 @@ impl<const N: usize> UdFilter<N> {
         g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
         dq: &[f32],
     ) {
-        let n = self.n;
         let q = dq.len().min(MAX_NOISE);
-        if m == 0 || m > MAX_DYNAMIC || m > n {
+        if m == 0 || m > MAX_DYNAMIC || m > self.n {
             return;
         }
+        // The block sizes the compensator uses (5 field states after 0–2 tie-point clones,
+        // 5 noise columns) get loops of compile-time length, fully unrolled (model.md §5:
+        // 7,726 → 3,147 instructions); any other shape takes the general loops.
+        match thornton_fixed_for(m, q) {
+            Some(tu) => {
+                let n = self.n;
+                tu(
+                    &mut self.x[..n],
+                    self.u.as_flattened_mut(),
+                    N,
+                    &mut self.d,
+                    phi,
+                    g,
+                    dq,
+                )
+            }
+            None => self.time_update_any(m, q, phi, g, dq),
+        }
+    }
+
+    /// `time_update` for any block shape (runtime loop bounds).
+    fn time_update_any(
+        &mut self,
+        m: usize,
+        q: usize,
+        phi: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        let n = self.n;
         // x ← Φx (upper triangular: row i uses rows ≥ i, so ascending order is in place)
         for i in 0..m {
             let mut s = self.x[i];
@@ -317,6 +356,298 @@ impl<const N: usize> UdFilter<N> {
     pub fn is_healthy(&self) -> bool {
         self.d[..self.n].iter().all(|d| d.is_finite() && *d >= 0.0)
             && self.x[..self.n].iter().all(|x| x.is_finite())
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Kernels. They are free functions over flat slices (U column-major with a runtime stride)
+// and not generic over the capacity N, so they are compiled once, in this crate, at this
+// crate's opt-level (the firmware profile gives magcomp-core opt-level 3 and the rest "s";
+// a method generic over N would be compiled in the calling crate, at "s", where LLVM
+// neither unrolls nor fully expands these loops).
+
+/// Columns `j < STRAIGHT` get straight-line code: the column body is inlined with `j` a
+/// constant, so each inner loop has a fixed length and is fully unrolled (model.md §5:
+/// 7,726 → 3,147 instructions per step). Covers the paper's model, two tie-point clones
+/// and the rate term (27); larger filters run the same body as a loop beyond it.
+const STRAIGHT: usize = 28;
+
+/// Runs `$call` with `$j` bound to every column index `< n` in ascending order: each
+/// `j < STRAIGHT` as its own copy with `j` a literal (the column functions are
+/// `#[inline(always)]`, so their inner loops get a constant length), the rest in a loop.
+macro_rules! straight_columns {
+    ($n:expr, |$j:ident| $call:expr) => {{
+        let n = $n;
+        straight_columns!(@ n, $j, $call; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19
+            20 21 22 23 24 25 26 27);
+        for $j in STRAIGHT..n {
+            $call;
+        }
+    }};
+    (@ $n:ident, $j:ident, $call:expr; $($lit:literal)*) => {
+        $({
+            let $j: usize = $lit;
+            if $j < $n {
+                $call;
+            }
+        })*
+    };
+}
+const _: () = assert!(STRAIGHT == 28, "straight_columns! lists 0..28");
+
+/// Accumulators of `bierman_prepare`.
+struct Prepared {
+    pred: f32,
+    s: f32,
+    finite: bool,
+}
+
+/// Column `j` of `f = Uᵀh`: `f_j = h_j + Σ_{i<j} U_ij h_i`.
+#[inline(always)]
+fn prepare_column(
+    j: usize,
+    u: &[f32],
+    stride: usize,
+    x: &[f32],
+    d: &[f32],
+    h: &[f32],
+    f: &mut [f32],
+    acc: &mut Prepared,
+) {
+    let col = &u[j * stride..j * stride + j];
+    let mut fj = h[j];
+    for (uij, hi) in col.iter().zip(&h[..j]) {
+        fj += uij * hi;
+    }
+    acc.finite &= fj.is_finite();
+    f[j] = fj;
+    acc.s += fj * fj * d[j];
+    acc.pred += h[j] * x[j];
+}
+
+/// Phase 1 of Bierman's update: `f = Uᵀh` into `f[..n]`, with `h·x` and `r + Σ f_j² d_j`.
+/// `None` when some `f_j` is not finite (nothing has been changed).
+#[inline(never)]
+fn bierman_prepare(
+    u: &[f32],
+    stride: usize,
+    x: &[f32],
+    d: &[f32],
+    h: &[f32],
+    r: f32,
+    f: &mut [f32],
+) -> Option<(f32, f32)> {
+    let n = x.len();
+    let (d, h, f) = (&d[..n], &h[..n], &mut f[..n]);
+    let mut acc = Prepared {
+        pred: 0.0,
+        s: r,
+        finite: true,
+    };
+    straight_columns!(n, |j| prepare_column(j, u, stride, x, d, h, f, &mut acc));
+    acc.finite.then_some((acc.pred, acc.s))
+}
+
+/// Column `j` of Bierman's update (`alpha` carries the running innovation variance).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn apply_column(
+    j: usize,
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    f: &[f32],
+    b: &mut [f32],
+    alpha: &mut f32,
+) {
+    let fj = f[j];
+    let gj = d[j] * fj;
+    let alpha_prev = *alpha;
+    *alpha += fj * gj;
+    let lambda = -fj / alpha_prev;
+    d[j] *= alpha_prev / *alpha;
+    let col = &mut u[j * stride..j * stride + j];
+    for (uij, bi) in col.iter_mut().zip(&mut b[..j]) {
+        let v = *uij;
+        *uij = v + lambda * *bi;
+        *bi += v * gj;
+    }
+    b[j] = gj;
+}
+
+/// Phase 2 of Bierman's update: rewrites `U` and `D` from `f = Uᵀh` and returns the gain
+/// direction in `b[..n]` and the innovation variance `α`.
+#[inline(never)]
+fn bierman_apply(
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    f: &[f32],
+    r: f32,
+    b: &mut [f32],
+) -> f32 {
+    let n = d.len();
+    let (f, b) = (&f[..n], &mut b[..n]);
+    let mut alpha = r;
+    straight_columns!(n, |j| apply_column(j, u, stride, d, f, b, &mut alpha));
+    alpha
+}
+
+/// Thornton time update for an `M`-state dynamic block and `Q` noise columns: the same
+/// arithmetic in the same order as `UdFilter::time_update_any`, minus terms that are exactly
+/// zero (the strictly lower part of `Φ·U₁₁` stays zero through MWGS: row i only ever has
+/// rows j > i subtracted from it, and its diagonal stays 1).
+#[inline(always)]
+fn thornton_fixed<const M: usize, const Q: usize>(
+    x: &mut [f32],
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    phi: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+    g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+    dq: &[f32],
+) {
+    let n = x.len();
+    let mut p = [[0.0f32; M]; M];
+    for (pi, phii) in p.iter_mut().zip(phi) {
+        pi.copy_from_slice(&phii[..M]);
+    }
+    // x ← Φx (upper triangular: row i uses rows ≥ i, so ascending order is in place)
+    let xm = &mut x[..M];
+    for i in 0..M {
+        let mut s = xm[i];
+        for k in i + 1..M {
+            s += p[i][k] * xm[k];
+        }
+        xm[i] = s;
+    }
+    // U₁₂ ← Φ·U₁₂ (columns m..n, rows 0..m)
+    for j in M..n {
+        let c = &mut u[j * stride..j * stride + M];
+        for i in 0..M {
+            let mut s = c[i];
+            for k in i + 1..M {
+                s += p[i][k] * c[k];
+            }
+            c[i] = s;
+        }
+    }
+    // Y = [Φ·U₁₁ | G] with weights [D₁ | Dq], in its two blocks: ya (M×M; only the part
+    // above the diagonal is stored and used) and yb (M×Q).
+    let mut ya = [[0.0f32; M]; M];
+    for i in 0..M {
+        for j in i + 1..M {
+            // (ΦU)_ij = U_ij + Σ_{i<k<j} Φ_ik U_kj + Φ_ij (Φ_ii = U_jj = 1)
+            let col = &u[j * stride..j * stride + M];
+            let mut s = col[i] + p[i][j];
+            for k in i + 1..j {
+                s += p[i][k] * col[k];
+            }
+            ya[i][j] = s;
+        }
+    }
+    let mut w1 = [0.0f32; M];
+    w1.copy_from_slice(&d[..M]);
+    let mut wq = [0.0f32; Q];
+    wq.copy_from_slice(&dq[..Q]);
+    let mut yb = [[0.0f32; Q]; M];
+    for (i, row) in yb.iter_mut().enumerate() {
+        for (k, v) in row.iter_mut().enumerate() {
+            *v = g[k][i];
+        }
+    }
+    // MWGS, last row first (upper UD). y_jj = 1 and y_jk = 0 for k < j throughout.
+    for j in (0..M).rev() {
+        // Σ_k w_k y_jk²: the zero terms k < j add nothing, w_j·1·1 = w_j exactly.
+        let mut dj = 0.0f32 + w1[j];
+        for k in j + 1..M {
+            dj += w1[k] * ya[j][k] * ya[j][k];
+        }
+        for k in 0..Q {
+            dj += wq[k] * yb[j][k] * yb[j][k];
+        }
+        d[j] = dj;
+        for i in 0..j {
+            let uij = if dj > 0.0 {
+                let mut s = 0.0f32 + w1[j] * ya[i][j];
+                for k in j + 1..M {
+                    s += w1[k] * ya[i][k] * ya[j][k];
+                }
+                for k in 0..Q {
+                    s += wq[k] * yb[i][k] * yb[j][k];
+                }
+                s / dj
+            } else {
+                0.0
+            };
+            u[j * stride + i] = uij;
+            // row_i −= u_ij·row_j: column j of ya (y_jj = 1) and the columns after it
+            ya[i][j] -= uij;
+            for k in j + 1..M {
+                ya[i][k] -= uij * ya[j][k];
+            }
+            for k in 0..Q {
+                yb[i][k] -= uij * yb[j][k];
+            }
+        }
+    }
+}
+
+/// Signature of the block-size specific time updates.
+type ThorntonFn = fn(
+    &mut [f32],
+    &mut [f32],
+    usize,
+    &mut [f32],
+    &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+    &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+    &[f32],
+);
+
+/// The block shapes the compensator uses: 5 field states after 0–2 tie-point clones, with
+/// the field model's 5 noise columns. Non-generic, so compiled here (see above).
+fn thornton_fixed_for(m: usize, q: usize) -> Option<ThorntonFn> {
+    #[inline(never)]
+    fn m5(
+        x: &mut [f32],
+        u: &mut [f32],
+        s: usize,
+        d: &mut [f32],
+        p: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        thornton_fixed::<5, 5>(x, u, s, d, p, g, dq)
+    }
+    #[inline(never)]
+    fn m6(
+        x: &mut [f32],
+        u: &mut [f32],
+        s: usize,
+        d: &mut [f32],
+        p: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        thornton_fixed::<6, 5>(x, u, s, d, p, g, dq)
+    }
+    #[inline(never)]
+    fn m7(
+        x: &mut [f32],
+        u: &mut [f32],
+        s: usize,
+        d: &mut [f32],
+        p: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        thornton_fixed::<7, 5>(x, u, s, d, p, g, dq)
+    }
+    match (m, q) {
+        (5, 5) => Some(m5),
+        (6, 5) => Some(m6),
+        (7, 5) => Some(m7),
+        _ => None,
     }
 }
 
