@@ -428,23 +428,28 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             } else {
                 ep.dmag_nt
             };
-            let s = self.filter.predicted_variance(&h, r);
-            let nu = z - self.filter.predict(&h);
             let gate = self.cfg.gate_sigma;
-            let reject = gate > 0.0
-                && self.updates > 100
-                && nu * nu > gate * gate * s
-                && self.reject_run < self.cfg.gate_max_run;
-            if reject {
-                self.reject_run += 1;
-                flags.set(Flags::INNOVATION_REJECTED);
-                innovation_nt = nu;
-                innovation_var = s;
-            } else if let Some(inn) = self.filter.update(&h, z, r) {
-                self.reject_run = 0;
-                self.updates = self.updates.saturating_add(1);
-                innovation_nt = inn.value;
-                innovation_var = inn.variance;
+            let gating =
+                gate > 0.0 && self.updates > 100 && self.reject_run < self.cfg.gate_max_run;
+            // The gate sees ν and its predicted variance from the same pass over U that the
+            // update uses (one Uᵀh instead of three).
+            match self
+                .filter
+                .update_gated(&h, z, r, |nu, s| gating && nu * nu > gate * gate * s)
+            {
+                Some(Err(rejected)) => {
+                    self.reject_run += 1;
+                    flags.set(Flags::INNOVATION_REJECTED);
+                    innovation_nt = rejected.value;
+                    innovation_var = rejected.variance;
+                }
+                Some(Ok(inn)) => {
+                    self.reject_run = 0;
+                    self.updates = self.updates.saturating_add(1);
+                    innovation_nt = inn.value;
+                    innovation_var = inn.variance;
+                }
+                None => {}
             }
         }
         if self.tie_points(ep) {

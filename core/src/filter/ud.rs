@@ -556,39 +556,72 @@ fn thornton_fixed<const M: usize, const Q: usize>(
             *v = g[k][i];
         }
     }
-    // MWGS, last row first (upper UD). y_jj = 1 and y_jk = 0 for k < j throughout.
-    for j in (0..M).rev() {
-        // Σ_k w_k y_jk²: the zero terms k < j add nothing, w_j·1·1 = w_j exactly.
-        let mut dj = 0.0f32 + w1[j];
-        for k in j + 1..M {
-            dj += w1[k] * ya[j][k] * ya[j][k];
-        }
-        for k in 0..Q {
-            dj += wq[k] * yb[j][k] * yb[j][k];
-        }
-        d[j] = dj;
-        for i in 0..j {
-            let uij = if dj > 0.0 {
-                let mut s = 0.0f32 + w1[j] * ya[i][j];
-                for k in j + 1..M {
-                    s += w1[k] * ya[i][k] * ya[j][k];
-                }
-                for k in 0..Q {
-                    s += wq[k] * yb[i][k] * yb[j][k];
-                }
-                s / dj
-            } else {
-                0.0
-            };
-            u[j * stride + i] = uij;
-            // row_i −= u_ij·row_j: column j of ya (y_jj = 1) and the columns after it
-            ya[i][j] -= uij;
+    // MWGS, last row first (upper UD). y_jj = 1 and y_jk = 0 for k < j throughout. Each
+    // row is its own copy with j a literal, so every loop inside has a fixed length and is
+    // fully unrolled (a loop over j left the inner loops rolled, with their counters).
+    macro_rules! rows_desc {
+        ($($j:literal)*) => {$(
+            if $j < M {
+                mwgs_row::<M, Q>($j, u, stride, d, &w1, &wq, &mut ya, &mut yb);
+            }
+        )*};
+    }
+    rows_desc!(7 6 5 4 3 2 1 0);
+    const {
+        assert!(
+            M <= MAX_DYNAMIC && MAX_DYNAMIC == 8,
+            "rows_desc! lists 7..=0"
+        )
+    };
+}
+
+/// Row `j` of the MWGS re-factorisation in `thornton_fixed`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn mwgs_row<const M: usize, const Q: usize>(
+    j: usize,
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    w1: &[f32; M],
+    wq: &[f32; Q],
+    ya: &mut [[f32; M]; M],
+    yb: &mut [[f32; Q]; M],
+) {
+    // Σ_k w_k y_jk²: the zero terms k < j add nothing, w_j·1·1 = w_j exactly.
+    let mut dj = 0.0f32 + w1[j];
+    for k in j + 1..M {
+        dj += w1[k] * ya[j][k] * ya[j][k];
+    }
+    for k in 0..Q {
+        dj += wq[k] * yb[j][k] * yb[j][k];
+    }
+    d[j] = dj;
+    let (ya_up, ya_j) = ya.split_at_mut(j);
+    let (yb_up, yb_j) = yb.split_at_mut(j);
+    let (ya_j, yb_j) = (&ya_j[0], &yb_j[0]);
+    let uc = &mut u[j * stride..j * stride + j];
+    for ((uij_out, yai), ybi) in uc.iter_mut().zip(ya_up.iter_mut()).zip(yb_up.iter_mut()) {
+        let uij = if dj > 0.0 {
+            let mut s = 0.0f32 + w1[j] * yai[j];
             for k in j + 1..M {
-                ya[i][k] -= uij * ya[j][k];
+                s += w1[k] * yai[k] * ya_j[k];
             }
             for k in 0..Q {
-                yb[i][k] -= uij * yb[j][k];
+                s += wq[k] * ybi[k] * yb_j[k];
             }
+            s / dj
+        } else {
+            0.0
+        };
+        *uij_out = uij;
+        // row_i −= u_ij·row_j: column j of ya (y_jj = 1) and the columns after it
+        yai[j] -= uij;
+        for k in j + 1..M {
+            yai[k] -= uij * ya_j[k];
+        }
+        for k in 0..Q {
+            ybi[k] -= uij * yb_j[k];
         }
     }
 }
