@@ -142,20 +142,13 @@ impl<const N: usize> UdFilter<N> {
                 variance: s_gate,
             }));
         }
-        let mut b = [0.0f32; N];
-        let alpha = bierman_apply(
-            self.u.as_flattened_mut(),
-            N,
-            &mut self.d[..n],
-            &f,
-            r,
-            &mut b,
-        );
+        let alpha = bierman_apply(self.u.as_flattened_mut(), N, &mut self.d[..n], &mut f, r);
         if !(alpha > 0.0 && alpha.is_finite()) {
             return None;
         }
+        // f now holds the gain direction b
         let k = innovation / alpha;
-        for (xi, bi) in self.x[..n].iter_mut().zip(&b[..n]) {
+        for (xi, bi) in self.x[..n].iter_mut().zip(&f[..n]) {
             *xi += bi * k;
         }
         Some(Ok(Innovation {
@@ -456,11 +449,12 @@ fn apply_column(
     u: &mut [f32],
     stride: usize,
     d: &mut [f32],
-    f: &[f32],
-    b: &mut [f32],
+    fb: &mut [f32],
     alpha: &mut f32,
 ) {
-    let fj = f[j];
+    // f_j is read before b_j overwrites it; b_i (i < j) replaced f_i in earlier columns
+    let fj = fb[j];
+    let b = fb;
     let gj = d[j] * fj;
     let alpha_prev = *alpha;
     *alpha += fj * gj;
@@ -475,21 +469,15 @@ fn apply_column(
     b[j] = gj;
 }
 
-/// Phase 2 of Bierman's update: rewrites `U` and `D` from `f = Uᵀh` and returns the gain
-/// direction in `b[..n]` and the innovation variance `α`.
+/// Phase 2 of Bierman's update: rewrites `U` and `D` from `f = Uᵀh` (in `fb[..n]`) and
+/// returns the innovation variance `α`, with the gain direction `b` in `fb[..n]` (one
+/// scratch array: `b_i` overwrites `f_i`, which column i was the last to read).
 #[inline(never)]
-fn bierman_apply(
-    u: &mut [f32],
-    stride: usize,
-    d: &mut [f32],
-    f: &[f32],
-    r: f32,
-    b: &mut [f32],
-) -> f32 {
+fn bierman_apply(u: &mut [f32], stride: usize, d: &mut [f32], fb: &mut [f32], r: f32) -> f32 {
     let n = d.len();
-    let (f, b) = (&f[..n], &mut b[..n]);
+    let fb = &mut fb[..n];
     let mut alpha = r;
-    straight_columns!(n, |j| apply_column(j, u, stride, d, f, b, &mut alpha));
+    straight_columns!(n, |j| apply_column(j, u, stride, d, fb, &mut alpha));
     alpha
 }
 
@@ -522,14 +510,17 @@ fn thornton_fixed<const M: usize, const Q: usize>(
         xm[i] = s;
     }
     // U₁₂ ← Φ·U₁₂ (columns m..n, rows 0..m)
-    for j in M..n {
-        let c = &mut u[j * stride..j * stride + M];
-        for i in 0..M {
-            let mut s = c[i];
-            for k in i + 1..M {
-                s += p[i][k] * c[k];
+    // (one bounds check for the whole block, then a pointer walk over the columns)
+    if M < n && M <= stride {
+        for col in u[M * stride..n * stride].chunks_exact_mut(stride) {
+            let c = &mut col[..M];
+            for i in 0..M {
+                let mut s = c[i];
+                for k in i + 1..M {
+                    s += p[i][k] * c[k];
+                }
+                c[i] = s;
             }
-            c[i] = s;
         }
     }
     // Y = [Φ·U₁₁ | G] with weights [D₁ | Dq], in its two blocks: ya (M×M; only the part
