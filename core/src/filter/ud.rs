@@ -392,7 +392,6 @@ const _: () = assert!(STRAIGHT == 28, "straight_columns! lists 0..28");
 struct Prepared {
     pred: f32,
     s: f32,
-    finite: bool,
 }
 
 /// Column `j` of `f = Uᵀh`: `f_j = h_j + Σ_{i<j} U_ij h_i`.
@@ -412,14 +411,13 @@ fn prepare_column(
     for (uij, hi) in col.iter().zip(&h[..j]) {
         fj += uij * hi;
     }
-    acc.finite &= fj.is_finite();
     f[j] = fj;
     acc.s += fj * fj * d[j];
     acc.pred += h[j] * x[j];
 }
 
 /// Phase 1 of Bierman's update: `f = Uᵀh` into `f[..n]`, with `h·x` and `r + Σ f_j² d_j`.
-/// `None` when some `f_j` is not finite (nothing has been changed).
+/// `None` when some `f_j` (or that variance) is not finite (nothing has been changed).
 #[inline(never)]
 fn bierman_prepare(
     u: &[f32],
@@ -432,13 +430,12 @@ fn bierman_prepare(
 ) -> Option<(f32, f32)> {
     let n = x.len();
     let (d, h, f) = (&d[..n], &h[..n], &mut f[..n]);
-    let mut acc = Prepared {
-        pred: 0.0,
-        s: r,
-        finite: true,
-    };
+    let mut acc = Prepared { pred: 0.0, s: r };
     straight_columns!(n, |j| prepare_column(j, u, stride, x, d, h, f, &mut acc));
-    acc.finite.then_some((acc.pred, acc.s))
+    // A non-finite f_j makes s = r + Σ f_j²·d_j non-finite (inf·0 is NaN for a clone's
+    // d = 0), so one test at the end replaces one per column. It also catches a non-finite
+    // r or d, or an overflowing f_j², which the update would only find after rewriting U.
+    acc.s.is_finite().then_some((acc.pred, acc.s))
 }
 
 /// Column `j` of Bierman's update (`alpha` carries the running innovation variance).
@@ -526,10 +523,10 @@ fn thornton_fixed<const M: usize, const Q: usize>(
     // Y = [Φ·U₁₁ | G] with weights [D₁ | Dq], in its two blocks: ya (M×M; only the part
     // above the diagonal is stored and used) and yb (M×Q).
     let mut ya = [[0.0f32; M]; M];
-    for i in 0..M {
-        for j in i + 1..M {
+    for j in 1..M {
+        let col = &u[j * stride..j * stride + M];
+        for i in 0..j {
             // (ΦU)_ij = U_ij + Σ_{i<k<j} Φ_ik U_kj + Φ_ij (Φ_ii = U_jj = 1)
-            let col = &u[j * stride..j * stride + M];
             let mut s = col[i] + p[i][j];
             for k in i + 1..j {
                 s += p[i][k] * col[k];
