@@ -395,6 +395,7 @@ struct Prepared {
 }
 
 /// Column `j` of `f = Uᵀh`: `f_j = h_j + Σ_{i<j} U_ij h_i`.
+#[allow(clippy::too_many_arguments)] // inlined into straight-line code: no call cost
 #[inline(always)]
 fn prepare_column(
     j: usize,
