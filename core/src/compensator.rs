@@ -405,14 +405,17 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         let mut frozen = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
-            for i in at..at + t.len() {
+            // once per term: a `dyn` call the optimiser cannot hoist out of the loop itself
+            let is_interference = t.is_interference();
+            let l = t.len();
+            for i in at..at + l {
                 let c = x[i] * self.scale[i] * phys[i];
                 frozen += c;
-                if t.is_interference() {
+                if is_interference {
                     interference += c;
                 }
             }
-            at += t.len();
+            at += l;
         }
         let upto = if self.survey { self.n_dyn } else { self.n };
         for i in 0..upto {
@@ -470,12 +473,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             interference = 0.0;
             let mut at = self.terms_at;
             for t in self.model.terms {
+                let l = t.len();
                 if t.is_interference() {
-                    for i in at..at + t.len() {
+                    for i in at..at + l {
                         interference += x[i] * self.scale[i] * phys[i];
                     }
                 }
-                at += t.len();
+                at += l;
             }
         }
         let anomaly_nt = if self.field.is_some() {
