@@ -408,8 +408,9 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             // once per term: a `dyn` call the optimiser cannot hoist out of the loop itself
             let is_interference = t.is_interference();
             let l = t.len();
-            for i in at..at + l {
-                let c = x[i] * self.scale[i] * phys[i];
+            let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
+            for ((xi, si), pi) in xs.iter().zip(ss).zip(ps) {
+                let c = xi * si * pi;
                 frozen += c;
                 if is_interference {
                     interference += c;
@@ -418,8 +419,12 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             at += l;
         }
         let upto = if self.survey { self.n_dyn } else { self.n };
-        for i in 0..upto {
-            h[i] = phys[i] * self.scale[i];
+        for ((hi, p), sc) in h[..upto]
+            .iter_mut()
+            .zip(&phys[..upto])
+            .zip(&self.scale[..upto])
+        {
+            *hi = p * sc;
         }
         let sigma = self.cfg.noise_nt * self.noise_scale;
         let r = sigma * sigma;
@@ -475,8 +480,9 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             for t in self.model.terms {
                 let l = t.len();
                 if t.is_interference() {
-                    for i in at..at + l {
-                        interference += x[i] * self.scale[i] * phys[i];
+                    let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
+                    for ((xi, si), pi) in xs.iter().zip(ss).zip(ps) {
+                        interference += xi * si * pi;
                     }
                 }
                 at += l;
