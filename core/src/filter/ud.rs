@@ -675,7 +675,100 @@ fn thornton_fixed_for(m: usize, q: usize) -> Option<ThorntonFn> {
 
 #[cfg(test)]
 mod tests {
-    use super::UdFilter;
+    use super::{UdFilter, MAX_DYNAMIC, MAX_NOISE};
+
+    /// Deterministic values in [-1, 1).
+    fn lcg(state: &mut u32) -> f32 {
+        *state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (*state >> 8) as f32 / (1u32 << 23) as f32 - 1.0
+    }
+
+    /// The plain loops the fast kernels replaced: Bierman's update over runtime bounds.
+    fn reference_update<const N: usize>(f: &mut UdFilter<N>, h: &[f32], z: f32, r: f32) {
+        let n = f.n;
+        let mut fv = [0.0f32; N];
+        let mut gv = [0.0f32; N];
+        let mut pred = 0.0f32;
+        for j in 0..n {
+            let mut fj = h[j];
+            for i in 0..j {
+                fj += f.u[j][i] * h[i];
+            }
+            fv[j] = fj;
+            gv[j] = f.d[j] * fj;
+            pred += h[j] * f.x[j];
+        }
+        let innovation = z - pred;
+        let mut alpha = r;
+        let mut b = [0.0f32; N];
+        for j in 0..n {
+            let alpha_prev = alpha;
+            alpha += fv[j] * gv[j];
+            let lambda = -fv[j] / alpha_prev;
+            f.d[j] *= alpha_prev / alpha;
+            for i in 0..j {
+                let uij = f.u[j][i];
+                f.u[j][i] = uij + lambda * b[i];
+                b[i] += uij * gv[j];
+            }
+            b[j] = gv[j];
+        }
+        let k = innovation / alpha;
+        for i in 0..n {
+            f.x[i] += b[i] * k;
+        }
+    }
+
+    /// Runs random time and measurement updates through the fast paths and through the
+    /// plain loops (`time_update_any`, `reference_update`): the results must be identical
+    /// to the bit, for straight-line sizes and for the looped fallback beyond `STRAIGHT`.
+    fn fast_paths_match_plain_loops<const N: usize>(n: usize, m: usize) {
+        let mut seed = 12_345u32 + n as u32 * 7 + m as u32;
+        let sigma: [f32; N] = core::array::from_fn(|i| 0.5 + (i % 5) as f32 * 0.3);
+        let mut fast = UdFilter::<N>::new(n, &[0.1; N], &sigma).unwrap();
+        let mut slow = fast.clone();
+        for step in 0..40 {
+            let mut phi = [[0.0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
+            let mut g = [[0.0f32; MAX_DYNAMIC]; MAX_NOISE];
+            for i in 0..m {
+                phi[i][i] = 1.0;
+                for v in phi[i].iter_mut().take(m).skip(i + 1) {
+                    *v = 0.1 * lcg(&mut seed);
+                }
+            }
+            for (k, col) in g.iter_mut().enumerate() {
+                col[m - MAX_NOISE + k] = 1.0;
+                for v in col.iter_mut().take(m) {
+                    *v += 0.05 * lcg(&mut seed);
+                }
+            }
+            let dq: [f32; MAX_NOISE] = core::array::from_fn(|k| 1e-3 * (k + 1) as f32);
+            fast.time_update(m, &phi, &g, &dq);
+            slow.time_update_any(m, MAX_NOISE, &phi, &g, &dq);
+            let h: [f32; N] = core::array::from_fn(|_| lcg(&mut seed));
+            let z = lcg(&mut seed);
+            assert!(fast.update(&h[..n], z, 0.01).is_some());
+            reference_update(&mut slow, &h[..n], z, 0.01);
+            for i in 0..n {
+                assert_eq!(fast.x[i].to_bits(), slow.x[i].to_bits(), "x{i} step {step}");
+                assert_eq!(fast.d[i].to_bits(), slow.d[i].to_bits(), "d{i} step {step}");
+                for j in 0..n {
+                    assert_eq!(fast.u[j][i].to_bits(), slow.u[j][i].to_bits(), "u{i},{j}");
+                }
+            }
+        }
+        assert!(fast.is_healthy());
+    }
+
+    #[test]
+    fn fast_paths_match_plain_loops_bit_for_bit() {
+        fast_paths_match_plain_loops::<21>(21, 5);
+        fast_paths_match_plain_loops::<24>(23, 7);
+        fast_paths_match_plain_loops::<32>(27, 6);
+        fast_paths_match_plain_loops::<32>(28, 5);
+        // beyond the straight-line columns: the looped fallback
+        fast_paths_match_plain_loops::<36>(33, 5);
+    }
 
     #[test]
     fn add_scaled_state_is_the_exact_change_of_variables() {
