@@ -32,8 +32,9 @@ desc() { case $1 in
   kf21) echo "plain covariance KF step (core CovFilter), n=21";;
   kf27) echo "plain covariance KF step, n=27";;
   sample21) echo "board per-sample path: parse+align+push+encode, 21";;
+  epoch) echo "EpochBuilder::push alone (comp21 minus process)";;
 esac; }
-for r in empty comp21 comp27 tu21 mu21 tu27 mu27 kf21 kf27 sample21; do
+for r in empty comp21 comp27 tu21 mu21 tu27 mu27 kf21 kf27 sample21 epoch; do
   l=$(count $r)
   m=$(field "$l" mean); mn=$(field "$l" min); mx=$(field "$l" max)
   MEAN[$r]=${m%.*}

@@ -574,18 +574,26 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         let mut frozen = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
-            for i in at..at + t.len() {
-                let c = x[i] * self.scale[i] * phys[i];
+            // once per term: a `dyn` call the optimiser cannot hoist out of the loop itself
+            let is_interference = t.is_interference();
+            let l = t.len();
+            let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
+            for ((xi, si), pi) in xs.iter().zip(ss).zip(ps) {
+                let c = xi * si * pi;
                 frozen += c;
-                if t.is_interference() {
+                if is_interference {
                     interference += c;
                 }
             }
-            at += t.len();
+            at += l;
         }
         let upto = if self.survey { self.n_dyn } else { self.n };
-        for i in 0..upto {
-            h[i] = phys[i] * self.scale[i];
+        for ((hi, p), sc) in h[..upto]
+            .iter_mut()
+            .zip(&phys[..upto])
+            .zip(&self.scale[..upto])
+        {
+            *hi = p * sc;
         }
         let sigma = self.cfg.noise_nt * self.noise_scale;
         let r = sigma * sigma;
@@ -597,23 +605,28 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             } else {
                 ep.dmag_nt
             };
-            let s = self.filter.predicted_variance(&h, r);
-            let nu = z - self.filter.predict(&h);
             let gate = self.cfg.gate_sigma;
-            let reject = gate > 0.0
-                && self.updates > 100
-                && nu * nu > gate * gate * s
-                && self.reject_run < self.cfg.gate_max_run;
-            if reject {
-                self.reject_run += 1;
-                flags.set(Flags::INNOVATION_REJECTED);
-                innovation_nt = nu;
-                innovation_var = s;
-            } else if let Some(inn) = self.filter.update(&h, z, r) {
-                self.reject_run = 0;
-                self.updates = self.updates.saturating_add(1);
-                innovation_nt = inn.value;
-                innovation_var = inn.variance;
+            let gating =
+                gate > 0.0 && self.updates > 100 && self.reject_run < self.cfg.gate_max_run;
+            // The gate sees ν and its predicted variance from the same pass over U that the
+            // update uses (one Uᵀh instead of three).
+            match self
+                .filter
+                .update_gated(&h, z, r, |nu, s| gating && nu * nu > gate * gate * s)
+            {
+                Some(Err(rejected)) => {
+                    self.reject_run += 1;
+                    flags.set(Flags::INNOVATION_REJECTED);
+                    innovation_nt = rejected.value;
+                    innovation_var = rejected.variance;
+                }
+                Some(Ok(inn)) => {
+                    self.reject_run = 0;
+                    self.updates = self.updates.saturating_add(1);
+                    innovation_nt = inn.value;
+                    innovation_var = inn.variance;
+                }
+                None => {}
             }
         }
         if self.tie_points(ep) {
@@ -635,12 +648,14 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             interference = 0.0;
             let mut at = self.terms_at;
             for t in self.model.terms {
+                let l = t.len();
                 if t.is_interference() {
-                    for i in at..at + t.len() {
-                        interference += x[i] * self.scale[i] * phys[i];
+                    let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
+                    for ((xi, si), pi) in xs.iter().zip(ss).zip(ps) {
+                        interference += xi * si * pi;
                     }
                 }
-                at += t.len();
+                at += l;
             }
         }
         let anomaly_nt = if self.field.is_some() {

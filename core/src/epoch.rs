@@ -3,7 +3,7 @@
 //! instant (model.md §5: a centred derivative delays the epoch, it must not skew it).
 
 use crate::flags::Flags;
-use crate::units::MagCounts;
+use crate::units::{MagCounts, COUNTS_PER_NT};
 
 /// Number of auxiliary channels an epoch carries (currents, voltages, rpm, base station...).
 pub const MAX_AUX: usize = 8;
@@ -60,6 +60,19 @@ impl AlignedSample {
     }
 }
 
+/// `a − b` in nT, the same value as [`MagCounts::diff_nt`] without soft-float f64 on the M4
+/// in the usual case: below 2^24 counts (1677 nT) the difference converts to f32 exactly and
+/// one correctly rounded f32 division gives the correctly rounded quotient, which the f64
+/// path also gives (its f64 quotient cannot fall on an f32 rounding midpoint).
+fn diff_nt(a: MagCounts, b: MagCounts) -> f32 {
+    let d = a.0 - b.0;
+    if d.unsigned_abs() < 1 << 24 {
+        (d as i32) as f32 / COUNTS_PER_NT as f32
+    } else {
+        a.diff_nt(b)
+    }
+}
+
 /// Mean Earth radius for the local flat-Earth conversion of position steps (m).
 const EARTH_RADIUS_M: f64 = 6_371_000.0;
 /// Re-reference when the field drifts this far from the reference, keeping f32 resolution
@@ -105,6 +118,15 @@ pub struct Epoch {
     /// Base-station external field (nT, relative), NaN if none.
     pub base_nt: f32,
     pub flags: Flags,
+}
+
+/// What `push` needs of the previous sample.
+#[derive(Clone, Copy)]
+struct Prev {
+    t_s: f64,
+    north_m: f64,
+    east_m: f64,
+    aux: [f32; MAX_AUX],
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -154,7 +176,8 @@ pub struct EpochBuilder<const W: usize> {
     emitted: u64,
     reference: Option<MagCounts>,
     h0_m: Option<f32>,
-    origin: Option<(f64, f64, f64)>,
+    /// First fix and its metres per degree north and east: `(lat0, lon0, k_north, k_east)`.
+    origin: Option<(f64, f64, f64, f64)>,
     last_e: Option<[f32; 3]>,
     last_cycles: [f64; MAX_AUX],
     igrf0_nt: Option<f64>,
@@ -208,17 +231,24 @@ impl<const W: usize> EpochBuilder<W> {
 
     /// Local (north, east) metres of a position relative to the first fix; `None` before it.
     pub fn local_position(&self, lat_deg: f64, lon_deg: f64) -> Option<(f32, f32)> {
-        let (lat0, lon0, coslat0) = self.origin?;
+        let (lat0, lon0, k_north, k_east) = self.origin?;
         Some((
-            ((lat_deg - lat0).to_radians() * EARTH_RADIUS_M) as f32,
-            ((lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat0) as f32,
+            ((lat_deg - lat0) * k_north) as f32,
+            ((lon_deg - lon0) * k_east) as f32,
         ))
     }
 
     /// Adds a sample; returns the epoch of the sample `half_width` back, if any.
     pub fn push(&mut self, s: &AlignedSample) -> Option<Epoch> {
+        // Only the previous sample's time, position and aux values are needed: a `Slot` is
+        // ~250 bytes, copying it whole cost more than the arithmetic below.
         let prev = if self.pushed > 0 {
-            self.slot(self.pushed - 1).copied()
+            self.slot(self.pushed - 1).map(|p| Prev {
+                t_s: p.s.t_s,
+                north_m: p.north_m,
+                east_m: p.east_m,
+                aux: p.s.aux,
+            })
         } else {
             None
         };
@@ -231,21 +261,21 @@ impl<const W: usize> EpochBuilder<W> {
         } else {
             (self.last_e.unwrap_or([1.0, 0.0, 0.0]), false)
         };
-        // Local position (f64: lat/lon need it), origin at the first fix.
+        // Local position (f64: lat/lon need it), origin at the first fix. The metres per
+        // degree are formed once: f64 is soft-float on the M4 (~100 instructions a multiply).
         let (north_m, east_m) = if s.lat_deg.is_finite() && s.lon_deg.is_finite() {
-            let (lat0, lon0, coslat0) = *self
-                .origin
-                .get_or_insert_with(|| (s.lat_deg, s.lon_deg, libm::cos(s.lat_deg.to_radians())));
-            (
-                (s.lat_deg - lat0).to_radians() * EARTH_RADIUS_M,
-                (s.lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat0,
-            )
+            let (lat0, lon0, k_north, k_east) = *self.origin.get_or_insert_with(|| {
+                let k_north = EARTH_RADIUS_M * (core::f64::consts::PI / 180.0);
+                let coslat0 = libm::cos(s.lat_deg.to_radians());
+                (s.lat_deg, s.lon_deg, k_north, k_north * coslat0)
+            });
+            ((s.lat_deg - lat0) * k_north, (s.lon_deg - lon0) * k_east)
         } else {
             prev.map(|p| (p.north_m, p.east_m)).unwrap_or((0.0, 0.0))
         };
         let (dt_s, ds_m) = match prev {
             Some(p) => {
-                let dt = (s.t_s - p.s.t_s) as f32;
+                let dt = (s.t_s - p.t_s) as f32;
                 let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.0 };
                 let ds = if s.ground_speed_mps.is_finite() {
                     s.ground_speed_mps.abs() * dt
@@ -264,7 +294,8 @@ impl<const W: usize> EpochBuilder<W> {
         for (k, (c, a)) in cycles.iter_mut().zip(s.aux.iter()).enumerate() {
             if a.is_finite() {
                 let prev_a = prev
-                    .map(|p| p.s.aux[k])
+                    .as_ref()
+                    .map(|p| p.aux[k])
                     .filter(|v| v.is_finite())
                     .unwrap_or(*a);
                 *c += 0.5 * (*a as f64 + prev_a as f64) / 60.0 * dt_s as f64;
@@ -309,9 +340,12 @@ impl<const W: usize> EpochBuilder<W> {
         let lo = k.saturating_sub(hw);
         let hi = (k + hw).min(self.pushed - 1);
         self.emitted += 1;
-        let c = *self.slot(k)?;
-        let a = *self.slot(lo)?;
-        let b = *self.slot(hi)?;
+        // By reference: three `Slot` copies per epoch were a large part of its cost.
+        let ring = &self.ring;
+        let at = |k: u64| ring[(k % W as u64) as usize].as_ref();
+        let c = at(k)?;
+        let a = at(lo)?;
+        let b = at(hi)?;
         let mut flags = c.s.flags;
         if lo + hw != k || hi != k + hw {
             flags.set(Flags::DERIVATIVE_DEGRADED);
@@ -340,7 +374,7 @@ impl<const W: usize> EpochBuilder<W> {
         let mut dmag_nt = f32::NAN;
         if let Some(m) = c.s.mag {
             let r = *self.reference.get_or_insert(m);
-            let d = m.diff_nt(r) - core_delta_nt;
+            let d = diff_nt(m, r) - core_delta_nt;
             if d.abs() > REREFERENCE_LIMIT_NT {
                 // New exact reference such that the residual core delta stays continuous.
                 let r = m.minus_nt(core_delta_nt);
@@ -354,11 +388,13 @@ impl<const W: usize> EpochBuilder<W> {
         }
         let reference = self.reference.unwrap_or_default();
         let dmag_dt = match (a.s.mag, b.s.mag) {
-            (Some(ma), Some(mb)) if span_s > 0.0 => mb.diff_nt(ma) * inv_span,
+            (Some(ma), Some(mb)) if span_s > 0.0 => diff_nt(mb, ma) * inv_span,
             _ => 0.0,
         };
         let field_ratio = match c.s.mag {
-            Some(m) => (m.to_nt_f64() / 50_000.0) as f32,
+            // one soft-float multiply instead of two divisions (counts → nT → ratio); the f64
+            // rounding differences are far below the f32 result's resolution
+            Some(m) => (m.0 as f64 * (1.0 / (COUNTS_PER_NT as f64 * 50_000.0))) as f32,
             None => 1.0,
         };
         let dh_m = match (self.h0_m, c.s.alt_m.is_finite()) {
@@ -368,7 +404,8 @@ impl<const W: usize> EpochBuilder<W> {
         let speed = if c.dt_s > 0.0 { c.ds_m / c.dt_s } else { 0.0 };
         let mut aux_cycles = [0.0f32; MAX_AUX];
         for (o, v) in aux_cycles.iter_mut().zip(c.cycles.iter()) {
-            *o = *v as f32;
+            // channels never integrated (missing) hold +0.0: skip the soft-float conversion
+            *o = if v.to_bits() == 0 { 0.0 } else { *v as f32 };
         }
         Some(Epoch {
             t_s: c.s.t_s,
@@ -460,5 +497,31 @@ impl<const W: usize> EpochBuilder<W> {
         self.last_cycles = [0.0; MAX_AUX];
         self.igrf0_nt = None;
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::diff_nt;
+    use crate::units::MagCounts;
+
+    #[test]
+    fn fast_diff_equals_the_f64_path() {
+        let r = MagCounts(523_456_789);
+        let check = |d: i64| {
+            let m = MagCounts(r.0 + d);
+            assert_eq!(diff_nt(m, r).to_bits(), m.diff_nt(r).to_bits(), "d = {d}");
+        };
+        for d in -(1 << 18)..(1 << 18) {
+            check(d);
+        }
+        // the rest of the f32 range sampled, and the f64 fallback beyond it
+        let mut d = 1i64 << 18;
+        while d < 1 << 26 {
+            for v in [d, -d, d + 1, -d - 7] {
+                check(v);
+            }
+            d += 997;
+        }
     }
 }

@@ -11,6 +11,7 @@
 //!   filter `CovFilter`, the yardstick: same structure (5 dynamic states, scalar measurement);
 //! - `sample21`: the board's whole per-sample path: scalar + fluxgate line parsing, the
 //!   aligner, `Compensator::push` and the record encoding;
+//! - `epoch`: `EpochBuilder::push` alone (the part of `Compensator::push` before the filter);
 //! - `empty`: the markers alone (overhead to subtract).
 #![no_std]
 #![no_main]
@@ -25,7 +26,7 @@ use embassy_stm32 as _;
 use core::hint::black_box;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug;
-use magcomp_core::epoch::AlignedSample;
+use magcomp_core::epoch::{AlignedSample, EpochBuilder};
 use magcomp_core::filter::UdFilter;
 use magcomp_core::filter::covariance::CovFilter;
 use magcomp_core::filter::ud::{MAX_DYNAMIC, MAX_NOISE};
@@ -66,6 +67,7 @@ markers!(
     bench_kf21_begin bench_kf21_end 15,
     bench_kf27_begin bench_kf27_end 17,
     bench_sample21_begin bench_sample21_end 19,
+    bench_epoch_begin bench_epoch_end 21,
 );
 
 /// A deterministic manoeuvring sample `k` at 10 Hz.
@@ -104,6 +106,23 @@ fn bench_comp<const N: usize>(model: Model<'static>, begin: extern "C" fn(), end
         begin();
         black_box(c.push(black_box(&s)));
         end();
+    }
+}
+
+/// The epoch builder alone: the non-filter part of `Compensator::push`.
+fn bench_epoch() {
+    let cfg = CompensatorConfig::for_rate(10.0);
+    let Some(mut b) = EpochBuilder::<16>::new(cfg.epoch) else {
+        fail()
+    };
+    for k in 0..WARMUP {
+        black_box(b.push(&sample(k)));
+    }
+    for k in WARMUP..WARMUP + STEPS {
+        let s = sample(k);
+        bench_epoch_begin();
+        black_box(b.push(black_box(&s)));
+        bench_epoch_end();
     }
 }
 
@@ -302,6 +321,7 @@ fn main() -> ! {
     bench_kf::<21>(21, bench_kf21_begin, bench_kf21_end);
     bench_kf::<27>(27, bench_kf27_begin, bench_kf27_end);
     bench_sample();
+    bench_epoch();
     debug::exit(debug::EXIT_SUCCESS);
     loop {
         cortex_m::asm::wfi();

@@ -103,55 +103,58 @@ impl<const N: usize> UdFilter<N> {
     /// noise variance `r`. Returns the innovation before the update. A non-finite input or
     /// a non-positive innovation variance leaves the filter untouched and returns `None`.
     pub fn update(&mut self, h: &[f32], z: f32, r: f32) -> Option<Innovation> {
+        // A gate that never rejects: the gate's own variance sum is dead code then.
+        self.update_gated(h, z, r, |_, _| false)?.ok()
+    }
+
+    /// [`update`](Self::update) with an innovation gate decided in between: `reject(ν, s)`
+    /// sees the innovation `ν = z − h·x̂⁻` and its predicted variance
+    /// `s = r + Σ (Uᵀh)_j²·d_j` (the same numbers [`predict`](Self::predict) and
+    /// [`predicted_variance`](Self::predicted_variance) give) before anything changes.
+    /// One pass over `U` instead of three: `Uᵀh` is the largest part of the update.
+    /// `None`: bad input (filter untouched); `Some(Err(ν, s))`: rejected (untouched);
+    /// `Some(Ok(innovation))`: updated.
+    pub fn update_gated(
+        &mut self,
+        h: &[f32],
+        z: f32,
+        r: f32,
+        reject: impl FnOnce(f32, f32) -> bool,
+    ) -> Option<Result<Innovation, Innovation>> {
         let n = self.n;
         if h.len() < n || !z.is_finite() || r.is_nan() || r <= 0.0 {
             return None;
         }
-        // f = Uᵀh, g = D f
         let mut f = [0.0f32; N];
-        let mut g = [0.0f32; N];
-        let mut pred = 0.0f32;
-        for j in 0..n {
-            let col = &self.u[j];
-            let mut fj = h[j];
-            for i in 0..j {
-                fj += col[i] * h[i];
-            }
-            if !fj.is_finite() {
-                return None;
-            }
-            f[j] = fj;
-            g[j] = self.d[j] * fj;
-            pred += h[j] * self.x[j];
-        }
+        let (pred, s_gate) = bierman_prepare(
+            self.u.as_flattened(),
+            N,
+            &self.x[..n],
+            &self.d,
+            h,
+            r,
+            &mut f,
+        )?;
         let innovation = z - pred;
-        let mut alpha = r;
-        let mut b = [0.0f32; N];
-        for j in 0..n {
-            let alpha_prev = alpha;
-            alpha += f[j] * g[j];
-            let lambda = -f[j] / alpha_prev;
-            self.d[j] *= alpha_prev / alpha;
-            let col = &mut self.u[j];
-            let gj = g[j];
-            for i in 0..j {
-                let uij = col[i];
-                col[i] = uij + lambda * b[i];
-                b[i] += uij * gj;
-            }
-            b[j] = gj;
+        if reject(innovation, s_gate) {
+            return Some(Err(Innovation {
+                value: innovation,
+                variance: s_gate,
+            }));
         }
+        let alpha = bierman_apply(self.u.as_flattened_mut(), N, &mut self.d[..n], &mut f, r);
         if !(alpha > 0.0 && alpha.is_finite()) {
             return None;
         }
+        // f now holds the gain direction b
         let k = innovation / alpha;
-        for i in 0..n {
-            self.x[i] += b[i] * k;
+        for (xi, bi) in self.x[..n].iter_mut().zip(&f[..n]) {
+            *xi += bi * k;
         }
-        Some(Innovation {
+        Some(Ok(Innovation {
             value: innovation,
             variance: alpha,
-        })
+        }))
     }
 
     /// Innovation variance `h·P·hᵀ + r` without updating (for gating and diagnostics).
@@ -188,11 +191,40 @@ impl<const N: usize> UdFilter<N> {
         g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
         dq: &[f32],
     ) {
-        let n = self.n;
         let q = dq.len().min(MAX_NOISE);
-        if m == 0 || m > MAX_DYNAMIC || m > n {
+        if m == 0 || m > MAX_DYNAMIC || m > self.n {
             return;
         }
+        // The block sizes the compensator uses (5 field states after 0–2 tie-point clones,
+        // 5 noise columns) get loops of compile-time length, fully unrolled (model.md §5:
+        // 7,726 → 3,147 instructions); any other shape takes the general loops.
+        match thornton_fixed_for(m, q) {
+            Some(tu) => {
+                let n = self.n;
+                tu(
+                    &mut self.x[..n],
+                    self.u.as_flattened_mut(),
+                    N,
+                    &mut self.d,
+                    phi,
+                    g,
+                    dq,
+                )
+            }
+            None => self.time_update_any(m, q, phi, g, dq),
+        }
+    }
+
+    /// `time_update` for any block shape (runtime loop bounds).
+    fn time_update_any(
+        &mut self,
+        m: usize,
+        q: usize,
+        phi: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        let n = self.n;
         // x ← Φx (upper triangular: row i uses rows ≥ i, so ascending order is in place)
         for i in 0..m {
             let mut s = self.x[i];
@@ -358,9 +390,423 @@ impl<const N: usize> UdFilter<N> {
     }
 }
 
+// ---------------------------------------------------------------------------------------
+// Kernels. They are free functions over flat slices (U column-major with a runtime stride)
+// and not generic over the capacity N, so they are compiled once, in this crate, at this
+// crate's opt-level (the firmware profile gives magcomp-core opt-level 3 and the rest "s";
+// a method generic over N would be compiled in the calling crate, at "s", where LLVM
+// neither unrolls nor fully expands these loops).
+
+/// Columns `j < STRAIGHT` get straight-line code: the column body is inlined with `j` a
+/// constant, so each inner loop has a fixed length and is fully unrolled (model.md §5:
+/// 7,726 → 3,147 instructions per step). Covers the paper's model, two tie-point clones
+/// and the rate term (27); larger filters run the same body as a loop beyond it.
+const STRAIGHT: usize = 28;
+
+/// Runs `$call` with `$j` bound to every column index `< n` in ascending order: each
+/// `j < STRAIGHT` as its own copy with `j` a literal (the column functions are
+/// `#[inline(always)]`, so their inner loops get a constant length), the rest in a loop.
+macro_rules! straight_columns {
+    ($n:expr, |$j:ident| $call:expr) => {{
+        let n = $n;
+        straight_columns!(@ n, $j, $call; 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19
+            20 21 22 23 24 25 26 27);
+        for $j in STRAIGHT..n {
+            $call;
+        }
+    }};
+    (@ $n:ident, $j:ident, $call:expr; $($lit:literal)*) => {
+        $({
+            let $j: usize = $lit;
+            if $j < $n {
+                $call;
+            }
+        })*
+    };
+}
+const _: () = assert!(STRAIGHT == 28, "straight_columns! lists 0..28");
+
+/// Accumulators of `bierman_prepare`.
+struct Prepared {
+    pred: f32,
+    s: f32,
+}
+
+/// Column `j` of `f = Uᵀh`: `f_j = h_j + Σ_{i<j} U_ij h_i`.
+#[allow(clippy::too_many_arguments)] // inlined into straight-line code: no call cost
+#[inline(always)]
+fn prepare_column(
+    j: usize,
+    u: &[f32],
+    stride: usize,
+    x: &[f32],
+    d: &[f32],
+    h: &[f32],
+    f: &mut [f32],
+    acc: &mut Prepared,
+) {
+    let col = &u[j * stride..j * stride + j];
+    let mut fj = h[j];
+    for (uij, hi) in col.iter().zip(&h[..j]) {
+        fj += uij * hi;
+    }
+    f[j] = fj;
+    acc.s += fj * fj * d[j];
+    acc.pred += h[j] * x[j];
+}
+
+/// Phase 1 of Bierman's update: `f = Uᵀh` into `f[..n]`, with `h·x` and `r + Σ f_j² d_j`.
+/// `None` when some `f_j` (or that variance) is not finite (nothing has been changed).
+#[inline(never)]
+fn bierman_prepare(
+    u: &[f32],
+    stride: usize,
+    x: &[f32],
+    d: &[f32],
+    h: &[f32],
+    r: f32,
+    f: &mut [f32],
+) -> Option<(f32, f32)> {
+    let n = x.len();
+    let (d, h, f) = (&d[..n], &h[..n], &mut f[..n]);
+    let mut acc = Prepared { pred: 0.0, s: r };
+    straight_columns!(n, |j| prepare_column(j, u, stride, x, d, h, f, &mut acc));
+    // A non-finite f_j makes s = r + Σ f_j²·d_j non-finite (inf·0 is NaN for a clone's
+    // d = 0), so one test at the end replaces one per column. It also catches a non-finite
+    // r or d, or an overflowing f_j², which the update would only find after rewriting U.
+    acc.s.is_finite().then_some((acc.pred, acc.s))
+}
+
+/// Column `j` of Bierman's update (`alpha` carries the running innovation variance).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn apply_column(
+    j: usize,
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    fb: &mut [f32],
+    alpha: &mut f32,
+) {
+    // f_j is read before b_j overwrites it; b_i (i < j) replaced f_i in earlier columns
+    let fj = fb[j];
+    let b = fb;
+    let gj = d[j] * fj;
+    let alpha_prev = *alpha;
+    *alpha += fj * gj;
+    let lambda = -fj / alpha_prev;
+    d[j] *= alpha_prev / *alpha;
+    let col = &mut u[j * stride..j * stride + j];
+    for (uij, bi) in col.iter_mut().zip(&mut b[..j]) {
+        let v = *uij;
+        *uij = v + lambda * *bi;
+        *bi += v * gj;
+    }
+    b[j] = gj;
+}
+
+/// Phase 2 of Bierman's update: rewrites `U` and `D` from `f = Uᵀh` (in `fb[..n]`) and
+/// returns the innovation variance `α`, with the gain direction `b` in `fb[..n]` (one
+/// scratch array: `b_i` overwrites `f_i`, which column i was the last to read).
+#[inline(never)]
+fn bierman_apply(u: &mut [f32], stride: usize, d: &mut [f32], fb: &mut [f32], r: f32) -> f32 {
+    let n = d.len();
+    let fb = &mut fb[..n];
+    let mut alpha = r;
+    straight_columns!(n, |j| apply_column(j, u, stride, d, fb, &mut alpha));
+    alpha
+}
+
+/// Thornton time update for an `M`-state dynamic block and `Q` noise columns: the same
+/// arithmetic in the same order as `UdFilter::time_update_any`, minus terms that are exactly
+/// zero (the strictly lower part of `Φ·U₁₁` stays zero through MWGS: row i only ever has
+/// rows j > i subtracted from it, and its diagonal stays 1).
+#[inline(always)]
+fn thornton_fixed<const M: usize, const Q: usize>(
+    x: &mut [f32],
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    phi: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+    g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+    dq: &[f32],
+) {
+    let n = x.len();
+    let mut p = [[0.0f32; M]; M];
+    for (pi, phii) in p.iter_mut().zip(phi) {
+        pi.copy_from_slice(&phii[..M]);
+    }
+    // x ← Φx (upper triangular: row i uses rows ≥ i, so ascending order is in place)
+    let xm = &mut x[..M];
+    for i in 0..M {
+        let mut s = xm[i];
+        for k in i + 1..M {
+            s += p[i][k] * xm[k];
+        }
+        xm[i] = s;
+    }
+    // U₁₂ ← Φ·U₁₂ (columns m..n, rows 0..m)
+    // (one bounds check for the whole block, then a pointer walk over the columns)
+    if M < n && M <= stride {
+        for col in u[M * stride..n * stride].chunks_exact_mut(stride) {
+            let c = &mut col[..M];
+            for i in 0..M {
+                let mut s = c[i];
+                for k in i + 1..M {
+                    s += p[i][k] * c[k];
+                }
+                c[i] = s;
+            }
+        }
+    }
+    // Y = [Φ·U₁₁ | G] with weights [D₁ | Dq], in its two blocks: ya (M×M; only the part
+    // above the diagonal is stored and used) and yb (M×Q).
+    let mut ya = [[0.0f32; M]; M];
+    for j in 1..M {
+        let col = &u[j * stride..j * stride + M];
+        for i in 0..j {
+            // (ΦU)_ij = U_ij + Σ_{i<k<j} Φ_ik U_kj + Φ_ij (Φ_ii = U_jj = 1)
+            let mut s = col[i] + p[i][j];
+            for k in i + 1..j {
+                s += p[i][k] * col[k];
+            }
+            ya[i][j] = s;
+        }
+    }
+    let mut w1 = [0.0f32; M];
+    w1.copy_from_slice(&d[..M]);
+    let mut wq = [0.0f32; Q];
+    wq.copy_from_slice(&dq[..Q]);
+    let mut yb = [[0.0f32; Q]; M];
+    for (i, row) in yb.iter_mut().enumerate() {
+        for (k, v) in row.iter_mut().enumerate() {
+            *v = g[k][i];
+        }
+    }
+    // MWGS, last row first (upper UD). y_jj = 1 and y_jk = 0 for k < j throughout. Each
+    // row is its own copy with j a literal, so every loop inside has a fixed length and is
+    // fully unrolled (a loop over j left the inner loops rolled, with their counters).
+    macro_rules! rows_desc {
+        ($($j:literal)*) => {$(
+            if $j < M {
+                mwgs_row::<M, Q>($j, u, stride, d, &w1, &wq, &mut ya, &mut yb);
+            }
+        )*};
+    }
+    rows_desc!(7 6 5 4 3 2 1 0);
+    const {
+        assert!(
+            M <= MAX_DYNAMIC && MAX_DYNAMIC == 8,
+            "rows_desc! lists 7..=0"
+        )
+    };
+}
+
+/// Row `j` of the MWGS re-factorisation in `thornton_fixed`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn mwgs_row<const M: usize, const Q: usize>(
+    j: usize,
+    u: &mut [f32],
+    stride: usize,
+    d: &mut [f32],
+    w1: &[f32; M],
+    wq: &[f32; Q],
+    ya: &mut [[f32; M]; M],
+    yb: &mut [[f32; Q]; M],
+) {
+    // Σ_k w_k y_jk²: the zero terms k < j add nothing, w_j·1·1 = w_j exactly.
+    let mut dj = 0.0f32 + w1[j];
+    for k in j + 1..M {
+        dj += w1[k] * ya[j][k] * ya[j][k];
+    }
+    for k in 0..Q {
+        dj += wq[k] * yb[j][k] * yb[j][k];
+    }
+    d[j] = dj;
+    let (ya_up, ya_j) = ya.split_at_mut(j);
+    let (yb_up, yb_j) = yb.split_at_mut(j);
+    let (ya_j, yb_j) = (&ya_j[0], &yb_j[0]);
+    let uc = &mut u[j * stride..j * stride + j];
+    for ((uij_out, yai), ybi) in uc.iter_mut().zip(ya_up.iter_mut()).zip(yb_up.iter_mut()) {
+        let uij = if dj > 0.0 {
+            let mut s = 0.0f32 + w1[j] * yai[j];
+            for k in j + 1..M {
+                s += w1[k] * yai[k] * ya_j[k];
+            }
+            for k in 0..Q {
+                s += wq[k] * ybi[k] * yb_j[k];
+            }
+            s / dj
+        } else {
+            0.0
+        };
+        *uij_out = uij;
+        // row_i −= u_ij·row_j: column j of ya (y_jj = 1) and the columns after it
+        yai[j] -= uij;
+        for k in j + 1..M {
+            yai[k] -= uij * ya_j[k];
+        }
+        for k in 0..Q {
+            ybi[k] -= uij * yb_j[k];
+        }
+    }
+}
+
+/// Signature of the block-size specific time updates.
+type ThorntonFn = fn(
+    &mut [f32],
+    &mut [f32],
+    usize,
+    &mut [f32],
+    &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+    &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+    &[f32],
+);
+
+/// The block shapes the compensator uses: 5 field states after 0–2 tie-point clones, with
+/// the field model's 5 noise columns. Non-generic, so compiled here (see above).
+fn thornton_fixed_for(m: usize, q: usize) -> Option<ThorntonFn> {
+    #[inline(never)]
+    fn m5(
+        x: &mut [f32],
+        u: &mut [f32],
+        s: usize,
+        d: &mut [f32],
+        p: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        thornton_fixed::<5, 5>(x, u, s, d, p, g, dq)
+    }
+    #[inline(never)]
+    fn m6(
+        x: &mut [f32],
+        u: &mut [f32],
+        s: usize,
+        d: &mut [f32],
+        p: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        thornton_fixed::<6, 5>(x, u, s, d, p, g, dq)
+    }
+    #[inline(never)]
+    fn m7(
+        x: &mut [f32],
+        u: &mut [f32],
+        s: usize,
+        d: &mut [f32],
+        p: &[[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &[[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &[f32],
+    ) {
+        thornton_fixed::<7, 5>(x, u, s, d, p, g, dq)
+    }
+    match (m, q) {
+        (5, 5) => Some(m5),
+        (6, 5) => Some(m6),
+        (7, 5) => Some(m7),
+        _ => None,
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::UdFilter;
+    use super::{UdFilter, MAX_DYNAMIC, MAX_NOISE};
+
+    /// Deterministic values in [-1, 1).
+    fn lcg(state: &mut u32) -> f32 {
+        *state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        (*state >> 8) as f32 / (1u32 << 23) as f32 - 1.0
+    }
+
+    /// The plain loops the fast kernels replaced: Bierman's update over runtime bounds.
+    fn reference_update<const N: usize>(f: &mut UdFilter<N>, h: &[f32], z: f32, r: f32) {
+        let n = f.n;
+        let mut fv = [0.0f32; N];
+        let mut gv = [0.0f32; N];
+        let mut pred = 0.0f32;
+        for j in 0..n {
+            let mut fj = h[j];
+            for i in 0..j {
+                fj += f.u[j][i] * h[i];
+            }
+            fv[j] = fj;
+            gv[j] = f.d[j] * fj;
+            pred += h[j] * f.x[j];
+        }
+        let innovation = z - pred;
+        let mut alpha = r;
+        let mut b = [0.0f32; N];
+        for j in 0..n {
+            let alpha_prev = alpha;
+            alpha += fv[j] * gv[j];
+            let lambda = -fv[j] / alpha_prev;
+            f.d[j] *= alpha_prev / alpha;
+            for i in 0..j {
+                let uij = f.u[j][i];
+                f.u[j][i] = uij + lambda * b[i];
+                b[i] += uij * gv[j];
+            }
+            b[j] = gv[j];
+        }
+        let k = innovation / alpha;
+        for i in 0..n {
+            f.x[i] += b[i] * k;
+        }
+    }
+
+    /// Runs random time and measurement updates through the fast paths and through the
+    /// plain loops (`time_update_any`, `reference_update`): the results must be identical
+    /// to the bit, for straight-line sizes and for the looped fallback beyond `STRAIGHT`.
+    fn fast_paths_match_plain_loops<const N: usize>(n: usize, m: usize) {
+        let mut seed = 12_345u32 + n as u32 * 7 + m as u32;
+        let sigma: [f32; N] = core::array::from_fn(|i| 0.5 + (i % 5) as f32 * 0.3);
+        let mut fast = UdFilter::<N>::new(n, &[0.1; N], &sigma).unwrap();
+        let mut slow = fast.clone();
+        for step in 0..40 {
+            let mut phi = [[0.0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
+            let mut g = [[0.0f32; MAX_DYNAMIC]; MAX_NOISE];
+            for i in 0..m {
+                phi[i][i] = 1.0;
+                for v in phi[i].iter_mut().take(m).skip(i + 1) {
+                    *v = 0.1 * lcg(&mut seed);
+                }
+            }
+            for (k, col) in g.iter_mut().enumerate() {
+                col[m - MAX_NOISE + k] = 1.0;
+                for v in col.iter_mut().take(m) {
+                    *v += 0.05 * lcg(&mut seed);
+                }
+            }
+            let dq: [f32; MAX_NOISE] = core::array::from_fn(|k| 1e-3 * (k + 1) as f32);
+            fast.time_update(m, &phi, &g, &dq);
+            slow.time_update_any(m, MAX_NOISE, &phi, &g, &dq);
+            let h: [f32; N] = core::array::from_fn(|_| lcg(&mut seed));
+            let z = lcg(&mut seed);
+            assert!(fast.update(&h[..n], z, 0.01).is_some());
+            reference_update(&mut slow, &h[..n], z, 0.01);
+            for i in 0..n {
+                assert_eq!(fast.x[i].to_bits(), slow.x[i].to_bits(), "x{i} step {step}");
+                assert_eq!(fast.d[i].to_bits(), slow.d[i].to_bits(), "d{i} step {step}");
+                for j in 0..n {
+                    assert_eq!(fast.u[j][i].to_bits(), slow.u[j][i].to_bits(), "u{i},{j}");
+                }
+            }
+        }
+        assert!(fast.is_healthy());
+    }
+
+    #[test]
+    fn fast_paths_match_plain_loops_bit_for_bit() {
+        fast_paths_match_plain_loops::<21>(21, 5);
+        fast_paths_match_plain_loops::<24>(23, 7);
+        fast_paths_match_plain_loops::<32>(27, 6);
+        fast_paths_match_plain_loops::<32>(28, 5);
+        // beyond the straight-line columns: the looped fallback
+        fast_paths_match_plain_loops::<36>(33, 5);
+    }
 
     #[test]
     fn add_scaled_state_is_the_exact_change_of_variables() {
