@@ -1,5 +1,8 @@
 //! Sensor aligner, and a no-panic fuzz of every slice decoder.
 
+mod common;
+use common::Rng;
+
 use magcomp_core::protocol::aligner::*;
 use magcomp_core::protocol::nmea::{parse_sentence, Sentence};
 use magcomp_core::protocol::scalar::ScalarError;
@@ -91,16 +94,6 @@ fn parse_errors_flag_next_sample_only_and_one_sample_per_scalar() {
     assert!(s.flags.contains(Flags::PARSE_ERROR) && s.flags.contains(Flags::MAG_MISSING));
     assert_eq!(s.mag, None);
     assert_eq!(a.samples, 3);
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
 }
 
 #[test]

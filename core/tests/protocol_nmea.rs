@@ -1,5 +1,8 @@
 //! NMEA reader: exact field decoding, typed errors, fuzzing.
 
+mod common;
+use common::Rng;
+
 use magcomp_core::protocol::nmea::*;
 
 fn with_cs(body: &str) -> String {
@@ -184,17 +187,6 @@ fn framing_lf_only_overlong_interrupted_garbage() {
     assert_eq!(r.stats.garbage_bytes, 4);
     assert_eq!(r.stats.ok, 3);
     assert_eq!(r.stats.errors(), 2);
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        // xorshift64*
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
 }
 
 #[test]

@@ -1,5 +1,8 @@
 //! Scalar magnetometer lines and fluxgate frames.
 
+mod common;
+use common::Rng;
+
 use magcomp_core::protocol::fluxgate::*;
 use magcomp_core::protocol::scalar::*;
 use magcomp_core::MagCounts;
@@ -72,16 +75,6 @@ fn scalar_typed_errors() {
     assert_eq!(p("$ 53620.441,099"), Err(BadStatus));
     assert_eq!(p("53620.4x"), Err(BadCharacter));
     assert_eq!(p("99999999999999999999"), Err(TooManyDigits));
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
 }
 
 #[test]
