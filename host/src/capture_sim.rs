@@ -20,6 +20,7 @@
 //! becomes one) so every scalar line stays one sample: a realistic UART bit error that
 //! merges two lines would lose a sample on any receiver, and the HIL test counts samples.
 
+use crate::flight::col;
 use crate::trace::Trace;
 use anyhow::{bail, ensure, Context, Result};
 use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
@@ -151,12 +152,6 @@ pub struct CaptureSummary {
     pub gps_sentences: usize,
     pub corrupted_bytes: usize,
     pub total_bytes: usize,
-}
-
-fn col<'a>(trace: &'a Trace, name: &str) -> Result<&'a [f64]> {
-    trace
-        .col(name)
-        .with_context(|| format!("the trace has no column '{name}' needed for the capture"))
 }
 
 fn within(w: Option<(f64, f64)>, t: f64) -> bool {

@@ -28,7 +28,9 @@ pub struct Flight {
     pub earth_dir_ned: Option<[f32; 3]>,
 }
 
-fn col<'a>(trace: &'a Trace, name: &str) -> Result<&'a [f64]> {
+/// A numeric column the caller cannot do without: the error lists what the trace has and
+/// suggests `--map`.
+pub(crate) fn col<'a>(trace: &'a Trace, name: &str) -> Result<&'a [f64]> {
     trace.col(name).with_context(|| {
         let have: Vec<&str> = trace.numeric.iter().map(|(n, _)| n.as_str()).collect();
         format!(
