@@ -2,10 +2,9 @@
 //! to look at, and the DOM to check every plot is there. Skips with a message otherwise.
 use magcomp::report::*;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
-const CHROMIUM: &str = "/usr/bin/chromium";
+mod common;
+use common::{chromium, CHROMIUM};
 
 fn sample_report() -> HtmlReport {
     // One hour at 10 Hz: slow diurnal-like drift, manoeuvre wiggles, a spike, a gap.
@@ -94,59 +93,6 @@ fn sample_report() -> HtmlReport {
         .section(Section::new("Time series").plot(ts))
         .section(Section::new("Spectrum").plot_sized(psd, 700, 420))
         .section(Section::new("Calibration").plot(fom).plot(coef))
-}
-
-/// Runs a command with a deadline; None if it timed out (and was killed).
-fn run_with_timeout(cmd: &mut Command, limit: Duration) -> Option<std::process::Output> {
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .ok()?;
-    // Read stdout on a thread so a large DOM cannot fill the pipe and stall the browser.
-    let mut stdout = child.stdout.take()?;
-    let reader = std::thread::spawn(move || {
-        let mut buf = Vec::new();
-        std::io::Read::read_to_end(&mut stdout, &mut buf).ok();
-        buf
-    });
-    let start = Instant::now();
-    loop {
-        match child.try_wait() {
-            Ok(Some(status)) => {
-                let out = reader.join().unwrap_or_default();
-                return Some(std::process::Output {
-                    status,
-                    stdout: out,
-                    stderr: Vec::new(),
-                });
-            }
-            Ok(None) if start.elapsed() < limit => std::thread::sleep(Duration::from_millis(100)),
-            _ => {
-                let _ = child.kill();
-                let _ = child.wait();
-                return None;
-            }
-        }
-    }
-}
-
-fn chromium(args: &[String], profile: &Path) -> Option<std::process::Output> {
-    let mut cmd = Command::new(CHROMIUM);
-    cmd.args([
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--hide-scrollbars",
-    ]);
-    cmd.arg(format!("--user-data-dir={}", profile.display()));
-    cmd.args(args);
-    run_with_timeout(&mut cmd, Duration::from_secs(90))
 }
 
 #[test]

@@ -6,10 +6,9 @@ use magcomp::report::flight_report::{build_report, run_report, write_report, Rep
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
 use magcomp::trace::write_trace;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
 
-const CHROMIUM: &str = "/usr/bin/chromium";
+mod common;
+use common::{chromium, CHROMIUM};
 
 fn trace() -> magcomp::trace::Trace {
     let cfg = SimConfig {
@@ -93,54 +92,6 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     };
     let e = format!("{:#}", run_report(&missing).unwrap_err());
     assert!(e.contains("nope.csv"), "{e}");
-}
-
-fn chromium(args: &[String], profile: &Path) -> Option<std::process::Output> {
-    let mut cmd = Command::new(CHROMIUM);
-    cmd.args([
-        "--headless",
-        "--no-sandbox",
-        "--disable-gpu",
-        "--disable-quic",
-        "--no-first-run",
-        "--disable-background-networking",
-        "--disable-component-update",
-        "--disable-sync",
-        "--hide-scrollbars",
-    ]);
-    cmd.arg(format!("--user-data-dir={}", profile.display()));
-    cmd.args(args);
-    let mut child = cmd
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .ok()?;
-    let mut stdout = child.stdout.take()?;
-    let reader = std::thread::spawn(move || {
-        let mut buf = Vec::new();
-        std::io::Read::read_to_end(&mut stdout, &mut buf).ok();
-        buf
-    });
-    let start = Instant::now();
-    loop {
-        match child.try_wait() {
-            Ok(Some(status)) => {
-                return Some(std::process::Output {
-                    status,
-                    stdout: reader.join().unwrap_or_default(),
-                    stderr: Vec::new(),
-                })
-            }
-            Ok(None) if start.elapsed() < Duration::from_secs(90) => {
-                std::thread::sleep(Duration::from_millis(100))
-            }
-            _ => {
-                let _ = child.kill();
-                let _ = child.wait();
-                return None;
-            }
-        }
-    }
 }
 
 #[test]

@@ -1,0 +1,60 @@
+//! Helpers shared by the host's integration tests.
+#![allow(dead_code)] // each test binary uses the part it needs
+
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+/// Debian's Chromium (`apt-get install chromium`); tests skip with a message without it.
+pub const CHROMIUM: &str = "/usr/bin/chromium";
+
+/// Runs headless Chromium with the flags this machine needs (no network, no sandbox as
+/// root, a fresh profile), killing it after 90 s; `None` if it could not start or timed out.
+pub fn chromium(args: &[String], profile: &Path) -> Option<Output> {
+    let mut cmd = Command::new(CHROMIUM);
+    cmd.args([
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--hide-scrollbars",
+    ]);
+    cmd.arg(format!("--user-data-dir={}", profile.display()));
+    cmd.args(args);
+    let mut child = cmd
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .ok()?;
+    // Read stdout on a thread so a large DOM cannot fill the pipe and stall the browser.
+    let mut stdout = child.stdout.take()?;
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        std::io::Read::read_to_end(&mut stdout, &mut buf).ok();
+        buf
+    });
+    let start = Instant::now();
+    loop {
+        match child.try_wait() {
+            Ok(Some(status)) => {
+                return Some(Output {
+                    status,
+                    stdout: reader.join().unwrap_or_default(),
+                    stderr: Vec::new(),
+                })
+            }
+            Ok(None) if start.elapsed() < Duration::from_secs(90) => {
+                std::thread::sleep(Duration::from_millis(100))
+            }
+            _ => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return None;
+            }
+        }
+    }
+}
