@@ -569,18 +569,7 @@ impl Plot {
             );
         }
         out.push_str("</g>");
-        out.push_str(r##"<g class="y-ticks" fill="#333" text-anchor="end">"##);
-        for (&v, label) in y_ticks.iter().zip(&y_labels) {
-            let _ = write!(
-                out,
-                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
-                left - 7.0,
-                sy(v) + 4.0,
-                escape(label)
-            );
-        }
-        out.push_str("</g>");
-        self.axis_labels(out, left, right, top, bottom, h);
+        self.y_ticks_and_labels(out, &y_ticks, &y_labels, &sy, [left, right, top, bottom], h);
 
         // Legend.
         for &(i, col, row) in legend_rows
@@ -677,6 +666,31 @@ impl Plot {
             })
             .collect();
         (rows, used)
+    }
+
+    /// Y tick labels at the left edge, then the axis titles (the part the line and bar
+    /// plots share).
+    fn y_ticks_and_labels(
+        &self,
+        out: &mut String,
+        y_ticks: &[f64],
+        y_labels: &[String],
+        sy: &dyn Fn(f64) -> f64,
+        [left, right, top, bottom]: [f64; 4],
+        h: f64,
+    ) {
+        out.push_str(r##"<g class="y-ticks" fill="#333" text-anchor="end">"##);
+        for (&v, label) in y_ticks.iter().zip(y_labels) {
+            let _ = write!(
+                out,
+                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
+                left - 7.0,
+                sy(v) + 4.0,
+                escape(label)
+            );
+        }
+        out.push_str("</g>");
+        self.axis_labels(out, left, right, top, bottom, h);
     }
 
     fn axis_labels(&self, out: &mut String, left: f64, right: f64, top: f64, bottom: f64, h: f64) {
@@ -829,18 +843,7 @@ impl Plot {
             right - left,
             bottom - top
         );
-        out.push_str(r##"<g class="y-ticks" fill="#333" text-anchor="end">"##);
-        for (&v, label) in y_ticks.iter().zip(&y_labels) {
-            let _ = write!(
-                out,
-                r#"<text x="{:.1}" y="{:.1}">{}</text>"#,
-                left - 7.0,
-                sy(v) + 4.0,
-                escape(label)
-            );
-        }
-        out.push_str("</g>");
-        self.axis_labels(out, left, right, top, bottom, h);
+        self.y_ticks_and_labels(out, &y_ticks, &y_labels, &sy, [left, right, top, bottom], h);
     }
 }
 
