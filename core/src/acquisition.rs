@@ -233,6 +233,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 nt_per_lsb: [0.0; 3],
                 offset_nt: [0.0; 3],
                 axis_map: AXES,
+                body_matrix: crate::protocol::fluxgate::IDENTITY_3,
+                body_bias_nt: [0.0; 3],
             },
         };
         let aligner = AlignerConfig {

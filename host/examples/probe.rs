@@ -81,6 +81,9 @@ fn main() -> anyhow::Result<()> {
     if let Ok(v) = std::env::var("CANDS") {
         opts.sigma1_candidates = v.split(',').filter_map(|x| x.parse().ok()).collect();
     }
+    if let Some(v) = envf("GATE") {
+        opts.gate_sigma = v;
+    }
     if let Some(v) = envf("TURNR") {
         opts.turn_noise_scale = v;
     }

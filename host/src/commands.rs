@@ -99,6 +99,10 @@ pub struct CoefficientFile {
     pub noise_nt: Option<f64>,
     #[serde(default)]
     pub tl_config: Option<tl::TlConfig>,
+    /// With `fluxcal`: the fluxgate calibration the coefficients were estimated with
+    /// (`B = matrix·B_F + bias_nt`, body frame); apply the same on the board.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fluxgate_calibration: Option<crate::fluxgate::FluxgateCalibration>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -179,6 +183,10 @@ pub fn compensate_trace(
             opts.realtime = realtime;
             if let Some(c) = coeffs {
                 opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
+                if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
+                    bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
+                }
+                opts.fluxgate_calibration = c.fluxgate_calibration;
             }
             let run = run_kf(&flight, &opts)?;
             let file = CoefficientFile {
@@ -189,6 +197,7 @@ pub fn compensate_trace(
                 sigma1: Some(run.sigma1),
                 noise_nt: Some(run.noise_nt),
                 tl_config: None,
+                fluxgate_calibration: run.fluxgate_calibration,
                 coefficients: run
                     .coefficient_names
                     .iter()
@@ -274,6 +283,7 @@ pub fn compensate_trace(
                 sigma1: None,
                 noise_nt: None,
                 tl_config: Some(fit.config.clone()),
+                fluxgate_calibration: None,
                 coefficients: fit
                     .names
                     .iter()

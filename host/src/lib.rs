@@ -6,6 +6,7 @@ pub mod commands;
 pub mod demo;
 pub mod diagnose;
 pub mod flight;
+pub mod fluxgate;
 pub mod metrics;
 pub mod model_spec;
 pub mod monitor;

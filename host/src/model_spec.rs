@@ -32,6 +32,11 @@ pub struct ModelSpec {
 pub const DEFAULT_MODEL: &str = "tl16+field";
 
 impl ModelSpec {
+    /// Whether the model asks for the fluxgate's scalar calibration (`fluxcal`).
+    pub fn calibrates_fluxgate(&self) -> bool {
+        self.terms.iter().any(|t| t.name == "fluxcal")
+    }
+
     pub fn parse(spec: &str) -> Result<Self> {
         let mut field = false;
         let mut terms: Vec<TermSpec> = Vec::new();

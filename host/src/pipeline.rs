@@ -2,6 +2,7 @@
 //! final coefficients to every sample) or real-time (the causal filter's own output).
 
 use crate::flight::Flight;
+use crate::fluxgate::{self, FluxgateCalibration, FluxgateFit};
 use crate::model_spec::{with_model, ModelSpec};
 use anyhow::{bail, Result};
 use magcomp_core::compensator::{Compensator, CompensatorConfig, Output};
@@ -50,6 +51,8 @@ pub struct KfOptions {
     pub gate_sigma: f64,
     /// Measurement-noise multiplier on samples labelled as turns (1 = none).
     pub turn_noise_scale: f64,
+    /// With `fluxcal` in the model: apply this fluxgate calibration instead of fitting one.
+    pub fluxgate_calibration: Option<FluxgateCalibration>,
 }
 
 impl KfOptions {
@@ -70,6 +73,7 @@ impl KfOptions {
             turn_noise_scale: 1.0,
             freeze_on_survey: true,
             gate_sigma: 8.0,
+            fluxgate_calibration: None,
         }
     }
 }
@@ -93,6 +97,9 @@ pub struct KfRun {
     /// The filter's UD factors stayed finite with non-negative D (covariance positive
     /// semi-definite) after every sample of the final pass.
     pub filter_healthy: bool,
+    /// With `fluxcal`: the fluxgate calibration used, and its fit when made on this flight.
+    pub fluxgate_calibration: Option<FluxgateCalibration>,
+    pub fluxgate_fit: Option<FluxgateFit>,
 }
 
 /// Robust white-noise level of the scalar: the third difference of white noise has
@@ -354,7 +361,30 @@ pub const SIGMA1_CANDIDATES: [f64; 4] = [1.0, 0.3, 0.1, 0.03];
 /// Default σ1 when the track is too short for the spectrum (the paper's 1000 m value).
 pub const DEFAULT_SIGMA1: f64 = 1.0e-6;
 
+/// Runs the compensator over a flight. With `fluxcal` in the model the fluxgate is first
+/// calibrated against the scalar (the stored calibration, or one fitted on this flight to
+/// the scalar minus a first pass's interference) and the filter runs on the calibrated
+/// fluxgate.
 pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+    if !opts.model.calibrates_fluxgate() {
+        return run_kf_on(flight, opts);
+    }
+    let (calibration, fit) = match opts.fluxgate_calibration {
+        Some(c) => (c, None),
+        None => {
+            // `fluxcal` adds no filter state, so the first pass is the model without it.
+            let first = run_kf_on(flight, opts)?;
+            let fit = fluxgate::fit_flight(flight, &first.interference_nt)?;
+            (fit.calibration, Some(fit))
+        }
+    };
+    let mut run = run_kf_on(&flight.with_fluxgate_calibration(&calibration), opts)?;
+    run.fluxgate_calibration = Some(calibration);
+    run.fluxgate_fit = fit;
+    Ok(run)
+}
+
+fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     if flight.is_empty() {
         bail!("no samples");
     }

@@ -318,11 +318,40 @@ fn rate_full_bar() {
     }
 }
 
+/// A miscalibrated fluxgate (200–500 nT bias, 0.5–1 % scale, 0.3–0.5° misalignment) hides
+/// from the scalar residual (the TL fit absorbs the low-order part of the bent directions),
+/// so the diagnosis tests it on the fluxgate's modulus against the scalar and on how much a
+/// 9-parameter calibration changes the compensation. Measured: error 0.023 → 0.004 (5.9×),
+/// 0.034 → 0.007 (4.5×), 0.022 → 0.006 (3.9×) nT; the modulus sd 123–130 → 0.5 nT (the
+/// fluxgate's white noise).
 #[test]
-#[ignore = "not separable from `induced_high` on these flights. A fluxgate bias/scale/misalignment error δe(e) is polynomial in e, and a TL fit made with the same fluxgate absorbs its constant-to-quadratic part: with 200–500 nT bias, 0.5–1 % scale and 0.3–0.5° misalignment the interference error is only 0.023 / 0.034 nT (clean: 0.007) and the scalar residual 0.0112 nT (clean ≈ 0.011). What is left is cubic in e: `induced_high` explains 3.9 % / 1.8 % (not significant, < 15 %) and takes the error to 0.005 / 0.004 nT. The INS-referenced `fluxcal` (d = e_ins − e through the permanent and induced regressors) explains 1.2 %, error 0.020 / 0.028 nT: INS attitude noise (0.03° ≈ 5e-4 rad × |∂TL/∂e| ≈ 100 nT ≈ 0.05 nT) is larger than the 0.002 nT the effect leaves in the residual. The miscalibration itself is plain in the fluxgate modulus against the scalar (sd of |B_F| − B: 121 / 139 nT, clean 7.6 / 33 nT, induced_high 7.6 / 33 nT): a fluxgate check, not a missing scalar term"]
 fn fluxcal_full_bar() {
-    for seed in [1, 2] {
+    for seed in [1, 2, 3] {
         check_effect("fluxcal", "fluxcal", seed, false);
+        let trace = flight("fluxcal", seed, false);
+        let model = ModelSpec::parse("tl16+field").expect("spec");
+        let before = error_nt(&trace, &model);
+        let after = error_nt(&trace, &model.with("fluxcal").expect("spec"));
+        assert!(
+            before / after >= 3.5,
+            "seed {seed}: fluxcal {before:.4} → {after:.4} nT"
+        );
+        let d = diag(&trace, "tl16+field");
+        let c = d
+            .candidates
+            .iter()
+            .find(|c| c.term == "fluxcal")
+            .expect("fluxcal tried");
+        assert!(c.significant && c.explained_fraction > 0.5, "{}", d.table());
+        let f = Flight::from_trace(&trace, &[], &[]).expect("flight");
+        let run = run_kf(&f, &KfOptions::new(model.with("fluxcal").expect("spec"))).expect("kf");
+        let fit = run.fluxgate_fit.expect("fitted on the flight");
+        assert!(
+            fit.modulus_sd_before_nt > 100.0 && fit.modulus_sd_after_nt < 0.6,
+            "seed {seed}: modulus sd {:.2} → {:.3} nT (fluxgate noise 0.5)",
+            fit.modulus_sd_before_nt,
+            fit.modulus_sd_after_nt
+        );
     }
 }
 
@@ -386,13 +415,8 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
 /// term the diagnosis names is significant and compensating with it brings the error
 /// against truth to ≤ 0.1 nT.
 #[test]
-fn lag_and_fluxcal_the_named_term_removes_the_error() {
-    for (hidden, seed) in [
-        ("lag:0.1", 1),
-        ("lag:0.1", 2),
-        ("fluxcal", 1),
-        ("fluxcal", 2),
-    ] {
+fn lag_the_named_term_removes_the_error() {
+    for (hidden, seed) in [("lag:0.1", 1), ("lag:0.1", 2)] {
         let trace = flight(hidden, seed, false);
         let model = ModelSpec::parse("tl16+field").expect("spec");
         let d = diag(&trace, "tl16+field");
@@ -408,8 +432,6 @@ fn lag_and_fluxcal_the_named_term_removes_the_error() {
             "{hidden} seed {seed}: {before} → {after}\n{}",
             d.table()
         );
-        if hidden.starts_with("lag") {
-            assert!(first.significant, "{hidden} seed {seed}");
-        }
+        assert!(first.significant, "{hidden} seed {seed}");
     }
 }

@@ -39,7 +39,7 @@ pub const CATALOG: &[TermInfo] = &[
     TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
     TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
     TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
-    TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, misalignment) seen against INS attitude: d = e_ins − e_flux through the permanent and induced regressors, d_i and e_i·d_j·|B|", relative_channel: false },
+    TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },
     TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
 ];
 

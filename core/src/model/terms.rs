@@ -40,12 +40,13 @@ pub struct Diurnal {
 /// Higher-order induced magnetisation: the 7 independent cubic monomials of e (nT).
 #[derive(Clone, Copy, Debug)]
 pub struct InducedHigh;
-/// Fluxgate calibration error (bias, scale, misalignment) seen against INS attitude. The
-/// TL regressors are computed with the fluxgate's direction `e`; with a calibration error it
-/// is `e_true + δe`, and the model misses `−∇_e(TL)·δe`. `δe ≈ e − e_ref` is measured from
-/// the INS attitude and the main-field direction, so the term is the linearised effect of
-/// `d = e_ref − e` on the permanent and induced regressors: `d_i` (3, ≈ K) and
-/// `(e_i d_j + e_j d_i)·|B|/B*` (6, ≈ the induced coefficients) — 9, nT.
+/// Fluxgate calibration (bias, scale, non-orthogonality). A miscalibrated fluxgate bends
+/// the direction cosines every TL regressor is built from, and a TL fit made with that
+/// fluxgate absorbs the bend's low-order part, so the error hides from the scalar residual.
+/// What exposes it is the fluxgate's own modulus against the scalar: the fix is the classic
+/// 9-parameter scalar calibration of the fluxgate, fitted on the flight (host) and applied
+/// to the fluxgate before `e` is formed ([`crate::protocol::fluxgate::FluxgateCal`] on the
+/// board). It adds no filter state: naming it in a model asks for that calibration.
 #[derive(Clone, Copy, Debug)]
 pub struct FluxCal;
 /// Periodic interference locked to a rotation channel (rpm): an engine or propeller field is
@@ -380,35 +381,19 @@ impl Term for FluxCal {
         "fluxcal"
     }
     fn len(&self) -> usize {
-        9
+        0
     }
-    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
-        if !ep.e_ref.iter().all(|v| v.is_finite()) {
-            out[..9].fill(0.0);
-            return false;
-        }
-        let e = &ep.e;
-        let k = ep.field_ratio;
-        let d = [ep.e_ref[0] - e[0], ep.e_ref[1] - e[1], ep.e_ref[2] - e[2]];
-        out[..3].copy_from_slice(&d);
-        out[3] = 2.0 * e[0] * d[0] * k;
-        out[4] = 2.0 * e[1] * d[1] * k;
-        out[5] = 2.0 * e[2] * d[2] * k;
-        out[6] = (e[0] * d[1] + e[1] * d[0]) * k;
-        out[7] = (e[0] * d[2] + e[2] * d[0]) * k;
-        out[8] = (e[1] * d[2] + e[2] * d[1]) * k;
+    fn regressors(&self, _: &Epoch, _: &mut [f32]) -> bool {
         true
     }
     fn prior_sigma(&self, _: usize) -> f32 {
-        200.0
+        1.0
     }
-    fn label(&self, i: usize) -> &'static str {
-        [
-            "d1", "d2", "d3", "e1*d1", "e2*d2", "e3*d3", "e1*d2", "e1*d3", "e2*d3",
-        ][i]
+    fn label(&self, _: usize) -> &'static str {
+        ""
     }
     fn unit(&self, _: usize) -> &'static str {
-        "nT"
+        ""
     }
 }
 

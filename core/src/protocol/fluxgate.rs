@@ -98,14 +98,23 @@ pub struct AxisMap {
     pub negate: bool,
 }
 
-/// Per-channel scale and offset, then sensor → body (x forward, y starboard, z down).
+/// Per-channel scale and offset, then sensor → body (x forward, y starboard, z down), then
+/// the scalar calibration of the fluxgate (`fluxcal`: `B = M·B_body + b`, fitted on a
+/// calibration flight by `magcomp calibrate --model …+fluxcal`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FluxgateCal {
     pub nt_per_lsb: [f32; 3],
     pub offset_nt: [f32; 3],
     /// Body axis i = ±(sensor channel `axis_map[i]`).
     pub axis_map: [AxisMap; 3],
+    /// `M` of the scalar calibration (identity when none).
+    pub body_matrix: [[f32; 3]; 3],
+    /// `b` of the scalar calibration (nT).
+    pub body_bias_nt: [f32; 3],
 }
+
+/// No scalar calibration.
+pub const IDENTITY_3: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
 impl FluxgateCal {
     /// ±`full_scale_nt` over the ADC's ±2^23 codes, identity axes.
@@ -118,19 +127,27 @@ impl FluxgateCal {
                 sensor_channel: c,
                 negate: false,
             }),
+            body_matrix: IDENTITY_3,
+            body_bias_nt: [0.0; 3],
         }
     }
 
-    /// Sensor-frame values (nT) → body frame.
+    /// Sensor-frame values (nT) → body frame, scalar calibration applied.
     pub fn to_body(&self, sensor_nt: [f32; 3]) -> [f32; 3] {
-        self.axis_map.map(|m| {
+        let b = self.axis_map.map(|m| {
             let v = sensor_nt[(m.sensor_channel % 3) as usize];
             if m.negate {
                 -v
             } else {
                 v
             }
-        })
+        });
+        let m = &self.body_matrix;
+        let mut out = [0f32; 3];
+        for i in 0..3 {
+            out[i] = m[i][0] * b[0] + m[i][1] * b[1] + m[i][2] * b[2] + self.body_bias_nt[i];
+        }
+        out
     }
 
     /// ADC counts → body-frame nT.

@@ -1,0 +1,240 @@
+//! Scalar calibration of the fluxgate against the scalar magnetometer ("fluxcal").
+//!
+//! A fluxgate's bias, axis scale and non-orthogonality distort the direction cosines `e`
+//! that every Tolles–Lawson regressor is built from. A rigid misalignment does not matter
+//! to the compensation (the coefficients rotate with it) and is not observable from the
+//! modulus, so the calibration is the classic 9-parameter one: a symmetric matrix
+//! `M = I + S` (3 scales, 3 non-orthogonalities) and a bias `b`, chosen so that
+//! `|M·B_F + b|` equals the scalar field at every sample (Gauss–Newton, f64).
+//!
+//! The reference modulus is the scalar reading minus the aircraft interference the
+//! compensator estimated: the fluxgate sees the geological anomaly too, so it stays in.
+
+use crate::flight::Flight;
+use anyhow::{bail, Result};
+use nalgebra::{SMatrix, SVector};
+use serde::{Deserialize, Serialize};
+
+/// `B_cal = matrix · B_F + bias_nt`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FluxgateCalibration {
+    pub matrix: [[f64; 3]; 3],
+    pub bias_nt: [f64; 3],
+}
+
+impl FluxgateCalibration {
+    pub const IDENTITY: Self = Self {
+        matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        bias_nt: [0.0; 3],
+    };
+
+    pub fn apply(&self, b: [f64; 3]) -> [f64; 3] {
+        let m = &self.matrix;
+        [
+            m[0][0] * b[0] + m[0][1] * b[1] + m[0][2] * b[2] + self.bias_nt[0],
+            m[1][0] * b[0] + m[1][1] * b[1] + m[1][2] * b[2] + self.bias_nt[1],
+            m[2][0] * b[0] + m[2][1] * b[1] + m[2][2] * b[2] + self.bias_nt[2],
+        ]
+    }
+
+    /// Largest angle (rad) between the raw and the calibrated direction over `flux`.
+    pub fn max_direction_change_rad(&self, flux: &[[f64; 3]]) -> f64 {
+        flux.iter()
+            .filter(|b| b.iter().all(|v| v.is_finite()))
+            .map(|&b| {
+                let c = self.apply(b);
+                let (nb, nc) = (norm(b), norm(c));
+                let dot = (b[0] * c[0] + b[1] * c[1] + b[2] * c[2]) / (nb * nc);
+                dot.clamp(-1.0, 1.0).acos()
+            })
+            .fold(0.0, f64::max)
+    }
+}
+
+/// Outcome of a fit.
+#[derive(Clone, Debug, Serialize)]
+pub struct FluxgateFit {
+    pub calibration: FluxgateCalibration,
+    /// Standard deviation of `|B_F| − F` before and of `|M·B_F + b| − F` after (nT).
+    pub modulus_sd_before_nt: f64,
+    pub modulus_sd_after_nt: f64,
+    /// Samples used.
+    pub samples: usize,
+    /// Residual of the fit per sample (NaN where unused), for tests of its structure.
+    #[serde(skip)]
+    pub residual_nt: Vec<f64>,
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// Parameter order: s11, s22, s33, s12, s13, s23, b1, b2, b3.
+fn calibration_of(p: &SVector<f64, 9>) -> FluxgateCalibration {
+    FluxgateCalibration {
+        matrix: [
+            [1.0 + p[0], p[3], p[4]],
+            [p[3], 1.0 + p[1], p[5]],
+            [p[4], p[5], 1.0 + p[2]],
+        ],
+        bias_nt: [p[6], p[7], p[8]],
+    }
+}
+
+/// Fits the 9-parameter calibration so that `|M·B_F + b| = reference_nt`.
+pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFit> {
+    let rows: Vec<usize> = (0..flux.len().min(reference_nt.len()))
+        .filter(|&i| {
+            flux[i].iter().all(|v| v.is_finite())
+                && reference_nt[i].is_finite()
+                && norm(flux[i]) > 1000.0
+        })
+        .collect();
+    if rows.len() < 100 {
+        bail!(
+            "only {} samples with a fluxgate vector and a scalar reading: too few to calibrate the fluxgate",
+            rows.len()
+        );
+    }
+    let mut p = SVector::<f64, 9>::zeros();
+    // Gauss–Newton: the problem is nearly linear (|δ| ≪ |B|), so a few steps converge.
+    for _ in 0..8 {
+        let cal = calibration_of(&p);
+        let mut jtj = SMatrix::<f64, 9, 9>::zeros();
+        let mut jtr = SVector::<f64, 9>::zeros();
+        for &i in &rows {
+            let b = flux[i];
+            let v = cal.apply(b);
+            let nv = norm(v);
+            let u = [v[0] / nv, v[1] / nv, v[2] / nv];
+            let j = SVector::<f64, 9>::from_column_slice(&[
+                u[0] * b[0],
+                u[1] * b[1],
+                u[2] * b[2],
+                u[0] * b[1] + u[1] * b[0],
+                u[0] * b[2] + u[2] * b[0],
+                u[1] * b[2] + u[2] * b[1],
+                u[0],
+                u[1],
+                u[2],
+            ]);
+            let r = reference_nt[i] - nv;
+            jtj += j * j.transpose();
+            jtr += j * r;
+        }
+        let Some(step) = jtj.cholesky().map(|c| c.solve(&jtr)) else {
+            bail!("the flight's attitudes do not determine the fluxgate calibration (too few headings or attitudes)");
+        };
+        p += step;
+        if step.amax() < 1e-12 * (1.0 + p.amax()) {
+            break;
+        }
+    }
+    let cal = calibration_of(&p);
+    let mut before = Vec::with_capacity(rows.len());
+    let mut after = Vec::with_capacity(rows.len());
+    let mut residual_nt = vec![f64::NAN; flux.len()];
+    for &i in &rows {
+        before.push(norm(flux[i]) - reference_nt[i]);
+        let r = norm(cal.apply(flux[i])) - reference_nt[i];
+        residual_nt[i] = r;
+        after.push(r);
+    }
+    let sd = |v: &[f64]| {
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+    };
+    Ok(FluxgateFit {
+        calibration: cal,
+        modulus_sd_before_nt: sd(&before),
+        modulus_sd_after_nt: sd(&after),
+        samples: rows.len(),
+        residual_nt,
+    })
+}
+
+/// The flight's fluxgate fitted to its scalar minus `interference_nt` (a compensator
+/// pass's estimate: the aircraft field at the scalar sensor is not seen by the fluxgate).
+pub fn fit_flight(flight: &Flight, interference_nt: &[f64]) -> Result<FluxgateFit> {
+    let reference: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(interference_nt)
+        .map(|(m, i)| m - i)
+        .collect();
+    fit_modulus(&flight_flux(flight), &reference)
+}
+
+/// The flight's fluxgate vectors in f64.
+pub fn flight_flux(flight: &Flight) -> Vec<[f64; 3]> {
+    flight
+        .samples
+        .iter()
+        .map(|s| s.flux_nt.map(f64::from))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A known distortion of a field seen on many attitudes is recovered.
+    #[test]
+    fn recovers_a_known_bias_scale_and_non_orthogonality() {
+        let truth = FluxgateCalibration {
+            matrix: [
+                [1.006, 0.002, -0.001],
+                [0.002, 0.993, 0.0015],
+                [-0.001, 0.0015, 1.004],
+            ],
+            bias_nt: [320.0, -250.0, 410.0],
+        };
+        // Sensor reading B_F such that truth.apply(B_F) is the true field: invert truth.
+        let m = nalgebra::Matrix3::from_fn(|i, j| truth.matrix[i][j]);
+        let minv = m.try_inverse().unwrap();
+        let f_nt = 52_000.0;
+        let mut flux = Vec::new();
+        let mut reference = Vec::new();
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for _ in 0..2000 {
+            let (th, ph) = (
+                next() * std::f64::consts::PI,
+                next() * std::f64::consts::TAU,
+            );
+            let b =
+                nalgebra::Vector3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()) * f_nt;
+            let raw = minv * (b - nalgebra::Vector3::from(truth.bias_nt));
+            flux.push([raw[0], raw[1], raw[2]]);
+            reference.push(f_nt);
+        }
+        let fit = fit_modulus(&flux, &reference).unwrap();
+        for i in 0..3 {
+            assert!((fit.calibration.bias_nt[i] - truth.bias_nt[i]).abs() < 1e-3);
+            for j in 0..3 {
+                assert!((fit.calibration.matrix[i][j] - truth.matrix[i][j]).abs() < 1e-9);
+            }
+        }
+        assert!(
+            fit.modulus_sd_before_nt > 100.0,
+            "{}",
+            fit.modulus_sd_before_nt
+        );
+        assert!(
+            fit.modulus_sd_after_nt < 1e-6,
+            "{}",
+            fit.modulus_sd_after_nt
+        );
+    }
+
+    #[test]
+    fn too_few_samples_is_a_clear_error() {
+        let e = fit_modulus(&[[50_000.0, 0.0, 0.0]; 10], &[50_000.0; 10]).unwrap_err();
+        assert!(e.to_string().contains("too few"), "{e}");
+    }
+}
