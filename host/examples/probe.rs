@@ -37,6 +37,12 @@ fn main() -> anyhow::Result<()> {
             _ => GeologyPreset::Strong,
         });
     }
+    if let Some(v) = envf("GPSV") {
+        cfg.gps_sigma_v_m = v;
+    }
+    if let Some(v) = envf("GPSH") {
+        cfg.gps_sigma_h_m = v;
+    }
     if let Some(v) = envf("YAW") {
         cfg.yaw_amp_deg = v;
     }

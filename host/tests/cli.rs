@@ -287,3 +287,51 @@ fn public_xyz_survey_data_with_a_column_map() {
     );
     assert!(e.contains("NOPE"), "{e}");
 }
+
+/// `fluxcal` end to end as a user runs it: calibrate on a flight whose fluxgate is off by
+/// hundreds of nT, the coefficient file carries the fitted fluxgate calibration, and
+/// applying that file with `--coeffs` uses it (error falls against the plain model's).
+#[test]
+fn fluxcal_calibration_travels_in_the_coefficient_file() {
+    let d = tmp("fluxcal");
+    let trace = simulate(&d, &["--hidden", "fluxcal"]);
+    let mut errors = Vec::new();
+    for model in ["tl16+field", "tl16+field+fluxcal"] {
+        let coeffs = d.join(format!("{model}.json"));
+        run_ok(
+            bin()
+                .args(["calibrate", "--model", model])
+                .arg(&trace)
+                .arg("-o")
+                .arg(&coeffs),
+        );
+        let cf: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+        let cal = &cf["fluxgate_calibration"];
+        assert_eq!(cal.is_null(), model == "tl16+field", "{model}: {cal}");
+        if !cal.is_null() {
+            let bias = cal["bias_nt"].as_array().unwrap();
+            assert!(
+                bias.iter().any(|b| b.as_f64().unwrap().abs() > 100.0),
+                "{cal}"
+            );
+        }
+        let out = d.join("applied.csv");
+        let stdout = run_ok(
+            bin()
+                .args(["compensate"])
+                .arg(&trace)
+                .arg("--coeffs")
+                .arg(&coeffs)
+                .args(["--json", "--out"])
+                .arg(&out),
+        );
+        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        errors.push(j["error_rms_nt"].as_f64().unwrap());
+    }
+    println!(
+        "fluxcal via --coeffs: error {:.4} → {:.4} nT",
+        errors[0], errors[1]
+    );
+    assert!(errors[1] * 3.0 < errors[0], "{errors:?}");
+}

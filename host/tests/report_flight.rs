@@ -39,6 +39,7 @@ fn page_has_every_plot_and_the_comparison() {
         "residual-0",
         "spectrum-0",
         "residual-psd-0",
+        "fluxgate-0",
         "fom-0",
         "coefficients-0",
         "signal-1",
