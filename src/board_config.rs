@@ -7,7 +7,6 @@ use magcomp_core::acquisition::{AcqConfig, AcqError, Acquisition, compensator_co
 use magcomp_core::compensator::CompensatorError;
 use magcomp_core::model::Model;
 use magcomp_core::protocol::command::model_hash;
-use magcomp_core::protocol::fluxgate::IDENTITY_3;
 
 /// The model compiled into the board (the paper's: 16 TL coefficients + 5 field states).
 pub const MODEL_SPEC: &[u8] = b"tl16+field";
@@ -31,19 +30,10 @@ pub fn model_id() -> u32 {
     model_hash(MODEL_SPEC)
 }
 
-/// The fluxgate's scalar calibration, `B = M·B_F + b` in the body frame (the `fluxcal`
-/// effect): copy `fluxgate_calibration` from `magcomp calibrate --model …+fluxcal`'s JSON.
-/// Identity = uncalibrated.
-pub const FLUXGATE_MATRIX: [[f32; 3]; 3] = IDENTITY_3;
-pub const FLUXGATE_BIAS_NT: [f32; 3] = [0.0; 3];
-
-/// Rates, default scalar parser, ±100 000 nT fluxgate with identity axes and the
-/// fluxgate's scalar calibration.
+/// Rates, default scalar parser, ±100 000 nT fluxgate with identity axes, no fluxgate
+/// scalar calibration until one is loaded from flash or sent with `SETFLUX` (`fluxcal`).
 pub fn acq_config() -> AcqConfig {
-    let mut cfg = AcqConfig::new(SCALAR_HZ, FLUX_HZ, GPS_HZ);
-    cfg.flux_cal.body_matrix = FLUXGATE_MATRIX;
-    cfg.flux_cal.body_bias_nt = FLUXGATE_BIAS_NT;
-    cfg
+    AcqConfig::new(SCALAR_HZ, FLUX_HZ, GPS_HZ)
 }
 
 /// Starts (or restarts) the board's acquisition in place: no filter on the stack.

@@ -10,13 +10,13 @@ use embassy_sync::channel::Channel;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use magcomp_core::protocol::command::{
-    Command, CommandError, CommandReader, Mode, decode_blob, encode_ack_coef, encode_blob,
-    encode_error,
+    Command, CommandError, CommandReader, FLUX_CAL_LEN, Mode, blob_len, decode_blob,
+    encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id,
 };
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
 use magcomp_core::protocol::fluxgate::FluxAsciiReader;
-use magcomp_core::protocol::fluxgate::{FluxError, FluxgateCal};
+use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxError, FluxgateCal};
 use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
 use magcomp_core::protocol::record::{Record, encode_record};
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
@@ -279,12 +279,32 @@ async fn send_record(r: &Record) {
     OUT.send(line).await;
 }
 
+/// The store holds the model's blob, then the fluxgate calibration's; a store written
+/// before `fluxcal` existed has only the first and loads as "no fluxgate calibration".
 fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut blob = [0u8; crate::COEF_BLOB_MAX];
     store.read(&mut blob).map_err(|_| ())?;
     let mut c = [0f32; N_COEF];
     decode_blob(&blob, model_id(), &mut c).map_err(|_| ())?;
-    acq.set_coefficients(&c).map_err(|_| ())
+    acq.set_coefficients(&c).map_err(|_| ())?;
+    let mut f = [0f32; FLUX_CAL_LEN];
+    let flux = decode_blob(&blob[blob_len(N_COEF)..], flux_blob_id(), &mut f)
+        .ok()
+        .and_then(|()| FluxCalibration::from_array(&f));
+    acq.set_flux_calibration(flux.unwrap_or(FluxCalibration::IDENTITY));
+    Ok(())
+}
+
+fn save_coefficients(store: &mut board::CoefStore, acq: &BoardAcquisition) -> bool {
+    let mut blob = [0u8; crate::COEF_BLOB_MAX];
+    let Ok(n) = encode_blob(model_id(), &coefficients(acq), &mut blob) else {
+        return false;
+    };
+    let flux = acq.flux_calibration().to_array();
+    let Ok(m) = encode_blob(flux_blob_id(), &flux, &mut blob[n..]) else {
+        return false;
+    };
+    store.write(&blob[..n + m]).is_ok()
 }
 
 fn mode(acq: &BoardAcquisition) -> Mode {
@@ -306,6 +326,13 @@ fn mode_word(m: Mode) -> &'static [u8] {
         Mode::Survey => b"SURVEY",
         Mode::Cal => b"CAL",
     }
+}
+
+/// A well-formed command the board refuses (its value would break the filter or the
+/// fluxgate): counted with the malformed ones in STATUS.
+fn refused(e: CommandError) -> Line {
+    CMD_ERRORS.fetch_add(1, Ordering::Relaxed);
+    Line::fill(|out| encode_error(e, out))
 }
 
 async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut board::CoefStore) {
@@ -360,15 +387,38 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
                     c.byte(b',')?;
                     c.sci(value.into())
                 }),
-                Err(_) => Line::fill(|out| encode_error(CommandError::ValueOutOfBounds, out)),
+                Err(_) => refused(CommandError::ValueOutOfBounds),
+            }
+        }
+        Command::GetFlux(Some(i)) => {
+            let v = acq.flux_calibration().to_array()[usize::from(i) % FLUX_CAL_LEN];
+            Line::fill(|out| encode_ack_indexed(b"GETFLUX", i, v, out))
+        }
+        Command::GetFlux(None) => {
+            let v = acq.flux_calibration().to_array();
+            Line::sentence(|cur| {
+                cur.bytes(b"MCACK,GETFLUX")?;
+                for x in v {
+                    cur.byte(b',')?;
+                    cur.sci(x.into())?;
+                }
+                Ok(())
+            })
+        }
+        Command::SetFlux { index, value } => {
+            let mut v = acq.flux_calibration().to_array();
+            v[usize::from(index) % FLUX_CAL_LEN] = value;
+            // One value at a time: a half-sent calibration must still be a plausible one.
+            match FluxCalibration::from_array(&v) {
+                Some(cal) => {
+                    acq.set_flux_calibration(cal);
+                    Line::fill(|out| encode_ack_indexed(b"SETFLUX", index, value, out))
+                }
+                None => refused(CommandError::ValueOutOfBounds),
             }
         }
         Command::Save => {
-            let mut blob = [0u8; crate::COEF_BLOB_MAX];
-            let ok = encode_blob(model_id(), &coefficients(acq), &mut blob)
-                .ok()
-                .is_some_and(|n| store.write(&blob[..n]).is_ok());
-            if ok {
+            if save_coefficients(store, acq) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
             } else {
                 // flash failure is not a command error: say so in the ACK's place

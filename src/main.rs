@@ -43,6 +43,8 @@ mod fw;
 /// Watchdog timeout (µs): long enough for a flash sector erase on the real board.
 #[cfg(target_os = "none")]
 pub const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
-/// Size of the coefficient blob of the board's model (header, coefficients, CRC-32).
+/// Size of the coefficient store: the model's blob (header, coefficients, CRC-32), then the
+/// fluxgate calibration's blob of the same format.
 #[cfg(target_os = "none")]
-pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(board_config::N_COEF);
+pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(board_config::N_COEF)
+    + magcomp_core::protocol::command::blob_len(magcomp_core::protocol::command::FLUX_CAL_LEN);

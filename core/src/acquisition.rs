@@ -29,7 +29,7 @@ use crate::protocol::aligner::{Aligner, AlignerConfig};
 use crate::protocol::capture::Port;
 use crate::protocol::fluxgate::AxisMap;
 use crate::protocol::fluxgate::{
-    decode_spi_frame, FluxAsciiReader, FluxError, FluxStats, FluxgateCal,
+    decode_spi_frame, FluxAsciiReader, FluxCalibration, FluxError, FluxStats, FluxgateCal,
 };
 use crate::protocol::nmea::{Gga, NmeaError, NmeaReader, NmeaStats, Sentence};
 use crate::protocol::record::Record;
@@ -53,6 +53,8 @@ pub struct AcqConfig {
     pub scalar: ScalarConfig,
     /// ADC counts (SPI) or sensor-frame nT (ASCII) → body frame.
     pub flux_cal: FluxgateCal,
+    /// Body frame → calibrated body frame (`fluxcal`; identity when none).
+    pub flux_scalar_cal: FluxCalibration,
 }
 
 impl AcqConfig {
@@ -64,6 +66,7 @@ impl AcqConfig {
             gps_hz,
             scalar: ScalarConfig::default(),
             flux_cal: FluxgateCal::full_scale(FLUX_FULL_SCALE_NT),
+            flux_scalar_cal: FluxCalibration::IDENTITY,
         }
     }
 
@@ -233,9 +236,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 nt_per_lsb: [0.0; 3],
                 offset_nt: [0.0; 3],
                 axis_map: AXES,
-                body_matrix: crate::protocol::fluxgate::IDENTITY_3,
-                body_bias_nt: [0.0; 3],
             },
+            flux_scalar_cal: FluxCalibration::IDENTITY,
         };
         let aligner = AlignerConfig {
             flux_stale_us: 0,
@@ -350,6 +352,16 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     pub fn set_coefficients(&mut self, c: &[f32]) -> Result<(), CompensatorError> {
         self.comp.set_coefficients(c)
     }
+
+    /// The fluxgate's scalar calibration (`fluxcal`) applied to every frame.
+    pub fn flux_calibration(&self) -> FluxCalibration {
+        self.cfg.flux_scalar_cal
+    }
+
+    /// Applies a fluxgate calibration to every frame from now on.
+    pub fn set_flux_calibration(&mut self, cal: FluxCalibration) {
+        self.cfg.flux_scalar_cal = cal;
+    }
     pub fn coefficients(&self, out: &mut [f32]) -> usize {
         self.comp.coefficients(out)
     }
@@ -415,6 +427,11 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         match r {
             Ok(v) => {
                 inc(&mut self.counters.flux_frames);
+                let v = if self.cfg.flux_scalar_cal.is_identity() {
+                    v
+                } else {
+                    self.cfg.flux_scalar_cal.apply(v)
+                };
                 self.aligner.push_flux(self.now_us(), v);
             }
             Err(_) => {

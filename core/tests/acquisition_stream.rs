@@ -382,3 +382,91 @@ fn survey_mode_and_coefficients_pass_through() {
     assert!(recs.iter().all(|r| r.flags.contains(Flags::SURVEY_MODE)));
     assert!(a.set_coefficients(&c[..3]).is_err());
 }
+
+/// `fluxcal` on the board: a fluxgate whose frames are distorted by a known bias/scale
+/// error, with the matching calibration set (`SETFLUX`), gives the records of the
+/// undistorted fluxgate; without the calibration it does not.
+#[test]
+fn a_fluxgate_calibration_undoes_a_distorted_fluxgate() {
+    use magcomp_core::protocol::fluxgate::FluxCalibration;
+    // Distortion: raw = D·B + d; calibration: B = D⁻¹·(raw − d) (diagonal D, exact inverse).
+    let scale = [1.006f64, 0.993, 1.004];
+    let bias = [320.0f64, -250.0, 410.0];
+    let clean = stream(300, false, None, None);
+    let distorted: Vec<(Port, Vec<u8>)> = clean
+        .chunks
+        .iter()
+        .map(|(p, bytes)| {
+            if *p != Port::Flux {
+                return (*p, bytes.clone());
+            }
+            let text = String::from_utf8(bytes.clone()).unwrap();
+            let v: Vec<f64> = text.trim().split(',').map(|x| x.parse().unwrap()).collect();
+            let r: Vec<f64> = (0..3).map(|i| scale[i] * v[i] + bias[i]).collect();
+            (
+                *p,
+                format!("{:.4},{:.4},{:.4}\r\n", r[0], r[1], r[2]).into_bytes(),
+            )
+        })
+        .collect();
+    let cal = FluxCalibration::from_array(&[
+        (1.0 / scale[0]) as f32,
+        0.0,
+        0.0,
+        0.0,
+        (1.0 / scale[1]) as f32,
+        0.0,
+        0.0,
+        0.0,
+        (1.0 / scale[2]) as f32,
+        (-bias[0] / scale[0]) as f32,
+        (-bias[1] / scale[1]) as f32,
+        (-bias[2] / scale[2]) as f32,
+    ])
+    .expect("plausible");
+    // Survey mode with fixed coefficients: the interference is a plain function of e.
+    let surveying = || {
+        let mut a = acq();
+        let mut c = [0f32; 16];
+        c[..3].copy_from_slice(&[40.0, -25.0, 12.0]);
+        c[3] = 30.0;
+        a.set_coefficients(&c).unwrap();
+        a.set_survey_mode(true);
+        a
+    };
+    let reference = run(&mut surveying(), &clean.chunks);
+    let mut raw = surveying();
+    let uncalibrated = run(&mut raw, &distorted);
+    let mut fixed = surveying();
+    fixed.set_flux_calibration(cal);
+    assert_eq!(fixed.flux_calibration(), cal);
+    let calibrated = run(&mut fixed, &distorted);
+    assert_eq!(calibrated.len(), 300);
+    let worst = |recs: &[Record]| {
+        recs.iter()
+            .zip(&reference)
+            .map(|(a, b)| (a.interference_nt - b.interference_nt).abs())
+            .fold(0.0f32, f32::max)
+    };
+    eprintln!(
+        "worst interference difference to the clean fluxgate: uncalibrated {:.4} nT, calibrated {:.2e} nT",
+        worst(&uncalibrated),
+        worst(&calibrated)
+    );
+    assert!(
+        worst(&calibrated) < 1e-3,
+        "calibrated: {}",
+        worst(&calibrated)
+    );
+    assert!(
+        worst(&uncalibrated) > 0.05,
+        "uncalibrated: {}",
+        worst(&uncalibrated)
+    );
+    // Implausible calibrations are refused.
+    let mut bad = cal.to_array();
+    bad[0] = 3.0;
+    assert!(FluxCalibration::from_array(&bad).is_none());
+    bad[0] = f32::NAN;
+    assert!(FluxCalibration::from_array(&bad).is_none());
+}

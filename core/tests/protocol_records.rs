@@ -139,6 +139,19 @@ fn commands() {
             value: 999_999.9
         })
     );
+    assert_eq!(p("MCCMD,GETFLUX"), Ok(Command::GetFlux(None)));
+    assert_eq!(p("MCCMD,GETFLUX,11"), Ok(Command::GetFlux(Some(11))));
+    assert_eq!(
+        p("MCCMD,SETFLUX,9,-312.5"),
+        Ok(Command::SetFlux {
+            index: 9,
+            value: -312.5
+        })
+    );
+    // the fluxgate calibration has 12 values whatever the model's coefficient count
+    assert_eq!(p("MCCMD,SETFLUX,12,1"), Err(CommandError::IndexOutOfBounds));
+    assert_eq!(p("MCCMD,GETFLUX,12"), Err(CommandError::IndexOutOfBounds));
+    assert_eq!(p("MCCMD,SETFLUX,0,NaN"), Err(CommandError::BadArgument));
     assert_eq!(p("MCCMD,SAVE"), Ok(Command::Save));
     assert_eq!(p("MCCMD,RESET"), Ok(Command::Reset));
     assert_eq!(p("MCCMD,FLUSH"), Ok(Command::Flush));
@@ -169,6 +182,11 @@ fn commands() {
             value: 123_456.79,
         },
         Command::Flush,
+        Command::GetFlux(Some(4)),
+        Command::SetFlux {
+            index: 2,
+            value: -1.5e-3,
+        },
     ] {
         let mut b = [0u8; 96];
         let n = encode_command(&c, &mut b).unwrap();

@@ -289,6 +289,10 @@ fn malformed_commands_rejected_valid_ones_applied() {
     expect_err(&mut b, &sentence("MCCMD,SETCOEF,1"), "BADARG");
     expect_err(&mut b, &sentence("MCCMD,GETCOEF,x"), "BADARG");
     expect_err(&mut b, &sentence("MCCMD,STATUS,extra"), "BADARG");
+    expect_err(&mut b, &sentence("MCCMD,SETFLUX,12,1.0"), "INDEX");
+    expect_err(&mut b, &sentence("MCCMD,GETFLUX,12"), "INDEX");
+    // an implausible calibration (diagonal 3) is refused, the old one kept
+    expect_err(&mut b, &sentence("MCCMD,SETFLUX,0,3.0"), "VALUE");
     let mut long = vec![b'A'; 300];
     long.extend_from_slice(b"\r\n");
     expect_err(&mut b, &long, "OVERLONG");
@@ -314,13 +318,31 @@ fn malformed_commands_rejected_valid_ones_applied() {
     );
     assert!(ack(&mut b, "MCCMD,SETCOEF,0,5.25").starts_with("$MCACK,SETCOEF,0,"));
     assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 5.25);
+    // the fluxgate calibration (`fluxcal`): identity until set, 12 values
+    let flux = ack(&mut b, "MCCMD,GETFLUX");
+    assert_eq!(
+        flux.split(',').count(),
+        2 + 12,
+        "GETFLUX returns 12 values: {flux}"
+    );
+    assert_eq!(coef(&ack(&mut b, "MCCMD,GETFLUX,0")), 1.0);
+    assert!(ack(&mut b, "MCCMD,SETFLUX,0,1.0065").starts_with("$MCACK,SETFLUX,0,"));
+    assert!(ack(&mut b, "MCCMD,SETFLUX,9,-312.5").starts_with("$MCACK,SETFLUX,9,"));
     ack(&mut b, "MCCMD,SAVE");
     ack(&mut b, "MCCMD,SETCOEF,0,0");
+    ack(&mut b, "MCCMD,SETFLUX,9,0");
     assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 0.0);
-    // RESET re-initialises the filter and reloads the stored blob (checked: CRC, version, model)
+    // RESET re-initialises the filter and reloads the stored blobs (checked: CRC, version,
+    // model), coefficients and fluxgate calibration alike
     assert!(ack(&mut b, "MCCMD,RESET").starts_with("$MCACK,RESET,0"));
     let g = ack(&mut b, "MCCMD,GETCOEF,0");
     assert_eq!(coef(&g), 5.25, "store round trip: {g}");
+    let f0 = coef(&ack(&mut b, "MCCMD,GETFLUX,0"));
+    let f9 = coef(&ack(&mut b, "MCCMD,GETFLUX,9"));
+    assert!(
+        (f0 - 1.0065).abs() < 1e-6 && f9 == -312.5,
+        "fluxgate store round trip: {f0} {f9}"
+    );
     assert!(ack(&mut b, "MCCMD,MODE,SURVEY").starts_with("$MCACK,MODE,SURVEY"));
 
     // records flow while commands are handled, and carry the mode

@@ -61,6 +61,18 @@ fn main() -> anyhow::Result<()> {
     let t0 = std::time::Instant::now();
     let trace = simulate(&cfg)?;
     println!("simulated {} rows in {:.2?}", trace.len(), t0.elapsed());
+    let mut trace = trace;
+    if std::env::var("SUBANOM").is_ok() {
+        let ta = trace.col("truth_anomaly").unwrap().to_vec();
+        let m: Vec<f64> = trace
+            .col("mag")
+            .unwrap()
+            .iter()
+            .zip(&ta)
+            .map(|(a, b)| a - b)
+            .collect();
+        trace.set_col("mag", m);
+    }
     let spec = ModelSpec::parse(args.get(3).map(|s| s.as_str()).unwrap_or("tl16+field"))?;
     let flight = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels())?;
     println!(
@@ -242,6 +254,39 @@ fn main() -> anyhow::Result<()> {
             "noise-limited LS floor (anomaly known): {:.4}",
             error_rms_nt(&est, &truth, None)
         );
+    }
+    if std::env::var("DECOMP").is_ok() {
+        let p = run.regressors[0].len() + 1;
+        let a = nalgebra::DMatrix::from_fn(truth.len(), p, |r, c| {
+            if c == 0 {
+                1.0
+            } else {
+                run.regressors[r][c - 1] as f64
+            }
+        });
+        let yv = nalgebra::DVector::from_vec(truth.clone());
+        let x = a.clone().svd(true, true).solve(&yv, 1e-12).unwrap();
+        let mut parts: Vec<(f64, String)> = Vec::new();
+        for j in 1..p {
+            let d = run.coefficients[j - 1] - x[j];
+            let col: Vec<f64> = (0..truth.len()).map(|r| a[(r, j)] * d).collect();
+            let m = col.iter().sum::<f64>() / col.len() as f64;
+            let rms = (col.iter().map(|v| (v - m).powi(2)).sum::<f64>() / col.len() as f64).sqrt();
+            parts.push((
+                rms,
+                format!(
+                    "{} kf {:.4} oracle {:.4} sigma {:.4}",
+                    run.coefficient_names[j - 1].0,
+                    run.coefficients[j - 1],
+                    x[j],
+                    run.coefficient_sigmas[j - 1]
+                ),
+            ));
+        }
+        parts.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for (r, n) in parts.iter().take(8) {
+            println!("  decomp {r:.4} nT: {n}");
+        }
     }
     {
         use magcomp_core::spectrum::{estimate_sigma1, Sigma1Config};

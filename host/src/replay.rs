@@ -13,6 +13,7 @@ use crate::model_spec::{with_model, ModelSpec, DEFAULT_MODEL};
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
+use magcomp_core::protocol::fluxgate::FluxCalibration;
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::{Compensator, MagCounts};
 use std::fmt;
@@ -81,6 +82,8 @@ pub struct ReplayOptions {
     pub flux_rate_hz: Option<f64>,
     pub gps_rate_hz: Option<f64>,
     pub flux: Option<FluxFormat>,
+    /// The fluxgate calibration (`fluxcal`) the board applies (`SETFLUX`).
+    pub flux_calibration: Option<FluxCalibration>,
 }
 
 impl ReplayOptions {
@@ -92,6 +95,7 @@ impl ReplayOptions {
             flux_rate_hz: None,
             gps_rate_hz: None,
             flux: None,
+            flux_calibration: None,
         }
     }
 }
@@ -171,6 +175,34 @@ pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<V
         }
     }
     parse_coefficients(&text).with_context(ctx)
+}
+
+/// The fluxgate calibration of a `calibrate --model …+fluxcal` JSON file, if it has one,
+/// as the board holds it (f32, checked plausible like `SETFLUX`).
+pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    let Some(c) = v.get("fluxgate_calibration").filter(|c| !c.is_null()) else {
+        return Ok(None);
+    };
+    let cal: crate::fluxgate::FluxgateCalibration = serde_json::from_value(c.clone())
+        .with_context(|| format!("fluxgate_calibration in {}", path.display()))?;
+    let mut a = [0f32; 12];
+    for i in 0..3 {
+        for j in 0..3 {
+            a[3 * i + j] = cal.matrix[i][j] as f32;
+        }
+        a[9 + i] = cal.bias_nt[i] as f32;
+    }
+    FluxCalibration::from_array(&a).map(Some).with_context(|| {
+        format!(
+            "fluxgate_calibration in {} is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
+            path.display()
+        )
+    })
 }
 
 pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
@@ -264,7 +296,10 @@ pub fn replay_capture<R: BufRead>(
     let flux_hz = opts.flux_rate_hz.or(meta.flux_hz).unwrap_or(d_flux);
     let gps_hz = opts.gps_rate_hz.or(meta.gps_hz).unwrap_or(d_gps);
     let flux_format = opts.flux.or(meta.flux_format).unwrap_or(FluxFormat::Ascii);
-    let cfg = AcqConfig::new(scalar_hz, flux_hz, gps_hz);
+    let mut cfg = AcqConfig::new(scalar_hz, flux_hz, gps_hz);
+    if let Some(c) = opts.flux_calibration {
+        cfg.flux_scalar_cal = c;
+    }
     let spec = &opts.model;
     with_model(spec, |model| -> Result<ReplayStats> {
         let comp = Compensator::<REPLAY_STATES, REPLAY_WINDOW>::new(
@@ -389,6 +424,12 @@ pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
         .transpose()?;
     let mut opts = ReplayOptions::new(model);
     opts.coefficients = coefficients;
+    opts.flux_calibration = args
+        .coeffs
+        .as_deref()
+        .map(read_flux_calibration)
+        .transpose()?
+        .flatten();
     opts.rate_hz = args.rate;
     opts.flux_rate_hz = args.flux_rate;
     opts.gps_rate_hz = args.gps_rate;

@@ -45,7 +45,7 @@ pub struct InducedHigh;
 /// fluxgate absorbs the bend's low-order part, so the error hides from the scalar residual.
 /// What exposes it is the fluxgate's own modulus against the scalar: the fix is the classic
 /// 9-parameter scalar calibration of the fluxgate, fitted on the flight (host) and applied
-/// to the fluxgate before `e` is formed ([`crate::protocol::fluxgate::FluxgateCal`] on the
+/// to the fluxgate before `e` is formed ([`crate::protocol::fluxgate::FluxCalibration`] on the
 /// board). It adds no filter state: naming it in a model asks for that calibration.
 #[derive(Clone, Copy, Debug)]
 pub struct FluxCal;

@@ -6,7 +6,10 @@
 //! $MCCMD,MODE,SURVEY*HH    $MCCMD,MODE,CAL*HH      $MCCMD,STATUS*HH
 //! $MCCMD,GETCOEF*HH        $MCCMD,GETCOEF,3*HH     $MCCMD,SETCOEF,3,-1.25E-2*HH
 //! $MCCMD,SAVE*HH           $MCCMD,RESET*HH         $MCCMD,FLUSH*HH
+//! $MCCMD,GETFLUX*HH        $MCCMD,GETFLUX,9*HH     $MCCMD,SETFLUX,9,312.5*HH
 //! ```
+//! `GETFLUX`/`SETFLUX` address the fluxgate's scalar calibration (`fluxcal`), 12 values:
+//! the matrix row by row (0–8), then the bias in nT (9–11).
 //! Replies (CRC-16, like records): `$MCACK,<CMD>[,<values>]*HHHH` and
 //! `$MCERR,<code>,<TEXT>*HHHH`.
 
@@ -19,6 +22,8 @@ use super::common::{
 pub const MAX_COMMAND_LEN: usize = 96;
 /// Coefficients must satisfy |v| < this.
 pub const MAX_COEF_ABS: f32 = 1.0e6;
+/// Values of the fluxgate's scalar calibration: 3×3 matrix row-major, then 3 biases (nT).
+pub const FLUX_CAL_LEN: usize = 12;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Mode {
@@ -40,6 +45,12 @@ pub enum Command {
     Reset,
     /// Emit pending records now.
     Flush,
+    /// One value of the fluxgate calibration, or all 12 when `None`.
+    GetFlux(Option<u16>),
+    SetFlux {
+        index: u16,
+        value: f32,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -118,13 +129,24 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
     if it.next().is_some() {
         return Err(CommandError::BadArgument);
     }
-    let index = |s: &[u8]| -> Result<u16, CommandError> {
+    let index_below = |s: &[u8], n: usize| -> Result<u16, CommandError> {
         let i = parse_u32(s).ok_or(CommandError::BadArgument)?;
-        if (i as usize) < n_coef {
+        if (i as usize) < n {
             Ok(i as u16)
         } else {
             Err(CommandError::IndexOutOfBounds)
         }
+    };
+    let index = |s: &[u8]| index_below(s, n_coef);
+    let value = |v: &[u8]| -> Result<f32, CommandError> {
+        if v.is_empty() {
+            return Err(CommandError::BadArgument);
+        }
+        let value = parse_float_field(v).map_err(|_| CommandError::BadArgument)? as f32;
+        if !value.is_finite() || libm::fabsf(value) >= MAX_COEF_ABS {
+            return Err(CommandError::ValueOutOfBounds);
+        }
+        Ok(value)
     };
     let none = |c: Command| {
         if a1.is_none() {
@@ -151,17 +173,24 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         b"SETCOEF" => match (a1, a2) {
             (Some(i), Some(v)) => {
                 let index = index(i)?;
-                if v.is_empty() {
-                    return Err(CommandError::BadArgument);
-                }
-                let value = parse_float_field(v).map_err(|_| CommandError::BadArgument)?;
-                let value32 = value as f32;
-                if !value32.is_finite() || libm::fabsf(value32) >= MAX_COEF_ABS {
-                    return Err(CommandError::ValueOutOfBounds);
-                }
                 Ok(Command::SetCoef {
                     index,
-                    value: value32,
+                    value: value(v)?,
+                })
+            }
+            _ => Err(CommandError::BadArgument),
+        },
+        b"GETFLUX" => match (a1, a2) {
+            (None, None) => Ok(Command::GetFlux(None)),
+            (Some(i), None) => Ok(Command::GetFlux(Some(index_below(i, FLUX_CAL_LEN)?))),
+            _ => Err(CommandError::BadArgument),
+        },
+        b"SETFLUX" => match (a1, a2) {
+            (Some(i), Some(v)) => {
+                let index = index_below(i, FLUX_CAL_LEN)?;
+                Ok(Command::SetFlux {
+                    index,
+                    value: value(v)?,
                 })
             }
             _ => Err(CommandError::BadArgument),
@@ -193,6 +222,17 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::Save => c.bytes(b"SAVE")?,
             Command::Reset => c.bytes(b"RESET")?,
             Command::Flush => c.bytes(b"FLUSH")?,
+            Command::GetFlux(None) => c.bytes(b"GETFLUX")?,
+            Command::GetFlux(Some(i)) => {
+                c.bytes(b"GETFLUX,")?;
+                c.u64(i as u64)?
+            }
+            Command::SetFlux { index, value } => {
+                c.bytes(b"SETFLUX,")?;
+                c.u64(index as u64)?;
+                c.byte(b',')?;
+                c.sci(value as f64)?
+            }
         }
         let x = xor_checksum(&c.written()[1..]);
         c.byte(b'*')?;
@@ -228,9 +268,16 @@ pub fn encode_ack(name: &[u8], args: &[&[u8]], out: &mut [u8]) -> Option<usize> 
 
 /// `$MCACK,GETCOEF,<index>,<value>*HHHH\r\n`, value with 9 significant digits.
 pub fn encode_ack_coef(index: u16, value: f32, out: &mut [u8]) -> Option<usize> {
+    encode_ack_indexed(b"GETCOEF", index, value, out)
+}
+
+/// `$MCACK,<name>,<index>,<value>*HHHH\r\n` (`GETCOEF`, `GETFLUX`, `SETFLUX`…).
+pub fn encode_ack_indexed(name: &[u8], index: u16, value: f32, out: &mut [u8]) -> Option<usize> {
     let mut c = Cursor::new(out);
     (|| {
-        c.bytes(b"$MCACK,GETCOEF,")?;
+        c.bytes(b"$MCACK,")?;
+        c.bytes(name)?;
+        c.byte(b',')?;
         c.u64(index as u64)?;
         c.byte(b',')?;
         c.sci(value as f64)?;
@@ -339,6 +386,13 @@ pub enum BlobError {
     WrongCount { expected: u16, found: u16 },
     ModelMismatch { expected: u32, found: u32 },
     NonFinite { index: u16 },
+}
+
+/// Id of the second blob in the coefficient store: the fluxgate calibration
+/// (`FLUX_CAL_LEN` values), written right after the model's blob. A store without it (an
+/// older firmware's) loads as "no calibration".
+pub fn flux_blob_id() -> u32 {
+    model_hash(b"fluxcal")
 }
 
 /// FNV-1a 32-bit: a stable model id from the model's spec string.

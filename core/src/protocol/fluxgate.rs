@@ -98,23 +98,14 @@ pub struct AxisMap {
     pub negate: bool,
 }
 
-/// Per-channel scale and offset, then sensor → body (x forward, y starboard, z down), then
-/// the scalar calibration of the fluxgate (`fluxcal`: `B = M·B_body + b`, fitted on a
-/// calibration flight by `magcomp calibrate --model …+fluxcal`).
+/// Per-channel scale and offset, then sensor → body (x forward, y starboard, z down).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FluxgateCal {
     pub nt_per_lsb: [f32; 3],
     pub offset_nt: [f32; 3],
     /// Body axis i = ±(sensor channel `axis_map[i]`).
     pub axis_map: [AxisMap; 3],
-    /// `M` of the scalar calibration (identity when none).
-    pub body_matrix: [[f32; 3]; 3],
-    /// `b` of the scalar calibration (nT).
-    pub body_bias_nt: [f32; 3],
 }
-
-/// No scalar calibration.
-pub const IDENTITY_3: [[f32; 3]; 3] = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
 
 impl FluxgateCal {
     /// ±`full_scale_nt` over the ADC's ±2^23 codes, identity axes.
@@ -127,27 +118,19 @@ impl FluxgateCal {
                 sensor_channel: c,
                 negate: false,
             }),
-            body_matrix: IDENTITY_3,
-            body_bias_nt: [0.0; 3],
         }
     }
 
-    /// Sensor-frame values (nT) → body frame, scalar calibration applied.
+    /// Sensor-frame values (nT) → body frame.
     pub fn to_body(&self, sensor_nt: [f32; 3]) -> [f32; 3] {
-        let b = self.axis_map.map(|m| {
+        self.axis_map.map(|m| {
             let v = sensor_nt[(m.sensor_channel % 3) as usize];
             if m.negate {
                 -v
             } else {
                 v
             }
-        });
-        let m = &self.body_matrix;
-        let mut out = [0f32; 3];
-        for i in 0..3 {
-            out[i] = m[i][0] * b[0] + m[i][1] * b[1] + m[i][2] * b[2] + self.body_bias_nt[i];
-        }
-        out
+        })
     }
 
     /// ADC counts → body-frame nT.
@@ -158,6 +141,65 @@ impl FluxgateCal {
             s[i] = (counts[i] as f64 * self.nt_per_lsb[i] as f64 - self.offset_nt[i] as f64) as f32;
         }
         self.to_body(s)
+    }
+}
+
+/// The fluxgate's scalar calibration (the `fluxcal` effect), applied to body-frame vectors:
+/// `B = M·B_F + b`. Fitted on a calibration flight by `magcomp calibrate --model …+fluxcal`
+/// and sent to the board with `SETFLUX` (or compiled in, `src/board_config.rs`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FluxCalibration {
+    pub matrix: [[f32; 3]; 3],
+    pub bias_nt: [f32; 3],
+}
+
+impl FluxCalibration {
+    pub const IDENTITY: Self = Self {
+        matrix: [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        bias_nt: [0.0; 3],
+    };
+
+    pub fn apply(&self, b: [f32; 3]) -> [f32; 3] {
+        let m = &self.matrix;
+        let mut out = [0f32; 3];
+        for i in 0..3 {
+            out[i] = m[i][0] * b[0] + m[i][1] * b[1] + m[i][2] * b[2] + self.bias_nt[i];
+        }
+        out
+    }
+
+    /// 12 values: the matrix row by row, then the bias (nT).
+    pub fn to_array(&self) -> [f32; 12] {
+        let (m, b) = (&self.matrix, &self.bias_nt);
+        [
+            m[0][0], m[0][1], m[0][2], m[1][0], m[1][1], m[1][2], m[2][0], m[2][1], m[2][2], b[0],
+            b[1], b[2],
+        ]
+    }
+
+    /// From 12 values; `None` unless it is a plausible correction of a working fluxgate
+    /// (diagonal 0.5–2, off-diagonal within ±0.5, bias within ±100 000 nT).
+    pub fn from_array(v: &[f32; 12]) -> Option<Self> {
+        let plausible = v.iter().all(|x| x.is_finite())
+            && (0..3).all(|i| {
+                (0..3).all(|j| {
+                    let m = v[3 * i + j];
+                    if i == j {
+                        (0.5..=2.0).contains(&m)
+                    } else {
+                        libm::fabsf(m) <= 0.5
+                    }
+                })
+            })
+            && v[9..].iter().all(|b| libm::fabsf(*b) <= 100_000.0);
+        plausible.then(|| Self {
+            matrix: [[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]],
+            bias_nt: [v[9], v[10], v[11]],
+        })
+    }
+
+    pub fn is_identity(&self) -> bool {
+        *self == Self::IDENTITY
     }
 }
 
