@@ -177,6 +177,7 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     h0_shift_m: f32,
     /// Multiplier on the measurement noise σ for the next epochs (1 = as configured).
     noise_scale: f32,
+    field_noise_scale: f32,
     /// `NOT_CONVERGED` as last evaluated, and epochs until the next evaluation.
     not_converged: bool,
     converged_countdown: u32,
@@ -244,6 +245,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             models_diurnal: false,
             h0_shift_m: 0.0,
             noise_scale: 1.0,
+            field_noise_scale: 1.0,
             not_converged: false,
             converged_countdown: 0,
             interference_sigma_nt: f32::NAN,
@@ -345,6 +347,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             .any(|t| !t.is_interference() && t.name() == "diurnal");
         self.h0_shift_m = 0.0;
         self.noise_scale = 1.0;
+        self.field_noise_scale = 1.0;
         self.not_converged = false;
         self.converged_countdown = 0;
         self.interference_sigma_nt = f32::NAN;
@@ -441,6 +444,12 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// non-positive values reset it to 1.
     pub fn set_noise_scale(&mut self, k: f32) {
         self.noise_scale = if k.is_finite() && k > 0.0 { k } else { 1.0 };
+    }
+
+    /// Multiplies the field's process-noise variance (σ1², σ2²) from now on: an anomaly is
+    /// rougher over a near source than the flight's average σ1 says (1 = stationary).
+    pub fn set_field_noise_scale(&mut self, k: f32) {
+        self.field_noise_scale = if k.is_finite() && k > 0.0 { k } else { 1.0 };
     }
 
     /// Term coefficients in physical units (nT, nT·s, …), model order.
@@ -546,6 +555,11 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 let mut g = [[0.0f32; MAX_DYNAMIC]; MAX_NOISE];
                 let mut dq = [0.0f32; MAX_NOISE];
                 f.discretise(ep.ds_m, self.field_at, &mut phi, &mut g, &mut dq);
+                if self.field_noise_scale != 1.0 {
+                    for v in dq.iter_mut() {
+                        *v *= self.field_noise_scale;
+                    }
+                }
                 self.filter.time_update(self.n_dyn, &phi, &g, &dq);
             }
         }

@@ -99,6 +99,9 @@ fn main() -> anyhow::Result<()> {
     if let Ok(v) = std::env::var("CANDS") {
         opts.sigma1_candidates = v.split(',').filter_map(|x| x.parse().ok()).collect();
     }
+    if std::env::var("NOPROF").is_ok() {
+        opts.field_profiles = false;
+    }
     if let Some(v) = envf("GATE") {
         opts.gate_sigma = v;
     }
@@ -130,6 +133,15 @@ fn main() -> anyhow::Result<()> {
             .count()
     );
     let err = error_rms_nt(&run.interference_nt, &truth, None);
+    let nll: f64 = run
+        .innovation_nt
+        .iter()
+        .zip(&run.innovation_var_nt2)
+        .filter(|(v, s)| v.is_finite() && s.is_finite() && **s > 0.0)
+        .map(|(v, s)| s.ln() + v * v / s)
+        .sum::<f64>()
+        / run.innovation_nt.len() as f64;
+    println!("NLL per sample {nll:.4}");
     let oracle = oracle_floor_nt(&run.regressors, &truth).unwrap();
     let fom_kf = fom(&flight, &run.compensated_nt).map(|f| f.0);
     println!(

@@ -53,6 +53,13 @@ pub struct KfOptions {
     pub turn_noise_scale: f64,
     /// With `fluxcal` in the model: apply this fluxgate calibration instead of fitting one.
     pub fluxgate_calibration: Option<FluxgateCalibration>,
+    /// Post-flight, also try anomaly processes whose σ1 varies along the track with the
+    /// local roughness of the anomaly ([`FIELD_PROFILES`]); the one under which the data
+    /// are most likely (innovation likelihood of the calibration pass) wins.
+    pub field_profiles: bool,
+    /// Per-sample multiplier of the field's process-noise variance (internal: set by the
+    /// profile search; `None` = stationary, the paper's model).
+    pub field_profile: Option<Vec<f64>>,
 }
 
 impl KfOptions {
@@ -74,6 +81,8 @@ impl KfOptions {
             freeze_on_survey: true,
             gate_sigma: 8.0,
             fluxgate_calibration: None,
+            field_profiles: true,
+            field_profile: None,
         }
     }
 }
@@ -203,6 +212,9 @@ fn pass(
             if freeze_at == Some(i) {
                 comp.set_survey_mode(true);
             }
+            if let Some(p) = &opts.field_profile {
+                comp.set_field_noise_scale(p[i] as f32);
+            }
             comp.set_noise_scale(if turn(i) {
                 opts.turn_noise_scale as f32
             } else {
@@ -243,6 +255,31 @@ fn pass(
 /// Calibrates on the whole flight and applies the final coefficients to every sample
 /// (the interference regressors of the calibration pass times the final coefficients:
 /// the same numbers a second, survey-mode pass would give).
+/// The stationary anomaly process (the paper's) and the [`FIELD_PROFILES`], each run as a
+/// calibration pass; the one with the least innovation NLL wins.
+fn choose_field_profile(
+    flight: &Flight,
+    opts: &KfOptions,
+    cfg: CompensatorConfig,
+) -> Result<KfOptions> {
+    let (outs, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
+    let interference: Vec<f64> = regs
+        .iter()
+        .map(|r| r.iter().zip(&c).map(|(a, b)| *a as f64 * b).sum())
+        .collect();
+    let mut best = (innovation_nll(&outs), opts.clone());
+    for p in FIELD_PROFILES {
+        let mut o = opts.clone();
+        o.field_profile = Some(field_profile(flight, &interference, cfg.noise_nt as f64, p));
+        let (outs, ..) = pass(flight, &o, cfg, None, false)?;
+        let nll = innovation_nll(&outs);
+        if nll < best.0 {
+            best = (nll, o);
+        }
+    }
+    Ok(best.1)
+}
+
 fn calibrated_interference(
     flight: &Flight,
     opts: &KfOptions,
@@ -355,6 +392,90 @@ fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64
     Ok(best.1)
 }
 
+/// Non-stationary anomaly processes tried post-flight: (third-difference step in samples at
+/// 10 Hz, half-window in samples, normalise by the median instead of the mean). The step
+/// sets the wavelengths whose roughness is measured (≈ 0.3–1 km at 60 m/s), the window
+/// how local it is (±0.9–1.8 km).
+pub const FIELD_PROFILES: [(usize, usize, bool); 4] = [
+    (15, 150, true),
+    (30, 150, true),
+    (30, 150, false),
+    (30, 300, true),
+];
+
+/// Local roughness of the anomaly along the track relative to the flight's typical one:
+/// the windowed power of the third difference of (scalar − interference estimate) above
+/// its white-noise floor. Over a shallow source the anomaly is far rougher than the
+/// flight's single σ1 says and the field states must be freer there (and stiffer over
+/// quiet ground), or the coefficients take what the field cannot follow.
+pub fn field_profile(
+    flight: &Flight,
+    interference_nt: &[f64],
+    noise_nt: f64,
+    (step, half_window, median): (usize, usize, bool),
+) -> Vec<f64> {
+    let n = flight.len();
+    // The step is in 10 Hz samples; keep its length in metres at other rates.
+    let step = ((step as f64 * flight.sample_rate_hz / 10.0).round() as usize).max(1);
+    let half_window = ((half_window as f64 * flight.sample_rate_hz / 10.0).round() as usize).max(1);
+    let z: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(interference_nt)
+        .map(|(m, i)| m - i)
+        .collect();
+    let mut d3 = vec![0.0; n];
+    for i in 0..n.saturating_sub(3 * step) {
+        let v = z[i + 3 * step] - 3.0 * z[i + 2 * step] + 3.0 * z[i + step] - z[i];
+        d3[i + 3 * step / 2] = if v.is_finite() { v * v } else { 0.0 };
+    }
+    let mut prefix = vec![0.0; n + 1];
+    for i in 0..n {
+        prefix[i + 1] = prefix[i] + d3[i];
+    }
+    let floor = 20.0 * noise_nt * noise_nt;
+    let local: Vec<f64> = (0..n)
+        .map(|i| {
+            let a = i.saturating_sub(half_window);
+            let b = (i + half_window + 1).min(n);
+            ((prefix[b] - prefix[a]) / (b - a) as f64 - floor).max(0.0)
+        })
+        .collect();
+    let typical = if median {
+        let mut sorted = local.clone();
+        sorted.sort_by(|a, b| a.total_cmp(b));
+        sorted[n / 2]
+    } else {
+        local.iter().sum::<f64>() / n.max(1) as f64
+    }
+    .max(1e-12);
+    local
+        .iter()
+        .map(|l| (l / typical).clamp(0.05, 400.0))
+        .collect()
+}
+
+/// Mean negative log-likelihood of the innovations (`ln S + ν²/S`): lower = the data are
+/// more probable under the filter's model.
+fn innovation_nll(outs: &[Output]) -> f64 {
+    let (sum, n) = outs
+        .iter()
+        .filter(|o| {
+            o.innovation_nt.is_finite()
+                && o.innovation_var_nt2.is_finite()
+                && o.innovation_var_nt2 > 0.0
+        })
+        .fold((0.0f64, 0usize), |(s, n), o| {
+            let (v, var) = (o.innovation_nt as f64, o.innovation_var_nt2 as f64);
+            (s + var.ln() + v * v / var, n + 1)
+        });
+    if n == 0 {
+        f64::INFINITY
+    } else {
+        sum / n as f64
+    }
+}
+
 /// Default σ1 multipliers searched post-flight.
 pub const SIGMA1_CANDIDATES: [f64; 4] = [1.0, 0.3, 0.1, 0.03];
 
@@ -414,6 +535,19 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         None => DEFAULT_SIGMA1,
     };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
+    let profiled;
+    // Only when σ1 itself is estimated: a σ1 the user gives is taken as the model.
+    let opts = if opts.field_profiles
+        && spec.field
+        && opts.sigma1.is_none()
+        && opts.field_profile.is_none()
+        && opts.coefficients.is_none()
+    {
+        profiled = choose_field_profile(flight, opts, cfg)?;
+        &profiled
+    } else {
+        opts
+    };
     let (cal_outs, regs, coeffs, sigmas, cal_healthy) = match &opts.coefficients {
         Some(c) => pass(flight, opts, cfg, Some(c), true)?,
         None => pass(flight, opts, cfg, None, true)?,

@@ -159,30 +159,36 @@ fn high_altitude_post_flight() {
 }
 
 /// Low altitude (300–400 m) over the Strong geology preset with ±50–150 m altitude
-/// changes; TL18 there is 0.6–52 nT.
+/// changes; TL18 there is 0.1–27 nT.
 ///
-/// Target: KF ≤ 0.1 nT and ≤ 3 × oracle. NOT met: achieved 0.075–0.60 nT (5–40 × oracle),
-/// i.e. 2.4–200 times better than TL18 but only 2 of 6 cases under 0.1 nT (one at 0.102). The spectral σ1
-/// (fit of σ1²/k⁶ at 1–8 km) matches the true anomaly there (checked against the truth
-/// anomaly's own spectrum), but a potential field's spectrum falls much faster than k⁻⁶
-/// towards the 200–500 m wavelengths of the manoeuvres, so the k⁻⁶ model either lets the
-/// field absorb manoeuvre interference (σ1 as fitted: 0.4–2.8 nT) or, with a smaller σ1,
-/// pushes km-scale anomaly into the coefficients. Choosing σ1 × {1, 0.3, 0.1, 0.03} by the
-/// FOM of the labelled manoeuvres (pipeline) took the errors from 0.40/2.78/1.17 to
-/// 0.10/0.35/0.62 nT at 300 m, and a tie variance from the 3-D (not horizontal) separation
-/// of the passes to 0.10/0.27/0.60. Tried without gain: σ2/σ1 ∈ [0.01, 3], re-anchoring h0
-/// near the flown height, noise r up to 0.1 nT, down-weighting turns.
-/// Asserted: what is achieved, with margin (≤ 0.5 × TL18 and ≤ 0.75 nT).
+/// Target: KF ≤ 0.1 nT and ≤ 3 × oracle. With the paper's stationary anomaly process the
+/// KF reached 0.04–0.62 nT (2 of 6 design cases under 0.1 nT): over a shallow source the
+/// anomaly is far rougher than the flight's single σ1 allows, elsewhere smoother, and the
+/// coefficients took what the field could not follow. Post-flight the pipeline now also
+/// tries non-stationary processes whose σ1² follows the local roughness of the anomaly
+/// (`pipeline::FIELD_PROFILES`) and keeps the one with the best innovation likelihood.
+/// Measured: design cases 0.033 / 0.089 / 0.098 (300 m) and 0.042 / 0.075 / 0.082 nT
+/// (400 m); cases not used while designing it (seeds 4–8 at 300 m) 0.073 / 0.163 / 0.110 /
+/// 0.037 / 0.077 nT, against 0.355 / 0.251 / 0.244 / 0.291 / 0.278 stationary. So ≤ 0.1 nT
+/// holds on 9 of 11; ≤ 3 × oracle on 4 of 11 (1.2–17 ×).
+/// Asserted: each ≤ 0.2 nT and ≤ 0.5 × TL18; at least 9 of the 11 ≤ 0.1 nT.
 #[test]
 fn low_altitude_strong_anomaly() {
-    for (seed, alt, swing) in cases(&[
+    let all = cases(&[
         (1, 300.0, 100.0),
         (2, 300.0, 100.0),
         (3, 300.0, 100.0),
         (1, 400.0, 50.0),
         (2, 400.0, 50.0),
         (3, 400.0, 50.0),
-    ]) {
+        (4, 300.0, 100.0),
+        (5, 300.0, 100.0),
+        (6, 300.0, 100.0),
+        (7, 300.0, 100.0),
+        (8, 300.0, 100.0),
+    ]);
+    let mut under = 0;
+    for &(seed, alt, swing) in &all {
         let p = post_flight(&low(seed, alt, swing));
         println!(
             "low seed {seed} {alt} m ±{swing} m: KF {:.4} nT, oracle {:.4} ({:.1}x), TL18 {:.4}, σ1 {:.2e}",
@@ -193,12 +199,18 @@ fn low_altitude_strong_anomaly() {
             p.sigma1
         );
         assert!(
-            p.kf <= 0.5 * p.tl18 && p.kf <= 0.75,
+            p.kf <= 0.5 * p.tl18 && p.kf <= 0.2,
             "seed {seed} {alt} m: KF {:.4} (TL18 {:.4})",
             p.kf,
             p.tl18
         );
+        under += usize::from(p.kf <= 0.1);
     }
+    assert!(
+        under * 11 >= 9 * all.len(),
+        "{under} of {} cases ≤ 0.1 nT",
+        all.len()
+    );
 }
 
 fn survey_cfg(seed: u64, kind: FlightKind, lines: usize) -> SimConfig {
@@ -308,8 +320,10 @@ fn f32_ud_matches_f64_reference_over_an_hour() {
     let hours = (f.t_s[f.len() - 1] - f.t_s[0]) / 3600.0;
     let mut o = opts();
     o.realtime = true;
-    // The reference has neither tie points nor survey-mode switching.
+    // The reference has neither tie points, survey-mode switching nor a non-stationary
+    // anomaly process.
     o.tie_points = false;
+    o.field_profiles = false;
     o.freeze_on_survey = false;
     o.gate_sigma = 0.0;
     let run = run_kf(&f, &o).expect("f32 run");
