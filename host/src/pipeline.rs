@@ -395,8 +395,9 @@ fn select_sigma1(flight: &Flight, opts: &KfOptions, spectral: f64, noise_nt: f64
 /// Non-stationary anomaly processes tried post-flight: (third-difference step in samples at
 /// 10 Hz, half-window in samples, normalise by the median instead of the mean). The step
 /// sets the wavelengths whose roughness is measured (≈ 0.3–1 km at 60 m/s), the window
-/// how local it is (±0.9–1.8 km).
-pub const FIELD_PROFILES: [(usize, usize, bool); 4] = [
+/// how local it is (±0.45–1.8 km).
+pub const FIELD_PROFILES: [(usize, usize, bool); 5] = [
+    (15, 75, true),
     (15, 150, true),
     (30, 150, true),
     (30, 150, false),
