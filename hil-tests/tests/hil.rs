@@ -416,6 +416,113 @@ fn simulated_flight_from_magcomp_simulate() {
     let _ = std::fs::remove_file(path.with_extension("csv"));
 }
 
+/// The ground-to-board path: `magcomp calibrate --model tl16+field+fluxcal` on a flight with a
+/// miscalibrated fluxgate, `magcomp upload` turns the JSON into command lines, the board
+/// acknowledges every one, holds exactly the file's values (f32) and keeps them over
+/// `RESET`. Needs `MAGCOMP_BIN`.
+#[test]
+fn coefficients_from_magcomp_calibrate_uploaded() {
+    let name = "upload";
+    let Ok(bin) = std::env::var("MAGCOMP_BIN") else {
+        eprintln!("SKIP: {name}: set MAGCOMP_BIN=path/to/magcomp to calibrate and upload");
+        return;
+    };
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("magcomp-hil-{}-upload", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (trace, coeffs) = (dir.join("cal.csv"), dir.join("coeffs.json"));
+    let run = |args: &[&std::ffi::OsStr]| {
+        let out = std::process::Command::new(&bin)
+            .args(args)
+            .output()
+            .expect("run magcomp");
+        assert!(
+            out.status.success(),
+            "magcomp {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8(out.stdout).unwrap()
+    };
+    run(&[
+        "simulate".as_ref(),
+        "--seed".as_ref(),
+        "3".as_ref(),
+        "--hidden".as_ref(),
+        "fluxcal".as_ref(),
+        "-o".as_ref(),
+        trace.as_os_str(),
+    ]);
+    run(&[
+        "calibrate".as_ref(),
+        "--model".as_ref(),
+        "tl16+field+fluxcal".as_ref(),
+        trace.as_os_str(),
+        "-o".as_ref(),
+        coeffs.as_os_str(),
+    ]);
+    let lines = run(&["upload".as_ref(), coeffs.as_os_str()]);
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+    let want_coef: Vec<f32> = json["coefficients"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["value"].as_f64().unwrap() as f32)
+        .collect();
+    let cal = &json["fluxgate_calibration"];
+    let mut want_flux: Vec<f32> = Vec::new();
+    for i in 0..3 {
+        for j in 0..3 {
+            want_flux.push(cal["matrix"][i][j].as_f64().unwrap() as f32);
+        }
+    }
+    for i in 0..3 {
+        want_flux.push(cal["bias_nt"][i].as_f64().unwrap() as f32);
+    }
+    assert_eq!(want_coef.len(), 16);
+    assert!(
+        want_flux[9..].iter().any(|b| b.abs() > 100.0),
+        "a fluxgate bias was fitted"
+    );
+
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let sent = lines.lines().count();
+    assert_eq!(sent, 16 + 12 + 1, "SETCOEF × 16, SETFLUX × 12, SAVE");
+    for l in lines.lines() {
+        let r = b.command_raw(format!("{l}\r\n").as_bytes()).unwrap();
+        assert!(r.starts_with("$MCACK"), "{l} → {r}");
+    }
+    let values = |r: &str| -> Vec<f32> {
+        r.split('*')
+            .next()
+            .unwrap()
+            .split(',')
+            .skip(2)
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    let check = |b: &mut Board, when: &str| {
+        let c = values(&b.command("MCCMD,GETCOEF").unwrap());
+        let f = values(&b.command("MCCMD,GETFLUX").unwrap());
+        assert_eq!(c, want_coef, "{when}: coefficients");
+        assert_eq!(f, want_flux, "{when}: fluxgate calibration");
+    };
+    check(&mut b, "after upload");
+    assert!(
+        b.command("MCCMD,RESET")
+            .unwrap()
+            .starts_with("$MCACK,RESET")
+    );
+    check(&mut b, "after RESET (flash)");
+    eprintln!(
+        "{name}: {sent} lines acknowledged; the board holds the file's 16 coefficients and fluxgate calibration, also after RESET"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Garbage on every sensor port (random bytes, random line breaks, overlong lines): the board
 /// neither resets nor loses a sample; every scalar line the reader reports is one record.
 #[test]

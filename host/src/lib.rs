@@ -18,3 +18,4 @@ pub mod report;
 pub mod sim;
 pub mod tl;
 pub mod trace;
+pub mod upload;

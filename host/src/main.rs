@@ -49,6 +49,8 @@ enum Command {
     Replay(magcomp::replay::ReplayArgs),
     /// Decode and show the board's output stream live (a port, a file, or `-`).
     Monitor(magcomp::monitor::MonitorArgs),
+    /// Send a `calibrate` coefficient file to the board (SETCOEF, SETFLUX, SAVE lines).
+    Upload(magcomp::upload::UploadArgs),
     /// End-to-end demonstration on built-in simulated data (nothing to download).
     Demo(magcomp::demo::DemoArgs),
 }
@@ -133,6 +135,9 @@ fn main() -> Result<()> {
         }
         Command::Monitor(a) => {
             magcomp::monitor::run_monitor(&a)?;
+        }
+        Command::Upload(a) => {
+            magcomp::upload::run_upload(&a)?;
         }
         Command::Calibrate(a) => {
             let trace = a.input.read()?;

@@ -1,0 +1,215 @@
+//! `magcomp upload`: a `calibrate` JSON as the board's command lines — `SETCOEF` for every
+//! coefficient, `SETFLUX` for the fluxgate calibration (`fluxcal`), then `SAVE` — written to
+//! the board's port (or stdout), so coefficients reach the aircraft without a rebuild.
+
+use crate::commands::{read_coefficients, CoefficientFile, Method};
+use crate::model_spec::ModelSpec;
+use anyhow::{bail, Context, Result};
+use magcomp_core::protocol::command::{encode_command, Command, FLUX_CAL_LEN, MAX_COEF_ABS};
+use magcomp_core::protocol::fluxgate::FluxCalibration;
+use std::io::Write;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug, Clone)]
+pub struct UploadArgs {
+    /// Coefficient file from `magcomp calibrate` (Kalman-filter method).
+    #[arg(value_name = "COEFFS.json")]
+    pub coeffs: PathBuf,
+
+    /// Where to write the command lines: the board's output/command port (a serial device
+    /// set up with `stty`, 921 600 Bd) or `-` for stdout. Watch the replies with
+    /// `magcomp monitor` on the same port.
+    #[arg(long, default_value = "-", value_name = "PORT")]
+    pub to: String,
+
+    /// Model compiled into the board (its coefficients must be this model's).
+    #[arg(long, default_value = "tl16+field", value_name = "SPEC")]
+    pub board_model: String,
+
+    /// Do not end with `SAVE` (the values then last until the board restarts).
+    #[arg(long)]
+    pub no_save: bool,
+}
+
+/// The command lines for a coefficient file, `SAVE` last unless `save` is false.
+pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Result<Vec<String>> {
+    if file.method != Method::Kf {
+        bail!("Tolles–Lawson coefficients cannot be loaded into the board's filter: calibrate with --method kf");
+    }
+    let board = ModelSpec::parse(board_model)?;
+    let theirs = ModelSpec::parse(&file.model)?;
+    // `fluxcal` adds no filter state: its coefficients are the board model's.
+    let without_fluxcal = ModelSpec {
+        terms: theirs
+            .terms
+            .iter()
+            .filter(|t| t.name != "fluxcal")
+            .cloned()
+            .collect(),
+        ..theirs.clone()
+    };
+    if without_fluxcal.text() != board.text() {
+        bail!(
+            "the coefficients are for model '{}', the board runs '{}'",
+            theirs.text(),
+            board.text()
+        );
+    }
+    let mut cmds: Vec<Command> = Vec::new();
+    for (i, c) in file.coefficients.iter().enumerate() {
+        let value = c.value as f32;
+        if !value.is_finite() || value.abs() >= MAX_COEF_ABS {
+            bail!(
+                "coefficient {i} ({}) = {} is out of the board's range",
+                c.name,
+                c.value
+            );
+        }
+        cmds.push(Command::SetCoef {
+            index: i as u16,
+            value,
+        });
+    }
+    if let Some(cal) = &file.fluxgate_calibration {
+        let mut v = [0f32; FLUX_CAL_LEN];
+        for i in 0..3 {
+            for j in 0..3 {
+                v[3 * i + j] = cal.matrix[i][j] as f32;
+            }
+            v[9 + i] = cal.bias_nt[i] as f32;
+        }
+        FluxCalibration::from_array(&v).context(
+            "the fluxgate calibration is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
+        )?;
+        for (i, value) in v.iter().enumerate() {
+            cmds.push(Command::SetFlux {
+                index: i as u16,
+                value: *value,
+            });
+        }
+    }
+    if save {
+        cmds.push(Command::Save);
+    }
+    let mut buf = [0u8; 96];
+    cmds.iter()
+        .map(|c| {
+            let n = encode_command(c, &mut buf).context("command line too long")?;
+            Ok(String::from_utf8_lossy(&buf[..n]).into_owned())
+        })
+        .collect()
+}
+
+pub fn run_upload(args: &UploadArgs) -> Result<()> {
+    let file = read_coefficients(&args.coeffs)?;
+    let lines = upload_lines(&file, &args.board_model, !args.no_save)?;
+    let text: String = lines.concat();
+    if args.to == "-" {
+        std::io::stdout().write_all(text.as_bytes())?;
+    } else {
+        let mut port = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&args.to)
+            .with_context(|| format!("opening {}", args.to))?;
+        port.write_all(text.as_bytes())
+            .with_context(|| format!("writing {}", args.to))?;
+        eprintln!(
+            "sent {} command lines to {} (replies: magcomp monitor {})",
+            lines.len(),
+            args.to,
+            args.to
+        );
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::commands::{Coefficient, COEFF_FORMAT};
+    use crate::fluxgate::FluxgateCalibration;
+    use magcomp_core::protocol::command::parse_command;
+
+    fn file(model: &str, n: usize, flux: Option<FluxgateCalibration>) -> CoefficientFile {
+        CoefficientFile {
+            format: COEFF_FORMAT.into(),
+            model: model.into(),
+            method: Method::Kf,
+            sample_rate_hz: 10.0,
+            sigma1: None,
+            noise_nt: None,
+            tl_config: None,
+            fluxgate_calibration: flux,
+            coefficients: (0..n)
+                .map(|i| Coefficient {
+                    name: format!("c{i}"),
+                    unit: "nT".into(),
+                    value: (i as f64 - 7.5) * 3.25e-2,
+                    sigma: 0.1,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn every_line_parses_back_to_the_file_values() {
+        let cal = FluxgateCalibration {
+            matrix: [
+                [1.006, 0.002, -0.001],
+                [0.002, 0.993, 0.0015],
+                [-0.001, 0.0015, 1.004],
+            ],
+            bias_nt: [320.5, -250.25, 410.0],
+        };
+        let f = file("tl16+field+fluxcal", 16, Some(cal));
+        let lines = upload_lines(&f, "tl16+field", true).unwrap();
+        assert_eq!(lines.len(), 16 + 12 + 1);
+        let mut coef = [f32::NAN; 16];
+        let mut flux = [f32::NAN; 12];
+        for l in &lines[..lines.len() - 1] {
+            match parse_command(l.as_bytes(), 16).unwrap() {
+                Command::SetCoef { index, value } => coef[index as usize] = value,
+                Command::SetFlux { index, value } => flux[index as usize] = value,
+                c => panic!("unexpected {c:?}"),
+            }
+        }
+        assert_eq!(
+            parse_command(lines.last().unwrap().as_bytes(), 16),
+            Ok(Command::Save)
+        );
+        for (i, c) in f.coefficients.iter().enumerate() {
+            assert_eq!(coef[i], c.value as f32);
+        }
+        assert_eq!(flux[0], 1.006f32);
+        assert_eq!(flux[9], 320.5);
+        assert_eq!(flux[11], 410.0);
+    }
+
+    #[test]
+    fn wrong_model_method_or_range_is_refused() {
+        let e = upload_lines(&file("tl16+field+lag", 25, None), "tl16+field", true).unwrap_err();
+        assert!(e.to_string().contains("board runs"), "{e}");
+        let mut tl = file("tl16+field", 16, None);
+        tl.method = Method::Tl;
+        assert!(upload_lines(&tl, "tl16+field", true).is_err());
+        let mut big = file("tl16+field", 16, None);
+        big.coefficients[3].value = 2e6;
+        assert!(upload_lines(&big, "tl16+field", true).is_err());
+        let bad = FluxgateCalibration {
+            matrix: [[3.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            bias_nt: [0.0; 3],
+        };
+        assert!(upload_lines(
+            &file("tl16+field+fluxcal", 16, Some(bad)),
+            "tl16+field",
+            true
+        )
+        .is_err());
+        assert_eq!(
+            upload_lines(&file("tl16+field", 16, None), "tl16+field", false)
+                .unwrap()
+                .len(),
+            16
+        );
+    }
+}
