@@ -647,7 +647,9 @@ pub fn diagnose_with(
                 // share reported and ranked is the compensation change's variance relative
                 // to the residual's: comparable with the other candidates' shares, and
                 // small when another, larger misfit is what moves the compensation.
-                let share = if residual_rms > 0.0 {
+                // When the calibration does not fit the fluxgate down to its noise, another
+                // effect drives the change: no share is claimed.
+                let share = if residual_rms > 0.0 && t.fits_to_noise {
                     (t.change_nt / residual_rms).powi(2).min(1.0)
                 } else {
                     0.0
@@ -820,6 +822,7 @@ fn calibrated_trace(trace: &Trace, cal: &FluxgateCalibration) -> Result<Trace> {
 struct FluxcalTest {
     effect: String,
     change_nt: f64,
+    fits_to_noise: bool,
     f: f64,
     p: f64,
 }
@@ -835,6 +838,7 @@ fn fluxcal_test(flight: &Flight, model: &ModelSpec, run: &KfRun) -> Result<Fluxc
         Err(e) => {
             return Ok(FluxcalTest {
                 effect: format!("fluxgate calibration: not testable on this flight ({e})"),
+                fits_to_noise: false,
                 change_nt: 0.0,
                 f: 0.0,
                 p: 1.0,
@@ -884,6 +888,7 @@ fn fluxcal_test(flight: &Flight, model: &ModelSpec, run: &KfRun) -> Result<Fluxc
             change_nt
         ),
         change_nt,
+        fits_to_noise,
         f,
         p,
     })
