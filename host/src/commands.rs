@@ -103,6 +103,9 @@ pub struct CoefficientFile {
     /// (`B = matrix·B_F + bias_nt`, body frame); apply the same on the board.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fluxgate_calibration: Option<crate::fluxgate::FluxgateCalibration>,
+    /// The anomaly process the calibration used (KF; see `pipeline::FIELD_PROFILES`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub field_process: Option<String>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -137,6 +140,9 @@ pub struct Summary {
     pub fom_nt: Option<f64>,
     pub error_rms_nt: Option<f64>,
     pub oracle_floor_nt: Option<f64>,
+    /// KF: the anomaly process used ("stationary" or the chosen local-roughness profile).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub field_process: Option<String>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub manoeuvres: Vec<ManoeuvreFom>,
 }
@@ -198,6 +204,7 @@ pub fn compensate_trace(
                 noise_nt: Some(run.noise_nt),
                 tl_config: None,
                 fluxgate_calibration: run.fluxgate_calibration,
+                field_process: Some(run.field_process.clone()),
                 coefficients: run
                     .coefficient_names
                     .iter()
@@ -284,6 +291,7 @@ pub fn compensate_trace(
                 noise_nt: None,
                 tl_config: Some(fit.config.clone()),
                 fluxgate_calibration: None,
+                field_process: None,
                 coefficients: fit
                     .names
                     .iter()
@@ -333,6 +341,10 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
         fom_nt: f.as_ref().map(|f| f.0),
         error_rms_nt: error,
         oracle_floor_nt: oracle,
+        field_process: comp
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.field_process.clone()),
         manoeuvres: f.map(|f| f.1).unwrap_or_default(),
     }
 }

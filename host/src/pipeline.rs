@@ -106,6 +106,9 @@ pub struct KfRun {
     /// The filter's UD factors stayed finite with non-negative D (covariance positive
     /// semi-definite) after every sample of the final pass.
     pub filter_healthy: bool,
+    /// The anomaly process the run used: "stationary" (the paper's) or the local-roughness
+    /// profile and σ1² scale the likelihood chose.
+    pub field_process: String,
     /// With `fluxcal`: the fluxgate calibration used, and its fit when made on this flight.
     pub fluxgate_calibration: Option<FluxgateCalibration>,
     pub fluxgate_fit: Option<FluxgateFit>,
@@ -264,13 +267,17 @@ fn choose_field_profile(
     flight: &Flight,
     opts: &KfOptions,
     cfg: CompensatorConfig,
-) -> Result<KfOptions> {
+) -> Result<(KfOptions, String)> {
     let (outs, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
     let interference: Vec<f64> = regs
         .iter()
         .map(|r| r.iter().zip(&c).map(|(a, b)| *a as f64 * b).sum())
         .collect();
-    let mut best = (innovation_nll(&outs), opts.clone());
+    let mut best = (
+        innovation_nll(&outs),
+        opts.clone(),
+        String::from("stationary"),
+    );
     let stationary = vec![1.0; flight.len()];
     let local: Vec<Vec<f64>> = FIELD_PROFILES
         .iter()
@@ -286,11 +293,21 @@ fn choose_field_profile(
             let (outs, ..) = pass(flight, &o, cfg, None, false)?;
             let nll = innovation_nll(&outs);
             if nll < best.0 {
-                best = (nll, o);
+                let label = match k {
+                    0 => format!("stationary, {m} × σ1²"),
+                    _ => {
+                        let (step, half, median) = FIELD_PROFILES[k - 1];
+                        format!(
+                            "local roughness (step {step}, ±{half} samples at 10 Hz, {}), {m} × σ1²",
+                            if median { "median" } else { "mean" }
+                        )
+                    }
+                };
+                best = (nll, o, label);
             }
         }
     }
-    Ok(best.1)
+    Ok((best.1, best.2))
 }
 
 fn calibrated_interference(
@@ -556,6 +573,7 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
     let profiled;
+    let mut field_process = String::from("stationary");
     // Only when σ1 itself is estimated: a σ1 the user gives is taken as the model.
     let opts = if opts.field_profiles
         && spec.field
@@ -563,7 +581,9 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         && opts.field_profile.is_none()
         && opts.coefficients.is_none()
     {
-        profiled = choose_field_profile(flight, opts, cfg)?;
+        let (o, label) = choose_field_profile(flight, opts, cfg)?;
+        profiled = o;
+        field_process = label;
         &profiled
     } else {
         opts
@@ -586,6 +606,11 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         sigma1,
         noise_nt,
         filter_healthy: healthy,
+        field_process: if spec.field {
+            field_process
+        } else {
+            String::from("none")
+        },
         ..Default::default()
     };
     for (o, mag) in outs.iter().zip(&flight.mag_nt) {

@@ -140,6 +140,7 @@ mod tests {
             noise_nt: None,
             tl_config: None,
             fluxgate_calibration: flux,
+            field_process: None,
             coefficients: (0..n)
                 .map(|i| Coefficient {
                     name: format!("c{i}"),
