@@ -325,8 +325,9 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
     let mut s = Section::new(&format!("Model {title}: compare and locate"))
         .paragraph(&format!(
             "Residual rms {:.4} nT; mean normalised innovation squared {:.2} (1 when the \
-             model's own noise level explains the residual). σ1 = {:.3e} nT/m^2.5, noise {:.4} nT.",
-            d.residual_rms_nt, d.nis, run.sigma1, run.noise_nt
+             model's own noise level explains the residual). σ1 = {:.3e} nT/m^2.5, anomaly \
+             process: {}; noise {:.4} nT.",
+            d.residual_rms_nt, d.nis, run.sigma1, run.field_process, run.noise_nt
         ))
         .plot(sig)
         .plot(res);
