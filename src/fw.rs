@@ -328,6 +328,19 @@ fn mode_word(m: Mode) -> &'static [u8] {
     }
 }
 
+/// `$MCACK,<name>,<v0>,<v1>,…` with every value at 9 significant digits (f32 round trip).
+fn ack_values(name: &[u8], values: &[f32]) -> Line {
+    Line::sentence(|cur| {
+        cur.bytes(b"MCACK,")?;
+        cur.bytes(name)?;
+        for &v in values {
+            cur.byte(b',')?;
+            cur.sci(v.into())?;
+        }
+        Ok(())
+    })
+}
+
 /// A well-formed command the board refuses (its value would break the filter or the
 /// fluxgate): counted with the malformed ones in STATUS.
 fn refused(e: CommandError) -> Line {
@@ -364,29 +377,14 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
                 .unwrap_or(f32::NAN);
             Line::fill(|out| encode_ack_coef(i, v, out))
         }
-        Command::GetCoef(None) => {
-            let c = coefficients(acq);
-            Line::sentence(|cur| {
-                cur.bytes(b"MCACK,GETCOEF")?;
-                for v in c {
-                    cur.byte(b',')?;
-                    cur.sci(v.into())?;
-                }
-                Ok(())
-            })
-        }
+        Command::GetCoef(None) => ack_values(b"GETCOEF", &coefficients(acq)),
         Command::SetCoef { index, value } => {
             let mut c = coefficients(acq);
             if let Some(slot) = c.get_mut(usize::from(index)) {
                 *slot = value;
             }
             match acq.set_coefficients(&c) {
-                Ok(()) => Line::sentence(|c| {
-                    c.bytes(b"MCACK,SETCOEF,")?;
-                    c.u64(index.into())?;
-                    c.byte(b',')?;
-                    c.sci(value.into())
-                }),
+                Ok(()) => Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out)),
                 Err(_) => refused(CommandError::ValueOutOfBounds),
             }
         }
@@ -394,17 +392,7 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
             let v = acq.flux_calibration().to_array()[usize::from(i) % FLUX_CAL_LEN];
             Line::fill(|out| encode_ack_indexed(b"GETFLUX", i, v, out))
         }
-        Command::GetFlux(None) => {
-            let v = acq.flux_calibration().to_array();
-            Line::sentence(|cur| {
-                cur.bytes(b"MCACK,GETFLUX")?;
-                for x in v {
-                    cur.byte(b',')?;
-                    cur.sci(x.into())?;
-                }
-                Ok(())
-            })
-        }
+        Command::GetFlux(None) => ack_values(b"GETFLUX", &acq.flux_calibration().to_array()),
         Command::SetFlux { index, value } => {
             let mut v = acq.flux_calibration().to_array();
             v[usize::from(index) % FLUX_CAL_LEN] = value;

@@ -37,6 +37,18 @@ impl FluxgateCalibration {
         ]
     }
 
+    /// The board's form (f32, `SETFLUX` order); `None` unless it is a plausible one.
+    pub fn to_board(&self) -> Option<magcomp_core::protocol::fluxgate::FluxCalibration> {
+        let mut v = [0f32; 12];
+        for i in 0..3 {
+            for j in 0..3 {
+                v[3 * i + j] = self.matrix[i][j] as f32;
+            }
+            v[9 + i] = self.bias_nt[i] as f32;
+        }
+        magcomp_core::protocol::fluxgate::FluxCalibration::from_array(&v)
+    }
+
     /// Largest angle (rad) between the raw and the calibrated direction over `flux`.
     pub fn max_direction_change_rad(&self, flux: &[[f64; 3]]) -> f64 {
         flux.iter()

@@ -190,14 +190,7 @@ pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
     };
     let cal: crate::fluxgate::FluxgateCalibration = serde_json::from_value(c.clone())
         .with_context(|| format!("fluxgate_calibration in {}", path.display()))?;
-    let mut a = [0f32; 12];
-    for i in 0..3 {
-        for j in 0..3 {
-            a[3 * i + j] = cal.matrix[i][j] as f32;
-        }
-        a[9 + i] = cal.bias_nt[i] as f32;
-    }
-    FluxCalibration::from_array(&a).map(Some).with_context(|| {
+    cal.to_board().map(Some).with_context(|| {
         format!(
             "fluxgate_calibration in {} is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
             path.display()

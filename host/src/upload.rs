@@ -5,8 +5,7 @@
 use crate::commands::{read_coefficients, CoefficientFile, Method};
 use crate::model_spec::ModelSpec;
 use anyhow::{bail, Context, Result};
-use magcomp_core::protocol::command::{encode_command, Command, FLUX_CAL_LEN, MAX_COEF_ABS};
-use magcomp_core::protocol::fluxgate::FluxCalibration;
+use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS};
 use std::io::Write;
 use std::path::PathBuf;
 
@@ -71,20 +70,13 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
         });
     }
     if let Some(cal) = &file.fluxgate_calibration {
-        let mut v = [0f32; FLUX_CAL_LEN];
-        for i in 0..3 {
-            for j in 0..3 {
-                v[3 * i + j] = cal.matrix[i][j] as f32;
-            }
-            v[9 + i] = cal.bias_nt[i] as f32;
-        }
-        FluxCalibration::from_array(&v).context(
+        let board = cal.to_board().context(
             "the fluxgate calibration is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
         )?;
-        for (i, value) in v.iter().enumerate() {
+        for (i, value) in board.to_array().into_iter().enumerate() {
             cmds.push(Command::SetFlux {
                 index: i as u16,
-                value: *value,
+                value,
             });
         }
     }
