@@ -66,7 +66,10 @@ pub struct EstimatorArgs {
     /// kf: the paper's Kalman filter; tl: classic Tolles–Lawson (18 terms, band-passed).
     #[arg(long, value_enum, default_value_t = Method::Kf)]
     pub method: Method,
-    /// Field-model roughness σ1 (nT/m^2.5); default: fitted to the along-track spectrum.
+    /// Field-model roughness σ1 (nT/m^2.5), the same along the whole track (the paper's
+    /// stationary anomaly). Default: fitted to the along-track spectrum, and, post-flight,
+    /// the anomaly process whose σ1 follows the local roughness of the anomaly (or the
+    /// stationary one) that makes the data most likely (reported as `field_process`).
     #[arg(long, value_name = "NT_PER_M2_5")]
     pub sigma1: Option<f64>,
     /// Scalar measurement noise 1σ (nT); default: estimated from the data.
