@@ -242,7 +242,7 @@ pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint>
 /// Main-field direction in NED: the fluxgate direction rotated by the INS attitude,
 /// averaged over the flight (fluxgate errors fixed in the body frame largely cancel over
 /// the headings of a calibration pattern).
-fn main_field_direction(
+pub(crate) fn main_field_direction(
     fx: &[f64],
     fy: &[f64],
     fz: &[f64],

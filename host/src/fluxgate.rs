@@ -186,6 +186,56 @@ pub fn flight_flux(flight: &Flight) -> Vec<[f64; 3]> {
         .collect()
 }
 
+/// Roll- and pitch-axis misalignment (rad, about body x and y) of the calibrated fluxgate
+/// against the INS: the small rotation ω with `e_fluxgate ≈ e_ins + ω × e_ins`, least
+/// squares over the flight, `e_ins` from the INS attitude and the main-field direction. The
+/// trace gives no main-field direction, so it is estimated from the same fluxgate and INS;
+/// a rotation about the vertical then looks like a declination error and is not reported.
+/// The compensation does not need it (the TL coefficients rotate with the fluxgate): it is
+/// an installation check. `None` without INS attitude.
+pub fn ins_misalignment_rad(flight: &Flight, cal: &FluxgateCalibration) -> Option<[f64; 2]> {
+    let flux: Vec<[f64; 3]> = flight_flux(flight).iter().map(|b| cal.apply(*b)).collect();
+    let att: Vec<[f64; 3]> = flight
+        .samples
+        .iter()
+        .map(|s| s.attitude_deg.map(f64::from))
+        .collect();
+    let col = |v: &Vec<[f64; 3]>, i: usize| v.iter().map(|x| x[i]).collect::<Vec<f64>>();
+    let e_ned = crate::flight::main_field_direction(
+        &col(&flux, 0),
+        &col(&flux, 1),
+        &col(&flux, 2),
+        &col(&att, 0),
+        &col(&att, 1),
+        &col(&att, 2),
+    )?
+    .map(f64::from);
+    let mut ata = SMatrix::<f64, 3, 3>::zeros();
+    let mut atd = SVector::<f64, 3>::zeros();
+    let mut used = 0usize;
+    for (b, a) in flux.iter().zip(&att) {
+        let nb = norm(*b);
+        if !(nb > 1000.0 && a.iter().all(|v| v.is_finite())) {
+            continue;
+        }
+        let r =
+            crate::flight::body_from_ned(a[0].to_radians(), a[1].to_radians(), a[2].to_radians());
+        let e = SVector::<f64, 3>::from_fn(|i, _| (0..3).map(|j| r[i][j] * e_ned[j]).sum());
+        let d = SVector::<f64, 3>::from_fn(|i, _| b[i] / nb) - e;
+        // ω × e = −[e]× ω
+        let m = SMatrix::<f64, 3, 3>::new(0.0, e[2], -e[1], -e[2], 0.0, e[0], e[1], -e[0], 0.0);
+        ata += m.transpose() * m;
+        atd += m.transpose() * d;
+        used += 1;
+    }
+    if used < 100 {
+        return None;
+    }
+    // [e]× is singular along e: the normal matrix is full rank only with attitude variety.
+    let w = ata.try_inverse()? * atd;
+    Some([w[0], w[1]])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -323,7 +323,8 @@ fn rate_full_bar() {
 /// so the diagnosis tests it on the fluxgate's modulus against the scalar and on how much a
 /// 9-parameter calibration changes the compensation. Measured: error 0.023 → 0.004 (5.4×),
 /// 0.034 → 0.007 (4.5×), 0.021 → 0.006 (3.5×) nT, all ≤ 0.1 nT; the modulus sd 123–130 →
-/// 0.5 nT (the fluxgate's white noise).
+/// 0.5 nT (the fluxgate's white noise). With INS attitude the roll/pitch-axis misalignment
+/// (0.3–0.4° simulated) is measured to 0.001–0.08°.
 #[test]
 fn fluxcal_full_bar() {
     for seed in [1, 2, 3] {
@@ -346,6 +347,24 @@ fn fluxcal_full_bar() {
         let f = Flight::from_trace(&trace, &[], &[]).expect("flight");
         let run = run_kf(&f, &KfOptions::new(model.with("fluxcal").expect("spec"))).expect("kf");
         let fit = run.fluxgate_fit.expect("fitted on the flight");
+        // With INS attitude the roll/pitch-axis misalignment is measured too.
+        let a: Vec<Vec<f64>> =
+            serde_json::from_str(trace.meta("truth_fluxcal_matrix").expect("truth")).expect("json");
+        let truth_deg = [
+            ((a[2][1] - a[1][2]) / 2.0).to_degrees(),
+            ((a[0][2] - a[2][0]) / 2.0).to_degrees(),
+        ];
+        let est = magcomp::fluxgate::ins_misalignment_rad(&f, &fit.calibration).expect("INS");
+        let est_deg = est.map(f64::to_degrees);
+        eprintln!(
+            "seed {seed}: misalignment roll/pitch axis {est_deg:.3?}° (truth {truth_deg:.3?}°)"
+        );
+        for k in 0..2 {
+            assert!(
+                (est_deg[k] - truth_deg[k]).abs() < 0.1,
+                "seed {seed}: misalignment {est_deg:?} vs truth {truth_deg:?}"
+            );
+        }
         assert!(
             fit.modulus_sd_before_nt > 100.0 && fit.modulus_sd_after_nt < 0.6,
             "seed {seed}: modulus sd {:.2} → {:.3} nT (fluxgate noise 0.5)",

@@ -878,9 +878,19 @@ fn fluxcal_test(flight: &Flight, model: &ModelSpec, run: &KfRun) -> Result<Fluxc
     let noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
     let fits_to_noise = fit.modulus_sd_after_nt <= 2.0 * noise_nt.max(0.05);
     let p = if fits_to_noise { p } else { 1.0 };
+    // With INS attitude: the installation check the compensation does not need.
+    let ins = fluxgate::ins_misalignment_rad(flight, &fit.calibration)
+        .map(|w| {
+            format!(
+                "; against the INS, misaligned {:.2}° about the roll axis and {:.2}° about the pitch axis",
+                w[0].to_degrees(),
+                w[1].to_degrees()
+            )
+        })
+        .unwrap_or_default();
     Ok(FluxcalTest {
         effect: format!(
-            "fluxgate calibration error (bias, scale, non-orthogonality): |B_fluxgate| − B varies by {:.1} nT sd, {:.2} nT after a 9-parameter calibration (fluxgate noise {:.2} nT{}), which changes the compensated field by {:.3} nT rms (share: that change against the residual)",
+            "fluxgate calibration error (bias, scale, non-orthogonality): |B_fluxgate| − B varies by {:.1} nT sd, {:.2} nT after a 9-parameter calibration (fluxgate noise {:.2} nT{}), which changes the compensated field by {:.3} nT rms (share: that change against the residual){ins}",
             fit.modulus_sd_before_nt,
             fit.modulus_sd_after_nt,
             noise_nt,
