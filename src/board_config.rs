@@ -1,12 +1,18 @@
-//! What the board runs, as constants (pure, no embassy, so hil-tests and the benchmark
-//! include this file too): the model, the filter capacities and the sensor rates. The
-//! bytes → records path itself is `magcomp_core::acquisition`, the same code as
-//! `magcomp replay`.
+//! What the board runs, as constants (pure, no embassy, so hil-tests, the host tests and
+//! the benchmark include this file too): the model, the filter capacities, the sensor rates,
+//! and how each sensor port's bytes become events for the acquisition. The bytes → records
+//! path itself is `magcomp_core::acquisition`, the same code as `magcomp replay`.
 
-use magcomp_core::acquisition::{AcqConfig, AcqError, Acquisition, compensator_config};
+use magcomp_core::acquisition::{
+    AcqConfig, AcqError, Acquisition, FLUX_FULL_SCALE_NT, compensator_config,
+};
 use magcomp_core::compensator::CompensatorError;
 use magcomp_core::model::Model;
 use magcomp_core::protocol::command::model_hash;
+use magcomp_core::protocol::fluxgate::{FluxAsciiReader, FluxError, FluxgateCal};
+use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
+use magcomp_core::protocol::record::Record;
+use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
 
 /// The model compiled into the board (the paper's: 16 TL coefficients + 5 field states).
 pub const MODEL_SPEC: &[u8] = b"tl16+field";
@@ -48,4 +54,99 @@ pub fn start(acq: &mut BoardAcquisition) -> Result<(), AcqError> {
 /// Restarts the compensator in place (`RESET`); sequence numbers and time base continue.
 pub fn restart_filter(acq: &mut BoardAcquisition) -> Result<(), CompensatorError> {
     acq.reset_compensator(Model::paper(), compensator_config(SCALAR_HZ as f32, WINDOW))
+}
+
+/// One frame (or parse failure) from a sensor port, in arrival order.
+pub enum Event {
+    Scalar(Result<ScalarFrame, ScalarError>),
+    /// Body frame (x forward, y starboard, z down), nT.
+    Flux(Result<[f32; 3], FluxError>),
+    Gps(Result<Sentence, NmeaError>),
+}
+
+impl Event {
+    /// Into the acquisition: the record of a scalar line, nothing for the other ports.
+    pub fn apply(self, acq: &mut BoardAcquisition) -> Option<Record> {
+        match self {
+            Event::Scalar(r) => acq.scalar_result(r),
+            Event::Flux(r) => {
+                acq.flux_result(r);
+                None
+            }
+            Event::Gps(r) => {
+                acq.nmea_result(r);
+                None
+            }
+        }
+    }
+}
+
+/// The scalar port's parser (one per UART task on the board).
+pub struct ScalarPort(ScalarReader);
+
+impl Default for ScalarPort {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl ScalarPort {
+    pub fn new() -> Self {
+        Self(ScalarReader::new(ScalarConfig::default()))
+    }
+    pub fn push(&mut self, b: u8) -> Option<Event> {
+        self.0.push(b).map(Event::Scalar)
+    }
+}
+
+/// The GPS port's parser: GSV, GSA, proprietary… sentences are valid but unused and are
+/// dropped here rather than take a channel slot.
+pub struct GpsPort(NmeaReader);
+
+impl Default for GpsPort {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl GpsPort {
+    pub fn new() -> Self {
+        Self(NmeaReader::new())
+    }
+    pub fn push(&mut self, b: u8) -> Option<Event> {
+        match self.0.push(b)? {
+            Ok(Sentence::Unsupported { .. }) => None,
+            r => Some(Event::Gps(r)),
+        }
+    }
+}
+
+/// The fluxgate's serial ASCII alternative: sensor frame → body frame by the board's axes.
+/// (The acquisition board reads its ADC over SPI unless built with `flux-uart`.)
+#[allow(dead_code)]
+pub struct FluxAsciiPort {
+    reader: FluxAsciiReader,
+    axes: FluxgateCal,
+}
+
+impl Default for FluxAsciiPort {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[allow(dead_code)]
+impl FluxAsciiPort {
+    pub fn new() -> Self {
+        Self {
+            reader: FluxAsciiReader::new(),
+            axes: FluxgateCal::full_scale(FLUX_FULL_SCALE_NT),
+        }
+    }
+    pub fn push(&mut self, b: u8) -> Option<Event> {
+        let axes = self.axes;
+        self.reader
+            .push(b)
+            .map(|r| Event::Flux(r.map(|v| axes.to_body(v))))
+    }
 }

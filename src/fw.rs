@@ -14,12 +14,8 @@ use magcomp_core::protocol::command::{
     encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id,
 };
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
-#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
-use magcomp_core::protocol::fluxgate::FluxAsciiReader;
-use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxError, FluxgateCal};
-use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
+use magcomp_core::protocol::fluxgate::FluxCalibration;
 use magcomp_core::protocol::record::{Record, encode_record};
-use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
 
 #[cfg(feature = "board-emu")]
 use defmt_semihosting as _;
@@ -27,18 +23,9 @@ use defmt_semihosting as _;
 use {defmt_rtt as _, panic_probe as _};
 
 use crate::board;
-use crate::board_config::{self as bc, BoardAcquisition, N_COEF, model_id};
-use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
+use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF, model_id};
 use magcomp_core::model::Model;
 use static_cell::ConstStaticCell;
-
-/// One frame (or parse failure) from a sensor port, in arrival order.
-pub enum Event {
-    Scalar(Result<ScalarFrame, ScalarError>),
-    /// Body frame (x forward, y starboard, z down), nT.
-    Flux(Result<[f32; 3], FluxError>),
-    Gps(Result<Sentence, NmeaError>),
-}
 
 /// A line for the output port (records < 192 bytes; GETCOEF of all 16 coefficients < 320).
 pub struct Line {
@@ -148,13 +135,13 @@ async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
 
 #[embassy_executor::task]
 async fn scalar_task(mut rx: BufferedUartRx<'static>) {
-    let mut reader = ScalarReader::new(ScalarConfig::default());
+    let mut port = bc::ScalarPort::new();
     let mut buf = [0u8; 64];
     loop {
         let n = read_some(&mut rx, &mut buf).await;
         for &b in &buf[..n] {
-            if let Some(r) = reader.push(b) {
-                EVENTS.send(Event::Scalar(r)).await;
+            if let Some(ev) = port.push(b) {
+                EVENTS.send(ev).await;
             }
         }
     }
@@ -162,32 +149,29 @@ async fn scalar_task(mut rx: BufferedUartRx<'static>) {
 
 #[embassy_executor::task]
 async fn gps_task(mut rx: BufferedUartRx<'static>) {
-    let mut reader = NmeaReader::new();
+    let mut port = bc::GpsPort::new();
     let mut buf = [0u8; 64];
     loop {
         let n = read_some(&mut rx, &mut buf).await;
         for &b in &buf[..n] {
-            match reader.push(b) {
-                // GSV, GSA, proprietary…: valid but unused, not worth a channel slot
-                Some(Ok(Sentence::Unsupported { .. })) | None => {}
-                Some(r) => EVENTS.send(Event::Gps(r)).await,
+            if let Some(ev) = port.push(b) {
+                EVENTS.send(ev).await;
             }
         }
     }
 }
 
-/// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the calibration).
+/// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the board's axes).
 #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
 #[embassy_executor::task]
 async fn flux_uart_task(mut rx: BufferedUartRx<'static>) {
-    let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
-    let mut reader = FluxAsciiReader::new();
+    let mut port = bc::FluxAsciiPort::new();
     let mut buf = [0u8; 64];
     loop {
         let n = read_some(&mut rx, &mut buf).await;
         for &b in &buf[..n] {
-            if let Some(r) = reader.push(b) {
-                EVENTS.send(Event::Flux(r.map(|v| cal.to_body(v)))).await;
+            if let Some(ev) = port.push(b) {
+                EVENTS.send(ev).await;
             }
         }
     }
@@ -198,7 +182,10 @@ async fn flux_uart_task(mut rx: BufferedUartRx<'static>) {
 #[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
 #[embassy_executor::task]
 async fn flux_spi_task(mut f: board::FluxPort) {
-    use magcomp_core::protocol::fluxgate::{SPI_FRAME_LEN, decode_spi_frame};
+    use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
+    use magcomp_core::protocol::fluxgate::{
+        FluxError, FluxgateCal, SPI_FRAME_LEN, decode_spi_frame,
+    };
     let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
     loop {
         f.drdy.wait_for_falling_edge().await;
@@ -240,18 +227,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
             Event::Flux(_) => 1,
             Event::Gps(_) => 2,
         };
-        let record = match ev {
-            Event::Scalar(r) => acq.scalar_result(r),
-            Event::Flux(r) => {
-                acq.flux_result(r);
-                None
-            }
-            Event::Gps(r) => {
-                acq.nmea_result(r);
-                None
-            }
-        };
-        if let Some(r) = record {
+        if let Some(r) = ev.apply(acq) {
             send_record(&r).await;
         }
         #[cfg(feature = "hil-sync")]

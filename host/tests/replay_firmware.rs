@@ -19,10 +19,7 @@ use magcomp::replay::{replay_capture, ReplayOptions};
 use magcomp::sim::{simulate, SimConfig};
 use magcomp_core::model::Model;
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
-use magcomp_core::protocol::fluxgate::{FluxAsciiReader, FluxgateCal};
-use magcomp_core::protocol::nmea::{NmeaReader, Sentence};
 use magcomp_core::protocol::record::Record;
-use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 
 /// The board's acquisition as `fw.rs` makes it: a `const` placeholder started in place.
 fn board_acquisition() -> Box<BoardAcquisition> {
@@ -34,12 +31,12 @@ fn board_acquisition() -> Box<BoardAcquisition> {
     acq
 }
 
-/// The firmware's tasks in capture order (as `fw.rs` wires them), into `acq`.
+/// The firmware's tasks in capture order (as `fw.rs` wires them: the board's port parsers
+/// from `src/board_config.rs`), into `acq`.
 fn firmware(cap: &[u8], acq: &mut BoardAcquisition) -> Vec<Record> {
-    let mut scalar = ScalarReader::new(ScalarConfig::default());
-    let mut flux = FluxAsciiReader::new();
-    let mut gps = NmeaReader::new();
-    let cal = FluxgateCal::full_scale(100_000.0);
+    let mut scalar = fw_config::ScalarPort::new();
+    let mut flux = fw_config::FluxAsciiPort::new();
+    let mut gps = fw_config::GpsPort::new();
     let mut out = Vec::new();
     let mut buf = [0u8; MAX_CHUNK];
     for l in cap.split(|&b| b == b'\n') {
@@ -47,23 +44,13 @@ fn firmware(cap: &[u8], acq: &mut BoardAcquisition) -> Vec<Record> {
             continue;
         };
         for &b in &buf[..c.len] {
-            match c.port {
-                Port::Scalar => {
-                    if let Some(r) = scalar.push(b) {
-                        out.extend(acq.scalar_result(r));
-                    }
-                }
-                Port::Flux => {
-                    if let Some(r) = flux.push(b) {
-                        acq.flux_result(r.map(|v| cal.to_body(v)));
-                    }
-                }
-                Port::Gps => match gps.push(b) {
-                    Some(Ok(Sentence::Unsupported { .. })) | None => {}
-                    Some(r) => acq.nmea_result(r),
-                },
-                Port::Cmd | Port::Out => {}
-            }
+            let ev = match c.port {
+                Port::Scalar => scalar.push(b),
+                Port::Flux => flux.push(b),
+                Port::Gps => gps.push(b),
+                Port::Cmd | Port::Out => None,
+            };
+            out.extend(ev.and_then(|ev| ev.apply(acq)));
         }
     }
     while let Some(r) = acq.flush() {
