@@ -133,14 +133,13 @@ async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
     }
 }
 
-#[embassy_executor::task]
-async fn scalar_task(mut rx: BufferedUartRx<'static>) {
-    let mut port = bc::ScalarPort::new();
+/// A sensor UART's bytes through its port parser into the event channel, forever.
+async fn forward(mut rx: BufferedUartRx<'static>, mut parse: impl FnMut(u8) -> Option<Event>) -> ! {
     let mut buf = [0u8; 64];
     loop {
         let n = read_some(&mut rx, &mut buf).await;
         for &b in &buf[..n] {
-            if let Some(ev) = port.push(b) {
+            if let Some(ev) = parse(b) {
                 EVENTS.send(ev).await;
             }
         }
@@ -148,33 +147,23 @@ async fn scalar_task(mut rx: BufferedUartRx<'static>) {
 }
 
 #[embassy_executor::task]
-async fn gps_task(mut rx: BufferedUartRx<'static>) {
+async fn scalar_task(rx: BufferedUartRx<'static>) {
+    let mut port = bc::ScalarPort::new();
+    forward(rx, |b| port.push(b)).await
+}
+
+#[embassy_executor::task]
+async fn gps_task(rx: BufferedUartRx<'static>) {
     let mut port = bc::GpsPort::new();
-    let mut buf = [0u8; 64];
-    loop {
-        let n = read_some(&mut rx, &mut buf).await;
-        for &b in &buf[..n] {
-            if let Some(ev) = port.push(b) {
-                EVENTS.send(ev).await;
-            }
-        }
-    }
+    forward(rx, |b| port.push(b)).await
 }
 
 /// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the board's axes).
 #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
 #[embassy_executor::task]
-async fn flux_uart_task(mut rx: BufferedUartRx<'static>) {
+async fn flux_uart_task(rx: BufferedUartRx<'static>) {
     let mut port = bc::FluxAsciiPort::new();
-    let mut buf = [0u8; 64];
-    loop {
-        let n = read_some(&mut rx, &mut buf).await;
-        for &b in &buf[..n] {
-            if let Some(ev) = port.push(b) {
-                EVENTS.send(ev).await;
-            }
-        }
-    }
+    forward(rx, |b| port.push(b)).await
 }
 
 /// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame

@@ -150,20 +150,6 @@ pub struct Summary {
     pub manoeuvres: Vec<ManoeuvreFom>,
 }
 
-fn flux_of(flight: &Flight) -> Vec<[f64; 3]> {
-    flight
-        .samples
-        .iter()
-        .map(|s| {
-            [
-                s.flux_nt[0] as f64,
-                s.flux_nt[1] as f64,
-                s.flux_nt[2] as f64,
-            ]
-        })
-        .collect()
-}
-
 fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
     let terms: tl::TlTerms = est.tl_terms.parse()?;
     let mut cfg = tl::TlConfig::for_rate(flight.sample_rate_hz);
@@ -235,7 +221,7 @@ pub fn compensate_trace(
         }
         Method::Tl => {
             let flight = Flight::from_trace(trace, &[], &[])?;
-            let flux = flux_of(&flight);
+            let flux = crate::fluxgate::flight_flux(&flight);
             let fit = match coeffs {
                 Some(c) => {
                     let cfg = c

@@ -72,7 +72,10 @@ pub struct FluxgateFit {
     pub modulus_sd_after_nt: f64,
     /// Samples used.
     pub samples: usize,
-    /// Residual of the fit per sample (NaN where unused), for tests of its structure.
+    /// `|B_F| − F` per sample before the fit (NaN where unused), for the report.
+    #[serde(skip)]
+    pub residual_before_nt: Vec<f64>,
+    /// Residual of the fit per sample (NaN where unused).
     #[serde(skip)]
     pub residual_nt: Vec<f64>,
 }
@@ -143,24 +146,23 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
         }
     }
     let cal = calibration_of(&p);
-    let mut before = Vec::with_capacity(rows.len());
-    let mut after = Vec::with_capacity(rows.len());
+    let mut residual_before_nt = vec![f64::NAN; flux.len()];
     let mut residual_nt = vec![f64::NAN; flux.len()];
     for &i in &rows {
-        before.push(norm(flux[i]) - reference_nt[i]);
-        let r = norm(cal.apply(flux[i])) - reference_nt[i];
-        residual_nt[i] = r;
-        after.push(r);
+        residual_before_nt[i] = norm(flux[i]) - reference_nt[i];
+        residual_nt[i] = norm(cal.apply(flux[i])) - reference_nt[i];
     }
+    // Over the fitted rows (the others are NaN).
     let sd = |v: &[f64]| {
-        let m = v.iter().sum::<f64>() / v.len() as f64;
-        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / v.len() as f64).sqrt()
+        let m = rows.iter().map(|&i| v[i]).sum::<f64>() / rows.len() as f64;
+        (rows.iter().map(|&i| (v[i] - m).powi(2)).sum::<f64>() / rows.len() as f64).sqrt()
     };
     Ok(FluxgateFit {
         calibration: cal,
-        modulus_sd_before_nt: sd(&before),
-        modulus_sd_after_nt: sd(&after),
+        modulus_sd_before_nt: sd(&residual_before_nt),
+        modulus_sd_after_nt: sd(&residual_nt),
         samples: rows.len(),
+        residual_before_nt,
         residual_nt,
     })
 }

@@ -269,10 +269,7 @@ fn choose_field_profile(
     cfg: CompensatorConfig,
 ) -> Result<(KfOptions, String)> {
     let (outs, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
-    let interference: Vec<f64> = regs
-        .iter()
-        .map(|r| r.iter().zip(&c).map(|(a, b)| *a as f64 * b).sum())
-        .collect();
+    let interference = interference_of(&regs, &c);
     let mut best = (
         innovation_nll(&outs),
         opts.clone(),
@@ -316,10 +313,15 @@ fn calibrated_interference(
     cfg: CompensatorConfig,
 ) -> Result<Vec<f64>> {
     let (_, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
-    Ok(regs
+    Ok(interference_of(&regs, &c))
+}
+
+/// Interference of constant coefficients over a pass's stored regressors.
+fn interference_of(regressors: &[Vec<f32>], coefficients: &[f64]) -> Vec<f64> {
+    regressors
         .iter()
-        .map(|r| r.iter().zip(&c).map(|(a, b)| *a as f64 * b).sum())
-        .collect())
+        .map(|r| r.iter().zip(coefficients).map(|(a, b)| *a as f64 * b).sum())
+        .collect()
 }
 
 /// σ1 from the along-track spectrum of (scalar − interference estimate).

@@ -7,6 +7,7 @@
 //! at what is achieved, with the gap explained next to the assertion.
 
 use magcomp::flight::Flight;
+use magcomp::fluxgate::flight_flux;
 use magcomp::metrics::{error_rms_nt, is_manoeuvre, oracle_floor_nt};
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions, KfRun};
@@ -49,26 +50,13 @@ fn opts() -> KfOptions {
     KfOptions::new(ModelSpec::parse(MODEL).unwrap())
 }
 
-fn flux(f: &Flight) -> Vec<[f64; 3]> {
-    f.samples
-        .iter()
-        .map(|s| {
-            [
-                s.flux_nt[0] as f64,
-                s.flux_nt[1] as f64,
-                s.flux_nt[2] as f64,
-            ]
-        })
-        .collect()
-}
-
 /// Classic TL18 (band-passed batch least squares) error on the same flight.
 fn tl18_error(f: &Flight, rows: Option<&[usize]>) -> f64 {
     let cfg = tl::TlConfig {
         fs_hz: f.sample_rate_hz,
         ..Default::default()
     };
-    let fx = flux(f);
+    let fx = flight_flux(f);
     let fit = tl::fit(&fx, &f.mag_nt, &cfg, None).expect("tl fit");
     error_rms_nt(&tl::interference(&fit, &fx), &truth(f), rows)
 }
@@ -246,8 +234,8 @@ fn transfer_calibration_to_survey() {
             fs_hz: cal.sample_rate_hz,
             ..Default::default()
         };
-        let fit = tl::fit(&flux(&cal), &cal.mag_nt, &tcfg, None).expect("tl");
-        let tl18 = error_rms_nt(&tl::interference(&fit, &flux(&survey)), &t, None);
+        let fit = tl::fit(&flight_flux(&cal), &cal.mag_nt, &tcfg, None).expect("tl");
+        let tl18 = error_rms_nt(&tl::interference(&fit, &flight_flux(&survey)), &t, None);
         println!(
             "transfer seed {seed}: KF {kf:.4} nT, oracle {oracle:.4}, TL18 {tl18:.4} ({} survey rows)",
             survey.len()

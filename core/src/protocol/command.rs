@@ -137,7 +137,6 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
             Err(CommandError::IndexOutOfBounds)
         }
     };
-    let index = |s: &[u8]| index_below(s, n_coef);
     let value = |v: &[u8]| -> Result<f32, CommandError> {
         if v.is_empty() {
             return Err(CommandError::BadArgument);
@@ -147,6 +146,19 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
             return Err(CommandError::ValueOutOfBounds);
         }
         Ok(value)
+    };
+    // `GET<X>[,i]` and `SET<X>,i,v` over a table of `n` values.
+    let get = |n: usize, make: fn(Option<u16>) -> Command| match (a1, a2) {
+        (None, None) => Ok(make(None)),
+        (Some(i), None) => Ok(make(Some(index_below(i, n)?))),
+        _ => Err(CommandError::BadArgument),
+    };
+    let set = |n: usize, make: fn(u16, f32) -> Command| match (a1, a2) {
+        (Some(i), Some(v)) => {
+            let index = index_below(i, n)?;
+            Ok(make(index, value(v)?))
+        }
+        _ => Err(CommandError::BadArgument),
     };
     let none = |c: Command| {
         if a1.is_none() {
@@ -165,42 +177,35 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         b"SAVE" => none(Command::Save),
         b"RESET" => none(Command::Reset),
         b"FLUSH" => none(Command::Flush),
-        b"GETCOEF" => match (a1, a2) {
-            (None, None) => Ok(Command::GetCoef(None)),
-            (Some(i), None) => Ok(Command::GetCoef(Some(index(i)?))),
-            _ => Err(CommandError::BadArgument),
-        },
-        b"SETCOEF" => match (a1, a2) {
-            (Some(i), Some(v)) => {
-                let index = index(i)?;
-                Ok(Command::SetCoef {
-                    index,
-                    value: value(v)?,
-                })
-            }
-            _ => Err(CommandError::BadArgument),
-        },
-        b"GETFLUX" => match (a1, a2) {
-            (None, None) => Ok(Command::GetFlux(None)),
-            (Some(i), None) => Ok(Command::GetFlux(Some(index_below(i, FLUX_CAL_LEN)?))),
-            _ => Err(CommandError::BadArgument),
-        },
-        b"SETFLUX" => match (a1, a2) {
-            (Some(i), Some(v)) => {
-                let index = index_below(i, FLUX_CAL_LEN)?;
-                Ok(Command::SetFlux {
-                    index,
-                    value: value(v)?,
-                })
-            }
-            _ => Err(CommandError::BadArgument),
-        },
+        b"GETCOEF" => get(n_coef, Command::GetCoef),
+        b"SETCOEF" => set(n_coef, |index, value| Command::SetCoef { index, value }),
+        b"GETFLUX" => get(FLUX_CAL_LEN, Command::GetFlux),
+        b"SETFLUX" => set(FLUX_CAL_LEN, |index, value| Command::SetFlux {
+            index,
+            value,
+        }),
         _ => Err(CommandError::UnknownCommand),
     }
 }
 
 /// Writes a command line (host monitor, tests) with the XOR checksum.
 pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
+    use super::common::BufferFull;
+    fn get(c: &mut Cursor, name: &[u8], i: Option<u16>) -> Result<(), BufferFull> {
+        c.bytes(name)?;
+        match i {
+            Some(i) => {
+                c.byte(b',')?;
+                c.u64(i as u64)
+            }
+            None => Ok(()),
+        }
+    }
+    fn set(c: &mut Cursor, name: &[u8], index: u16, value: f32) -> Result<(), BufferFull> {
+        get(c, name, Some(index))?;
+        c.byte(b',')?;
+        c.sci(value as f64)
+    }
     let mut c = Cursor::new(out);
     (|| {
         c.bytes(b"$MCCMD,")?;
@@ -208,31 +213,13 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::Mode(Mode::Survey) => c.bytes(b"MODE,SURVEY")?,
             Command::Mode(Mode::Cal) => c.bytes(b"MODE,CAL")?,
             Command::Status => c.bytes(b"STATUS")?,
-            Command::GetCoef(None) => c.bytes(b"GETCOEF")?,
-            Command::GetCoef(Some(i)) => {
-                c.bytes(b"GETCOEF,")?;
-                c.u64(i as u64)?
-            }
-            Command::SetCoef { index, value } => {
-                c.bytes(b"SETCOEF,")?;
-                c.u64(index as u64)?;
-                c.byte(b',')?;
-                c.sci(value as f64)?
-            }
+            Command::GetCoef(i) => get(&mut c, b"GETCOEF", i)?,
+            Command::SetCoef { index, value } => set(&mut c, b"SETCOEF", index, value)?,
             Command::Save => c.bytes(b"SAVE")?,
             Command::Reset => c.bytes(b"RESET")?,
             Command::Flush => c.bytes(b"FLUSH")?,
-            Command::GetFlux(None) => c.bytes(b"GETFLUX")?,
-            Command::GetFlux(Some(i)) => {
-                c.bytes(b"GETFLUX,")?;
-                c.u64(i as u64)?
-            }
-            Command::SetFlux { index, value } => {
-                c.bytes(b"SETFLUX,")?;
-                c.u64(index as u64)?;
-                c.byte(b',')?;
-                c.sci(value as f64)?
-            }
+            Command::GetFlux(i) => get(&mut c, b"GETFLUX", i)?,
+            Command::SetFlux { index, value } => set(&mut c, b"SETFLUX", index, value)?,
         }
         let x = xor_checksum(&c.written()[1..]);
         c.byte(b'*')?;

@@ -500,31 +500,13 @@ fn fluxgate_section(
     title: &str,
 ) -> Option<Section> {
     let fit = crate::fluxgate::fit_flight(flight, &run.interference_nt).ok()?;
-    let flux = crate::fluxgate::flight_flux(flight);
-    let reference: Vec<f64> = flight
-        .mag_nt
-        .iter()
-        .zip(&run.interference_nt)
-        .map(|(m, i)| m - i)
-        .collect();
-    let norm = |b: [f64; 3]| (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-    let demeaned = |v: Vec<f64>| {
+    let demeaned = |v: &[f64]| {
         let fin: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
         let m = fin.iter().sum::<f64>() / fin.len().max(1) as f64;
-        v.into_iter().map(|x| x - m).collect::<Vec<f64>>()
+        v.iter().map(|x| x - m).collect::<Vec<f64>>()
     };
-    let raw = demeaned(
-        flux.iter()
-            .zip(&reference)
-            .map(|(b, r)| norm(*b) - r)
-            .collect(),
-    );
-    let cal = demeaned(
-        flux.iter()
-            .zip(&reference)
-            .map(|(b, r)| norm(fit.calibration.apply(*b)) - r)
-            .collect(),
-    );
+    let raw = demeaned(&fit.residual_before_nt);
+    let cal = demeaned(&fit.residual_nt);
     let plot = Plot::new(
         &format!("fluxgate-{i}"),
         &format!("Fluxgate modulus against the scalar — {title}"),
