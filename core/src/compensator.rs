@@ -48,6 +48,11 @@ pub struct CompensatorConfig {
     /// External-field drift assumed between two passes when no base station is recorded
     /// (nT/s; 10 nT/h, a quiet day). With a base station the tie uses its difference.
     pub tie_drift_nt_per_s: f32,
+    /// A tie whose innovation exceeds this many σ of its predicted spread is refused and
+    /// flagged (`TIE_REJECTED`; 0 = never): a wrong tie pins the field to a false value
+    /// and pushes the difference into the coefficients, e.g. a `base` channel whose
+    /// diurnal variation was already removed from the scalar (measured: 0.007 → 0.33 nT).
+    pub tie_gate_sigma: f32,
     /// Re-anchor the reference height `h0` to the flown height whenever `|h − h0|`
     /// exceeds this (m; 0 = never). `B_h` is then re-expressed exactly as the field at the
     /// new `h0` (`B_h ← B_h + B_z·Δh0`), so `B_z·(h − h0)` stays a local linearisation:
@@ -83,6 +88,7 @@ impl CompensatorConfig {
             tie_radius_m: 60.0,
             tie_gradient_floor_nt_per_m: 0.001,
             tie_drift_nt_per_s: 10.0 / 3600.0,
+            tie_gate_sigma: 8.0,
             h0_reanchor_m: 0.0,
             converged_sigma_nt: 0.1,
             converged_every: 8,
@@ -222,6 +228,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 tie_radius_m: 0.0,
                 tie_gradient_floor_nt_per_m: 0.0,
                 tie_drift_nt_per_s: 0.0,
+                tie_gate_sigma: 0.0,
                 h0_reanchor_m: 0.0,
                 converged_sigma_nt: 0.0,
                 converged_every: 1,
@@ -643,9 +650,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 None => {}
             }
         }
-        if self.tie_points(ep) {
-            flags.set(Flags::TIE_POINT);
-        }
+        flags.set(self.tie_points(ep));
         self.convergence(&phys, &mut flags);
         let mut dh_out = ep.dh_m;
         if self.field.is_some()
@@ -727,11 +732,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// Tie-point logic: on the first pass near a point the field value is cloned; on later
     /// passes `B_h(now) − B_h(then) = 0` is applied with a variance that grows with the
     /// distance between the two passes times the horizontal gradient (model.md §3).
-    fn tie_points(&mut self, ep: &Epoch) -> bool {
+    /// Returns the flag bits to set: `TIE_POINT` when a tie was applied, `TIE_REJECTED`
+    /// when one was refused by the gate.
+    fn tie_points(&mut self, ep: &Epoch) -> u16 {
         let Some(field) = self.field else {
-            return false;
+            return 0;
         };
-        let mut applied = false;
+        let mut bits = 0;
         for k in 0..self.n_clone {
             let Some(tp) = self.cfg.tie_points[k] else {
                 continue;
@@ -809,10 +816,15 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             h[bh] = self.scale[bh];
             h[clone] = -self.scale[clone];
             h[bh + 3] = -dh0 * self.scale[bh + 3];
-            if self.filter.update(&h, z_tie, r_tie).is_some() {
-                applied = true;
+            let gate = self.cfg.tie_gate_sigma;
+            match self.filter.update_gated(&h, z_tie, r_tie, |nu, s| {
+                gate > 0.0 && nu * nu > gate * gate * s
+            }) {
+                Some(Ok(_)) => bits |= Flags::TIE_POINT,
+                Some(Err(_)) => bits |= Flags::TIE_REJECTED,
+                None => {}
             }
         }
-        applied
+        bits
     }
 }

@@ -27,6 +27,9 @@ impl Flags {
     pub const NOT_CONVERGED: u16 = 1 << 9;
     /// Epoch could not be formed with a centred derivative (start of data or gap).
     pub const DERIVATIVE_DEGRADED: u16 = 1 << 10;
+    /// A tie-point pseudo-measurement disagreed with the filter beyond its gate and was
+    /// refused (e.g. a base channel inconsistent with the scalar).
+    pub const TIE_REJECTED: u16 = 1 << 11;
 
     pub const fn empty() -> Self {
         Flags(0)

@@ -59,9 +59,19 @@ fn main() -> anyhow::Result<()> {
         cfg.scalar_noise_nt = v;
     }
     let t0 = std::time::Instant::now();
-    let trace = simulate(&cfg)?;
+    let mut trace = simulate(&cfg)?;
+    if std::env::var("SUBBASE").is_ok() {
+        let b = trace.col("base").unwrap().to_vec();
+        let m: Vec<f64> = trace
+            .col("mag")
+            .unwrap()
+            .iter()
+            .zip(&b)
+            .map(|(a, c)| a - c)
+            .collect();
+        trace.set_col("mag", m);
+    }
     println!("simulated {} rows in {:.2?}", trace.len(), t0.elapsed());
-    let mut trace = trace;
     if std::env::var("SUBANOM").is_ok() {
         let ta = trace.col("truth_anomaly").unwrap().to_vec();
         let m: Vec<f64> = trace
@@ -124,6 +134,13 @@ fn main() -> anyhow::Result<()> {
         t0.elapsed(),
         run.sigma1,
         run.noise_nt
+    );
+    println!(
+        "tie rejected: {}",
+        run.flags
+            .iter()
+            .filter(|f| **f & magcomp_core::Flags::TIE_REJECTED != 0)
+            .count()
     );
     println!(
         "tie flags: {}",

@@ -57,7 +57,7 @@ pub struct MonitorArgs {
 }
 
 /// Flag bits as words, in bit order.
-pub const FLAG_NAMES: [&str; 11] = [
+pub const FLAG_NAMES: [&str; 12] = [
     "FLUX_STALE",
     "NO_GPS",
     "PARSE_ERROR",
@@ -69,6 +69,7 @@ pub const FLAG_NAMES: [&str; 11] = [
     "SURVEY_MODE",
     "NOT_CONVERGED",
     "DERIVATIVE_DEGRADED",
+    "TIE_REJECTED",
 ];
 
 /// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT12`.
