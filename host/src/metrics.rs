@@ -139,3 +139,85 @@ pub fn oracle_floor_nt(regressors: &[Vec<f32>], truth_nt: &[f64]) -> Option<f64>
     let r = y - a * x;
     Some((r.norm_squared() / rows.len() as f64).sqrt())
 }
+
+/// A yardstick for the joint estimation on a calibration flight (simulated or real): the
+/// interference of a batch least-squares fit of the scalar onto the model's regressors
+/// *and* a smooth two-dimensional anomaly, a polynomial of total degree `degree` in
+/// north/east over the pattern. The scalar is first corrected for the core-field change
+/// (`igrf`) and, when the trace has a base station, for the diurnal variation. Where the
+/// anomaly is smooth (high altitude) this uses every crossing and overlap of the pattern,
+/// which the along-track field process cannot, so it shows how much of the gap between a
+/// filter and the oracle floor (which knows the truth) is the price of not knowing the
+/// anomaly at all.
+pub fn joint_anomaly_fit_interference_nt(
+    flight: &Flight,
+    regressors: &[Vec<f32>],
+    degree: i32,
+) -> Option<Vec<f64>> {
+    let s = &flight.samples;
+    let first = s.first()?;
+    let (lat0, lon0) = (first.lat_deg, first.lon_deg);
+    let igrf0 = s.iter().map(|x| x.igrf_nt).find(|v| v.is_finite());
+    let base0 = s.iter().map(|x| x.base_nt).find(|v| v.is_finite());
+    let coslat = lat0.to_radians().cos();
+    let ne: Vec<(f64, f64)> = s
+        .iter()
+        .map(|x| {
+            (
+                (x.lat_deg - lat0).to_radians() * 6_371_000.0,
+                (x.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
+            )
+        })
+        .collect();
+    let y: Vec<f64> = (0..s.len())
+        .map(|i| {
+            let core = igrf0.map_or(0.0, |g| s[i].igrf_nt - g);
+            let ext = base0.map_or(0.0, |b| (s[i].base_nt - b) as f64);
+            flight.mag_nt[i] - core - ext
+        })
+        .collect();
+    let rows: Vec<usize> = (0..s.len().min(regressors.len()))
+        .filter(|&i| {
+            y[i].is_finite()
+                && ne[i].0.is_finite()
+                && ne[i].1.is_finite()
+                && regressors[i].iter().all(|v| v.is_finite())
+        })
+        .collect();
+    let half = rows
+        .iter()
+        .fold(0.0f64, |m, &i| m.max(ne[i].0.abs()).max(ne[i].1.abs()))
+        .max(1.0);
+    let powers: Vec<(i32, i32)> = (1..=degree)
+        .flat_map(|d| (0..=d).map(move |a| (a, d - a)))
+        .collect();
+    let p_reg = regressors.first()?.len();
+    let p = 1 + p_reg + powers.len();
+    if rows.len() <= 2 * p {
+        return None;
+    }
+    let a = DMatrix::from_fn(rows.len(), p, |r, c| {
+        let i = rows[r];
+        if c == 0 {
+            1.0
+        } else if c <= p_reg {
+            regressors[i][c - 1] as f64
+        } else {
+            let (a, b) = powers[c - 1 - p_reg];
+            (ne[i].0 / half).powi(a) * (ne[i].1 / half).powi(b)
+        }
+    });
+    let yv = DVector::from_iterator(rows.len(), rows.iter().map(|&i| y[i]));
+    let theta = a.svd(true, true).solve(&yv, 1e-12).ok()?;
+    Some(
+        regressors
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .zip(theta.iter().skip(1))
+                    .map(|(x, t)| *x as f64 * t)
+                    .sum()
+            })
+            .collect(),
+    )
+}

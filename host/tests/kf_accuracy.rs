@@ -8,7 +8,9 @@
 
 use magcomp::flight::Flight;
 use magcomp::fluxgate::flight_flux;
-use magcomp::metrics::{error_rms_nt, is_manoeuvre, oracle_floor_nt};
+use magcomp::metrics::{
+    error_rms_nt, is_manoeuvre, joint_anomaly_fit_interference_nt, oracle_floor_nt,
+};
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions, KfRun};
 use magcomp::sim::anomaly::Geology;
@@ -72,6 +74,8 @@ fn apply(run: &KfRun, coefficients: &[f64]) -> Vec<f64> {
 struct Post {
     kf: f64,
     oracle: f64,
+    /// Batch least squares with a smooth 2-D anomaly (`joint_anomaly_fit_interference_nt`).
+    joint: f64,
     tl18: f64,
     sigma1: f64,
 }
@@ -83,6 +87,8 @@ fn post_flight(cfg: &SimConfig) -> Post {
     Post {
         kf: error_rms_nt(&run.interference_nt, &t, None),
         oracle: oracle_floor_nt(&run.regressors, &t).expect("oracle"),
+        joint: joint_anomaly_fit_interference_nt(&f, &run.regressors, 8)
+            .map_or(f64::NAN, |i| error_rms_nt(&i, &t, None)),
         tl18: tl18_error(&f, None),
         sigma1: run.sigma1,
     }
@@ -110,23 +116,34 @@ fn low(seed: u64, altitude_m: f64, swing_m: f64) -> SimConfig {
 ///
 /// Target: KF ≤ 1.25 × oracle and ≤ max(1.2 × TL18, TL18 + 0.01 nT). The TL18 part is met
 /// with a wide margin (KF ≈ 0.1–0.25 × TL18). The oracle part is NOT met: the KF reaches
-/// 1.5–2.8 × oracle. The excess is the price of estimating the anomaly jointly: with the
-/// field held rigid (σ1 → 1e-12 on a flight without anomaly) the same filter reaches
-/// 1.03–1.1 × oracle, and a least-squares fit with the anomaly known reaches the oracle;
-/// with any σ1 that lets the field follow the real 3000 m anomaly (truth σ1 ≈ 3e-8) the
-/// along-track field absorbs part of the heading-dependent interference of the turns.
+/// 1.5–2.8 × oracle. The oracle knows the anomaly; an estimator must separate it. Two
+/// yardsticks measure that price:
+/// - the same filter with the field held rigid (σ1 → 1e-12, flight without anomaly)
+///   reaches 1.03–1.1 × oracle, with σ1 = 1e-10 already 1.66 ×: any field freedom along
+///   the track absorbs part of the heading-dependent interference of the turns;
+/// - batch least squares with the anomaly as a smooth 2-D polynomial of degree 8 over the
+///   pattern (44 terms, using every crossing and the overlap of reciprocal legs) and the
+///   diurnal removed with the base station (`joint` below) reaches only 1.2–2.1 × oracle
+///   (seeds 1–5: 2.1 / 1.3 / 1.4 / 1.6 / 1.2): the oracle criterion lies below what the
+///   flight's information allows on most seeds, whatever the anomaly model.
+///
 /// σ1 (×0.02 … ×3), σ2/σ1, priors (×0.3), noise r, tie points, derivative half-width and
 /// down-weighting turns were all tried; none moved it below ≈1.5 × oracle on every seed.
-/// Asserted: ≤ 3.2 × oracle (achieved worst 2.8).
+/// Asserted: ≤ 3.2 × oracle (achieved worst 2.8) and ≤ 2.5 × the joint fit (1.1–2.2 ×; worst
+/// seed 2, where the 2-D anomaly model suits the pattern better than the along-track
+/// process).
 #[test]
 fn high_altitude_post_flight() {
     for (seed, noise) in cases(&[(2, 0.01), (1, 0.01), (3, 0.01), (4, 0.02), (5, 0.02)]) {
         let p = post_flight(&high(seed, noise));
         println!(
-            "high seed {seed} noise {noise}: KF {:.4} nT, oracle {:.4} ({:.2}x), TL18 {:.4}, σ1 {:.2e}",
+            "high seed {seed} noise {noise}: KF {:.4} nT, oracle {:.4} ({:.2}x), joint 2-D LS {:.4} ({:.2}x oracle, KF {:.2}x it), TL18 {:.4}, σ1 {:.2e}",
             p.kf,
             p.oracle,
             p.kf / p.oracle,
+            p.joint,
+            p.joint / p.oracle,
+            p.kf / p.joint,
             p.tl18,
             p.sigma1
         );
@@ -141,6 +158,12 @@ fn high_altitude_post_flight() {
             "seed {seed}: KF {:.4} > 3.2 × oracle {:.4}",
             p.kf,
             p.oracle
+        );
+        assert!(
+            p.kf <= 2.5 * p.joint,
+            "seed {seed}: KF {:.4} > 2.5 × joint fit {:.4}",
+            p.kf,
+            p.joint
         );
         assert!(p.kf < 0.015, "seed {seed}: KF {:.4} nT", p.kf);
     }
@@ -203,7 +226,10 @@ fn tie_gate_refuses_an_inconsistent_base_channel() {
 /// stationary (seeds 4–8: 0.355 / 0.251 / 0.244 / 0.291 / 0.278). Seeds 4–8 were not used
 /// to design the first four profiles; the fifth profile and the σ1² scales were added after
 /// seeing them. So ≤ 0.1 nT holds on 10 of 11; ≤ 3 × oracle on 8 of 11 (1.3–2.8 ×; the
-/// other three 5.6–15 ×).
+/// other three 5.6–15 ×, where the oracle floor is only 0.004–0.008 nT). The one case over
+/// 0.1 nT (seed 6, 0.120) has an oracle floor of 0.091 nT itself: the model's terms cannot
+/// describe that flight's interference better than 0.091 nT, so 0.1 nT leaves an estimator
+/// a margin of 0.009 nT.
 /// Asserted: each ≤ 0.2 nT and ≤ 0.5 × TL18; at least 9 of the 11 ≤ 0.1 nT.
 #[test]
 fn low_altitude_strong_anomaly() {
