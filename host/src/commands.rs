@@ -109,7 +109,21 @@ pub struct CoefficientFile {
     /// The anomaly process the calibration used (KF; see `pipeline::FIELD_PROFILES`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,
+    /// With `rate`: the coefficients fitted to the flight's crossovers (s, in
+    /// `crossover::RATE_LABELS` order) with their test; applied by `compensate --coeffs`
+    /// when `applied` (the fit was significant).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rate_crossover: Option<RateCrossover>,
     pub coefficients: Vec<Coefficient>,
+}
+
+/// The crossover fit as the coefficient file and the JSON summary carry it.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RateCrossover {
+    pub labels: Vec<String>,
+    #[serde(flatten)]
+    pub fit: crate::crossover::RateFit,
+    pub applied: bool,
 }
 
 pub const COEFF_FORMAT: &str = "magcomp-coefficients-v1";
@@ -146,6 +160,9 @@ pub struct Summary {
     /// KF: the anomaly process used ("stationary" or the chosen local-roughness profile).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,
+    /// With `rate`: the crossover fit (and whether it was applied).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rate_crossover: Option<RateCrossover>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub manoeuvres: Vec<ManoeuvreFom>,
 }
@@ -182,6 +199,11 @@ pub fn compensate_trace(
                     bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
                 }
                 opts.fluxgate_calibration = c.fluxgate_calibration;
+                opts.rate_crossover_coefficients = c
+                    .rate_crossover
+                    .as_ref()
+                    .filter(|r| r.applied)
+                    .map(|r| r.fit.coefficients);
             }
             let run = run_kf(&flight, &opts)?;
             let file = CoefficientFile {
@@ -194,6 +216,15 @@ pub fn compensate_trace(
                 tl_config: None,
                 fluxgate_calibration: run.fluxgate_calibration,
                 field_process: Some(run.field_process.clone()),
+                rate_crossover: match (&run.rate_crossover, coeffs) {
+                    (Some((fit, applied)), _) => Some(RateCrossover {
+                        labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
+                        fit: fit.clone(),
+                        applied: *applied,
+                    }),
+                    (None, Some(c)) => c.rate_crossover.clone(),
+                    (None, None) => None,
+                },
                 coefficients: run
                     .coefficient_names
                     .iter()
@@ -281,6 +312,7 @@ pub fn compensate_trace(
                 tl_config: Some(fit.config.clone()),
                 fluxgate_calibration: None,
                 field_process: None,
+                rate_crossover: None,
                 coefficients: fit
                     .names
                     .iter()
@@ -334,6 +366,10 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
             .coefficients
             .as_ref()
             .and_then(|c| c.field_process.clone()),
+        rate_crossover: comp
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.rate_crossover.clone()),
         manoeuvres: f.map(|f| f.1).unwrap_or_default(),
     }
 }

@@ -3,6 +3,7 @@
 
 pub mod capture_sim;
 pub mod commands;
+pub mod crossover;
 pub mod demo;
 pub mod diagnose;
 pub mod flight;

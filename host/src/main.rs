@@ -103,7 +103,28 @@ fn print_summary(s: &Summary) {
         println!("  error vs truth:             {e:.4} nT rms");
     }
     if let Some(o) = s.oracle_floor_nt {
-        println!("  oracle floor of the model:  {o:.4} nT rms");
+        println!("  oracle floor of the model:  {o:.4} nT rms (filter regressors only)");
+    }
+    if let Some(r) = &s.rate_crossover {
+        println!(
+            "  rate at {} crossovers:      differences {:.3} → {:.3} nT rms, p = {:.1e}, {}",
+            r.fit.crossings,
+            r.fit.rms_before_nt,
+            r.fit.rms_after_nt,
+            r.fit.p_value,
+            if r.applied {
+                "applied"
+            } else {
+                "not significant, not applied"
+            }
+        );
+        for (l, (v, e)) in r
+            .labels
+            .iter()
+            .zip(r.fit.coefficients.iter().zip(&r.fit.sigmas))
+        {
+            println!("    {l:<10} {v:>9.4} ± {e:.4} s");
+        }
     }
 }
 

@@ -60,6 +60,11 @@ pub struct KfOptions {
     /// Per-sample multiplier of the field's process-noise variance (internal: set by the
     /// profile search; `None` = stationary, the paper's model).
     pub field_profile: Option<Vec<f64>>,
+    /// With the `rate` term, post-flight: fit its coefficients to the flight's crossovers
+    /// as well (`crossover`), and apply them when the crossover F-test is significant.
+    pub rate_crossovers: bool,
+    /// Crossover rate coefficients to apply as given (from a coefficient file).
+    pub rate_crossover_coefficients: Option<[f64; 6]>,
 }
 
 impl KfOptions {
@@ -83,6 +88,8 @@ impl KfOptions {
             fluxgate_calibration: None,
             field_profiles: true,
             field_profile: None,
+            rate_crossovers: true,
+            rate_crossover_coefficients: None,
         }
     }
 }
@@ -109,6 +116,8 @@ pub struct KfRun {
     /// The anomaly process the run used: "stationary" (the paper's) or the local-roughness
     /// profile and σ1² scale the likelihood chose.
     pub field_process: String,
+    /// The `rate` term's crossover fit, and whether it was applied (significant).
+    pub rate_crossover: Option<(crate::crossover::RateFit, bool)>,
     /// With `fluxcal`: the fluxgate calibration used, and its fit when made on this flight.
     pub fluxgate_calibration: Option<FluxgateCalibration>,
     pub fluxgate_fit: Option<FluxgateFit>,
@@ -627,5 +636,44 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         run.innovation_var_nt2.push(o.innovation_var_nt2 as f64);
         run.flags.push(o.flags.0);
     }
+    if spec.terms.iter().any(|t| t.name == "rate") {
+        apply_rate_crossovers(flight, opts, &mut run);
+    }
     Ok(run)
+}
+
+/// Significance the crossover rate fit needs before it is applied: without evidence the
+/// fit would only add its own noise (0.02–0.04 nT on clean simulated flights).
+pub const RATE_CROSSOVER_ALPHA: f64 = 0.01;
+
+/// The `rate` term's crossover step (post-flight; see [`crate::crossover`]). The filter's
+/// own `rate` states see the anisotropic part only where `e` changes within a pass; the
+/// crossovers see what the filter cannot: the part that, on one pass, is a shift of the
+/// anomaly along the track.
+fn apply_rate_crossovers(flight: &Flight, opts: &KfOptions, run: &mut KfRun) {
+    let regs = crate::crossover::rate_regressors(flight);
+    let coefficients = match opts.rate_crossover_coefficients {
+        Some(c) => c,
+        None if opts.rate_crossovers && !opts.realtime && opts.coefficients.is_none() => {
+            let value = crate::crossover::levelled_nt(flight, &run.compensated_nt);
+            let Some(fit) = crate::crossover::fit_rate(flight, &value, &regs) else {
+                return;
+            };
+            let apply = fit.p_value < RATE_CROSSOVER_ALPHA;
+            let c = fit.coefficients;
+            run.rate_crossover = Some((fit, apply));
+            if !apply {
+                return;
+            }
+            c
+        }
+        None => return,
+    };
+    for (i, r) in regs.iter().enumerate() {
+        let v: f64 = r.iter().zip(&coefficients).map(|(a, c)| a * c).sum();
+        if v.is_finite() {
+            run.interference_nt[i] += v;
+            run.compensated_nt[i] -= v;
+        }
+    }
 }

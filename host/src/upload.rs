@@ -54,9 +54,22 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
             board.text()
         );
     }
+    // The crossover rate fit (post-flight, `rate`): its five anisotropic coefficients add
+    // to the board's `rate` term; the isotropic one has no board coefficient (see
+    // `run_upload`).
+    let crossover = file.rate_crossover.as_ref().filter(|r| r.applied);
     let mut cmds: Vec<Command> = Vec::new();
     for (i, c) in file.coefficients.iter().enumerate() {
-        let value = c.value as f32;
+        let extra = crossover
+            .and_then(|r| {
+                let label = c.name.strip_prefix("rate.")?;
+                let k = crate::crossover::RATE_LABELS[..5]
+                    .iter()
+                    .position(|l| *l == label)?;
+                Some(r.fit.coefficients[k])
+            })
+            .unwrap_or(0.0);
+        let value = (c.value + extra) as f32;
         if !value.is_finite() || value.abs() >= MAX_COEF_ABS {
             bail!(
                 "coefficient {i} ({}) = {} is out of the board's range",
@@ -95,6 +108,12 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
 pub fn run_upload(args: &UploadArgs) -> Result<()> {
     let file = read_coefficients(&args.coeffs)?;
     let lines = upload_lines(&file, &args.board_model, !args.no_save)?;
+    if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
+        eprintln!(
+            "note: the crossover rate fit's isotropic part ({:.4} s · d|B|/dt, the anomaly read {:.4} s late) has no board coefficient; the board compensates the rest",
+            r.fit.coefficients[5], r.fit.coefficients[5]
+        );
+    }
     let text: String = lines.concat();
     if args.to == "-" {
         std::io::stdout().write_all(text.as_bytes())?;
@@ -133,6 +152,7 @@ mod tests {
             tl_config: None,
             fluxgate_calibration: flux,
             field_process: None,
+            rate_crossover: None,
             coefficients: (0..n)
                 .map(|i| Coefficient {
                     name: format!("c{i}"),
@@ -141,6 +161,42 @@ mod tests {
                     sigma: 0.1,
                 })
                 .collect(),
+        }
+    }
+
+    #[test]
+    fn an_applied_crossover_rate_fit_adds_to_the_board_rate_coefficients() {
+        let mut f = file("tl16+field+rate", 21, None);
+        for (k, c) in f.coefficients[16..].iter_mut().enumerate() {
+            c.name = format!("rate.{}", crate::crossover::RATE_LABELS[k]);
+            c.value = 0.001 * k as f64;
+        }
+        let fit = crate::crossover::RateFit {
+            coefficients: [0.01, 0.02, 0.03, 0.04, 0.05, 0.06],
+            sigmas: [0.0; 6],
+            crossings: 40,
+            rms_before_nt: 0.1,
+            rms_after_nt: 0.02,
+            f_statistic: 50.0,
+            p_value: 1e-20,
+            added_parameters: 6,
+        };
+        for applied in [true, false] {
+            f.rate_crossover = Some(crate::commands::RateCrossover {
+                labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
+                fit: fit.clone(),
+                applied,
+            });
+            let lines = upload_lines(&f, "tl16+field+rate", false).unwrap();
+            assert_eq!(lines.len(), 21);
+            for (k, l) in lines[16..].iter().enumerate() {
+                let Ok(Command::SetCoef { index, value }) = parse_command(l.as_bytes(), 21) else {
+                    panic!("{l}");
+                };
+                assert_eq!(index as usize, 16 + k);
+                let want = 0.001 * k as f64 + if applied { fit.coefficients[k] } else { 0.0 };
+                assert_eq!(value, want as f32, "applied {applied}, {l}");
+            }
         }
     }
 

@@ -335,3 +335,84 @@ fn fluxcal_calibration_travels_in_the_coefficient_file() {
     );
     assert!(errors[1] * 3.0 < errors[0], "{errors:?}");
 }
+
+/// `rate` on a survey with tie lines: `calibrate` stores the crossover fit in the
+/// coefficient file, and `compensate --coeffs` applies it (simulate's `--tie-lines`).
+#[test]
+fn rate_crossover_fit_travels_in_the_coefficient_file() {
+    let d = tmp("rate");
+    let p = d.join("survey.csv");
+    run_ok(
+        bin()
+            .args([
+                "simulate",
+                "--flight",
+                "calibration+survey",
+                "--seed",
+                "2",
+                "--cal-altitude-m",
+                "300",
+                "--survey-altitude-m",
+                "300",
+                "--cal-headings-deg",
+                "0,90,180,270",
+                "--geology",
+                "strong",
+                "--lines",
+                "8",
+                "--line-length-m",
+                "5000",
+                "--tie-lines",
+                "5",
+                "--survey-offset-m",
+                "0,5000",
+                "--gps-sigma-h-m",
+                "0.3",
+                "--hidden",
+                "rate",
+                "-o",
+            ])
+            .arg(&p),
+    );
+    let segments = std::fs::read_to_string(&p).unwrap();
+    assert!(segments.contains(",tie_2005"), "tie lines are labelled");
+    let mut errors = Vec::new();
+    for model in ["tl16+field", "tl16+field+rate"] {
+        let coeffs = d.join(format!("{model}.json"));
+        run_ok(
+            bin()
+                .args(["calibrate", "--model", model])
+                .arg(&p)
+                .arg("-o")
+                .arg(&coeffs),
+        );
+        let cf: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+        let rc = &cf["rate_crossover"];
+        assert_eq!(rc.is_null(), model == "tl16+field", "{model}: {rc}");
+        if !rc.is_null() {
+            assert_eq!(rc["applied"], true, "{rc}");
+            assert!(rc["crossings"].as_u64().unwrap() >= 40, "{rc}");
+            assert_eq!(rc["coefficients"].as_array().unwrap().len(), 6);
+        }
+        let stdout = run_ok(
+            bin()
+                .args(["compensate"])
+                .arg(&p)
+                .arg("--coeffs")
+                .arg(&coeffs)
+                .args(["--json", "--out"])
+                .arg(d.join("applied.csv")),
+        );
+        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        errors.push(j["error_rms_nt"].as_f64().unwrap());
+    }
+    println!(
+        "rate via --coeffs: error {:.4} → {:.4} nT",
+        errors[0], errors[1]
+    );
+    assert!(
+        errors[1] <= 0.1 && errors[1] * 3.0 < errors[0],
+        "{errors:?}"
+    );
+}

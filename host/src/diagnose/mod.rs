@@ -638,7 +638,13 @@ pub fn diagnose_with(
                     Some(x) => x.effect,
                     None => info(name).map(|i| i.effect).unwrap_or(""),
                 };
-                (effect.to_string(), explained, after, q, f, p)
+                match (name == "rate")
+                    .then(|| rate_crossover_test(&flight, &run, residual_rms, effect))
+                    .flatten()
+                {
+                    Some(t) => t,
+                    None => (effect.to_string(), explained, after, q, f, p),
+                }
             }
             None if text == "fluxcal" => {
                 let t = fluxcal_test(&flight, model, &run)?;
@@ -825,6 +831,35 @@ struct FluxcalTest {
     fits_to_noise: bool,
     f: f64,
     p: f64,
+}
+
+/// `rate` on a flight with crossovers (survey lines and ties): on one straight pass most of
+/// `eᵀNe·d|B|/dt` is a shift of the anomaly along the track, which the residual cannot
+/// show; at the crossings it is a difference between the passes. The test is the crossover
+/// fit's F-test and the share is that of the crossover differences' variance the term
+/// explains. `None` without enough crossings (the residual test stands then).
+fn rate_crossover_test(
+    flight: &Flight,
+    run: &KfRun,
+    residual_rms: f64,
+    effect: &str,
+) -> Option<(String, f64, f64, usize, f64, f64)> {
+    let regs = crate::crossover::rate_regressors(flight);
+    let value = crate::crossover::levelled_nt(flight, &run.compensated_nt);
+    let fit = crate::crossover::fit_rate(flight, &value, &regs)?;
+    let change = crate::metrics::rms_demeaned(&fit.correction_nt(&regs));
+    let share = explained_of(fit.rms_before_nt, fit.rms_after_nt);
+    Some((
+        format!(
+            "{effect}; tested at {} crossovers: their differences {:.3} → {:.3} nT rms with the term (share: of the crossover differences), which changes the compensated field by {:.3} nT rms",
+            fit.crossings, fit.rms_before_nt, fit.rms_after_nt, change
+        ),
+        share,
+        residual_rms * (1.0 - share).sqrt(),
+        fit.added_parameters,
+        fit.f_statistic,
+        fit.p_value,
+    ))
 }
 
 /// `fluxcal` is not a regressor: it is tested on the fluxgate itself. The 9-parameter

@@ -108,6 +108,16 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
     pub line_heading_deg: f64,
 
+    /// Tie lines flown across the survey lines after them (perpendicular, alternating
+    /// direction, labelled `tie_2001`…): their crossings with the lines are what levelling
+    /// and the `rate` term need.
+    #[arg(long, default_value_t = 0)]
+    pub tie_lines: usize,
+
+    /// Tie line spacing along the survey lines (m).
+    #[arg(long, default_value_t = 1000.0)]
+    pub tie_spacing_m: f64,
+
     /// Survey block origin relative to the start point, `NORTH,EAST` (m); combined flights.
     #[arg(
         long,
@@ -284,6 +294,8 @@ impl SimulateArgs {
             line_length_m: self.line_length_m,
             line_spacing_m: self.line_spacing_m,
             line_heading_deg: self.line_heading_deg,
+            tie_lines: self.tie_lines,
+            tie_spacing_m: self.tie_spacing_m,
             survey_offset_m,
             wind_mps: self.wind_mps,
             turbulence_deg: self.turbulence_deg,

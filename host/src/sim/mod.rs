@@ -105,6 +105,10 @@ pub struct SimConfig {
     pub line_length_m: f64,
     pub line_spacing_m: f64,
     pub line_heading_deg: f64,
+    /// Tie lines across the survey lines (perpendicular, flown after them) and their
+    /// spacing along the lines (m).
+    pub tie_lines: usize,
+    pub tie_spacing_m: f64,
     /// Survey block origin relative to the start point (north, east, m), combined flights.
     pub survey_offset_m: [f64; 2],
     pub wind_mps: f64,
@@ -154,6 +158,8 @@ impl Default for SimConfig {
             line_length_m: 10_000.0,
             line_spacing_m: 200.0,
             line_heading_deg: 0.0,
+            tie_lines: 0,
+            tie_spacing_m: 1000.0,
             survey_offset_m: [0.0, 8000.0],
             wind_mps: 5.0,
             turbulence_deg: 0.3,
@@ -236,6 +242,8 @@ impl SimConfig {
         finite_in(self.line_length_m, 100.0, 500_000.0, "line length (m)")?;
         finite_in(self.line_spacing_m, 10.0, 50_000.0, "line spacing (m)")?;
         finite_in(self.line_heading_deg, -360.0, 720.0, "line heading (deg)")?;
+        ensure!(self.tie_lines <= 500, "tie lines must be 0–500");
+        finite_in(self.tie_spacing_m, 10.0, 50_000.0, "tie line spacing (m)")?;
         for v in self.survey_offset_m {
             finite_in(v, -1e6, 1e6, "survey offset (m)")?;
         }
@@ -456,6 +464,31 @@ fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> {
                 0.0,
                 per,
                 &format!("line_{}", 1001 + k),
+            );
+        }
+        // Tie lines: across the block, 300 m beyond the outer lines, alternating direction.
+        let width = (cfg.survey_lines.max(1) - 1) as f64 * cfg.line_spacing_m;
+        let tie_len = width + 600.0;
+        for k in 0..cfg.tie_lines {
+            let along = ((k as f64 + 0.5) * cfg.tie_spacing_m).min(cfg.line_length_m);
+            let across = if k % 2 == 0 { -300.0 } else { width + 300.0 };
+            let s = [
+                survey_origin[0] + along * u[0] + across * w[0],
+                survey_origin[1] + along * u[1] + across * w[1],
+            ];
+            let c = if k % 2 == 0 {
+                perp.rem_euclid(TAU)
+            } else {
+                (perp + TAU / 2.0).rem_euclid(TAU)
+            };
+            let d = b.connect(s, c, lead_m)?;
+            b.straight(d / v, Manoeuvre::Level, 0.0, per, "turn");
+            b.straight(
+                tie_len / v,
+                Manoeuvre::Level,
+                0.0,
+                per,
+                &format!("tie_{}", 2001 + k),
             );
         }
         b.straight(10.0, Manoeuvre::Level, 0.0, per, "turn");
@@ -924,7 +957,8 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
                 // response to flying through gradients is already in every flight through
                 // `M·dB/dt` (db_body includes the anomaly gradient · velocity), and M is only
                 // ~6e-5–1e-4 s, i.e. ~0.001 nT here. Even at this size `rate` is not
-                // observable on the simulated flights (tests/diagnose_effects.rs).
+                // observable on a calibration pattern alone, only at the crossovers of a
+                // survey with tie lines (tests/diagnose_effects.rs).
                 let mut nm = Matrix3::from_fn(|_, _| r.sample::<f64, _>(StandardNormal) * 0.008);
                 nm = (nm + nm.transpose()) / 2.0;
                 for i in 0..3 {
@@ -1283,6 +1317,9 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
             format!("{}", cfg.survey_altitude_m),
         ));
         meta.push(("line_spacing_m".into(), format!("{}", cfg.line_spacing_m)));
+        if cfg.tie_lines > 0 {
+            meta.push(("tie_spacing_m".into(), format!("{}", cfg.tie_spacing_m)));
+        }
         meta.push((
             "line_heading_deg".into(),
             format!("{}", cfg.line_heading_deg),

@@ -1,0 +1,416 @@
+//! Crossovers: places a flight passes twice on different headings, e.g. survey lines and
+//! their tie lines. The anomaly there is the same on both passes, so the difference of the
+//! two compensated values holds only what the compensation got wrong plus the diurnal
+//! variation (removed with the base station) and noise.
+//!
+//! This is what the `rate` term needs (model.md §4, and the paper: "needs crossover points
+//! of survey lines to estimate"). Eddy currents driven by flying through gradients add
+//! `eᵀNe·d|B|/dt`; along a straight line `e` is nearly constant, so on one pass that term is
+//! `c·d|B|/dt` — the anomaly read `c·V` metres late, which no filter tells from the anomaly
+//! itself. At a crossing the two passes read it with different `c` and different
+//! `d|B|/dt`, and the difference pins N down. The fit here uses the rate term's five
+//! regressors `e_i·e_j·d|B|/dt` plus the isotropic `d|B|/dt`, with one intercept per
+//! pair of headings (a heading-dependent level error of the compensation).
+
+use crate::diagnose::stats::chi2_sf;
+use crate::flight::Flight;
+use nalgebra::{DMatrix, DVector};
+use serde::{Deserialize, Serialize};
+
+/// Names of the crossover rate coefficients (s): the `rate` term's five, then isotropic.
+pub const RATE_LABELS: [&str; 6] = [
+    "e1*e1*dB", "e2*e2*dB", "e1*e2*dB", "e1*e3*dB", "e2*e3*dB", "dB",
+];
+
+/// Fewest crossings the rate fit accepts (6 coefficients + intercepts + a margin).
+pub const MIN_CROSSINGS: usize = 16;
+
+/// One crossing: the two passes, each as a sample index and the fraction to the next.
+#[derive(Clone, Copy, Debug)]
+pub struct Crossing {
+    pub a: (usize, f64),
+    pub b: (usize, f64),
+    pub course_a_rad: f64,
+    pub course_b_rad: f64,
+}
+
+/// Local north/east (m) of every sample relative to the first fix; NaN without a fix.
+fn local_ne(flight: &Flight) -> Vec<[f64; 2]> {
+    let Some(first) = flight
+        .samples
+        .iter()
+        .find(|s| s.lat_deg.is_finite() && s.lon_deg.is_finite())
+    else {
+        return vec![[f64::NAN; 2]; flight.len()];
+    };
+    let (lat0, lon0) = (first.lat_deg, first.lon_deg);
+    let coslat = lat0.to_radians().cos();
+    flight
+        .samples
+        .iter()
+        .map(|s| {
+            [
+                (s.lat_deg - lat0).to_radians() * 6_371_000.0,
+                (s.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
+            ]
+        })
+        .collect()
+}
+
+fn wrap_pi(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+/// Crossings of straight, level parts of the track (course steady to 3° over ±4 s) whose
+/// courses differ by 30–150° and that are at least 60 s apart.
+pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
+    let n = flight.len();
+    let ne = local_ne(flight);
+    let t = &flight.t_s;
+    let k = ((2.0 * flight.sample_rate_hz).round() as usize).max(1);
+    let course_between =
+        |i: usize, j: usize| -> f64 { (ne[j][1] - ne[i][1]).atan2(ne[j][0] - ne[i][0]) };
+    // Course over ±k samples, and whether it holds over the wider ±2k.
+    let mut course = vec![f64::NAN; n];
+    let mut straight = vec![false; n];
+    for i in 2 * k..n.saturating_sub(2 * k) {
+        if !(ne[i - 2 * k][0].is_finite() && ne[i + 2 * k][0].is_finite()) {
+            continue;
+        }
+        let c = course_between(i - k, i + k);
+        let c1 = course_between(i - 2 * k, i);
+        let c2 = course_between(i, i + 2 * k);
+        course[i] = c;
+        straight[i] = wrap_pi(c1 - c2).abs() < 3f64.to_radians()
+            && (t[i + 2 * k] - t[i - 2 * k]) < 4.0 * k as f64 / flight.sample_rate_hz + 1.0;
+    }
+    // Segments (i, i+1) of straight track into a 50 m grid.
+    let cell = 50.0;
+    let mut grid: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
+    for i in 0..n.saturating_sub(1) {
+        if !(straight[i] && straight[i + 1]) {
+            continue;
+        }
+        let (p, q) = (ne[i], ne[i + 1]);
+        let lo = [p[0].min(q[0]), p[1].min(q[1])];
+        let hi = [p[0].max(q[0]), p[1].max(q[1])];
+        for cx in (lo[0] / cell).floor() as i64..=(hi[0] / cell).floor() as i64 {
+            for cy in (lo[1] / cell).floor() as i64..=(hi[1] / cell).floor() as i64 {
+                grid.entry((cx, cy)).or_default().push(i);
+            }
+        }
+    }
+    let mut seen = std::collections::HashSet::new();
+    let mut out = Vec::new();
+    for segs in grid.values() {
+        for (x, &i) in segs.iter().enumerate() {
+            for &j in &segs[x + 1..] {
+                let (i, j) = if i < j { (i, j) } else { (j, i) };
+                if t[j] - t[i] < 60.0 || !seen.insert((i, j)) {
+                    continue;
+                }
+                let dc = wrap_pi(course[i] - course[j]).abs();
+                if !(30f64.to_radians()..=150f64.to_radians()).contains(&dc) {
+                    continue;
+                }
+                // p + s·r = q + u·w, s, u ∈ [0, 1).
+                let (p, q) = (ne[i], ne[j]);
+                let r = [ne[i + 1][0] - p[0], ne[i + 1][1] - p[1]];
+                let w = [ne[j + 1][0] - q[0], ne[j + 1][1] - q[1]];
+                let den = r[0] * w[1] - r[1] * w[0];
+                if den.abs() < 1e-9 {
+                    continue;
+                }
+                let d = [q[0] - p[0], q[1] - p[1]];
+                let s = (d[0] * w[1] - d[1] * w[0]) / den;
+                let u = (d[0] * r[1] - d[1] * r[0]) / den;
+                if (0.0..1.0).contains(&s) && (0.0..1.0).contains(&u) {
+                    out.push(Crossing {
+                        a: (i, s),
+                        b: (j, u),
+                        course_a_rad: course[i],
+                        course_b_rad: course[j],
+                    });
+                }
+            }
+        }
+    }
+    out.sort_by_key(|c| (c.a.0, c.b.0));
+    out
+}
+
+fn at(v: &[f64], (i, f): (usize, f64)) -> f64 {
+    v[i] * (1.0 - f) + v[i + 1] * f
+}
+
+/// Per sample: the six crossover rate regressors `[e1², e2², e1e2, e1e3, e2e3, 1]·d|B|/dt`
+/// with `e` from the fluxgate and `d|B|/dt` a centred difference of the scalar over ±0.2 s.
+pub fn rate_regressors(flight: &Flight) -> Vec<[f64; 6]> {
+    let n = flight.len();
+    let h = ((0.2 * flight.sample_rate_hz).round() as usize).max(1);
+    (0..n)
+        .map(|i| {
+            let (lo, hi) = (i.saturating_sub(h), (i + h).min(n - 1));
+            let dt = flight.t_s[hi] - flight.t_s[lo];
+            let bdot = if dt > 0.0 {
+                (flight.mag_nt[hi] - flight.mag_nt[lo]) / dt
+            } else {
+                f64::NAN
+            };
+            let f = flight.samples[i].flux_nt.map(|v| v as f64);
+            let m = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            let e = [f[0] / m, f[1] / m, f[2] / m];
+            [
+                e[0] * e[0] * bdot,
+                e[1] * e[1] * bdot,
+                e[0] * e[1] * bdot,
+                e[0] * e[2] * bdot,
+                e[1] * e[2] * bdot,
+                bdot,
+            ]
+        })
+        .collect()
+}
+
+/// The rate coefficients fitted to the crossover differences.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct RateFit {
+    /// Seconds, in [`RATE_LABELS`] order.
+    pub coefficients: [f64; 6],
+    pub sigmas: [f64; 6],
+    pub crossings: usize,
+    /// Rms of the crossover differences after the intercepts only, and after the fit (nT).
+    pub rms_before_nt: f64,
+    pub rms_after_nt: f64,
+    /// Nested F-test of the rate coefficients against the intercepts-only fit.
+    pub f_statistic: f64,
+    pub p_value: f64,
+    pub added_parameters: usize,
+}
+
+impl RateFit {
+    /// The interference the coefficients add at every sample (nT).
+    pub fn correction_nt(&self, regressors: &[[f64; 6]]) -> Vec<f64> {
+        regressors
+            .iter()
+            .map(|r| {
+                let v: f64 = r.iter().zip(&self.coefficients).map(|(a, c)| a * c).sum();
+                if v.is_finite() {
+                    v
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+}
+
+/// Least squares with an SVD cut-off, returning the solution, residual sum of squares,
+/// rank and the pseudo-inverse's diagonal (for the 1σ).
+fn lstsq(a: &DMatrix<f64>, y: &DVector<f64>) -> Option<(DVector<f64>, f64, usize, Vec<f64>)> {
+    // Column scaling so the cut-off is relative to each column's size.
+    let norms: Vec<f64> = (0..a.ncols())
+        .map(|c| a.column(c).norm().max(1e-300))
+        .collect();
+    let mut s = a.clone();
+    for (c, nrm) in norms.iter().enumerate() {
+        s.column_mut(c).scale_mut(1.0 / nrm);
+    }
+    let svd = s.clone().svd(true, true);
+    let smax = svd.singular_values.max();
+    let tol = smax * 1e-6;
+    let rank = svd.singular_values.iter().filter(|&&v| v > tol).count();
+    let x = svd.solve(y, tol).ok()?;
+    let r = y - &s * &x;
+    let v_t = svd.v_t.as_ref()?;
+    let diag: Vec<f64> = (0..a.ncols())
+        .map(|c| {
+            let mut d = 0.0;
+            for (k, sv) in svd.singular_values.iter().enumerate() {
+                if *sv > tol {
+                    d += (v_t[(k, c)] / sv).powi(2);
+                }
+            }
+            d / norms[c].powi(2)
+        })
+        .collect();
+    let x = DVector::from_iterator(a.ncols(), x.iter().zip(&norms).map(|(v, n)| v / n));
+    Some((x, r.norm_squared(), rank, diag))
+}
+
+/// Assumed horizontal position error of one pass (m) and the compensation's own error at a
+/// crossing (nT): a crossing's weight is 1 / (2·σ_pos²·|∇B|² + σ_comp²), the gradient from
+/// the two passes' along-track derivatives. Position error times the gradient dominates
+/// over strong anomalies, and it scales with the gradient exactly as the rate signal does.
+const POSITION_SIGMA_M: f64 = 1.0;
+const COMPENSATION_SIGMA_NT: f64 = 0.03;
+/// Prior 1σ of each element of N (s): directions the crossings' headings leave
+/// unobserved stay near zero instead of taking any value along the null space.
+const N_PRIOR_SIGMA_S: f64 = 0.05;
+
+/// Fits the crossover rate coefficients to `value_nt` (the compensated scalar with the
+/// core-field change and, when recorded, the base station's diurnal variation removed).
+/// `None` with fewer than [`MIN_CROSSINGS`] usable crossings.
+///
+/// Fitted as the symmetric N itself (`[N11, N22, N33, N12, N13, N23]`, regressors
+/// `e_i·e_j·d|B|/dt` with the off-diagonals twice), with a weak prior on each element, and
+/// reported in the `rate` term's coordinates ([`RATE_LABELS`]: e3² eliminated).
+pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> Option<RateFit> {
+    let crossings = find_crossings(flight);
+    let sector = |c: f64| {
+        ((c.rem_euclid(std::f64::consts::TAU) / (std::f64::consts::PI / 4.0)).round() as i64) % 8
+    };
+    let speed = |i: usize| -> f64 {
+        let s = flight.samples[i].ground_speed_mps as f64;
+        if s.is_finite() && s > 1.0 {
+            s
+        } else {
+            60.0
+        }
+    };
+    // Per sample, the N-space regressors from the rate-term ones (e3² = 1 − e1² − e2²).
+    let n_space = |r: &[f64; 6]| -> [f64; 6] {
+        let bdot = r[5];
+        [
+            r[0],
+            r[1],
+            bdot - r[0] - r[1],
+            2.0 * r[2],
+            2.0 * r[3],
+            2.0 * r[4],
+        ]
+    };
+    // (difference, regressor differences, heading pair, weight = 1/σ)
+    type Row = (f64, [f64; 6], (i64, i64), f64);
+    let mut rows: Vec<Row> = Vec::new();
+    for c in &crossings {
+        let d = at(value_nt, c.a) - at(value_nt, c.b);
+        let interp = |(i, f): (usize, f64)| -> [f64; 6] {
+            let (p, q) = (n_space(&regressors[i]), n_space(&regressors[i + 1]));
+            std::array::from_fn(|k| p[k] * (1.0 - f) + q[k] * f)
+        };
+        let (ra, rb) = (interp(c.a), interp(c.b));
+        let x: [f64; 6] = std::array::from_fn(|k| ra[k] - rb[k]);
+        // Horizontal gradient from the along-track derivatives of the two passes.
+        let ga = regressors[c.a.0][5] / speed(c.a.0);
+        let gb = regressors[c.b.0][5] / speed(c.b.0);
+        let (ua, ub) = (
+            [c.course_a_rad.cos(), c.course_a_rad.sin()],
+            [c.course_b_rad.cos(), c.course_b_rad.sin()],
+        );
+        let det = ua[0] * ub[1] - ua[1] * ub[0];
+        let grad2 = if det.abs() > 0.1 {
+            let gn = (ga * ub[1] - gb * ua[1]) / det;
+            let ge = (ua[0] * gb - ub[0] * ga) / det;
+            gn * gn + ge * ge
+        } else {
+            ga * ga + gb * gb
+        };
+        let var = 2.0 * POSITION_SIGMA_M.powi(2) * grad2 + COMPENSATION_SIGMA_NT.powi(2);
+        if d.is_finite() && x.iter().all(|v| v.is_finite()) && var.is_finite() {
+            let (sa, sb) = (sector(c.course_a_rad), sector(c.course_b_rad));
+            rows.push((d, x, (sa.min(sb), sa.max(sb)), 1.0 / var.sqrt()));
+        }
+    }
+    let mut groups: Vec<(i64, i64)> = rows.iter().map(|r| r.2).collect();
+    groups.sort();
+    groups.dedup();
+    let n = rows.len();
+    let ng = groups.len();
+    if n < MIN_CROSSINGS.max(ng + 6 + 4) {
+        return None;
+    }
+    let group_col = |r: usize, g: usize| f64::from(u8::from(rows[r].2 == groups[g])) * rows[r].3;
+    let y = DVector::from_iterator(n, rows.iter().map(|r| r.0 * r.3));
+    let a0 = DMatrix::from_fn(n, ng, group_col);
+    let a1 = DMatrix::from_fn(n, ng + 6, |r, c| {
+        if c < ng {
+            group_col(r, c)
+        } else {
+            rows[r].1[c - ng] * rows[r].3
+        }
+    });
+    let (_, rss0, rank0, _) = lstsq(&a0, &y)?;
+    let (_, rss1, rank1, _) = lstsq(&a1, &y)?;
+    let q = rank1.saturating_sub(rank0);
+    let dof = n.saturating_sub(rank1).max(1);
+    let s2 = rss1 / dof as f64;
+    let f = if q > 0 && rss1 > 0.0 {
+        ((rss0 - rss1).max(0.0) / q as f64) / s2
+    } else {
+        0.0
+    };
+    let p = if q > 0 {
+        chi2_sf(f * q as f64, q as f64)
+    } else {
+        1.0
+    };
+    // The estimate: the same weighted problem with the prior rows (in units of the fitted
+    // residual scale, so the prior's weight does not depend on the assumed σ's).
+    let lam = s2.sqrt() / N_PRIOR_SIGMA_S;
+    let a2 = DMatrix::from_fn(n + 6, ng + 6, |r, c| {
+        if r < n {
+            a1[(r, c)]
+        } else if c == ng + (r - n) {
+            lam
+        } else {
+            0.0
+        }
+    });
+    let y2 = DVector::from_iterator(n + 6, y.iter().copied().chain(std::iter::repeat_n(0.0, 6)));
+    let (x, _, _, diag) = lstsq(&a2, &y2)?;
+    let nm: [f64; 6] = std::array::from_fn(|k| x[ng + k]);
+    let nv: [f64; 6] = std::array::from_fn(|k| s2 * diag[ng + k]);
+    // N-space → rate-term coordinates: e1²(N11−N33) + e2²(N22−N33) + e1e2·2N12 + … + N33.
+    let coefficients = [
+        nm[0] - nm[2],
+        nm[1] - nm[2],
+        2.0 * nm[3],
+        2.0 * nm[4],
+        2.0 * nm[5],
+        nm[2],
+    ];
+    let sigmas = [
+        (nv[0] + nv[2]).sqrt(),
+        (nv[1] + nv[2]).sqrt(),
+        2.0 * nv[3].sqrt(),
+        2.0 * nv[4].sqrt(),
+        2.0 * nv[5].sqrt(),
+        nv[2].sqrt(),
+    ];
+    let unweight = |rss: f64| {
+        // Rms of the raw differences is more readable than the weighted one.
+        (rss / rows.iter().map(|r| r.3 * r.3).sum::<f64>()).sqrt()
+    };
+    Some(RateFit {
+        coefficients,
+        sigmas,
+        crossings: n,
+        rms_before_nt: unweight(rss0),
+        rms_after_nt: unweight(rss1),
+        f_statistic: f,
+        p_value: p,
+        added_parameters: q,
+    })
+}
+
+/// The compensated scalar as the crossover fit wants it: core-field change and recorded
+/// diurnal variation removed (nT, relative).
+pub fn levelled_nt(flight: &Flight, compensated_nt: &[f64]) -> Vec<f64> {
+    let s = &flight.samples;
+    let igrf0 = s.iter().map(|x| x.igrf_nt).find(|v| v.is_finite());
+    let base0 = s.iter().map(|x| x.base_nt).find(|v| v.is_finite());
+    (0..s.len())
+        .map(|i| {
+            let core = match igrf0 {
+                Some(g) if s[i].igrf_nt.is_finite() => s[i].igrf_nt - g,
+                _ => 0.0,
+            };
+            let ext = match base0 {
+                Some(b) if s[i].base_nt.is_finite() => (s[i].base_nt - b) as f64,
+                _ => 0.0,
+            };
+            compensated_nt[i] - core - ext
+        })
+        .collect()
+}
