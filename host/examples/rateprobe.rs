@@ -22,21 +22,23 @@ fn main() -> anyhow::Result<()> {
         survey_lines: envf("LINES").unwrap_or(8.0) as usize,
         line_length_m: 5000.0,
         tie_lines: envf("TIES").unwrap_or(5.0) as usize,
-        tie_spacing_m: 1000.0,
         survey_offset_m: [0.0, 5000.0],
         hidden: if hidden.is_empty() || hidden == "-" {
             vec![]
         } else {
             vec![parse_hidden(&hidden)?]
         },
-        gps_sigma_h_m: envf("GPSH").unwrap_or(1.0),
+        gps_sigma_h_m: envf("GPSH").unwrap_or(0.3),
+        tie_spacing_m: 5000.0 / envf("TIES").unwrap_or(5.0),
         ..Default::default()
     };
     let trace = simulate(&cfg)?;
     let spec = ModelSpec::parse(&model)?;
     let flight = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels())?;
     let truth = flight.truth_interference_nt.clone().unwrap();
-    let run = run_kf(&flight, &KfOptions::new(spec.clone()))?;
+    let mut o = KfOptions::new(spec.clone());
+    o.rate_crossovers = false;
+    let run = run_kf(&flight, &o)?;
     let before = error_rms_nt(&run.interference_nt, &truth, None);
     let regs = rate_regressors(&flight);
     let lev = levelled_nt(&flight, &run.compensated_nt);

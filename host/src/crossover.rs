@@ -32,6 +32,9 @@ pub struct Crossing {
     pub b: (usize, f64),
     pub course_a_rad: f64,
     pub course_b_rad: f64,
+    /// The straight passes the two belong to (numbered along the flight).
+    pub pass_a: usize,
+    pub pass_b: usize,
 }
 
 /// Local north/east (m) of every sample relative to the first fix; NaN without a fix.
@@ -84,6 +87,15 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
         straight[i] = wrap_pi(c1 - c2).abs() < 3f64.to_radians()
             && (t[i + 2 * k] - t[i - 2 * k]) < 4.0 * k as f64 / flight.sample_rate_hz + 1.0;
     }
+    // A pass: a run of straight samples.
+    let mut pass = vec![0usize; n];
+    let mut id = 0;
+    for i in 1..n {
+        if straight[i] && !straight[i - 1] {
+            id += 1;
+        }
+        pass[i] = id;
+    }
     // Segments (i, i+1) of straight track into a 50 m grid.
     let cell = 50.0;
     let mut grid: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
@@ -130,6 +142,8 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
                         b: (j, u),
                         course_a_rad: course[i],
                         course_b_rad: course[j],
+                        pass_a: pass[i],
+                        pass_b: pass[j],
                     });
                 }
             }
@@ -137,6 +151,48 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
     }
     out.sort_by_key(|c| (c.a.0, c.b.0));
     out
+}
+
+/// `v` interpolated at a crossing's pass position (sample index, fraction to the next).
+pub fn value_at(v: &[f64], pos: (usize, f64)) -> f64 {
+    at(v, pos)
+}
+
+/// Per crossing: the time of the later pass and the difference of `value_nt` between the
+/// passes with its heading pair's mean removed (what levelling would leave).
+pub fn levelled_differences(
+    flight: &Flight,
+    value_nt: &[f64],
+    crossings: &[Crossing],
+) -> Vec<(f64, f64)> {
+    let key = |c: &Crossing| {
+        let s = |r: f64| {
+            ((r.rem_euclid(std::f64::consts::TAU) / std::f64::consts::FRAC_PI_4).round() as i64) % 8
+        };
+        let (a, b) = (s(c.course_a_rad), s(c.course_b_rad));
+        (a.min(b), a.max(b))
+    };
+    let d: Vec<f64> = crossings
+        .iter()
+        .map(|c| at(value_nt, c.a) - at(value_nt, c.b))
+        .collect();
+    let mut means: std::collections::HashMap<(i64, i64), (f64, usize)> = Default::default();
+    for (c, v) in crossings.iter().zip(&d) {
+        if v.is_finite() {
+            let m = means.entry(key(c)).or_default();
+            m.0 += v;
+            m.1 += 1;
+        }
+    }
+    crossings
+        .iter()
+        .zip(&d)
+        .filter(|(_, v)| v.is_finite())
+        .map(|(c, v)| {
+            let m = means[&key(c)];
+            (flight.t_s[c.b.0], v - m.0 / m.1 as f64)
+        })
+        .collect()
 }
 
 fn at(v: &[f64], (i, f): (usize, f64)) -> f64 {
@@ -238,15 +294,62 @@ fn lstsq(a: &DMatrix<f64>, y: &DVector<f64>) -> Option<(DVector<f64>, f64, usize
     Some((x, r.norm_squared(), rank, diag))
 }
 
-/// Assumed horizontal position error of one pass (m) and the compensation's own error at a
-/// crossing (nT): a crossing's weight is 1 / (2·σ_pos²·|∇B|² + σ_comp²), the gradient from
-/// the two passes' along-track derivatives. Position error times the gradient dominates
-/// over strong anomalies, and it scales with the gradient exactly as the rate signal does.
-const POSITION_SIGMA_M: f64 = 1.0;
+/// The error model of a crossover difference: the position error of each pass times the
+/// gradient there, plus the compensation's own error. Position errors of GNSS wander with a
+/// correlation time of about a minute, so crossings that share a pass share its error
+/// (projected on their own gradients): a tie line flown in 30 s carries one position error
+/// to every line it crosses. Treating the crossings as independent made clean surveys
+/// look significant (p = 1e-6 with ties every 500 m). The position error's size relative
+/// to the compensation's is chosen by likelihood from `POSITION_SIGMAS_M`.
+const POSITION_CORRELATION_S: f64 = 60.0;
+const POSITION_SIGMAS_M: [f64; 6] = [0.05, 0.1, 0.2, 0.5, 1.0, 2.0];
 const COMPENSATION_SIGMA_NT: f64 = 0.03;
 /// Prior 1σ of each element of N (s): directions the crossings' headings leave
 /// unobserved stay near zero instead of taking any value along the null space.
 const N_PRIOR_SIGMA_S: f64 = 0.05;
+
+/// One crossover difference ready for the fit.
+struct Row {
+    d_nt: f64,
+    /// Regressor differences in N space.
+    x: [f64; 6],
+    headings: (i64, i64),
+    /// Horizontal gradient at the crossing (nT/m, north/east).
+    grad: [f64; 2],
+    passes: [(usize, f64); 2],
+}
+
+/// Covariance of the differences (nT²) for a position error of `sigma_pos_m` per pass.
+fn covariance(rows: &[Row], sigma_pos_m: f64) -> DMatrix<f64> {
+    let n = rows.len();
+    DMatrix::from_fn(n, n, |k, l| {
+        let (rk, rl) = (&rows[k], &rows[l]);
+        let g = rk.grad[0] * rl.grad[0] + rk.grad[1] * rl.grad[1];
+        let mut c = 0.0;
+        for (sk, (pk, tk)) in [1.0, -1.0].iter().zip(rk.passes) {
+            for (sl, (pl, tl)) in [1.0, -1.0].iter().zip(rl.passes) {
+                if pk == pl {
+                    c += sk * sl * (-(tk - tl).abs() / POSITION_CORRELATION_S).exp();
+                }
+            }
+        }
+        let diag = if k == l {
+            COMPENSATION_SIGMA_NT.powi(2)
+        } else {
+            0.0
+        };
+        sigma_pos_m * sigma_pos_m * g * c + diag
+    })
+}
+
+/// `L⁻¹·M` for the Cholesky factor of `cov`, and `ln det cov`.
+fn whiten(cov: DMatrix<f64>, m: &DMatrix<f64>) -> Option<(DMatrix<f64>, f64)> {
+    let ch = cov.cholesky()?;
+    let l = ch.l();
+    let logdet = 2.0 * l.diagonal().iter().map(|v| v.ln()).sum::<f64>();
+    let w = l.solve_lower_triangular(m)?;
+    Some((w, logdet))
+}
 
 /// Fits the crossover rate coefficients to `value_nt` (the compensated scalar with the
 /// core-field change and, when recorded, the base station's diurnal variation removed).
@@ -280,8 +383,6 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
             2.0 * r[4],
         ]
     };
-    // (difference, regressor differences, heading pair, weight = 1/σ)
-    type Row = (f64, [f64; 6], (i64, i64), f64);
     let mut rows: Vec<Row> = Vec::new();
     for c in &crossings {
         let d = at(value_nt, c.a) - at(value_nt, c.b);
@@ -299,20 +400,22 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
             [c.course_b_rad.cos(), c.course_b_rad.sin()],
         );
         let det = ua[0] * ub[1] - ua[1] * ub[0];
-        let grad2 = if det.abs() > 0.1 {
-            let gn = (ga * ub[1] - gb * ua[1]) / det;
-            let ge = (ua[0] * gb - ub[0] * ga) / det;
-            gn * gn + ge * ge
-        } else {
-            ga * ga + gb * gb
-        };
-        let var = 2.0 * POSITION_SIGMA_M.powi(2) * grad2 + COMPENSATION_SIGMA_NT.powi(2);
-        if d.is_finite() && x.iter().all(|v| v.is_finite()) && var.is_finite() {
+        let grad = [
+            (ga * ub[1] - gb * ua[1]) / det,
+            (ua[0] * gb - ub[0] * ga) / det,
+        ];
+        if d.is_finite() && x.iter().all(|v| v.is_finite()) && grad.iter().all(|v| v.is_finite()) {
             let (sa, sb) = (sector(c.course_a_rad), sector(c.course_b_rad));
-            rows.push((d, x, (sa.min(sb), sa.max(sb)), 1.0 / var.sqrt()));
+            rows.push(Row {
+                d_nt: d,
+                x,
+                headings: (sa.min(sb), sa.max(sb)),
+                grad,
+                passes: [(c.pass_a, flight.t_s[c.a.0]), (c.pass_b, flight.t_s[c.b.0])],
+            });
         }
     }
-    let mut groups: Vec<(i64, i64)> = rows.iter().map(|r| r.2).collect();
+    let mut groups: Vec<(i64, i64)> = rows.iter().map(|r| r.headings).collect();
     groups.sort();
     groups.dedup();
     let n = rows.len();
@@ -320,16 +423,37 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
     if n < MIN_CROSSINGS.max(ng + 6 + 4) {
         return None;
     }
-    let group_col = |r: usize, g: usize| f64::from(u8::from(rows[r].2 == groups[g])) * rows[r].3;
-    let y = DVector::from_iterator(n, rows.iter().map(|r| r.0 * r.3));
-    let a0 = DMatrix::from_fn(n, ng, group_col);
-    let a1 = DMatrix::from_fn(n, ng + 6, |r, c| {
+    let group_col = |r: usize, g: usize| f64::from(u8::from(rows[r].headings == groups[g]));
+    // [intercepts | N regressors | differences]
+    let raw = DMatrix::from_fn(n, ng + 7, |r, c| {
         if c < ng {
             group_col(r, c)
+        } else if c < ng + 6 {
+            rows[r].x[c - ng]
         } else {
-            rows[r].1[c - ng] * rows[r].3
+            rows[r].d_nt
         }
     });
+    // The position error's size by profile likelihood (scale profiled out).
+    let mut best: Option<(f64, DMatrix<f64>)> = None;
+    for sp in POSITION_SIGMAS_M {
+        let Some((w, logdet)) = whiten(covariance(&rows, sp), &raw) else {
+            continue;
+        };
+        let a1 = w.columns(0, ng + 6).into_owned();
+        let y = DVector::from_iterator(n, w.column(ng + 6).iter().copied());
+        let Some((_, rss, _, _)) = lstsq(&a1, &y) else {
+            continue;
+        };
+        let nll = n as f64 * (rss / n as f64).ln() + logdet;
+        if best.as_ref().is_none_or(|b| nll < b.0) {
+            best = Some((nll, w));
+        }
+    }
+    let (_, w) = best?;
+    let y = DVector::from_iterator(n, w.column(ng + 6).iter().copied());
+    let a0 = w.columns(0, ng).into_owned();
+    let a1 = w.columns(0, ng + 6).into_owned();
     let (_, rss0, rank0, _) = lstsq(&a0, &y)?;
     let (_, rss1, rank1, _) = lstsq(&a1, &y)?;
     let q = rank1.saturating_sub(rank0);
@@ -345,7 +469,7 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
     } else {
         1.0
     };
-    // The estimate: the same weighted problem with the prior rows (in units of the fitted
+    // The estimate: the same whitened problem with the prior rows (in units of the fitted
     // residual scale, so the prior's weight does not depend on the assumed σ's).
     let lam = s2.sqrt() / N_PRIOR_SIGMA_S;
     let a2 = DMatrix::from_fn(n + 6, ng + 6, |r, c| {
@@ -378,16 +502,37 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
         2.0 * nv[5].sqrt(),
         nv[2].sqrt(),
     ];
-    let unweight = |rss: f64| {
-        // Rms of the raw differences is more readable than the weighted one.
-        (rss / rows.iter().map(|r| r.3 * r.3).sum::<f64>()).sqrt()
-    };
+    // Rms of the raw differences (readable, unlike the whitened ones): about the heading
+    // pairs' means before, about the fitted intercepts and N after.
+    let mut sums = vec![(0.0, 0usize); ng];
+    for r in &rows {
+        let g = groups.binary_search(&r.headings).unwrap_or(0);
+        sums[g].0 += r.d_nt;
+        sums[g].1 += 1;
+    }
+    let rms_before_nt = (rows
+        .iter()
+        .map(|r| {
+            let g = groups.binary_search(&r.headings).unwrap_or(0);
+            (r.d_nt - sums[g].0 / sums[g].1.max(1) as f64).powi(2)
+        })
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
+    let rms_after_nt = ((0..n)
+        .map(|r| {
+            let fitted: f64 = (0..ng + 6).map(|c| raw[(r, c)] * x[c]).sum();
+            (rows[r].d_nt - fitted).powi(2)
+        })
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
     Some(RateFit {
         coefficients,
         sigmas,
         crossings: n,
-        rms_before_nt: unweight(rss0),
-        rms_after_nt: unweight(rss1),
+        rms_before_nt,
+        rms_after_nt,
         f_statistic: f,
         p_value: p,
         added_parameters: q,

@@ -354,6 +354,9 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
     if let Some(f) = fluxgate_section(flight, run, i, &title) {
         sections.push(f);
     }
+    if let Some(c) = crossover_section(flight, run, i, &title) {
+        sections.push(c);
+    }
 
     // Spectra.
     let mut spec = Section::new(&format!("Model {title}: spectra"));
@@ -533,6 +536,62 @@ fn fluxgate_section(
                  diagnosis marks `fluxcal` significant, add it to the model.",
                 fit.modulus_sd_before_nt, fit.modulus_sd_after_nt
             ))
+            .plot(plot),
+    )
+}
+
+/// Crossover differences of the compensated field (heading pairs' means removed, as
+/// levelling would), and what a crossover fit of the `rate` term would leave: the check for
+/// what a single pass cannot show. Only on flights with enough crossings (survey + ties).
+fn crossover_section(
+    flight: &Flight,
+    run: &crate::pipeline::KfRun,
+    i: usize,
+    title: &str,
+) -> Option<Section> {
+    use crate::crossover as xo;
+    let crossings = xo::find_crossings(flight);
+    if crossings.len() < xo::MIN_CROSSINGS {
+        return None;
+    }
+    let value = xo::levelled_nt(flight, &run.compensated_nt);
+    let now = xo::levelled_differences(flight, &value, &crossings);
+    let (t, d): (Vec<f64>, Vec<f64>) = now.iter().copied().unzip();
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+    let mut plot = Plot::new(
+        &format!("crossovers-{i}"),
+        &format!("Crossover differences — {title}"),
+    )
+    .x_label("time of the later pass (s)")
+    .y_label("difference between the passes, levelled (nT)")
+    .series(Series::scatter("as compensated", &t, &d).color(PALETTE[3]));
+    let mut text = format!(
+        "At {} crossings the same anomaly is read twice on different headings; after each heading pair's mean is removed (levelling), the differences are {:.3} nT rms.",
+        now.len(),
+        rms(&d)
+    );
+    let regs = xo::rate_regressors(flight);
+    if let Some(fit) = xo::fit_rate(flight, &value, &regs) {
+        let corr = fit.correction_nt(&regs);
+        let after: Vec<f64> = value.iter().zip(&corr).map(|(v, c)| v - c).collect();
+        let later = xo::levelled_differences(flight, &after, &crossings);
+        let (t2, d2): (Vec<f64>, Vec<f64>) = later.iter().copied().unzip();
+        plot = plot
+            .series(Series::scatter("after a crossover fit of `rate`", &t2, &d2).color(PALETTE[0]));
+        text.push_str(&format!(
+            " A crossover fit of the `rate` term (eddy currents from flying through gradients) would leave {:.3} nT rms (F-test p = {:.1e}{}).",
+            rms(&d2),
+            fit.p_value,
+            if fit.p_value < crate::pipeline::RATE_CROSSOVER_ALPHA {
+                "; significant: add `rate` to the model"
+            } else {
+                ", not significant"
+            }
+        ));
+    }
+    Some(
+        Section::new(&format!("Model {title}: crossovers"))
+            .paragraph(&text)
             .plot(plot),
     )
 }
