@@ -138,3 +138,48 @@ fn report_renders_in_headless_chromium() {
     assert_eq!(dom.matches("class=\"plot\"").count(), page.plot_ids().len());
     let _ = std::fs::remove_dir_all(&profile);
 }
+
+/// On a survey with tie lines the page also shows the crossover check, and on a flight
+/// with a hidden `rate` effect it says that a `rate` fit would be significant.
+#[test]
+fn a_survey_with_ties_gets_the_crossover_plot() {
+    use magcomp::sim::{FlightKind, Geology, GeologyPreset};
+    let cfg = SimConfig {
+        seed: 1,
+        flight: FlightKind::CalibrationSurvey,
+        cal_altitude_m: 300.0,
+        survey_altitude_m: 300.0,
+        cal_headings_deg: vec![0.0, 90.0, 180.0, 270.0],
+        geology: Geology::preset(GeologyPreset::Strong),
+        survey_lines: 8,
+        line_length_m: 5000.0,
+        tie_lines: 10,
+        tie_spacing_m: 500.0,
+        survey_offset_m: [0.0, 5000.0],
+        gps_sigma_h_m: 0.3,
+        hidden: vec![parse_hidden("rate").expect("hidden")],
+        ..SimConfig::default()
+    };
+    let trace = simulate(&cfg).expect("simulate");
+    let models: Vec<ModelSpec> = ["tl16+field", "tl16+field+rate"]
+        .iter()
+        .map(|m| ModelSpec::parse(m).expect("spec"))
+        .collect();
+    let page = build_report(&trace, &models, None).expect("report");
+    let ids = page.plot_ids();
+    for want in ["crossovers-0", "crossovers-1"] {
+        assert!(
+            ids.iter().any(|i| i == want),
+            "plot {want} missing: {ids:?}"
+        );
+    }
+    let html = page.to_html();
+    assert!(
+        html.contains("significant: add `rate` to the model"),
+        "the model without rate is told to add it"
+    );
+    assert!(
+        html.contains(", not significant)"),
+        "the model with rate has nothing left"
+    );
+}
