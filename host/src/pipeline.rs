@@ -63,6 +63,8 @@ pub struct KfOptions {
     /// With the `rate` term, post-flight: fit its coefficients to the flight's crossovers
     /// as well (`crossover`), and apply them when the crossover F-test is significant.
     pub rate_crossovers: bool,
+    /// Tie-point gate (σ; see `CompensatorConfig::tie_gate_sigma`).
+    pub tie_gate_sigma: f64,
     /// Crossover rate coefficients to apply as given (from a coefficient file).
     pub rate_crossover_coefficients: Option<[f64; 6]>,
 }
@@ -89,6 +91,7 @@ impl KfOptions {
             field_profiles: true,
             field_profile: None,
             rate_crossovers: true,
+            tie_gate_sigma: 3.0,
             rate_crossover_coefficients: None,
         }
     }
@@ -148,6 +151,7 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     cfg.prior_scale = opts.prior_scale as f32;
     cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
     cfg.gate_sigma = opts.gate_sigma as f32;
+    cfg.tie_gate_sigma = opts.tie_gate_sigma as f32;
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }

@@ -221,16 +221,18 @@ fn tie_gate_refuses_an_inconsistent_base_channel() {
 /// tries non-stationary processes whose σ1² follows the local roughness of the anomaly
 /// (`pipeline::FIELD_PROFILES`, each at ¼, ½ and 1 × σ1²) and keeps the one with the best
 /// innovation likelihood.
-/// Measured: 0.023 / 0.080 / 0.058 (300 m, seeds 1–3), 0.042 / 0.067 / 0.070 (400 m) and
-/// 0.073 / 0.032 / 0.120 / 0.041 / 0.034 nT (300 m, seeds 4–8), against 0.04–0.62 nT
+/// Measured: 0.025 / 0.080 / 0.059 (300 m, seeds 1–3), 0.022 / 0.042 / 0.062 (400 m) and
+/// 0.073 / 0.032 / 0.118 / 0.041 / 0.034 nT (300 m, seeds 4–8), against 0.04–0.62 nT
 /// stationary (seeds 4–8: 0.355 / 0.251 / 0.244 / 0.291 / 0.278). Seeds 4–8 were not used
 /// to design the first four profiles; the fifth profile and the σ1² scales were added after
-/// seeing them. So ≤ 0.1 nT holds on 10 of 11; ≤ 3 × oracle on 8 of 11 (1.3–2.8 ×; the
-/// other three 5.6–15 ×, where the oracle floor is only 0.004–0.008 nT). The one case over
-/// 0.1 nT (seed 6, 0.120) has an oracle floor of 0.091 nT itself: the model's terms cannot
-/// describe that flight's interference better than 0.091 nT, so 0.1 nT leaves an estimator
-/// a margin of 0.009 nT.
-/// Asserted: each ≤ 0.2 nT and ≤ 0.5 × TL18; at least 9 of the 11 ≤ 0.1 nT.
+/// seeing them. The 3σ tie gate (`CompensatorConfig::tie_gate_sigma`) took the 400 m cases
+/// from 0.042 / 0.082 / 0.070. So ≤ 0.1 nT holds on 10 of 11; ≤ 3 × oracle on 9 of 11
+/// (1.3–3.0 ×; 300 m seed 2 is 14 ×, 400 m seed 2 9.4 ×, where the oracle floor is only
+/// 0.004–0.006 nT). The one case over 0.1 nT (seed 6, 0.118) has an oracle floor of
+/// 0.091 nT itself: the model's terms cannot describe that flight's interference better
+/// than 0.091 nT, so 0.1 nT leaves an estimator a margin of 0.009 nT.
+/// Asserted: each ≤ 0.2 nT and ≤ 0.5 × TL18; at least 9 of the 11 ≤ 0.1 nT and 8 of the 11
+/// ≤ 3 × oracle (3.05: 400 m seed 1 is at 2.99).
 #[test]
 fn low_altitude_strong_anomaly() {
     let all = cases(&[
@@ -246,7 +248,7 @@ fn low_altitude_strong_anomaly() {
         (7, 300.0, 100.0),
         (8, 300.0, 100.0),
     ]);
-    let mut under = 0;
+    let (mut under, mut within) = (0, 0);
     for &(seed, alt, swing) in &all {
         let p = post_flight(&low(seed, alt, swing));
         println!(
@@ -264,10 +266,16 @@ fn low_altitude_strong_anomaly() {
             p.tl18
         );
         under += usize::from(p.kf <= 0.1);
+        within += usize::from(p.kf <= 3.05 * p.oracle);
     }
     assert!(
         under * 11 >= 9 * all.len(),
         "{under} of {} cases ≤ 0.1 nT",
+        all.len()
+    );
+    assert!(
+        within * 11 >= 8 * all.len(),
+        "{within} of {} cases ≤ 3 × oracle",
         all.len()
     );
 }
