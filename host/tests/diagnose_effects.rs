@@ -11,7 +11,7 @@ use magcomp::flight::Flight;
 use magcomp::metrics::error_rms_nt;
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::sim::{parse_hidden, simulate, FlightKind, Geology, GeologyPreset, SimConfig};
+use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
 use magcomp::trace::Trace;
 use magcomp_core::model::Term;
 
@@ -325,32 +325,16 @@ fn lag_full_bar() {
     }
 }
 
-/// A box flown for crossovers, where `rate` is observable: calibration on the survey's
-/// headings (0/90/180/270°), then 8 lines × 5 km 200 m apart and 10 tie lines 500 m apart
-/// (80 crossings), all at 300 m over strong geology, with DGPS-grade positions (0.3 m: the
-/// rate effect is mostly the anomaly read N·V ≈ 1–2 m late, so the crossovers must place
-/// the two passes better than that).
+/// `SimConfig::crossover_box` with decoys and the hidden effect.
 fn crossover_flight(hidden: &str, seed: u64) -> Trace {
     let cfg = SimConfig {
-        seed,
-        flight: FlightKind::CalibrationSurvey,
-        cal_altitude_m: 300.0,
-        survey_altitude_m: 300.0,
-        cal_headings_deg: vec![0.0, 90.0, 180.0, 270.0],
-        geology: Geology::preset(GeologyPreset::Strong),
-        survey_lines: 8,
-        line_length_m: 5000.0,
-        tie_lines: 10,
-        tie_spacing_m: 500.0,
-        survey_offset_m: [0.0, 5000.0],
-        gps_sigma_h_m: 0.3,
         decoys: DECOYS.iter().map(|s| s.to_string()).collect(),
         hidden: if hidden.is_empty() {
             vec![]
         } else {
             vec![parse_hidden(hidden).expect("hidden spec")]
         },
-        ..SimConfig::default()
+        ..SimConfig::crossover_box(seed)
     };
     simulate(&cfg).expect("simulate")
 }

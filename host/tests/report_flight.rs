@@ -143,22 +143,9 @@ fn report_renders_in_headless_chromium() {
 /// with a hidden `rate` effect it says that a `rate` fit would be significant.
 #[test]
 fn a_survey_with_ties_gets_the_crossover_plot() {
-    use magcomp::sim::{FlightKind, Geology, GeologyPreset};
     let cfg = SimConfig {
-        seed: 1,
-        flight: FlightKind::CalibrationSurvey,
-        cal_altitude_m: 300.0,
-        survey_altitude_m: 300.0,
-        cal_headings_deg: vec![0.0, 90.0, 180.0, 270.0],
-        geology: Geology::preset(GeologyPreset::Strong),
-        survey_lines: 8,
-        line_length_m: 5000.0,
-        tie_lines: 10,
-        tie_spacing_m: 500.0,
-        survey_offset_m: [0.0, 5000.0],
-        gps_sigma_h_m: 0.3,
         hidden: vec![parse_hidden("rate").expect("hidden")],
-        ..SimConfig::default()
+        ..SimConfig::crossover_box(1)
     };
     let trace = simulate(&cfg).expect("simulate");
     let models: Vec<ModelSpec> = ["tl16+field", "tl16+field+rate"]

@@ -133,6 +133,31 @@ pub struct SimConfig {
     pub max_duration_s: Option<f64>,
 }
 
+impl SimConfig {
+    /// A box flown for crossovers, where the `rate` effect is observable: calibration on
+    /// the survey's headings (0/90/180/270°), then 8 lines × 5 km 200 m apart and 10 tie
+    /// lines 500 m apart (80 crossings), all at 300 m over strong geology, with DGPS-grade
+    /// positions (0.3 m: the rate effect is mostly the anomaly read N·V ≈ 1–2 m late, so
+    /// the crossings must place the two passes better than that).
+    pub fn crossover_box(seed: u64) -> Self {
+        SimConfig {
+            seed,
+            flight: FlightKind::CalibrationSurvey,
+            cal_altitude_m: 300.0,
+            survey_altitude_m: 300.0,
+            cal_headings_deg: vec![0.0, 90.0, 180.0, 270.0],
+            geology: Geology::preset(GeologyPreset::Strong),
+            survey_lines: 8,
+            line_length_m: 5000.0,
+            tie_lines: 10,
+            tie_spacing_m: 500.0,
+            survey_offset_m: [0.0, 5000.0],
+            gps_sigma_h_m: 0.3,
+            ..SimConfig::default()
+        }
+    }
+}
+
 impl Default for SimConfig {
     fn default() -> Self {
         SimConfig {
