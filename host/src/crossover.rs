@@ -99,11 +99,15 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
     // Segments (i, i+1) of straight track into a 50 m grid.
     let cell = 50.0;
     let mut grid: std::collections::HashMap<(i64, i64), Vec<usize>> = Default::default();
-    for i in 0..n.saturating_sub(1) {
-        if !(straight[i] && straight[i + 1]) {
+    // Segments of ~0.1 s: at 1 kHz a 50 m cell would otherwise hold ~800 segments per pass
+    // and the pair search would grow with their square.
+    let step = ((flight.sample_rate_hz / 10.0).round() as usize).max(1);
+    let end = |i: usize| (i + step).min(n - 1);
+    for i in (0..n.saturating_sub(1)).step_by(step) {
+        if !(straight[i] && straight[end(i)]) {
             continue;
         }
-        let (p, q) = (ne[i], ne[i + 1]);
+        let (p, q) = (ne[i], ne[end(i)]);
         let lo = [p[0].min(q[0]), p[1].min(q[1])];
         let hi = [p[0].max(q[0]), p[1].max(q[1])];
         for cx in (lo[0] / cell).floor() as i64..=(hi[0] / cell).floor() as i64 {
@@ -127,8 +131,8 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
                 }
                 // p + s·r = q + u·w, s, u ∈ [0, 1).
                 let (p, q) = (ne[i], ne[j]);
-                let r = [ne[i + 1][0] - p[0], ne[i + 1][1] - p[1]];
-                let w = [ne[j + 1][0] - q[0], ne[j + 1][1] - q[1]];
+                let r = [ne[end(i)][0] - p[0], ne[end(i)][1] - p[1]];
+                let w = [ne[end(j)][0] - q[0], ne[end(j)][1] - q[1]];
                 let den = r[0] * w[1] - r[1] * w[0];
                 if den.abs() < 1e-9 {
                     continue;
@@ -137,9 +141,15 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
                 let s = (d[0] * w[1] - d[1] * w[0]) / den;
                 let u = (d[0] * r[1] - d[1] * r[0]) / den;
                 if (0.0..1.0).contains(&s) && (0.0..1.0).contains(&u) {
+                    // Back to a sample and the fraction to the next one.
+                    let at_sample = |k: usize, f: f64| {
+                        let x = f * (end(k) - k) as f64;
+                        let whole = (x.floor() as usize).min(end(k) - k - 1);
+                        (k + whole, x - whole as f64)
+                    };
                     out.push(Crossing {
-                        a: (i, s),
-                        b: (j, u),
+                        a: at_sample(i, s),
+                        b: at_sample(j, u),
                         course_a_rad: course[i],
                         course_b_rad: course[j],
                         pass_a: pass[i],

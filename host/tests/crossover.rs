@@ -7,7 +7,14 @@ use magcomp::sim::{simulate, FlightKind, SimConfig};
 
 #[test]
 fn every_line_crosses_every_tie_once_where_planned() {
+    for rate_hz in [10.0, 400.0] {
+        check_survey(rate_hz);
+    }
+}
+
+fn check_survey(rate_hz: f64) {
     let cfg = SimConfig {
+        sample_rate_hz: rate_hz,
         flight: FlightKind::Survey,
         survey_lines: 4,
         line_length_m: 3000.0,
@@ -22,7 +29,7 @@ fn every_line_crosses_every_tie_once_where_planned() {
     let f = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels()).unwrap();
     let seg = trace.text_col("segment").expect("segments");
     let crossings = find_crossings(&f);
-    assert_eq!(crossings.len(), 4 * 3, "{crossings:?}");
+    assert_eq!(crossings.len(), 4 * 3, "{rate_hz} Hz: {crossings:?}");
     // Planned grid: lines north (heading 0) at east = 250·k, ties at north = 500 + 1000·j
     // from the survey origin (the start latitude/longitude).
     let lat_of = |c: (usize, f64)| {
@@ -41,13 +48,15 @@ fn every_line_crosses_every_tie_once_where_planned() {
             "crossing of {la} and {lb}"
         );
         assert!(pairs.insert((la.clone(), lb.clone())), "{la} × {lb} twice");
-        // The two passes meet: the interpolated positions agree to centimetres.
+        // The two passes meet: at 10 Hz the interpolated positions agree to centimetres; above,
+        // the search runs on 0.1 s chords and the samples carry the position noise.
         let (pa, pb) = (lat_of(c.a), lat_of(c.b));
         let dn = (pa.0 - pb.0).to_radians() * 6_371_000.0;
         let de = (pa.1 - pb.1).to_radians() * 6_371_000.0 * pa.0.to_radians().cos();
+        let tolerance_m = if rate_hz <= 10.0 { 0.05 } else { 0.5 };
         assert!(
-            dn.hypot(de) < 0.05,
-            "{la} × {lb}: {dn:.3} / {de:.3} m apart"
+            dn.hypot(de) < tolerance_m,
+            "{rate_hz} Hz, {la} × {lb}: {dn:.3} / {de:.3} m apart"
         );
         // Where planned, to the recorded positions' error (GPS: 1 m).
         let north = (pa.0 - lat0).to_radians() * 6_371_000.0;
