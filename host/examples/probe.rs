@@ -112,9 +112,6 @@ fn main() -> anyhow::Result<()> {
     if std::env::var("NOPROF").is_ok() {
         opts.field_profiles = false;
     }
-    if let Some(v) = envf("TIEGATE") {
-        opts.tie_gate_sigma = v;
-    }
     if let Some(v) = envf("GATE") {
         opts.gate_sigma = v;
     }

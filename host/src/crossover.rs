@@ -37,26 +37,28 @@ pub struct Crossing {
     pub pass_b: usize,
 }
 
-/// Local north/east (m) of every sample relative to the first fix; NaN without a fix.
-fn local_ne(flight: &Flight) -> Vec<[f64; 2]> {
-    let Some(first) = flight
-        .samples
-        .iter()
-        .find(|s| s.lat_deg.is_finite() && s.lon_deg.is_finite())
-    else {
-        return vec![[f64::NAN; 2]; flight.len()];
+/// The crossing's two courses as an unordered pair of 45° sectors: crossings of the same
+/// pair of headings share one level error of the compensation.
+fn heading_pair(c: &Crossing) -> (i64, i64) {
+    let sector = |r: f64| {
+        ((r.rem_euclid(std::f64::consts::TAU) / std::f64::consts::FRAC_PI_4).round() as i64) % 8
     };
-    let (lat0, lon0) = (first.lat_deg, first.lon_deg);
-    let coslat = lat0.to_radians().cos();
-    flight
-        .samples
+    let (a, b) = (sector(c.course_a_rad), sector(c.course_b_rad));
+    (a.min(b), a.max(b))
+}
+
+/// `values` less the mean of the values that share their key.
+fn demeaned_by_key(values: &[f64], keys: &[(i64, i64)]) -> Vec<f64> {
+    let mut means: std::collections::HashMap<(i64, i64), (f64, usize)> = Default::default();
+    for (v, k) in values.iter().zip(keys) {
+        let m = means.entry(*k).or_default();
+        m.0 += v;
+        m.1 += 1;
+    }
+    values
         .iter()
-        .map(|s| {
-            [
-                (s.lat_deg - lat0).to_radians() * 6_371_000.0,
-                (s.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
-            ]
-        })
+        .zip(keys)
+        .map(|(v, k)| v - means[k].0 / means[k].1 as f64)
         .collect()
 }
 
@@ -68,7 +70,7 @@ fn wrap_pi(a: f64) -> f64 {
 /// courses differ by 30–150° and that are at least 60 s apart.
 pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
     let n = flight.len();
-    let ne = local_ne(flight);
+    let ne = flight.local_ne_m();
     let t = &flight.t_s;
     let k = ((2.0 * flight.sample_rate_hz).round() as usize).max(1);
     let course_between =
@@ -163,11 +165,6 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
     out
 }
 
-/// `v` interpolated at a crossing's pass position (sample index, fraction to the next).
-pub fn value_at(v: &[f64], pos: (usize, f64)) -> f64 {
-    at(v, pos)
-}
-
 /// Per crossing: the time of the later pass and the difference of `value_nt` between the
 /// passes with its heading pair's mean removed (what levelling would leave).
 pub fn levelled_differences(
@@ -175,33 +172,17 @@ pub fn levelled_differences(
     value_nt: &[f64],
     crossings: &[Crossing],
 ) -> Vec<(f64, f64)> {
-    let key = |c: &Crossing| {
-        let s = |r: f64| {
-            ((r.rem_euclid(std::f64::consts::TAU) / std::f64::consts::FRAC_PI_4).round() as i64) % 8
-        };
-        let (a, b) = (s(c.course_a_rad), s(c.course_b_rad));
-        (a.min(b), a.max(b))
-    };
-    let d: Vec<f64> = crossings
+    let usable: Vec<(&Crossing, f64)> = crossings
         .iter()
-        .map(|c| at(value_nt, c.a) - at(value_nt, c.b))
+        .map(|c| (c, at(value_nt, c.a) - at(value_nt, c.b)))
+        .filter(|(_, d)| d.is_finite())
         .collect();
-    let mut means: std::collections::HashMap<(i64, i64), (f64, usize)> = Default::default();
-    for (c, v) in crossings.iter().zip(&d) {
-        if v.is_finite() {
-            let m = means.entry(key(c)).or_default();
-            m.0 += v;
-            m.1 += 1;
-        }
-    }
-    crossings
+    let d: Vec<f64> = usable.iter().map(|u| u.1).collect();
+    let keys: Vec<(i64, i64)> = usable.iter().map(|u| heading_pair(u.0)).collect();
+    usable
         .iter()
-        .zip(&d)
-        .filter(|(_, v)| v.is_finite())
-        .map(|(c, v)| {
-            let m = means[&key(c)];
-            (flight.t_s[c.b.0], v - m.0 / m.1 as f64)
-        })
+        .zip(demeaned_by_key(&d, &keys))
+        .map(|((c, _), v)| (flight.t_s[c.b.0], v))
         .collect()
 }
 
@@ -257,18 +238,24 @@ pub struct RateFit {
 impl RateFit {
     /// The interference the coefficients add at every sample (nT).
     pub fn correction_nt(&self, regressors: &[[f64; 6]]) -> Vec<f64> {
-        regressors
-            .iter()
-            .map(|r| {
-                let v: f64 = r.iter().zip(&self.coefficients).map(|(a, c)| a * c).sum();
-                if v.is_finite() {
-                    v
-                } else {
-                    0.0
-                }
-            })
-            .collect()
+        rate_correction_nt(regressors, &self.coefficients)
     }
+}
+
+/// The interference rate coefficients ([`RATE_LABELS`] order, s) add at every sample (nT;
+/// 0 where a regressor is not finite).
+pub fn rate_correction_nt(regressors: &[[f64; 6]], coefficients: &[f64; 6]) -> Vec<f64> {
+    regressors
+        .iter()
+        .map(|r| {
+            let v: f64 = r.iter().zip(coefficients).map(|(a, c)| a * c).sum();
+            if v.is_finite() {
+                v
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 /// Least squares with an SVD cut-off, returning the solution, residual sum of squares,
@@ -361,18 +348,21 @@ fn whiten(cov: DMatrix<f64>, m: &DMatrix<f64>) -> Option<(DMatrix<f64>, f64)> {
     Some((w, logdet))
 }
 
-/// Fits the crossover rate coefficients to `value_nt` (the compensated scalar with the
-/// core-field change and, when recorded, the base station's diurnal variation removed).
-/// `None` with fewer than [`MIN_CROSSINGS`] usable crossings.
+/// Fits the crossover rate coefficients at `crossings` ([`find_crossings`]) to the
+/// compensated scalar, levelled first (core-field change and, when recorded, the base
+/// station's diurnal variation removed). `None` with fewer than [`MIN_CROSSINGS`] usable
+/// crossings.
 ///
 /// Fitted as the symmetric N itself (`[N11, N22, N33, N12, N13, N23]`, regressors
 /// `e_i·e_j·d|B|/dt` with the off-diagonals twice), with a weak prior on each element, and
 /// reported in the `rate` term's coordinates ([`RATE_LABELS`]: e3² eliminated).
-pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> Option<RateFit> {
-    let crossings = find_crossings(flight);
-    let sector = |c: f64| {
-        ((c.rem_euclid(std::f64::consts::TAU) / (std::f64::consts::PI / 4.0)).round() as i64) % 8
-    };
+pub fn fit_rate(
+    flight: &Flight,
+    crossings: &[Crossing],
+    compensated_nt: &[f64],
+    regressors: &[[f64; 6]],
+) -> Option<RateFit> {
+    let value_nt = flight.environment_corrected_nt(compensated_nt);
     let speed = |i: usize| -> f64 {
         let s = flight.samples[i].ground_speed_mps as f64;
         if s.is_finite() && s > 1.0 {
@@ -394,8 +384,8 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
         ]
     };
     let mut rows: Vec<Row> = Vec::new();
-    for c in &crossings {
-        let d = at(value_nt, c.a) - at(value_nt, c.b);
+    for c in crossings {
+        let d = at(&value_nt, c.a) - at(&value_nt, c.b);
         let interp = |(i, f): (usize, f64)| -> [f64; 6] {
             let (p, q) = (n_space(&regressors[i]), n_space(&regressors[i + 1]));
             std::array::from_fn(|k| p[k] * (1.0 - f) + q[k] * f)
@@ -415,11 +405,10 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
             (ua[0] * gb - ub[0] * ga) / det,
         ];
         if d.is_finite() && x.iter().all(|v| v.is_finite()) && grad.iter().all(|v| v.is_finite()) {
-            let (sa, sb) = (sector(c.course_a_rad), sector(c.course_b_rad));
             rows.push(Row {
                 d_nt: d,
                 x,
-                headings: (sa.min(sb), sa.max(sb)),
+                headings: heading_pair(c),
                 grad,
                 passes: [(c.pass_a, flight.t_s[c.a.0]), (c.pass_b, flight.t_s[c.b.0])],
             });
@@ -514,29 +503,14 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
     ];
     // Rms of the raw differences (readable, unlike the whitened ones): about the heading
     // pairs' means before, about the fitted intercepts and N after.
-    let mut sums = vec![(0.0, 0usize); ng];
-    for r in &rows {
-        let g = groups.binary_search(&r.headings).unwrap_or(0);
-        sums[g].0 += r.d_nt;
-        sums[g].1 += 1;
-    }
-    let rms_before_nt = (rows
-        .iter()
-        .map(|r| {
-            let g = groups.binary_search(&r.headings).unwrap_or(0);
-            (r.d_nt - sums[g].0 / sums[g].1.max(1) as f64).powi(2)
-        })
-        .sum::<f64>()
-        / n as f64)
-        .sqrt();
-    let rms_after_nt = ((0..n)
-        .map(|r| {
-            let fitted: f64 = (0..ng + 6).map(|c| raw[(r, c)] * x[c]).sum();
-            (rows[r].d_nt - fitted).powi(2)
-        })
-        .sum::<f64>()
-        / n as f64)
-        .sqrt();
+    let d: Vec<f64> = rows.iter().map(|r| r.d_nt).collect();
+    let keys: Vec<(i64, i64)> = rows.iter().map(|r| r.headings).collect();
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let rms_before_nt = rms(&demeaned_by_key(&d, &keys));
+    let residual: Vec<f64> = (0..n)
+        .map(|r| rows[r].d_nt - (0..ng + 6).map(|c| raw[(r, c)] * x[c]).sum::<f64>())
+        .collect();
+    let rms_after_nt = rms(&residual);
     Some(RateFit {
         coefficients,
         sigmas,
@@ -547,25 +521,4 @@ pub fn fit_rate(flight: &Flight, value_nt: &[f64], regressors: &[[f64; 6]]) -> O
         p_value: p,
         added_parameters: q,
     })
-}
-
-/// The compensated scalar as the crossover fit wants it: core-field change and recorded
-/// diurnal variation removed (nT, relative).
-pub fn levelled_nt(flight: &Flight, compensated_nt: &[f64]) -> Vec<f64> {
-    let s = &flight.samples;
-    let igrf0 = s.iter().map(|x| x.igrf_nt).find(|v| v.is_finite());
-    let base0 = s.iter().map(|x| x.base_nt).find(|v| v.is_finite());
-    (0..s.len())
-        .map(|i| {
-            let core = match igrf0 {
-                Some(g) if s[i].igrf_nt.is_finite() => s[i].igrf_nt - g,
-                _ => 0.0,
-            };
-            let ext = match base0 {
-                Some(b) if s[i].base_nt.is_finite() => (s[i].base_nt - b) as f64,
-                _ => 0.0,
-            };
-            compensated_nt[i] - core - ext
-        })
-        .collect()
 }

@@ -180,6 +180,53 @@ impl Flight {
         s
     }
 
+    /// North/east (m) of every sample relative to the first fix, flat-earth; NaN where a
+    /// sample has no fix (all NaN without any).
+    pub fn local_ne_m(&self) -> Vec<[f64; 2]> {
+        let Some(first) = self
+            .samples
+            .iter()
+            .find(|s| s.lat_deg.is_finite() && s.lon_deg.is_finite())
+        else {
+            return vec![[f64::NAN; 2]; self.len()];
+        };
+        let (lat0, lon0) = (first.lat_deg, first.lon_deg);
+        let coslat = lat0.to_radians().cos();
+        self.samples
+            .iter()
+            .map(|s| {
+                [
+                    (s.lat_deg - lat0).to_radians() * 6_371_000.0,
+                    (s.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
+                ]
+            })
+            .collect()
+    }
+
+    /// `values` (the scalar, or a compensated scalar) with the core-field model's change
+    /// and, when a base station is recorded, the diurnal variation since the first sample
+    /// removed (nT): what the anomaly alone should explain. A sample without either keeps
+    /// its value uncorrected for it.
+    pub fn environment_corrected_nt(&self, values: &[f64]) -> Vec<f64> {
+        let s = &self.samples;
+        let igrf0 = s.iter().map(|x| x.igrf_nt).find(|v| v.is_finite());
+        let base0 = s.iter().map(|x| x.base_nt).find(|v| v.is_finite());
+        s.iter()
+            .zip(values)
+            .map(|(x, v)| {
+                let core = match igrf0 {
+                    Some(g) if x.igrf_nt.is_finite() => x.igrf_nt - g,
+                    _ => 0.0,
+                };
+                let ext = match base0 {
+                    Some(b) if x.base_nt.is_finite() => (x.base_nt - b) as f64,
+                    _ => 0.0,
+                };
+                v - core - ext
+            })
+            .collect()
+    }
+
     /// Indices of the rows whose segment label starts with `prefix`.
     pub fn segment_rows(&self, prefix: &str) -> Vec<usize> {
         match &self.segments {

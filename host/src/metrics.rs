@@ -155,38 +155,19 @@ pub fn joint_anomaly_fit_interference_nt(
     degree: i32,
 ) -> Option<Vec<f64>> {
     let s = &flight.samples;
-    let first = s.first()?;
-    let (lat0, lon0) = (first.lat_deg, first.lon_deg);
-    let igrf0 = s.iter().map(|x| x.igrf_nt).find(|v| v.is_finite());
-    let base0 = s.iter().map(|x| x.base_nt).find(|v| v.is_finite());
-    let coslat = lat0.to_radians().cos();
-    let ne: Vec<(f64, f64)> = s
-        .iter()
-        .map(|x| {
-            (
-                (x.lat_deg - lat0).to_radians() * 6_371_000.0,
-                (x.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
-            )
-        })
-        .collect();
-    let y: Vec<f64> = (0..s.len())
-        .map(|i| {
-            let core = igrf0.map_or(0.0, |g| s[i].igrf_nt - g);
-            let ext = base0.map_or(0.0, |b| (s[i].base_nt - b) as f64);
-            flight.mag_nt[i] - core - ext
-        })
-        .collect();
+    let ne = flight.local_ne_m();
+    let y = flight.environment_corrected_nt(&flight.mag_nt);
     let rows: Vec<usize> = (0..s.len().min(regressors.len()))
         .filter(|&i| {
             y[i].is_finite()
-                && ne[i].0.is_finite()
-                && ne[i].1.is_finite()
+                && ne[i][0].is_finite()
+                && ne[i][1].is_finite()
                 && regressors[i].iter().all(|v| v.is_finite())
         })
         .collect();
     let half = rows
         .iter()
-        .fold(0.0f64, |m, &i| m.max(ne[i].0.abs()).max(ne[i].1.abs()))
+        .fold(0.0f64, |m, &i| m.max(ne[i][0].abs()).max(ne[i][1].abs()))
         .max(1.0);
     let powers: Vec<(i32, i32)> = (1..=degree)
         .flat_map(|d| (0..=d).map(move |a| (a, d - a)))
@@ -204,7 +185,7 @@ pub fn joint_anomaly_fit_interference_nt(
             regressors[i][c - 1] as f64
         } else {
             let (a, b) = powers[c - 1 - p_reg];
-            (ne[i].0 / half).powi(a) * (ne[i].1 / half).powi(b)
+            (ne[i][0] / half).powi(a) * (ne[i][1] / half).powi(b)
         }
     });
     let yv = DVector::from_iterator(rows.len(), rows.iter().map(|&i| y[i]));

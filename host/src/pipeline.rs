@@ -63,8 +63,6 @@ pub struct KfOptions {
     /// With the `rate` term, post-flight: fit its coefficients to the flight's crossovers
     /// as well (`crossover`), and apply them when the crossover F-test is significant.
     pub rate_crossovers: bool,
-    /// Tie-point gate (σ; see `CompensatorConfig::tie_gate_sigma`).
-    pub tie_gate_sigma: f64,
     /// Crossover rate coefficients to apply as given (from a coefficient file).
     pub rate_crossover_coefficients: Option<[f64; 6]>,
 }
@@ -91,7 +89,6 @@ impl KfOptions {
             field_profiles: true,
             field_profile: None,
             rate_crossovers: true,
-            tie_gate_sigma: 3.0,
             rate_crossover_coefficients: None,
         }
     }
@@ -151,7 +148,6 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     cfg.prior_scale = opts.prior_scale as f32;
     cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
     cfg.gate_sigma = opts.gate_sigma as f32;
-    cfg.tie_gate_sigma = opts.tie_gate_sigma as f32;
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }
@@ -659,8 +655,10 @@ fn apply_rate_crossovers(flight: &Flight, opts: &KfOptions, run: &mut KfRun) {
     let coefficients = match opts.rate_crossover_coefficients {
         Some(c) => c,
         None if opts.rate_crossovers && !opts.realtime && opts.coefficients.is_none() => {
-            let value = crate::crossover::levelled_nt(flight, &run.compensated_nt);
-            let Some(fit) = crate::crossover::fit_rate(flight, &value, &regs) else {
+            let crossings = crate::crossover::find_crossings(flight);
+            let Some(fit) =
+                crate::crossover::fit_rate(flight, &crossings, &run.compensated_nt, &regs)
+            else {
                 return;
             };
             let apply = fit.p_value < RATE_CROSSOVER_ALPHA;
@@ -673,11 +671,14 @@ fn apply_rate_crossovers(flight: &Flight, opts: &KfOptions, run: &mut KfRun) {
         }
         None => return,
     };
-    for (i, r) in regs.iter().enumerate() {
-        let v: f64 = r.iter().zip(&coefficients).map(|(a, c)| a * c).sum();
-        if v.is_finite() {
-            run.interference_nt[i] += v;
-            run.compensated_nt[i] -= v;
-        }
+    let correction = crate::crossover::rate_correction_nt(&regs, &coefficients);
+    for ((i, c), v) in run
+        .interference_nt
+        .iter_mut()
+        .zip(run.compensated_nt.iter_mut())
+        .zip(correction)
+    {
+        *i += v;
+        *c -= v;
     }
 }

@@ -845,8 +845,8 @@ fn rate_crossover_test(
     effect: &str,
 ) -> Option<(String, f64, f64, usize, f64, f64)> {
     let regs = crate::crossover::rate_regressors(flight);
-    let value = crate::crossover::levelled_nt(flight, &run.compensated_nt);
-    let fit = crate::crossover::fit_rate(flight, &value, &regs)?;
+    let crossings = crate::crossover::find_crossings(flight);
+    let fit = crate::crossover::fit_rate(flight, &crossings, &run.compensated_nt, &regs)?;
     let change = crate::metrics::rms_demeaned(&fit.correction_nt(&regs));
     let share = explained_of(fit.rms_before_nt, fit.rms_after_nt);
     Some((

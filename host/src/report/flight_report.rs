@@ -554,7 +554,7 @@ fn crossover_section(
     if crossings.len() < xo::MIN_CROSSINGS {
         return None;
     }
-    let value = xo::levelled_nt(flight, &run.compensated_nt);
+    let value = flight.environment_corrected_nt(&run.compensated_nt);
     let now = xo::levelled_differences(flight, &value, &crossings);
     let (t, d): (Vec<f64>, Vec<f64>) = now.iter().copied().unzip();
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
@@ -571,7 +571,7 @@ fn crossover_section(
         rms(&d)
     );
     let regs = xo::rate_regressors(flight);
-    if let Some(fit) = xo::fit_rate(flight, &value, &regs) {
+    if let Some(fit) = xo::fit_rate(flight, &crossings, &run.compensated_nt, &regs) {
         let corr = fit.correction_nt(&regs);
         let after: Vec<f64> = value.iter().zip(&corr).map(|(v, c)| v - c).collect();
         let later = xo::levelled_differences(flight, &after, &crossings);
