@@ -288,6 +288,31 @@ fn public_xyz_survey_data_with_a_column_map() {
     assert!(e.contains("NOPE"), "{e}");
 }
 
+/// `calibrate --model MODEL` on the trace, then `compensate --coeffs` with the file it
+/// wrote: the coefficient file as JSON and the applied run's error against truth (nT).
+fn calibrate_then_apply(dir: &Path, trace: &Path, model: &str) -> (serde_json::Value, f64) {
+    let coeffs = dir.join(format!("{model}.json"));
+    run_ok(
+        bin()
+            .args(["calibrate", "--model", model])
+            .arg(trace)
+            .arg("-o")
+            .arg(&coeffs),
+    );
+    let file = serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+    let stdout = run_ok(
+        bin()
+            .args(["compensate"])
+            .arg(trace)
+            .arg("--coeffs")
+            .arg(&coeffs)
+            .args(["--json", "--out"])
+            .arg(dir.join("applied.csv")),
+    );
+    let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    (file, j["error_rms_nt"].as_f64().unwrap())
+}
+
 /// `fluxcal` end to end as a user runs it: calibrate on a flight whose fluxgate is off by
 /// hundreds of nT, the coefficient file carries the fitted fluxgate calibration, and
 /// applying that file with `--coeffs` uses it (error falls against the plain model's).
@@ -297,16 +322,7 @@ fn fluxcal_calibration_travels_in_the_coefficient_file() {
     let trace = simulate(&d, &["--hidden", "fluxcal"]);
     let mut errors = Vec::new();
     for model in ["tl16+field", "tl16+field+fluxcal"] {
-        let coeffs = d.join(format!("{model}.json"));
-        run_ok(
-            bin()
-                .args(["calibrate", "--model", model])
-                .arg(&trace)
-                .arg("-o")
-                .arg(&coeffs),
-        );
-        let cf: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+        let (cf, error) = calibrate_then_apply(&d, &trace, model);
         let cal = &cf["fluxgate_calibration"];
         assert_eq!(cal.is_null(), model == "tl16+field", "{model}: {cal}");
         if !cal.is_null() {
@@ -316,18 +332,7 @@ fn fluxcal_calibration_travels_in_the_coefficient_file() {
                 "{cal}"
             );
         }
-        let out = d.join("applied.csv");
-        let stdout = run_ok(
-            bin()
-                .args(["compensate"])
-                .arg(&trace)
-                .arg("--coeffs")
-                .arg(&coeffs)
-                .args(["--json", "--out"])
-                .arg(&out),
-        );
-        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
-        errors.push(j["error_rms_nt"].as_f64().unwrap());
+        errors.push(error);
     }
     println!(
         "fluxcal via --coeffs: error {:.4} → {:.4} nT",
@@ -378,16 +383,7 @@ fn rate_crossover_fit_travels_in_the_coefficient_file() {
     assert!(segments.contains(",tie_2005"), "tie lines are labelled");
     let mut errors = Vec::new();
     for model in ["tl16+field", "tl16+field+rate"] {
-        let coeffs = d.join(format!("{model}.json"));
-        run_ok(
-            bin()
-                .args(["calibrate", "--model", model])
-                .arg(&p)
-                .arg("-o")
-                .arg(&coeffs),
-        );
-        let cf: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+        let (cf, error) = calibrate_then_apply(&d, &p, model);
         let rc = &cf["rate_crossover"];
         assert_eq!(rc.is_null(), model == "tl16+field", "{model}: {rc}");
         if !rc.is_null() {
@@ -395,17 +391,7 @@ fn rate_crossover_fit_travels_in_the_coefficient_file() {
             assert!(rc["crossings"].as_u64().unwrap() >= 40, "{rc}");
             assert_eq!(rc["coefficients"].as_array().unwrap().len(), 6);
         }
-        let stdout = run_ok(
-            bin()
-                .args(["compensate"])
-                .arg(&p)
-                .arg("--coeffs")
-                .arg(&coeffs)
-                .args(["--json", "--out"])
-                .arg(d.join("applied.csv")),
-        );
-        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
-        errors.push(j["error_rms_nt"].as_f64().unwrap());
+        errors.push(error);
     }
     println!(
         "rate via --coeffs: error {:.4} → {:.4} nT",
