@@ -665,7 +665,10 @@ type ThorntonFn = fn(
 );
 
 /// The block shapes the compensator uses: 5 field states after 0–2 tie-point clones, with
-/// the field model's 5 noise columns. Non-generic, so compiled here (see above).
+/// the field model's 5 noise columns. Non-generic, so compiled here (see above). The
+/// `#[inline(never)]` wrappers are measured, not ceremony: returning the instances
+/// `thornton_fixed::<M, 5>` directly doubled the UD step on the M4 (3 874 → 7 747
+/// instructions, `scripts/bench-target.sh`).
 fn thornton_fixed_for(m: usize, q: usize) -> Option<ThorntonFn> {
     #[inline(never)]
     fn m5(
