@@ -483,6 +483,17 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         k.min(out.len())
     }
 
+    /// Covariance of term coefficients `i` and `j` (model order) from the filter, physical
+    /// units: with the regressors it gives how well the flight so far has determined the
+    /// interference, `σ² = dᵀ·P·d`.
+    pub fn coefficient_covariance(&self, i: usize, j: usize) -> f32 {
+        let (a, b) = (self.terms_at + i, self.terms_at + j);
+        if a >= self.n || b >= self.n {
+            return f32::NAN;
+        }
+        self.filter.covariance(a, b) * self.scale[a] * self.scale[b]
+    }
+
     /// Loads known coefficients (physical units) and switches to survey mode.
     pub fn set_coefficients(&mut self, coeffs: &[f32]) -> Result<(), CompensatorError> {
         let k = self.n - self.terms_at;

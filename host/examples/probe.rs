@@ -55,6 +55,12 @@ fn main() -> anyhow::Result<()> {
     if let Some(v) = envf("TURB") {
         cfg.turbulence_deg = v;
     }
+    if let Some(v) = envf("MANCYC") {
+        cfg.manoeuvre_cycles = v as _;
+    }
+    if let Some(v) = envf("LEVEL") {
+        cfg.level_s = v;
+    }
     if let Some(v) = envf("NOISE") {
         cfg.scalar_noise_nt = v;
     }
@@ -160,6 +166,12 @@ fn main() -> anyhow::Result<()> {
         / run.innovation_nt.len() as f64;
     println!("NLL per sample {nll:.4}");
     let oracle = oracle_floor_nt(&run.regressors, &truth).unwrap();
+    println!(
+        "predicted error {:.4} (actual/predicted {:.2}, actual-vs-oracle excess {:.4})",
+        run.predicted_error_nt.unwrap_or(f64::NAN),
+        err / run.predicted_error_nt.unwrap_or(f64::NAN),
+        (err * err - oracle * oracle).max(0.0).sqrt()
+    );
     let fom_kf = fom(&flight, &run.compensated_nt).map(|f| f.0);
     println!(
         "KF post: error {err:.4} oracle {oracle:.4} ratio {:.2} fom {fom_kf:?} IR {:?}",

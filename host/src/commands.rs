@@ -114,6 +114,10 @@ pub struct CoefficientFile {
     /// when `applied` (the fit was significant).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rate_crossover: Option<RateCrossover>,
+    /// KF: how well the calibration flight determined the interference, by the filter's
+    /// own covariance (`pipeline::predicted_interference_error_nt`, nT rms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_error_nt: Option<f64>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -157,6 +161,11 @@ pub struct Summary {
     pub fom_nt: Option<f64>,
     pub error_rms_nt: Option<f64>,
     pub oracle_floor_nt: Option<f64>,
+    /// KF: the calibration's predicted interference error (filter covariance; from the
+    /// coefficient file when one was applied). No truth needed: a calibration flight whose
+    /// figure is high left part of the interference undetermined.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub predicted_error_nt: Option<f64>,
     /// KF: the anomaly process used ("stationary" or the chosen local-roughness profile).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,
@@ -225,6 +234,9 @@ pub fn compensate_trace(
                     (None, Some(c)) => c.rate_crossover.clone(),
                     (None, None) => None,
                 },
+                predicted_error_nt: run
+                    .predicted_error_nt
+                    .or(coeffs.and_then(|c| c.predicted_error_nt)),
                 coefficients: run
                     .coefficient_names
                     .iter()
@@ -313,6 +325,7 @@ pub fn compensate_trace(
                 fluxgate_calibration: None,
                 field_process: None,
                 rate_crossover: None,
+                predicted_error_nt: None,
                 coefficients: fit
                     .names
                     .iter()
@@ -362,6 +375,10 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
         fom_nt: f.as_ref().map(|f| f.0),
         error_rms_nt: error,
         oracle_floor_nt: oracle,
+        predicted_error_nt: comp
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.predicted_error_nt),
         field_process: comp
             .coefficients
             .as_ref()

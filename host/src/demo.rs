@@ -91,19 +91,24 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         rows.push((format!("{name} ({})", s.model), s));
     }
     println!(
-        "{:<22} {:>10} {:>10} {:>12} {:>12}",
-        "method", "FOM nT", "IR", "error nT", "oracle nT"
+        "{:<22} {:>10} {:>10} {:>12} {:>12} {:>14}",
+        "method", "FOM nT", "IR", "error nT", "oracle nT", "predicted nT"
     );
     for (n, s) in &rows {
         println!(
-            "{:<22} {:>10} {:>10} {:>12} {:>12}",
+            "{:<22} {:>10} {:>10} {:>12} {:>12} {:>14}",
             n,
             fmt(s.fom_nt, 3),
             fmt(s.improvement_ratio, 1),
             fmt(s.error_rms_nt, 4),
-            fmt(s.oracle_floor_nt, 4)
+            fmt(s.oracle_floor_nt, 4),
+            fmt(s.predicted_error_nt, 4)
         );
     }
+    println!(
+        "(predicted: the KF's own figure for how well the flight determined the \
+         interference, from its covariance; no truth needed)"
+    );
 
     println!("\n== 3. Survey flight: apply the calibration coefficients ==");
     println!(

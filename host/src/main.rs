@@ -99,6 +99,11 @@ fn print_summary(s: &Summary) {
     if let Some(f) = s.fom_nt {
         println!("  figure of merit (12 man.):  {f:.3} nT");
     }
+    if let Some(p) = s.predicted_error_nt {
+        println!(
+            "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
+        );
+    }
     if let Some(e) = s.error_rms_nt {
         println!("  error vs truth:             {e:.4} nT rms");
     }

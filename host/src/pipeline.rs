@@ -108,6 +108,9 @@ pub struct KfRun {
     pub coefficient_names: Vec<(String, String)>,
     pub coefficients: Vec<f64>,
     pub coefficient_sigmas: Vec<f64>,
+    /// [`predicted_interference_error_nt`] of the calibration (None when coefficients
+    /// were given).
+    pub predicted_error_nt: Option<f64>,
     pub sigma1: f64,
     pub noise_nt: f64,
     /// The filter's UD factors stayed finite with non-negative D (covariance positive
@@ -158,7 +161,8 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     cfg
 }
 
-/// Outputs, interference regressors, coefficients, their 1σ, filter health.
+/// Outputs, interference regressors, coefficients, their covariance (k×k, row-major),
+/// filter health.
 type Pass = (Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>, bool);
 
 /// One pass of the compensator over all samples; exactly one output per sample.
@@ -250,15 +254,16 @@ fn pass(
             );
         }
         let mut c = vec![0.0f32; k];
-        let mut s = vec![0.0f32; k];
         comp.coefficients(&mut c);
-        comp.coefficient_sigmas(&mut s);
+        let covariance = (0..k * k)
+            .map(|ij| comp.coefficient_covariance(ij / k, ij % k) as f64)
+            .collect();
         healthy &= comp.filter().is_healthy();
         Ok((
             outs,
             regs,
             c.iter().map(|v| *v as f64).collect(),
-            s.iter().map(|v| *v as f64).collect(),
+            covariance,
             healthy,
         ))
     })
@@ -326,6 +331,46 @@ fn calibrated_interference(
 }
 
 /// Interference of constant coefficients over a pass's stored regressors.
+/// How well the flight determined the interference, by the filter's own account: the rms
+/// over the flight of the 1σ of the interference estimate with its mean removed (the
+/// level is the anomaly's), `sqrt(tr(P·C))` with `P` the coefficient covariance
+/// (k×k) and `C` the covariance of the interference regressors over the flight. It is the
+/// error against the truth to expect when the model holds, and a calibration flight's
+/// quality figure without any truth: high where the pattern left a combination of terms
+/// unobserved (a strong anomaly that changes between the headings, too few manoeuvres).
+pub fn predicted_interference_error_nt(regressors: &[Vec<f32>], covariance: &[f64]) -> Option<f64> {
+    let k = regressors.first()?.len();
+    if covariance.len() != k * k {
+        return None;
+    }
+    let rows: Vec<&Vec<f32>> = regressors
+        .iter()
+        .filter(|r| r.iter().all(|v| v.is_finite()))
+        .collect();
+    if rows.len() < 2 {
+        return None;
+    }
+    let n = rows.len() as f64;
+    let mean: Vec<f64> = (0..k)
+        .map(|j| rows.iter().map(|r| r[j] as f64).sum::<f64>() / n)
+        .collect();
+    let mut regressor_cov = vec![0.0; k * k];
+    for r in &rows {
+        let d: Vec<f64> = (0..k).map(|j| r[j] as f64 - mean[j]).collect();
+        for a in 0..k {
+            for b in 0..k {
+                regressor_cov[a * k + b] += d[a] * d[b] / n;
+            }
+        }
+    }
+    let var: f64 = covariance
+        .iter()
+        .zip(&regressor_cov)
+        .map(|(p, c)| p * c)
+        .sum();
+    var.is_finite().then(|| var.max(0.0).sqrt())
+}
+
 fn interference_of(regressors: &[Vec<f32>], coefficients: &[f64]) -> Vec<f64> {
     regressors
         .iter()
@@ -599,20 +644,28 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     } else {
         opts
     };
-    let (cal_outs, regs, coeffs, sigmas, cal_healthy) = match &opts.coefficients {
+    let (cal_outs, regs, coeffs, covariance, cal_healthy) = match &opts.coefficients {
         Some(c) => pass(flight, opts, cfg, Some(c), true)?,
         None => pass(flight, opts, cfg, None, true)?,
     };
-    let (outs, coeffs, sigmas, healthy) = if opts.realtime || opts.coefficients.is_some() {
-        (cal_outs, coeffs, sigmas, cal_healthy)
+    let (outs, coeffs, healthy) = if opts.realtime || opts.coefficients.is_some() {
+        (cal_outs, coeffs, cal_healthy)
     } else {
         let (o, _, _, _, h) = pass(flight, opts, cfg, Some(&coeffs), false)?;
-        (o, coeffs, sigmas, cal_healthy && h)
+        (o, coeffs, cal_healthy && h)
     };
+    let k = coeffs.len();
     let mut run = KfRun {
         coefficient_names: spec.coefficient_names(),
+        coefficient_sigmas: (0..k)
+            .map(|i| covariance[i * k + i].max(0.0).sqrt())
+            .collect(),
+        predicted_error_nt: if opts.coefficients.is_none() {
+            predicted_interference_error_nt(&regs, &covariance)
+        } else {
+            None
+        },
         coefficients: coeffs,
-        coefficient_sigmas: sigmas,
         regressors: regs,
         sigma1,
         noise_nt,

@@ -153,6 +153,7 @@ mod tests {
             fluxgate_calibration: flux,
             field_process: None,
             rate_crossover: None,
+            predicted_error_nt: None,
             coefficients: (0..n)
                 .map(|i| Coefficient {
                     name: format!("c{i}"),

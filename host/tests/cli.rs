@@ -66,6 +66,10 @@ fn simulate_calibrate_compensate_json_contract() {
         let s = c["sigma"].as_f64().unwrap();
         assert!(s > 0.0 && s < 100.0, "1σ {s}");
     }
+    let predicted = cf["predicted_error_nt"]
+        .as_f64()
+        .expect("predicted_error_nt");
+    assert!(predicted > 0.0 && predicted < 0.2, "predicted {predicted}");
     for method in ["kf", "tl"] {
         let out = d.join(format!("out-{method}.csv"));
         let stdout = run_ok(
@@ -98,6 +102,21 @@ fn simulate_calibrate_compensate_json_contract() {
         assert!(header.starts_with("t,mag,interference,compensated"));
         if method == "kf" {
             assert!(header.ends_with("anomaly,innovation,flags"), "{header}");
+            // The filter's own figure for the calibration: the estimation error beyond the
+            // model floor should be of its size.
+            let predicted = j["predicted_error_nt"]
+                .as_f64()
+                .expect("predicted_error_nt");
+            let (err, floor) = (
+                j["error_rms_nt"].as_f64().unwrap(),
+                j["oracle_floor_nt"].as_f64().unwrap(),
+            );
+            let excess = (err * err - floor * floor).max(0.0).sqrt();
+            println!("kf: predicted {predicted:.4} nT, error beyond the floor {excess:.4} nT");
+            assert!(
+                (0.3..=4.0).contains(&(excess / predicted)),
+                "predicted {predicted} vs {excess}"
+            );
         }
         let err = j["error_rms_nt"].as_f64().unwrap();
         println!("{method}: error {err:.4} nT, FOM {}", j["fom_nt"]);
@@ -116,6 +135,11 @@ fn simulate_calibrate_compensate_json_contract() {
     );
     let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     assert!(j["error_rms_nt"].as_f64().unwrap() < 0.05, "{j}");
+    assert_eq!(
+        j["predicted_error_nt"].as_f64(),
+        Some(predicted),
+        "the calibration's figure travels with its coefficients"
+    );
 }
 
 #[test]

@@ -9,7 +9,8 @@
 use magcomp::flight::Flight;
 use magcomp::fluxgate::flight_flux;
 use magcomp::metrics::{
-    error_rms_nt, is_manoeuvre, joint_anomaly_fit_interference_nt, oracle_floor_nt,
+    error_rms_nt, harmonic_anomaly_fit_interference_nt, is_manoeuvre,
+    joint_anomaly_fit_interference_nt, oracle_floor_nt, SourceLayer,
 };
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions, KfRun};
@@ -78,6 +79,34 @@ struct Post {
     joint: f64,
     tl18: f64,
     sigma1: f64,
+    regressors: Vec<Vec<f32>>,
+    /// The filter's own predicted interference error (`KfRun::predicted_error_nt`).
+    predicted: f64,
+}
+
+impl Post {
+    /// The part of the error an estimator adds to the oracle floor: what the filter's
+    /// covariance predicts (the floor is model error, which the filter cannot know).
+    fn excess(&self) -> f64 {
+        (self.kf * self.kf - self.oracle * self.oracle)
+            .max(0.0)
+            .sqrt()
+    }
+
+    /// The predicted error must be of the size of the estimation error: a filter whose
+    /// covariance is off by a scale or whose flight-quality figure means nothing fails.
+    /// Measured: excess / predicted 0.40–3.2 over the high and low cases (the filter is
+    /// overconfident at 3000 m, where the along-track field takes a part of the
+    /// interference that its covariance does not count).
+    fn assert_predicted_error_consistent(&self, case: &str) {
+        let ratio = self.excess() / self.predicted;
+        assert!(
+            (0.3..=4.0).contains(&ratio),
+            "{case}: error beyond the oracle {:.4} nT vs predicted {:.4} nT ({ratio:.2}x)",
+            self.excess(),
+            self.predicted
+        );
+    }
 }
 
 fn post_flight(cfg: &SimConfig) -> Post {
@@ -91,7 +120,46 @@ fn post_flight(cfg: &SimConfig) -> Post {
             .map_or(f64::NAN, |i| error_rms_nt(&i, &t, None)),
         tl18: tl18_error(&f, None),
         sigma1: run.sigma1,
+        predicted: run
+            .predicted_error_nt
+            .expect("predicted error of a calibration"),
+        regressors: run.regressors,
     }
+}
+
+/// An optimistic bound on what any estimator that must learn the anomaly can reach on a
+/// flight: the model's regressors fitted jointly with an equivalent-source layer (a
+/// harmonic anomaly, [`harmonic_anomaly_fit_interference_nt`]) to the scalar with the
+/// *exact* diurnal removed (a noise-free base station, which no survey has), and the
+/// layer's spacing, depth and damping chosen, from a grid of 24, by the error against the
+/// truth. Returns that least error (nT).
+fn harmonic_bound_nt(cfg: &SimConfig, regressors: &[Vec<f32>]) -> f64 {
+    let mut trace = simulate(cfg).expect("simulate");
+    let diurnal = trace.col("truth_diurnal").expect("truth diurnal").to_vec();
+    trace.set_col("base", diurnal);
+    let spec = ModelSpec::parse(MODEL).unwrap();
+    let f =
+        Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels()).expect("flight");
+    let t = truth(&f);
+    let corrected = f.environment_corrected_nt(&f.mag_nt);
+    let mut best = f64::INFINITY;
+    for spacing_m in [500.0, 700.0, 1000.0, 1500.0] {
+        for depth_m in [1000.0, 2000.0] {
+            for ridge in [1e-9, 1e-7, 1e-6] {
+                let layer = SourceLayer {
+                    spacing_m,
+                    depth_m,
+                    ridge,
+                };
+                if let Some(i) =
+                    harmonic_anomaly_fit_interference_nt(&f, regressors, &corrected, layer)
+                {
+                    best = best.min(error_rms_nt(&i, &t, None));
+                }
+            }
+        }
+    }
+    best
 }
 
 fn high(seed: u64, noise_nt: f64) -> SimConfig {
@@ -116,31 +184,51 @@ fn low(seed: u64, altitude_m: f64, swing_m: f64) -> SimConfig {
 ///
 /// Target: KF ≤ 1.25 × oracle and ≤ max(1.2 × TL18, TL18 + 0.01 nT). The TL18 part is met
 /// with a wide margin (KF ≈ 0.1–0.25 × TL18). The oracle part is NOT met: the KF reaches
-/// 1.5–2.8 × oracle. The oracle knows the anomaly; an estimator must separate it. Two
-/// yardsticks measure that price:
-/// - the same filter with the field held rigid (σ1 → 1e-12, flight without anomaly)
-///   reaches 1.03–1.1 × oracle, with σ1 = 1e-10 already 1.66 ×: any field freedom along
-///   the track absorbs part of the heading-dependent interference of the turns;
-/// - batch least squares with the anomaly as a smooth 2-D polynomial of degree 8 over the
-///   pattern (44 terms, using every crossing and the overlap of reciprocal legs) and the
-///   diurnal removed with the base station (`joint` below) reaches only 1.2–2.1 × oracle
-///   (seeds 1–5: 2.1 / 1.3 / 1.4 / 1.6 / 1.2): the oracle criterion lies below what the
-///   flight's information allows on most seeds, whatever the anomaly model.
+/// 1.5–2.8 × oracle, and this test shows that the target lies below what these flights'
+/// information allows. The oracle floor knows the anomaly; an estimator must separate it,
+/// and on these flights the floor is tiny (0.002–0.004 nT: the simulated interference is
+/// almost exactly in the model's span), so the price of separation dominates the ratio:
+/// - fitted knowing the anomaly and the diurnal exactly, least squares reaches
+///   1.0–1.05 × oracle (noise alone costs almost nothing);
+/// - the optimistic bound (`harmonic_bound_nt`: a harmonic equivalent-source anomaly,
+///   the exact diurnal, the layer chosen by the error against the truth) reaches
+///   1.10–1.33 × oracle on seeds 1–5, above 1.25 × on seed 4 (and 1.4–2.4 × on seeds 7–8
+///   or at 0.02 nT noise on seed 1), so no estimator that learns the anomaly meets the
+///   target on every seed. The test asserts that claim, so a change that makes the target
+///   reachable shows up here;
+/// - batch least squares with the anomaly as a smooth 2-D polynomial of degree 8 and the
+///   diurnal from the base station (`joint`, usable on real data) reaches 1.2–2.1 ×.
 ///
-/// σ1 (×0.02 … ×3), σ2/σ1, priors (×0.3), noise r, tie points, derivative half-width and
-/// down-weighting turns were all tried; none moved it below ≈1.5 × oracle on every seed.
-/// Asserted: ≤ 3.2 × oracle (achieved worst 2.8) and ≤ 2.5 × the joint fit (1.1–2.2 ×; worst
-/// seed 2, where the 2-D anomaly model suits the pattern better than the along-track
-/// process).
+/// The along-track field process of the paper cannot use the overlap of the reciprocal
+/// legs that these 2-D fits use: the same filter with the field held rigid on a flight
+/// without anomaly reaches 1.03–1.1 × oracle, with σ1 = 1e-10 already 1.66 ×. σ1 (×0.02 …
+/// ×3), σ2/σ1, priors (×0.3), noise r, tie points (also along the reciprocal legs),
+/// derivative half-width and down-weighting turns were all tried; none moved it below
+/// ≈1.5 × oracle on every seed. Asserted: ≤ 3.2 × oracle (achieved worst 2.8), ≤ 2.5 × the
+/// joint fit (1.1–2.2 ×) and ≤ 3 × the optimistic bound (1.3–2.6 ×).
 #[test]
 fn high_altitude_post_flight() {
+    let mut worst_bound_ratio = 0.0f64;
     for (seed, noise) in cases(&[(2, 0.01), (1, 0.01), (3, 0.01), (4, 0.02), (5, 0.02)]) {
-        let p = post_flight(&high(seed, noise));
+        let cfg = high(seed, noise);
+        let p = post_flight(&cfg);
+        // The bound's dense least squares is slow unoptimised; plain `cargo test` skips it.
+        let bound = if FULL {
+            harmonic_bound_nt(&cfg, &p.regressors)
+        } else {
+            f64::NAN
+        };
+        worst_bound_ratio = worst_bound_ratio.max(bound / p.oracle);
         println!(
-            "high seed {seed} noise {noise}: KF {:.4} nT, oracle {:.4} ({:.2}x), joint 2-D LS {:.4} ({:.2}x oracle, KF {:.2}x it), TL18 {:.4}, σ1 {:.2e}",
+            "high seed {seed} noise {noise}: KF {:.4} nT (predicted excess {:.4}, actual {:.4}), oracle {:.4} ({:.2}x), optimistic harmonic bound {:.4} ({:.2}x oracle, KF {:.2}x it), joint 2-D LS {:.4} ({:.2}x oracle, KF {:.2}x it), TL18 {:.4}, σ1 {:.2e}",
             p.kf,
+            p.predicted,
+            p.excess(),
             p.oracle,
             p.kf / p.oracle,
+            bound,
+            bound / p.oracle,
+            p.kf / bound,
             p.joint,
             p.joint / p.oracle,
             p.kf / p.joint,
@@ -165,7 +253,20 @@ fn high_altitude_post_flight() {
             p.kf,
             p.joint
         );
+        assert!(
+            bound.is_nan() || p.kf <= 3.0 * bound,
+            "seed {seed}: KF {:.4} > 3 × optimistic bound {bound:.4}",
+            p.kf
+        );
         assert!(p.kf < 0.015, "seed {seed}: KF {:.4} nT", p.kf);
+        p.assert_predicted_error_consistent(&format!("high seed {seed}"));
+    }
+    if FULL {
+        assert!(
+            worst_bound_ratio > 1.25,
+            "the optimistic bound is within 1.25 × oracle on every seed (worst {worst_bound_ratio:.2}): \
+             the issue's 1.25 × oracle target may now be reachable"
+        );
     }
 }
 
@@ -230,7 +331,11 @@ fn tie_gate_refuses_an_inconsistent_base_channel() {
 /// (1.3–3.0 ×; 300 m seed 2 is 14 ×, 400 m seed 2 9.4 ×, where the oracle floor is only
 /// 0.004–0.006 nT). The one case over 0.1 nT (seed 6, 0.118) has an oracle floor of
 /// 0.091 nT itself: the model's terms cannot describe that flight's interference better
-/// than 0.091 nT, so 0.1 nT leaves an estimator a margin of 0.009 nT.
+/// than 0.091 nT, so 0.1 nT leaves an estimator a margin of 0.009 nT. Both 3 × misses
+/// are flights the filter flags itself, without truth: their predicted error
+/// (`KfRun::predicted_error_nt`, from the covariance) is 0.071 / 0.046 nT, 13 / 10 × the
+/// floor: the pattern, flown over that geology, did not determine the heading-dependent
+/// terms (permanent e3, induced e1², e2², each within its 1σ of the truth).
 /// Asserted: each ≤ 0.2 nT and ≤ 0.5 × TL18; at least 9 of the 11 ≤ 0.1 nT and 8 of the 11
 /// ≤ 3 × oracle (3.05: 400 m seed 1 is at 2.99).
 #[test]
@@ -252,8 +357,10 @@ fn low_altitude_strong_anomaly() {
     for &(seed, alt, swing) in &all {
         let p = post_flight(&low(seed, alt, swing));
         println!(
-            "low seed {seed} {alt} m ±{swing} m: KF {:.4} nT, oracle {:.4} ({:.1}x), TL18 {:.4}, σ1 {:.2e}",
+            "low seed {seed} {alt} m ±{swing} m: KF {:.4} nT (predicted excess {:.4}, actual {:.4}), oracle {:.4} ({:.1}x), TL18 {:.4}, σ1 {:.2e}",
             p.kf,
+            p.predicted,
+            p.excess(),
             p.oracle,
             p.kf / p.oracle,
             p.tl18,
@@ -267,6 +374,19 @@ fn low_altitude_strong_anomaly() {
         );
         under += usize::from(p.kf <= 0.1);
         within += usize::from(p.kf <= 3.05 * p.oracle);
+        let case = format!("low seed {seed} {alt} m");
+        p.assert_predicted_error_consistent(&case);
+        // A flight that misses 3 × oracle must say so without truth: its predicted error
+        // is well above the floor (300 m / 400 m seed 2: 0.071 / 0.046 nT predicted,
+        // 13 / 10 × the floor, so the pattern itself left the compensation undetermined).
+        if p.kf > 3.05 * p.oracle {
+            assert!(
+                p.predicted > 3.0 * p.oracle,
+                "{case}: {:.1} × oracle, but only {:.4} nT predicted",
+                p.kf / p.oracle,
+                p.predicted
+            );
+        }
     }
     assert!(
         under * 11 >= 9 * all.len(),
