@@ -87,6 +87,9 @@ struct CompensateArgs {
     json: bool,
 }
 
+/// The accuracy an aeromagnetic survey asks of compensation (nT rms).
+const SURVEY_TOLERANCE_NT: f64 = 0.1;
+
 fn print_summary(s: &Summary) {
     println!("model {} ({:?}), {} samples", s.model, s.method, s.samples);
     println!(
@@ -179,6 +182,13 @@ fn main() -> Result<()> {
                 );
             }
             print_summary(&summarise(&flight, &comp));
+            if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
+                eprintln!(
+                    "warning: this flight determined the interference only to {p:.3} nT rms \
+                     (filter covariance), more than a survey's {SURVEY_TOLERANCE_NT} nT: \
+                     fly the pattern higher, over quieter ground, or with more manoeuvres"
+                );
+            }
             eprintln!("wrote {}", a.output.display());
         }
         Command::Compensate(a) => {

@@ -426,3 +426,57 @@ fn rate_crossover_fit_travels_in_the_coefficient_file() {
         "{errors:?}"
     );
 }
+
+/// `calibrate` says when the flight left the compensation undetermined, from the filter's
+/// own covariance (no truth): a cloverleaf at 150 m over strong geology (predicted
+/// 0.21 nT; the error against the truth is 0.12 nT) warns, the 3000 m one does not.
+#[test]
+fn calibrate_warns_when_the_flight_left_the_interference_undetermined() {
+    let d = tmp("warn");
+    let calibrate = |name: &str, extra: &[&str]| -> (String, f64) {
+        let trace = d.join(format!("{name}.csv"));
+        run_ok(
+            bin()
+                .args(["simulate", "--seed", "2", "-o"])
+                .arg(&trace)
+                .args(extra),
+        );
+        let coeffs = d.join(format!("{name}.json"));
+        let out = bin()
+            .arg("calibrate")
+            .arg(&trace)
+            .arg("-o")
+            .arg(&coeffs)
+            .output()
+            .expect("run magcomp");
+        assert!(out.status.success());
+        let cf: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+        (
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+            cf["predicted_error_nt"]
+                .as_f64()
+                .expect("predicted_error_nt"),
+        )
+    };
+    let (low_stderr, low_predicted) = calibrate(
+        "low",
+        &[
+            "--cal-altitude-m",
+            "150",
+            "--altitude-swing-m",
+            "100",
+            "--geology",
+            "strong",
+        ],
+    );
+    let (high_stderr, high_predicted) = calibrate("high", &[]);
+    println!("predicted: 150 m strong {low_predicted:.4} nT, 3000 m {high_predicted:.4} nT");
+    assert!(low_predicted > 0.1, "{low_predicted}");
+    assert!(
+        low_stderr.contains("warning: this flight determined the interference only to"),
+        "{low_stderr}"
+    );
+    assert!(high_predicted < 0.01, "{high_predicted}");
+    assert!(!high_stderr.contains("warning"), "{high_stderr}");
+}

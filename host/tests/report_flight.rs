@@ -60,6 +60,10 @@ fn page_has_every_plot_and_the_comparison() {
         "no external files"
     );
     assert!(html.contains("error vs truth (nT)"));
+    assert!(
+        html.contains("The flight determined the interference to"),
+        "each model's section states the calibration's predicted error"
+    );
     assert!(html.contains("current:cur_pump"));
     // The failure window is shaded on the residual plot (a window label with nT).
     assert!(html.contains("class=\"window\""), "no failure window drawn");

@@ -326,8 +326,19 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
         .paragraph(&format!(
             "Residual rms {:.4} nT; mean normalised innovation squared {:.2} (1 when the \
              model's own noise level explains the residual). σ1 = {:.3e} nT/m^2.5, anomaly \
-             process: {}; noise {:.4} nT.",
-            d.residual_rms_nt, d.nis, run.sigma1, run.field_process, run.noise_nt
+             process: {}; noise {:.4} nT. {}",
+            d.residual_rms_nt,
+            d.nis,
+            run.sigma1,
+            run.field_process,
+            run.noise_nt,
+            match run.predicted_error_nt {
+                Some(p) => format!(
+                    "The flight determined the interference to {p:.4} nT rms by the \
+                     filter's own covariance (no truth used)."
+                ),
+                None => String::new(),
+            }
         ))
         .plot(sig)
         .plot(res);
