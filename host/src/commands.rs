@@ -118,6 +118,10 @@ pub struct CoefficientFile {
     /// own covariance (`pipeline::predicted_interference_error_nt`, nT rms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
+    /// KF: the coefficients' covariance (rows in `coefficients` order, physical units), so
+    /// that `compensate --coeffs` can predict the error on the flight it compensates.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub covariance: Option<Vec<Vec<f64>>>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -161,9 +165,10 @@ pub struct Summary {
     pub fom_nt: Option<f64>,
     pub error_rms_nt: Option<f64>,
     pub oracle_floor_nt: Option<f64>,
-    /// KF: the calibration's predicted interference error (filter covariance; from the
-    /// coefficient file when one was applied). No truth needed: a calibration flight whose
-    /// figure is high left part of the interference undetermined.
+    /// KF: the predicted interference error on this flight from the coefficients'
+    /// covariance: the calibration's own, or, with `--coeffs`, that of the file's
+    /// coefficients over this flight's attitudes. No truth needed: a figure that is high
+    /// says the calibration left part of this flight's interference undetermined.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
     /// KF: the anomaly process used ("stationary" or the chosen local-roughness profile).
@@ -213,6 +218,7 @@ pub fn compensate_trace(
                     .as_ref()
                     .filter(|r| r.applied)
                     .map(|r| r.fit.coefficients);
+                opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
             }
             let run = run_kf(&flight, &opts)?;
             let file = CoefficientFile {
@@ -234,9 +240,16 @@ pub fn compensate_trace(
                     (None, Some(c)) => c.rate_crossover.clone(),
                     (None, None) => None,
                 },
-                predicted_error_nt: run
-                    .predicted_error_nt
-                    .or(coeffs.and_then(|c| c.predicted_error_nt)),
+                predicted_error_nt: run.predicted_error_nt,
+                covariance: {
+                    let k = run.coefficients.len();
+                    (run.coefficient_covariance.len() == k * k && k > 0).then(|| {
+                        run.coefficient_covariance
+                            .chunks(k)
+                            .map(|row| row.to_vec())
+                            .collect()
+                    })
+                },
                 coefficients: run
                     .coefficient_names
                     .iter()
@@ -326,6 +339,7 @@ pub fn compensate_trace(
                 field_process: None,
                 rate_crossover: None,
                 predicted_error_nt: None,
+                covariance: None,
                 coefficients: fit
                     .names
                     .iter()

@@ -65,6 +65,10 @@ pub struct KfOptions {
     pub rate_crossovers: bool,
     /// Crossover rate coefficients to apply as given (from a coefficient file).
     pub rate_crossover_coefficients: Option<[f64; 6]>,
+    /// With `coefficients`: their covariance (k×k, row-major, physical units) from the
+    /// calibration, so the run can say how well they determine *this* flight's
+    /// interference (`KfRun::predicted_error_nt`).
+    pub coefficient_covariance: Option<Vec<f64>>,
 }
 
 impl KfOptions {
@@ -90,6 +94,7 @@ impl KfOptions {
             field_profile: None,
             rate_crossovers: true,
             rate_crossover_coefficients: None,
+            coefficient_covariance: None,
         }
     }
 }
@@ -108,9 +113,12 @@ pub struct KfRun {
     pub coefficient_names: Vec<(String, String)>,
     pub coefficients: Vec<f64>,
     pub coefficient_sigmas: Vec<f64>,
-    /// [`predicted_interference_error_nt`] of the calibration (None when coefficients
-    /// were given).
+    /// [`predicted_interference_error_nt`] on this flight: of the calibration, or of the
+    /// given coefficients when their covariance was given too (None otherwise).
     pub predicted_error_nt: Option<f64>,
+    /// The coefficients' covariance (k×k, row-major, physical units): the calibration's,
+    /// or the one given with the coefficients.
+    pub coefficient_covariance: Vec<f64>,
     pub sigma1: f64,
     pub noise_nt: f64,
     /// The filter's UD factors stayed finite with non-negative D (covariance positive
@@ -660,10 +668,14 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         coefficient_sigmas: (0..k)
             .map(|i| covariance[i * k + i].max(0.0).sqrt())
             .collect(),
-        predicted_error_nt: if opts.coefficients.is_none() {
-            predicted_interference_error_nt(&regs, &covariance)
-        } else {
-            None
+        predicted_error_nt: match (&opts.coefficients, &opts.coefficient_covariance) {
+            (None, _) => predicted_interference_error_nt(&regs, &covariance),
+            (Some(_), Some(given)) => predicted_interference_error_nt(&regs, given),
+            (Some(_), None) => None,
+        },
+        coefficient_covariance: match (&opts.coefficients, &opts.coefficient_covariance) {
+            (Some(_), Some(given)) => given.clone(),
+            _ => covariance,
         },
         coefficients: coeffs,
         regressors: regs,

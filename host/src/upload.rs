@@ -154,6 +154,7 @@ mod tests {
             field_process: None,
             rate_crossover: None,
             predicted_error_nt: None,
+            covariance: None,
             coefficients: (0..n)
                 .map(|i| Coefficient {
                     name: format!("c{i}"),

@@ -70,6 +70,18 @@ fn simulate_calibrate_compensate_json_contract() {
         .as_f64()
         .expect("predicted_error_nt");
     assert!(predicted > 0.0 && predicted < 0.2, "predicted {predicted}");
+    // The covariance travels too (what `--coeffs` predicts a new flight's error with); its
+    // diagonal is the 1σ column.
+    let covariance = cf["covariance"].as_array().expect("covariance");
+    assert_eq!(covariance.len(), 16);
+    for (i, row) in covariance.iter().enumerate() {
+        let s = list[i]["sigma"].as_f64().unwrap();
+        let var = row[i].as_f64().unwrap();
+        assert!(
+            (var.sqrt() - s).abs() <= 1e-6 * s,
+            "diagonal {i}: {var} vs σ {s}"
+        );
+    }
     for method in ["kf", "tl"] {
         let out = d.join(format!("out-{method}.csv"));
         let stdout = run_ok(
@@ -135,10 +147,13 @@ fn simulate_calibrate_compensate_json_contract() {
     );
     let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
     assert!(j["error_rms_nt"].as_f64().unwrap() < 0.05, "{j}");
-    assert_eq!(
-        j["predicted_error_nt"].as_f64(),
-        Some(predicted),
-        "the calibration's figure travels with its coefficients"
+    // The file's covariance over the same flight's attitudes gives the calibration's figure.
+    let applied = j["predicted_error_nt"]
+        .as_f64()
+        .expect("predicted_error_nt");
+    assert!(
+        (applied - predicted).abs() <= 1e-6 * predicted,
+        "{applied} vs {predicted}"
     );
 }
 

@@ -423,9 +423,14 @@ fn transfer_calibration_to_survey() {
         let t = truth(&survey);
         let mut o = opts();
         o.coefficients = Some(cal_run.coefficients.clone());
+        o.coefficient_covariance = Some(cal_run.coefficient_covariance.clone());
         let run = run_kf(&survey, &o).expect("survey");
         let kf = error_rms_nt(&run.interference_nt, &t, None);
         let oracle = oracle_floor_nt(&run.regressors, &t).unwrap();
+        let predicted = run
+            .predicted_error_nt
+            .expect("predicted from the covariance");
+        let excess = (kf * kf - oracle * oracle).max(0.0).sqrt();
         let tcfg = tl::TlConfig {
             fs_hz: cal.sample_rate_hz,
             ..Default::default()
@@ -433,8 +438,14 @@ fn transfer_calibration_to_survey() {
         let fit = tl::fit(&flight_flux(&cal), &cal.mag_nt, &tcfg, None).expect("tl");
         let tl18 = error_rms_nt(&tl::interference(&fit, &flight_flux(&survey)), &t, None);
         println!(
-            "transfer seed {seed}: KF {kf:.4} nT, oracle {oracle:.4}, TL18 {tl18:.4} ({} survey rows)",
+            "transfer seed {seed}: KF {kf:.4} nT (predicted excess {predicted:.4}, actual {excess:.4}), oracle {oracle:.4}, TL18 {tl18:.4} ({} survey rows)",
             survey.len()
+        );
+        // The calibration's covariance carried over to the survey's attitudes predicts
+        // the error the coefficients leave there.
+        assert!(
+            (0.3..=4.0).contains(&(excess / predicted)),
+            "seed {seed}: predicted {predicted:.4} vs {excess:.4}"
         );
         assert!(kf <= 0.1, "seed {seed}: transfer error {kf:.4} nT");
         assert!(
