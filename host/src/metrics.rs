@@ -170,7 +170,7 @@ pub fn joint_anomaly_fit_interference_nt(
     })?;
     let yv = DVector::from_iterator(rows.len(), rows.iter().map(|&i| y[i]));
     let theta = a.svd(true, true).solve(&yv, 1e-12).ok()?;
-    Some(interference_of(regressors, theta.iter().skip(1)))
+    Some(interference_of(regressors, &theta.as_slice()[1..]))
 }
 
 /// Where the equivalent sources of [`harmonic_anomaly_fit_interference_nt`] sit and how
@@ -254,13 +254,8 @@ pub fn harmonic_anomaly_fit_interference_nt(
         normal[(c, c)] += layer.ridge;
     }
     let theta = normal.cholesky()?.solve(&(a.transpose() * yv));
-    Some(interference_of(
-        regressors,
-        (1..=p_reg)
-            .map(|c| theta[c] / scale[c])
-            .collect::<Vec<_>>()
-            .iter(),
-    ))
+    let coefficients: Vec<f64> = (1..=p_reg).map(|c| theta[c] / scale[c]).collect();
+    Some(interference_of(regressors, &coefficients))
 }
 
 /// The joint fits' design matrix over `rows`: a constant, the model's regressors, then
@@ -305,18 +300,10 @@ fn joint_fit_rows(
         .collect()
 }
 
-/// The interference of `coefficients` over every sample's regressors.
-fn interference_of<'a>(
-    regressors: &[Vec<f32>],
-    coefficients: impl Iterator<Item = &'a f64> + Clone,
-) -> Vec<f64> {
+/// The interference of constant coefficients over every sample's regressors (nT).
+pub fn interference_of(regressors: &[Vec<f32>], coefficients: &[f64]) -> Vec<f64> {
     regressors
         .iter()
-        .map(|r| {
-            r.iter()
-                .zip(coefficients.clone())
-                .map(|(x, t)| *x as f64 * t)
-                .sum()
-        })
+        .map(|r| r.iter().zip(coefficients).map(|(x, c)| *x as f64 * c).sum())
         .collect()
 }

@@ -3,6 +3,7 @@
 
 use crate::flight::Flight;
 use crate::fluxgate::{self, FluxgateCalibration, FluxgateFit};
+use crate::metrics::interference_of;
 use crate::model_spec::{with_model, ModelSpec};
 use anyhow::{bail, Result};
 use magcomp_core::compensator::{Compensator, CompensatorConfig, Output};
@@ -338,7 +339,6 @@ fn calibrated_interference(
     Ok(interference_of(&regs, &c))
 }
 
-/// Interference of constant coefficients over a pass's stored regressors.
 /// How well the flight determined the interference, by the filter's own account: the rms
 /// over the flight of the 1σ of the interference estimate with its mean removed (the
 /// level is the anomaly's), `sqrt(tr(P·C))` with `P` the coefficient covariance
@@ -377,13 +377,6 @@ pub fn predicted_interference_error_nt(regressors: &[Vec<f32>], covariance: &[f6
         .map(|(p, c)| p * c)
         .sum();
     var.is_finite().then(|| var.max(0.0).sqrt())
-}
-
-fn interference_of(regressors: &[Vec<f32>], coefficients: &[f64]) -> Vec<f64> {
-    regressors
-        .iter()
-        .map(|r| r.iter().zip(coefficients).map(|(a, b)| *a as f64 * b).sum())
-        .collect()
 }
 
 /// σ1 from the along-track spectrum of (scalar − interference estimate).
@@ -663,20 +656,26 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         (o, coeffs, cal_healthy && h)
     };
     let k = coeffs.len();
+    let coefficient_sigmas = (0..k)
+        .map(|i| covariance[i * k + i].max(0.0).sqrt())
+        .collect();
+    // Given coefficients predict this flight's error only with their own covariance.
+    let (coefficient_covariance, predicted_error_nt) =
+        match (&opts.coefficients, &opts.coefficient_covariance) {
+            (Some(_), Some(given)) => {
+                (given.clone(), predicted_interference_error_nt(&regs, given))
+            }
+            (Some(_), None) => (covariance, None),
+            (None, _) => {
+                let predicted = predicted_interference_error_nt(&regs, &covariance);
+                (covariance, predicted)
+            }
+        };
     let mut run = KfRun {
         coefficient_names: spec.coefficient_names(),
-        coefficient_sigmas: (0..k)
-            .map(|i| covariance[i * k + i].max(0.0).sqrt())
-            .collect(),
-        predicted_error_nt: match (&opts.coefficients, &opts.coefficient_covariance) {
-            (None, _) => predicted_interference_error_nt(&regs, &covariance),
-            (Some(_), Some(given)) => predicted_interference_error_nt(&regs, given),
-            (Some(_), None) => None,
-        },
-        coefficient_covariance: match (&opts.coefficients, &opts.coefficient_covariance) {
-            (Some(_), Some(given)) => given.clone(),
-            _ => covariance,
-        },
+        coefficient_sigmas,
+        predicted_error_nt,
+        coefficient_covariance,
         coefficients: coeffs,
         regressors: regs,
         sigma1,
