@@ -14,7 +14,8 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
-fn run_ok(cmd: &mut Command) -> String {
+/// Runs a command that must succeed; its stdout and stderr.
+fn run_ok_with_stderr(cmd: &mut Command) -> (String, String) {
     let out = cmd.output().expect("run magcomp");
     assert!(
         out.status.success(),
@@ -22,7 +23,14 @@ fn run_ok(cmd: &mut Command) -> String {
         String::from_utf8_lossy(&out.stdout),
         String::from_utf8_lossy(&out.stderr)
     );
-    String::from_utf8(out.stdout).unwrap()
+    (
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn run_ok(cmd: &mut Command) -> String {
+    run_ok_with_stderr(cmd).0
 }
 
 fn run_err(cmd: &mut Command) -> String {
@@ -457,18 +465,12 @@ fn calibrate_warns_when_the_flight_left_the_interference_undetermined() {
                 .args(extra),
         );
         let coeffs = d.join(format!("{name}.json"));
-        let out = bin()
-            .arg("calibrate")
-            .arg(&trace)
-            .arg("-o")
-            .arg(&coeffs)
-            .output()
-            .expect("run magcomp");
-        assert!(out.status.success());
+        let (_, stderr) =
+            run_ok_with_stderr(bin().arg("calibrate").arg(&trace).arg("-o").arg(&coeffs));
         let cf: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
         (
-            String::from_utf8_lossy(&out.stderr).into_owned(),
+            stderr,
             cf["predicted_error_nt"]
                 .as_f64()
                 .expect("predicted_error_nt"),
