@@ -78,7 +78,15 @@ pub struct EstimatorArgs {
     /// Tolles–Lawson terms for --method tl: tl18 (MagNav), tl16, or groups like permanent+induced.
     #[arg(long, default_value = "tl18", value_name = "TERMS")]
     pub tl_terms: String,
+    /// Assumed ground speed (m/s) for a trace without positions (no lat/lon): the Kalman
+    /// filter then models the anomaly in time, as if flown at this speed (docs/trace-format.md).
+    /// Ignored when the trace has positions or a ground speed of its own.
+    #[arg(long, value_name = "M_PER_S")]
+    pub speed_mps: Option<f64>,
 }
+
+/// The accuracy an aeromagnetic survey asks of compensation (nT rms).
+pub const SURVEY_TOLERANCE_NT: f64 = 0.1;
 
 /// One coefficient with its 1σ.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -122,6 +130,10 @@ pub struct CoefficientFile {
     /// that `compensate --coeffs` can predict the error on the flight it compensates.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covariance: Option<Vec<Vec<f64>>>,
+    /// KF on a trace without positions: the ground speed assumed for the anomaly process
+    /// (m/s), reused by `compensate --coeffs` unless `--speed-mps` is given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub assumed_speed_mps: Option<f64>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -148,6 +160,8 @@ pub struct Compensation {
     pub flags: Option<Vec<u16>>,
     pub coefficients: CoefficientFileOpt,
     pub regressors: Vec<Vec<f32>>,
+    /// What the user must know about this result (printed on stderr, `warnings` in JSON).
+    pub warnings: Vec<String>,
 }
 
 pub type CoefficientFileOpt = Option<CoefficientFile>;
@@ -179,6 +193,8 @@ pub struct Summary {
     pub rate_crossover: Option<RateCrossover>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub manoeuvres: Vec<ManoeuvreFom>,
+    /// What the user must know about this result (also on stderr); empty when none.
+    pub warnings: Vec<String>,
 }
 
 fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
@@ -202,7 +218,25 @@ pub fn compensate_trace(
     match method {
         Method::Kf => {
             let spec = ModelSpec::parse(&model_text)?;
-            let flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
+            let mut flight =
+                Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
+            let mut warnings = Vec::new();
+            let mut assumed_speed_mps = None;
+            if spec.field && !flight.has_track() {
+                match est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps)) {
+                    Some(v) if v.is_finite() && v > 0.0 => {
+                        flight.assume_ground_speed(v);
+                        assumed_speed_mps = Some(v);
+                        warnings.push(format!(
+                            "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
+                        ));
+                    }
+                    Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
+                    None => bail!(
+                        "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
+                    ),
+                }
+            }
             let mut opts = KfOptions::new(spec.clone());
             opts.sigma1 = est.sigma1.or(coeffs.and_then(|c| c.sigma1));
             opts.noise_nt = est.noise_nt;
@@ -221,6 +255,7 @@ pub fn compensate_trace(
                 opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
             }
             let run = run_kf(&flight, &opts)?;
+            warnings.extend(run.warnings.iter().cloned());
             let file = CoefficientFile {
                 format: COEFF_FORMAT.into(),
                 model: spec.text(),
@@ -241,6 +276,7 @@ pub fn compensate_trace(
                     (None, None) => None,
                 },
                 predicted_error_nt: run.predicted_error_nt,
+                assumed_speed_mps,
                 covariance: {
                     let k = run.coefficients.len();
                     (run.coefficient_covariance.len() == k * k && k > 0).then(|| {
@@ -272,6 +308,7 @@ pub fn compensate_trace(
                 flags: Some(run.flags),
                 coefficients: Some(file),
                 regressors: run.regressors,
+                warnings,
             };
             Ok((flight, comp))
         }
@@ -340,6 +377,7 @@ pub fn compensate_trace(
                 rate_crossover: None,
                 predicted_error_nt: None,
                 covariance: None,
+                assumed_speed_mps: None,
                 coefficients: fit
                     .names
                     .iter()
@@ -402,6 +440,7 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
             .as_ref()
             .and_then(|c| c.rate_crossover.clone()),
         manoeuvres: f.map(|f| f.1).unwrap_or_default(),
+        warnings: comp.warnings.clone(),
     }
 }
 

@@ -24,6 +24,7 @@ fn est(method: Method) -> EstimatorArgs {
         sigma1: None,
         noise_nt: None,
         tl_terms: "tl18".into(),
+        speed_mps: None,
     }
 }
 

@@ -8,10 +8,10 @@ use magcomp_core::compensator::TiePoint;
 use magcomp_core::{AlignedSample, MagCounts, MAX_AUX};
 use std::collections::HashMap;
 
-/// Columns every trace must have.
-pub const REQUIRED: &[&str] = &[
-    "t", "mag", "flux_x", "flux_y", "flux_z", "lat", "lon", "alt",
-];
+/// Columns every trace must have. Position (`lat`, `lon`, `alt`) is optional: Tolles–Lawson
+/// needs none, and the Kalman filter models the anomaly in time at an assumed ground speed
+/// when there is none (`--speed-mps`); it is never silently frozen in place.
+pub const REQUIRED: &[&str] = &["t", "mag", "flux_x", "flux_y", "flux_z"];
 
 #[derive(Clone, Debug)]
 pub struct Flight {
@@ -69,9 +69,10 @@ impl Flight {
         let fx = col(trace, "flux_x")?;
         let fy = col(trace, "flux_y")?;
         let fz = col(trace, "flux_z")?;
-        let lat = col(trace, "lat")?;
-        let lon = col(trace, "lon")?;
-        let alt = col(trace, "alt")?;
+        let nan = vec![f64::NAN; n];
+        let lat = trace.col("lat").unwrap_or(&nan);
+        let lon = trace.col("lon").unwrap_or(&nan);
+        let alt = trace.col("alt").unwrap_or(&nan);
         let igrf = trace.col("igrf");
         let base = trace.col("base");
         let base0 = base.and_then(|b| b.iter().copied().find(|v| v.is_finite()));
@@ -149,6 +150,30 @@ impl Flight {
         self.samples.len()
     }
 
+    /// Whether any sample has a horizontal position.
+    pub fn has_position(&self) -> bool {
+        self.samples
+            .iter()
+            .any(|s| s.lat_deg.is_finite() && s.lon_deg.is_finite())
+    }
+
+    /// Whether the along-track distance is known for the anomaly process: positions, or a
+    /// ground speed on the samples (measured, or assumed with [`Self::assume_ground_speed`]).
+    pub fn has_track(&self) -> bool {
+        self.has_position() || self.samples.iter().any(|s| s.ground_speed_mps.is_finite())
+    }
+
+    /// A flight without positions: the anomaly is modelled in time, as if flown at
+    /// `speed_mps` (the along-track distance is `speed × t`). Samples with a ground speed
+    /// of their own keep it.
+    pub fn assume_ground_speed(&mut self, speed_mps: f64) {
+        for s in &mut self.samples {
+            if !s.ground_speed_mps.is_finite() {
+                s.ground_speed_mps = speed_mps as f32;
+            }
+        }
+    }
+
     /// The same flight with its fluxgate corrected by a scalar calibration (`fluxcal`).
     pub fn with_fluxgate_calibration(&self, cal: &crate::fluxgate::FluxgateCalibration) -> Self {
         let mut f = self.clone();
@@ -161,10 +186,25 @@ impl Flight {
         self.samples.is_empty()
     }
 
-    /// Cumulative along-track distance (m) from positions.
+    /// Cumulative along-track distance (m) from positions, or from the ground speed where a
+    /// flight has no positions (as the epoch builder measures it).
     pub fn along_track_m(&self) -> Vec<f64> {
         let mut s = Vec::with_capacity(self.len());
         let mut acc = 0.0;
+        if !self.has_position() {
+            let mut prev_t: Option<f64> = None;
+            for smp in &self.samples {
+                if let Some(t0) = prev_t {
+                    let ds = smp.ground_speed_mps.abs() as f64 * (smp.t_s - t0);
+                    if ds.is_finite() && ds > 0.0 {
+                        acc += ds;
+                    }
+                }
+                prev_t = Some(smp.t_s);
+                s.push(acc);
+            }
+            return s;
+        }
         let mut prev: Option<(f64, f64)> = None;
         for smp in &self.samples {
             if smp.lat_deg.is_finite() && smp.lon_deg.is_finite() {

@@ -5,7 +5,7 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use magcomp::commands::{
     compensate_trace, read_coefficients, summarise, write_output_csv, EstimatorArgs, Summary,
-    TraceInput,
+    TraceInput, SURVEY_TOLERANCE_NT,
 };
 use magcomp::sim::SimulateArgs;
 use std::path::PathBuf;
@@ -64,6 +64,9 @@ struct CalibrateArgs {
     /// Where to write the coefficients (JSON).
     #[arg(short, long, value_name = "COEFFS.json")]
     output: PathBuf,
+    /// Print one JSON object with the summary on stdout (as `compensate --json`).
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(clap::Args)]
@@ -87,8 +90,12 @@ struct CompensateArgs {
     json: bool,
 }
 
-/// The accuracy an aeromagnetic survey asks of compensation (nT rms).
-const SURVEY_TOLERANCE_NT: f64 = 0.1;
+/// Warnings go to stderr always, whatever else is printed.
+fn print_warnings(s: &Summary) {
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+}
 
 fn print_summary(s: &Summary) {
     println!("model {} ({:?}), {} samples", s.model, s.method, s.samples);
@@ -174,21 +181,27 @@ fn main() -> Result<()> {
             let file = comp.coefficients.clone().context("no coefficients")?;
             std::fs::write(&a.output, serde_json::to_string_pretty(&file)?)
                 .with_context(|| format!("writing {}", a.output.display()))?;
-            println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
-            for c in &file.coefficients {
-                println!(
-                    "{:<28} {:>12.4} {:>10.4}  {}",
-                    c.name, c.value, c.sigma, c.unit
-                );
-            }
-            print_summary(&summarise(&flight, &comp));
+            let mut s = summarise(&flight, &comp);
             if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
-                eprintln!(
-                    "warning: this flight determined the interference only to {p:.3} nT rms \
+                s.warnings.push(format!(
+                    "this flight determined the interference only to {p:.3} nT rms \
                      (filter covariance), more than a survey's {SURVEY_TOLERANCE_NT} nT: \
                      fly the pattern higher, over quieter ground, or with more manoeuvres"
-                );
+                ));
             }
+            if a.json {
+                println!("{}", serde_json::to_string(&s)?);
+            } else {
+                println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
+                for c in &file.coefficients {
+                    println!(
+                        "{:<28} {:>12.4} {:>10.4}  {}",
+                        c.name, c.value, c.sigma, c.unit
+                    );
+                }
+                print_summary(&s);
+            }
+            print_warnings(&s);
             eprintln!("wrote {}", a.output.display());
         }
         Command::Compensate(a) => {
@@ -203,6 +216,7 @@ fn main() -> Result<()> {
                 print_summary(&s);
                 eprintln!("wrote {}", a.out.display());
             }
+            print_warnings(&s);
         }
         Command::Nmea { file } => {
             let stdout = std::io::stdout();

@@ -133,6 +133,8 @@ pub struct KfRun {
     /// With `fluxcal`: the fluxgate calibration used, and its fit when made on this flight.
     pub fluxgate_calibration: Option<FluxgateCalibration>,
     pub fluxgate_fit: Option<FluxgateFit>,
+    /// What the run found the user must know (undetermined coefficients, …).
+    pub warnings: Vec<String>,
 }
 
 /// Robust white-noise level of the scalar: the third difference of white noise has

@@ -40,6 +40,7 @@ pub const CATALOG: &[TermInfo] = &[
     TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
     TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
     TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },
+    TermInfo { name: "fluxmod", channel: ChannelUse::None, effect: "the aircraft's field seen by the fluxgate itself: its modulus minus the scalar's, a second view of the same sources (TL18 spans it through the fluxgate's B_j)", relative_channel: false },
     TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
 ];
 
@@ -62,6 +63,7 @@ pub enum AnyTerm {
     Diurnal(Diurnal),
     InducedHigh(InducedHigh),
     FluxCal(FluxCal),
+    FluxMod(FluxMod),
     Periodic(Periodic),
 }
 
@@ -79,6 +81,7 @@ impl AnyTerm {
             "diurnal" => Self::Diurnal(Diurnal { channel }),
             "induced_high" => Self::InducedHigh(InducedHigh),
             "fluxcal" => Self::FluxCal(FluxCal),
+            "fluxmod" => Self::FluxMod(FluxMod),
             "periodic" => Self::Periodic(Periodic { channel }),
             _ => return None,
         })
@@ -96,6 +99,7 @@ impl AnyTerm {
             Self::Diurnal(t) => t,
             Self::InducedHigh(t) => t,
             Self::FluxCal(t) => t,
+            Self::FluxMod(t) => t,
             Self::Periodic(t) => t,
         }
     }

@@ -56,6 +56,16 @@ pub struct FluxCal;
 pub struct Periodic {
     pub channel: usize,
 }
+/// The aircraft's field at the fluxgate: `|B_fluxgate| − |B_scalar|` (1, nT/nT). The paper
+/// takes the fluxgate for a direction sensor only, but a fluxgate inside the airframe also
+/// reads the aircraft's own field, from the same sources as the scalar's interference; its
+/// modulus excess over the scalar is a second, independent view of that interference. The
+/// Earth's field (anomaly, diurnal) cancels in the difference, so the term cannot bend the
+/// anomaly. Classic TL18 spans this direction implicitly (its `e_i·B_j` columns carry the
+/// fluxgate's modulus); on the real SGL calibration boxes it took box 1 → box 2 from 3.4 to
+/// 1.6–3.0 nT (mag_4) in the manoeuvre band.
+#[derive(Clone, Copy, Debug)]
+pub struct FluxMod;
 /// An unknown constant offset: used when the model has no field states to absorb it.
 #[derive(Clone, Copy, Debug)]
 pub struct Offset;
@@ -373,6 +383,29 @@ impl Term for InducedHigh {
     }
     fn unit(&self, _: usize) -> &'static str {
         "nT"
+    }
+}
+
+impl Term for FluxMod {
+    fn name(&self) -> &'static str {
+        "fluxmod"
+    }
+    fn len(&self) -> usize {
+        1
+    }
+    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
+        let ok = ep.flux_excess_nt.is_finite();
+        out[0] = if ok { ep.flux_excess_nt } else { 0.0 };
+        ok
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        1.0
+    }
+    fn label(&self, _: usize) -> &'static str {
+        "|F|-|B|"
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        "nT/nT"
     }
 }
 
