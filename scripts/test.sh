@@ -15,13 +15,16 @@ step "format"
 cargo fmt --all -- --check
 
 step "clippy (host)"
-cargo clippy -p magcomp-core -p magcomp --all-targets -- -D warnings
+cargo clippy -p magcomp-core -p magcomp -p magcomp-fuzz --all-targets -- -D warnings
 
 step "core builds for the board (no_std, thumbv7em-none-eabihf)"
 cargo build -p magcomp-core --target thumbv7em-none-eabihf --release
 
 step "host tests (release: the accuracy tests fly whole simulated flights)"
 cargo test --release --no-fail-fast -p magcomp-core -p magcomp
+
+step "fuzz: every decoder, the acquisition stream, the trace reader (4 s per target)"
+scripts/fuzz.sh 4
 
 if [ -x scripts/fw-ci.sh ]; then
     step "firmware: build, size, QEMU hil-tests"

@@ -17,8 +17,8 @@
 //!   paired with the latest frames received before it and their ages are whole periods.
 //!   Staleness limits are 2.5 nominal periods of each sensor (one missed frame tolerated).
 //! - Output time: `t = k / rate` until the first sample with a valid fix; from then on
-//!   `t = t_fix + (T_k − T_fix) + (k − k_anchor) / rate`, anchored once to the GGA time of
-//!   day, so records carry GPS time and stay evenly spaced through outages.
+//!   `t = t_fix + (T_k − T_fix) + (k − k_anchor) / rate`, anchored once to the time of
+//!   day of a GGA, GLL or GNS fix, so records carry GPS time and stay evenly spaced through outages.
 //! - Records are delayed by the compensator's derivative half-width; [`Acquisition::flush`]
 //!   emits the held ones at the end of a stream.
 
@@ -31,7 +31,7 @@ use crate::protocol::fluxgate::AxisMap;
 use crate::protocol::fluxgate::{
     decode_spi_frame, FluxAsciiReader, FluxCalibration, FluxError, FluxStats, FluxgateCal,
 };
-use crate::protocol::nmea::{Gga, NmeaError, NmeaReader, NmeaStats, Sentence};
+use crate::protocol::nmea::{Fix, NmeaError, NmeaReader, NmeaStats, Sentence};
 use crate::protocol::record::Record;
 use crate::protocol::scalar::{
     ScalarConfig, ScalarError, ScalarFrame, ScalarReader, ScalarStats, CS133_HZ_PER_NT_NANO,
@@ -455,15 +455,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             Ok(s) => {
                 inc(&mut self.counters.gps_sentences);
                 let now = self.now_us();
-                if let Sentence::Gga(Gga {
-                    fix_quality: Some(1..),
-                    time: Some(t),
-                    lat_deg: Some(_),
-                    lon_deg: Some(_),
-                    ..
-                }) = &s
-                {
-                    self.last_fix = Some((t.seconds_of_day_s, now));
+                // GGA, GLL and GNS fixes set the time anchor (a GLL- or GNS-only
+                // receiver still gives GPS time); RMC does not, as before.
+                if !matches!(s, Sentence::Rmc(_)) {
+                    if let Some(Fix { time: Some(t), .. }) = s.fix() {
+                        self.last_fix = Some((t.seconds_of_day_s, now));
+                    }
                 }
                 self.aligner.push_nmea(now, &s);
             }

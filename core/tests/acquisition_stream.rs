@@ -75,6 +75,17 @@ fn stream(
     flux_gap: Option<(usize, usize)>,
     gps_gap: Option<(usize, usize)>,
 ) -> Stream {
+    stream_from(n, spi, flux_gap, gps_gap, gps_sentences)
+}
+
+/// [`stream`] with another receiver's sentences (`receiver(tod, fix)`).
+fn stream_from(
+    n: usize,
+    spi: bool,
+    flux_gap: Option<(usize, usize)>,
+    gps_gap: Option<(usize, usize)>,
+    receiver: fn(f64, bool) -> Vec<u8>,
+) -> Stream {
     let mut chunks = Vec::new();
     let mut mags = Vec::new();
     let lsb = 100_000.0 / (1u32 << 23) as f64;
@@ -93,7 +104,7 @@ fn stream(
         }
         if k % gps_every == 0 {
             let tod = TOD0_S + k as f64 / RATE_HZ;
-            chunks.push((Port::Gps, gps_sentences(tod, !inside(gps_gap))));
+            chunks.push((Port::Gps, receiver(tod, !inside(gps_gap))));
         }
         let m = 536_200_000 + (k as i64 * 37) % 5000;
         mags.push(m);
@@ -233,6 +244,57 @@ fn gps_outage_is_flagged_and_time_stays_evenly_spaced() {
     assert_eq!(no_gps, (100..160).collect::<Vec<_>>());
     for w in recs.windows(2) {
         assert!((w[1].t_s - w[0].t_s - 0.1).abs() < 1e-6);
+    }
+}
+
+/// A receiver that reports positions in GLL only (marine, older units).
+fn gll_only(tod: f64, fix: bool) -> Vec<u8> {
+    match fix {
+        true => nmea(&format!(
+            "GPGLL,4518.00000,N,07542.00000,W,{},A,A",
+            hms(tod)
+        )),
+        false => nmea(&format!("GPGLL,,,,,{},V,N", hms(tod))),
+    }
+}
+
+/// A multi-constellation receiver that reports GNS only (mode per constellation).
+fn gns_only(tod: f64, fix: bool) -> Vec<u8> {
+    match fix {
+        true => nmea(&format!(
+            "GNGNS,{},4518.00000,N,07542.00000,W,DAAN,14,0.8,3000.0,-34.0,,,S",
+            hms(tod)
+        )),
+        false => nmea(&format!("GNGNS,{},,,,,NNNN,00,,,,,,V", hms(tod))),
+    }
+}
+
+#[test]
+fn gll_or_gns_only_receivers_give_position_time_and_outages() {
+    for (name, receiver) in [
+        ("GLL", gll_only as fn(f64, bool) -> Vec<u8>),
+        ("GNS", gns_only),
+    ] {
+        let s = stream_from(300, false, None, Some((100, 160)), receiver);
+        let mut a = acq();
+        let recs = run(&mut a, &s.chunks);
+        assert_eq!(recs.len(), 300, "{name}");
+        // GPS time from the first fix, as with GGA.
+        assert!(
+            (recs[0].t_s - TOD0_S).abs() < 1e-9,
+            "{name}: {}",
+            recs[0].t_s
+        );
+        for w in recs.windows(2) {
+            assert!((w[1].t_s - w[0].t_s - 0.1).abs() < 1e-6, "{name}");
+        }
+        // "No fix" (GLL V, GNS NNNN) flagged from sample 100 until the fix returns at 160.
+        let no_gps: Vec<usize> = (0..300)
+            .filter(|&i| recs[i].flags.contains(Flags::NO_GPS))
+            .collect();
+        assert_eq!(no_gps, (100..160).collect::<Vec<_>>(), "{name}");
+        let c = a.counters();
+        assert_eq!((c.gps_sentences, c.gps_errors), (150, 0), "{name}");
     }
 }
 

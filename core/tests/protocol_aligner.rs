@@ -191,3 +191,45 @@ fn state_sizes_fit_the_board() {
     let total: usize = sizes.iter().map(|s| s.1).sum();
     assert!(total < 1024, "protocol state {total} bytes");
 }
+
+#[test]
+fn gll_and_gns_positions_reach_the_aligner_like_gga_rmc() {
+    let gll = |status: &str, mode: &str| {
+        parse_sentence(&with_cs(&format!(
+            "GNGLL,4530.00000,N,00730.00000,E,171927.00,{status},{mode}"
+        )))
+        .unwrap()
+    };
+    let gns = |modes: &str| {
+        parse_sentence(&with_cs(&format!(
+            "GNGNS,171928.00,4600.00000,N,00800.00000,E,{modes},12,0.9,1500.0,47.0,,,"
+        )))
+        .unwrap()
+    };
+    let mut a = Aligner::new(AlignerConfig::default());
+    a.push_flux(0, [1.0; 3]);
+    a.push_nmea(0, &gga());
+    a.push_nmea(0, &rmc("0.0", "0.0"));
+    // GLL: the new position, the height held from the GGA (GLL has none).
+    a.push_nmea(1_000_000, &gll("A", "A"));
+    let s = a.push_scalar(1_000_000, Some(MagCounts(1)));
+    assert_eq!((s.lat_deg, s.lon_deg, s.alt_m), (45.5, 7.5, 1000.0));
+    assert!(!s.flags.contains(Flags::NO_GPS));
+    // GNS: position and its own height.
+    a.push_nmea(2_000_000, &gns("AN"));
+    let s = a.push_scalar(2_000_000, Some(MagCounts(1)));
+    assert_eq!((s.lat_deg, s.lon_deg, s.alt_m), (46.0, 8.0, 1500.0));
+    assert!(!s.flags.contains(Flags::NO_GPS));
+    // No fix from either: flagged at once, the last good position held.
+    for no_fix in [gll("V", "A"), gll("A", "N"), gns("NN"), gns("NNNN")] {
+        a.push_nmea(2_500_000, &gns("AA"));
+        assert!(!a
+            .push_scalar(2_500_000, Some(MagCounts(1)))
+            .flags
+            .contains(Flags::NO_GPS));
+        a.push_nmea(2_600_000, &no_fix);
+        let s = a.push_scalar(2_600_000, Some(MagCounts(1)));
+        assert!(s.flags.contains(Flags::NO_GPS), "{no_fix:?}");
+        assert_eq!((s.lat_deg, s.lon_deg), (46.0, 8.0));
+    }
+}

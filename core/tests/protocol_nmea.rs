@@ -256,3 +256,115 @@ fn fuzz_random_bytes_and_mutated_sentences() {
     assert!(st.checksum_errors > 0 && st.garbage_bytes > 0 && st.interrupted > 0);
     println!("{n_bytes} bytes: {st:?}");
 }
+
+#[test]
+fn gll_fields_status_and_mode() {
+    // NMEA 2.3+: time, status and mode after the position.
+    let s = with_cs("GNGLL,4404.14066,N,12118.85481,W,171925.00,A,D");
+    let Ok(Sentence::Gll(g)) = parse_sentence(s.as_bytes()) else {
+        panic!()
+    };
+    assert_eq!(g.talker, Talker(*b"GN"));
+    assert!((g.lat_deg.unwrap() - (44.0 + 414_066.0 / 6_000_000.0)).abs() < 1e-12);
+    assert!((g.lon_deg.unwrap() + (121.0 + 1_885_481.0 / 6_000_000.0)).abs() < 1e-12);
+    assert_eq!(g.time.unwrap().seconds_of_day_s, 62_365.0);
+    assert!(g.valid && g.mode == Some(b'D') && g.has_fix());
+    let f = Sentence::Gll(g).fix().unwrap();
+    assert_eq!(
+        (f.lat_deg, f.lon_deg, f.alt_msl_m),
+        (g.lat_deg.unwrap(), g.lon_deg.unwrap(), None)
+    );
+    // Status V, or status A with mode N: decoded, no fix.
+    for body in [
+        "GPGLL,4404.14066,N,12118.85481,W,171925.00,V,A",
+        "GPGLL,4404.14066,N,12118.85481,W,171925.00,A,N",
+        "GPGLL,,,,,171925.00,V,N",
+    ] {
+        let s = parse_sentence(with_cs(body).as_bytes()).unwrap();
+        assert_eq!(s.kind(), "GLL", "{body}");
+        assert!(s.is_position() && s.fix().is_none(), "{body}");
+    }
+    // NMEA 1.x: ends after the longitude; no status means no fix is claimed.
+    let Ok(Sentence::Gll(g)) = parse_sentence(with_cs("GPGLL,4916.45,N,12311.12,W").as_bytes())
+    else {
+        panic!()
+    };
+    assert!(g.lat_deg.is_some() && g.time.is_none() && !g.valid && !g.has_fix());
+    use NmeaError::*;
+    let bad = |b: &str| parse_sentence(with_cs(b).as_bytes());
+    assert_eq!(
+        bad("GPGLL,4404.1,N,12118.8,W,171925.00,X,A"),
+        Err(InvalidField(Field::Status))
+    );
+    assert_eq!(
+        bad("GPGLL,4404.1,N,12118.8,W,171925.00,A,AD"),
+        Err(InvalidField(Field::Mode))
+    );
+    assert_eq!(bad("GPGLL,4404.1,N"), Err(MissingField(Field::Longitude)));
+    assert_eq!(
+        bad("GPGLL,4404.1,N,12118.8,W,251925.00,A,A"),
+        Err(InvalidField(Field::Time))
+    );
+}
+
+#[test]
+fn gns_multi_constellation_modes() {
+    // GPS differential, GLONASS autonomous, Galileo not used, BeiDou autonomous; NMEA 4.1
+    // navigational status S (safe).
+    let s = with_cs("GNGNS,014035.00,4332.69262,S,17235.48549,E,DANA,13,0.9,2000.5,-12.3,,,S");
+    let Ok(Sentence::Gns(g)) = parse_sentence(s.as_bytes()) else {
+        panic!("{:?}", parse_sentence(s.as_bytes()))
+    };
+    assert_eq!(g.talker, Talker(*b"GN"));
+    assert_eq!(
+        g.time.unwrap().seconds_of_day_s,
+        1.0 * 3600.0 + 40.0 * 60.0 + 35.0
+    );
+    assert!((g.lat_deg.unwrap() + (43.0 + 3_269_262.0 / 100_000.0 / 60.0)).abs() < 1e-12);
+    assert!((g.lon_deg.unwrap() - (172.0 + 3_548_549.0 / 100_000.0 / 60.0)).abs() < 1e-12);
+    assert_eq!(g.modes.as_bytes(), b"DANA");
+    assert_eq!((g.satellites, g.hdop), (Some(13), Some(0.9)));
+    assert_eq!((g.alt_msl_m, g.geoid_sep_m), (Some(2000.5), Some(-12.3)));
+    assert_eq!(g.nav_status, Some(b'S'));
+    let f = Sentence::Gns(g).fix().unwrap();
+    assert_eq!(f.alt_msl_m, Some(2000.5));
+    // Every talker a multi-constellation receiver uses decodes the same way.
+    for talker in ["GN", "GP", "GL", "GA", "GB", "BD", "GQ", "GI"] {
+        let body = format!("{talker}GNS,014035.00,4332.69262,S,17235.48549,E,A,13,0.9,2000.5,,,");
+        let s = parse_sentence(with_cs(&body).as_bytes()).unwrap();
+        assert!(s.fix().is_some(), "{body}");
+    }
+    // No fix: every constellation N, an empty mode, or navigational status V (unsafe).
+    for body in [
+        "GNGNS,014035.00,4332.69262,S,17235.48549,E,NN,00,,,,,",
+        "GNGNS,014035.00,4332.69262,S,17235.48549,E,NNNNNN,00,,,,,",
+        "GNGNS,014035.00,,,,,,00,,,,,",
+        "GNGNS,014035.00,4332.69262,S,17235.48549,E,AA,13,0.9,2000.5,,,,V",
+    ] {
+        let s = parse_sentence(with_cs(body).as_bytes()).unwrap();
+        assert_eq!(s.kind(), "GNS", "{body}");
+        assert!(s.is_position() && s.fix().is_none(), "{body}");
+    }
+    use NmeaError::*;
+    let bad = |b: &str| parse_sentence(with_cs(b).as_bytes());
+    assert_eq!(
+        bad("GNGNS,014035.00,4332.69,S,17235.48,E,AAAAAAAAA,13,0.9,20.5,,,"),
+        Err(InvalidField(Field::Mode))
+    );
+    assert_eq!(
+        bad("GNGNS,014035.00,4332.69,S,17235.48,E,A1,13,0.9,20.5,,,"),
+        Err(InvalidField(Field::Mode))
+    );
+    assert_eq!(
+        bad("GNGNS,014035.00,4332.69,S,17235.48,E,AA,13,0.9,200000,,,"),
+        Err(InvalidField(Field::Altitude))
+    );
+    assert_eq!(
+        bad("GNGNS,014035.00,4332.69,S,17235.48,E,AA,13,0.9,20.5,,,,X"),
+        Err(InvalidField(Field::NavStatus))
+    );
+    assert_eq!(
+        bad("GNGNS,014035.00,4332.69,S,17235.48,E,AA,13,0.9"),
+        Err(MissingField(Field::Altitude))
+    );
+}

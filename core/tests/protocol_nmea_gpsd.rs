@@ -51,6 +51,26 @@ fn decode(s: &Sentence, cycle_tod: Option<f64>) -> Option<Decoded> {
             track: r.track_deg.filter(|_| r.valid),
             fix: Some(r.valid),
         }),
+        Sentence::Gll(g) => Some(Decoded {
+            kind: "GLL",
+            tod_s: g.time.map(|t| t.seconds_of_day_s),
+            lat: g.lat_deg.filter(|_| g.has_fix()),
+            lon: g.lon_deg.filter(|_| g.has_fix()),
+            alt: None,
+            speed: None,
+            track: None,
+            fix: Some(g.has_fix()),
+        }),
+        Sentence::Gns(g) => Some(Decoded {
+            kind: "GNS",
+            tod_s: g.time.map(|t| t.seconds_of_day_s),
+            lat: g.lat_deg.filter(|_| g.has_fix()),
+            lon: g.lon_deg.filter(|_| g.has_fix()),
+            alt: g.alt_msl_m.filter(|_| g.has_fix()),
+            speed: None,
+            track: None,
+            fix: Some(g.has_fix()),
+        }),
         Sentence::Vtg(v) => Some(Decoded {
             kind: "VTG",
             tod_s: cycle_tod,
@@ -85,6 +105,13 @@ struct Tally {
     alt: usize,
     speed: usize,
     track: usize,
+    /// TPVs with a position, timed or not (gpsd reports a position without time when it
+    /// has no date yet, e.g. a log that starts with GLL before the first RMC).
+    fixes: usize,
+    /// Of those, equal to the position of our latest fix sentence before the TPV: with
+    /// every sentence we decode, and with GGA/RMC alone (the reader before GLL/GNS).
+    fixes_ours: usize,
+    fixes_gga_rmc: usize,
     disagreements: Vec<String>,
     explained: Vec<String>,
     /// gpsd reported a value none of our sentences of that second carried.
@@ -164,10 +191,18 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
     let mut cycle_tod = None;
     let mut t = Tally::default();
     let mut last_kind = String::new();
+    let mut last_pos: Option<(f64, f64)> = None;
+    let mut last_pos_gga_rmc: Option<(f64, f64)> = None;
     for line in chk.lines() {
         if line.starts_with('$') {
             last_kind = line.get(3..6).unwrap_or("").to_string();
             if let Ok(s) = parse_sentence(line.as_bytes()) {
+                if let Some(f) = s.fix() {
+                    last_pos = Some((f.lat_deg, f.lon_deg));
+                    if matches!(s, Sentence::Gga(_) | Sentence::Rmc(_)) {
+                        last_pos_gga_rmc = last_pos;
+                    }
+                }
                 if let Some(d) = decode(&s, cycle_tod) {
                     if d.kind != "VTG" {
                         cycle_tod = d.tod_s.or(cycle_tod);
@@ -187,6 +222,19 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
             continue;
         }
         t.tpv += 1;
+        if let (Some(lat), Some(lon)) = (v["lat"].as_f64(), v["lon"].as_f64()) {
+            t.fixes += 1;
+            let same = |p: Option<(f64, f64)>| {
+                p.is_some_and(|(a, b)| (a - lat).abs() <= 1e-6 && (b - lon).abs() <= 1e-6)
+            };
+            t.fixes_ours += same(last_pos) as usize;
+            t.fixes_gga_rmc += same(last_pos_gga_rmc) as usize;
+            if !same(last_pos) {
+                t.disagreements.push(format!(
+                    "{name}: TPV position {lat},{lon} is not our latest fix {last_pos:?}"
+                ));
+            }
+        }
         let Some(tod) = v["time"].as_str().and_then(tod_of) else {
             continue;
         };
@@ -291,12 +339,19 @@ fn gpsd_conformance() {
     names.sort();
     assert!(!names.is_empty());
     let mut total_dis = 0;
+    let (mut fixes, mut ours, mut gga_rmc) = (0, 0, 0);
     for n in &names {
         let t = check_log(&dir, n);
+        fixes += t.fixes;
+        ours += t.fixes_ours;
+        gga_rmc += t.fixes_gga_rmc;
         println!(
-            "{n}: TPV {} (timed {}), matched {} + no-fix agreed {} | pos {} alt {} speed {} track {} | disagreements {}",
+            "{n}: TPV {} (timed {}), fixes {} (ours {}, GGA/RMC alone {}), matched {} + no-fix agreed {} | pos {} alt {} speed {} track {} | disagreements {}",
             t.tpv,
             t.tpv_timed,
+            t.fixes,
+            t.fixes_ours,
+            t.fixes_gga_rmc,
             t.matched,
             t.no_fix_agreed,
             t.pos,
@@ -336,5 +391,7 @@ fn gpsd_conformance() {
             "{n}: gpsd decoded what we did not: {missed:?}"
         );
     }
+    println!("positions gpsd reports: {fixes}; ours: {ours}; from GGA/RMC alone: {gga_rmc}");
+    assert_eq!(ours, fixes, "every position gpsd reports is decoded");
     assert_eq!(total_dis, 0, "unexplained disagreements with gpsd");
 }

@@ -11,7 +11,7 @@ use std::io::{BufRead, Write};
 pub struct NmeaLogStats {
     /// Lines read (including blank and `#` comment lines).
     pub lines: u64,
-    /// GGA/RMC/VTG/GST decoded.
+    /// GGA/RMC/GLL/GNS/VTG/GST decoded.
     pub decoded: u64,
     /// Valid checksum, sentence type not decoded.
     pub unsupported: u64,
@@ -79,6 +79,35 @@ pub fn sentence_json(line: u64, s: &Sentence) -> Option<Value> {
                 m.insert("mode".into(), (c as char).to_string().into());
             }
         }
+        Sentence::Gll(g) => {
+            put(&mut m, "time_s", g.time.map(|t| t.seconds_of_day_s));
+            put(&mut m, "lat_deg", g.lat_deg);
+            put(&mut m, "lon_deg", g.lon_deg);
+            m.insert("status".into(), if g.valid { "A" } else { "V" }.into());
+            if let Some(c) = g.mode {
+                m.insert("mode".into(), (c as char).to_string().into());
+            }
+        }
+        Sentence::Gns(g) => {
+            put(&mut m, "time_s", g.time.map(|t| t.seconds_of_day_s));
+            put(&mut m, "lat_deg", g.lat_deg);
+            put(&mut m, "lon_deg", g.lon_deg);
+            put(&mut m, "alt_msl_m", g.alt_msl_m);
+            put(&mut m, "geoid_sep_m", g.geoid_sep_m);
+            m.insert(
+                "mode".into(),
+                String::from_utf8_lossy(g.modes.as_bytes())
+                    .into_owned()
+                    .into(),
+            );
+            if let Some(n) = g.satellites {
+                m.insert("sats".into(), n.into());
+            }
+            put(&mut m, "hdop", g.hdop.map(|h| h as f64));
+            if let Some(c) = g.nav_status {
+                m.insert("nav_status".into(), (c as char).to_string().into());
+            }
+        }
         Sentence::Vtg(v) => {
             put(&mut m, "speed_mps", v.speed_mps);
             put(&mut m, "track_deg", v.track_deg);
@@ -94,6 +123,11 @@ pub fn sentence_json(line: u64, s: &Sentence) -> Option<Value> {
             put(&mut m, "sigma_alt_m", g.sigma_alt_m);
         }
         Sentence::Unsupported { .. } => return None,
+    }
+    if s.is_position() {
+        // One yes/no for every position sentence: GGA quality > 0, RMC/GLL status A,
+        // GNS with a constellation in use (GLL/GNS mode N is no fix).
+        m.insert("has_fix".into(), s.fix().is_some().into());
     }
     Some(Value::Object(m))
 }
@@ -178,5 +212,48 @@ garbage\n";
         assert_eq!(v[3]["line"], 5);
         assert!(v[3]["error"].as_str().unwrap().starts_with("checksum"));
         assert_eq!(v[4]["line"], 7);
+    }
+
+    #[test]
+    fn gll_and_gns_fixes_are_shown() {
+        let input = "$GNGLL,4404.14066,N,12118.85481,W,171925.00,A,A*66\r\n\
+$GPGLL,,,,,171926.00,V,N*40\r\n\
+$GNGNS,171927.00,4404.14066,N,12118.85481,W,AAN,14,0.9,1147.2,-21.3,,,S*6A\r\n\
+$GNGNS,171928.00,,,,,NNN,00,,,,,,V*4D\r\n";
+        let mut out = Vec::new();
+        let st = decode_log(input.as_bytes(), &mut out).unwrap();
+        assert_eq!(
+            (st.decoded, st.errors),
+            (4, 0),
+            "{}",
+            String::from_utf8_lossy(&out)
+        );
+        let v: Vec<Value> = String::from_utf8(out)
+            .unwrap()
+            .lines()
+            .map(|l| serde_json::from_str(l).unwrap())
+            .collect();
+        assert_eq!(v[0]["sentence"], "GLL");
+        assert_eq!(v[0]["time_s"], 62365.0);
+        assert!((v[0]["lat_deg"].as_f64().unwrap() - 44.069_011).abs() < 1e-9);
+        assert_eq!(
+            (&v[0]["status"], &v[0]["has_fix"]),
+            (&"A".into(), &true.into())
+        );
+        assert_eq!(
+            (&v[1]["status"], &v[1]["has_fix"]),
+            (&"V".into(), &false.into())
+        );
+        assert_eq!(v[2]["sentence"], "GNS");
+        assert_eq!(v[2]["mode"], "AAN");
+        assert_eq!(
+            (&v[2]["alt_msl_m"], &v[2]["sats"]),
+            (&1147.2.into(), &14.into())
+        );
+        assert_eq!(v[2]["has_fix"], true);
+        assert_eq!(
+            (&v[3]["mode"], &v[3]["has_fix"]),
+            (&"NNN".into(), &false.into())
+        );
     }
 }

@@ -358,3 +358,101 @@ fn run_replay_writes_csv_and_mcrec_lines() {
     assert!(e.contains("method 'tl'"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Records of a capture with a few corrupted bytes against the clean capture's, record by
+/// record, on every record neither degraded nor next to a degraded one: (records compared,
+/// max |Δ interference|, max |Δ compensated|, mags changed silently). Both have one record
+/// per scalar line.
+fn corrupted_vs_clean(o: &ReplayOptions, fraction: f64) -> (usize, f64, f64, usize) {
+    let trace = flight_trace();
+    let clean = trace_to_capture(&trace, &CaptureOptions::default()).unwrap();
+    let bad = trace_to_capture(
+        &trace,
+        &CaptureOptions {
+            corrupt_fraction: fraction,
+            seed: 5,
+            ..CaptureOptions::default()
+        },
+    )
+    .unwrap();
+    let (a, sa) = replay(&clean, o);
+    let (b, sb) = replay(&bad, o);
+    assert_eq!(a.len(), trace.len());
+    assert_eq!(b.len(), trace.len(), "one record per scalar sample");
+    assert_eq!(sb.records, sb.counters.scalar_lines as u64);
+    assert_eq!(sa.records, sb.records);
+    let (mut n, mut di, mut dc, mut silent) = (0, 0f64, 0f64, 0);
+    // The eddy terms' centred derivative reaches one sample either side: a lost fluxgate
+    // frame (held value) changes its unflagged neighbours by up to ~0.3 nT at 0.1 %
+    // corruption (the compensator does not mark them DERIVATIVE_DEGRADED). Those are
+    // left out here and reported.
+    let near_degraded =
+        |i: usize| (i.saturating_sub(1)..(i + 2).min(b.len())).any(|k| b[k].flags.degraded());
+    let mut dn = 0f64;
+    for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+        assert_eq!(x.seq, y.seq);
+        if !y.flags.degraded() && near_degraded(i) {
+            dn = dn.max((x.interference_nt - y.interference_nt).abs() as f64);
+        }
+        // Flagged = degraded (stale, no GPS, parse error, missing, derivative degraded);
+        // SURVEY_MODE or NOT_CONVERGED say how the value was made, not that it is suspect.
+        if near_degraded(i) {
+            continue;
+        }
+        if x.mag != y.mag {
+            // A scalar line has no checksum: a corrupted digit is a different number.
+            silent += 1;
+            continue;
+        }
+        n += 1;
+        di = di.max((x.interference_nt - y.interference_nt).abs() as f64);
+        let (cx, cy) = (x.compensated.unwrap(), y.compensated.unwrap());
+        dc = dc.max((cx.to_nt_f64() - cy.to_nt_f64()).abs());
+    }
+    eprintln!(
+        "{} % corrupted: {} of {} records unflagged with the clean mag, max Δ interference {di:.2e} nT, \
+         max Δ compensated {dc:.2e} nT, {silent} mags changed without a flag; \
+         unflagged neighbours of a degraded record: max Δ interference {dn:.2e} nT; {:?}",
+        fraction * 100.0,
+        n,
+        b.len(),
+        sb.counters
+    );
+    (n, di, dc, silent)
+}
+
+#[test]
+fn corrupted_capture_survey_output_equals_the_clean_run_on_unflagged_records() {
+    // Survey mode (coefficients given): the interference is the frozen coefficients times
+    // the fluxgate regressors, so a corrupted frame can change only its own (flagged)
+    // sample and the centred derivative of its neighbours (left out, see corrupted_vs_clean).
+    let trace = flight_trace();
+    let flight = pipeline_flight(&trace);
+    let post = run_kf(&flight, &board_kf()).unwrap();
+    let mut o = opts();
+    o.coefficients = Some(post.coefficients.iter().map(|v| *v as f32).collect());
+    let (n, di, dc, silent) = corrupted_vs_clean(&o, 0.001);
+    // 0.1 % of the bytes corrupts ~13 % of the samples (184 parse errors); with their
+    // neighbours ~1/3 are left out.
+    assert!(n > trace.len() / 2, "{n} of {}", trace.len());
+    // The compensated value is an integer count of 1e-4 nT: equal to the count.
+    assert!(
+        di < 1e-3 && dc < 1.5e-4,
+        "Δ interference {di}, Δ compensated {dc} nT"
+    );
+    // At 0.1 % of the bytes, a handful of scalar lines carry a changed digit unflagged.
+    assert!(silent < trace.len() / 100, "{silent}");
+}
+
+#[test]
+#[ignore = "issue 13 item 1: robust start"]
+fn corrupted_capture_calibrate_output_equals_the_clean_run_on_unflagged_records() {
+    // Calibrating on the board: one corrupted scalar value early in the flight ruins the
+    // filter (issue 13 item 1); this holds once the estimator has a robust start.
+    let (n, di, dc, _) = corrupted_vs_clean(&opts(), 0.001);
+    assert!(n > 0);
+    assert!(
+        di < 0.1 && dc < 0.1,
+        "Δ interference {di}, Δ compensated {dc} nT"
+    );
+}

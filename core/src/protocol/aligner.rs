@@ -7,7 +7,7 @@
 //!   when both are already in (a caller that wants bracketing every time delays its scalar
 //!   by one fluxgate period); otherwise the nearest frame is held. `FLUX_STALE` when the
 //!   held frame, or the gap being interpolated across, exceeds `flux_stale_us`.
-//! - GPS: position/height/speed from the latest valid GGA/RMC/VTG, held or (optionally)
+//! - GPS: position/height/speed from the latest valid GGA/RMC/GLL/GNS/VTG, held or (optionally)
 //!   extrapolated along track; `NO_GPS` with no fix or a fix older than `gps_stale_us`.
 //! - `PARSE_ERROR` when any parser error was reported since the previous scalar sample.
 
@@ -137,6 +137,25 @@ impl Aligner {
                     self.gps_valid = true;
                 }
                 _ => self.gps_valid = false,
+            },
+            // GLL and GNS carry no speed or track (GLL no height either): those are
+            // held from the previous fix, as RMC holds the height.
+            Sentence::Gll(_) | Sentence::Gns(_) => match s.fix() {
+                Some(f) => {
+                    let prev = self.gps;
+                    self.gps = Some(GpsFix {
+                        t_us,
+                        lat_deg: f.lat_deg,
+                        lon_deg: f.lon_deg,
+                        alt_m: f
+                            .alt_msl_m
+                            .map_or(prev.map_or(f32::NAN, |p| p.alt_m), |a| a as f32),
+                        speed_mps: prev.map_or(f32::NAN, |p| p.speed_mps),
+                        track_deg: prev.map_or(f32::NAN, |p| p.track_deg),
+                    });
+                    self.gps_valid = true;
+                }
+                None => self.gps_valid = false,
             },
             Sentence::Vtg(v) => {
                 if v.mode == Some(b'N') {

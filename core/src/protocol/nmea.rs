@@ -1,4 +1,4 @@
-//! NMEA 0183 reader for GGA, RMC, VTG and GST.
+//! NMEA 0183 reader for GGA, RMC, GLL, GNS, VTG and GST.
 //!
 //! Written here rather than using the `nmea` crate (0.7, evaluated): it parses numeric
 //! fields with `nom::number::complete::float` (f32: altitude, speed, track lose digits),
@@ -40,6 +40,8 @@ pub enum Field {
     Track,
     Mode,
     Sigma,
+    /// NMEA 4.1 navigational status (GNS field 13).
+    NavStatus,
 }
 
 /// Why a sentence was rejected.
@@ -113,6 +115,77 @@ pub struct Rmc {
     pub mode: Option<u8>,
 }
 
+/// Geographic position, latitude/longitude (GLL): a position with time and status but
+/// no height, sent instead of or besides GGA by marine and many older receivers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gll {
+    pub talker: Talker,
+    pub lat_deg: Option<f64>,
+    pub lon_deg: Option<f64>,
+    /// Absent from NMEA 1.x sentences, which end after the longitude.
+    pub time: Option<UtcTime>,
+    /// `true` for status `A`; `V` or a missing status (NMEA 1.x) is no fix.
+    pub valid: bool,
+    /// NMEA 2.3 mode indicator (A autonomous, D differential, E estimated, N not valid...).
+    pub mode: Option<u8>,
+}
+
+impl Gll {
+    /// Status `A`, mode not `N`, and both coordinates present.
+    pub fn has_fix(&self) -> bool {
+        self.valid && self.mode != Some(b'N') && self.lat_deg.is_some() && self.lon_deg.is_some()
+    }
+}
+
+/// Longest GNS mode string kept: one letter per constellation (NMEA 4.11 defines six:
+/// GPS, GLONASS, Galileo, BeiDou, QZSS, NavIC); two spare.
+pub const MAX_GNS_MODES: usize = 8;
+
+/// GNS mode indicator: one letter per constellation, in the standard's order (GPS,
+/// GLONASS, Galileo, BeiDou, QZSS, NavIC). `N` = that constellation is not used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GnsModes {
+    chars: [u8; MAX_GNS_MODES],
+    len: u8,
+}
+
+impl GnsModes {
+    pub fn as_bytes(&self) -> &[u8] {
+        &self.chars[..self.len as usize]
+    }
+    /// At least one constellation contributes (any letter other than `N`).
+    pub fn any_fix(&self) -> bool {
+        self.as_bytes().iter().any(|&c| c != b'N')
+    }
+}
+
+/// GNSS fix data (GNS): the multi-constellation GGA of NMEA 3.0+.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gns {
+    pub talker: Talker,
+    pub time: Option<UtcTime>,
+    pub lat_deg: Option<f64>,
+    pub lon_deg: Option<f64>,
+    pub modes: GnsModes,
+    pub satellites: Option<u8>,
+    pub hdop: Option<f32>,
+    /// Antenna altitude above mean sea level (m).
+    pub alt_msl_m: Option<f64>,
+    pub geoid_sep_m: Option<f64>,
+    /// NMEA 4.1 navigational status (S safe, C caution, U unsafe, V not valid).
+    pub nav_status: Option<u8>,
+}
+
+impl Gns {
+    /// Some constellation in use, the navigational status not `V`, both coordinates present.
+    pub fn has_fix(&self) -> bool {
+        self.modes.any_fix()
+            && self.nav_status != Some(b'V')
+            && self.lat_deg.is_some()
+            && self.lon_deg.is_some()
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Vtg {
     pub talker: Talker,
@@ -142,6 +215,8 @@ pub struct Gst {
 pub enum Sentence {
     Gga(Gga),
     Rmc(Rmc),
+    Gll(Gll),
+    Gns(Gns),
     Vtg(Vtg),
     Gst(Gst),
     /// Valid checksum, type we do not decode (GSV, GSA, proprietary...): counted, not an error.
@@ -156,11 +231,52 @@ impl Sentence {
         match self {
             Sentence::Gga(_) => "GGA",
             Sentence::Rmc(_) => "RMC",
+            Sentence::Gll(_) => "GLL",
+            Sentence::Gns(_) => "GNS",
             Sentence::Vtg(_) => "VTG",
             Sentence::Gst(_) => "GST",
             Sentence::Unsupported { .. } => "unsupported",
         }
     }
+
+    /// The position of a sentence that reports a valid fix (GGA quality > 0, RMC/GLL
+    /// status `A`, GNS with a constellation in use; GLL/GNS mode `N` is no fix), else
+    /// `None`. Speed and track are not positions: VTG gives `None`.
+    pub fn fix(&self) -> Option<Fix> {
+        let (time, lat, lon, alt) = match self {
+            Sentence::Gga(g) if g.fix_quality.unwrap_or(0) > 0 => {
+                (g.time, g.lat_deg, g.lon_deg, g.alt_msl_m)
+            }
+            Sentence::Rmc(r) if r.valid => (r.time, r.lat_deg, r.lon_deg, None),
+            Sentence::Gll(g) if g.has_fix() => (g.time, g.lat_deg, g.lon_deg, None),
+            Sentence::Gns(g) if g.has_fix() => (g.time, g.lat_deg, g.lon_deg, g.alt_msl_m),
+            _ => return None,
+        };
+        Some(Fix {
+            time,
+            lat_deg: lat?,
+            lon_deg: lon?,
+            alt_msl_m: alt,
+        })
+    }
+
+    /// GGA, RMC, GLL or GNS: a sentence that reports a position or its absence.
+    pub fn is_position(&self) -> bool {
+        matches!(
+            self,
+            Sentence::Gga(_) | Sentence::Rmc(_) | Sentence::Gll(_) | Sentence::Gns(_)
+        )
+    }
+}
+
+/// A valid position from any position sentence ([`Sentence::fix`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Fix {
+    pub time: Option<UtcTime>,
+    pub lat_deg: f64,
+    pub lon_deg: f64,
+    /// GGA/GNS only (m above mean sea level).
+    pub alt_msl_m: Option<f64>,
 }
 
 /// Counters; every `$` that started a sentence ends in exactly one of
@@ -376,6 +492,8 @@ pub fn parse_sentence(line: &[u8]) -> Result<Sentence, NmeaError> {
     match &address[2..] {
         b"GGA" => parse_gga(talker, f).map(Sentence::Gga),
         b"RMC" => parse_rmc(talker, f).map(Sentence::Rmc),
+        b"GLL" => parse_gll(talker, f).map(Sentence::Gll),
+        b"GNS" => parse_gns(talker, f).map(Sentence::Gns),
         b"VTG" => parse_vtg(talker, f).map(Sentence::Vtg),
         b"GST" => parse_gst(talker, f).map(Sentence::Gst),
         _ => Ok(Sentence::Unsupported { address: addr }),
@@ -515,6 +633,16 @@ fn mode_char(s: &[u8]) -> Result<Option<u8>, NmeaError> {
     }
 }
 
+/// Antenna altitude (m above MSL): a receiver below the Dead Sea floor or above the
+/// ionosphere is a corrupt field.
+fn altitude(s: &[u8]) -> Result<Option<f64>, NmeaError> {
+    let alt = num_f64(s, Field::Altitude)?;
+    if alt.is_some_and(|a| !(-2000.0..=100_000.0).contains(&a)) {
+        return Err(NmeaError::InvalidField(Field::Altitude));
+    }
+    Ok(alt)
+}
+
 fn parse_gga(talker: Talker, f: &[&[u8]]) -> Result<Gga, NmeaError> {
     // time,lat,N,lon,E,quality,sats,hdop,alt,M,sep,M,age,station
     let alt_unit = opt_get(f, 9);
@@ -525,10 +653,7 @@ fn parse_gga(talker: Talker, f: &[&[u8]]) -> Result<Gga, NmeaError> {
     if !(sep_unit.is_empty() || sep_unit == b"M") {
         return Err(NmeaError::InvalidField(Field::GeoidSeparation));
     }
-    let alt = num_f64(get(f, 8, Field::Altitude)?, Field::Altitude)?;
-    if alt.is_some_and(|a| !(-2000.0..=100_000.0).contains(&a)) {
-        return Err(NmeaError::InvalidField(Field::Altitude));
-    }
+    let alt = altitude(get(f, 8, Field::Altitude)?)?;
     Ok(Gga {
         talker,
         time: parse_time(get(f, 0, Field::Time)?)?,
@@ -601,6 +726,69 @@ fn parse_rmc(talker: Talker, f: &[&[u8]]) -> Result<Rmc, NmeaError> {
         track_deg: nonneg_f64(get(f, 7, Field::Track)?, Field::Track, 360.0)?,
         date: parse_date(get(f, 8, Field::Date)?)?,
         mode: mode_char(opt_get(f, 11))?,
+    })
+}
+
+fn parse_gll(talker: Talker, f: &[&[u8]]) -> Result<Gll, NmeaError> {
+    // lat,N,lon,E[,time,status[,mode]]: NMEA 1.x stops after the longitude.
+    let valid = match opt_get(f, 5) {
+        b"A" => true,
+        b"V" | b"" => false,
+        _ => return Err(NmeaError::InvalidField(Field::Status)),
+    };
+    Ok(Gll {
+        talker,
+        lat_deg: parse_coord(
+            get(f, 0, Field::Latitude)?,
+            get(f, 1, Field::Latitude)?,
+            true,
+        )?,
+        lon_deg: parse_coord(
+            get(f, 2, Field::Longitude)?,
+            get(f, 3, Field::Longitude)?,
+            false,
+        )?,
+        time: parse_time(opt_get(f, 4))?,
+        valid,
+        mode: mode_char(opt_get(f, 6))?,
+    })
+}
+
+fn parse_gns(talker: Talker, f: &[&[u8]]) -> Result<Gns, NmeaError> {
+    // time,lat,N,lon,E,modes,sats,hdop,alt,sep,age,station[,navstatus]
+    let m = get(f, 5, Field::Mode)?;
+    if m.len() > MAX_GNS_MODES || !m.iter().all(|c| c.is_ascii_uppercase()) {
+        return Err(NmeaError::InvalidField(Field::Mode));
+    }
+    let mut modes = GnsModes {
+        chars: [0; MAX_GNS_MODES],
+        len: m.len() as u8,
+    };
+    modes.chars[..m.len()].copy_from_slice(m);
+    let nav_status = match opt_get(f, 12) {
+        [] => None,
+        [c @ (b'S' | b'C' | b'U' | b'V')] => Some(*c),
+        _ => return Err(NmeaError::InvalidField(Field::NavStatus)),
+    };
+    Ok(Gns {
+        talker,
+        time: parse_time(get(f, 0, Field::Time)?)?,
+        lat_deg: parse_coord(
+            get(f, 1, Field::Latitude)?,
+            get(f, 2, Field::Latitude)?,
+            true,
+        )?,
+        lon_deg: parse_coord(
+            get(f, 3, Field::Longitude)?,
+            get(f, 4, Field::Longitude)?,
+            false,
+        )?,
+        modes,
+        satellites: small_u8(get(f, 6, Field::Satellites)?, Field::Satellites)?,
+        hdop: nonneg_f64(get(f, 7, Field::Hdop)?, Field::Hdop, 1000.0)?.map(|v| v as f32),
+        alt_msl_m: altitude(get(f, 8, Field::Altitude)?)?,
+        geoid_sep_m: num_f64(opt_get(f, 9), Field::GeoidSeparation)?,
+        nav_status,
     })
 }
 

@@ -128,7 +128,11 @@ fn counts_field(s: &[u8], i: u8) -> Result<Option<MagCounts>, RecordError> {
     if d.scale > 4 {
         return Err(RecordError::BadField(i));
     }
+    // At most 18 significant digits, as the decimal parser reads them: a value the
+    // encoder would write back with more (e.g. `544073709551616` nT) is refused here
+    // rather than decoded into a record that cannot be re-encoded decodably (fuzzer find).
     d.rescale(4)
+        .filter(|v| v.unsigned_abs() < 1_000_000_000_000_000_000)
         .map(|v| Some(MagCounts(v)))
         .ok_or(RecordError::BadField(i))
 }
