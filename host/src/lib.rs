@@ -12,6 +12,7 @@ pub mod metrics;
 pub mod model_spec;
 pub mod monitor;
 pub mod nmea_cmd;
+pub mod output;
 pub mod pipeline;
 pub mod reference_kf;
 pub mod replay;

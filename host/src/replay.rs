@@ -10,6 +10,7 @@
 
 use crate::capture_sim::FluxFormat;
 use crate::model_spec::{with_model, ModelSpec, DEFAULT_MODEL};
+use crate::output::AtomicFile;
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
@@ -17,7 +18,7 @@ use magcomp_core::protocol::fluxgate::FluxCalibration;
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::{Compensator, MagCounts};
 use std::fmt;
-use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
 /// State capacity of the host replay (any model the host can build).
@@ -173,8 +174,45 @@ pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<V
                 );
             }
         }
+        if let Some(arr) = v.get("coefficients").and_then(|a| a.as_array()) {
+            return named_coefficients(arr, spec).with_context(ctx);
+        }
     }
     parse_coefficients(&text).with_context(ctx)
+}
+
+/// A `calibrate` file's coefficients matched to `spec`'s by name, in the model's order.
+fn named_coefficients(arr: &[serde_json::Value], spec: &ModelSpec) -> Result<Vec<f32>> {
+    let entries = arr
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let name = c
+                .get("name")
+                .and_then(|n| n.as_str())
+                .with_context(|| format!("coefficient {} has no \"name\"", i + 1))?;
+            let value = c
+                .get("value")
+                .and_then(|v| v.as_f64())
+                .with_context(|| format!("coefficient '{name}' has no numeric \"value\""))?;
+            Ok((name, value))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let names: Vec<String> = spec
+        .coefficient_names()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    let order = crate::commands::order_by_name(entries.iter().map(|e| e.0), &names, "coefficient")?;
+    board_range(order.iter().map(|&i| entries[i].1).collect())
+}
+
+/// The values as the board holds them (f32), refused when one is not finite or |v| ≥ 1e6.
+fn board_range(vals: Vec<f64>) -> Result<Vec<f32>> {
+    if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
+        bail!("a coefficient is not finite or |v| ≥ 1e6");
+    }
+    Ok(vals.iter().map(|v| *v as f32).collect())
 }
 
 /// The fluxgate calibration of a `calibrate --model …+fluxcal` JSON file, if it has one,
@@ -223,10 +261,7 @@ pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
             })
             .collect::<Result<_>>()?
     };
-    if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
-        bail!("a coefficient is not finite or |v| ≥ 1e6");
-    }
-    Ok(vals.iter().map(|v| *v as f32).collect())
+    board_range(vals)
 }
 
 /// `# key: value` metadata from the capture's leading comments.
@@ -402,13 +437,17 @@ pub fn csv_row(r: &Record) -> String {
     )
 }
 
-fn create(path: &Path) -> Result<BufWriter<std::fs::File>> {
-    Ok(BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-    ))
-}
-
 pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
+    let inputs: Vec<&Path> = std::iter::once(args.capture.as_path())
+        .chain(args.coeffs.as_deref())
+        .collect();
+    let outputs: Vec<&Path> = args
+        .output
+        .as_deref()
+        .into_iter()
+        .chain(args.records.as_deref())
+        .collect();
+    crate::output::refuse_overwriting(&inputs, &outputs)?;
     let model = ModelSpec::parse(&args.model)?;
     let coefficients = args
         .coeffs
@@ -429,28 +468,31 @@ pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
     opts.flux = args.flux;
     let f = std::fs::File::open(&args.capture)
         .with_context(|| format!("opening {}", args.capture.display()))?;
-    let mut csv = args.output.as_deref().map(create).transpose()?;
-    let mut txt = args.records.as_deref().map(create).transpose()?;
+    let mut csv = args.output.as_deref().map(AtomicFile::create).transpose()?;
+    let mut txt = args
+        .records
+        .as_deref()
+        .map(AtomicFile::create)
+        .transpose()?;
     if let Some(w) = csv.as_mut() {
-        writeln!(w, "{CSV_HEADER}")?;
+        writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
     }
     let mut buf = [0u8; MAX_RECORD_LEN];
     let stats = replay_capture(BufReader::new(f), &opts, |r| {
         if let Some(w) = csv.as_mut() {
-            writeln!(w, "{}", csv_row(r))?;
+            writeln!(w, "{}", csv_row(r))
+                .with_context(|| format!("writing {}", w.path().display()))?;
         }
         if let Some(w) = txt.as_mut() {
             let n = encode_record(r, &mut buf).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            w.write_all(&buf[..n])?;
+            w.write_all(&buf[..n])
+                .with_context(|| format!("writing {}", w.path().display()))?;
         }
         Ok(())
     })
     .with_context(|| format!("replaying {}", args.capture.display()))?;
-    for (w, p) in [(csv.as_mut(), &args.output), (txt.as_mut(), &args.records)] {
-        if let (Some(w), Some(p)) = (w, p) {
-            w.flush()
-                .with_context(|| format!("writing {}", p.display()))?;
-        }
+    for w in [csv, txt].into_iter().flatten() {
+        w.commit()?;
     }
     eprintln!("replay: {stats}");
     Ok(stats)
