@@ -16,7 +16,7 @@ use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acqu
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::FluxCalibration;
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
-use magcomp_core::{Compensator, MagCounts};
+use magcomp_core::{Compensator, Flags, MagCounts};
 use std::fmt;
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -115,6 +115,40 @@ pub struct ReplayStats {
     pub flux_format: Option<FluxFormat>,
     pub first_t_s: Option<f64>,
     pub last_t_s: Option<f64>,
+    /// Capture lines dropped because they repeat the previous line of their port (same
+    /// time stamp, same bytes): a logger never receives one chunk twice.
+    pub duplicate_lines: u64,
+    /// Capture lines dropped because their time stamp is earlier than one already read on
+    /// the same port (bytes of one port arrive in order; e.g. a capture concatenated twice).
+    pub time_reversals: u64,
+    /// File line of the first of each, for the warning.
+    pub first_duplicate_line: Option<u64>,
+    pub first_reversal_line: Option<u64>,
+}
+
+impl ReplayStats {
+    /// What was dropped, for a warning (`None` when nothing was).
+    pub fn dropped_warning(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if let Some(l) = self.first_duplicate_line {
+            parts.push(format!(
+                "{} duplicated line(s) (first at line {l})",
+                self.duplicate_lines
+            ));
+        }
+        if let Some(l) = self.first_reversal_line {
+            parts.push(format!(
+                "{} line(s) earlier than their port's previous line (first at line {l})",
+                self.time_reversals
+            ));
+        }
+        (!parts.is_empty()).then(|| {
+            format!(
+                "dropped {}; the next record after each is flagged PARSE_ERROR",
+                parts.join(" and ")
+            )
+        })
+    }
 }
 
 impl fmt::Display for ReplayStats {
@@ -123,7 +157,8 @@ impl fmt::Display for ReplayStats {
         write!(
             f,
             "{} records from {} scalar lines (rates {}/{}/{} Hz, fluxgate {}); errors: scalar {}, flux {}, gps {}; \
-             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines",
+             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines; \
+             dropped: {} duplicated lines, {} lines back in time",
             self.records,
             c.scalar_lines,
             self.scalar_hz,
@@ -137,7 +172,9 @@ impl fmt::Display for ReplayStats {
             c.no_gps,
             c.mag_missing,
             c.parse_error,
-            self.bad_capture_lines
+            self.bad_capture_lines,
+            self.duplicate_lines,
+            self.time_reversals
         )
     }
 }
@@ -306,6 +343,10 @@ pub fn replay_capture<R: BufRead>(
             break;
         }
         lineno += 1;
+        // A UTF-8 byte-order mark (editors on Windows add one) is not part of the header.
+        if lineno == 1 && line.starts_with(b"\xEF\xBB\xBF") {
+            line.drain(..3);
+        }
         if line.first() == Some(&b'#') {
             if decode_line(&line, &mut []).is_err() {
                 bail!("line {lineno}: unsupported capture version");
@@ -354,13 +395,21 @@ pub fn replay_capture<R: BufRead>(
             flux_format: Some(flux_format),
             ..Default::default()
         };
-        let mut emit = |r: &Record, stats: &mut ReplayStats| -> Result<()> {
+        // Set when a line was dropped: the next record carries PARSE_ERROR.
+        let mut dropped = false;
+        let mut emit = |r: &Record, stats: &mut ReplayStats, dropped: &mut bool| -> Result<()> {
+            let mut r = *r;
+            if std::mem::take(dropped) {
+                r.flags.set(Flags::PARSE_ERROR);
+            }
             stats.records += 1;
             stats.first_t_s.get_or_insert(r.t_s);
             stats.last_t_s = Some(r.t_s);
-            sink(r)
+            sink(&r)
         };
         let mut data = [0u8; MAX_CHUNK];
+        // Per port: the latest time stamp read and that line's bytes.
+        let mut last: [(Option<u64>, Vec<u8>); Port::ALL.len()] = Default::default();
         let mut pending = first_data;
         loop {
             let l = match pending.take() {
@@ -370,6 +419,7 @@ pub fn replay_capture<R: BufRead>(
                     if input.read_until(b'\n', &mut line)? == 0 {
                         break;
                     }
+                    lineno += 1;
                     std::mem::take(&mut line)
                 }
             };
@@ -383,18 +433,38 @@ pub fn replay_capture<R: BufRead>(
             };
             stats.capture_lines += 1;
             let bytes = &data[..c.len];
+            let (last_t, last_bytes) = &mut last[c.port as usize];
+            match *last_t {
+                Some(t) if c.t_us < t => {
+                    stats.time_reversals += 1;
+                    stats.first_reversal_line.get_or_insert(lineno);
+                    dropped = true;
+                    continue;
+                }
+                Some(t) if c.t_us == t && last_bytes.as_slice() == bytes => {
+                    stats.duplicate_lines += 1;
+                    stats.first_duplicate_line.get_or_insert(lineno);
+                    dropped = true;
+                    continue;
+                }
+                _ => {
+                    *last_t = Some(c.t_us);
+                    last_bytes.clear();
+                    last_bytes.extend_from_slice(bytes);
+                }
+            }
             if c.port == Port::Flux && flux_format == FluxFormat::Spi {
                 acq.push_flux_frame(bytes);
                 continue;
             }
             for &b in bytes {
                 if let Some(r) = acq.push_byte(c.port, b) {
-                    emit(&r, &mut stats)?;
+                    emit(&r, &mut stats, &mut dropped)?;
                 }
             }
         }
         while let Some(r) = acq.flush() {
-            emit(&r, &mut stats)?;
+            emit(&r, &mut stats, &mut dropped)?;
         }
         stats.counters = acq.counters();
         Ok(stats)
@@ -495,6 +565,9 @@ pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
         w.commit()?;
     }
     eprintln!("replay: {stats}");
+    if let Some(w) = stats.dropped_warning() {
+        eprintln!("warning: {}: {w}", args.capture.display());
+    }
     Ok(stats)
 }
 
