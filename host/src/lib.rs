@@ -14,6 +14,7 @@ pub mod monitor;
 pub mod nmea_cmd;
 pub mod output;
 pub mod pipeline;
+pub mod position;
 pub mod reference_kf;
 pub mod replay;
 pub mod report;

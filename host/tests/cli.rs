@@ -4,7 +4,7 @@
 mod common;
 
 use common::cli::{bin, data_rows, run_err, run_ok, run_ok_with_stderr, simulate, tmp};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 #[test]
 fn simulate_calibrate_compensate_json_contract() {

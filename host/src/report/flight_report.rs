@@ -634,6 +634,11 @@ fn along_track_plot(flight: &Flight, run: &crate::pipeline::KfRun, i: usize) -> 
     let mid = ds.len() / 2;
     ds.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
     let step = ds[mid].max(1.0);
+    // More grid points than samples would be interpolation sized by the distance (a bad
+    // position): no plot rather than a grid no sample fills.
+    if !(total / step <= 4.0 * s.len() as f64) {
+        return None;
+    }
     let nb = (total / step) as usize;
     if nb < 64 {
         return None;
