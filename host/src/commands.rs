@@ -118,7 +118,8 @@ pub struct CoefficientFile {
     /// own covariance (`pipeline::predicted_interference_error_nt`, nT rms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
-    /// KF: the coefficients' covariance (rows in `coefficients` order, physical units), so
+    /// KF: the coefficients' covariance (rows in the model's coefficient order, as
+    /// `calibrate` writes `coefficients`; physical units), so
     /// that `compensate --coeffs` can predict the error on the flight it compensates.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covariance: Option<Vec<Vec<f64>>>,
@@ -472,7 +473,8 @@ fn write_output_rows(
 
 /// Reads a coefficient file written by `calibrate`. Coefficients are matched to the
 /// file's model by name, whatever their order in the file, and returned in the model's
-/// order (the covariance permuted alike); a name the model lacks, one it needs that is
+/// order (the covariance is in the model's order already); a name the model lacks, one
+/// it needs that is
 /// missing, or one given twice is an error naming it.
 pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
     let text =
@@ -515,8 +517,8 @@ impl CoefficientFile {
         })
     }
 
-    /// The same file with its coefficients (and covariance, and the crossover fit's
-    /// coefficients) in the order of `names`, matched by name.
+    /// The same file with its coefficients (and the crossover fit's coefficients) in the
+    /// order of `names`, matched by name; the covariance's size is checked.
     pub fn in_order_of(&self, names: &[String]) -> Result<CoefficientFile> {
         let order = order_by_name(
             self.coefficients.iter().map(|c| c.name.as_str()),
@@ -529,16 +531,11 @@ impl CoefficientFile {
             .map(|&i| self.coefficients[i].clone())
             .collect();
         if let Some(cov) = &self.covariance {
-            let k = self.coefficients.len();
+            // Unnamed rows: in the model's order, whatever the order of the entries.
+            let k = names.len();
             if cov.len() != k || cov.iter().any(|r| r.len() != k) {
-                bail!("the covariance is not {k} × {k} (one row and column per coefficient)");
+                bail!("the covariance is not {k} × {k} (one row and column per coefficient of the model)");
             }
-            out.covariance = Some(
-                order
-                    .iter()
-                    .map(|&i| order.iter().map(|&j| cov[i][j]).collect())
-                    .collect(),
-            );
         }
         if let Some(r) = &self.rate_crossover {
             let want = crate::crossover::RATE_LABELS.map(String::from);
