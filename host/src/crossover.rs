@@ -117,7 +117,7 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
         let hi = [p[0].max(q[0]), p[1].max(q[1])];
         // A ~0.1 s segment spans a cell or two; one spanning more is a bad position, and
         // the cell loop below must not be sized by it.
-        if (0..2).any(|k| !((hi[k] - lo[k]) / cell <= MAX_SEGMENT_CELLS)) {
+        if (0..2).any(|k| !(0.0..=MAX_SEGMENT_CELLS).contains(&((hi[k] - lo[k]) / cell))) {
             continue;
         }
         for cx in (lo[0] / cell).floor() as i64..=(hi[0] / cell).floor() as i64 {

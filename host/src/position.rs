@@ -83,7 +83,7 @@ pub fn check_positions(samples: &mut [AlignedSample]) -> Vec<(usize, PositionFau
     };
     for (i, s) in samples.iter_mut().enumerate() {
         let alt = f64::from(s.alt_m);
-        if !alt.is_nan() && !(alt >= ALT_RANGE_M.0 && alt <= ALT_RANGE_M.1) {
+        if !alt.is_nan() && !(ALT_RANGE_M.0..=ALT_RANGE_M.1).contains(&alt) {
             faults.push((i, PositionFault::Alt(alt)));
             s.alt_m = f32::NAN;
             s.flags.set(Flags::NO_GPS);
@@ -93,9 +93,9 @@ pub fn check_positions(samples: &mut [AlignedSample]) -> Vec<(usize, PositionFau
             s.flags.set(Flags::NO_GPS);
             continue;
         }
-        let fault = if !(lat.abs() <= 90.0) {
+        let fault = if !(-90.0..=90.0).contains(&lat) {
             Some(PositionFault::Lat(lat))
-        } else if !(lon.abs() <= 180.0) {
+        } else if !(-180.0..=180.0).contains(&lon) {
             Some(PositionFault::Lon(lon))
         } else {
             None

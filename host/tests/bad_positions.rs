@@ -63,6 +63,9 @@ fn output_flags(p: &Path) -> Vec<u16> {
         .collect()
 }
 
+/// Rewrites one field's value.
+type Edit = dyn Fn(f64) -> String;
+
 #[test]
 fn one_bad_coordinate_gives_the_clean_calibration() {
     let d = tmp("badpos");
@@ -72,7 +75,7 @@ fn one_bad_coordinate_gives_the_clean_calibration() {
     run_ok(bin().arg("calibrate").arg(&trace).arg("-o").arg(&clean));
     let want = coefficients(&clean);
     let row = 65;
-    let cases: [(&str, &str, &dyn Fn(f64) -> String, &str); 6] = [
+    let cases: [(&str, &str, &Edit, &str); 6] = [
         (
             "lat1e6",
             "lat",

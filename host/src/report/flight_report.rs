@@ -636,7 +636,7 @@ fn along_track_plot(flight: &Flight, run: &crate::pipeline::KfRun, i: usize) -> 
     let step = ds[mid].max(1.0);
     // More grid points than samples would be interpolation sized by the distance (a bad
     // position): no plot rather than a grid no sample fills.
-    if !(total / step <= 4.0 * s.len() as f64) {
+    if !(0.0..=4.0 * s.len() as f64).contains(&(total / step)) {
         return None;
     }
     let nb = (total / step) as usize;
