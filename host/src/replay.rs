@@ -44,8 +44,9 @@ pub struct ReplayArgs {
     #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
     pub model: String,
 
-    /// Apply these coefficients (survey mode): a `calibrate` JSON file
-    /// (`"coefficients": [{"value": …}]`) or plain numbers separated by commas/whitespace.
+    /// Apply these coefficients (survey mode): a `calibrate` JSON file (entries matched
+    /// to the model by `name`) or plain numbers in the model's order, separated by
+    /// commas/whitespace.
     #[arg(long, value_name = "FILE")]
     pub coeffs: Option<PathBuf>,
 
