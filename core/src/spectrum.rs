@@ -35,10 +35,41 @@ pub struct Sigma1Estimate {
     pub length_m: f64,
 }
 
+/// At most this many distance bins per sample: a grid the samples cannot fill is
+/// interpolation, not data (a position jump, or a track sampled far coarser than the
+/// bin), and sizing it by the distance would let one bad coordinate cost gigabytes.
+pub const MAX_BINS_PER_SAMPLE: usize = 4;
+/// At most this many periodogram ordinates are evaluated (evenly strided over the band
+/// when it holds more): the median is settled long before, and the cost stays linear in
+/// the number of samples (≤ `MAX_ORDINATES × MAX_BINS_PER_SAMPLE` operations per sample).
+/// A 650 km survey line set has ~570 ordinates, so real flights are unaffected.
+pub const MAX_ORDINATES: usize = 1024;
+
+/// Distance bins of the grid for this track, `None` when it cannot be estimated.
+fn grid_bins(s_m: &[f64], n: usize, cfg: &Sigma1Config) -> Option<usize> {
+    if n < 8 || !(cfg.bin_m > 0.0) {
+        return None;
+    }
+    let length = s_m[n - 1] - s_m[0];
+    if !(length >= 2.0 * cfg.max_wavelength_m) {
+        return None;
+    }
+    let bins = length / cfg.bin_m + 1.0;
+    (bins <= (MAX_BINS_PER_SAMPLE * n) as f64).then_some(bins as usize)
+}
+
+/// The scratch [`estimate_sigma1`] needs for this track: at most
+/// `3 × MAX_BINS_PER_SAMPLE × samples`, whatever the coordinates (0 when the track
+/// cannot be estimated).
+pub fn sigma1_scratch_len(s_m: &[f64], z_nt: &[f64], cfg: &Sigma1Config) -> usize {
+    grid_bins(s_m, s_m.len().min(z_nt.len()), cfg).map_or(0, |nb| 3 * nb)
+}
+
 /// Estimates σ1 from `z_nt` (the scalar signal minus an interference estimate) against
-/// cumulative along-track distance `s_m` (non-decreasing). `scratch` must hold at least
-/// `3 × (track length / bin_m + 2)` values; returns `None` when the track is too short
-/// (< 2 × the longest wavelength), the scratch too small, or the data unusable.
+/// cumulative along-track distance `s_m` (non-decreasing). `scratch` must hold
+/// [`sigma1_scratch_len`] values; returns `None` when the track is too short (< 2 × the
+/// longest wavelength), has more than [`MAX_BINS_PER_SAMPLE`] bins per sample, the
+/// scratch is too small, or the data are unusable. Cost: linear in the samples.
 pub fn estimate_sigma1(
     s_m: &[f64],
     z_nt: &[f64],
@@ -46,15 +77,9 @@ pub fn estimate_sigma1(
     scratch: &mut [f64],
 ) -> Option<Sigma1Estimate> {
     let n = s_m.len().min(z_nt.len());
-    if n < 8 || !(cfg.bin_m > 0.0) {
-        return None;
-    }
+    let nb = grid_bins(s_m, n, cfg)?;
     let s0 = s_m[0];
     let length = s_m[n - 1] - s0;
-    if !(length >= 2.0 * cfg.max_wavelength_m) {
-        return None;
-    }
-    let nb = (length / cfg.bin_m) as usize + 1;
     if scratch.len() < 3 * nb {
         return None;
     }
@@ -109,12 +134,21 @@ pub fn estimate_sigma1(
     let y = &zs[..m];
     let out = &mut ss[..];
     let total = m as f64 * cfg.bin_m;
-    let first = libm::ceil(total / cfg.max_wavelength_m) as usize;
-    let last_h = libm::floor(total / cfg.min_wavelength_m) as usize;
+    let first = (libm::ceil(total / cfg.max_wavelength_m) as usize).max(1);
+    // Not beyond the grid's Nyquist wavenumber (a bin coarser than half the shortest
+    // wavelength).
+    let last_h = (libm::floor(total / cfg.min_wavelength_m) as usize).min(m / 2);
+    let stride = (last_h + 1)
+        .saturating_sub(first)
+        .div_ceil(MAX_ORDINATES)
+        .max(1);
     // Periodogram ordinates at the Fourier wavenumbers in the band, corrected for the
     // difference operator and the bin averaging.
     let mut count = 0usize;
-    for h in first.max(1)..=last_h {
+    for h in (first..=last_h).step_by(stride) {
+        if count == out.len() {
+            break;
+        }
         let k = 2.0 * core::f64::consts::PI * h as f64 / total;
         let (mut re, mut im) = (0.0f64, 0.0f64);
         let (sd, cd) = libm::sincos(k * cfg.bin_m);
@@ -129,10 +163,8 @@ pub fn estimate_sigma1(
         let p = cfg.bin_m / m as f64 * (re * re + im * im);
         let half = 0.5 * k * cfg.bin_m;
         let gain = libm::pow(half / libm::sin(half), 8.0);
-        if count < out.len() {
-            out[count] = p * gain;
-            count += 1;
-        }
+        out[count] = p * gain;
+        count += 1;
     }
     if count < 3 {
         return None;

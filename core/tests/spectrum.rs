@@ -79,3 +79,33 @@ fn too_short_or_bad_input_gives_none() {
     let nan = vec![f64::NAN; 20_000];
     assert!(estimate_sigma1(&s, &nan, &Sigma1Config::default(), &mut a).is_none());
 }
+
+#[test]
+fn a_bad_distance_costs_no_more_than_the_samples() {
+    use magcomp_core::spectrum::{sigma1_scratch_len, MAX_BINS_PER_SAMPLE, MAX_ORDINATES};
+    let cfg = Sigma1Config::default();
+    let (mut s, z) = field(1e-6, 6.0, 20_000, 7);
+    let clean_len = sigma1_scratch_len(&s, &z, &cfg);
+    assert_eq!(
+        clean_len,
+        3 * (119_994 / 100 + 1),
+        "3 × bins of a 120 km track"
+    );
+    // One sample 1e11 m along (a latitude of 1e6°) and all after it: no grid of a
+    // billion bins, no estimate from a grid the samples cannot fill.
+    for v in &mut s[15_000..] {
+        *v += 1e11;
+    }
+    assert_eq!(sigma1_scratch_len(&s, &z, &cfg), 0);
+    let mut a = vec![0.0; 3 * MAX_BINS_PER_SAMPLE * s.len()];
+    assert!(estimate_sigma1(&s, &z, &cfg, &mut a).is_none());
+    // A long track: the evaluated ordinates stay at MAX_ORDINATES however long it is
+    // (strided over the band), and the estimate still holds.
+    let (s, z) = field(1e-6, 50.0, 400_000, 9); // 20,000 km, 175,000 ordinates in band
+    let mut a = vec![0.0; sigma1_scratch_len(&s, &z, &cfg)];
+    let est = estimate_sigma1(&s, &z, &cfg, &mut a).unwrap();
+    assert!(est.ordinates <= MAX_ORDINATES, "{}", est.ordinates);
+    assert!(est.ordinates >= MAX_ORDINATES / 2, "{}", est.ordinates);
+    let r = est.sigma1 / 1e-6;
+    assert!((0.7..1.4).contains(&r), "ratio {r}");
+}

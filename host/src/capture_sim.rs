@@ -255,12 +255,7 @@ pub fn write_capture_file(
     opts: &CaptureOptions,
     path: &Path,
 ) -> Result<CaptureSummary> {
-    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut w = std::io::BufWriter::new(f);
-    let s = write_capture(trace, opts, &mut w)?;
-    w.flush()
-        .with_context(|| format!("writing {}", path.display()))?;
-    Ok(s)
+    crate::output::write_with(path, |w| write_capture(trace, opts, w))
 }
 
 /// Writes the capture of `trace` to `w`.

@@ -126,7 +126,8 @@ pub struct CoefficientFile {
     /// own covariance (`pipeline::predicted_interference_error_nt`, nT rms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
-    /// KF: the coefficients' covariance (rows in `coefficients` order, physical units), so
+    /// KF: the coefficients' covariance (rows in the model's coefficient order, as
+    /// `calibrate` writes `coefficients`; physical units), so
     /// that `compensate --coeffs` can predict the error on the flight it compensates.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub covariance: Option<Vec<Vec<f64>>>,
@@ -446,9 +447,14 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
 
 /// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`.
 pub fn write_output_csv(path: &Path, flight: &Flight, comp: &Compensation) -> Result<()> {
-    use std::io::Write;
-    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut w = std::io::BufWriter::new(f);
+    crate::output::write_with(path, |w| write_output_rows(w, flight, comp))
+}
+
+fn write_output_rows(
+    w: &mut impl std::io::Write,
+    flight: &Flight,
+    comp: &Compensation,
+) -> Result<()> {
     writeln!(w, "# model: {}", comp.model)?;
     writeln!(
         w,
@@ -501,11 +507,14 @@ pub fn write_output_csv(path: &Path, flight: &Flight, comp: &Compensation) -> Re
         }
         writeln!(w)?;
     }
-    w.flush()?;
     Ok(())
 }
 
-/// Reads a coefficient file written by `calibrate`.
+/// Reads a coefficient file written by `calibrate`. Coefficients are matched to the
+/// file's model by name, whatever their order in the file, and returned in the model's
+/// order (the covariance is in the model's order already); a name the model lacks, one
+/// it needs that is
+/// missing, or one given twice is an error naming it.
 pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
     let text =
         std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
@@ -514,8 +523,106 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
     if c.format != COEFF_FORMAT {
         bail!("{}: unknown format '{}'", path.display(), c.format);
     }
-    if c.coefficients.iter().any(|c| !c.value.is_finite()) {
-        bail!("{}: a coefficient is not finite", path.display());
+    if let Some(bad) = c.coefficients.iter().find(|c| !c.value.is_finite()) {
+        bail!(
+            "{}: coefficient '{}' is not finite",
+            path.display(),
+            bad.name
+        );
     }
-    Ok(c)
+    let names = c
+        .model_coefficient_names()
+        .with_context(|| path.display().to_string())?;
+    c.in_order_of(&names)
+        .with_context(|| format!("{} (model '{}')", path.display(), c.model))
+}
+
+impl CoefficientFile {
+    /// The names of the coefficients the file's model has, in the model's order: the KF
+    /// model's `term.label`s, or the Tolles–Lawson terms of its configuration.
+    pub fn model_coefficient_names(&self) -> Result<Vec<String>> {
+        Ok(match self.method {
+            Method::Kf => ModelSpec::parse(&self.model)?
+                .coefficient_names()
+                .into_iter()
+                .map(|(n, _)| n)
+                .collect(),
+            Method::Tl => self
+                .tl_config
+                .as_ref()
+                .context("the coefficient file has no Tolles–Lawson configuration")?
+                .terms
+                .names(),
+        })
+    }
+
+    /// The same file with its coefficients (and the crossover fit's coefficients) in the
+    /// order of `names`, matched by name; the covariance's size is checked.
+    pub fn in_order_of(&self, names: &[String]) -> Result<CoefficientFile> {
+        let order = order_by_name(
+            self.coefficients.iter().map(|c| c.name.as_str()),
+            names,
+            "coefficient",
+        )?;
+        let mut out = self.clone();
+        out.coefficients = order
+            .iter()
+            .map(|&i| self.coefficients[i].clone())
+            .collect();
+        if let Some(cov) = &self.covariance {
+            // Unnamed rows: in the model's order, whatever the order of the entries.
+            let k = names.len();
+            if cov.len() != k || cov.iter().any(|r| r.len() != k) {
+                bail!("the covariance is not {k} × {k} (one row and column per coefficient of the model)");
+            }
+        }
+        if let Some(r) = &self.rate_crossover {
+            let want = crate::crossover::RATE_LABELS.map(String::from);
+            let o = order_by_name(
+                r.labels.iter().map(String::as_str),
+                &want,
+                "rate_crossover label",
+            )?;
+            let mut r2 = r.clone();
+            for (k, &i) in o.iter().enumerate() {
+                r2.fit.coefficients[k] = r.fit.coefficients[i];
+                r2.fit.sigmas[k] = r.fit.sigmas[i];
+            }
+            r2.labels = want.to_vec();
+            out.rate_crossover = Some(r2);
+        }
+        Ok(out)
+    }
+}
+
+/// For each of `want`, the index of the entry of `have` with that name; an entry that is
+/// not wanted, a wanted one that is missing, or a name given twice is an error naming it.
+pub(crate) fn order_by_name<'a>(
+    have: impl Iterator<Item = &'a str>,
+    want: &[String],
+    what: &str,
+) -> Result<Vec<usize>> {
+    let have: Vec<&str> = have.collect();
+    for (i, n) in have.iter().enumerate() {
+        if !want.iter().any(|w| w == n) {
+            bail!(
+                "unknown {what} '{n}' (the model's are: {})",
+                want.join(", ")
+            );
+        }
+        if have[..i].contains(n) {
+            bail!("{what} '{n}' is given twice");
+        }
+    }
+    want.iter()
+        .map(|w| {
+            have.iter().position(|n| n == w).with_context(|| {
+                format!(
+                    "{what} '{w}' is missing ({} of {} given)",
+                    have.len(),
+                    want.len()
+                )
+            })
+        })
+        .collect()
 }

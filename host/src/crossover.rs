@@ -62,6 +62,9 @@ fn demeaned_by_key(values: &[f64], keys: &[(i64, i64)]) -> Vec<f64> {
         .collect()
 }
 
+/// Most grid cells one track segment may span on an axis (64 × 50 m = 3.2 km).
+const MAX_SEGMENT_CELLS: f64 = 64.0;
+
 fn wrap_pi(a: f64) -> f64 {
     (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
@@ -112,6 +115,11 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
         let (p, q) = (ne[i], ne[end(i)]);
         let lo = [p[0].min(q[0]), p[1].min(q[1])];
         let hi = [p[0].max(q[0]), p[1].max(q[1])];
+        // A ~0.1 s segment spans a cell or two; one spanning more is a bad position, and
+        // the cell loop below must not be sized by it.
+        if (0..2).any(|k| !(0.0..=MAX_SEGMENT_CELLS).contains(&((hi[k] - lo[k]) / cell))) {
+            continue;
+        }
         for cx in (lo[0] / cell).floor() as i64..=(hi[0] / cell).floor() as i64 {
             for cy in (lo[1] / cell).floor() as i64..=(hi[1] / cell).floor() as i64 {
                 grid.entry((cx, cy)).or_default().push(i);

@@ -84,8 +84,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             &comp,
         )?;
         let file = comp.coefficients.clone().context("no coefficients")?;
-        std::fs::write(
-            args.out.join(format!("coeffs-{name}.json")),
+        crate::output::write_file(
+            &args.out.join(format!("coeffs-{name}.json")),
             serde_json::to_string_pretty(&file)?,
         )?;
         coeffs.push(file);

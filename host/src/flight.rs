@@ -117,6 +117,13 @@ impl Flight {
             }
             samples.push(s);
         }
+        // Out-of-range, non-finite or jumping positions: missing, flagged, warned about.
+        let faults = crate::position::check_positions(&mut samples);
+        if let Some(w) = crate::position::faults_warning(&faults, trace.origin.as_ref()) {
+            crate::position::warn_once(&w);
+        }
+        let lat: Vec<f64> = samples.iter().map(|s| s.lat_deg).collect();
+        let lon: Vec<f64> = samples.iter().map(|s| s.lon_deg).collect();
         let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
         dts.sort_by(|a, b| a.total_cmp(b));
         let sample_rate_hz = 1.0 / dts[dts.len() / 2];
@@ -129,7 +136,7 @@ impl Flight {
                 .and_then(|v| v.trim().parse().ok()),
         ) {
             (Some(lat_deg), Some(lon_deg)) => Some(TiePoint { lat_deg, lon_deg }),
-            _ => detect_tie_point(t, lat, lon),
+            _ => detect_tie_point(t, &lat, &lon),
         };
         let earth_dir_ned = att.and_then(|(r, p, y)| main_field_direction(fx, fy, fz, r, p, y));
         Ok(Self {
@@ -208,10 +215,8 @@ impl Flight {
         let mut prev: Option<(f64, f64)> = None;
         for smp in &self.samples {
             if smp.lat_deg.is_finite() && smp.lon_deg.is_finite() {
-                if let Some((la, lo)) = prev {
-                    let dn = (smp.lat_deg - la).to_radians() * 6_371_000.0;
-                    let de = (smp.lon_deg - lo).to_radians() * 6_371_000.0 * la.to_radians().cos();
-                    acc += dn.hypot(de);
+                if let Some(p) = prev {
+                    acc += crate::position::flat_distance_m(p, (smp.lat_deg, smp.lon_deg));
                 }
                 prev = Some((smp.lat_deg, smp.lon_deg));
             }

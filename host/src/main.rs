@@ -7,6 +7,7 @@ use magcomp::commands::{
     compensate_trace, read_coefficients, summarise, write_output_csv, EstimatorArgs, Summary,
     TraceInput, SURVEY_TOLERANCE_NT,
 };
+use magcomp::output::refuse_overwriting;
 use magcomp::sim::SimulateArgs;
 use std::path::PathBuf;
 
@@ -148,12 +149,16 @@ fn main() -> Result<()> {
     match cli.command {
         Command::Simulate { sim, capture } => {
             let (sim, capture) = (*sim, *capture);
-            let cfg = sim.to_config()?;
-            let trace = magcomp::sim::simulate(&cfg)?;
             let out = sim
                 .output
                 .clone()
                 .unwrap_or_else(|| PathBuf::from("flight.csv"));
+            let outputs: Vec<&std::path::Path> = std::iter::once(out.as_path())
+                .chain(capture.capture.as_deref())
+                .collect();
+            refuse_overwriting(&[], &outputs)?;
+            let cfg = sim.to_config()?;
+            let trace = magcomp::sim::simulate(&cfg)?;
             magcomp::trace::write_trace(&out, &trace)?;
             eprintln!("wrote {} rows to {}", trace.len(), out.display());
             if let Some(c) = capture.write_if_requested(&trace)? {
@@ -176,11 +181,11 @@ fn main() -> Result<()> {
             magcomp::upload::run_upload(&a)?;
         }
         Command::Calibrate(a) => {
+            refuse_overwriting(&[&a.input.trace], &[&a.output])?;
             let trace = a.input.read()?;
             let (flight, comp) = compensate_trace(&trace, &a.est, None, false)?;
             let file = comp.coefficients.clone().context("no coefficients")?;
-            std::fs::write(&a.output, serde_json::to_string_pretty(&file)?)
-                .with_context(|| format!("writing {}", a.output.display()))?;
+            magcomp::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
             let mut s = summarise(&flight, &comp);
             if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
                 s.warnings.push(format!(
@@ -205,6 +210,10 @@ fn main() -> Result<()> {
             eprintln!("wrote {}", a.output.display());
         }
         Command::Compensate(a) => {
+            let inputs: Vec<&std::path::Path> = std::iter::once(a.input.trace.as_path())
+                .chain(a.coeffs.as_deref())
+                .collect();
+            refuse_overwriting(&inputs, &[&a.out])?;
             let trace = a.input.read()?;
             let coeffs = a.coeffs.as_deref().map(read_coefficients).transpose()?;
             let (flight, comp) = compensate_trace(&trace, &a.est, coeffs.as_ref(), a.realtime)?;

@@ -646,6 +646,11 @@ pub fn run_monitor(args: &MonitorArgs) -> Result<MonitorStats> {
     } else {
         Display::Summary(args.interval_s)
     };
+    if let Some(p) = &args.save {
+        let input = std::path::Path::new(&args.input);
+        let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
+        crate::output::refuse_overwriting(inputs, &[p])?;
+    }
     let mut save_file = match &args.save {
         Some(p) => Some(std::io::BufWriter::new(
             std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,

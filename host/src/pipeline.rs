@@ -432,8 +432,8 @@ pub fn estimate_sigma1_with(
         .map(|(k, (m, i))| m - i - environment_nt.map_or(0.0, |e| e[k]))
         .collect();
     let cfg = Sigma1Config::default();
-    let need = 3 * ((s.last().copied().unwrap_or(0.0) / cfg.bin_m) as usize + 2);
-    let mut scratch = vec![0.0; need];
+    // Sized by the samples, never by a coordinate (issue 13: one bad latitude asked for 53 GB).
+    let mut scratch = vec![0.0; magcomp_core::spectrum::sigma1_scratch_len(&s, &z, &cfg)];
     estimate_sigma1(&s, &z, &cfg, &mut scratch).map(|e| e.sigma1)
 }
 

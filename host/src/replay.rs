@@ -10,14 +10,15 @@
 
 use crate::capture_sim::FluxFormat;
 use crate::model_spec::{with_model, ModelSpec, DEFAULT_MODEL};
+use crate::output::AtomicFile;
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::FluxCalibration;
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
-use magcomp_core::{Compensator, MagCounts};
+use magcomp_core::{Compensator, Flags, MagCounts};
 use std::fmt;
-use std::io::{BufRead, BufReader, BufWriter, Write};
+use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 
 /// State capacity of the host replay (any model the host can build).
@@ -43,8 +44,9 @@ pub struct ReplayArgs {
     #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
     pub model: String,
 
-    /// Apply these coefficients (survey mode): a `calibrate` JSON file
-    /// (`"coefficients": [{"value": …}]`) or plain numbers separated by commas/whitespace.
+    /// Apply these coefficients (survey mode): a `calibrate` JSON file (entries matched
+    /// to the model by `name`) or plain numbers in the model's order, separated by
+    /// commas/whitespace.
     #[arg(long, value_name = "FILE")]
     pub coeffs: Option<PathBuf>,
 
@@ -114,6 +116,40 @@ pub struct ReplayStats {
     pub flux_format: Option<FluxFormat>,
     pub first_t_s: Option<f64>,
     pub last_t_s: Option<f64>,
+    /// Capture lines dropped because they repeat the previous line of their port (same
+    /// time stamp, same bytes): a logger never receives one chunk twice.
+    pub duplicate_lines: u64,
+    /// Capture lines dropped because their time stamp is earlier than one already read on
+    /// the same port (bytes of one port arrive in order; e.g. a capture concatenated twice).
+    pub time_reversals: u64,
+    /// File line of the first of each, for the warning.
+    pub first_duplicate_line: Option<u64>,
+    pub first_reversal_line: Option<u64>,
+}
+
+impl ReplayStats {
+    /// What was dropped, for a warning (`None` when nothing was).
+    pub fn dropped_warning(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if let Some(l) = self.first_duplicate_line {
+            parts.push(format!(
+                "{} duplicated line(s) (first at line {l})",
+                self.duplicate_lines
+            ));
+        }
+        if let Some(l) = self.first_reversal_line {
+            parts.push(format!(
+                "{} line(s) earlier than their port's previous line (first at line {l})",
+                self.time_reversals
+            ));
+        }
+        (!parts.is_empty()).then(|| {
+            format!(
+                "dropped {}; the next record after each is flagged PARSE_ERROR",
+                parts.join(" and ")
+            )
+        })
+    }
 }
 
 impl fmt::Display for ReplayStats {
@@ -122,7 +158,8 @@ impl fmt::Display for ReplayStats {
         write!(
             f,
             "{} records from {} scalar lines (rates {}/{}/{} Hz, fluxgate {}); errors: scalar {}, flux {}, gps {}; \
-             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines",
+             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines; \
+             dropped: {} duplicated lines, {} lines back in time",
             self.records,
             c.scalar_lines,
             self.scalar_hz,
@@ -136,7 +173,9 @@ impl fmt::Display for ReplayStats {
             c.no_gps,
             c.mag_missing,
             c.parse_error,
-            self.bad_capture_lines
+            self.bad_capture_lines,
+            self.duplicate_lines,
+            self.time_reversals
         )
     }
 }
@@ -173,8 +212,45 @@ pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<V
                 );
             }
         }
+        if let Some(arr) = v.get("coefficients").and_then(|a| a.as_array()) {
+            return named_coefficients(arr, spec).with_context(ctx);
+        }
     }
     parse_coefficients(&text).with_context(ctx)
+}
+
+/// A `calibrate` file's coefficients matched to `spec`'s by name, in the model's order.
+fn named_coefficients(arr: &[serde_json::Value], spec: &ModelSpec) -> Result<Vec<f32>> {
+    let entries = arr
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let name = c
+                .get("name")
+                .and_then(|n| n.as_str())
+                .with_context(|| format!("coefficient {} has no \"name\"", i + 1))?;
+            let value = c
+                .get("value")
+                .and_then(|v| v.as_f64())
+                .with_context(|| format!("coefficient '{name}' has no numeric \"value\""))?;
+            Ok((name, value))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let names: Vec<String> = spec
+        .coefficient_names()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    let order = crate::commands::order_by_name(entries.iter().map(|e| e.0), &names, "coefficient")?;
+    board_range(order.iter().map(|&i| entries[i].1).collect())
+}
+
+/// The values as the board holds them (f32), refused when one is not finite or |v| ≥ 1e6.
+fn board_range(vals: Vec<f64>) -> Result<Vec<f32>> {
+    if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
+        bail!("a coefficient is not finite or |v| ≥ 1e6");
+    }
+    Ok(vals.iter().map(|v| *v as f32).collect())
 }
 
 /// The fluxgate calibration of a `calibrate --model …+fluxcal` JSON file, if it has one,
@@ -223,10 +299,7 @@ pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
             })
             .collect::<Result<_>>()?
     };
-    if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
-        bail!("a coefficient is not finite or |v| ≥ 1e6");
-    }
-    Ok(vals.iter().map(|v| *v as f32).collect())
+    board_range(vals)
 }
 
 /// `# key: value` metadata from the capture's leading comments.
@@ -271,6 +344,10 @@ pub fn replay_capture<R: BufRead>(
             break;
         }
         lineno += 1;
+        // A UTF-8 byte-order mark (editors on Windows add one) is not part of the header.
+        if lineno == 1 && line.starts_with(b"\xEF\xBB\xBF") {
+            line.drain(..3);
+        }
         if line.first() == Some(&b'#') {
             if decode_line(&line, &mut []).is_err() {
                 bail!("line {lineno}: unsupported capture version");
@@ -319,13 +396,21 @@ pub fn replay_capture<R: BufRead>(
             flux_format: Some(flux_format),
             ..Default::default()
         };
-        let mut emit = |r: &Record, stats: &mut ReplayStats| -> Result<()> {
+        // Set when a line was dropped: the next record carries PARSE_ERROR.
+        let mut dropped = false;
+        let mut emit = |r: &Record, stats: &mut ReplayStats, dropped: &mut bool| -> Result<()> {
+            let mut r = *r;
+            if std::mem::take(dropped) {
+                r.flags.set(Flags::PARSE_ERROR);
+            }
             stats.records += 1;
             stats.first_t_s.get_or_insert(r.t_s);
             stats.last_t_s = Some(r.t_s);
-            sink(r)
+            sink(&r)
         };
         let mut data = [0u8; MAX_CHUNK];
+        // Per port: the latest time stamp read and that line's bytes.
+        let mut last: [(Option<u64>, Vec<u8>); Port::ALL.len()] = Default::default();
         let mut pending = first_data;
         loop {
             let l = match pending.take() {
@@ -335,6 +420,7 @@ pub fn replay_capture<R: BufRead>(
                     if input.read_until(b'\n', &mut line)? == 0 {
                         break;
                     }
+                    lineno += 1;
                     std::mem::take(&mut line)
                 }
             };
@@ -348,18 +434,38 @@ pub fn replay_capture<R: BufRead>(
             };
             stats.capture_lines += 1;
             let bytes = &data[..c.len];
+            let (last_t, last_bytes) = &mut last[c.port as usize];
+            match *last_t {
+                Some(t) if c.t_us < t => {
+                    stats.time_reversals += 1;
+                    stats.first_reversal_line.get_or_insert(lineno);
+                    dropped = true;
+                    continue;
+                }
+                Some(t) if c.t_us == t && last_bytes.as_slice() == bytes => {
+                    stats.duplicate_lines += 1;
+                    stats.first_duplicate_line.get_or_insert(lineno);
+                    dropped = true;
+                    continue;
+                }
+                _ => {
+                    *last_t = Some(c.t_us);
+                    last_bytes.clear();
+                    last_bytes.extend_from_slice(bytes);
+                }
+            }
             if c.port == Port::Flux && flux_format == FluxFormat::Spi {
                 acq.push_flux_frame(bytes);
                 continue;
             }
             for &b in bytes {
                 if let Some(r) = acq.push_byte(c.port, b) {
-                    emit(&r, &mut stats)?;
+                    emit(&r, &mut stats, &mut dropped)?;
                 }
             }
         }
         while let Some(r) = acq.flush() {
-            emit(&r, &mut stats)?;
+            emit(&r, &mut stats, &mut dropped)?;
         }
         stats.counters = acq.counters();
         Ok(stats)
@@ -402,13 +508,17 @@ pub fn csv_row(r: &Record) -> String {
     )
 }
 
-fn create(path: &Path) -> Result<BufWriter<std::fs::File>> {
-    Ok(BufWriter::new(
-        std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?,
-    ))
-}
-
 pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
+    let inputs: Vec<&Path> = std::iter::once(args.capture.as_path())
+        .chain(args.coeffs.as_deref())
+        .collect();
+    let outputs: Vec<&Path> = args
+        .output
+        .as_deref()
+        .into_iter()
+        .chain(args.records.as_deref())
+        .collect();
+    crate::output::refuse_overwriting(&inputs, &outputs)?;
     let model = ModelSpec::parse(&args.model)?;
     let coefficients = args
         .coeffs
@@ -429,30 +539,36 @@ pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
     opts.flux = args.flux;
     let f = std::fs::File::open(&args.capture)
         .with_context(|| format!("opening {}", args.capture.display()))?;
-    let mut csv = args.output.as_deref().map(create).transpose()?;
-    let mut txt = args.records.as_deref().map(create).transpose()?;
+    let mut csv = args.output.as_deref().map(AtomicFile::create).transpose()?;
+    let mut txt = args
+        .records
+        .as_deref()
+        .map(AtomicFile::create)
+        .transpose()?;
     if let Some(w) = csv.as_mut() {
-        writeln!(w, "{CSV_HEADER}")?;
+        writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
     }
     let mut buf = [0u8; MAX_RECORD_LEN];
     let stats = replay_capture(BufReader::new(f), &opts, |r| {
         if let Some(w) = csv.as_mut() {
-            writeln!(w, "{}", csv_row(r))?;
+            writeln!(w, "{}", csv_row(r))
+                .with_context(|| format!("writing {}", w.path().display()))?;
         }
         if let Some(w) = txt.as_mut() {
             let n = encode_record(r, &mut buf).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            w.write_all(&buf[..n])?;
+            w.write_all(&buf[..n])
+                .with_context(|| format!("writing {}", w.path().display()))?;
         }
         Ok(())
     })
     .with_context(|| format!("replaying {}", args.capture.display()))?;
-    for (w, p) in [(csv.as_mut(), &args.output), (txt.as_mut(), &args.records)] {
-        if let (Some(w), Some(p)) = (w, p) {
-            w.flush()
-                .with_context(|| format!("writing {}", p.display()))?;
-        }
+    for w in [csv, txt].into_iter().flatten() {
+        w.commit()?;
     }
     eprintln!("replay: {stats}");
+    if let Some(w) = stats.dropped_warning() {
+        eprintln!("warning: {}: {w}", args.capture.display());
+    }
     Ok(stats)
 }
 

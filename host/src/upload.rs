@@ -54,6 +54,20 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
             board.text()
         );
     }
+    // Every coefficient the board's model has, by name, and nothing else: SETCOEF
+    // indices are the board's, so a short, long or reordered file must not reach it.
+    let names: Vec<String> = board
+        .coefficient_names()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    let file = &file.in_order_of(&names).with_context(|| {
+        format!(
+            "the coefficients do not fit the board's model '{}' ({} coefficients)",
+            board.text(),
+            names.len()
+        )
+    })?;
     // The crossover rate fit (post-flight, `rate`): its five anisotropic coefficients add
     // to the board's `rate` term; the isotropic one has no board coefficient (see
     // `run_upload`).
@@ -106,6 +120,9 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
 }
 
 pub fn run_upload(args: &UploadArgs) -> Result<()> {
+    if args.to != "-" {
+        crate::output::refuse_overwriting(&[&args.coeffs], &[std::path::Path::new(&args.to)])?;
+    }
     let file = read_coefficients(&args.coeffs)?;
     let lines = upload_lines(&file, &args.board_model, !args.no_save)?;
     if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
@@ -141,7 +158,10 @@ mod tests {
     use crate::fluxgate::FluxgateCalibration;
     use magcomp_core::protocol::command::parse_command;
 
+    /// A file for `model` with `n` coefficients named as the model names them (`c{i}`
+    /// past the model's count).
     fn file(model: &str, n: usize, flux: Option<FluxgateCalibration>) -> CoefficientFile {
+        let names = ModelSpec::parse(model).unwrap().coefficient_names();
         CoefficientFile {
             format: COEFF_FORMAT.into(),
             model: model.into(),
@@ -157,7 +177,7 @@ mod tests {
             covariance: None,
             coefficients: (0..n)
                 .map(|i| Coefficient {
-                    name: format!("c{i}"),
+                    name: names.get(i).map_or(format!("c{i}"), |n| n.0.clone()),
                     unit: "nT".into(),
                     value: (i as f64 - 7.5) * 3.25e-2,
                     sigma: 0.1,
@@ -261,6 +281,38 @@ mod tests {
                 .unwrap()
                 .len(),
             16
+        );
+    }
+
+    #[test]
+    fn a_short_long_or_misnamed_file_sends_nothing() {
+        // 10 of 16, none (a bare SAVE), 20 (SETCOEF 16–19): refused, naming what is wrong.
+        for (n, needle) in [
+            (10, "'eddy.e1*de2' is missing (10 of 16 given)"),
+            (0, "is missing (0 of 16 given)"),
+            (20, "unknown coefficient 'c16'"),
+        ] {
+            let e = upload_lines(&file("tl16+field", n, None), "tl16+field", true).unwrap_err();
+            assert!(format!("{e:#}").contains(needle), "{n}: {e:#}");
+        }
+        let mut f = file("tl16+field", 16, None);
+        f.coefficients[4].name = "induced.wobble".into();
+        let e = upload_lines(&f, "tl16+field", true).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("unknown coefficient 'induced.wobble'"),
+            "{e:#}"
+        );
+    }
+
+    #[test]
+    fn swapped_entries_send_the_same_lines() {
+        let f = file("tl16+field", 16, None);
+        let mut swapped = f.clone();
+        swapped.coefficients.swap(2, 9);
+        assert_ne!(swapped.coefficients[2].value, f.coefficients[2].value);
+        assert_eq!(
+            upload_lines(&swapped, "tl16+field", true).unwrap(),
+            upload_lines(&f, "tl16+field", true).unwrap()
         );
     }
 }

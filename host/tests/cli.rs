@@ -1,62 +1,10 @@
 //! The `magcomp` command as a user runs it: simulate → calibrate → compensate, the JSON
 //! contract, rows in = rows out, and clear errors on bad input.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
 
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_magcomp"))
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("magcomp-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-/// Runs a command that must succeed; its stdout and stderr.
-fn run_ok_with_stderr(cmd: &mut Command) -> (String, String) {
-    let out = cmd.output().expect("run magcomp");
-    assert!(
-        out.status.success(),
-        "magcomp failed: {}\n{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    (
-        String::from_utf8(out.stdout).unwrap(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
-fn run_ok(cmd: &mut Command) -> String {
-    run_ok_with_stderr(cmd).0
-}
-
-fn run_err(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("run magcomp");
-    assert!(!out.status.success(), "magcomp should have failed");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn simulate(dir: &Path, extra: &[&str]) -> PathBuf {
-    let p = dir.join("flight.csv");
-    let mut c = bin();
-    c.args(["simulate", "--seed", "3", "-o"])
-        .arg(&p)
-        .args(extra);
-    run_ok(&mut c);
-    p
-}
-
-fn data_rows(p: &Path) -> usize {
-    std::fs::read_to_string(p)
-        .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .count()
-        - 1
-}
+use common::cli::{bin, data_rows, run_err, run_ok, run_ok_with_stderr, simulate, tmp};
+use std::path::Path;
 
 #[test]
 fn simulate_calibrate_compensate_json_contract() {

@@ -342,10 +342,15 @@ fn run_replay_writes_csv_and_mcrec_lines() {
     let e = run_replay(&args).unwrap_err();
     assert!(format!("{e:#}").contains("do not fit model"), "{e:#}");
     // A calibrate file for another model or method: refused with the reason.
+    let names = ModelSpec::parse("tl16+field").unwrap().coefficient_names();
+    let entries: Vec<String> = names
+        .iter()
+        .map(|(n, _)| format!(r#"{{"name":"{n}","unit":"nT","value":0.5,"sigma":0.1}}"#))
+        .collect();
     let j = |model: &str, method: &str| {
         format!(
             r#"{{"format":"magcomp-coefficients-v1","model":"{model}","method":"{method}","sample_rate_hz":10,"coefficients":[{}]}}"#,
-            vec![r#"{"name":"c","unit":"nT","value":0.5,"sigma":0.1}"#; 16].join(",")
+            entries.join(",")
         )
     };
     std::fs::write(dir.join("c.txt"), j("permanent+induced+eddy+field", "kf")).unwrap();

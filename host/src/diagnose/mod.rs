@@ -1191,6 +1191,12 @@ pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
             args.min_explained
         );
     }
+    if let Some(dir) = &args.report {
+        crate::output::refuse_overwriting(
+            &[&args.trace],
+            &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
+        )?;
+    }
     let trace = load_trace(&args.trace, args.map.as_deref())?;
     let model = ModelSpec::parse(&args.model)?;
     let opts = DiagnoseOptions {

@@ -13,6 +13,9 @@ use crate::trace::Trace;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
+/// The page's file name in the report directory.
+pub const REPORT_PAGE: &str = "index.html";
+
 /// `magcomp report`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ReportArgs {
@@ -31,6 +34,7 @@ pub struct ReportArgs {
 }
 
 pub fn run_report(args: &ReportArgs) -> Result<()> {
+    crate::output::refuse_overwriting(&[&args.trace], &[&args.out.join(REPORT_PAGE)])?;
     let trace = load_trace(&args.trace, args.map.as_deref())?;
     let models = args
         .model
@@ -70,9 +74,8 @@ pub fn write_report(
     let page = build_report(trace, models, first)?;
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create report directory {}", dir.display()))?;
-    let path = dir.join("index.html");
-    page.write(&path)
-        .with_context(|| format!("cannot write {}", path.display()))?;
+    let path = dir.join(REPORT_PAGE);
+    page.write(&path)?;
     Ok(path)
 }
 
@@ -631,6 +634,11 @@ fn along_track_plot(flight: &Flight, run: &crate::pipeline::KfRun, i: usize) -> 
     let mid = ds.len() / 2;
     ds.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
     let step = ds[mid].max(1.0);
+    // More grid points than samples would be interpolation sized by the distance (a bad
+    // position): no plot rather than a grid no sample fills.
+    if !(0.0..=4.0 * s.len() as f64).contains(&(total / step)) {
+        return None;
+    }
     let nb = (total / step) as usize;
     if nb < 64 {
         return None;

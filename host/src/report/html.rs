@@ -163,9 +163,9 @@ impl HtmlReport {
         out
     }
 
-    /// Writes the page to a file.
-    pub fn write(&self, path: &std::path::Path) -> std::io::Result<()> {
-        std::fs::write(path, self.to_html())
+    /// Writes the page to a file (atomically, [`crate::output`]).
+    pub fn write(&self, path: &std::path::Path) -> anyhow::Result<()> {
+        crate::output::write_file(path, self.to_html())
     }
 }
 

@@ -43,6 +43,49 @@ pub struct Trace {
     pub numeric: Vec<(String, Vec<f64>)>,
     /// Text columns in file order: (name, values).
     pub text: Vec<(String, Vec<String>)>,
+    /// The file and line each row was read from (`None` for a trace made in memory).
+    pub origin: Option<RowOrigin>,
+}
+
+/// Where the rows of a trace came from, so that a message about a row can name the file
+/// and line. Stored as the rows where the line numbering jumps (comments, blank lines,
+/// XYZ line separators), one entry for a plain file.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RowOrigin {
+    pub file: String,
+    /// (row, its file line) for the first row and every row not on the line after its
+    /// predecessor's.
+    breaks: Vec<(usize, u64)>,
+    rows: usize,
+    last_line: u64,
+}
+
+impl RowOrigin {
+    pub fn new(file: &str) -> Self {
+        Self {
+            file: file.to_string(),
+            ..Default::default()
+        }
+    }
+
+    /// Records that the next row was read from `line`.
+    pub fn push(&mut self, line: u64) {
+        if self.rows == 0 || line != self.last_line + 1 {
+            self.breaks.push((self.rows, line));
+        }
+        self.rows += 1;
+        self.last_line = line;
+    }
+
+    /// The file line of data row `row` (0-based).
+    pub fn line(&self, row: usize) -> Option<u64> {
+        if row >= self.rows {
+            return None;
+        }
+        let k = self.breaks.partition_point(|(r, _)| *r <= row);
+        let (r, l) = self.breaks.get(k.checked_sub(1)?)?;
+        Some(l + (row - r) as u64)
+    }
 }
 
 impl Trace {

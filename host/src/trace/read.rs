@@ -2,7 +2,7 @@
 //! layout. One pass, one reused line buffer, columns built directly (no row structs), so a
 //! multi-million-row file costs about its own size in f64s.
 use super::view::{column_kind, ColumnKind};
-use super::{ColumnMap, Trace, TraceError};
+use super::{ColumnMap, RowOrigin, Trace, TraceError};
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -264,6 +264,7 @@ struct Reader<'m> {
     cols: Vec<Col>,
     t_idx: Option<usize>,
     prev_t: f64,
+    origin: RowOrigin,
 }
 
 impl Reader<'_> {
@@ -341,6 +342,7 @@ impl Reader<'_> {
                 self.prev_t = t;
             }
         }
+        self.origin.push(line);
         Ok(())
     }
 }
@@ -375,6 +377,7 @@ fn read_impl<R: Read>(
         cols: Vec::new(),
         t_idx: None,
         prev_t: f64::NEG_INFINITY,
+        origin: RowOrigin::new(name),
     };
     let mut meta = Vec::new();
     let mut have_header = false;
@@ -485,6 +488,7 @@ fn read_impl<R: Read>(
     }
     let mut trace = Trace {
         meta,
+        origin: Some(rd.origin),
         ..Trace::default()
     };
     for col in rd.cols {

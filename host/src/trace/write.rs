@@ -2,21 +2,17 @@
 //! round-trips the f64 exactly, never in scientific notation, so values read back bit-exact and
 //! a spreadsheet shows plain decimals. NaN is written as an empty field.
 use super::{Trace, TraceError};
-use std::fs::File;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
-/// Writes `trace` to a file (created or truncated).
-pub fn write_trace(path: &Path, trace: &Trace) -> Result<(), TraceError> {
+/// Writes `trace` to a file, atomically ([`crate::output`]): on an error nothing
+/// (or the previous file) is left under `path`.
+pub fn write_trace(path: &Path, trace: &Trace) -> anyhow::Result<()> {
     let name = path.display().to_string();
-    let file = File::create(path).map_err(|source| TraceError::Io {
-        file: name.clone(),
-        source,
-    })?;
-    let mut w = BufWriter::with_capacity(1 << 18, file);
-    write_trace_to(&mut w, trace).map_err(|e| rename_io(e, &name))?;
-    w.flush()
-        .map_err(|source| TraceError::Io { file: name, source })
+    crate::output::write_with(path, |w| {
+        write_trace_to(w, trace).map_err(|e| rename_io(e, &name))?;
+        Ok(())
+    })
 }
 
 fn rename_io(e: TraceError, name: &str) -> TraceError {

@@ -1,0 +1,59 @@
+//! Running the `magcomp` command from a test: the binary, a scratch directory, and
+//! success/failure with its output.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+pub fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_magcomp"))
+}
+
+pub fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("magcomp-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Runs a command that must succeed; its stdout and stderr.
+pub fn run_ok_with_stderr(cmd: &mut Command) -> (String, String) {
+    let out = cmd.output().expect("run magcomp");
+    assert!(
+        out.status.success(),
+        "magcomp failed: {}\n{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    (
+        String::from_utf8(out.stdout).unwrap(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+pub fn run_ok(cmd: &mut Command) -> String {
+    run_ok_with_stderr(cmd).0
+}
+
+pub fn run_err(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run magcomp");
+    assert!(!out.status.success(), "magcomp should have failed");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+pub fn simulate(dir: &Path, extra: &[&str]) -> PathBuf {
+    let p = dir.join("flight.csv");
+    let mut c = bin();
+    c.args(["simulate", "--seed", "3", "-o"])
+        .arg(&p)
+        .args(extra);
+    run_ok(&mut c);
+    p
+}
+
+pub fn data_rows(p: &Path) -> usize {
+    std::fs::read_to_string(p)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .count()
+        - 1
+}
