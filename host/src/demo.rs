@@ -81,6 +81,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             &args.out.join(format!("calibration-{name}.csv")),
             &flight,
             &comp,
+            &[],
         )?;
         let file = comp.coefficients.clone().context("no coefficients")?;
         std::fs::write(
@@ -123,7 +124,12 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         } else {
             "tl"
         };
-        write_output_csv(&args.out.join(format!("survey-{name}.csv")), &flight, &comp)?;
+        write_output_csv(
+            &args.out.join(format!("survey-{name}.csv")),
+            &flight,
+            &comp,
+            &[],
+        )?;
         let raw = flight
             .truth_interference_nt
             .as_ref()

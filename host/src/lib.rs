@@ -9,6 +9,7 @@ pub mod diagnose;
 pub mod flight;
 pub mod fluxgate;
 pub mod igrf;
+pub mod input;
 pub mod metrics;
 pub mod model_spec;
 pub mod monitor;
