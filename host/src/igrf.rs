@@ -77,7 +77,10 @@ impl Igrf {
             .map(|v| v.parse().context("shc: bad epoch"))
             .collect::<Result<_>>()?;
         if epochs.len() != n_times || epochs.windows(2).any(|w| w[1] <= w[0]) {
-            bail!("shc: {} epochs, expected {n_times} increasing", epochs.len());
+            bail!(
+                "shc: {} epochs, expected {n_times} increasing",
+                epochs.len()
+            );
         }
         let zero = vec![vec![vec![0.0; n_max + 1]; n_max + 1]; n_times];
         let (mut g, mut h) = (zero.clone(), zero);
@@ -87,7 +90,12 @@ impl Igrf {
                 .map(|x| x.parse().with_context(|| format!("shc line {}", i + 1)))
                 .collect::<Result<_>>()?;
             if v.len() != n_times + 2 {
-                bail!("shc line {}: {} values, expected {}", i + 1, v.len(), n_times + 2);
+                bail!(
+                    "shc line {}: {} values, expected {}",
+                    i + 1,
+                    v.len(),
+                    n_times + 2
+                );
             }
             let (n, m) = (v[0] as usize, v[1] as i64);
             if n == 0 || n > n_max || m.unsigned_abs() as usize > n {
@@ -108,7 +116,10 @@ impl Igrf {
 
     /// First and last epoch the model is defined for (decimal years).
     pub fn valid_years(&self) -> (f64, f64) {
-        (self.epochs[0], *self.epochs.last().unwrap_or(&self.epochs[0]))
+        (
+            self.epochs[0],
+            *self.epochs.last().unwrap_or(&self.epochs[0]),
+        )
     }
 
     /// Gauss coefficients at a decimal year: linear between the table's epochs.
@@ -204,8 +215,8 @@ impl Coefficients {
                 br += (nf + 1.0) * rn * gh * p[n][m];
                 bth -= rn * gh * dp[n][m];
                 if sin_th > 1e-10 {
-                    bph += rn * m as f64 * (self.g[n][m] * sm - self.h[n][m] * cm) * p[n][m]
-                        / sin_th;
+                    bph +=
+                        rn * m as f64 * (self.g[n][m] * sm - self.h[n][m] * cm) * p[n][m] / sin_th;
                 }
             }
         }

@@ -130,7 +130,9 @@ fn distinct_values(trace: &Trace, name: &str) -> String {
         }
     };
     if let Some(v) = trace.col(name) {
-        v.iter().filter(|x| x.is_finite()).for_each(|x| push(x.to_string()));
+        v.iter()
+            .filter(|x| x.is_finite())
+            .for_each(|x| push(x.to_string()));
     } else if let Some(v) = trace.text_col(name) {
         v.iter().for_each(|x| push(x.clone()));
     }
@@ -182,7 +184,9 @@ pub fn row_years(trace: &Trace, date: Option<&str>) -> Result<Option<(Vec<f64>, 
                 parse_date(v).with_context(|| format!("column 'date', data row {}", i + 1))?;
             out.push(decimal_year(y, doy, 0.0));
         }
-        return Ok(Some((out, "column date".into())));
+        if out.iter().any(|y| y.is_finite()) {
+            return Ok(Some((out, "column date".into())));
+        }
     }
     for (yc, dc) in [("year", "doy"), ("YEAR", "DOY")] {
         if let (Some(y), Some(d)) = (trace.col(yc), trace.col(dc)) {
@@ -200,7 +204,10 @@ pub fn row_years(trace: &Trace, date: Option<&str>) -> Result<Option<(Vec<f64>, 
                 }
                 out.push(decimal_year(y as i32, d.floor() as u32, 0.0));
             }
-            return Ok(Some((out, format!("columns {yc}/{dc}"))));
+            // An all-missing pair (a file whose logger left them empty) is no date.
+            if out.iter().any(|y| y.is_finite()) {
+                return Ok(Some((out, format!("columns {yc}/{dc}"))));
+            }
         }
     }
     Ok(None)
@@ -210,19 +217,13 @@ pub fn row_years(trace: &Trace, date: Option<&str>) -> Result<Option<(Vec<f64>, 
 /// date are interpolated from their neighbours (the filter removes the change since the
 /// first sample, so a gap must not read as a jump). Coefficients are computed once per
 /// distinct date.
-pub fn igrf_column(
-    lat: &[f64],
-    lon: &[f64],
-    alt_m: &[f64],
-    years: &[f64],
-) -> Result<Vec<f64>> {
+pub fn igrf_column(lat: &[f64], lon: &[f64], alt_m: &[f64], years: &[f64]) -> Result<Vec<f64>> {
     let model = Igrf::igrf14();
     let mut cache: Option<(f64, crate::igrf::Coefficients)> = None;
     let mut out = vec![f64::NAN; lat.len()];
     for i in 0..lat.len() {
         let y = years[i];
-        if !(lat[i].is_finite() && lon[i].is_finite() && alt_m[i].is_finite() && y.is_finite())
-        {
+        if !(lat[i].is_finite() && lon[i].is_finite() && alt_m[i].is_finite() && y.is_finite()) {
             continue;
         }
         if cache.as_ref().is_none_or(|(cy, _)| *cy != y) {
@@ -273,13 +274,19 @@ pub enum CoreField {
 
 /// Selects rows and adds the `igrf` column where the file has none and a date is known.
 /// Sets `core_field` / `core_field_epoch` metadata.
-pub fn prepare(mut trace: Trace, sel: &Selection, date: Option<&str>) -> Result<(Trace, CoreField)> {
+pub fn prepare(
+    mut trace: Trace,
+    sel: &Selection,
+    date: Option<&str>,
+) -> Result<(Trace, CoreField)> {
     if !sel.is_empty() {
         let rows = sel.rows(&trace)?;
         trace = take_rows(&trace, &rows);
     }
     if trace.col("igrf").is_some() {
-        trace.meta.push((META_CORE_FIELD.into(), "igrf column of the file".into()));
+        trace
+            .meta
+            .push((META_CORE_FIELD.into(), "igrf column of the file".into()));
         return Ok((trace, CoreField::FromFile));
     }
     let (Some(lat), Some(lon), Some(alt)) = (trace.col("lat"), trace.col("lon"), trace.col("alt"))
@@ -333,7 +340,10 @@ impl CoreField {
                 epochs,
                 date_source,
             } => Some(if (epochs.1 - epochs.0).abs() < 1e-9 {
-                format!("core field: {model} at {:.3} (date from {date_source})", epochs.0)
+                format!(
+                    "core field: {model} at {:.3} (date from {date_source})",
+                    epochs.0
+                )
             } else {
                 format!(
                     "core field: {model} at {:.3}–{:.3} (date from {date_source})",
@@ -345,7 +355,8 @@ impl CoreField {
                  --date YYYY-MM-DD): the core field's change along the flight is not removed{}; \
                  it biases long lines and north–south flights (docs/trace-format.md)",
                 match change_nt {
-                    Some(c) => format!(" (here it changes by {c:.1} nT over the flight's positions)"),
+                    Some(c) =>
+                        format!(" (here it changes by {c:.1} nT over the flight's positions)"),
                     None => String::new(),
                 }
             )),

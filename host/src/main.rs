@@ -62,7 +62,12 @@ struct CalibrateArgs {
     #[command(flatten)]
     est: EstimatorArgs,
     /// Where to write the coefficients (JSON).
-    #[arg(short = 'o', long = "out", visible_alias = "output", value_name = "COEFFS.json")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "COEFFS.json"
+    )]
     output: PathBuf,
 }
 
@@ -81,7 +86,12 @@ struct CompensateArgs {
     realtime: bool,
     /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
     /// and the input columns the model does not use (LINE, X, Y, …); docs/trace-format.md.
-    #[arg(short = 'o', long = "out", visible_alias = "output", value_name = "OUT.csv")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "OUT.csv"
+    )]
     out: PathBuf,
     /// Print one JSON object with the summary on stdout.
     #[arg(long)]

@@ -24,7 +24,12 @@ pub struct ReportArgs {
     #[arg(long)]
     pub model: Vec<String>,
     /// Output directory (created); the page is DIR/index.html.
-    #[arg(short = 'o', long = "out", visible_alias = "output", value_name = "DIR")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "DIR"
+    )]
     pub out: PathBuf,
 }
 

@@ -10,7 +10,12 @@ use std::path::PathBuf;
 #[derive(clap::Args, Clone, Debug)]
 pub struct SimulateArgs {
     /// Output trace file (CSV, see docs/trace-format.md).
-    #[arg(short = 'o', long = "out", visible_alias = "output", value_name = "FILE")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "FILE"
+    )]
     pub output: Option<PathBuf>,
 
     /// What to fly: `calibration` (cloverleaf, 4 headings × roll/pitch/yaw), `survey`
