@@ -70,8 +70,8 @@ fn sgl_file(dir: &Path, with_date: bool) -> (PathBuf, Trace) {
         "/ LINE FLT YEAR DOY TIME UTM-X UTM-Y UTM-Z LAT LONG BARO PITCH ROLL AZIMUTH \
          UNCOMPMAG1 UNCOMPMAG2 FLUXB_X FLUXB_Y FLUXB_Z CUR_PUMP V_BAT1 V_FAN\n",
     );
-    for i in 0..sim.len() {
-        let line = line_of(&seg[i], &mut turn, &mut prev);
+    for (i, seg_i) in seg.iter().enumerate() {
+        let line = line_of(seg_i, &mut turn, &mut prev);
         let (y, doy) = if with_date {
             ("2020", "181")
         } else {
