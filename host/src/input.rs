@@ -12,6 +12,9 @@ use anyhow::{bail, Context, Result};
 pub const META_CORE_FIELD: &str = "core_field";
 pub const META_CORE_FIELD_EPOCH: &str = "core_field_epoch";
 
+/// Below this core-field change over a flight (nT) its omission is not worth a warning.
+const NEGLIGIBLE_CORE_CHANGE_NT: f64 = 0.1;
+
 /// Names the line column may have: the canonical one, then the SGL/Geosoft one.
 const LINE_COLUMNS: &[&str] = &["line", "LINE"];
 
@@ -350,6 +353,9 @@ impl CoreField {
                     epochs.0, epochs.1
                 )
             }),
+            // A flight that stays in one place loses nothing (e.g. a file without real
+            // positions).
+            CoreField::Missing { change_nt: Some(c) } if *c < NEGLIGIBLE_CORE_CHANGE_NT => None,
             CoreField::Missing { change_nt } => Some(format!(
                 "warning: no `igrf` column and no date (a `date` column, YEAR/DOY columns or \
                  --date YYYY-MM-DD): the core field's change along the flight is not removed{}; \
