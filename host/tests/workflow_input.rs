@@ -351,3 +351,68 @@ fn out_is_one_spelling_and_report_defaults_to_the_default_model() {
         "no default model in the page"
     );
 }
+
+/// The real SGL calibration boxes (flight 1002, box 1): no displayed F/p pair contradicts
+/// itself. `fluxcal` used to show F = 28,865 with p = 1.0 when its calibration did not fit
+/// the fluxgate down to its noise; now p is the test's, and the candidate is "small"
+/// (not material) instead.
+#[test]
+fn diagnose_statistics_agree_on_the_real_boxes() {
+    use magcomp::diagnose::{diagnose, DiagnoseOptions};
+    use magcomp::model_spec::{ModelSpec, DEFAULT_MODEL};
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+    let Ok(text) = std::fs::read_to_string(&p) else {
+        eprintln!("SKIP: {} absent (shared reference data)", p.display());
+        return;
+    };
+    // Box 1 with a time and a nominal position (the file has neither).
+    let mut csv = String::new();
+    for (i, l) in text.lines().enumerate().take(6501) {
+        if i == 0 {
+            csv.push_str(&format!("t,lat,lon,alt,{l}\n"));
+        } else {
+            csv.push_str(&format!(
+                "{:.1},45.3,-75.7,400,{l}\n",
+                (i - 1) as f64 / 10.0
+            ));
+        }
+    }
+    let map =
+        ColumnMap::parse("mag=mag_4_uc,flux_x=flux_b_x,flux_y=flux_b_y,flux_z=flux_b_z").unwrap();
+    let trace = magcomp::trace::read_trace_from(csv.as_bytes(), "box1", &map).unwrap();
+    let model = ModelSpec::parse(DEFAULT_MODEL).unwrap();
+    let d = diagnose(&trace, &model, &DiagnoseOptions::default()).unwrap();
+    // The other magnetometers and fluxgates of the file are not candidates.
+    assert!(
+        !d.candidates
+            .iter()
+            .any(|c| c.term.contains("mag_3") || c.term.contains("flux_c")),
+        "{:?}",
+        d.candidates.iter().map(|c| &c.term).collect::<Vec<_>>()
+    );
+    let fluxcal = d.candidates.iter().find(|c| c.term == "fluxcal").unwrap();
+    for c in &d.candidates {
+        // F > 5 on ≥ 4 added parameters and thousands of samples is far in the tail.
+        if c.f_statistic > 5.0 && c.added_parameters >= 4 {
+            assert!(
+                c.p_value < 1e-3,
+                "{}: F {} with p {}",
+                c.term,
+                c.f_statistic,
+                c.p_value
+            );
+        }
+        if !c.significant && c.p_value < 1e-6 {
+            assert!(
+                !c.material,
+                "{}: p {} but neither significant nor small",
+                c.term, c.p_value
+            );
+        }
+    }
+    eprintln!(
+        "fluxcal on box 1: F {:.1}, p {:.1e}, material {}",
+        fluxcal.f_statistic, fluxcal.p_value, fluxcal.material
+    );
+}
