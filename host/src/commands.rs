@@ -29,7 +29,7 @@ pub struct TraceInput {
     /// Flight trace: CSV per docs/trace-format.md, or whitespace XYZ survey data (`/` comments, `*` missing).
     pub trace: PathBuf,
     /// Column names of your file, e.g.
-    /// `t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=MSL-Z`
+    /// `t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=UTM-Z`
     /// (SGL survey XYZ names; docs/trace-format.md lists the canonical ones).
     #[arg(long, value_name = "CANONICAL=FILE,...")]
     pub map: Option<String>,
