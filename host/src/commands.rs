@@ -26,11 +26,23 @@ pub enum Method {
 /// Options shared by every command that reads a trace.
 #[derive(clap::Args, Clone, Debug)]
 pub struct TraceInput {
-    /// Flight trace: CSV per trace-format.md, or whitespace XYZ survey data (`/` comments, `*` missing).
+    /// Flight trace: CSV per docs/trace-format.md, or whitespace XYZ survey data (`/` comments, `*` missing).
     pub trace: PathBuf,
-    /// Column names of your file, e.g. `mag=mag_4_uc,flux_x=flux_b_x,flux_y=flux_b_y,flux_z=flux_b_z,t=tt`.
+    /// Column names of your file, e.g.
+    /// `t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=UTM-Z`
+    /// (SGL survey XYZ names; docs/trace-format.md lists the canonical ones).
     #[arg(long, value_name = "CANONICAL=FILE,...")]
     pub map: Option<String>,
+    /// Only these lines, by the `line` column (SGL's `LINE`), e.g. `1002.02,1003.01`.
+    #[arg(long, value_name = "LINE,...")]
+    pub lines: Option<String>,
+    /// Only rows with T0 ≤ t ≤ T1 (seconds, the `t` column; `T0:` or `:T1` leave a side open).
+    #[arg(long, value_name = "T0:T1", allow_hyphen_values = true)]
+    pub time: Option<String>,
+    /// Survey date for the core field (IGRF-14) when the file has no `igrf` column and no
+    /// `date` or YEAR/DOY columns.
+    #[arg(long, value_name = "YYYY-MM-DD")]
+    pub date: Option<String>,
 }
 
 impl TraceInput {
@@ -51,7 +63,24 @@ impl TraceInput {
         let t = read_trace_with(&self.trace, &map, opts)
             .with_context(|| format!("reading {}", self.trace.display()))?;
         bar.finish_and_clear();
+        let sel = crate::input::Selection::parse(self.lines.as_deref(), self.time.as_deref())?;
+        let (t, core) = crate::input::prepare(t, &sel, self.date.as_deref())
+            .with_context(|| format!("preparing {}", self.trace.display()))?;
+        if let Some(m) = core.message() {
+            eprintln!("{m}");
+        }
         Ok(t)
+    }
+
+    /// Just the file, for code that builds one by hand.
+    pub fn new(trace: impl Into<PathBuf>) -> Self {
+        TraceInput {
+            trace: trace.into(),
+            map: None,
+            lines: None,
+            time: None,
+            date: None,
+        }
     }
 }
 
@@ -445,15 +474,22 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
     }
 }
 
-/// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`.
-pub fn write_output_csv(path: &Path, flight: &Flight, comp: &Compensation) -> Result<()> {
-    crate::output::write_with(path, |w| write_output_rows(w, flight, comp))
+/// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`, then `carried`
+/// (`input::carried_columns`: `igrf` and the input's unconsumed columns).
+pub fn write_output_csv(
+    path: &Path,
+    flight: &Flight,
+    comp: &Compensation,
+    carried: &[(String, crate::input::OutputValues)],
+) -> Result<()> {
+    crate::output::write_with(path, |w| write_output_rows(w, flight, comp, carried))
 }
 
 fn write_output_rows(
     w: &mut impl std::io::Write,
     flight: &Flight,
     comp: &Compensation,
+    carried: &[(String, crate::input::OutputValues)],
 ) -> Result<()> {
     writeln!(w, "# model: {}", comp.model)?;
     writeln!(
@@ -467,10 +503,14 @@ fn write_output_rows(
     )?;
     let kf = comp.anomaly_nt.is_some();
     if kf {
-        writeln!(w, "t,mag,interference,compensated,anomaly,innovation,flags")?;
+        write!(w, "t,mag,interference,compensated,anomaly,innovation,flags")?;
     } else {
-        writeln!(w, "t,mag,interference,compensated")?;
+        write!(w, "t,mag,interference,compensated")?;
     }
+    for (name, _) in carried {
+        write!(w, ",{name}")?;
+    }
+    writeln!(w)?;
     let num = |v: f64, d: usize| {
         if v.is_finite() {
             format!("{v:.d$}")
@@ -505,9 +545,32 @@ fn write_output_rows(
                 comp.flags.as_ref().map(|v| v[i]).unwrap_or(0)
             )?;
         }
+        for (_, col) in carried {
+            match col {
+                // Carried values are written as read (shortest round-trip form).
+                crate::input::OutputValues::Num(v) => write!(w, ",{}", num_carried(v[i]))?,
+                crate::input::OutputValues::Text(v) => write!(w, ",{}", csv_text(&v[i]))?,
+            }
+        }
         writeln!(w)?;
     }
     Ok(())
+}
+
+fn num_carried(v: f64) -> String {
+    if v.is_finite() {
+        v.to_string()
+    } else {
+        String::new()
+    }
+}
+
+fn csv_text(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
 }
 
 /// Reads a coefficient file written by `calibrate`. Coefficients are matched to the

@@ -82,6 +82,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             &args.out.join(format!("calibration-{name}.csv")),
             &flight,
             &comp,
+            &[],
         )?;
         let file = comp.coefficients.clone().context("no coefficients")?;
         crate::output::write_file(
@@ -124,7 +125,12 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         } else {
             "tl"
         };
-        write_output_csv(&args.out.join(format!("survey-{name}.csv")), &flight, &comp)?;
+        write_output_csv(
+            &args.out.join(format!("survey-{name}.csv")),
+            &flight,
+            &comp,
+            &[],
+        )?;
         let raw = flight
             .truth_interference_nt
             .as_ref()

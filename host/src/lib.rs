@@ -8,6 +8,8 @@ pub mod demo;
 pub mod diagnose;
 pub mod flight;
 pub mod fluxgate;
+pub mod igrf;
+pub mod input;
 pub mod metrics;
 pub mod model_spec;
 pub mod monitor;

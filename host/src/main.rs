@@ -63,7 +63,12 @@ struct CalibrateArgs {
     #[command(flatten)]
     est: EstimatorArgs,
     /// Where to write the coefficients (JSON).
-    #[arg(short, long, value_name = "COEFFS.json")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "COEFFS.json"
+    )]
     output: PathBuf,
     /// Print one JSON object with the summary on stdout (as `compensate --json`).
     #[arg(long)]
@@ -83,8 +88,14 @@ struct CompensateArgs {
     /// post-flight — calibrate on the whole trace, then apply the final coefficients).
     #[arg(long)]
     realtime: bool,
-    /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags].
-    #[arg(long, value_name = "OUT.csv")]
+    /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
+    /// and the input columns the model does not use (LINE, X, Y, …); docs/trace-format.md.
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "OUT.csv"
+    )]
     out: PathBuf,
     /// Print one JSON object with the summary on stdout.
     #[arg(long)]
@@ -217,10 +228,21 @@ fn main() -> Result<()> {
             let trace = a.input.read()?;
             let coeffs = a.coeffs.as_deref().map(read_coefficients).transpose()?;
             let (flight, comp) = compensate_trace(&trace, &a.est, coeffs.as_ref(), a.realtime)?;
-            write_output_csv(&a.out, &flight, &comp)?;
+            let carried = magcomp::input::carried_columns(&trace, &flight.channels);
+            write_output_csv(&a.out, &flight, &comp, &carried)?;
             let s = summarise(&flight, &comp);
             if a.json {
-                println!("{}", serde_json::to_string(&s)?);
+                let mut v = serde_json::to_value(&s)?;
+                // Where the core field came from: the file, or the model and epoch used.
+                for key in [
+                    magcomp::input::META_CORE_FIELD,
+                    magcomp::input::META_CORE_FIELD_EPOCH,
+                ] {
+                    if let (Some(m), Some(obj)) = (trace.meta(key), v.as_object_mut()) {
+                        obj.insert(key.into(), m.parse::<f64>().map_or(m.into(), Into::into));
+                    }
+                }
+                println!("{v}");
             } else {
                 print_summary(&s);
                 eprintln!("wrote {}", a.out.display());

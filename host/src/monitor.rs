@@ -40,7 +40,7 @@ pub struct MonitorArgs {
 
     /// Save the decoded records as a trace-like CSV
     /// (t,mag,interference,compensated,anomaly,innovation,flags,seq).
-    #[arg(long, value_name = "TRACE.csv")]
+    #[arg(short = 'o', long, visible_alias = "out", value_name = "TRACE.csv")]
     pub save: Option<PathBuf>,
 
     /// Refresh period on a terminal (wall-clock s); summary period otherwise (record s).

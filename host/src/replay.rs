@@ -67,7 +67,12 @@ pub struct ReplayArgs {
     pub flux: Option<FluxFormat>,
 
     /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,flags.
-    #[arg(short, long, value_name = "OUT.csv")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "OUT.csv"
+    )]
     pub output: Option<PathBuf>,
 
     /// Records as the board sends them (`$MCREC,…*CRC` lines).

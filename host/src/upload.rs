@@ -175,6 +175,7 @@ mod tests {
             rate_crossover: None,
             predicted_error_nt: None,
             covariance: None,
+            assumed_speed_mps: None,
             coefficients: (0..n)
                 .map(|i| Coefficient {
                     name: names.get(i).map_or(format!("c{i}"), |n| n.0.clone()),

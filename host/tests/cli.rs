@@ -69,7 +69,11 @@ fn simulate_calibrate_compensate_json_contract() {
             .to_string();
         assert!(header.starts_with("t,mag,interference,compensated"));
         if method == "kf" {
-            assert!(header.ends_with("anomaly,innovation,flags"), "{header}");
+            // Then `igrf` and the carried input columns (docs/trace-format.md).
+            assert!(
+                header.starts_with("t,mag,interference,compensated,anomaly,innovation,flags,igrf"),
+                "{header}"
+            );
             // The filter's own figure for the calibration: the estimation error beyond the
             // model floor should be of its size.
             let predicted = j["predicted_error_nt"]

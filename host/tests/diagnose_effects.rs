@@ -448,11 +448,11 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let csv = dir.join("pump.csv");
     magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
     let args = DiagnoseArgs {
-        trace: csv.clone(),
+        input: magcomp::commands::TraceInput::new(csv.clone()),
         model: "tl16+field".into(),
         json: true,
         report: Some(dir.join("report")),
-        map: None,
+        aux: None,
         alpha: 0.01,
         min_explained: 0.02,
     };
@@ -489,7 +489,7 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let e = format!(
         "{:#}",
         run_diagnose(&DiagnoseArgs {
-            trace: dir.join("bad.csv"),
+            input: magcomp::commands::TraceInput::new(dir.join("bad.csv")),
             ..args
         })
         .unwrap_err()

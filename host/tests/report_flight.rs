@@ -78,10 +78,9 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let csv = dir.join("flight.csv");
     write_trace(&csv, &trace()).expect("write");
     let args = ReportArgs {
-        trace: csv.clone(),
+        input: magcomp::commands::TraceInput::new(csv.clone()),
         model: vec!["tl16+field".into()],
         out: dir.join("out"),
-        map: None,
     };
     run_report(&args).expect("report");
     assert!(dir.join("out/index.html").exists());
@@ -92,7 +91,7 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let e = format!("{:#}", run_report(&bad).unwrap_err());
     assert!(e.contains("wobble"), "{e}");
     let missing = ReportArgs {
-        trace: dir.join("nope.csv"),
+        input: magcomp::commands::TraceInput::new(dir.join("nope.csv")),
         ..args
     };
     let e = format!("{:#}", run_report(&missing).unwrap_err());

@@ -36,7 +36,7 @@ pub const CATALOG: &[TermInfo] = &[
     TermInfo { name: "current", channel: ChannelUse::Required, effect: "field of a current-carrying circuit, proportional to the current channel: I·e", relative_channel: false },
     TermInfo { name: "current_rate", channel: ChannelUse::Required, effect: "inductive coupling of a switching current: dI/dt·e", relative_channel: false },
     TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: −τ·d/dt of the field and of the permanent and induced regressors", relative_channel: false },
-    TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
+    TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (docs/model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
     TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
     TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
     TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },

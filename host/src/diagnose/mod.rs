@@ -16,6 +16,7 @@
 //! scalar lag (−τ·dB/dt; `rate` explains up to 10.7 % of the residual over 40 seeds) and is
 //! "significant" by any test that counts 7000 samples.
 
+pub mod candidates;
 pub mod custom;
 mod innovations;
 pub mod stats;
@@ -67,6 +68,9 @@ pub struct DiagnoseOptions {
     /// at least this (nT rms): a tenth of a survey's 0.1 nT. Clean simulated fluxgates
     /// (30 nT bias, 0.1 % scale) change it by ≤ 0.004 nT, a 300 nT / 0.7 % one by 0.02–0.03.
     pub min_fluxcal_change_nt: f64,
+    /// Which auxiliary columns are candidates (`--aux`); None: all but navigation, time,
+    /// identifiers, other magnetometers, fluxgates and constants (`candidates`).
+    pub aux: Option<candidates::AuxSelection>,
 }
 
 impl Default for DiagnoseOptions {
@@ -77,6 +81,7 @@ impl Default for DiagnoseOptions {
             window_s: 20.0,
             ar_order: 10,
             min_fluxcal_change_nt: 0.01,
+            aux: None,
         }
     }
 }
@@ -122,6 +127,10 @@ pub struct Candidate {
     pub explained_fraction: f64,
     pub residual_rms_after_nt: f64,
     pub significant: bool,
+    /// Explains at least the materiality bar (`--min-explained`; for `fluxcal`, changes the
+    /// compensation by at least `min_fluxcal_change_nt`). A candidate with a tiny p that is
+    /// not material is not significant.
+    pub material: bool,
     /// Number of independent parameters the term adds on this flight.
     pub added_parameters: usize,
     /// Nested-model F statistic on the prewhitened residual.
@@ -208,8 +217,20 @@ impl Diagnosis {
                 c.added_parameters,
                 c.f_statistic,
                 c.p_value,
-                if c.significant { "YES" } else { "no" },
+                if c.significant {
+                    "YES"
+                } else if !c.material {
+                    "small"
+                } else {
+                    "no"
+                },
                 c.effect
+            );
+        }
+        if self.candidates.iter().any(|c| !c.material) {
+            let _ = writeln!(
+                s,
+                "  (small: explains less than the materiality bar, whatever its p)"
             );
         }
         match self.candidates.iter().find(|c| c.significant) {
@@ -232,7 +253,17 @@ impl Diagnosis {
 /// `fluxcal` (tested on the fluxgate itself), `periodic` for rotation-rate (rpm-like) channels,
 /// `field` when the model has none.
 pub fn candidate_terms(trace: &Trace, model: &ModelSpec) -> Vec<String> {
-    let aux: Vec<&str> = trace.aux_columns();
+    candidate_terms_with(trace, model, None)
+}
+
+/// [`candidate_terms`] over the channels `aux` selects (`--aux` globs; default
+/// [`candidates::default_channels`]).
+pub fn candidate_terms_with(
+    trace: &Trace,
+    model: &ModelSpec,
+    aux: Option<&candidates::AuxSelection>,
+) -> Vec<String> {
+    let aux: Vec<&str> = candidates::channels(trace, aux);
     let present = |name: &str, ch: Option<&str>| {
         model
             .terms
@@ -486,7 +517,7 @@ pub fn diagnose_with(
     let run = run_kf(&flight, &KfOptions::new(model.clone()))?;
     let n = flight.len();
     let fs = flight.sample_rate_hz;
-    let cand_texts = candidate_terms(trace, model);
+    let cand_texts = candidate_terms_with(trace, model, opts.aux.as_ref());
     let mut cand_specs: Vec<(String, Option<ColTerm>)> = Vec::new();
     for c in &cand_texts {
         if c == "field" || c == "fluxcal" {
@@ -510,8 +541,7 @@ pub fn diagnose_with(
     }
     for x in extra {
         let chans: Vec<Option<String>> = if x.needs_channel {
-            trace
-                .aux_columns()
+            candidates::channels(trace, opts.aux.as_ref())
                 .iter()
                 .map(|c| Some(c.to_string()))
                 .collect()
@@ -725,6 +755,7 @@ pub fn diagnose_with(
             explained_fraction: explained,
             residual_rms_after_nt: after,
             significant: p < opts.alpha / m && material,
+            material,
             added_parameters: q,
             f_statistic: f,
             p_value: p,
@@ -911,8 +942,10 @@ fn fluxcal_test(flight: &Flight, model: &ModelSpec, run: &KfRun) -> Result<Fluxc
     // White noise of the calibrated modulus from its third differences (robust to the
     // smooth misfit the sd includes).
     let noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
+    // Not fitting down to the noise makes the change immaterial (share 0 below), not the
+    // F-test insignificant: F and p stay what the test gave, so the table never shows a
+    // huge F with p = 1.
     let fits_to_noise = fit.modulus_sd_after_nt <= 2.0 * noise_nt.max(0.05);
-    let p = if fits_to_noise { p } else { 1.0 };
     // With INS attitude: the installation check the compensation does not need.
     let ins = fluxgate::ins_misalignment_rad(flight, &fit.calibration)
         .map(|w| {
@@ -1150,8 +1183,8 @@ fn segment_stats(flight: &Flight, rows: &[usize], e: &[f64], nis_k: &[f64]) -> V
 /// `magcomp diagnose`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DiagnoseArgs {
-    /// Recorded trace (CSV, see trace-format.md).
-    pub trace: PathBuf,
+    #[command(flatten)]
+    pub input: crate::commands::TraceInput,
     /// Model spec, e.g. `tl16+field+current:cur_pump`.
     #[arg(long, default_value = crate::model_spec::DEFAULT_MODEL)]
     pub model: String,
@@ -1159,11 +1192,14 @@ pub struct DiagnoseArgs {
     #[arg(long)]
     pub json: bool,
     /// Also write the HTML report into this directory.
-    #[arg(long, value_name = "DIR")]
+    #[arg(short = 'o', long, visible_alias = "out", value_name = "DIR")]
     pub report: Option<PathBuf>,
-    /// Column map for files with other names, e.g. `mag=mag_4_uc,t=tt`.
-    #[arg(long, value_name = "MAP")]
-    pub map: Option<String>,
+    /// Candidate driver channels, comma-separated globs (case-insensitive), e.g.
+    /// `CUR_*,V_*`. Default: every unmapped numeric column except position, navigation,
+    /// air data, attitude, time/date, LINE/FLT-like identifiers, other magnetometers
+    /// (UNCOMPMAG*, COMPMAG*, mag_*), base stations, fluxgates and constant columns.
+    #[arg(long, value_name = "GLOB,...")]
+    pub aux: Option<String>,
     /// Family-wise false-positive rate over all candidates.
     #[arg(long, default_value_t = 0.01)]
     pub alpha: f64,
@@ -1193,15 +1229,24 @@ pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
     }
     if let Some(dir) = &args.report {
         crate::output::refuse_overwriting(
-            &[&args.trace],
+            &[&args.input.trace],
             &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
         )?;
     }
-    let trace = load_trace(&args.trace, args.map.as_deref())?;
+    let trace = args.input.read()?;
     let model = ModelSpec::parse(&args.model)?;
+    let aux = args
+        .aux
+        .as_deref()
+        .map(candidates::AuxSelection::parse)
+        .transpose()?;
+    if let Some(sel) = &aux {
+        candidates::check_selection(&trace, sel)?;
+    }
     let opts = DiagnoseOptions {
         alpha: args.alpha,
         min_explained: args.min_explained,
+        aux,
         ..Default::default()
     };
     let d = diagnose(&trace, &model, &opts)?;

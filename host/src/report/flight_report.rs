@@ -4,7 +4,7 @@
 
 use super::{HtmlReport, Plot, Section, Series, PALETTE};
 use crate::diagnose::{
-    diagnose, load_trace, residual_spectrum, scalar_relative_nt, DiagnoseOptions, Diagnosis,
+    diagnose, residual_spectrum, scalar_relative_nt, DiagnoseOptions, Diagnosis,
 };
 use crate::flight::Flight;
 use crate::metrics::{error_rms_nt, fom, improvement_ratio};
@@ -19,25 +19,33 @@ pub const REPORT_PAGE: &str = "index.html";
 /// `magcomp report`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ReportArgs {
-    /// Recorded trace (CSV, see trace-format.md).
-    pub trace: PathBuf,
+    #[command(flatten)]
+    pub input: crate::commands::TraceInput,
     /// Model spec; give it twice (or more) to compare before/after, e.g.
-    /// `--model tl16+field --model tl16+field+current:cur_pump`.
-    #[arg(long, required = true)]
+    /// `--model tl16+field --model tl16+field+current:cur_pump`. Default: the default
+    /// model (`tl16+field`).
+    #[arg(long)]
     pub model: Vec<String>,
     /// Output directory (created); the page is DIR/index.html.
-    #[arg(short = 'o', long = "out", value_name = "DIR")]
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "DIR"
+    )]
     pub out: PathBuf,
-    /// Column map for files with other names, e.g. `mag=mag_4_uc,t=tt`.
-    #[arg(long, value_name = "MAP")]
-    pub map: Option<String>,
 }
 
 pub fn run_report(args: &ReportArgs) -> Result<()> {
-    crate::output::refuse_overwriting(&[&args.trace], &[&args.out.join(REPORT_PAGE)])?;
-    let trace = load_trace(&args.trace, args.map.as_deref())?;
-    let models = args
-        .model
+    crate::output::refuse_overwriting(&[&args.input.trace], &[&args.out.join(REPORT_PAGE)])?;
+    let trace = args.input.read()?;
+    let default = [crate::model_spec::DEFAULT_MODEL.to_string()];
+    let given: &[String] = if args.model.is_empty() {
+        &default
+    } else {
+        &args.model
+    };
+    let models = given
         .iter()
         .map(|m| ModelSpec::parse(m))
         .collect::<Result<Vec<_>>>()?;

@@ -9,8 +9,13 @@ use std::path::PathBuf;
 /// Tolles–Lawson aircraft field with exact dB/dt, diurnal, and realistic sensor errors.
 #[derive(clap::Args, Clone, Debug)]
 pub struct SimulateArgs {
-    /// Output trace file (CSV, see trace-format.md).
-    #[arg(short, long, value_name = "FILE")]
+    /// Output trace file (CSV, see docs/trace-format.md).
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "FILE"
+    )]
     pub output: Option<PathBuf>,
 
     /// What to fly: `calibration` (cloverleaf, 4 headings × roll/pitch/yaw), `survey`

@@ -1,4 +1,4 @@
-//! The recorded-trace data contract (`shared/docs/trace-format.md`): one row per scalar
+//! The recorded-trace data contract (`docs/trace-format.md`): one row per scalar
 //! sample, named columns, `#` metadata, missing values as NaN (never zero).
 //!
 //! Reading: [`read_trace`] / [`read_trace_from`] (CSV per the contract, or the
