@@ -13,6 +13,7 @@ pub mod model_spec;
 pub mod monitor;
 pub mod nmea_cmd;
 pub mod pipeline;
+pub mod preprocess;
 pub mod reference_kf;
 pub mod replay;
 pub mod report;

@@ -35,11 +35,12 @@ pub const CATALOG: &[TermInfo] = &[
     TermInfo { name: "eddy", channel: ChannelUse::None, effect: "eddy currents in the airframe driven by manoeuvres: e_i·de_j/dt·|B|", relative_channel: false },
     TermInfo { name: "current", channel: ChannelUse::Required, effect: "field of a current-carrying circuit, proportional to the current channel: I·e", relative_channel: false },
     TermInfo { name: "current_rate", channel: ChannelUse::Required, effect: "inductive coupling of a switching current: dI/dt·e", relative_channel: false },
-    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: −τ·d/dt of the field and of the permanent and induced regressors", relative_channel: false },
+    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: the scalar reads B(t−τ); τ is estimated (sub-sample) and the scalar re-aligned by fractional-delay interpolation before the filter (no filter state)", relative_channel: false },
     TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
     TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
     TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
     TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },
+    TermInfo { name: "fluxtemp", channel: ChannelUse::Required, effect: "fluxgate bias/scale drifting with a temperature channel: |B_fluxgate| − B follows (T − T_ref)·(b + s∘B_F); fitted on the fluxgate modulus and corrected before the direction cosines (no filter state)", relative_channel: false },
     TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
 ];
 
@@ -63,6 +64,7 @@ pub enum AnyTerm {
     InducedHigh(InducedHigh),
     FluxCal(FluxCal),
     Periodic(Periodic),
+    FluxTemp(FluxTemp),
 }
 
 impl AnyTerm {
@@ -80,6 +82,7 @@ impl AnyTerm {
             "induced_high" => Self::InducedHigh(InducedHigh),
             "fluxcal" => Self::FluxCal(FluxCal),
             "periodic" => Self::Periodic(Periodic { channel }),
+            "fluxtemp" => Self::FluxTemp(FluxTemp { channel }),
             _ => return None,
         })
     }
@@ -97,6 +100,7 @@ impl AnyTerm {
             Self::InducedHigh(t) => t,
             Self::FluxCal(t) => t,
             Self::Periodic(t) => t,
+            Self::FluxTemp(t) => t,
         }
     }
 }
