@@ -276,12 +276,8 @@ mod tests {
         }
         let fit = fit_modulus(&flux, &temp, &reference, "temp_flux").unwrap();
         let c = &fit.correction;
-        for i in 0..3 {
-            assert!(
-                (c.bias_nt_per_degc[i] - bias_t[i]).abs() < 0.01,
-                "{:?}",
-                c.bias_nt_per_degc
-            );
+        for (est, truth) in c.bias_nt_per_degc.iter().zip(bias_t) {
+            assert!((est - truth).abs() < 0.01, "{:?}", c.bias_nt_per_degc);
         }
         assert!(fit.rss_full_nt2 < 1e-6 * fit.rss_static_nt2, "{fit:?}");
         let e = fit_modulus(&flux, &vec![20.0; flux.len()], &reference, "t").unwrap_err();
