@@ -89,7 +89,7 @@ impl TraceInput {
 pub struct EstimatorArgs {
     /// Model: `+`-joined terms, e.g. `tl16+field` (the paper's), `tl16+field+current:cur_pump`.
     /// Terms: tl16 (= permanent+induced+eddy), field, current:CH, current_rate:CH, lag, rate,
-    /// diurnal[:base], induced_high, fluxcal, periodic:CH.
+    /// diurnal[:base], induced_high, fluxcal, fluxtemp:CH, periodic:CH.
     #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
     pub model: String,
     /// kf: the paper's Kalman filter; tl: classic Tolles–Lawson (18 terms, band-passed).
@@ -143,6 +143,14 @@ pub struct CoefficientFile {
     /// (`B = matrix·B_F + bias_nt`, body frame); apply the same on the board.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fluxgate_calibration: Option<crate::fluxgate::FluxgateCalibration>,
+    /// With `lag`: the scalar's estimated delay behind the fluxgate/GPS (s) and its 1σ;
+    /// `compensate --coeffs` re-aligns the scalar by it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scalar_lag: Option<crate::preprocess::ScalarLag>,
+    /// With `fluxtemp:CH`: the fluxgate's temperature coefficients (bias nT/°C, scale 1/°C,
+    /// each with its 1σ) and reference temperature; applied before the direction cosines.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fluxgate_temperature: Option<crate::preprocess::FluxgateTemperature>,
     /// The anomaly process the calibration used (KF; see `pipeline::FIELD_PROFILES`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,
@@ -277,6 +285,18 @@ pub fn compensate_trace(
                     bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
                 }
                 opts.fluxgate_calibration = c.fluxgate_calibration;
+                if spec.terms.iter().any(|t| t.name == "lag") && c.scalar_lag.is_none() {
+                    bail!("the model has `lag` but the coefficient file has no scalar_lag");
+                }
+                if spec.terms.iter().any(|t| t.name == "fluxtemp")
+                    && c.fluxgate_temperature.is_none()
+                {
+                    bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
+                }
+                opts.preprocessing = Some(crate::preprocess::Preprocessing {
+                    scalar_lag: c.scalar_lag,
+                    fluxgate_temperature: c.fluxgate_temperature.clone(),
+                });
                 opts.rate_crossover_coefficients = c
                     .rate_crossover
                     .as_ref()
@@ -295,6 +315,11 @@ pub fn compensate_trace(
                 noise_nt: Some(run.noise_nt),
                 tl_config: None,
                 fluxgate_calibration: run.fluxgate_calibration,
+                scalar_lag: run.preprocessing.as_ref().and_then(|p| p.scalar_lag),
+                fluxgate_temperature: run
+                    .preprocessing
+                    .as_ref()
+                    .and_then(|p| p.fluxgate_temperature.clone()),
                 field_process: Some(run.field_process.clone()),
                 rate_crossover: match (&run.rate_crossover, coeffs) {
                     (Some((fit, applied)), _) => Some(RateCrossover {
@@ -403,6 +428,8 @@ pub fn compensate_trace(
                 noise_nt: None,
                 tl_config: Some(fit.config.clone()),
                 fluxgate_calibration: None,
+                scalar_lag: None,
+                fluxgate_temperature: None,
                 field_process: None,
                 rate_crossover: None,
                 predicted_error_nt: None,

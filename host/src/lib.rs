@@ -17,6 +17,7 @@ pub mod nmea_cmd;
 pub mod output;
 pub mod pipeline;
 pub mod position;
+pub mod preprocess;
 pub mod reference_kf;
 pub mod replay;
 pub mod report;

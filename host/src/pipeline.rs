@@ -70,6 +70,9 @@ pub struct KfOptions {
     /// calibration, so the run can say how well they determine *this* flight's
     /// interference (`KfRun::predicted_error_nt`).
     pub coefficient_covariance: Option<Vec<f64>>,
+    /// With `lag`/`fluxtemp`: apply this pre-processing (from a coefficient file) instead of
+    /// estimating it ([`crate::preprocess`]).
+    pub preprocessing: Option<crate::preprocess::Preprocessing>,
 }
 
 impl KfOptions {
@@ -96,6 +99,7 @@ impl KfOptions {
             rate_crossovers: true,
             rate_crossover_coefficients: None,
             coefficient_covariance: None,
+            preprocessing: None,
         }
     }
 }
@@ -135,6 +139,8 @@ pub struct KfRun {
     pub fluxgate_fit: Option<FluxgateFit>,
     /// What the run found the user must know (undetermined coefficients, …).
     pub warnings: Vec<String>,
+    /// With `lag`/`fluxtemp`: what was done to the flight before the filter.
+    pub preprocessing: Option<crate::preprocess::Preprocessing>,
 }
 
 /// Robust white-noise level of the scalar: the third difference of white noise has
@@ -578,11 +584,21 @@ pub const SIGMA1_CANDIDATES: [f64; 4] = [1.0, 0.3, 0.1, 0.03];
 /// Default σ1 when the track is too short for the spectrum (the paper's 1000 m value).
 pub const DEFAULT_SIGMA1: f64 = 1.0e-6;
 
-/// Runs the compensator over a flight. With `fluxcal` in the model the fluxgate is first
+/// Runs the compensator over a flight. With `lag` or `fluxtemp` in the model the flight is
+/// first pre-processed (scalar re-aligned, fluxgate corrected for temperature:
+/// [`crate::preprocess`]), then [`run_kf_estimator`] runs on it.
+pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+    if crate::preprocess::needed(&opts.model) {
+        return crate::preprocess::run_kf_preprocessed(flight, opts);
+    }
+    run_kf_estimator(flight, opts)
+}
+
+/// The estimator on a flight as given. With `fluxcal` in the model the fluxgate is first
 /// calibrated against the scalar (the stored calibration, or one fitted on this flight to
 /// the scalar minus a first pass's interference) and the filter runs on the calibrated
 /// fluxgate.
-pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     if !opts.model.calibrates_fluxgate() {
         return run_kf_on(flight, opts);
     }

@@ -37,6 +37,17 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
     }
     let board = ModelSpec::parse(board_model)?;
     let theirs = ModelSpec::parse(&file.model)?;
+    // The board has no delay line for the scalar nor a temperature input for the fluxgate
+    // yet: refuse rather than upload coefficients fitted on a re-aligned/corrected flight.
+    for t in &theirs.terms {
+        if t.name == "lag" || t.name == "fluxtemp" {
+            bail!(
+                "the coefficients are for model '{}': the board cannot apply `{}` yet (it re-aligns the scalar / corrects the fluxgate for temperature on the host only); calibrate without it for the board",
+                theirs.text(),
+                t.text()
+            );
+        }
+    }
     // `fluxcal` adds no filter state: its coefficients are the board model's.
     let without_fluxcal = ModelSpec {
         terms: theirs
@@ -171,6 +182,8 @@ mod tests {
             noise_nt: None,
             tl_config: None,
             fluxgate_calibration: flux,
+            scalar_lag: None,
+            fluxgate_temperature: None,
             field_process: None,
             rate_crossover: None,
             predicted_error_nt: None,
@@ -259,7 +272,14 @@ mod tests {
 
     #[test]
     fn wrong_model_method_or_range_is_refused() {
-        let e = upload_lines(&file("tl16+field+lag", 25, None), "tl16+field", true).unwrap_err();
+        let e = upload_lines(&file("tl16+field+lag", 16, None), "tl16+field", true).unwrap_err();
+        assert!(e.to_string().contains("cannot apply `lag`"), "{e}");
+        let e = upload_lines(
+            &file("tl16+field+induced_high", 23, None),
+            "tl16+field",
+            true,
+        )
+        .unwrap_err();
         assert!(e.to_string().contains("board runs"), "{e}");
         let mut tl = file("tl16+field", 16, None);
         tl.method = Method::Tl;

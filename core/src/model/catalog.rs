@@ -35,11 +35,12 @@ pub const CATALOG: &[TermInfo] = &[
     TermInfo { name: "eddy", channel: ChannelUse::None, effect: "eddy currents in the airframe driven by manoeuvres: e_i·de_j/dt·|B|", relative_channel: false },
     TermInfo { name: "current", channel: ChannelUse::Required, effect: "field of a current-carrying circuit, proportional to the current channel: I·e", relative_channel: false },
     TermInfo { name: "current_rate", channel: ChannelUse::Required, effect: "inductive coupling of a switching current: dI/dt·e", relative_channel: false },
-    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: −τ·d/dt of the field and of the permanent and induced regressors", relative_channel: false },
+    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: the scalar reads B(t−τ); τ is estimated (sub-sample) and the scalar re-aligned by fractional-delay interpolation before the filter (no filter state)", relative_channel: false },
     TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (docs/model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
     TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
     TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
     TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },
+    TermInfo { name: "fluxtemp", channel: ChannelUse::Required, effect: "fluxgate bias/scale drifting with a temperature channel: |B_fluxgate| − B follows (T − T_ref)·(b + s∘B_F); fitted on the fluxgate modulus and corrected before the direction cosines (no filter state)", relative_channel: false },
     TermInfo { name: "fluxmod", channel: ChannelUse::None, effect: "the aircraft's field seen by the fluxgate itself: its modulus minus the scalar's, a second view of the same sources (TL18 spans it through the fluxgate's B_j)", relative_channel: false },
     TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
 ];
@@ -65,6 +66,7 @@ pub enum AnyTerm {
     FluxCal(FluxCal),
     FluxMod(FluxMod),
     Periodic(Periodic),
+    FluxTemp(FluxTemp),
 }
 
 impl AnyTerm {
@@ -83,6 +85,7 @@ impl AnyTerm {
             "fluxcal" => Self::FluxCal(FluxCal),
             "fluxmod" => Self::FluxMod(FluxMod),
             "periodic" => Self::Periodic(Periodic { channel }),
+            "fluxtemp" => Self::FluxTemp(FluxTemp { channel }),
             _ => return None,
         })
     }
@@ -101,6 +104,7 @@ impl AnyTerm {
             Self::FluxCal(t) => t,
             Self::FluxMod(t) => t,
             Self::Periodic(t) => t,
+            Self::FluxTemp(t) => t,
         }
     }
 }

@@ -24,9 +24,10 @@ pub struct CurrentRate {
     pub channel: usize,
 }
 /// Time lag between the scalar sensor and the fluxgate/GPS: a scalar sample tagged τ late
-/// reads `B(t−τ) ≈ B(t) − τ·dB/dt`, so the regressors are the time derivatives of what the
-/// scalar sees: `d|B|/dt` (coefficient −τ, s) and of the permanent and induced regressors,
-/// `ė_i` and `d(e_i e_j)/dt·|B|/B*` (≈ −τ × those coefficients, nT·s) — 9 in all.
+/// reads `B(t−τ)`. It is a delay, not a regressor: a first-order term `−τ·dB/dt` leaves
+/// (ωτ)²-sized residuals at manoeuvre frequencies. Naming it asks for τ to be estimated
+/// and the scalar re-aligned by fractional-delay interpolation before the filter (host:
+/// `preprocess::lag`). It adds no filter state.
 #[derive(Clone, Copy, Debug)]
 pub struct Lag;
 /// The ε⁶ eddy term from flying through gradients: `e_i e_j·d|B|/dt` (5, s), model.md §4.
@@ -49,6 +50,14 @@ pub struct InducedHigh;
 /// board). It adds no filter state: naming it in a model asks for that calibration.
 #[derive(Clone, Copy, Debug)]
 pub struct FluxCal;
+/// Fluxgate bias and scale that follow a temperature channel: `B = B_F + (T − T_ref)·(b +
+/// s∘B_F)` (b in nT/°C, s in 1/°C per axis). Like [`FluxCal`] it bends the direction cosines
+/// and shows on the fluxgate's modulus against the scalar, not in the scalar residual; the
+/// host fits it there and corrects the fluxgate before `e` is formed. No filter state.
+#[derive(Clone, Copy, Debug)]
+pub struct FluxTemp {
+    pub channel: usize,
+}
 /// Periodic interference locked to a rotation channel (rpm): an engine or propeller field is
 /// a vector in the body frame, so the scalar sees its projection on the field direction:
 /// `e_i·cos/sin` of the 1st and 2nd harmonic of the rotation phase (12, nT).
@@ -241,41 +250,43 @@ impl Term for Lag {
         "lag"
     }
     fn len(&self) -> usize {
-        9
+        0
     }
-    fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
-        let e = &ep.e;
-        let d = &ep.e_dot_per_s;
-        let k = ep.field_ratio;
-        out[0] = ep.dmag_dt_nt_per_s;
-        out[1] = d[0];
-        out[2] = d[1];
-        out[3] = d[2];
-        out[4] = 2.0 * e[0] * d[0] * k;
-        out[5] = 2.0 * e[1] * d[1] * k;
-        out[6] = (e[0] * d[1] + e[1] * d[0]) * k;
-        out[7] = (e[0] * d[2] + e[2] * d[0]) * k;
-        out[8] = (e[1] * d[2] + e[2] * d[1]) * k;
+    fn regressors(&self, _: &Epoch, _: &mut [f32]) -> bool {
         true
     }
-    fn prior_sigma(&self, i: usize) -> f32 {
-        if i == 0 {
-            1.0
-        } else {
-            30.0
-        }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        1.0
     }
-    fn label(&self, i: usize) -> &'static str {
-        [
-            "dB", "de1", "de2", "de3", "d(e1e1)", "d(e2e2)", "d(e1e2)", "d(e1e3)", "d(e2e3)",
-        ][i]
+    fn label(&self, _: usize) -> &'static str {
+        ""
     }
-    fn unit(&self, i: usize) -> &'static str {
-        if i == 0 {
-            "s"
-        } else {
-            "nT*s"
-        }
+    fn unit(&self, _: usize) -> &'static str {
+        ""
+    }
+}
+
+impl Term for FluxTemp {
+    fn name(&self) -> &'static str {
+        "fluxtemp"
+    }
+    fn len(&self) -> usize {
+        0
+    }
+    fn regressors(&self, _: &Epoch, _: &mut [f32]) -> bool {
+        true
+    }
+    fn prior_sigma(&self, _: usize) -> f32 {
+        1.0
+    }
+    fn label(&self, _: usize) -> &'static str {
+        ""
+    }
+    fn unit(&self, _: usize) -> &'static str {
+        ""
+    }
+    fn channel(&self) -> Option<usize> {
+        Some(self.channel)
     }
 }
 

@@ -18,7 +18,8 @@
 
 pub mod candidates;
 pub mod custom;
-mod innovations;
+pub(crate) mod innovations;
+mod lag_detector;
 pub mod stats;
 
 use crate::flight::Flight;
@@ -287,6 +288,9 @@ pub fn candidate_terms_with(
                     out.push(format!("{}:{d}", ti.name));
                 }
             }
+            // `fluxtemp` is tested on the fluxgate modulus, which the diagnosis does not do
+            // yet (issue 12 item 5): not offered rather than shown as explaining nothing.
+            ChannelUse::Required if ti.name == "fluxtemp" => {}
             ChannelUse::Required => {
                 for ch in &aux {
                     if ti.name == "periodic" && !rpm_like(ch, trace.col(ch).unwrap_or(&[])) {
@@ -530,13 +534,9 @@ pub fn diagnose_with(
                 .into_iter()
                 .next()
                 .context("internal: empty candidate")?;
-            cand_specs.push((
-                c.clone(),
-                Some(ColTerm {
-                    spec: t,
-                    extra: None,
-                }),
-            ));
+            // `lag` is a delay (no regressors): it is detected by its first-order form.
+            let extra = (t.name == "lag").then_some(&lag_detector::LAG_DETECTOR);
+            cand_specs.push((c.clone(), Some(ColTerm { spec: t, extra })));
         }
     }
     for x in extra {
@@ -595,6 +595,17 @@ pub fn diagnose_with(
              split it into flights or resample it to ≤ 20 Hz"
         );
     }
+    // With `lag`/`fluxtemp` in the model the scalar and the regressors are those of the
+    // prepared flight (re-aligned scalar, temperature-corrected fluxgate).
+    let prepared;
+    let (trace, flight) = match &run.preprocessing {
+        Some(p) => {
+            prepared = crate::preprocess::apply_to_trace(trace, p, fs)?;
+            let f = Flight::from_trace(&prepared, &model.channels(), &model.relative_channels())?;
+            (&prepared, f)
+        }
+        None => (trace, flight),
+    };
     // With `fluxcal` in the model every regressor is built from the calibrated fluxgate.
     let calibrated;
     let trace = match &run.fluxgate_calibration {
