@@ -139,9 +139,18 @@ impl Flight {
             _ => detect_tie_point(t, &lat, &lon),
         };
         let earth_dir_ned = att.and_then(|(r, p, y)| main_field_direction(fx, fy, fz, r, p, y));
+        let mut mag_nt = mag.to_vec();
+        let glitches = crate::despike::glitches(&mag_nt, sample_rate_hz);
+        for &i in &glitches {
+            mag_nt[i] = f64::NAN;
+            samples[i].mag = None;
+        }
+        if let Some(w) = glitch_warning(&glitches, mag, trace.origin.as_ref()) {
+            crate::position::warn_once(&w);
+        }
         Ok(Self {
             t_s: t.to_vec(),
-            mag_nt: mag.to_vec(),
+            mag_nt,
             samples,
             segments: trace.text_col("segment").map(|s| s.to_vec()),
             truth_interference_nt: trace.col("truth_interference").map(|v| v.to_vec()),
@@ -381,4 +390,32 @@ pub fn body_from_ned(roll: f64, pitch: f64, yaw: f64) -> [[f64; 3]; 3] {
         [sr * sp * cy - cr * sy, sr * sp * sy + cr * cy, sr * cp],
         [cr * sp * cy + sr * sy, cr * sp * sy - sr * cy, cr * cp],
     ]
+}
+
+/// "trace.csv: 2 scalar glitch(es) taken as missing …" naming the lines, or None.
+fn glitch_warning(
+    rows: &[usize],
+    mag: &[f64],
+    origin: Option<&crate::trace::RowOrigin>,
+) -> Option<String> {
+    const MAX_LISTED: usize = 5;
+    if rows.is_empty() {
+        return None;
+    }
+    let file = origin.map_or("trace".to_string(), |o| o.file.clone());
+    let mut msg = format!(
+        "{file}: {} scalar glitch(es) far outside their neighbours, taken as missing (samples flagged MAG_MISSING):",
+        rows.len()
+    );
+    for &r in rows.iter().take(MAX_LISTED) {
+        let at = match origin.and_then(|o| o.line(r)) {
+            Some(l) => format!("line {l}"),
+            None => format!("data row {}", r + 1),
+        };
+        msg.push_str(&format!("\n  {at}: mag = {}", mag[r]));
+    }
+    if rows.len() > MAX_LISTED {
+        msg.push_str(&format!("\n  … and {} more", rows.len() - MAX_LISTED));
+    }
+    Some(msg)
 }

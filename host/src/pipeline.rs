@@ -73,6 +73,10 @@ pub struct KfOptions {
     /// With `lag`/`fluxtemp`: apply this pre-processing (from a coefficient file) instead of
     /// estimating it ([`crate::preprocess`]).
     pub preprocessing: Option<crate::preprocess::Preprocessing>,
+    /// Coefficient combinations (prior-σ units, model order) held at the prior: the
+    /// flight's manoeuvres do not determine them ([`crate::excitation`]). Set by the
+    /// calibration itself; empty = all free.
+    pub held_combinations: Vec<Vec<f32>>,
 }
 
 impl KfOptions {
@@ -100,6 +104,7 @@ impl KfOptions {
             rate_crossover_coefficients: None,
             coefficient_covariance: None,
             preprocessing: None,
+            held_combinations: Vec::new(),
         }
     }
 }
@@ -219,6 +224,12 @@ fn pass(
                     model.coefficient_count()
                 )
             })?;
+        } else {
+            for w in &opts.held_combinations {
+                if !comp.hold_coefficient_combination(w) {
+                    bail!("internal: a held combination does not fit the model");
+                }
+            }
         }
         let interference_terms: Vec<bool> = model
             .terms
@@ -578,6 +589,54 @@ fn innovation_nll(outs: &[Output]) -> f64 {
     }
 }
 
+/// The measurement noise the filter needs on this flight: the scalar's own noise plus what
+/// the model cannot follow (a real aircraft's unmodelled interference, fluxgate noise in
+/// the regressors). Estimated from the innovations of a calibration pass, whose variance
+/// the filter predicts as `S = H·P·Hᵀ + r`: `r = E[ν²] − E[H·P·Hᵀ]`, with medians (of a
+/// χ²₁ variable, median/0.455 is its mean) so manoeuvre transients and glitches do not
+/// inflate it. Never below the sensor noise `floor_nt`. On our simulator the model is
+/// right and `r` stays at the sensor's noise; on the real SGL boxes the sensor noise
+/// (0.02 nT) was ~100× too small, and the 8σ gate refused 69 % of the samples.
+fn adapted_noise_nt(flight: &Flight, opts: &KfOptions, sigma1: f64, floor_nt: f64) -> Result<f64> {
+    // Ungated: with a noise far too small, a gated filter refuses most samples, never
+    // converges, and its large H·P·Hᵀ then "explains" the innovations.
+    let opts = &KfOptions {
+        gate_sigma: 0.0,
+        ..opts.clone()
+    };
+    let mut noise_nt = floor_nt;
+    for _ in 0..4 {
+        let cfg = base_config(flight, opts, sigma1, noise_nt);
+        let (outs, ..) = pass(flight, opts, cfg, None, false)?;
+        let r = noise_nt * noise_nt;
+        let (mut nu2, mut hph): (Vec<f64>, Vec<f64>) = outs
+            .iter()
+            .filter(|o| o.innovation_nt.is_finite() && o.innovation_var_nt2.is_finite())
+            .map(|o| {
+                let nu = o.innovation_nt as f64;
+                (nu * nu, (o.innovation_var_nt2 as f64 - r).max(0.0))
+            })
+            .unzip();
+        if nu2.len() < 16 {
+            return Ok(noise_nt);
+        }
+        let model_var = median(&mut nu2) / 0.4549 - median(&mut hph);
+        let next = model_var.max(floor_nt * floor_nt).sqrt();
+        let converged = (next / noise_nt - 1.0).abs() < 0.1;
+        noise_nt = next;
+        if converged {
+            break;
+        }
+    }
+    Ok(noise_nt)
+}
+
+fn median(v: &mut [f64]) -> f64 {
+    let mid = v.len() / 2;
+    v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    v[mid]
+}
+
 /// Default σ1 multipliers searched post-flight.
 pub const SIGMA1_CANDIDATES: [f64; 4] = [1.0, 0.3, 0.1, 0.03];
 
@@ -646,7 +705,44 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         }
         None => DEFAULT_SIGMA1,
     };
+    let noise_nt = match (opts.noise_nt, &opts.coefficients) {
+        (None, None) => adapted_noise_nt(flight, opts, sigma1, noise_nt)?,
+        _ => noise_nt,
+    };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
+    let mut warnings = Vec::new();
+    let held;
+    let opts = if opts.coefficients.is_none() && opts.held_combinations.is_empty() {
+        let (_, regs, ..) = pass(flight, opts, cfg, None, true)?;
+        let terms = spec.build_terms();
+        let prior: Vec<f64> = terms
+            .iter()
+            .flat_map(|t| (0..t.len()).map(|i| t.prior_sigma(i) as f64 * opts.prior_scale))
+            .collect();
+        let interference: Vec<bool> = terms
+            .iter()
+            .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
+            .collect();
+        let weak = crate::excitation::unexcited_combinations(flight, &regs, &prior, &interference);
+        if !weak.is_empty() {
+            warnings.push(format!(
+                "{} of {} coefficient combinations are not excited by manoeuvres on this flight \
+                 (a prior 1σ of them moves the manoeuvre-band interference by less than {} nT): \
+                 they are held at their prior instead of being fitted to the Earth's field, so \
+                 what they describe is not compensated. Calibrate on a pattern with roll, pitch \
+                 and yaw manoeuvres on four headings",
+                weak.len(),
+                interference.iter().filter(|i| **i).count(),
+                crate::excitation::EXCITATION_FLOOR_NT
+            ));
+        }
+        let mut o = opts.clone();
+        o.held_combinations = weak;
+        held = o;
+        &held
+    } else {
+        opts
+    };
     let profiled;
     let mut field_process = String::from("stationary");
     // Only when σ1 itself is estimated: a σ1 the user gives is taken as the model.
@@ -698,6 +794,7 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         regressors: regs,
         sigma1,
         noise_nt,
+        warnings,
         filter_healthy: healthy,
         field_process: if spec.field {
             field_process

@@ -107,9 +107,8 @@ impl<const N: usize> UdFilter<N> {
         self.update_gated(h, z, r, |_, _| false)?.ok()
     }
 
-    /// [`update`](Self::update) with an innovation gate decided in between: `reject(ν, s)`
-    /// sees the innovation `ν = z − h·x̂⁻` and its predicted variance
-    /// `s = r + Σ (Uᵀh)_j²·d_j` (the same numbers [`predict`](Self::predict) and
+    /// Scalar update with a gate: `reject(ν, s)` sees the innovation and its predicted
+    /// variance `s = r + Σ (Uᵀh)_j²·d_j` (the same numbers [`predict`](Self::predict) and
     /// [`predicted_variance`](Self::predicted_variance) give) before anything changes.
     /// One pass over `U` instead of three: `Uᵀh` is the largest part of the update.
     /// `None`: bad input (filter untouched); `Some(Err(ν, s))`: rejected (untouched);
@@ -120,6 +119,21 @@ impl<const N: usize> UdFilter<N> {
         z: f32,
         r: f32,
         reject: impl FnOnce(f32, f32) -> bool,
+    ) -> Option<Result<Innovation, Innovation>> {
+        self.update_weighted(h, z, r, |nu, s| (!reject(nu, s)).then_some(r))
+    }
+
+    /// Scalar update whose measurement variance the caller may choose after seeing the
+    /// innovation `ν` and its predicted variance `s` (computed with `r`): `weigh(ν, s)`
+    /// returns the variance to update with (≥ `r`: a robust, e.g. Huber, down-weighting of
+    /// an outlier) or `None` to reject. Same returns as [`update_gated`](Self::update_gated);
+    /// an accepted innovation reports the variance it was weighed with.
+    pub fn update_weighted(
+        &mut self,
+        h: &[f32],
+        z: f32,
+        r: f32,
+        weigh: impl FnOnce(f32, f32) -> Option<f32>,
     ) -> Option<Result<Innovation, Innovation>> {
         let n = self.n;
         if h.len() < n || !z.is_finite() || r.is_nan() || r <= 0.0 {
@@ -136,13 +150,19 @@ impl<const N: usize> UdFilter<N> {
             &mut f,
         )?;
         let innovation = z - pred;
-        if reject(innovation, s_gate) {
+        let Some(r_used) = weigh(innovation, s_gate).filter(|v| v.is_finite() && *v >= r) else {
             return Some(Err(Innovation {
                 value: innovation,
                 variance: s_gate,
             }));
-        }
-        let alpha = bierman_apply(self.u.as_flattened_mut(), N, &mut self.d[..n], &mut f, r);
+        };
+        let alpha = bierman_apply(
+            self.u.as_flattened_mut(),
+            N,
+            &mut self.d[..n],
+            &mut f,
+            r_used,
+        );
         if !(alpha > 0.0 && alpha.is_finite()) {
             return None;
         }
