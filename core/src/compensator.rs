@@ -410,7 +410,9 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             } else {
                 var.max(0.0)
             };
-            let lim = self.cfg.converged_sigma_nt;
+            // Determined to a survey's tolerance, or to the flight's own measurement noise
+            // where the model cannot do better (a real aircraft: 1–3 nT of model error).
+            let lim = self.cfg.converged_sigma_nt.max(self.cfg.noise_nt);
             // NaN (a broken filter) counts as not converged; so does the first window,
             // before there is any variation to judge.
             self.not_converged = !(var <= lim * lim)
@@ -713,14 +715,19 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         // Outputs from the updated state.
         let x = self.filter.state();
         if !self.survey {
+            // Until the flight has determined the interference, the output is the prior's
+            // (zero, or the loaded coefficients'): a half-learnt estimate put ~9 000 nT
+            // excursions into the first 30 s of a real box.
+            let not_converged = self.not_converged;
             interference = 0.0;
             let mut at = self.terms_at;
             for t in self.model.terms {
                 let l = t.len();
                 if t.is_interference() {
                     let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
-                    for ((xi, si), pi) in xs.iter().zip(ss).zip(ps) {
-                        interference += xi * si * pi;
+                    for (i, ((xi, si), pi)) in xs.iter().zip(ss).zip(ps).enumerate() {
+                        let c = if not_converged { t.prior_mean(i) } else { xi * si };
+                        interference += c * pi;
                     }
                 }
                 at += l;

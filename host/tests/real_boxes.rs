@@ -1,0 +1,198 @@
+//! The estimator on real data: the two calibration boxes of SGL 2020 flight 1002 (a Cessna
+//! Caravan of the MagNav challenge, `../shared/reference-data/sgl2020-flt1002-cal/`). The
+//! file has no time, position or attitude: rows are 10 Hz samples, box 1 is rows 0–6499,
+//! box 2 the rest. The figures are the 0.1–0.9 Hz band-passed standard deviation of the
+//! compensated scalar on box 2 with coefficients from box 1 (a transfer), against classic
+//! Tolles–Lawson fitted the same way: MagNav's ridge TL18 and plain least squares (no ridge).
+//! Skips, saying so, where the shared data are absent.
+
+use magcomp::commands::{compensate_trace, EstimatorArgs, Method};
+use magcomp::tl;
+use magcomp::trace::Trace;
+use magcomp_core::Flags;
+use std::path::PathBuf;
+
+const BOX1_ROWS: usize = 6500;
+const FS_HZ: f64 = 10.0;
+/// The board's assumed ground speed for a trace without positions (a Caravan surveys at
+/// ~60 m/s).
+const SPEED_MPS: f64 = 60.0;
+
+struct Boxes {
+    columns: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+fn boxes() -> Option<Boxes> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        eprintln!("SKIPPED: {} is absent (shared reference data)", path.display());
+        return None;
+    };
+    let mut lines = text.lines();
+    let columns = lines.next()?.split(',').map(String::from).collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    Some(Boxes { columns, rows })
+}
+
+/// Rows `range` as a positionless trace (`t`, `mag`, `flux_*`) of scalar `mag` and
+/// fluxgate `flux` (e.g. `mag_4_uc`, `flux_d`).
+fn trace(b: &Boxes, range: std::ops::Range<usize>, mag: &str, flux: &str) -> Trace {
+    let col = |name: &str| {
+        let j = b.columns.iter().position(|c| c == name).unwrap();
+        range.clone().map(|i| b.rows[i][j]).collect::<Vec<f64>>()
+    };
+    Trace {
+        numeric: vec![
+            ("t".into(), range.clone().map(|i| i as f64 / FS_HZ).collect()),
+            ("mag".into(), col(mag)),
+            ("flux_x".into(), col(&format!("{flux}_x"))),
+            ("flux_y".into(), col(&format!("{flux}_y"))),
+            ("flux_z".into(), col(&format!("{flux}_z"))),
+        ],
+        ..Default::default()
+    }
+}
+
+fn est(method: Method, model: &str) -> EstimatorArgs {
+    EstimatorArgs {
+        model: model.into(),
+        method,
+        sigma1: None,
+        noise_nt: None,
+        tl_terms: "tl18".into(),
+        speed_mps: Some(SPEED_MPS),
+    }
+}
+
+/// Standard deviation of the 0.1–0.9 Hz band (20 samples trimmed at each end, as MagNav).
+fn band_std_nt(x: &[f64]) -> f64 {
+    let bp = tl::bandpass(x, 4, 0.1, 0.9, FS_HZ).unwrap();
+    let v = &bp[20..bp.len() - 20];
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// Box 2's band-passed residual with `method`/`model` calibrated on box 1.
+fn transfer_nt(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) -> f64 {
+    let e = est(method, model);
+    let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag, flux), &e, None, false).unwrap();
+    let file = cal.coefficients.unwrap();
+    let box2 = trace(b, BOX1_ROWS..b.rows.len(), mag, flux);
+    let (_, applied) = compensate_trace(&box2, &e, Some(&file), false).unwrap();
+    band_std_nt(&applied.compensated_nt)
+}
+
+/// Plain band-passed least-squares TL18 (λ = 0), box 1 → box 2.
+fn tl18_ols_transfer_nt(b: &Boxes, mag: &str, flux: &str) -> f64 {
+    let t1 = trace(b, 0..BOX1_ROWS, mag, flux);
+    let t2 = trace(b, BOX1_ROWS..b.rows.len(), mag, flux);
+    let flux_of = |t: &Trace| -> Vec<[f64; 3]> {
+        let (x, y, z) = (
+            t.col("flux_x").unwrap(),
+            t.col("flux_y").unwrap(),
+            t.col("flux_z").unwrap(),
+        );
+        (0..x.len()).map(|i| [x[i], y[i], z[i]]).collect()
+    };
+    let mut cfg = tl::TlConfig::for_rate(FS_HZ);
+    cfg.pass_hz = Some((0.1, 0.9));
+    cfg.lambda = 0.0;
+    let fit = tl::fit(&flux_of(&t1), t1.col("mag").unwrap(), &cfg, None).unwrap();
+    band_std_nt(&tl::compensate(&fit, &flux_of(&t2), t2.col("mag").unwrap()).unwrap())
+}
+
+/// KF calibrated on box 1 → box 2 against both TL18s, for the two cabin magnetometers.
+/// Measured (this commit): TL18-ridge 3.47 / 4.30 nT, TL18-OLS 2.91 / 3.93 nT;
+/// KF `tl16+field` 3.39 / 4.37; KF `tl16+fluxmod+field` 3.01 / 3.34 (mag_4 / mag_3).
+#[test]
+fn kf_transfer_between_real_boxes_beats_tolles_lawson() {
+    let Some(b) = boxes() else { return };
+    for mag in ["mag_4_uc", "mag_3_uc"] {
+        let ridge = transfer_nt(&b, mag, "flux_d", Method::Tl, "tl16+field");
+        let ols = tl18_ols_transfer_nt(&b, mag, "flux_d");
+        let paper = transfer_nt(&b, mag, "flux_d", Method::Kf, "tl16+field");
+        let fluxmod = transfer_nt(&b, mag, "flux_d", Method::Kf, "tl16+fluxmod+field");
+        eprintln!(
+            "{mag}: box 1 → box 2 band std: TL18 ridge {ridge:.3}, TL18 OLS {ols:.3}, \
+             KF tl16+field {paper:.3}, KF tl16+fluxmod+field {fluxmod:.3} nT"
+        );
+        // The fluxgate's own modulus carries the aircraft's field at the fluxgate: with it
+        // the filter beats MagNav's TL18 and is level with or better than plain OLS.
+        assert!(fluxmod < ridge, "{mag}: KF+fluxmod {fluxmod:.3} ≥ ridge TL18 {ridge:.3}");
+        assert!(fluxmod <= 1.05 * ols, "{mag}: KF+fluxmod {fluxmod:.3} vs OLS TL18 {ols:.3}");
+        // The paper's 16 terms alone cannot span it (TL18's extra column is |B_F|): level
+        // with the ridge TL18, not better.
+        assert!(paper <= 1.05 * ridge, "{mag}: KF {paper:.3} vs ridge TL18 {ridge:.3}");
+        assert!(paper < 0.15 * band_std_nt(&trace(&b, BOX1_ROWS..b.rows.len(), mag, "flux_d").numeric[1].1));
+    }
+}
+
+/// On a clean real box the filter's noise comes from the data: innovations are consistent
+/// with it and (almost) nothing is refused by the gate (was 69 % with the sensor's 0.02 nT).
+#[test]
+fn real_box_innovations_are_not_rejected() {
+    let Some(b) = boxes() else { return };
+    let e = est(Method::Kf, "tl16+fluxmod+field");
+    let (_, comp) =
+        compensate_trace(&trace(&b, 0..BOX1_ROWS, "mag_4_uc", "flux_d"), &e, None, false).unwrap();
+    let flags = comp.flags.unwrap();
+    let rejected = flags
+        .iter()
+        .filter(|f| f & Flags::INNOVATION_REJECTED != 0)
+        .count() as f64
+        / flags.len() as f64;
+    let noise = comp.coefficients.unwrap().noise_nt.unwrap();
+    eprintln!("box 1: {:.2} % rejected, noise {noise:.3} nT", 100.0 * rejected);
+    assert!(rejected < 0.05, "{:.1} % rejected", 100.0 * rejected);
+    assert!(noise > 0.5, "the real model error is nT-sized, got {noise} nT");
+}
+
+/// Real time from an unknown start: the output stays the raw signal (interference 0) while
+/// `NOT_CONVERGED`, never beyond the raw range, and the flag clears during the box.
+#[test]
+fn real_time_on_a_real_box_starts_sane() {
+    let Some(b) = boxes() else { return };
+    let t = trace(&b, 0..BOX1_ROWS, "mag_4_uc", "flux_d");
+    let raw = t.col("mag").unwrap().to_vec();
+    let (_, comp) = compensate_trace(&t, &est(Method::Kf, "tl16+field"), None, true).unwrap();
+    let flags = comp.flags.unwrap();
+    let clears = flags
+        .iter()
+        .position(|f| f & Flags::NOT_CONVERGED == 0)
+        .expect("NOT_CONVERGED never clears on a real box");
+    let (lo, hi) = raw
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+    for i in 0..flags.len() {
+        if flags[i] & Flags::NOT_CONVERGED != 0 {
+            assert_eq!(comp.interference_nt[i], 0.0, "row {i}");
+        }
+        let c = comp.compensated_nt[i];
+        assert!(c >= lo - 50.0 && c <= hi + 50.0, "row {i}: {c} outside the raw range");
+    }
+    eprintln!(
+        "box 1 real time: NOT_CONVERGED clears at {:.1} s",
+        clears as f64 / FS_HZ
+    );
+    assert!(clears < BOX1_ROWS / 2);
+}
+
+/// A positionless trace needs an assumed speed for the filter's anomaly, never a silent
+/// frozen position; TL needs none.
+#[test]
+fn positionless_trace_needs_an_assumed_speed_for_the_filter() {
+    let Some(b) = boxes() else { return };
+    let t = trace(&b, 0..2000, "mag_4_uc", "flux_d");
+    let mut e = est(Method::Kf, "tl16+field");
+    e.speed_mps = None;
+    let err = compensate_trace(&t, &e, None, false).unwrap_err();
+    assert!(format!("{err:#}").contains("--speed-mps"), "{err:#}");
+    e.method = Method::Tl;
+    assert!(compensate_trace(&t, &e, None, false).is_ok());
+    let (_, kf) = compensate_trace(&t, &est(Method::Kf, "tl16+field"), None, false).unwrap();
+    assert!(kf.warnings.iter().any(|w| w.contains("assumed ground speed")));
+}
