@@ -9,7 +9,7 @@ use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
 use crate::pipeline::{run_kf, KfOptions};
 use crate::tl;
 use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -107,6 +107,10 @@ pub struct EstimatorArgs {
     /// Tolles–Lawson terms for --method tl: tl18 (MagNav), tl16, or groups like permanent+induced.
     #[arg(long, default_value = "tl18", value_name = "TERMS")]
     pub tl_terms: String,
+    /// Ridge parameter λ of --method tl (default MagNav's 0.001); 0 gives plain
+    /// band-passed least squares (TL18-OLS, the yardstick of the Kalman filter).
+    #[arg(long, value_name = "LAMBDA", allow_negative_numbers = true)]
+    pub tl_ridge: Option<f64>,
     /// Assumed ground speed (m/s) for a trace without positions (no lat/lon): the Kalman
     /// filter then models the anomaly in time, as if flown at this speed (docs/trace-format.md).
     /// Ignored when the trace has positions or a ground speed of its own.
@@ -241,6 +245,13 @@ fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
     cfg.terms = terms;
     let (lo, hi) = manoeuvre_band(flight.sample_rate_hz);
     cfg.pass_hz = Some((lo, hi));
+    if let Some(l) = est.tl_ridge {
+        ensure!(
+            l.is_finite() && l >= 0.0,
+            "--tl-ridge must be a finite λ ≥ 0 (0 = plain least squares), not {l}"
+        );
+        cfg.lambda = l;
+    }
     Ok(cfg)
 }
 

@@ -15,6 +15,10 @@ pub struct DemoArgs {
     /// Seed of the simulated aircraft, geology and flights.
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
+    /// Simulator physics: `classic` or `broad` (issue 10's wider aircraft, fluxgate and
+    /// navigation errors, no base station; see `magcomp simulate --physics`).
+    #[arg(long, default_value = "classic", value_name = "PROFILE")]
+    pub physics: String,
 }
 
 fn est(method: Method) -> EstimatorArgs {
@@ -24,6 +28,7 @@ fn est(method: Method) -> EstimatorArgs {
         sigma1: None,
         noise_nt: None,
         tl_terms: "tl18".into(),
+        tl_ridge: None,
         speed_mps: None,
     }
 }
@@ -38,10 +43,16 @@ fn fmt(v: Option<f64>, d: usize) -> String {
 pub fn run(args: &DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("creating {}", args.out.display()))?;
+    // One geology for both flights: the broad profile's per-flight anomaly scaling is off.
+    let profile = match crate::sim::Physics::parse(&args.physics)? {
+        crate::sim::Physics::Classic => SimConfig::default(),
+        crate::sim::Physics::Broad => SimConfig::broad(args.seed),
+    };
     let base = SimConfig {
         seed: args.seed,
         geology: Geology::preset(GeologyPreset::Moderate),
-        ..Default::default()
+        anomaly_pp_nt: None,
+        ..profile
     };
     println!("== 1. Simulated flights (seed {}) ==", args.seed);
     let cal_cfg = SimConfig {

@@ -449,3 +449,54 @@ fn calibrate_warns_when_the_flight_left_the_interference_undetermined() {
     assert!(high_predicted < 0.01, "{high_predicted}");
     assert!(!high_stderr.contains("warning"), "{high_stderr}");
 }
+
+/// `--tl-ridge 0` is TL18-OLS: the coefficient file records λ = 0, and on a simulated
+/// calibration its error against truth differs from MagNav's ridge fit (the ridge
+/// biases the badly determined directions); a negative λ is refused by name.
+#[test]
+fn tl_ridge_zero_is_least_squares() {
+    let d = tmp("tl-ridge");
+    let trace = simulate(&d, &[]);
+    let mut errors = Vec::new();
+    for ridge in [None, Some("0")] {
+        let coeffs = d.join(format!("tl-{}.json", ridge.unwrap_or("default")));
+        let mut c = bin();
+        c.arg("calibrate")
+            .arg(&trace)
+            .args(["--method", "tl", "-o"])
+            .arg(&coeffs);
+        if let Some(r) = ridge {
+            c.args(["--tl-ridge", r]);
+        }
+        run_ok(&mut c);
+        let cf: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+        let lambda = cf["tl_config"]["lambda"].as_f64().unwrap();
+        assert_eq!(lambda, if ridge.is_some() { 0.0 } else { 0.001 });
+        let stdout = run_ok(
+            bin()
+                .arg("compensate")
+                .arg(&trace)
+                .arg("--coeffs")
+                .arg(&coeffs)
+                .args(["--json", "-o"])
+                .arg(d.join("out.csv")),
+        );
+        let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        errors.push(j["error_rms_nt"].as_f64().unwrap());
+    }
+    println!(
+        "TL18 ridge {:.4} nT, TL18-OLS {:.4} nT",
+        errors[0], errors[1]
+    );
+    assert!(errors[1] < 0.2, "TL18-OLS error {}", errors[1]);
+    assert!((errors[0] - errors[1]).abs() > 1e-4, "{errors:?}");
+    let e = run_err(
+        bin()
+            .arg("calibrate")
+            .arg(&trace)
+            .args(["--method", "tl", "--tl-ridge", "-1", "-o"])
+            .arg(d.join("bad.json")),
+    );
+    assert!(e.contains("--tl-ridge"), "{e}");
+}

@@ -131,6 +131,7 @@ fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
         sigma1: None,
         noise_nt: None,
         tl_terms: "tl18".into(),
+        tl_ridge: None,
         speed_mps: None,
     };
     let (f, cal) = compensate_trace(&trace, &est, None, false).expect("calibrate");

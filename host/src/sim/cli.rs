@@ -1,6 +1,6 @@
 //! `magcomp simulate` command-line flags.
 
-use super::{parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, SimConfig};
+use super::{parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, Physics, SimConfig};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 
@@ -26,6 +26,13 @@ pub struct SimulateArgs {
     /// Random seed: the same seed gives the same flight, byte for byte.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+
+    /// Physics profile: `classic`, or `broad` (issue 10: aircraft, fluxgate, navigation
+    /// errors, heading order, geology strength, diurnal drawn per seed from wider ranges,
+    /// no base station; README, simulator notes). Flags given explicitly override the
+    /// profile's draws.
+    #[arg(long, default_value = "classic", value_name = "PROFILE")]
+    pub physics: String,
 
     /// Scalar magnetometer sample rate (Hz), 1–1000.
     #[arg(long, default_value_t = 10.0, value_name = "HZ")]
@@ -60,14 +67,10 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0.0)]
     pub altitude_swing_m: f64,
 
-    /// Calibration leg headings (deg, comma separated); all legs cross one centre point.
-    #[arg(
-        long,
-        default_value = "45,135,225,315",
-        value_delimiter = ',',
-        allow_negative_numbers = true
-    )]
-    pub cal_headings_deg: Vec<f64>,
+    /// Calibration leg headings (deg, comma separated) in the order flown; all legs
+    /// cross one centre point. [default: 45,135,225,315; broad: drawn per seed]
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub cal_headings_deg: Option<Vec<f64>>,
 
     /// Roll manoeuvre amplitude (deg).
     #[arg(long, default_value_t = 8.0)]
@@ -151,9 +154,14 @@ pub struct SimulateArgs {
 
     /// Geology preset: `quiet` (deep basement: ~0.001–0.01 nT/m at 3000 m), `moderate`,
     /// `strong` (shallow magnetic rocks: hundreds of nT, 0.1–several nT/m at ≤400 m),
-    /// or `none`.
-    #[arg(long, default_value = "quiet")]
-    pub geology: String,
+    /// or `none`. [default: quiet; broad: quiet scaled to --anomaly-pp-nt]
+    #[arg(long)]
+    pub geology: Option<String>,
+
+    /// Scale the geology so the true anomaly spans this many nT peak to peak along the
+    /// flight. [broad: 2–40 nT drawn per seed, unless --geology is given]
+    #[arg(long, value_name = "NT")]
+    pub anomaly_pp_nt: Option<f64>,
 
     /// Override: buried dipole sources per km².
     #[arg(long)]
@@ -172,9 +180,13 @@ pub struct SimulateArgs {
     #[arg(long)]
     pub remanence_q: Option<f64>,
 
-    /// Rms of the slow diurnal variation (nT).
-    #[arg(long, default_value_t = 2.0)]
-    pub diurnal_nt: f64,
+    /// Rms of the slow diurnal variation (nT). [default: 2; broad: 0.5–2]
+    #[arg(long)]
+    pub diurnal_nt: Option<f64>,
+
+    /// Record the diurnal at a base station (`base` column). [default: true; broad: false]
+    #[arg(long, value_name = "BOOL")]
+    pub base_station: Option<bool>,
 
     /// Multiplies the aircraft's K, L, M (1 = Cessna Caravan-like; 0 = magnetically clean).
     #[arg(long, default_value_t = 1.0)]
@@ -184,21 +196,22 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 0.01)]
     pub scalar_noise_nt: f64,
 
-    /// Fluxgate white noise (nT rms, per axis).
-    #[arg(long, default_value_t = 0.5)]
-    pub flux_noise_nt: f64,
+    /// Fluxgate white noise (nT rms, per axis). [default: 0.5; broad: 0.5–2]
+    #[arg(long)]
+    pub flux_noise_nt: Option<f64>,
 
     /// INS attitude error (deg rms; correlated, τ = 100 s, plus 30 % white).
-    #[arg(long, default_value_t = 0.03)]
-    pub ins_noise_deg: f64,
+    /// [default: 0.03; broad: 0.02–0.05]
+    #[arg(long)]
+    pub ins_noise_deg: Option<f64>,
 
     /// GPS horizontal position error (m rms, Gauss–Markov).
     #[arg(long, default_value_t = 1.0)]
     pub gps_sigma_h_m: f64,
 
-    /// GPS vertical position error (m rms, Gauss–Markov).
-    #[arg(long, default_value_t = 1.5)]
-    pub gps_sigma_v_m: f64,
+    /// GPS vertical position error (m rms, Gauss–Markov). [default: 1.5; broad: 2]
+    #[arg(long)]
+    pub gps_sigma_v_m: Option<f64>,
 
     /// Correlation time of the GPS errors (s).
     #[arg(long, default_value_t = 60.0)]
@@ -236,14 +249,27 @@ fn pair(v: &Option<Vec<f64>>, what: &str) -> Result<Option<(f64, f64)>> {
 
 impl SimulateArgs {
     pub fn to_config(&self) -> Result<SimConfig> {
-        let preset = match self.geology.as_str() {
-            "quiet" => GeologyPreset::Quiet,
-            "moderate" => GeologyPreset::Moderate,
-            "strong" => GeologyPreset::Strong,
-            "none" => GeologyPreset::None,
-            other => bail!("unknown geology `{other}` (quiet, moderate, strong, none)"),
+        // The profile gives what the flags below leave unset.
+        let profile = match Physics::parse(&self.physics)? {
+            Physics::Classic => SimConfig::default(),
+            Physics::Broad => SimConfig::broad(self.seed),
         };
-        let mut geology = Geology::preset(preset);
+        let (mut geology, mut anomaly_pp_nt) = match self.geology.as_deref() {
+            None => (profile.geology.clone(), profile.anomaly_pp_nt),
+            Some(g) => {
+                let preset = match g {
+                    "quiet" => GeologyPreset::Quiet,
+                    "moderate" => GeologyPreset::Moderate,
+                    "strong" => GeologyPreset::Strong,
+                    "none" => GeologyPreset::None,
+                    other => bail!("unknown geology `{other}` (quiet, moderate, strong, none)"),
+                };
+                (Geology::preset(preset), None)
+            }
+        };
+        if self.anomaly_pp_nt.is_some() {
+            anomaly_pp_nt = self.anomaly_pp_nt;
+        }
         if let Some(d) = self.sources_per_km2 {
             geology.sources_per_km2 = d;
         }
@@ -287,7 +313,10 @@ impl SimulateArgs {
             cal_altitude_m: self.cal_altitude_m,
             survey_altitude_m: self.survey_altitude_m,
             altitude_swing_m: self.altitude_swing_m,
-            cal_headings_deg: self.cal_headings_deg.clone(),
+            cal_headings_deg: self
+                .cal_headings_deg
+                .clone()
+                .unwrap_or(profile.cal_headings_deg.clone()),
             roll_amp_deg: self.roll_amp_deg,
             pitch_amp_deg: self.pitch_amp_deg,
             yaw_amp_deg: self.yaw_amp_deg,
@@ -306,18 +335,21 @@ impl SimulateArgs {
             turbulence_deg: self.turbulence_deg,
             earth,
             geology,
-            diurnal_nt: self.diurnal_nt,
+            diurnal_nt: self.diurnal_nt.unwrap_or(profile.diurnal_nt),
             interference_scale: self.interference_scale,
             scalar_noise_nt: self.scalar_noise_nt,
-            flux_noise_nt: self.flux_noise_nt,
-            ins_noise_deg: self.ins_noise_deg,
+            flux_noise_nt: self.flux_noise_nt.unwrap_or(profile.flux_noise_nt),
+            ins_noise_deg: self.ins_noise_deg.unwrap_or(profile.ins_noise_deg),
             gps_sigma_h_m: self.gps_sigma_h_m,
-            gps_sigma_v_m: self.gps_sigma_v_m,
+            gps_sigma_v_m: self.gps_sigma_v_m.unwrap_or(profile.gps_sigma_v_m),
             gps_tau_s: self.gps_tau_s,
             hidden,
             decoys: self.decoys.clone(),
             hidden_std_nt: self.hidden_std_nt,
             max_duration_s: self.max_duration_s,
+            physics: profile.physics,
+            base_station: self.base_station.unwrap_or(profile.base_station),
+            anomaly_pp_nt,
         };
         cfg.validate()?;
         Ok(cfg)
@@ -346,6 +378,39 @@ mod tests {
     fn defaults_match_config_default() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         assert_eq!(cli.args.to_config().unwrap(), SimConfig::default());
+    }
+
+    #[test]
+    fn broad_profile_and_explicit_flags_over_it() {
+        let cli = Cli::try_parse_from(["x", "--physics", "broad", "--seed", "4"]).unwrap();
+        assert_eq!(cli.args.to_config().unwrap(), SimConfig::broad(4));
+        let cli = Cli::try_parse_from([
+            "x",
+            "--physics",
+            "broad",
+            "--seed",
+            "4",
+            "--diurnal-nt",
+            "3",
+            "--geology",
+            "strong",
+            "--cal-headings-deg",
+            "0,90",
+            "--base-station",
+            "true",
+        ])
+        .unwrap();
+        let c = cli.args.to_config().unwrap();
+        assert_eq!(c.diurnal_nt, 3.0);
+        assert_eq!(c.geology, Geology::preset(GeologyPreset::Strong));
+        assert_eq!(c.anomaly_pp_nt, None);
+        assert_eq!(c.cal_headings_deg, vec![0.0, 90.0]);
+        assert!(c.base_station);
+        assert_eq!(c.physics, Physics::Broad);
+        assert_eq!(c.flux_noise_nt, SimConfig::broad(4).flux_noise_nt);
+        assert!(Cli::try_parse_from(["x", "--physics", "wide"])
+            .map(|c| c.args.to_config())
+            .is_ok_and(|r| r.is_err()));
     }
 
     #[test]

@@ -16,6 +16,10 @@
 //! Truth columns satisfy `mag − noise = igrf + truth_anomaly + truth_diurnal +
 //! truth_interference` exactly, each term an exact modulus difference taken in that order.
 //! `fluxcal` does not change the scalar, so its column is not part of `truth_interference`.
+//! The `broad` physics profile (`physics.rs`, issue 10) widens the aircraft, the fluxgate
+//! (which then also sees the aircraft's eddy field), navigation errors, diurnal (no base
+//! station) and geology, and writes `igrf` at the GPS position: there `truth_core`
+//! takes `igrf`'s place in the identity above.
 //!
 //! Above 20 Hz the environment field (main + anomaly) is evaluated exactly at 50 ms knots
 //! with its exact time derivative and Hermite-interpolated between them (error < 1e-4 nT,
@@ -26,6 +30,7 @@ pub mod cli;
 pub mod flight;
 pub mod geo;
 pub mod hidden;
+pub mod physics;
 pub mod signals;
 
 pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
@@ -33,6 +38,7 @@ pub use cli::SimulateArgs;
 pub use flight::{KinState, Plan};
 pub use geo::{EarthField, LocalFrame};
 pub use hidden::{parse_hidden, HiddenEffect, HiddenKind};
+pub use physics::Physics;
 
 use crate::trace::Trace;
 use anyhow::{ensure, Result};
@@ -131,6 +137,14 @@ pub struct SimConfig {
     pub hidden_std_nt: f64,
     /// Truncate the flight (s); None = fly the whole plan.
     pub max_duration_s: Option<f64>,
+    /// Aircraft and fluxgate physics (`physics.rs`): `Classic`, or the `Broad` profile of
+    /// issue 10 (use [`SimConfig::broad`], which also draws the configuration's part).
+    pub physics: Physics,
+    /// Record the diurnal at a base station (`base` column).
+    pub base_station: bool,
+    /// Scale the geology so the true anomaly spans this many nT peak to peak along the
+    /// flight (measured at the field knots); None = the population as drawn.
+    pub anomaly_pp_nt: Option<f64>,
 }
 
 impl SimConfig {
@@ -202,6 +216,9 @@ impl Default for SimConfig {
             decoys: Vec::new(),
             hidden_std_nt: 2.0,
             max_duration_s: None,
+            physics: Physics::Classic,
+            base_station: true,
+            anomaly_pp_nt: None,
         }
     }
 }
@@ -297,6 +314,9 @@ impl SimConfig {
         if let Some(d) = self.max_duration_s {
             finite_in(d, 1.0, 1e6, "maximum duration (s)")?;
         }
+        if let Some(a) = self.anomaly_pp_nt {
+            finite_in(a, 0.01, 10_000.0, "anomaly peak to peak (nT)")?;
+        }
         let mut names: Vec<String> = self.hidden.iter().map(|h| h.name()).collect();
         let mut chans: Vec<&str> = self.hidden.iter().filter_map(|h| h.channel()).collect();
         for d in &self.decoys {
@@ -346,14 +366,14 @@ pub fn simulate(cfg: &SimConfig) -> Result<Trace> {
     Ok(simulate_detailed(cfg)?.trace)
 }
 
-fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
+pub(crate) fn rng_for(seed: u64, stream: u64) -> ChaCha8Rng {
     let mut r = ChaCha8Rng::seed_from_u64(seed);
     r.set_stream(stream);
     r
 }
 
 /// Stream id from a name, so adding one effect never changes another's random draws.
-fn stream_of(name: &str) -> u64 {
+pub(crate) fn stream_of(name: &str) -> u64 {
     name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
         (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
     }) | (1 << 40)
@@ -778,6 +798,13 @@ fn tl_scalar(
     e.dot(k) + b * e.dot(&(l * e)) + e.dot(&(m * (e * b_dot + e_dot * b)))
 }
 
+fn trace_col<'a>(cols: &'a [(&str, Vec<f64>)], name: &str) -> &'a [f64] {
+    cols.iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, v)| v.as_slice())
+        .expect("column written above")
+}
+
 fn unit_and_rate(v: &Vector3<f64>, v_dot: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     let n = v.norm();
     let e = v / n;
@@ -899,6 +926,21 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
         field.ba.push(ba);
         field.dba.push(ga * v_ned);
     }
+    // The field is linear in the moments, so scaling them scales the track exactly.
+    let mut anomaly = anomaly;
+    if let Some(target) = cfg.anomaly_pp_nt {
+        let tmi = |k: usize| (field.be[k] + field.ba[k]).norm() - field.be[k].norm();
+        let (lo, hi) = (0..field.t.len()).fold((f64::MAX, f64::MIN), |(a, b), k| {
+            let v = tmi(k);
+            (a.min(v), b.max(v))
+        });
+        if hi > lo {
+            let f = target / (hi - lo);
+            field.ba.iter_mut().for_each(|v| *v *= f);
+            field.dba.iter_mut().for_each(|v| *v *= f);
+            anomaly.sources.iter_mut().for_each(|s| s.moment_am2 *= f);
+        }
+    }
 
     // Diurnal: slow sinusoids (10 min – 3 h) + a smooth random walk.
     let mut rd = rng_for(seed, 3);
@@ -929,6 +971,14 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
         ra.sample::<f64, _>(StandardNormal) * w
     }) * ifs;
     let m = Matrix3::from_fn(|_, _| ra.sample::<f64, _>(StandardNormal) * 6e-5) * ifs;
+    let broad = (cfg.physics == Physics::Broad).then(|| {
+        let law = physics::broad_aircraft(seed, ifs);
+        (law, physics::broad_fluxgate(seed, &law, ifs))
+    });
+    let (k, l, m) = match &broad {
+        Some((law, _)) => (law.k_nt, law.l, law.m_s),
+        None => (k, l, m),
+    };
 
     let world = World {
         plan,
@@ -1111,6 +1161,19 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
         1.0 + rf.sample::<f64, _>(StandardNormal) * 1e-3
     }));
     let flux_rot = small_rotation(0.07f64.to_radians(), &mut rf);
+    // Broad: the aircraft's eddy field reaches the fluxgate too, and its errors are one
+    // scale/cross-coupling matrix (rotation = identity) and a 10–50 nT bias.
+    let (kf, lf, mf, flux_bias, flux_scale, flux_rot) = match &broad {
+        Some((_, fg)) => (
+            fg.aircraft.k_nt,
+            fg.aircraft.l,
+            fg.aircraft.m_s,
+            fg.bias_nt,
+            fg.matrix,
+            Matrix3::identity(),
+        ),
+        None => (kf, lf, Matrix3::zeros(), flux_bias, flux_scale, flux_rot),
+    };
     let mut rfc = rng_for(seed, stream_of("fluxcal"));
     let bad_bias = Vector3::from_fn(|_, _| sign(&mut rfc) * rfc.gen_range(200.0..500.0));
     let bad_scale = Matrix3::from_diagonal(&Vector3::from_fn(|_, _| {
@@ -1124,6 +1187,9 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     .into_inner();
     meta_extra.push(("truth_flux_K_nt".into(), json_vec(&kf)));
     meta_extra.push(("truth_flux_L".into(), json_mat(&lf)));
+    if broad.is_some() {
+        meta_extra.push(("truth_flux_M_s".into(), json_mat(&mf)));
+    }
     meta_extra.push(("truth_flux_bias_nt".into(), json_vec(&flux_bias)));
     meta_extra.push((
         "truth_flux_matrix".into(),
@@ -1147,11 +1213,12 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
             (&flux_scale, &flux_rot, &flux_bias)
         };
         let a = sc * rot;
-        let f_clean = a * (i.b_body + kf + lf * i.b_body) + bias;
+        let f_clean = a * (i.b_body + kf + lf * i.b_body + mf * i.db_body) + bias;
         for (ax, col) in flux.iter_mut().enumerate() {
             col[kk] = f_clean[ax] + cfg.flux_noise_nt * rfn.sample::<f64, _>(StandardNormal);
         }
         if bad {
+            // (mf·d²B/dt² left out: the fluxcal truth column is a first-order figure.)
             let f_dot = a * (i.db_body + lf * i.db_body);
             let (em, emd) = unit_and_rate(&f_clean, &f_dot);
             let (et, etd) = unit_and_rate(&i.b_body, &i.db_body);
@@ -1234,8 +1301,27 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
         .iter()
         .map(|i| i.d_nt + i.d_micro_nt + 0.01 * rb.sample::<f64, _>(StandardNormal))
         .collect();
-    cols.push(("base", base));
-    cols.push(("igrf", insts.iter().map(|i| i.be.norm()).collect()));
+    if cfg.base_station {
+        cols.push(("base", base));
+    }
+    let core_exact: Vec<f64> = insts.iter().map(|i| i.be.norm()).collect();
+    if cfg.physics == Physics::Broad {
+        // As a user computes it: the core-field model at the GPS position, whose slow
+        // altitude error (2 m, 60 s) moves it by a few hundredths of a nT; the exact value
+        // goes to `truth_core`.
+        let (lat, lon, alt) = (
+            trace_col(&cols, "lat"),
+            trace_col(&cols, "lon"),
+            trace_col(&cols, "alt"),
+        );
+        let igrf = (0..n)
+            .map(|k| cfg.earth.field_ned_nt(lat[k], lon[k], alt[k]).norm())
+            .collect();
+        cols.push(("igrf", igrf));
+        cols.push(("truth_core", core_exact));
+    } else {
+        cols.push(("igrf", core_exact));
+    }
 
     let mut trace = Trace::default();
     let truth_anom: Vec<f64> = insts
@@ -1333,6 +1419,15 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
         ("truth_L".into(), json_mat(&l)),
         ("truth_M_s".into(), json_mat(&m)),
     ];
+    if cfg.physics != Physics::Classic {
+        meta.push(("physics".into(), cfg.physics.name().into()));
+    }
+    if !cfg.base_station {
+        meta.retain(|(k, _)| k != "base_reference");
+    }
+    if let Some(a) = cfg.anomaly_pp_nt {
+        meta.push(("anomaly_pp_nt".into(), format!("{a}")));
+    }
     if cfg.flight != FlightKind::Survey {
         meta.push(("cal_altitude_m".into(), format!("{}", cfg.cal_altitude_m)));
     }

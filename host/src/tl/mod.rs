@@ -165,6 +165,18 @@ impl TlConfig {
         }
     }
 
+    /// The yardstick of issue 10: MagNav's band-passed TL18 without the ridge (λ = 0),
+    /// i.e. ordinary least squares solved by SVD with numpy's `lstsq` cut-off (singular
+    /// values below `σ_max·max(m, n)·ε` dropped, minimum-norm solution). On a clean
+    /// calibration flight it is what an independent toolchain gets in 20 lines, so the
+    /// Kalman filter is measured against it (tests/kf_vs_tl_broad.rs).
+    pub fn ols(fs_hz: f64) -> Self {
+        TlConfig {
+            lambda: 0.0,
+            ..TlConfig::for_rate(fs_hz)
+        }
+    }
+
     fn validate(&self) -> Result<()> {
         ensure!(
             self.fs_hz.is_finite() && self.fs_hz > 0.0,
@@ -588,4 +600,70 @@ pub fn compensate(fit: &TlFit, flux_nt: &[[f64; 3]], mag_nt: &[f64]) -> Result<V
         .zip(mag_nt)
         .map(|(i, m)| m - i)
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small design and its numpy reference (`numpy.linalg.lstsq(A, y, rcond=None)`,
+    /// numpy 2.4; the script is in the comment of each case).
+    fn small() -> (DMatrix<f64>, Vec<f64>) {
+        let a = DMatrix::from_row_slice(
+            7,
+            3,
+            &[
+                1.0, 0.5, -2.0, 0.3, -1.2, 0.7, 2.1, 0.0, 1.1, -0.4, 0.9, 0.2, 1.5, 1.5, -0.3, 0.0,
+                -0.7, 2.4, 0.8, 0.1, -1.6,
+            ],
+        );
+        let y = vec![0.9, -1.3, 2.2, 0.4, 1.8, -0.5, 1.1];
+        (a, y)
+    }
+
+    #[test]
+    fn ols_reproduces_numpy_lstsq() {
+        let (a, y) = small();
+        let r = ridge(&a, &y, TlConfig::ols(10.0).lambda).unwrap();
+        // np.linalg.lstsq(A, y, rcond=None)[0]
+        let numpy = [0.8208241022300332, 0.7373361916108405, 0.018469332066400012];
+        for (c, n) in r.coefficients.iter().zip(numpy) {
+            assert!((c - n).abs() < 1e-12, "{c} vs numpy {n}");
+        }
+        assert_eq!(r.rank, 3);
+        // The ridge MagNav uses is a different estimator: it moves the solution.
+        let rr = ridge(&a, &y, 1.0).unwrap();
+        assert!((rr.coefficients[0] - numpy[0]).abs() > 1e-3);
+    }
+
+    #[test]
+    fn ols_is_minimum_norm_when_rank_deficient() {
+        // Third column = first + second (TL18's ind_xx + ind_yy + ind_zz = |B|/Bt_scale is
+        // the same kind of collinearity): numpy returns the minimum-norm solution.
+        let (a0, y) = small();
+        let a = DMatrix::from_fn(7, 3, |i, j| match j {
+            2 => a0[(i, 0)] + a0[(i, 1)],
+            _ => a0[(i, j)],
+        });
+        let r = ridge(&a, &y, 0.0).unwrap();
+        // np.linalg.lstsq(np.column_stack([A[:,0], A[:,1], A[:,0]+A[:,1]]), y, rcond=None)[0]
+        let numpy = [0.3066405509363911, 0.20825646174721502, 0.5148970126836059];
+        for (c, n) in r.coefficients.iter().zip(numpy) {
+            assert!((c - n).abs() < 1e-10, "{c} vs numpy {n}");
+        }
+        assert_eq!(r.rank, 2);
+    }
+
+    #[test]
+    fn ols_config_is_magnav_without_ridge() {
+        let o = TlConfig::ols(10.0);
+        assert_eq!(o.lambda, 0.0);
+        assert_eq!(
+            TlConfig {
+                lambda: TlConfig::default().lambda,
+                ..o
+            },
+            TlConfig::for_rate(10.0)
+        );
+    }
 }
