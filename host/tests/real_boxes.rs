@@ -27,7 +27,10 @@ fn boxes() -> Option<Boxes> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
     let Ok(text) = std::fs::read_to_string(&path) else {
-        eprintln!("SKIPPED: {} is absent (shared reference data)", path.display());
+        eprintln!(
+            "SKIPPED: {} is absent (shared reference data)",
+            path.display()
+        );
         return None;
     };
     let mut lines = text.lines();
@@ -47,7 +50,10 @@ fn trace(b: &Boxes, range: std::ops::Range<usize>, mag: &str, flux: &str) -> Tra
     };
     Trace {
         numeric: vec![
-            ("t".into(), range.clone().map(|i| i as f64 / FS_HZ).collect()),
+            (
+                "t".into(),
+                range.clone().map(|i| i as f64 / FS_HZ).collect(),
+            ),
             ("mag".into(), col(mag)),
             ("flux_x".into(), col(&format!("{flux}_x"))),
             ("flux_y".into(), col(&format!("{flux}_y"))),
@@ -64,6 +70,7 @@ fn est(method: Method, model: &str) -> EstimatorArgs {
         sigma1: None,
         noise_nt: None,
         tl_terms: "tl18".into(),
+        tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
     }
 }
@@ -122,12 +129,25 @@ fn kf_transfer_between_real_boxes_beats_tolles_lawson() {
         );
         // The fluxgate's own modulus carries the aircraft's field at the fluxgate: with it
         // the filter beats MagNav's TL18 and is level with or better than plain OLS.
-        assert!(fluxmod < ridge, "{mag}: KF+fluxmod {fluxmod:.3} ≥ ridge TL18 {ridge:.3}");
-        assert!(fluxmod <= 1.05 * ols, "{mag}: KF+fluxmod {fluxmod:.3} vs OLS TL18 {ols:.3}");
+        assert!(
+            fluxmod < ridge,
+            "{mag}: KF+fluxmod {fluxmod:.3} ≥ ridge TL18 {ridge:.3}"
+        );
+        assert!(
+            fluxmod <= 1.05 * ols,
+            "{mag}: KF+fluxmod {fluxmod:.3} vs OLS TL18 {ols:.3}"
+        );
         // The paper's 16 terms alone cannot span it (TL18's extra column is |B_F|): level
         // with the ridge TL18, not better.
-        assert!(paper <= 1.05 * ridge, "{mag}: KF {paper:.3} vs ridge TL18 {ridge:.3}");
-        assert!(paper < 0.15 * band_std_nt(&trace(&b, BOX1_ROWS..b.rows.len(), mag, "flux_d").numeric[1].1));
+        assert!(
+            paper <= 1.05 * ridge,
+            "{mag}: KF {paper:.3} vs ridge TL18 {ridge:.3}"
+        );
+        assert!(
+            paper
+                < 0.15
+                    * band_std_nt(&trace(&b, BOX1_ROWS..b.rows.len(), mag, "flux_d").numeric[1].1)
+        );
     }
 }
 
@@ -137,22 +157,37 @@ fn kf_transfer_between_real_boxes_beats_tolles_lawson() {
 fn real_box_innovations_are_not_rejected() {
     let Some(b) = boxes() else { return };
     let e = est(Method::Kf, "tl16+fluxmod+field");
-    let (_, comp) =
-        compensate_trace(&trace(&b, 0..BOX1_ROWS, "mag_4_uc", "flux_d"), &e, None, false).unwrap();
+    let (_, comp) = compensate_trace(
+        &trace(&b, 0..BOX1_ROWS, "mag_4_uc", "flux_d"),
+        &e,
+        None,
+        false,
+    )
+    .unwrap();
     let flags = comp.flags.unwrap();
     let rejected = flags
         .iter()
-        .filter(|f| f & Flags::INNOVATION_REJECTED != 0)
+        .filter(|&&f| f & Flags::INNOVATION_REJECTED != 0)
         .count() as f64
         / flags.len() as f64;
     let noise = comp.coefficients.unwrap().noise_nt.unwrap();
-    eprintln!("box 1: {:.2} % rejected, noise {noise:.3} nT", 100.0 * rejected);
+    eprintln!(
+        "box 1: {:.2} % rejected, noise {noise:.3} nT",
+        100.0 * rejected
+    );
     assert!(rejected < 0.05, "{:.1} % rejected", 100.0 * rejected);
-    assert!(noise > 0.5, "the real model error is nT-sized, got {noise} nT");
+    assert!(
+        noise > 0.5,
+        "the real model error is nT-sized, got {noise} nT"
+    );
 }
 
-/// Real time from an unknown start: the output stays the raw signal (interference 0) while
-/// `NOT_CONVERGED`, never beyond the raw range, and the flag clears during the box.
+/// Real time from an unknown start: the output is exactly the raw signal (interference 0)
+/// while `NOT_CONVERGED` (a half-learnt estimate put ~9 000 nT into the first 30 s). On this
+/// aircraft the filter never determines the interference to a survey's 0.1 nT (its own
+/// covariance says ~0.9 nT), so the flag never clears and the real-time output stays raw:
+/// the post-flight calibration is the product here. Should it ever clear, the compensated
+/// signal must vary less than the raw one from then on.
 #[test]
 fn real_time_on_a_real_box_starts_sane() {
     let Some(b) = boxes() else { return };
@@ -160,25 +195,24 @@ fn real_time_on_a_real_box_starts_sane() {
     let raw = t.col("mag").unwrap().to_vec();
     let (_, comp) = compensate_trace(&t, &est(Method::Kf, "tl16+field"), None, true).unwrap();
     let flags = comp.flags.unwrap();
-    let clears = flags
-        .iter()
-        .position(|f| f & Flags::NOT_CONVERGED == 0)
-        .expect("NOT_CONVERGED never clears on a real box");
-    let (lo, hi) = raw
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+    let mut not_converged = 0;
     for i in 0..flags.len() {
         if flags[i] & Flags::NOT_CONVERGED != 0 {
+            not_converged += 1;
             assert_eq!(comp.interference_nt[i], 0.0, "row {i}");
+            assert_eq!(comp.compensated_nt[i], raw[i], "row {i}");
         }
-        let c = comp.compensated_nt[i];
-        assert!(c >= lo - 50.0 && c <= hi + 50.0, "row {i}: {c} outside the raw range");
     }
+    let clears = flags.iter().position(|f| f & Flags::NOT_CONVERGED == 0);
     eprintln!(
-        "box 1 real time: NOT_CONVERGED clears at {:.1} s",
-        clears as f64 / FS_HZ
+        "box 1 real time: NOT_CONVERGED on {not_converged} of {} records, clears at {:?} s",
+        flags.len(),
+        clears.map(|c| c as f64 / FS_HZ)
     );
-    assert!(clears < BOX1_ROWS / 2);
+    assert!(not_converged > BOX1_ROWS / 2);
+    if let Some(c) = clears {
+        assert!(band_std_nt(&comp.compensated_nt[c..]) < 0.5 * band_std_nt(&raw[c..]));
+    }
 }
 
 /// A positionless trace needs an assumed speed for the filter's anomaly, never a silent
@@ -194,5 +228,8 @@ fn positionless_trace_needs_an_assumed_speed_for_the_filter() {
     e.method = Method::Tl;
     assert!(compensate_trace(&t, &e, None, false).is_ok());
     let (_, kf) = compensate_trace(&t, &est(Method::Kf, "tl16+field"), None, false).unwrap();
-    assert!(kf.warnings.iter().any(|w| w.contains("assumed ground speed")));
+    assert!(kf
+        .warnings
+        .iter()
+        .any(|w| w.contains("assumed ground speed")));
 }
