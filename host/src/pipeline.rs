@@ -712,7 +712,10 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     let cfg = base_config(flight, opts, sigma1, noise_nt);
     let mut warnings = Vec::new();
     let held;
-    let opts = if opts.coefficients.is_none() && opts.held_combinations.is_empty() {
+    // Post-flight only: which combinations the flight excites is known at its end, and the
+    // board (which real time reproduces) cannot know it in advance.
+    let opts = if opts.coefficients.is_none() && opts.held_combinations.is_empty() && !opts.realtime
+    {
         let (_, regs, ..) = pass(flight, opts, cfg, None, true)?;
         let terms = spec.build_terms();
         let prior: Vec<f64> = terms

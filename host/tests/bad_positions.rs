@@ -52,15 +52,22 @@ fn with_bad_value(
 
 /// Output flags column of a `compensate` CSV, one per row.
 fn output_flags(p: &Path) -> Vec<u16> {
-    std::fs::read_to_string(p)
+    let text = std::fs::read_to_string(p).unwrap();
+    let mut rows = text.lines().filter(|l| !l.starts_with('#'));
+    let flags = rows
+        .next()
         .unwrap()
-        .lines()
-        .filter(|l| !l.starts_with('#'))
-        .skip(1)
-        .map(|l| {
-            u16::from_str_radix(l.rsplit(',').next().unwrap().trim_start_matches("0x"), 16).unwrap()
-        })
-        .collect()
+        .split(',')
+        .position(|c| c == "flags")
+        .unwrap();
+    rows.map(|l| {
+        u16::from_str_radix(
+            l.split(',').nth(flags).unwrap().trim_start_matches("0x"),
+            16,
+        )
+        .unwrap()
+    })
+    .collect()
 }
 
 /// Rewrites one field's value.

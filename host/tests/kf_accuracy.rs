@@ -533,8 +533,18 @@ fn f32_ud_matches_f64_reference_over_an_hour() {
     )
     .expect("reference");
     let n = f.len();
+    // While NOT_CONVERGED the compensator outputs the prior's interference by design (a
+    // half-learnt estimate is not shown); the numerics are compared where it outputs its
+    // estimate.
+    let not_converged = |i: usize| run.flags[i] & magcomp_core::Flags::NOT_CONVERGED != 0;
     let diff: Vec<f64> = (0..n)
-        .map(|i| run.interference_nt[i] - rf.interference_nt[i])
+        .map(|i| {
+            if not_converged(i) {
+                0.0
+            } else {
+                run.interference_nt[i] - rf.interference_nt[i]
+            }
+        })
         .collect();
     let rms = (diff.iter().map(|d| d * d).sum::<f64>() / n as f64).sqrt();
     let max = diff.iter().fold(0.0f64, |m, d| m.max(d.abs()));
