@@ -121,6 +121,12 @@ fn print_summary(s: &Summary) {
     if let Some(f) = s.fom_nt {
         println!("  figure of merit (12 man.):  {f:.3} nT");
     }
+    if let Some(a) = s.aircraft_fom_nt {
+        println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
+    }
+    if let Some(t) = &s.fom_table {
+        println!("{}", magcomp::qc::fom::format_table(t));
+    }
     if let Some(p) = s.predicted_error_nt {
         println!(
             "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
