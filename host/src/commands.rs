@@ -252,8 +252,23 @@ fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
     Ok(cfg)
 }
 
-/// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace.
+/// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace;
+/// their plausibility on this flight is checked (`qc::applied`) and warned about.
 pub fn compensate_trace(
+    trace: &Trace,
+    est: &EstimatorArgs,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+) -> Result<(Flight, Compensation)> {
+    let (flight, mut comp) = run_method(trace, est, coeffs, realtime)?;
+    if let Some(c) = coeffs {
+        let w = crate::qc::applied::check(&flight, &comp, c);
+        comp.warnings.extend(w);
+    }
+    Ok((flight, comp))
+}
+
+fn run_method(
     trace: &Trace,
     est: &EstimatorArgs,
     coeffs: Option<&CoefficientFile>,
@@ -637,6 +652,35 @@ fn csv_text(s: &str) -> String {
     } else {
         s.to_string()
     }
+}
+
+/// `--coeffs` decides the method and the model: a `--method` or `--model` given beside
+/// it that says otherwise is an error, not silently overridden.
+pub fn refuse_conflicting_settings(
+    coeffs: &CoefficientFile,
+    method: Option<Method>,
+    model: Option<&str>,
+) -> Result<()> {
+    let name = |m: Method| if m == Method::Tl { "tl" } else { "kf" };
+    if let Some(m) = method.filter(|m| *m != coeffs.method) {
+        bail!(
+            "--method {} conflicts with the coefficient file, which holds {} coefficients: drop --method (the file decides) or give a {} coefficient file",
+            name(m),
+            name(coeffs.method),
+            name(m)
+        );
+    }
+    if let Some(m) = model {
+        let same = coeffs.method == Method::Kf
+            && ModelSpec::parse(m).map(|s| s.text()).ok().as_deref() == Some(coeffs.model.as_str());
+        if !same {
+            bail!(
+                "--model {m} conflicts with the coefficient file's model '{}': drop --model (the file decides) or calibrate that model",
+                coeffs.model
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Reads a coefficient file written by `calibrate`. Coefficients are matched to the
