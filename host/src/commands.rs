@@ -446,24 +446,38 @@ fn run_method(
                     fit.config.terms.columns().len()
                 );
             }
-            let interference = tl::interference(&fit, &flux);
+            // Per stretch between time gaps: no derivative spans a gap.
+            let stretches = crate::qc::gaps::stretches(flight.len(), &qc.breaks);
+            let interference: Vec<f64> = stretches
+                .iter()
+                .flat_map(|r| tl::interference(&fit, &flux[r.clone()]))
+                .collect();
             let compensated = flight
                 .mag_nt
                 .iter()
                 .zip(&interference)
                 .map(|(m, i)| m - i)
                 .collect();
-            let a = tl::design_matrix_scaled(
-                &flux,
-                &fit.config.terms,
-                fit.config.bt_scale_nt,
-                match fit.config.eddy_rate {
-                    tl::EddyRate::PerSample => 1.0,
-                    tl::EddyRate::PerSecond => fit.config.fs_hz,
-                },
-            );
-            let regressors = (0..a.nrows())
-                .map(|r| (0..a.ncols()).map(|c| a[(r, c)] as f32).collect())
+            let regressors = stretches
+                .iter()
+                .flat_map(|r| {
+                    let a = tl::design_matrix_scaled(
+                        &flux[r.clone()],
+                        &fit.config.terms,
+                        fit.config.bt_scale_nt,
+                        match fit.config.eddy_rate {
+                            tl::EddyRate::PerSample => 1.0,
+                            tl::EddyRate::PerSecond => fit.config.fs_hz,
+                        },
+                    );
+                    (0..a.nrows())
+                        .map(|r| {
+                            (0..a.ncols())
+                                .map(|c| a[(r, c)] as f32)
+                                .collect::<Vec<f32>>()
+                        })
+                        .collect::<Vec<_>>()
+                })
                 .collect();
             let file = CoefficientFile {
                 format: COEFF_FORMAT.into(),

@@ -55,3 +55,15 @@ pub fn gaps_warning(t_s: &[f64], breaks: &[usize]) -> Option<String> {
 pub fn gap_neighbours(breaks: &[usize]) -> Vec<usize> {
     breaks.iter().flat_map(|&i| [i - 1, i]).collect()
 }
+
+/// The row ranges between time gaps, covering `0..n`.
+pub fn stretches(n: usize, breaks: &[usize]) -> Vec<std::ops::Range<usize>> {
+    let mut out = Vec::with_capacity(breaks.len() + 1);
+    let mut start = 0;
+    for &b in breaks.iter().filter(|&&b| b > 0 && b < n) {
+        out.push(start..b);
+        start = b;
+    }
+    out.push(start..n);
+    out
+}

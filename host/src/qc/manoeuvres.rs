@@ -15,13 +15,20 @@ use crate::flight::Flight;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
-/// Band of the manoeuvres (Hz): periods of 2–20 s.
-pub const MANOEUVRE_BAND_HZ: (f64, f64) = (0.05, 0.5);
+/// Band of the manoeuvres (Hz): periods of 2–10 s (a lower edge of 0.05 Hz lets the roll
+/// into a turn ring 10 s ahead of it and hide the end of a yaw manoeuvre).
+pub const MANOEUVRE_BAND_HZ: (f64, f64) = (0.1, 0.5);
 /// A manoeuvre's amplitude must exceed this (deg; ~5° manoeuvres, <1° turbulence).
 pub const MIN_AMPLITUDE_DEG: f64 = 1.5;
 /// Heading window (s) over which a leg is straight, and the change allowed over it (deg).
 const LEG_WINDOW_S: f64 = 20.0;
 const LEG_MAX_TURN_DEG: f64 = 15.0;
+/// A leg is extended while the heading stays this close to its median (deg): a turn
+/// reaches it within ~4 s, a ±5° yaw manoeuvre keeps within it.
+const LEG_EXTEND_DEG: f64 = 8.0;
+/// A manoeuvre oscillates: at least this many zero crossings of its band-passed angle
+/// (two cycles); the roll into a turn is one pulse.
+const MIN_ZERO_CROSSINGS: usize = 4;
 /// Shortest leg (s) and shortest manoeuvre (s).
 const MIN_LEG_S: f64 = 40.0;
 const MIN_MANOEUVRE_S: f64 = 6.0;
@@ -264,18 +271,42 @@ pub fn detect(flight: &Flight) -> Option<Pattern> {
             (smooth[b] - smooth[a]).abs() < LEG_MAX_TURN_DEG
         })
         .collect();
-    let legs_rows = runs(&straight, samples_of(MIN_LEG_S));
+    // The smoothing window shortens each leg by up to half of it at either end: extend
+    // it while the heading stays within the allowed change of the leg's median.
+    let legs_rows: Vec<(usize, usize)> = runs(&straight, samples_of(MIN_LEG_S))
+        .into_iter()
+        .map(|(mut a, mut b)| {
+            let mut h: Vec<f64> = heading[a..b].to_vec();
+            h.sort_by(|x, y| x.total_cmp(y));
+            let med = h[h.len() / 2];
+            let reach = samples_of(LEG_WINDOW_S);
+            let near = |i: usize| (heading[i] - med).abs() < LEG_EXTEND_DEG;
+            let (a0, b0) = (a.saturating_sub(reach), (b + reach).min(n));
+            while a > a0 && near(a - 1) {
+                a -= 1;
+            }
+            while b < b0 && near(b) {
+                b += 1;
+            }
+            (a, b)
+        })
+        .collect();
 
     // Manoeuvre envelopes: band-passed angles, √2 × moving RMS ≈ the amplitude.
     let breaks = crate::qc::gaps::time_breaks(&flight.t_s);
     let (lo, hi) = (MANOEUVRE_BAND_HZ.0, MANOEUVRE_BAND_HZ.1.min(0.4 * fs));
-    let env: Vec<Vec<f64>> = angles
+    let band: Vec<Vec<f64>> = angles
         .iter()
         .map(|x| {
             let mut x = x.clone();
             fill_forward(&mut x);
-            let bp = crate::tl::bandpass_gaps(&x, 4, lo, hi, fs, &breaks, 10, 64)
-                .unwrap_or_else(|_| vec![f64::NAN; n]);
+            crate::tl::bandpass_gaps(&x, 4, lo, hi, fs, &breaks, 10, 64)
+                .unwrap_or_else(|_| vec![f64::NAN; n])
+        })
+        .collect();
+    let env: Vec<Vec<f64>> = band
+        .iter()
+        .map(|bp| {
             let sq: Vec<f64> = bp
                 .iter()
                 .map(|v| if v.is_finite() { v * v } else { 0.0 })
@@ -318,7 +349,11 @@ pub fn detect(flight: &Flight) -> Option<Pattern> {
                 }
                 j += 1;
             }
-            if end - start >= samples_of(MIN_MANOEUVRE_S) {
+            let crossings = band[k][start..end]
+                .windows(2)
+                .filter(|w| w[0] * w[1] < 0.0)
+                .count();
+            if end - start >= samples_of(MIN_MANOEUVRE_S) && crossings >= MIN_ZERO_CROSSINGS {
                 let amp = (start..end).map(|r| env[k][r]).fold(0.0, f64::max);
                 segs.push((k, start, end, amp));
             }
