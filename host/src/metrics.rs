@@ -19,17 +19,12 @@ pub fn band_passed(flight: &Flight, x: &[f64]) -> Option<Vec<f64>> {
     let fs_hz = flight.sample_rate_hz;
     let (lo, hi) = manoeuvre_band(fs_hz);
     let breaks = crate::qc::gaps::time_breaks(&flight.t_s);
-    let v = crate::tl::bandpass_gaps(
-        x,
-        4,
-        lo,
-        hi,
-        fs_hz,
-        &breaks,
-        crate::qc::gaps::MAX_FILL_SAMPLES,
-        64,
-    )
-    .ok()?;
+    let gaps = crate::tl::Gaps {
+        breaks: &breaks,
+        max_fill: crate::qc::gaps::MAX_FILL_SAMPLES,
+        min_len: 64,
+    };
+    let v = crate::tl::bandpass_gaps(x, 4, lo, hi, fs_hz, &gaps).ok()?;
     v.iter().any(|x| x.is_finite()).then_some(v)
 }
 

@@ -174,8 +174,8 @@ fn real_boxes_without_positions_show_two_boxes_of_four_headings() {
     println!("legs (relative heading, t0, t1): {legs:.0?}");
     assert_eq!(legs.len(), 8, "two boxes of four legs");
     // Box 1 = rows before 6500 (650 s), box 2 after; the same four headings in each.
-    let (b1, b2): (Vec<(f64, f64, f64)>, Vec<(f64, f64, f64)>) =
-        legs.iter().partition(|l| l.2 < 650.0);
+    type Legs = Vec<(f64, f64, f64)>;
+    let (b1, b2): (Legs, Legs) = legs.iter().partition(|l| l.2 < 650.0);
     assert_eq!((b1.len(), b2.len()), (4, 4));
     let diff = |a: f64, b: f64| ((a - b + 180.0).rem_euclid(360.0) - 180.0).abs();
     for (x, y) in b1.iter().zip(&b2) {

@@ -119,7 +119,7 @@ pub fn check(flight: &Flight, calibrating: bool) -> Result<InputCheck> {
         ));
     } else {
         out.excitation = excitation(flight);
-        if calibrating && !(out.excitation >= MIN_EXCITATION) {
+        if calibrating && (out.excitation.is_nan() || out.excitation < MIN_EXCITATION) {
             out.withhold(format!(
                 "no manoeuvres: the fluxgate direction varies by {:.4} rms in the manoeuvre band (at least {MIN_EXCITATION} is needed, about 0.45° of attitude), so the flight cannot tell the interference's coefficients apart",
                 out.excitation

@@ -255,7 +255,7 @@ fn manoeuvre_angles(flight: &Flight) -> Option<(Vec<Vec<f64>>, &'static str)> {
 pub fn detect(flight: &Flight) -> Option<Pattern> {
     let n = flight.len();
     let fs = flight.sample_rate_hz;
-    if n < 10 || !(fs > 2.0 * MANOEUVRE_BAND_HZ.1) {
+    if n < 10 || fs.is_nan() || fs <= 2.0 * MANOEUVRE_BAND_HZ.1 {
         return None;
     }
     let (heading, heading_source) = heading_deg(flight)?;
@@ -300,8 +300,12 @@ pub fn detect(flight: &Flight) -> Option<Pattern> {
         .map(|x| {
             let mut x = x.clone();
             fill_forward(&mut x);
-            crate::tl::bandpass_gaps(&x, 4, lo, hi, fs, &breaks, 10, 64)
-                .unwrap_or_else(|_| vec![f64::NAN; n])
+            let gaps = crate::tl::Gaps {
+                breaks: &breaks,
+                max_fill: crate::qc::gaps::MAX_FILL_SAMPLES,
+                min_len: 64,
+            };
+            crate::tl::bandpass_gaps(&x, 4, lo, hi, fs, &gaps).unwrap_or_else(|_| vec![f64::NAN; n])
         })
         .collect();
     let env: Vec<Vec<f64>> = band

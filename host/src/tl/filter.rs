@@ -234,6 +234,17 @@ pub fn bandpass(
     filtfilt(&sos, x)
 }
 
+/// Where [`bandpass_gaps`] must not filter across, and what it may fill.
+#[derive(Clone, Copy, Debug)]
+pub struct Gaps<'a> {
+    /// First samples after time gaps.
+    pub breaks: &'a [usize],
+    /// Longest run of missing samples interpolated for the filter.
+    pub max_fill: usize,
+    /// Shortest stretch filtered (shorter ones are NaN).
+    pub min_len: usize,
+}
+
 /// [`bandpass`] of a signal with missing (non-finite) samples and breaks. The signal is
 /// cut into stretches at every index in `breaks` (the first sample after a time gap) and
 /// at every run of more than `max_fill` missing samples; inside a stretch, shorter missing
@@ -246,10 +257,13 @@ pub fn bandpass_gaps(
     low_hz: f64,
     high_hz: f64,
     fs_hz: f64,
-    breaks: &[usize],
-    max_fill: usize,
-    min_len: usize,
+    gaps: &Gaps,
 ) -> Result<Vec<f64>> {
+    let Gaps {
+        breaks,
+        max_fill,
+        min_len,
+    } = *gaps;
     let sos = butterworth_bandpass(poles, low_hz, high_hz, fs_hz)?;
     let n = x.len();
     let mut out = vec![f64::NAN; n];
@@ -299,8 +313,8 @@ fn fill_linear(v: &mut [f64]) {
         if v[k].is_finite() {
             if let Some(p) = prev.filter(|&p| k > p + 1) {
                 let (a, b) = (v[p], v[k]);
-                for m in p + 1..k {
-                    v[m] = a + (b - a) * (m - p) as f64 / (k - p) as f64;
+                for (m, x) in v.iter_mut().enumerate().take(k).skip(p + 1) {
+                    *x = a + (b - a) * (m - p) as f64 / (k - p) as f64;
                 }
             }
             prev = Some(k);

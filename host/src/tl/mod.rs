@@ -15,7 +15,7 @@
 pub mod filter;
 
 pub use filter::{
-    bandpass, bandpass_gaps, butterworth_bandpass, filtfilt, filtfilt_with_pad, Biquad, Sos,
+    bandpass, bandpass_gaps, butterworth_bandpass, filtfilt, filtfilt_with_pad, Biquad, Gaps, Sos,
 };
 
 use anyhow::{bail, ensure, Context, Result};
