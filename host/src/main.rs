@@ -120,7 +120,7 @@ fn print_summary(s: &Summary) {
         println!("  improvement ratio:          {ir:.2}");
     }
     if let Some(f) = s.fom_nt {
-        println!("  figure of merit (12 man.):  {f:.3} nT");
+        println!("  figure of merit (FOM):      {f:.3} nT");
     }
     if let Some(a) = s.aircraft_fom_nt {
         println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
