@@ -96,7 +96,8 @@ pub fn check(flight: &Flight, calibrating: bool) -> Result<InputCheck> {
     }
     let flux_constant =
         (0..3).all(|k| spread(flight.samples.iter().map(|s| s.flux_nt[k] as f64)).1 == 0.0);
-    let duration_s = flight.t_s[flight.len() - 1] - flight.t_s[0];
+    // The data's duration: samples × spacing (600 samples at 10 Hz are 60 s).
+    let duration_s = flight.len() as f64 / flight.sample_rate_hz;
     let short = duration_s < MIN_DURATION_S || flight.len() < MIN_SAMPLES;
     if calibrating && flux_constant {
         bail!("the fluxgate reads the same vector on every row: the aircraft never changed attitude (or the fluxgate is stuck), so no coefficient can be estimated");
