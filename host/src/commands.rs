@@ -2,8 +2,7 @@
 
 use crate::flight::Flight;
 use crate::metrics::{
-    error_rms_nt, fom, improvement_ratio, manoeuvre_band, oracle_floor_nt, rms_demeaned,
-    ManoeuvreFom,
+    error_rms_nt, fom, improvement_ratio, manoeuvre_band, oracle_floor_nt, ManoeuvreFom,
 };
 use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
 use crate::pipeline::{run_kf, KfOptions};
@@ -204,6 +203,9 @@ pub struct Compensation {
     pub regressors: Vec<Vec<f32>>,
     /// What the user must know about this result (printed on stderr, `warnings` in JSON).
     pub warnings: Vec<String>,
+    /// Why the figures that would pretend (IR, FOM, predicted error) are withheld
+    /// (`qc::inputs`); None when they stand.
+    pub withheld: Option<String>,
 }
 
 pub type CoefficientFileOpt = Option<CoefficientFile>;
@@ -235,6 +237,12 @@ pub struct Summary {
     pub rate_crossover: Option<RateCrossover>,
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub manoeuvres: Vec<ManoeuvreFom>,
+    /// The AARC-style FOM table over the labelled or detected manoeuvres (`qc::fom`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fom_table: Option<crate::qc::fom::FomTable>,
+    /// KF: the FOM of (compensated − the filter's anomaly estimate): what the aircraft left.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub aircraft_fom_nt: Option<f64>,
     /// What the user must know about this result (also on stderr); empty when none.
     pub warnings: Vec<String>,
 }
@@ -255,8 +263,23 @@ fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
     Ok(cfg)
 }
 
-/// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace.
+/// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace;
+/// their plausibility on this flight is checked (`qc::applied`) and warned about.
 pub fn compensate_trace(
+    trace: &Trace,
+    est: &EstimatorArgs,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+) -> Result<(Flight, Compensation)> {
+    let (flight, mut comp) = run_method(trace, est, coeffs, realtime)?;
+    if let Some(c) = coeffs {
+        let w = crate::qc::applied::check(&flight, &comp, c);
+        comp.warnings.extend(w);
+    }
+    Ok((flight, comp))
+}
+
+fn run_method(
     trace: &Trace,
     est: &EstimatorArgs,
     coeffs: Option<&CoefficientFile>,
@@ -269,7 +292,8 @@ pub fn compensate_trace(
             let spec = ModelSpec::parse(&model_text)?;
             let mut flight =
                 Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
-            let mut warnings = Vec::new();
+            let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
+            let mut warnings = qc.warnings.clone();
             let mut assumed_speed_mps = None;
             if spec.field && !flight.has_track() {
                 match est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps)) {
@@ -315,8 +339,17 @@ pub fn compensate_trace(
                     .map(|r| r.fit.coefficients);
                 opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
             }
-            let run = run_kf(&flight, &opts)?;
+            let mut run = run_kf(&flight, &opts)?;
             warnings.extend(run.warnings.iter().cloned());
+            // Samples next to a time gap: their derivatives span it.
+            for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
+                if let Some(f) = run.flags.get_mut(i) {
+                    *f |= magcomp_core::flags::Flags::DERIVATIVE_DEGRADED;
+                }
+            }
+            if qc.withheld.is_some() {
+                run.predicted_error_nt = None;
+            }
             let file = CoefficientFile {
                 format: COEFF_FORMAT.into(),
                 model: spec.text(),
@@ -375,12 +408,20 @@ pub fn compensate_trace(
                 coefficients: Some(file),
                 regressors: run.regressors,
                 warnings,
+                withheld: qc.withheld,
             };
             Ok((flight, comp))
         }
         Method::Tl => {
             let flight = Flight::from_trace(trace, &[], &[])?;
+            let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
             let flux = crate::fluxgate::flight_flux(&flight);
+            // Not across a time gap: the rows beside it are left out, which splits the
+            // band-passed fit there.
+            let mut select = vec![true; flight.len()];
+            for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
+                select[i] = false;
+            }
             let fit = match coeffs {
                 Some(c) => {
                     let cfg = c
@@ -402,7 +443,12 @@ pub fn compensate_trace(
                         noise_gain: 1.0,
                     }
                 }
-                None => tl::fit(&flux, &flight.mag_nt, &tl_config(&flight, est)?, None)?,
+                None => tl::fit(
+                    &flux,
+                    &flight.mag_nt,
+                    &tl_config(&flight, est)?,
+                    Some(&select),
+                )?,
             };
             if fit.coefficients.len() != fit.config.terms.columns().len() {
                 bail!(
@@ -411,24 +457,38 @@ pub fn compensate_trace(
                     fit.config.terms.columns().len()
                 );
             }
-            let interference = tl::interference(&fit, &flux);
+            // Per stretch between time gaps: no derivative spans a gap.
+            let stretches = crate::qc::gaps::stretches(flight.len(), &qc.breaks);
+            let interference: Vec<f64> = stretches
+                .iter()
+                .flat_map(|r| tl::interference(&fit, &flux[r.clone()]))
+                .collect();
             let compensated = flight
                 .mag_nt
                 .iter()
                 .zip(&interference)
                 .map(|(m, i)| m - i)
                 .collect();
-            let a = tl::design_matrix_scaled(
-                &flux,
-                &fit.config.terms,
-                fit.config.bt_scale_nt,
-                match fit.config.eddy_rate {
-                    tl::EddyRate::PerSample => 1.0,
-                    tl::EddyRate::PerSecond => fit.config.fs_hz,
-                },
-            );
-            let regressors = (0..a.nrows())
-                .map(|r| (0..a.ncols()).map(|c| a[(r, c)] as f32).collect())
+            let regressors = stretches
+                .iter()
+                .flat_map(|r| {
+                    let a = tl::design_matrix_scaled(
+                        &flux[r.clone()],
+                        &fit.config.terms,
+                        fit.config.bt_scale_nt,
+                        match fit.config.eddy_rate {
+                            tl::EddyRate::PerSample => 1.0,
+                            tl::EddyRate::PerSecond => fit.config.fs_hz,
+                        },
+                    );
+                    (0..a.nrows())
+                        .map(|r| {
+                            (0..a.ncols())
+                                .map(|c| a[(r, c)] as f32)
+                                .collect::<Vec<f32>>()
+                        })
+                        .collect::<Vec<_>>()
+                })
                 .collect();
             let file = CoefficientFile {
                 format: COEFF_FORMAT.into(),
@@ -465,6 +525,8 @@ pub fn compensate_trace(
                 compensated_nt: compensated,
                 coefficients: Some(file),
                 regressors,
+                warnings: qc.warnings,
+                withheld: qc.withheld,
                 ..Default::default()
             };
             Ok((flight, comp))
@@ -474,11 +536,14 @@ pub fn compensate_trace(
 
 /// FOM, IR, residual, and error/oracle against truth when the trace has it.
 pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
-    let (lo, hi) = manoeuvre_band(flight.sample_rate_hz);
-    let residual = crate::tl::bandpass(&comp.compensated_nt, 4, lo, hi, flight.sample_rate_hz)
-        .map(|v| rms_demeaned(&v))
-        .unwrap_or(f64::NAN);
-    let f = fom(flight, &comp.compensated_nt);
+    let residual = crate::metrics::band_rms_nt(flight, &comp.compensated_nt);
+    let withheld = comp.withheld.is_some();
+    let f = fom(flight, &comp.compensated_nt).filter(|_| !withheld);
+    let table = if withheld {
+        None
+    } else {
+        crate::qc::fom::flight_fom_table(flight, &comp.compensated_nt, comp.anomaly_nt.as_deref())
+    };
     let (error, oracle) = match &flight.truth_interference_nt {
         Some(t) => (
             Some(error_rms_nt(&comp.interference_nt, t, None)),
@@ -491,14 +556,17 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
         method: comp.method.unwrap_or(Method::Kf),
         samples: flight.len(),
         residual_rms_nt: residual,
-        improvement_ratio: improvement_ratio(flight, &comp.compensated_nt),
-        fom_nt: f.as_ref().map(|f| f.0),
+        improvement_ratio: improvement_ratio(flight, &comp.compensated_nt).filter(|_| !withheld),
+        fom_nt: f.as_ref().map(|f| f.0).or(table.as_ref().map(|t| t.fom_nt)),
+        aircraft_fom_nt: table.as_ref().and_then(|t| t.aircraft_fom_nt),
+        fom_table: table,
         error_rms_nt: error,
         oracle_floor_nt: oracle,
         predicted_error_nt: comp
             .coefficients
             .as_ref()
-            .and_then(|c| c.predicted_error_nt),
+            .and_then(|c| c.predicted_error_nt)
+            .filter(|_| !withheld),
         field_process: comp
             .coefficients
             .as_ref()
@@ -609,6 +677,35 @@ fn csv_text(s: &str) -> String {
     } else {
         s.to_string()
     }
+}
+
+/// `--coeffs` decides the method and the model: a `--method` or `--model` given beside
+/// it that says otherwise is an error, not silently overridden.
+pub fn refuse_conflicting_settings(
+    coeffs: &CoefficientFile,
+    method: Option<Method>,
+    model: Option<&str>,
+) -> Result<()> {
+    let name = |m: Method| if m == Method::Tl { "tl" } else { "kf" };
+    if let Some(m) = method.filter(|m| *m != coeffs.method) {
+        bail!(
+            "--method {} conflicts with the coefficient file, which holds {} coefficients: drop --method (the file decides) or give a {} coefficient file",
+            name(m),
+            name(coeffs.method),
+            name(m)
+        );
+    }
+    if let Some(m) = model {
+        let same = coeffs.method == Method::Kf
+            && ModelSpec::parse(m).map(|s| s.text()).ok().as_deref() == Some(coeffs.model.as_str());
+        if !same {
+            bail!(
+                "--model {m} conflicts with the coefficient file's model '{}': drop --model (the file decides) or calibrate that model",
+                coeffs.model
+            );
+        }
+    }
+    Ok(())
 }
 
 /// Reads a coefficient file written by `calibrate`. Coefficients are matched to the

@@ -20,6 +20,7 @@ pub mod output;
 pub mod pipeline;
 pub mod position;
 pub mod preprocess;
+pub mod qc;
 pub mod reference_kf;
 pub mod replay;
 pub mod report;

@@ -2,7 +2,8 @@
 //! flies on the board.
 
 use anyhow::{Context, Result};
-use clap::{Parser, Subcommand};
+use clap::parser::ValueSource;
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use magcomp::commands::{
     compensate_trace, read_coefficients, summarise, write_output_csv, EstimatorArgs, Summary,
     TraceInput, SURVEY_TOLERANCE_NT,
@@ -119,7 +120,13 @@ fn print_summary(s: &Summary) {
         println!("  improvement ratio:          {ir:.2}");
     }
     if let Some(f) = s.fom_nt {
-        println!("  figure of merit (12 man.):  {f:.3} nT");
+        println!("  figure of merit (FOM):      {f:.3} nT");
+    }
+    if let Some(a) = s.aircraft_fom_nt {
+        println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
+    }
+    if let Some(t) = &s.fom_table {
+        println!("{}", magcomp::qc::fom::format_table(t));
     }
     if let Some(p) = s.predicted_error_nt {
         println!(
@@ -156,7 +163,14 @@ fn print_summary(s: &Summary) {
 }
 
 fn main() -> Result<()> {
-    let cli = Cli::parse();
+    let matches = Cli::command().get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
+    // Which estimator settings the user gave on the command line (not defaults).
+    let given = |name: &str| {
+        matches
+            .subcommand()
+            .is_some_and(|(_, m)| m.value_source(name) == Some(ValueSource::CommandLine))
+    };
     match cli.command {
         Command::Simulate { sim, capture } => {
             let (sim, capture) = (*sim, *capture);
@@ -227,6 +241,13 @@ fn main() -> Result<()> {
             refuse_overwriting(&inputs, &[&a.out])?;
             let trace = a.input.read()?;
             let coeffs = a.coeffs.as_deref().map(read_coefficients).transpose()?;
+            if let Some(c) = &coeffs {
+                magcomp::commands::refuse_conflicting_settings(
+                    c,
+                    given("method").then_some(a.est.method),
+                    given("model").then_some(a.est.model.as_str()),
+                )?;
+            }
             let (flight, comp) = compensate_trace(&trace, &a.est, coeffs.as_ref(), a.realtime)?;
             let carried = magcomp::input::carried_columns(&trace, &flight.channels);
             write_output_csv(&a.out, &flight, &comp, &carried)?;

@@ -2,7 +2,6 @@
 //! on simulated data — the error against truth and the oracle floor.
 
 use crate::flight::Flight;
-use crate::tl::bandpass;
 use nalgebra::{DMatrix, DVector};
 use serde::Serialize;
 
@@ -11,12 +10,29 @@ pub fn manoeuvre_band(fs_hz: f64) -> (f64, f64) {
     (0.1, 0.9f64.min(0.4 * fs_hz))
 }
 
-fn band_passed(x: &[f64], fs_hz: f64) -> Option<Vec<f64>> {
+/// The manoeuvre-band signal of a flight's `x` (scalar or compensated), NaN where `x` is
+/// missing and over stretches too short to filter. Time gaps and long missing runs split
+/// the filter; isolated missing samples are interpolated for the filter only, so one
+/// missing sample costs one sample of every statistic, not the whole flight. None when
+/// nothing can be filtered.
+pub fn band_passed(flight: &Flight, x: &[f64]) -> Option<Vec<f64>> {
+    let fs_hz = flight.sample_rate_hz;
     let (lo, hi) = manoeuvre_band(fs_hz);
-    if x.len() < 64 || !x.iter().all(|v| v.is_finite()) {
-        return None;
-    }
-    bandpass(x, 4, lo, hi, fs_hz).ok()
+    let breaks = crate::qc::gaps::time_breaks(&flight.t_s);
+    let gaps = crate::tl::Gaps {
+        breaks: &breaks,
+        max_fill: crate::qc::gaps::MAX_FILL_SAMPLES,
+        min_len: 64,
+    };
+    let v = crate::tl::bandpass_gaps(x, 4, lo, hi, fs_hz, &gaps).ok()?;
+    v.iter().any(|x| x.is_finite()).then_some(v)
+}
+
+/// RMS (mean removed) of the manoeuvre-band signal over its finite samples.
+pub fn band_rms_nt(flight: &Flight, x: &[f64]) -> f64 {
+    band_passed(flight, x)
+        .map(|v| rms_demeaned(&v))
+        .unwrap_or(f64::NAN)
 }
 
 fn std_of(v: &[f64]) -> f64 {
@@ -52,17 +68,14 @@ pub fn is_manoeuvre(label: &str) -> bool {
 
 /// Peak-to-peak of the band-passed compensated signal over each labelled manoeuvre.
 pub fn fom(flight: &Flight, compensated_nt: &[f64]) -> Option<(f64, Vec<ManoeuvreFom>)> {
-    let bp = band_passed(compensated_nt, flight.sample_rate_hz)?;
-    let bp_raw = band_passed(&flight.mag_nt, flight.sample_rate_hz)?;
+    let bp = band_passed(flight, compensated_nt)?;
+    let bp_raw = band_passed(flight, &flight.mag_nt)?;
     let mut parts = Vec::new();
     for (label, a, b) in flight.segment_runs() {
         if !is_manoeuvre(&label) {
             continue;
         }
-        let p2p = |v: &[f64]| {
-            let s = &v[a..b];
-            s.iter().cloned().fold(f64::MIN, f64::max) - s.iter().cloned().fold(f64::MAX, f64::min)
-        };
+        let p2p = |v: &[f64]| peak_to_peak(&v[a..b]);
         parts.push(ManoeuvreFom {
             label,
             t_start: flight.t_s[a],
@@ -77,11 +90,22 @@ pub fn fom(flight: &Flight, compensated_nt: &[f64]) -> Option<(f64, Vec<Manoeuvr
     Some((parts.iter().map(|p| p.peak_to_peak_nt).sum(), parts))
 }
 
+/// Peak-to-peak over the finite values (NaN when there are none).
+pub fn peak_to_peak(v: &[f64]) -> f64 {
+    let f = v.iter().copied().filter(|x| x.is_finite());
+    let (lo, hi) = f.fold((f64::MAX, f64::MIN), |(lo, hi), x| (lo.min(x), hi.max(x)));
+    if lo <= hi {
+        hi - lo
+    } else {
+        f64::NAN
+    }
+}
+
 /// Standard deviation of the band-passed signal before / after compensation, over the
-/// manoeuvres when labelled (else the whole flight).
+/// manoeuvres when labelled (else the whole flight), on the samples where both are known.
 pub fn improvement_ratio(flight: &Flight, compensated_nt: &[f64]) -> Option<f64> {
-    let before = band_passed(&flight.mag_nt, flight.sample_rate_hz)?;
-    let after = band_passed(compensated_nt, flight.sample_rate_hz)?;
+    let before = band_passed(flight, &flight.mag_nt)?;
+    let after = band_passed(flight, compensated_nt)?;
     let rows: Vec<usize> = {
         let m: Vec<usize> = flight
             .segments
@@ -94,9 +118,17 @@ pub fn improvement_ratio(flight: &Flight, compensated_nt: &[f64]) -> Option<f64>
             m
         }
     };
+    let rows: Vec<usize> = rows
+        .into_iter()
+        .filter(|&i| before[i].is_finite() && after[i].is_finite())
+        .collect();
+    if rows.len() < 2 {
+        return None;
+    }
     let b: Vec<f64> = rows.iter().map(|&i| before[i]).collect();
     let a: Vec<f64> = rows.iter().map(|&i| after[i]).collect();
-    Some(std_of(&b) / std_of(&a))
+    let ir = std_of(&b) / std_of(&a);
+    ir.is_finite().then_some(ir)
 }
 
 /// Compensation error against the simulator's truth: `interference − truth`, mean removed.

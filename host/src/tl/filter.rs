@@ -233,3 +233,91 @@ pub fn bandpass(
     let sos = butterworth_bandpass(poles, low_hz, high_hz, fs_hz)?;
     filtfilt(&sos, x)
 }
+
+/// Where [`bandpass_gaps`] must not filter across, and what it may fill.
+#[derive(Clone, Copy, Debug)]
+pub struct Gaps<'a> {
+    /// First samples after time gaps.
+    pub breaks: &'a [usize],
+    /// Longest run of missing samples interpolated for the filter.
+    pub max_fill: usize,
+    /// Shortest stretch filtered (shorter ones are NaN).
+    pub min_len: usize,
+}
+
+/// [`bandpass`] of a signal with missing (non-finite) samples and breaks. The signal is
+/// cut into stretches at every index in `breaks` (the first sample after a time gap) and
+/// at every run of more than `max_fill` missing samples; inside a stretch, shorter missing
+/// runs are linearly interpolated for the filter only. The result is NaN at every missing
+/// sample and over stretches too short to filter (fewer than `min_len` samples), so a
+/// statistic over its finite values leaves them out instead of being poisoned by them.
+pub fn bandpass_gaps(
+    x: &[f64],
+    poles: usize,
+    low_hz: f64,
+    high_hz: f64,
+    fs_hz: f64,
+    gaps: &Gaps,
+) -> Result<Vec<f64>> {
+    let Gaps {
+        breaks,
+        max_fill,
+        min_len,
+    } = *gaps;
+    let sos = butterworth_bandpass(poles, low_hz, high_hz, fs_hz)?;
+    let n = x.len();
+    let mut out = vec![f64::NAN; n];
+    let mut cut = vec![false; n + 1];
+    for &b in breaks.iter().filter(|&&b| b < n) {
+        cut[b] = true;
+    }
+    let min_len = min_len.max(sos.default_pad_len() + 2);
+    let mut i = 0;
+    while i < n {
+        // A stretch: from a finite sample up to the next break or long missing run.
+        if !x[i].is_finite() {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        let mut last_finite = i;
+        let mut j = i + 1;
+        while j < n && !cut[j] {
+            if x[j].is_finite() {
+                last_finite = j;
+            } else if j - last_finite > max_fill {
+                break;
+            }
+            j += 1;
+        }
+        let end = last_finite + 1;
+        if end - start >= min_len {
+            let mut seg = x[start..end].to_vec();
+            fill_linear(&mut seg);
+            let y = filtfilt(&sos, &seg)?;
+            for (k, v) in y.into_iter().enumerate() {
+                if x[start + k].is_finite() {
+                    out[start + k] = v;
+                }
+            }
+        }
+        i = j.max(end);
+    }
+    Ok(out)
+}
+
+/// Linear interpolation over interior non-finite runs (the ends are finite by construction).
+fn fill_linear(v: &mut [f64]) {
+    let mut prev: Option<usize> = None;
+    for k in 0..v.len() {
+        if v[k].is_finite() {
+            if let Some(p) = prev.filter(|&p| k > p + 1) {
+                let (a, b) = (v[p], v[k]);
+                for (m, x) in v.iter_mut().enumerate().take(k).skip(p + 1) {
+                    *x = a + (b - a) * (m - p) as f64 / (k - p) as f64;
+                }
+            }
+            prev = Some(k);
+        }
+    }
+}

@@ -14,7 +14,9 @@
 
 pub mod filter;
 
-pub use filter::{bandpass, butterworth_bandpass, filtfilt, filtfilt_with_pad, Biquad, Sos};
+pub use filter::{
+    bandpass, bandpass_gaps, butterworth_bandpass, filtfilt, filtfilt_with_pad, Biquad, Gaps, Sos,
+};
 
 use anyhow::{bail, ensure, Context, Result};
 use nalgebra::{DMatrix, DVector};
