@@ -39,14 +39,15 @@ pub struct CompensatorConfig {
     /// Innovation gate in σ (0 = off). After `gate_max_run` consecutive rejections the
     /// next sample is accepted anyway, so a real change cannot lock the filter out.
     pub gate_sigma: f32,
-    /// While the gate is not armed (the first 100 updates, and a sample forced in after
-    /// `gate_max_run` rejections) an innovation beyond `gate_sigma` is not taken at face
-    /// value but Huber-weighted: it updates the filter as if its variance were `ν²/k²`
+    /// While the gate is not armed (the first 100 updates) an innovation beyond
+    /// `gate_sigma` is not taken at face value but Huber-weighted: it updates the filter as if its variance were `ν²/k²`
     /// (k = `gate_sigma`), so its pull is that of a k-σ innovation whatever its size. An
     /// unweighted +4000 nT glitch in the first seconds used to ruin a whole calibration
     /// (245 000 nT of interference at the end). Tried as a weighting at 1.5–3σ on every
     /// sample, it made the real SGL boxes 1.1–2.5× worse: their model error is largest at
-    /// the manoeuvre peaks, which carry the information.
+    /// the manoeuvre peaks, which carry the information; on the sample forced in after
+    /// `gate_max_run` rejections it kept a filter that was wrong from re-syncing (a clean
+    /// survey then showed a false `rate` at its crossovers).
     pub gate_max_run: u32,
     /// Tie points and the radius within which a pass counts as a revisit (m).
     pub tie_points: [Option<TiePoint>; MAX_TIE_POINTS],
@@ -604,7 +605,11 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if self.survey {
             flags.set(Flags::SURVEY_MODE);
         }
-        self.rereference(ep.reference);
+        // Before the first valid reading the builder has no reference yet (it reports 0):
+        // taking that as one would shift the field states by the whole 50 000 nT.
+        if ep.mag.is_some() {
+            self.rereference(ep.reference);
+        }
         if let Some(f) = self.field {
             if ep.ds_m > 0.0 && ep.ds_m.is_finite() {
                 let mut phi = [[0.0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
@@ -680,12 +685,16 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 gate > 0.0 && self.updates > 100 && self.reject_run < self.cfg.gate_max_run;
             // The gate sees ν and its predicted variance from the same pass over U that the
             // update uses (one Uᵀh instead of three).
+            let warming_up = self.updates <= 100;
             match self.filter.update_weighted(&h, z, r, |nu, s| {
                 let beyond = gate > 0.0 && nu * nu > gate * gate * s;
-                match (beyond, gating) {
-                    (false, _) => Some(r),
-                    (true, true) => None,
-                    (true, false) => Some(r + nu * nu / (gate * gate) - s),
+                match (beyond, gating, warming_up) {
+                    (false, ..) => Some(r),
+                    (true, true, _) => None,
+                    (true, false, true) => Some(r + nu * nu / (gate * gate) - s),
+                    // forced in after a run of rejections: taken at face value, so a real
+                    // change cannot lock the filter out
+                    (true, false, false) => Some(r),
                 }
             }) {
                 Some(Err(rejected)) => {

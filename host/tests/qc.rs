@@ -16,6 +16,7 @@ fn est(method: Method) -> EstimatorArgs {
         sigma1: None,
         noise_nt: None,
         tl_terms: "tl18".into(),
+        tl_ridge: None,
         speed_mps: None,
     }
 }
