@@ -32,6 +32,14 @@ pub struct DiagnoseArgs {
     /// Smallest share of the residual variance a significant candidate must explain.
     #[arg(long, default_value_t = 0.15)]
     pub min_explained: f64,
+    /// Add the best significant candidate and diagnose again, until nothing is significant
+    /// (several effects at once); prints the path: model, residual and, with truth, the
+    /// error at each step. With `--json`, an array of the steps.
+    #[arg(long)]
+    pub iterate: bool,
+    /// With `--iterate`: the most terms to add.
+    #[arg(long, default_value_t = super::iterate::DEFAULT_MAX_STEPS, value_name = "N")]
+    pub max_steps: usize,
 }
 
 /// Reads a trace with an optional column map, naming the file in errors.
@@ -75,6 +83,26 @@ pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
         aux,
         ..Default::default()
     };
+    if args.iterate {
+        let it = super::iterate::iterate(&trace, &model, &opts, args.max_steps)?;
+        if let Some(dir) = &args.report {
+            let path = crate::report::flight_report::write_report(
+                &trace,
+                &it.models()?,
+                it.steps.first().map(|s| &s.diagnosis),
+                dir,
+            )?;
+            if !args.json {
+                println!("report written to {}", path.display());
+            }
+        }
+        if args.json {
+            println!("{}", it.to_json());
+        } else {
+            print!("{}", it.table());
+        }
+        return Ok(());
+    }
     let d = diagnose(&trace, &model, &opts)?;
     if let Some(dir) = &args.report {
         let path = crate::report::flight_report::write_report(

@@ -22,12 +22,14 @@ pub mod custom;
 mod effect_tests;
 mod failures;
 pub(crate) mod innovations;
+pub mod iterate;
 mod lag_detector;
 mod regression;
 pub mod stats;
 
 pub use cli::{load_trace, run_diagnose, DiagnoseArgs};
 pub use failures::residual_spectrum;
+pub use iterate::{iterate, Iteration, IterationStep};
 pub use regression::scalar_relative_nt;
 
 use crate::flight::Flight;
@@ -35,7 +37,9 @@ use crate::model_spec::{ModelSpec, TermSpec};
 use crate::pipeline::{estimate_sigma1_for, run_kf, KfOptions, KfRun, DEFAULT_SIGMA1};
 use crate::trace::Trace;
 use anyhow::{bail, Context, Result};
-use effect_tests::{calibrated_trace, explained_of, fluxcal_test, rate_crossover_test};
+use effect_tests::{
+    calibrated_trace, explained_of, fluxcal_test, fluxtemp_test, rate_crossover_test,
+};
 use failures::{band_failures, segment_stats, time_failures};
 use innovations::{filter_columns, FieldSettings};
 use magcomp_core::model::catalog::{info, AnyTerm, ChannelUse, CATALOG};
@@ -71,8 +75,8 @@ pub struct DiagnoseOptions {
     pub window_s: f64,
     /// Order of the AR prewhitening filter.
     pub ar_order: usize,
-    /// `fluxcal` is material when calibrating the fluxgate changes the compensated field by
-    /// at least this (nT rms): a tenth of a survey's 0.1 nT. Clean simulated fluxgates
+    /// `fluxcal` (and `fluxtemp:CH`) is material when correcting the fluxgate changes the
+    /// compensated field by at least this (nT rms): a tenth of a survey's 0.1 nT. Clean simulated fluxgates
     /// (30 nT bias, 0.1 % scale) change it by ≤ 0.004 nT, a 300 nT / 0.7 % one by 0.02–0.03.
     pub min_fluxcal_change_nt: f64,
     /// Which auxiliary columns are candidates (`--aux`); None: all but navigation, time,
@@ -257,8 +261,9 @@ impl Diagnosis {
 
 /// Candidate term texts for a trace and a model: every catalogue term the model lacks,
 /// channel terms for every auxiliary column, `diurnal` when a base station is recorded,
-/// `fluxcal` (tested on the fluxgate itself), `periodic` for rotation-rate (rpm-like) channels,
-/// `field` when the model has none.
+/// `fluxcal` (tested on the fluxgate itself), `fluxtemp` for temperature channels (on the
+/// fluxgate too), `periodic` for rotation-rate (rpm-like) channels, `field` when the model
+/// has none.
 pub fn candidate_terms(trace: &Trace, model: &ModelSpec) -> Vec<String> {
     candidate_terms_with(trace, model, None)
 }
@@ -294,9 +299,15 @@ pub fn candidate_terms_with(
                     out.push(format!("{}:{d}", ti.name));
                 }
             }
-            // `fluxtemp` is tested on the fluxgate modulus, which the diagnosis does not do
-            // yet (issue 12 item 5): not offered rather than shown as explaining nothing.
-            ChannelUse::Required if ti.name == "fluxtemp" => {}
+            // `fluxtemp` only for temperature channels: it is tested on the fluxgate modulus
+            // with a model run each, and a current is not a temperature.
+            ChannelUse::Required if ti.name == "fluxtemp" => {
+                for ch in aux.iter().filter(|c| temp_like(c)) {
+                    if !present(ti.name, Some(ch)) {
+                        out.push(format!("{}:{ch}", ti.name));
+                    }
+                }
+            }
             ChannelUse::Required => {
                 for ch in &aux {
                     if ti.name == "periodic" && !rpm_like(ch, trace.col(ch).unwrap_or(&[])) {
@@ -310,6 +321,12 @@ pub fn candidate_terms_with(
         }
     }
     out
+}
+
+/// A temperature channel: named like one (`temp`, `tmp`, `degc`, case-insensitive).
+fn temp_like(name: &str) -> bool {
+    let lname = name.to_ascii_lowercase();
+    ["temp", "tmp", "degc"].iter().any(|k| lname.contains(k))
 }
 
 /// A rotation-rate channel: named like one, or positive with hundreds of units (rpm).
@@ -345,7 +362,7 @@ pub fn diagnose_with(
     let cand_texts = candidate_terms_with(trace, model, opts.aux.as_ref());
     let mut cand_specs: Vec<(String, Option<ColTerm>)> = Vec::new();
     for c in &cand_texts {
-        if c == "field" || c == "fluxcal" {
+        if c == "field" || c == "fluxcal" || c.starts_with("fluxtemp:") {
             // Not regressors: each changes the filter's input or its states (below).
             cand_specs.push((c.clone(), None));
         } else {
@@ -418,6 +435,7 @@ pub fn diagnose_with(
     }
     // With `lag`/`fluxtemp` in the model the scalar and the regressors are those of the
     // prepared flight (re-aligned scalar, temperature-corrected fluxgate).
+    let (original_trace, original_flight) = (trace, flight.clone());
     let prepared;
     let (trace, flight) = match &run.preprocessing {
         Some(p) => {
@@ -476,8 +494,9 @@ pub fn diagnose_with(
     let mut candidates = Vec::new();
     let mut bi = n_model;
     let mut cand_cols: std::collections::HashMap<String, Vec<usize>> = Default::default();
-    let mut fluxcal_change: Option<f64> = None;
     for (text, spec) in &cand_specs {
+        // For candidates tested on the fluxgate: the change they make to the compensation.
+        let mut fluxgate_change: Option<f64> = None;
         let (effect, explained, after, q, f, p) = match spec {
             Some(_) => {
                 let b = &blocks[bi];
@@ -508,9 +527,12 @@ pub fn diagnose_with(
                     None => (effect.to_string(), explained, after, q, f, p),
                 }
             }
-            None if text == "fluxcal" => {
-                let t = fluxcal_test(&flight, model, &run)?;
-                fluxcal_change = Some(t.change_nt);
+            None if text == "fluxcal" || text.starts_with("fluxtemp:") => {
+                let t = match text.strip_prefix("fluxtemp:") {
+                    Some(ch) => fluxtemp_test(original_trace, &flight, model, &run, ch)?,
+                    None => fluxcal_test(&flight, &original_flight, model, &run)?,
+                };
+                fluxgate_change = Some(t.change_nt);
                 // The scalar residual hardly moves (a TL fit hides a bent fluxgate), so the
                 // share reported and ranked is the compensation change's variance relative
                 // to the residual's: comparable with the other candidates' shares, and
@@ -522,7 +544,8 @@ pub fn diagnose_with(
                 } else {
                     0.0
                 };
-                (t.effect, share, residual_rms, 9, t.f, t.p)
+                let q = if text == "fluxcal" { 9 } else { 6 };
+                (t.effect, share, residual_rms, q, t.f, t.p)
             }
             None => {
                 // `field` changes the filter itself, not the regressors: rerun it with
@@ -579,8 +602,7 @@ pub fn diagnose_with(
             }
         };
         let material = explained >= opts.min_explained
-            && (text != "fluxcal"
-                || fluxcal_change.is_some_and(|c| c >= opts.min_fluxcal_change_nt));
+            && fluxgate_change.is_none_or(|c| c >= opts.min_fluxcal_change_nt);
         candidates.push(Candidate {
             term: text.clone(),
             effect,
