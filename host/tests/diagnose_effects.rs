@@ -458,6 +458,8 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
         aux: None,
         alpha: 0.01,
         min_explained: 0.02,
+        iterate: false,
+        max_steps: 5,
     };
     run_diagnose(&args).expect("diagnose");
     assert!(dir.join("report/index.html").exists());

@@ -3,6 +3,7 @@
 //! truth.
 
 #[path = "common/cli.rs"]
+#[allow(dead_code)] // each test file uses a part of the shared helpers
 mod cli;
 use cli::{bin, run_ok_with_stderr, simulate, tmp};
 use std::path::Path;

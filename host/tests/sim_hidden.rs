@@ -160,3 +160,33 @@ fn fluxcal_changes_the_fluxgate_only() {
     // Tolles–Lawson error with K ~ 50 nT.
     assert!((0.02..3.0).contains(&rms), "fluxcal rms {rms}");
 }
+
+/// The fluxgate drifts by `d·β` (d = temperature − its first value, β per axis within
+/// K/4…K nT/°C) and nothing else changes; a decoy named like a temperature is one.
+#[test]
+fn fluxtemp_drifts_the_fluxgate_with_its_temperature_only() {
+    let clean = with(&[], &[]);
+    let ft = with(&["fluxtemp:temp_flux:2"], &["temp_cabin"]);
+    assert_eq!(clean.col("mag").unwrap(), ft.col("mag").unwrap());
+    let beta: Vec<f64> =
+        serde_json::from_str(ft.meta("truth_fluxtemp_bias_nt_per_degc").unwrap()).unwrap();
+    assert!(
+        beta.iter().all(|b| (0.5..=2.0).contains(&b.abs())),
+        "{beta:?}"
+    );
+    let temp = ft.col("temp_flux").unwrap();
+    let span = temp.iter().copied().fold(f64::MIN, f64::max)
+        - temp.iter().copied().fold(f64::MAX, f64::min);
+    assert!((5.0..60.0).contains(&span), "temperature span {span} °C");
+    for (ax, name) in ["flux_x", "flux_y", "flux_z"].iter().enumerate() {
+        let (a, b) = (clean.col(name).unwrap(), ft.col(name).unwrap());
+        // Recorded temperature carries 0.01 °C noise; its first sample is T(0) ± 0.01.
+        let worst = (0..a.len())
+            .map(|k| (b[k] - a[k] - beta[ax] * (temp[k] - temp[0])).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 0.1 * beta[ax].abs(), "{name}: {worst}");
+    }
+    let cabin = ft.col("temp_cabin").unwrap();
+    assert!(cabin.iter().all(|t| (-40.0..60.0).contains(t)));
+    assert!(std_dev(ft.col("truth_hidden_fluxtemp_temp_flux").unwrap()) > 0.0);
+}

@@ -17,26 +17,36 @@
 //! "significant" by any test that counts 7000 samples.
 
 pub mod candidates;
+mod cli;
 pub mod custom;
+mod effect_tests;
+mod failures;
 pub(crate) mod innovations;
+pub mod iterate;
 mod lag_detector;
+mod regression;
 pub mod stats;
 
+pub use cli::{load_trace, run_diagnose, DiagnoseArgs};
+pub use failures::residual_spectrum;
+pub use iterate::{iterate, Iteration, IterationStep};
+pub use regression::scalar_relative_nt;
+
 use crate::flight::Flight;
-use crate::fluxgate::{self, FluxgateCalibration};
 use crate::model_spec::{ModelSpec, TermSpec};
-use crate::pipeline::{estimate_sigma1_for, run_kf, KfOptions, KfRun, DEFAULT_SIGMA1, HOST_WINDOW};
-use crate::trace::{read_trace, ColumnMap, Trace};
+use crate::pipeline::{estimate_sigma1_for, run_kf, KfOptions, KfRun, DEFAULT_SIGMA1};
+use crate::trace::Trace;
 use anyhow::{bail, Context, Result};
-use innovations::{filter_columns, FieldSettings, Geometry};
-use magcomp_core::compensator::CompensatorConfig;
-use magcomp_core::epoch::EpochBuilder;
+use effect_tests::{
+    calibrated_trace, explained_of, fluxcal_test, fluxtemp_test, rate_crossover_test,
+};
+use failures::{band_failures, segment_stats, time_failures};
+use innovations::{filter_columns, FieldSettings};
 use magcomp_core::model::catalog::{info, AnyTerm, ChannelUse, CATALOG};
 use magcomp_core::model::Term;
-use magcomp_core::MAX_AUX;
+use regression::{build_columns, fit, nested_test, usable_rows, Block, ColTerm};
 use serde::Serialize;
-use stats::{ar_filter, chi2_isf, chi2_sf, fit_ar, gram_lstsq, gram_of, lag1_autocorr, median};
-use std::path::PathBuf;
+use stats::{chi2_sf, lag1_autocorr, median};
 
 /// A term that is not (yet) in the core catalogue, tested alongside it: how a user checks
 /// a new physical effect before pasting it into `core/src/model` (docs/adding-an-effect.md).
@@ -65,8 +75,8 @@ pub struct DiagnoseOptions {
     pub window_s: f64,
     /// Order of the AR prewhitening filter.
     pub ar_order: usize,
-    /// `fluxcal` is material when calibrating the fluxgate changes the compensated field by
-    /// at least this (nT rms): a tenth of a survey's 0.1 nT. Clean simulated fluxgates
+    /// `fluxcal` (and `fluxtemp:CH`) is material when correcting the fluxgate changes the
+    /// compensated field by at least this (nT rms): a tenth of a survey's 0.1 nT. Clean simulated fluxgates
     /// (30 nT bias, 0.1 % scale) change it by ≤ 0.004 nT, a 300 nT / 0.7 % one by 0.02–0.03.
     pub min_fluxcal_change_nt: f64,
     /// Which auxiliary columns are candidates (`--aux`); None: all but navigation, time,
@@ -251,8 +261,9 @@ impl Diagnosis {
 
 /// Candidate term texts for a trace and a model: every catalogue term the model lacks,
 /// channel terms for every auxiliary column, `diurnal` when a base station is recorded,
-/// `fluxcal` (tested on the fluxgate itself), `periodic` for rotation-rate (rpm-like) channels,
-/// `field` when the model has none.
+/// `fluxcal` (tested on the fluxgate itself), `fluxtemp` for temperature channels (on the
+/// fluxgate too), `periodic` for rotation-rate (rpm-like) channels, `field` when the model
+/// has none.
 pub fn candidate_terms(trace: &Trace, model: &ModelSpec) -> Vec<String> {
     candidate_terms_with(trace, model, None)
 }
@@ -288,9 +299,15 @@ pub fn candidate_terms_with(
                     out.push(format!("{}:{d}", ti.name));
                 }
             }
-            // `fluxtemp` is tested on the fluxgate modulus, which the diagnosis does not do
-            // yet (issue 12 item 5): not offered rather than shown as explaining nothing.
-            ChannelUse::Required if ti.name == "fluxtemp" => {}
+            // `fluxtemp` only for temperature channels: it is tested on the fluxgate modulus
+            // with a model run each, and a current is not a temperature.
+            ChannelUse::Required if ti.name == "fluxtemp" => {
+                for ch in aux.iter().filter(|c| temp_like(c)) {
+                    if !present(ti.name, Some(ch)) {
+                        out.push(format!("{}:{ch}", ti.name));
+                    }
+                }
+            }
             ChannelUse::Required => {
                 for ch in &aux {
                     if ti.name == "periodic" && !rpm_like(ch, trace.col(ch).unwrap_or(&[])) {
@@ -306,6 +323,12 @@ pub fn candidate_terms_with(
     out
 }
 
+/// A temperature channel: named like one (`temp`, `tmp`, `degc`, case-insensitive).
+fn temp_like(name: &str) -> bool {
+    let lname = name.to_ascii_lowercase();
+    ["temp", "tmp", "degc"].iter().any(|k| lname.contains(k))
+}
+
 /// A rotation-rate channel: named like one, or positive with hundreds of units (rpm).
 fn rpm_like(name: &str, v: &[f64]) -> bool {
     let lname = name.to_ascii_lowercase();
@@ -318,191 +341,6 @@ fn rpm_like(name: &str, v: &[f64]) -> bool {
         .filter(|x| x.is_finite())
         .fold(f64::MAX, f64::min);
     min >= 0.0 && median(v) >= 300.0
-}
-
-/// Regressor columns of terms, built with the core's epoch builder and term code (so a
-/// new catalogue term is tested here without any change), plus the epoch geometry.
-struct TermColumns {
-    /// Per term: its columns (`len()` of them).
-    cols: Vec<Vec<Vec<f64>>>,
-    geometry: Geometry,
-}
-
-/// A term to build columns for: a catalogue term by spec, or a user's extra term.
-struct ColTerm<'a> {
-    spec: TermSpec,
-    extra: Option<&'a ExtraTerm>,
-}
-
-fn build_columns(trace: &Trace, cterms: &[ColTerm], fs_hz: f64) -> Result<TermColumns> {
-    let terms: Vec<TermSpec> = cterms.iter().map(|c| c.spec.clone()).collect();
-    let n = trace.len();
-    let mut cols: Vec<Vec<Vec<f64>>> = vec![Vec::new(); terms.len()];
-    let mut geometry: Option<Geometry> = None;
-    // Batches of at most MAX_AUX channels (an epoch carries that many).
-    let mut batches: Vec<(Vec<String>, Vec<usize>)> = Vec::new();
-    for (i, t) in terms.iter().enumerate() {
-        let placed = batches.iter_mut().find(|(chans, _)| match &t.channel {
-            None => true,
-            Some(c) => chans.contains(c) || chans.len() < MAX_AUX,
-        });
-        match placed {
-            Some((chans, idx)) => {
-                if let Some(c) = &t.channel {
-                    if !chans.contains(c) {
-                        chans.push(c.clone());
-                    }
-                }
-                idx.push(i);
-            }
-            None => batches.push((t.channel.iter().cloned().collect(), vec![i])),
-        }
-    }
-    if batches.is_empty() {
-        batches.push((Vec::new(), Vec::new()));
-    }
-    for (chans, idx) in &batches {
-        let relative: Vec<String> = idx
-            .iter()
-            .filter(|&&i| info(&terms[i].name).is_some_and(|ti| ti.relative_channel))
-            .filter_map(|&i| terms[i].channel.clone())
-            .collect();
-        let flight = Flight::from_trace(trace, chans, &relative)?;
-        let mut ecfg = CompensatorConfig::for_rate(fs_hz as f32).epoch;
-        ecfg.earth_dir_ned = flight.earth_dir_ned;
-        let mut builder = EpochBuilder::<HOST_WINDOW>::new(ecfg)
-            .context("the derivative window does not fit at this sample rate")?;
-        let mut epochs = Vec::with_capacity(n);
-        for s in &flight.samples {
-            if let Some(ep) = builder.push(s) {
-                epochs.push(ep);
-            }
-        }
-        while let Some(ep) = builder.flush() {
-            epochs.push(ep);
-        }
-        if epochs.len() != n {
-            bail!("internal: {} epochs for {n} samples", epochs.len());
-        }
-        if geometry.is_none() {
-            geometry = Some(Geometry {
-                ds_m: epochs.iter().map(|e| e.ds_m as f64).collect(),
-                dh_m: epochs.iter().map(|e| e.dh_m as f64).collect(),
-            });
-        }
-        for &i in idx {
-            let t = &terms[i];
-            let ch = t
-                .channel
-                .as_ref()
-                .and_then(|c| chans.iter().position(|x| x == c))
-                .unwrap_or(0);
-            let term: Box<dyn Term> = match cterms[i].extra {
-                Some(x) => (x.make)(ch),
-                None => Box::new(
-                    AnyTerm::make(&t.name, ch)
-                        .with_context(|| format!("unknown term '{}'", t.name))?,
-                ),
-            };
-            let l = term.len();
-            let mut c = vec![vec![0.0f64; n]; l];
-            let mut buf = [0.0f32; magcomp_core::model::MAX_TERM_STATES];
-            for (k, ep) in epochs.iter().enumerate() {
-                term.regressors(ep, &mut buf[..l]);
-                for j in 0..l {
-                    c[j][k] = buf[j] as f64;
-                }
-            }
-            cols[i] = c;
-        }
-    }
-    Ok(TermColumns {
-        cols,
-        geometry: geometry.context("internal: no epochs")?,
-    })
-}
-
-/// One term block of the regression.
-struct Block {
-    /// Column indices into the Gram matrix (0 = the scalar).
-    idx: Vec<usize>,
-}
-
-/// Rows usable for the regression: an update was made and the filter has settled.
-fn usable_rows(w: &[Vec<f64>], var: &[f64]) -> Vec<usize> {
-    let med = median(var);
-    (0..var.len())
-        .filter(|&k| var[k] <= 10.0 * med && w.iter().all(|c| c[k].is_finite()))
-        .collect()
-}
-
-/// Fit of a set of blocks: residual in the whitened domain, RSS, rank.
-fn fit(w: &[Vec<f64>], rows: &[usize], idx: &[usize]) -> (Vec<f64>, f64, usize, Vec<f64>) {
-    let mut all = vec![0usize];
-    all.extend_from_slice(idx);
-    let sel: Vec<Vec<f64>> = all
-        .iter()
-        .map(|&c| rows.iter().map(|&k| w[c][k]).collect())
-        .collect();
-    let refs: Vec<&[f64]> = sel.iter().map(|v| v.as_slice()).collect();
-    let g = gram_of(&refs);
-    let local: Vec<usize> = (1..all.len()).collect();
-    let (theta, _, rank) = gram_lstsq(&g, &local);
-    let e = residual_of(&sel, &theta);
-    // RSS from the explicit residual, not yy − θ·b: near-collinear columns (e.g. `lag`'s
-    // d(e_i e_j)/dt against the eddy terms) make the latter cancel catastrophically.
-    let rss = e.iter().map(|v| v * v).sum();
-    (e, rss, rank, theta)
-}
-
-/// `sel[0] − Σ θ_j·sel[j+1]`.
-fn residual_of(sel: &[Vec<f64>], theta: &[f64]) -> Vec<f64> {
-    let mut e = sel[0].clone();
-    for (j, th) in theta.iter().enumerate() {
-        for (ek, xk) in e.iter_mut().zip(&sel[j + 1]) {
-            *ek -= th * xk;
-        }
-    }
-    e
-}
-
-/// Nested F-test of `base ∪ cand` against `base` on AR-prewhitened data.
-fn nested_test(
-    w: &[Vec<f64>],
-    rows: &[usize],
-    base: &[usize],
-    cand: &[usize],
-    ar_order: usize,
-) -> (f64, f64, usize) {
-    let mut full: Vec<usize> = base.to_vec();
-    full.extend_from_slice(cand);
-    let (e_full, _, _, _) = fit(w, rows, &full);
-    let a = fit_ar(&e_full, ar_order);
-    let mut all = vec![0usize];
-    all.extend_from_slice(&full);
-    let pw: Vec<Vec<f64>> = all
-        .iter()
-        .map(|&c| {
-            let v: Vec<f64> = rows.iter().map(|&k| w[c][k]).collect();
-            ar_filter(&v, &a)
-        })
-        .collect();
-    let refs: Vec<&[f64]> = pw.iter().map(|v| v.as_slice()).collect();
-    let g = gram_of(&refs);
-    let nb = base.len();
-    let (th0, _, r0) = gram_lstsq(&g, &(1..=nb).collect::<Vec<_>>());
-    let (th1, _, r1) = gram_lstsq(&g, &(1..all.len()).collect::<Vec<_>>());
-    let rss_of = |th: &[f64]| residual_of(&pw, th).iter().map(|v| v * v).sum::<f64>();
-    let (rss0, rss1) = (rss_of(&th0), rss_of(&th1));
-    let q = r1.saturating_sub(r0);
-    let n = pw[0].len();
-    let dof2 = n.saturating_sub(r1 + a.len()) as f64;
-    if q == 0 || dof2 < 1.0 || rss1.is_nan() || rss1 <= 0.0 {
-        return (0.0, 1.0, q);
-    }
-    let f = ((rss0 - rss1).max(0.0) / q as f64) / (rss1 / dof2);
-    // dof2 is thousands: q·F is χ²_q to well within what a significance level needs.
-    (f, chi2_sf(f * q as f64, q as f64), q)
 }
 
 /// Diagnoses `trace` under `model`.
@@ -524,7 +362,7 @@ pub fn diagnose_with(
     let cand_texts = candidate_terms_with(trace, model, opts.aux.as_ref());
     let mut cand_specs: Vec<(String, Option<ColTerm>)> = Vec::new();
     for c in &cand_texts {
-        if c == "field" || c == "fluxcal" {
+        if c == "field" || c == "fluxcal" || c.starts_with("fluxtemp:") {
             // Not regressors: each changes the filter's input or its states (below).
             cand_specs.push((c.clone(), None));
         } else {
@@ -597,6 +435,7 @@ pub fn diagnose_with(
     }
     // With `lag`/`fluxtemp` in the model the scalar and the regressors are those of the
     // prepared flight (re-aligned scalar, temperature-corrected fluxgate).
+    let (original_trace, original_flight) = (trace, flight.clone());
     let prepared;
     let (trace, flight) = match &run.preprocessing {
         Some(p) => {
@@ -655,8 +494,9 @@ pub fn diagnose_with(
     let mut candidates = Vec::new();
     let mut bi = n_model;
     let mut cand_cols: std::collections::HashMap<String, Vec<usize>> = Default::default();
-    let mut fluxcal_change: Option<f64> = None;
     for (text, spec) in &cand_specs {
+        // For candidates tested on the fluxgate: the change they make to the compensation.
+        let mut fluxgate_change: Option<f64> = None;
         let (effect, explained, after, q, f, p) = match spec {
             Some(_) => {
                 let b = &blocks[bi];
@@ -687,9 +527,12 @@ pub fn diagnose_with(
                     None => (effect.to_string(), explained, after, q, f, p),
                 }
             }
-            None if text == "fluxcal" => {
-                let t = fluxcal_test(&flight, model, &run)?;
-                fluxcal_change = Some(t.change_nt);
+            None if text == "fluxcal" || text.starts_with("fluxtemp:") => {
+                let t = match text.strip_prefix("fluxtemp:") {
+                    Some(ch) => fluxtemp_test(original_trace, &flight, model, &run, ch)?,
+                    None => fluxcal_test(&flight, &original_flight, model, &run)?,
+                };
+                fluxgate_change = Some(t.change_nt);
                 // The scalar residual hardly moves (a TL fit hides a bent fluxgate), so the
                 // share reported and ranked is the compensation change's variance relative
                 // to the residual's: comparable with the other candidates' shares, and
@@ -701,7 +544,8 @@ pub fn diagnose_with(
                 } else {
                     0.0
                 };
-                (t.effect, share, residual_rms, 9, t.f, t.p)
+                let q = if text == "fluxcal" { 9 } else { 6 };
+                (t.effect, share, residual_rms, q, t.f, t.p)
             }
             None => {
                 // `field` changes the filter itself, not the regressors: rerun it with
@@ -758,8 +602,7 @@ pub fn diagnose_with(
             }
         };
         let material = explained >= opts.min_explained
-            && (text != "fluxcal"
-                || fluxcal_change.is_some_and(|c| c >= opts.min_fluxcal_change_nt));
+            && fluxgate_change.is_none_or(|c| c >= opts.min_fluxcal_change_nt);
         candidates.push(Candidate {
             term: text.clone(),
             effect,
@@ -852,430 +695,4 @@ pub fn diagnose_with(
         },
         run,
     })
-}
-
-/// The trace with its fluxgate columns corrected by a scalar calibration.
-fn calibrated_trace(trace: &Trace, cal: &FluxgateCalibration) -> Result<Trace> {
-    let flux = trace
-        .flux()
-        .context("the trace has no fluxgate columns flux_x, flux_y, flux_z")?;
-    let cal_flux: Vec<[f64; 3]> = flux.iter().map(|b| cal.apply(*b)).collect();
-    let mut out = trace.clone();
-    for (ax, name) in ["flux_x", "flux_y", "flux_z"].iter().enumerate() {
-        out.set_col(name, cal_flux.iter().map(|b| b[ax]).collect());
-    }
-    Ok(out)
-}
-
-struct FluxcalTest {
-    effect: String,
-    change_nt: f64,
-    fits_to_noise: bool,
-    f: f64,
-    p: f64,
-}
-
-/// `rate` on a flight with crossovers (survey lines and ties): on one straight pass most of
-/// `eᵀNe·d|B|/dt` is a shift of the anomaly along the track, which the residual cannot
-/// show; at the crossings it is a difference between the passes. The test is the crossover
-/// fit's F-test and the share is that of the crossover differences' variance the term
-/// explains. `None` without enough crossings (the residual test stands then).
-fn rate_crossover_test(
-    flight: &Flight,
-    run: &KfRun,
-    residual_rms: f64,
-    effect: &str,
-) -> Option<(String, f64, f64, usize, f64, f64)> {
-    let regs = crate::crossover::rate_regressors(flight);
-    let crossings = crate::crossover::find_crossings(flight);
-    let fit = crate::crossover::fit_rate(flight, &crossings, &run.compensated_nt, &regs)?;
-    let change = crate::metrics::rms_demeaned(&fit.correction_nt(&regs));
-    let share = explained_of(fit.rms_before_nt, fit.rms_after_nt);
-    Some((
-        format!(
-            "{effect}; tested at {} crossovers: their differences {:.3} → {:.3} nT rms with the term (share: of the crossover differences), which changes the compensated field by {:.3} nT rms",
-            fit.crossings, fit.rms_before_nt, fit.rms_after_nt, change
-        ),
-        share,
-        residual_rms * (1.0 - share).sqrt(),
-        fit.added_parameters,
-        fit.f_statistic,
-        fit.p_value,
-    ))
-}
-
-/// `fluxcal` is not a regressor: it is tested on the fluxgate itself. The 9-parameter
-/// scalar calibration is fitted to the scalar minus the interference estimate; the F-test
-/// is on the fluxgate modulus (effective sample count from the residual's lag-1
-/// correlation), and what makes it material is how much the compensation changes when the
-/// filter runs on the calibrated fluxgate.
-fn fluxcal_test(flight: &Flight, model: &ModelSpec, run: &KfRun) -> Result<FluxcalTest> {
-    let fit = match fluxgate::fit_flight(flight, &run.interference_nt) {
-        Ok(f) => f,
-        Err(e) => {
-            return Ok(FluxcalTest {
-                effect: format!("fluxgate calibration: not testable on this flight ({e})"),
-                fits_to_noise: false,
-                change_nt: 0.0,
-                f: 0.0,
-                p: 1.0,
-            })
-        }
-    };
-    let rerun = run_kf(
-        &flight.with_fluxgate_calibration(&fit.calibration),
-        &KfOptions::new(model.clone()),
-    )?;
-    let change_nt =
-        crate::metrics::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None);
-    let resid: Vec<f64> = fit
-        .residual_nt
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    let rho = lag1_autocorr(&resid).clamp(-0.99, 0.99);
-    let n_eff = (resid.len() as f64 * (1.0 - rho) / (1.0 + rho)).max(20.0);
-    let (v0, v1) = (
-        fit.modulus_sd_before_nt.powi(2),
-        fit.modulus_sd_after_nt.powi(2),
-    );
-    let q = 9.0;
-    let f = if v1 > 0.0 {
-        ((v0 - v1).max(0.0) / q) / (v1 / (n_eff - q).max(1.0))
-    } else {
-        0.0
-    };
-    let p = chi2_sf(f * q, q);
-    // The calibration must fit the fluxgate down to its own white noise: when the scalar
-    // reference still holds a large unmodelled effect (a current the fluxgate does not
-    // see), the fit absorbs part of it and the "change" it makes is that effect reshuffled.
-    // White noise of the calibrated modulus from its third differences (robust to the
-    // smooth misfit the sd includes).
-    let noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
-    // Not fitting down to the noise makes the change immaterial (share 0 below), not the
-    // F-test insignificant: F and p stay what the test gave, so the table never shows a
-    // huge F with p = 1.
-    let fits_to_noise = fit.modulus_sd_after_nt <= 2.0 * noise_nt.max(0.05);
-    // With INS attitude: the installation check the compensation does not need.
-    let ins = fluxgate::ins_misalignment_rad(flight, &fit.calibration)
-        .map(|w| {
-            format!(
-                "; against the INS, misaligned {:.2}° about the roll axis and {:.2}° about the pitch axis",
-                w[0].to_degrees(),
-                w[1].to_degrees()
-            )
-        })
-        .unwrap_or_default();
-    Ok(FluxcalTest {
-        effect: format!(
-            "fluxgate calibration error (bias, scale, non-orthogonality): |B_fluxgate| − B varies by {:.1} nT sd, {:.2} nT after a 9-parameter calibration (fluxgate noise {:.2} nT{}), which changes the compensated field by {:.3} nT rms (share: that change against the residual){ins}",
-            fit.modulus_sd_before_nt,
-            fit.modulus_sd_after_nt,
-            noise_nt,
-            if fits_to_noise { "" } else { "; not down to its noise: another effect is in the way" },
-            change_nt
-        ),
-        change_nt,
-        fits_to_noise,
-        f,
-        p,
-    })
-}
-
-/// The scalar relative to its first value, with the core-field model's change removed as
-/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
-/// filter's interference + field states model. f64, exact.
-pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
-    let igrf0 = flight
-        .samples
-        .iter()
-        .map(|s| s.igrf_nt)
-        .find(|v| v.is_finite());
-    flight
-        .mag_nt
-        .iter()
-        .zip(&flight.samples)
-        .map(|(v, s)| match igrf0 {
-            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
-            _ => v - m0,
-        })
-        .collect()
-}
-
-fn explained_of(before: f64, after: f64) -> f64 {
-    if before > 0.0 {
-        (1.0 - (after / before).powi(2)).clamp(0.0, 1.0)
-    } else {
-        0.0
-    }
-}
-
-/// Label of the rows a..b: the segment, or the first and last segment it spans.
-fn span_label(flight: &Flight, t0: f64, t1: f64) -> String {
-    let runs = flight.segment_runs();
-    let hit: Vec<&String> = runs
-        .iter()
-        .filter(|(_, a, b)| flight.t_s[*a] < t1 && flight.t_s[*b - 1] >= t0)
-        .map(|(l, _, _)| l)
-        .collect();
-    match hit.as_slice() {
-        [] => format!("t = {t0:.0}–{t1:.0} s"),
-        [one] => (*one).clone(),
-        [first, .., last] => format!("{first} … {last}"),
-    }
-}
-
-/// Windows whose residual mean square exceeds the flight's typical (median) window level
-/// by more than a χ² bound with the window's effective sample count (Bonferroni over the
-/// windows), and by at least 3×; adjacent windows are merged.
-fn time_failures(flight: &Flight, t: &[f64], e: &[f64], window_s: f64) -> Vec<Failure> {
-    if t.len() < 10 {
-        return Vec::new();
-    }
-    let (t0, t1) = (t[0], t[t.len() - 1]);
-    let nw = (((t1 - t0) / window_s).floor() as usize).max(1);
-    let mut ms = vec![0.0f64; nw];
-    let mut cnt = vec![0usize; nw];
-    for (ti, ei) in t.iter().zip(e) {
-        let w = (((ti - t0) / window_s) as usize).min(nw - 1);
-        ms[w] += ei * ei;
-        cnt[w] += 1;
-    }
-    for (m, c) in ms.iter_mut().zip(&cnt) {
-        *m = if *c > 0 { *m / *c as f64 } else { f64::NAN };
-    }
-    let typical = median(&ms);
-    if typical.is_nan() || typical <= 0.0 {
-        return Vec::new();
-    }
-    let rho = lag1_autocorr(e).clamp(0.0, 0.99);
-    let per = t.len() as f64 / nw as f64;
-    let n_eff = (per * (1.0 - rho) / (1.0 + rho)).max(2.0);
-    let bound = (chi2_isf(0.01 / nw as f64, n_eff) / n_eff).max(3.0);
-    let bad: Vec<bool> = ms.iter().map(|m| *m > typical * bound).collect();
-    let mut out = Vec::new();
-    let mut w = 0;
-    while w < nw {
-        if !bad[w] {
-            w += 1;
-            continue;
-        }
-        let start = w;
-        while w < nw && bad[w] {
-            w += 1;
-        }
-        let ws = t0 + start as f64 * window_s;
-        let we = if w == nw {
-            t1
-        } else {
-            t0 + w as f64 * window_s
-        };
-        let (mut s, mut c) = (0.0, 0usize);
-        for (ti, ei) in t.iter().zip(e) {
-            if *ti >= ws && *ti <= we {
-                s += ei * ei;
-                c += 1;
-            }
-        }
-        out.push(Failure {
-            t_start: ws,
-            t_end: we,
-            rms_nt: (s / c.max(1) as f64).sqrt(),
-            label: span_label(flight, ws, we),
-        });
-    }
-    out
-}
-
-/// Residual power spectrum (Welch, Hann, 1024-sample segments) against the model's
-/// expectation (white innovations of variance S): bands where it exceeds 3× are listed.
-pub fn residual_spectrum(e: &[f64], fs: f64) -> (Vec<f64>, Vec<f64>) {
-    use rustfft::{num_complex::Complex, FftPlanner};
-    let seg = 1024.min(e.len().next_power_of_two() / 2).max(16);
-    if e.len() < seg {
-        return (Vec::new(), Vec::new());
-    }
-    let win: Vec<f64> = (0..seg)
-        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / seg as f64).cos())
-        .collect();
-    let wss: f64 = win.iter().map(|w| w * w).sum();
-    let fft = FftPlanner::new().plan_fft_forward(seg);
-    let mut acc = vec![0.0f64; seg / 2 + 1];
-    let mut count = 0usize;
-    let mut start = 0;
-    while start + seg <= e.len() {
-        let x = &e[start..start + seg];
-        let mean = x.iter().sum::<f64>() / seg as f64;
-        let mut buf: Vec<Complex<f64>> = x
-            .iter()
-            .zip(&win)
-            .map(|(v, w)| Complex::new((v - mean) * w, 0.0))
-            .collect();
-        fft.process(&mut buf);
-        for (a, c) in acc.iter_mut().zip(&buf) {
-            *a += c.norm_sqr();
-        }
-        count += 1;
-        start += seg / 2;
-    }
-    let f: Vec<f64> = (0..acc.len()).map(|i| i as f64 * fs / seg as f64).collect();
-    // One-sided density (nT²/Hz).
-    let p: Vec<f64> = acc
-        .iter()
-        .enumerate()
-        .map(|(i, a)| {
-            let one_sided = if i == 0 || i == seg / 2 { 1.0 } else { 2.0 };
-            one_sided * a / (count as f64 * wss * fs)
-        })
-        .collect();
-    (f, p)
-}
-
-fn band_failures(e: &[f64], sd: &[f64], fs: f64) -> Vec<BandFailure> {
-    let (f, p) = residual_spectrum(e, fs);
-    if f.len() < 8 {
-        return Vec::new();
-    }
-    let mean_var = sd.iter().map(|s| s * s).sum::<f64>() / sd.len() as f64;
-    let level = 2.0 * mean_var / fs;
-    // Octave bands from 0.01 Hz to Nyquist.
-    let mut out = Vec::new();
-    let mut lo = 0.01f64;
-    while lo < fs / 2.0 {
-        let hi = (lo * 2.0).min(fs / 2.0);
-        let sel: Vec<f64> = f
-            .iter()
-            .zip(&p)
-            .filter(|(fi, _)| **fi >= lo && **fi < hi)
-            .map(|(_, pi)| *pi)
-            .collect();
-        if !sel.is_empty() {
-            let excess = sel.iter().sum::<f64>() / sel.len() as f64 / level;
-            if excess > 3.0 {
-                out.push(BandFailure {
-                    f_lo_hz: lo,
-                    f_hi_hz: hi,
-                    excess,
-                });
-            }
-        }
-        lo = hi;
-    }
-    out
-}
-
-fn segment_stats(flight: &Flight, rows: &[usize], e: &[f64], nis_k: &[f64]) -> Vec<SegmentStat> {
-    let mut out = Vec::new();
-    for (label, a, b) in flight.segment_runs() {
-        let lo = rows.partition_point(|&k| k < a);
-        let hi = rows.partition_point(|&k| k < b);
-        if hi <= lo {
-            continue;
-        }
-        let r = &e[lo..hi];
-        out.push(SegmentStat {
-            label,
-            t_start: flight.t_s[a],
-            t_end: flight.t_s[b - 1],
-            rms_nt: (r.iter().map(|x| x * x).sum::<f64>() / r.len() as f64).sqrt(),
-            nis: nis_k[lo..hi].iter().sum::<f64>() / (hi - lo) as f64,
-        });
-    }
-    out
-}
-
-/// `magcomp diagnose`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct DiagnoseArgs {
-    #[command(flatten)]
-    pub input: crate::commands::TraceInput,
-    /// Model spec, e.g. `tl16+field+current:cur_pump`.
-    #[arg(long, default_value = crate::model_spec::DEFAULT_MODEL)]
-    pub model: String,
-    /// Print exactly one JSON object on stdout instead of the table.
-    #[arg(long)]
-    pub json: bool,
-    /// Also write the HTML report into this directory.
-    #[arg(short = 'o', long, visible_alias = "out", value_name = "DIR")]
-    pub report: Option<PathBuf>,
-    /// Candidate driver channels, comma-separated globs (case-insensitive), e.g.
-    /// `CUR_*,V_*`. Default: every unmapped numeric column except position, navigation,
-    /// air data, attitude, time/date, LINE/FLT-like identifiers, other magnetometers
-    /// (UNCOMPMAG*, COMPMAG*, mag_*), base stations, fluxgates and constant columns.
-    #[arg(long, value_name = "GLOB,...")]
-    pub aux: Option<String>,
-    /// Family-wise false-positive rate over all candidates.
-    #[arg(long, default_value_t = 0.01)]
-    pub alpha: f64,
-    /// Smallest share of the residual variance a significant candidate must explain.
-    #[arg(long, default_value_t = 0.15)]
-    pub min_explained: f64,
-}
-
-/// Reads a trace with an optional column map, naming the file in errors.
-pub fn load_trace(path: &std::path::Path, map: Option<&str>) -> Result<Trace> {
-    let map = match map {
-        Some(m) => ColumnMap::parse(m).with_context(|| format!("bad --map '{m}'"))?,
-        None => ColumnMap::new(),
-    };
-    read_trace(path, &map).with_context(|| format!("cannot read trace {}", path.display()))
-}
-
-pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
-    if !(args.alpha > 0.0 && args.alpha < 1.0) {
-        bail!("--alpha must be in (0, 1), got {}", args.alpha);
-    }
-    if !(0.0..1.0).contains(&args.min_explained) {
-        bail!(
-            "--min-explained must be in [0, 1), got {}",
-            args.min_explained
-        );
-    }
-    if let Some(dir) = &args.report {
-        crate::output::refuse_overwriting(
-            &[&args.input.trace],
-            &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
-        )?;
-    }
-    let trace = args.input.read()?;
-    let model = ModelSpec::parse(&args.model)?;
-    let aux = args
-        .aux
-        .as_deref()
-        .map(candidates::AuxSelection::parse)
-        .transpose()?;
-    if let Some(sel) = &aux {
-        candidates::check_selection(&trace, sel)?;
-    }
-    let opts = DiagnoseOptions {
-        alpha: args.alpha,
-        min_explained: args.min_explained,
-        aux,
-        ..Default::default()
-    };
-    let d = diagnose(&trace, &model, &opts)?;
-    if let Some(dir) = &args.report {
-        let path = crate::report::flight_report::write_report(
-            &trace,
-            std::slice::from_ref(&model),
-            Some(&d),
-            dir,
-        )?;
-        if !args.json {
-            println!("report written to {}", path.display());
-        }
-    }
-    if args.json {
-        println!("{}", d.to_json());
-    } else {
-        print!("{}", d.table());
-    }
-    Ok(())
 }

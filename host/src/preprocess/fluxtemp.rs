@@ -93,7 +93,13 @@ fn solve(
     rows: &[usize],
     free: usize,
 ) -> Result<(SVector<f64, P>, Vec<f64>, SMatrix<f64, P, P>)> {
+    let rss = |p: &SVector<f64, P>| -> f64 {
+        rows.iter()
+            .map(|&i| (reference[i] - norm(model(p, flux[i], temp[i]).0)).powi(2))
+            .sum()
+    };
     let mut p = SVector::<f64, P>::zeros();
+    let mut rss_p = rss(&p);
     let mut jtj = SMatrix::<f64, P, P>::zeros();
     for _ in 0..10 {
         jtj = SMatrix::zeros();
@@ -136,8 +142,23 @@ fn solve(
         let Some(step) = jtj.cholesky().map(|c| c.solve(&jtr)) else {
             bail!("the flight's attitudes and temperatures do not determine the fluxgate's temperature coefficients");
         };
-        p += step;
-        if step.amax() < 1e-12 * (1.0 + p.amax()) {
+        // Step halving: on a cloverleaf the z scale and bias are nearly collinear (the field
+        // stays near the z axis), and with a misfit the static model cannot follow (a
+        // drift, when only the 9 are free) a full Gauss–Newton step along that direction
+        // made the modulus misfit 40 → 9,000 nT sd. Never accept a step that increases it.
+        let mut step = step;
+        let mut accepted = false;
+        for _ in 0..30 {
+            let r = rss(&(p + step));
+            if r <= rss_p {
+                p += step;
+                rss_p = r;
+                accepted = true;
+                break;
+            }
+            step *= 0.5;
+        }
+        if !accepted || step.amax() < 1e-12 * (1.0 + p.amax()) {
             break;
         }
     }

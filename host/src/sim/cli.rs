@@ -219,13 +219,15 @@ pub struct SimulateArgs {
 
     /// Add an effect the default model does not know (repeatable): `current:CH`,
     /// `current_rate:CH`, `lag:SECONDS`, `rate`, `diurnal`, `induced_high`, `fluxcal`,
-    /// `periodic:CH`; suffix `@T0:T1` (s) limits it to a time window. Its contribution is
-    /// written as `truth_hidden_<name>`.
+    /// `periodic:CH`, `fluxtemp:CH[:K]` (the fluxgate drifts with the temperature written
+    /// as CH, bias coefficients K/4…K nT/°C per axis, default K 0.8); suffix `@T0:T1` (s) limits it to a time window. Its contribution is written as
+    /// `truth_hidden_<name>`.
     #[arg(long = "hidden", value_name = "SPEC")]
     pub hidden: Vec<String>,
 
     /// Add an auxiliary channel with a current-like waveform and no magnetic effect
-    /// (repeatable), to test false detections.
+    /// (repeatable), to test false detections; a name containing `temp` gets a
+    /// temperature-like waveform instead.
     #[arg(long = "decoy", value_name = "CH")]
     pub decoys: Vec<String>,
 

@@ -1,6 +1,9 @@
 //! Effects the default compensation model does not know about (`--hidden SPEC`).
 
+use super::signals::TempWave;
 use anyhow::{bail, ensure, Context, Result};
+use nalgebra::Vector3;
+use rand::Rng;
 
 #[derive(Clone, Debug, PartialEq)]
 pub enum HiddenKind {
@@ -20,6 +23,13 @@ pub enum HiddenKind {
     FluxCal,
     /// Engine/propeller line driven by an rpm channel.
     Periodic { channel: String },
+    /// The fluxgate's bias and scale drift with its temperature, recorded as a channel
+    /// (the scalar is unchanged; the direction cosines bend as the temperature moves).
+    /// `max_nt_per_degc` is the largest per-axis bias coefficient (0.8 by default).
+    FluxTemp {
+        channel: String,
+        max_nt_per_degc: f64,
+    },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -41,6 +51,7 @@ impl HiddenEffect {
             HiddenKind::InducedHigh => "induced_high".into(),
             HiddenKind::FluxCal => "fluxcal".into(),
             HiddenKind::Periodic { channel } => format!("periodic_{channel}"),
+            HiddenKind::FluxTemp { channel, .. } => format!("fluxtemp_{channel}"),
         }
     }
     pub fn column(&self) -> String {
@@ -54,9 +65,51 @@ impl HiddenEffect {
         match &self.kind {
             HiddenKind::Current { channel }
             | HiddenKind::CurrentRate { channel }
-            | HiddenKind::Periodic { channel } => Some(channel),
+            | HiddenKind::Periodic { channel }
+            | HiddenKind::FluxTemp { channel, .. } => Some(channel),
             _ => None,
         }
+    }
+}
+
+/// The fluxgate's temperature drift: its reading `F` becomes `F + d·β` with `d = T − T(0)`
+/// and β within K/4…K nT/°C per axis, random signs (K the largest coefficient; default
+/// 0.8, the 0.2–0.8 nT/°C of issue 12). A bias drift only: a scale drift is part of the
+/// `fluxtemp` fit, but on a cloverleaf its three coefficients are poorly determined (the
+/// field stays near one body axis), so a simulated one would test that conditioning rather
+/// than the diagnosis.
+#[derive(Clone, Debug)]
+pub struct FluxTempDrift {
+    pub temp: TempWave,
+    pub bias_nt_per_degc: Vector3<f64>,
+}
+
+impl FluxTempDrift {
+    pub fn random<R: Rng>(max_nt_per_degc: f64, rng: &mut R) -> Self {
+        let k = max_nt_per_degc;
+        let mut signed = || {
+            let s = if rng.gen_bool(0.5) { 1.0 } else { -1.0 };
+            s * rng.gen_range(k / 4.0..k)
+        };
+        let bias = Vector3::new(signed(), signed(), signed());
+        FluxTempDrift {
+            temp: TempWave::random(rng),
+            bias_nt_per_degc: bias,
+        }
+    }
+    /// The drifted reading at time `t` (the drift's rate is d'·β).
+    pub fn apply(
+        &self,
+        t: f64,
+        f: &Vector3<f64>,
+        f_dot: &Vector3<f64>,
+    ) -> (Vector3<f64>, Vector3<f64>) {
+        let (temp, temp_dot) = self.temp.eval(t);
+        let d = temp - self.temp.eval(0.0).0;
+        (
+            f + self.bias_nt_per_degc * d,
+            f_dot + self.bias_nt_per_degc * temp_dot,
+        )
     }
 }
 
@@ -126,6 +179,27 @@ pub fn parse_hidden(spec: &str) -> Result<HiddenEffect> {
         "periodic" => HiddenKind::Periodic {
             channel: need_ch(arg)?,
         },
+        "fluxtemp" => {
+            // `fluxtemp:CH` or `fluxtemp:CH:K` (K: largest bias coefficient, nT/°C).
+            let (ch, k) = match arg.map(|a| a.split_once(':')) {
+                Some(Some((c, k))) => {
+                    let k: f64 = k
+                        .trim()
+                        .parse()
+                        .with_context(|| format!("bad fluxgate temperature coefficient `{k}`"))?;
+                    ensure!(
+                        k.is_finite() && k > 0.0 && k <= 100.0,
+                        "the fluxgate temperature coefficient must be within (0, 100] nT/°C"
+                    );
+                    (Some(c.trim()), k)
+                }
+                _ => (arg, 0.8),
+            };
+            HiddenKind::FluxTemp {
+                channel: need_ch(ch)?,
+                max_nt_per_degc: k,
+            }
+        }
         "lag" => {
             let a = arg.context("`lag` needs the lag in seconds, e.g. `lag:0.1`")?;
             let lag_s: f64 = a.parse().with_context(|| format!("bad lag `{a}`"))?;
@@ -152,7 +226,7 @@ pub fn parse_hidden(spec: &str) -> Result<HiddenEffect> {
             HiddenKind::FluxCal
         }
         other => bail!(
-            "unknown hidden effect `{other}` (known: current:CH, current_rate:CH, lag:SECONDS, rate, diurnal, induced_high, fluxcal, periodic:CH)"
+            "unknown hidden effect `{other}` (known: current:CH, current_rate:CH, lag:SECONDS, rate, diurnal, induced_high, fluxcal, periodic:CH, fluxtemp:CH)"
         ),
     };
     Ok(HiddenEffect {
@@ -181,6 +255,16 @@ mod tests {
             HiddenKind::Lag { lag_s: 0.1 }
         );
         assert_eq!(parse_hidden("rate").unwrap().kind, HiddenKind::Rate);
+        let ft = parse_hidden("fluxtemp:temp_flux").unwrap();
+        assert_eq!(ft.name(), "fluxtemp_temp_flux");
+        assert_eq!(ft.channel(), Some("temp_flux"));
+        assert_eq!(
+            parse_hidden("fluxtemp:temp_flux:4").unwrap().kind,
+            HiddenKind::FluxTemp {
+                channel: "temp_flux".into(),
+                max_nt_per_degc: 4.0
+            }
+        );
         for bad in [
             "",
             "foo",
@@ -192,6 +276,10 @@ mod tests {
             "current:mag",
             "diurnal@5:1",
             "fluxcal@a:b",
+            "fluxtemp",
+            "fluxtemp:t x",
+            "fluxtemp:t:0",
+            "fluxtemp:t:x",
         ] {
             assert!(parse_hidden(bad).is_err(), "{bad}");
         }

@@ -47,7 +47,7 @@ use nalgebra::{Matrix3, Rotation3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal, StandardNormal, UnitSphere};
-use signals::{gauss_markov, CurrentWave, RpmWave, SineSum, SmoothWalk};
+use signals::{gauss_markov, CurrentWave, RpmWave, SineSum, SmoothWalk, TempWave};
 use std::f64::consts::TAU;
 
 /// Reference field for the |B|/B* normalisation (model.md §2).
@@ -1000,6 +1000,7 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     let mut vec_effects: Vec<(usize, VecEffect, f64)> = Vec::new(); // (hidden idx, law, scale)
     let mut lag: Option<(usize, f64)> = None;
     let mut fluxcal: Option<usize> = None;
+    let mut fluxtemp: Option<(usize, hidden::FluxTempDrift)> = None;
     for (hi, h) in cfg.hidden.iter().enumerate() {
         let mut r = rng_for(seed, stream_of(&h.name()));
         let eff = match &h.kind {
@@ -1054,6 +1055,26 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
                 fluxcal = Some(hi);
                 None
             }
+            HiddenKind::FluxTemp {
+                channel,
+                max_nt_per_degc,
+            } => {
+                let drift = hidden::FluxTempDrift::random(*max_nt_per_degc, &mut r);
+                // Recorded with 0.01 °C noise; the drift follows the true temperature.
+                aux.push((
+                    channel.clone(),
+                    times
+                        .iter()
+                        .map(|&t| drift.temp.eval(t).0 + 0.01 * r.sample::<f64, _>(StandardNormal))
+                        .collect(),
+                ));
+                meta_extra.push((
+                    "truth_fluxtemp_bias_nt_per_degc".into(),
+                    json_vec(&drift.bias_nt_per_degc),
+                ));
+                fluxtemp = Some((hi, drift));
+                None
+            }
             HiddenKind::Diurnal => None,
         };
         if let Some(e) = eff {
@@ -1062,8 +1083,18 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     }
     for d in &cfg.decoys {
         let mut r = rng_for(seed, stream_of(&format!("decoy:{d}")));
-        let wave = CurrentWave::random(dur, &mut r);
-        aux.push((d.clone(), times.iter().map(|&t| wave.eval(t).0).collect()));
+        // A decoy named like a temperature is drawn as one (cabin, outside air, …).
+        let v: Vec<f64> = if d.to_ascii_lowercase().contains("temp") {
+            let wave = TempWave::random(&mut r);
+            times
+                .iter()
+                .map(|&t| wave.eval(t).0 + 0.01 * r.sample::<f64, _>(StandardNormal))
+                .collect()
+        } else {
+            let wave = CurrentWave::random(dur, &mut r);
+            times.iter().map(|&t| wave.eval(t).0).collect()
+        };
+        aux.push((d.clone(), v));
     }
 
     // Scale each effect (except the physical `rate`) to the target std inside its window,
@@ -1205,6 +1236,7 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     let mut rfn = rng_for(seed, 7);
     let mut flux = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
     let mut fluxcal_col = vec![0.0; n];
+    let mut fluxtemp_col = vec![0.0; n];
     for (kk, (&t, i)) in times.iter().zip(&insts).enumerate() {
         let bad = fluxcal.is_some_and(|hi| cfg.hidden[hi].active(t));
         let (sc, rot, bias) = if bad {
@@ -1213,14 +1245,29 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
             (&flux_scale, &flux_rot, &flux_bias)
         };
         let a = sc * rot;
-        let f_clean = a * (i.b_body + kf + lf * i.b_body + mf * i.db_body) + bias;
+        let f_static = a * (i.b_body + kf + lf * i.b_body + mf * i.db_body) + bias;
+        // (mf·d²B/dt² left out of the rate: the fluxcal truth column is a first-order figure.)
+        let f_static_dot = a * (i.db_body + lf * i.db_body);
+        let f_clean = match &fluxtemp {
+            Some((hi, drift)) if cfg.hidden[*hi].active(t) => {
+                let (f, f_dot) = drift.apply(t, &f_static, &f_static_dot);
+                // What the drift alone does to a TL compensation (against the static
+                // fluxgate, which the clean flight has too).
+                let (em, emd) = unit_and_rate(&f, &f_dot);
+                let (es, esd) = unit_and_rate(&f_static, &f_static_dot);
+                let b = i.b_body.norm();
+                let bd = i.b_body.dot(&i.db_body) / b;
+                fluxtemp_col[kk] = tl_scalar(&k, &l, &m, b, bd, &em, &emd)
+                    - tl_scalar(&k, &l, &m, b, bd, &es, &esd);
+                f
+            }
+            _ => f_static,
+        };
         for (ax, col) in flux.iter_mut().enumerate() {
             col[kk] = f_clean[ax] + cfg.flux_noise_nt * rfn.sample::<f64, _>(StandardNormal);
         }
         if bad {
-            // (mf·d²B/dt² left out: the fluxcal truth column is a first-order figure.)
-            let f_dot = a * (i.db_body + lf * i.db_body);
-            let (em, emd) = unit_and_rate(&f_clean, &f_dot);
+            let (em, emd) = unit_and_rate(&f_static, &f_static_dot);
             let (et, etd) = unit_and_rate(&i.b_body, &i.db_body);
             let b = i.b_body.norm();
             let bd = et.dot(&i.db_body);
@@ -1357,6 +1404,9 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     }
     if let Some(hi) = fluxcal {
         trace.set_col(&cfg.hidden[hi].column(), fluxcal_col);
+    }
+    if let Some((hi, _)) = &fluxtemp {
+        trace.set_col(&cfg.hidden[*hi].column(), fluxtemp_col);
     }
     if let Some(h) = cfg.hidden.iter().find(|h| h.kind == HiddenKind::Diurnal) {
         let v: Vec<f64> = insts

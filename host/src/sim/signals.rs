@@ -179,6 +179,36 @@ impl RpmWave {
     }
 }
 
+/// A sensor temperature over a flight (°C): from the ground's towards the cruise level's
+/// with a time constant of minutes (cabin heating or cooling, a stinger cooling at
+/// altitude), plus a slow heater/ventilation cycle. Value and analytic derivative.
+#[derive(Clone, Debug, Default)]
+pub struct TempWave {
+    pub start_degc: f64,
+    pub change_degc: f64,
+    pub tau_s: f64,
+    pub cycle: SineSum,
+}
+
+impl TempWave {
+    pub fn random<R: Rng>(rng: &mut R) -> Self {
+        let sign = if rng.gen_bool(0.5) { 1.0 } else { -1.0 };
+        TempWave {
+            start_degc: rng.gen_range(10.0..25.0),
+            change_degc: sign * rng.gen_range(10.0..25.0),
+            tau_s: rng.gen_range(150.0..600.0),
+            cycle: SineSum::random(2, 100.0, 500.0, rng.gen_range(1.0..3.0), rng),
+        }
+    }
+    pub fn eval(&self, t: f64) -> (f64, f64) {
+        let x = (-t.max(0.0) / self.tau_s).exp();
+        (
+            self.start_degc + self.change_degc * (1.0 - x) + self.cycle.value(t),
+            self.change_degc * x / self.tau_s + self.cycle.deriv(t),
+        )
+    }
+}
+
 /// First-order Gauss–Markov sequence with stationary σ and correlation time τ.
 pub fn gauss_markov<R: Rng>(n: usize, dt_s: f64, sigma: f64, tau_s: f64, rng: &mut R) -> Vec<f64> {
     let a = (-dt_s / tau_s).exp();
@@ -222,6 +252,8 @@ mod tests {
         let s = SineSum::random(4, 10.0, 100.0, 2.0, &mut rng);
         check_deriv(|t| (s.value(t), s.deriv(t)), 0.1, 480.0);
         check_deriv(|t| (s.integral(t), s.value(t)), 0.1, 480.0);
+        let tw = TempWave::random(&mut rng);
+        check_deriv(|t| tw.eval(t), 0.1, 480.0);
         let max_i = (0..5000)
             .map(|k| c.eval(k as f64 * 0.1).0)
             .fold(f64::MIN, f64::max);
