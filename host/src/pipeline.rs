@@ -600,8 +600,7 @@ fn innovation_nll(outs: &[Output]) -> f64 {
 fn adapted_noise_nt(flight: &Flight, opts: &KfOptions, sigma1: f64, floor_nt: f64) -> Result<f64> {
     // Only where the sensor's figure is grossly wrong: the gate then refuses many samples.
     // A model error of a few times the sensor noise is better left to the terms the
-    // diagnosis adds: with a hidden `rate` the inflated noise took the model that has the
-    // term from 0.05 to 0.66 nT.
+    // diagnosis adds and to the field states.
     let (outs, ..) = pass(
         flight,
         opts,
@@ -650,8 +649,10 @@ fn adapted_noise_nt(flight: &Flight, opts: &KfOptions, sigma1: f64, floor_nt: f6
 }
 
 /// Share of samples the gate may refuse with the sensor's noise before the noise is
-/// estimated from the innovations instead (the real boxes: 69 %; our simulator: < 1 %).
-const MAX_REFUSED_SHARE: f64 = 0.05;
+/// estimated from the innovations instead (the real boxes: 69 %). At 5 % the estimate also
+/// fired on simulated low-altitude flights over strong geology and on flights with a hidden
+/// effect, and the inflated noise cost them accuracy (300 m seed 3: 0.61 nT).
+const MAX_REFUSED_SHARE: f64 = 0.3;
 
 fn median(v: &mut [f64]) -> f64 {
     let mid = v.len() / 2;

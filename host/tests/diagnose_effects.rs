@@ -354,7 +354,6 @@ fn crossover_flight(hidden: &str, seed: u64) -> Trace {
 /// without any hidden effect is already 0.109 nT. With ties every 1 km (47 crossings)
 /// seeds 1, 2, 3, 5 met the bar, 4 and 6 reached 0.106 and 0.143 nT.
 #[test]
-#[ignore = "regressed by the measurement noise estimated from the innovations (issue 10): seed 1 0.2755 → 0.6580 nT with it, met without it; see the issue 10 note"]
 fn rate_full_bar() {
     for seed in [1, 2, 3, 4, 5] {
         check_trace(&crossover_flight("rate", seed), "rate", "rate", seed, true);
