@@ -140,6 +140,10 @@ pub struct CoefficientFile {
     pub sigma1: Option<f64>,
     #[serde(default)]
     pub noise_nt: Option<f64>,
+    /// KF: signal the model could not follow beyond the scalar's noise on the calibration
+    /// flight (nT rms); `compensate --coeffs` counts it in the predicted error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model_error_nt: Option<f64>,
     #[serde(default)]
     pub tl_config: Option<tl::TlConfig>,
     /// With `fluxcal`: the fluxgate calibration the coefficients were estimated with
@@ -338,6 +342,7 @@ fn run_method(
                     .filter(|r| r.applied)
                     .map(|r| r.fit.coefficients);
                 opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
+                opts.model_error_nt = c.model_error_nt;
             }
             let mut run = run_kf(&flight, &opts)?;
             warnings.extend(run.warnings.iter().cloned());
@@ -357,6 +362,7 @@ fn run_method(
                 sample_rate_hz: flight.sample_rate_hz,
                 sigma1: Some(run.sigma1),
                 noise_nt: Some(run.noise_nt),
+                model_error_nt: run.model_error_nt,
                 tl_config: None,
                 fluxgate_calibration: run.fluxgate_calibration,
                 scalar_lag: run.preprocessing.as_ref().and_then(|p| p.scalar_lag),
@@ -497,6 +503,7 @@ fn run_method(
                 sample_rate_hz: flight.sample_rate_hz,
                 sigma1: None,
                 noise_nt: None,
+                model_error_nt: None,
                 tl_config: Some(fit.config.clone()),
                 fluxgate_calibration: None,
                 scalar_lag: None,

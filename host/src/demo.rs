@@ -23,7 +23,7 @@ pub struct DemoArgs {
 
 fn est(method: Method) -> EstimatorArgs {
     EstimatorArgs {
-        model: "tl16+field".into(),
+        model: crate::model_spec::DEFAULT_MODEL.into(),
         method,
         sigma1: None,
         noise_nt: None,

@@ -72,6 +72,13 @@ pub struct FluxgateFit {
     pub modulus_sd_after_nt: f64,
     /// Samples used.
     pub samples: usize,
+    /// RMS over the flight of the 1σ direction error (rad) the fitted calibration leaves,
+    /// from the fit's covariance: where the attitudes do not determine the calibration (a
+    /// straight line sees the field from one direction only) it is large, and applying the
+    /// fit would turn fluxgate noise into direction errors.
+    pub direction_sigma_rad: f64,
+    /// RMS over the flight of the angle (rad) by which the calibration turns the direction.
+    pub direction_change_rad: f64,
     /// `|B_F| − F` per sample before the fit (NaN where unused), for the report.
     #[serde(skip)]
     pub residual_before_nt: Vec<f64>,
@@ -112,10 +119,11 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
         );
     }
     let mut p = SVector::<f64, 9>::zeros();
+    let mut jtj = SMatrix::<f64, 9, 9>::zeros();
     // Gauss–Newton: the problem is nearly linear (|δ| ≪ |B|), so a few steps converge.
     for _ in 0..8 {
         let cal = calibration_of(&p);
-        let mut jtj = SMatrix::<f64, 9, 9>::zeros();
+        jtj = SMatrix::<f64, 9, 9>::zeros();
         let mut jtr = SVector::<f64, 9>::zeros();
         for &i in &rows {
             let b = flux[i];
@@ -157,14 +165,68 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
         let m = rows.iter().map(|&i| v[i]).sum::<f64>() / rows.len() as f64;
         (rows.iter().map(|&i| (v[i] - m).powi(2)).sum::<f64>() / rows.len() as f64).sqrt()
     };
+    let modulus_sd_after_nt = sd(&residual_nt);
     Ok(FluxgateFit {
         calibration: cal,
         modulus_sd_before_nt: sd(&residual_before_nt),
-        modulus_sd_after_nt: sd(&residual_nt),
+        modulus_sd_after_nt,
         samples: rows.len(),
+        direction_sigma_rad: direction_sigma_rad(flux, &rows, &cal, &jtj, modulus_sd_after_nt),
+        direction_change_rad: {
+            let sq: f64 = rows
+                .iter()
+                .map(|&i| cal.max_direction_change_rad(&flux[i..=i]).powi(2))
+                .sum();
+            (sq / rows.len() as f64).sqrt()
+        },
         residual_before_nt,
         residual_nt,
     })
+}
+
+/// RMS over `rows` (every 10th) of the 1σ angle between the true and the calibrated
+/// direction, from the parameter covariance `σ²·(JᵀJ)⁻¹`: only the part of a parameter error
+/// perpendicular to the field turns the direction cosines. Infinite when `JᵀJ` is singular.
+fn direction_sigma_rad(
+    flux: &[[f64; 3]],
+    rows: &[usize],
+    cal: &FluxgateCalibration,
+    jtj: &SMatrix<f64, 9, 9>,
+    sigma_nt: f64,
+) -> f64 {
+    let Some(inv) = jtj.cholesky().map(|c| c.inverse()) else {
+        return f64::INFINITY;
+    };
+    let cov = inv * (sigma_nt * sigma_nt);
+    let (mut sum, mut n) = (0.0, 0usize);
+    for &i in rows.iter().step_by(10) {
+        let b = flux[i];
+        let v = cal.apply(b);
+        let nv = norm(v);
+        let u = [v[0] / nv, v[1] / nv, v[2] / nv];
+        // dv/dp in the parameter order s11, s22, s33, s12, s13, s23, b1, b2, b3.
+        let mut d = SMatrix::<f64, 3, 9>::zeros();
+        d[(0, 0)] = b[0];
+        d[(1, 1)] = b[1];
+        d[(2, 2)] = b[2];
+        d[(0, 3)] = b[1];
+        d[(1, 3)] = b[0];
+        d[(0, 4)] = b[2];
+        d[(2, 4)] = b[0];
+        d[(1, 5)] = b[2];
+        d[(2, 5)] = b[1];
+        d[(0, 6)] = 1.0;
+        d[(1, 7)] = 1.0;
+        d[(2, 8)] = 1.0;
+        let uv = nalgebra::Vector3::new(u[0], u[1], u[2]);
+        let g = (nalgebra::Matrix3::identity() - uv * uv.transpose()) * d / nv;
+        sum += (g * cov * g.transpose()).trace();
+        n += 1;
+    }
+    if n == 0 {
+        return f64::INFINITY;
+    }
+    (sum / n as f64).sqrt()
 }
 
 /// The flight's fluxgate fitted to its scalar minus `interference_nt` (a compensator

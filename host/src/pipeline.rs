@@ -70,6 +70,9 @@ pub struct KfOptions {
     /// calibration, so the run can say how well they determine *this* flight's
     /// interference (`KfRun::predicted_error_nt`).
     pub coefficient_covariance: Option<Vec<f64>>,
+    /// With given coefficients: the model error their calibration flight showed (nT rms),
+    /// counted in the predicted error.
+    pub model_error_nt: Option<f64>,
     /// With `lag`/`fluxtemp`: apply this pre-processing (from a coefficient file) instead of
     /// estimating it ([`crate::preprocess`]).
     pub preprocessing: Option<crate::preprocess::Preprocessing>,
@@ -103,6 +106,7 @@ impl KfOptions {
             rate_crossovers: true,
             rate_crossover_coefficients: None,
             coefficient_covariance: None,
+            model_error_nt: None,
             preprocessing: None,
             held_combinations: Vec::new(),
         }
@@ -131,6 +135,10 @@ pub struct KfRun {
     pub coefficient_covariance: Vec<f64>,
     pub sigma1: f64,
     pub noise_nt: f64,
+    /// Signal the model could not follow beyond the sensor's noise (nT rms): the part of
+    /// the estimated measurement noise above the scalar's own; `None` when the noise was
+    /// not estimated from the innovations.
+    pub model_error_nt: Option<f64>,
     /// The filter's UD factors stayed finite with non-negative D (covariance positive
     /// semi-definite) after every sample of the final pass.
     pub filter_healthy: bool,
@@ -648,6 +656,10 @@ fn adapted_noise_nt(flight: &Flight, opts: &KfOptions, sigma1: f64, floor_nt: f6
     Ok(noise_nt)
 }
 
+/// Unexplained signal (nT rms) above which the model error is a warning: below it, the
+/// survey tolerance is not at stake.
+pub const MODEL_ERROR_WARNING_NT: f64 = 0.05;
+
 /// Share of samples the gate may refuse with the sensor's noise before the noise is
 /// estimated from the innovations instead (the real boxes: 69 %). At 5 % the estimate also
 /// fired on simulated low-altitude flights over strong geology and on flights with a hidden
@@ -676,21 +688,55 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     run_kf_estimator(flight, opts)
 }
 
+/// A fitted fluxgate calibration is applied when the direction uncertainty it leaves is
+/// below this share of the direction correction it makes. On calibration patterns the
+/// fluxgate in the aircraft's field is turned by 2–12 mrad with 0.1 mrad uncertainty (1–2 %);
+/// on a straight line without manoeuvres the uncertainty (3.6 mrad) exceeds the correction
+/// (2.7 mrad): the fit there would turn fluxgate noise and geology into direction errors.
+pub const FLUXCAL_MAX_SIGMA_SHARE: f64 = 0.25;
+
 /// The estimator on a flight as given. With `fluxcal` in the model the fluxgate is first
 /// calibrated against the scalar (the stored calibration, or one fitted on this flight to
 /// the scalar minus a first pass's interference) and the filter runs on the calibrated
-/// fluxgate.
+/// fluxgate. A fit the flight does not determine is not applied: the fluxgate is used as
+/// measured (identity calibration) and a warning says so. In real time without a stored
+/// calibration the fluxgate is used as measured, as on the board before `SETFLUX`.
 pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     if !opts.model.calibrates_fluxgate() {
         return run_kf_on(flight, opts);
     }
     let (calibration, fit) = match opts.fluxgate_calibration {
         Some(c) => (c, None),
+        None if opts.realtime => (fluxgate::FluxgateCalibration::IDENTITY, None),
         None => {
             // `fluxcal` adds no filter state, so the first pass is the model without it.
-            let first = run_kf_on(flight, opts)?;
-            let fit = fluxgate::fit_flight(flight, &first.interference_nt)?;
-            (fit.calibration, Some(fit))
+            let mut first = run_kf_on(flight, opts)?;
+            let refused = match fluxgate::fit_flight(flight, &first.interference_nt) {
+                Ok(fit)
+                    if fit.direction_sigma_rad
+                        <= FLUXCAL_MAX_SIGMA_SHARE * fit.direction_change_rad =>
+                {
+                    Err(fit)
+                }
+                Ok(fit) => Ok(format!(
+                    "the flight's attitudes do not determine the fluxgate calibration: it \
+                     would turn the direction by {:.1e} rad rms with an uncertainty of \
+                     {:.1e} rad (a calibration is applied when its uncertainty is below {} \
+                     of its correction)",
+                    fit.direction_change_rad, fit.direction_sigma_rad, FLUXCAL_MAX_SIGMA_SHARE
+                )),
+                Err(e) => Ok(format!("{e:#}")),
+            };
+            match refused {
+                Err(fit) => (fit.calibration, Some(fit)),
+                Ok(reason) => {
+                    first.warnings.push(format!(
+                        "fluxgate not calibrated against the scalar, used as measured: {reason}"
+                    ));
+                    first.fluxgate_calibration = Some(fluxgate::FluxgateCalibration::IDENTITY);
+                    return Ok(first);
+                }
+            }
         }
     };
     let mut run = run_kf_on(&flight.with_fluxgate_calibration(&calibration), opts)?;
@@ -728,9 +774,19 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         }
         None => DEFAULT_SIGMA1,
     };
+    let sensor_noise_nt = noise_nt;
     let noise_nt = match (opts.noise_nt, &opts.coefficients) {
         (None, None) => adapted_noise_nt(flight, opts, sigma1, noise_nt)?,
         _ => noise_nt,
+    };
+    // What the innovations show beyond the sensor's noise is signal the model cannot
+    // follow: interference it lacks a term for. It stays in the compensated output, so it
+    // belongs in the predicted error (on the real SGL boxes the coefficient covariance
+    // alone predicted 0.85–1.2 nT where the box-to-box transfer left 3.0–4.4 nT).
+    let model_error_nt = match opts.coefficients {
+        Some(_) => opts.model_error_nt,
+        None => (noise_nt > sensor_noise_nt)
+            .then(|| (noise_nt * noise_nt - sensor_noise_nt * sensor_noise_nt).sqrt()),
     };
     let cfg = base_config(flight, opts, sigma1, noise_nt);
     let mut warnings = Vec::new();
@@ -811,6 +867,15 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
                 (covariance, predicted)
             }
         };
+    let predicted_error_nt = predicted_error_nt.map(|p| p.hypot(model_error_nt.unwrap_or(0.0)));
+    if let Some(m) = model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
+        warnings.push(format!(
+            "the model leaves {m:.2} nT rms of the signal unexplained beyond the scalar's own \
+             noise ({sensor_noise_nt:.3} nT): an effect the model lacks stays in the compensated \
+             output and is counted in the predicted error. `magcomp diagnose` names candidates \
+             (docs/adding-an-effect.md)"
+        ));
+    }
     let mut run = KfRun {
         coefficient_names: spec.coefficient_names(),
         coefficient_sigmas,
@@ -820,6 +885,7 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         regressors: regs,
         sigma1,
         noise_nt,
+        model_error_nt,
         warnings,
         filter_healthy: healthy,
         field_process: if spec.field {

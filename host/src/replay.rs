@@ -9,7 +9,7 @@
 //! `# scalar_hz:` / `# flux_hz:` / `# gps_hz:` comments, else the board's 10/10/1 Hz.
 
 use crate::capture_sim::FluxFormat;
-use crate::model_spec::{with_model, ModelSpec, DEFAULT_MODEL};
+use crate::model_spec::{with_model, ModelSpec, BOARD_MODEL};
 use crate::output::AtomicFile;
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
@@ -41,7 +41,7 @@ pub struct ReplayArgs {
 
     /// Model spec (terms joined by `+`). Channel terms see no channels in a capture and
     /// are flagged AUX_MISSING.
-    #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
+    #[arg(long, default_value = BOARD_MODEL, value_name = "SPEC")]
     pub model: String,
 
     /// Apply these coefficients (survey mode): a `calibrate` JSON file (entries matched

@@ -22,7 +22,7 @@ pub struct UploadArgs {
     pub to: String,
 
     /// Model compiled into the board (its coefficients must be this model's).
-    #[arg(long, default_value = "tl16+field", value_name = "SPEC")]
+    #[arg(long, default_value = crate::model_spec::BOARD_MODEL, value_name = "SPEC")]
     pub board_model: String,
 
     /// Do not end with `SAVE` (the values then last until the board restarts).
@@ -180,6 +180,7 @@ mod tests {
             sample_rate_hz: 10.0,
             sigma1: None,
             noise_nt: None,
+            model_error_nt: None,
             tl_config: None,
             fluxgate_calibration: flux,
             scalar_lag: None,

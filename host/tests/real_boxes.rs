@@ -7,6 +7,7 @@
 //! Skips, saying so, where the shared data are absent.
 
 use magcomp::commands::{compensate_trace, EstimatorArgs, Method};
+use magcomp::model_spec::DEFAULT_MODEL;
 use magcomp::tl;
 use magcomp::trace::Trace;
 use magcomp_core::Flags;
@@ -85,12 +86,21 @@ fn band_std_nt(x: &[f64]) -> f64 {
 
 /// Box 2's band-passed residual with `method`/`model` calibrated on box 1.
 fn transfer_nt(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) -> f64 {
+    transfer(b, mag, flux, method, model).0
+}
+
+/// Box 2's band-passed residual and the error the KF predicted for box 2 from box 1's
+/// coefficients (`compensate --coeffs`'s `predicted_error_nt`).
+fn transfer(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) -> (f64, Option<f64>) {
     let e = est(method, model);
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag, flux), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();
     let box2 = trace(b, BOX1_ROWS..b.rows.len(), mag, flux);
     let (_, applied) = compensate_trace(&box2, &e, Some(&file), false).unwrap();
-    band_std_nt(&applied.compensated_nt)
+    (
+        band_std_nt(&applied.compensated_nt),
+        applied.coefficients.and_then(|c| c.predicted_error_nt),
+    )
 }
 
 /// Plain band-passed least-squares TL18 (λ = 0), box 1 → box 2.
@@ -122,10 +132,24 @@ fn kf_transfer_between_real_boxes_beats_tolles_lawson() {
         let ridge = transfer_nt(&b, mag, "flux_d", Method::Tl, "tl16+field");
         let ols = tl18_ols_transfer_nt(&b, mag, "flux_d");
         let paper = transfer_nt(&b, mag, "flux_d", Method::Kf, "tl16+field");
+        let (default, predicted) = transfer(&b, mag, "flux_d", Method::Kf, DEFAULT_MODEL);
         let fluxmod = transfer_nt(&b, mag, "flux_d", Method::Kf, "tl16+fluxmod+field");
+        let predicted = predicted.expect("predicted error");
         eprintln!(
             "{mag}: box 1 → box 2 band std: TL18 ridge {ridge:.3}, TL18 OLS {ols:.3}, \
-             KF tl16+field {paper:.3}, KF tl16+fluxmod+field {fluxmod:.3} nT"
+             KF tl16+field {paper:.3}, KF default {default:.3} (predicted {predicted:.3}), \
+             KF tl16+fluxmod+field {fluxmod:.3} nT"
+        );
+        // The default model is level with MagNav's TL18 on these boxes.
+        assert!(
+            default <= 1.05 * ridge,
+            "{mag}: KF default {default:.3} vs ridge TL18 {ridge:.3}"
+        );
+        // The predicted error counts what the model could not follow on box 1 (the
+        // coefficient covariance alone said 0.85–1.3 nT).
+        assert!(
+            (0.5 * default..=2.0 * default).contains(&predicted),
+            "{mag}: predicted {predicted:.3} vs transfer {default:.3}"
         );
         // The fluxgate's own modulus carries the aircraft's field at the fluxgate: with it
         // the filter beats MagNav's TL18 and is level with or better than plain OLS.
