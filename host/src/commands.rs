@@ -581,14 +581,17 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
 }
 
 /// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`, then `carried`
-/// (`input::carried_columns`: `igrf` and the input's unconsumed columns).
+/// (`input::carried_columns`: `igrf` and the input's unconsumed columns); CSV, or
+/// Geosoft XYZ for a `.xyz` path.
 pub fn write_output_csv(
     path: &Path,
     flight: &Flight,
     comp: &Compensation,
     carried: &[(String, crate::input::OutputValues)],
 ) -> Result<()> {
-    crate::output::write_with(path, |w| write_output_rows(w, flight, comp, carried))
+    crate::output::write_table(path, |mut w| {
+        write_output_rows(&mut w, flight, comp, carried)
+    })
 }
 
 fn write_output_rows(
