@@ -175,8 +175,16 @@ fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
     let s = read_trace(&survey_out, &ColumnMap::new()).unwrap();
     assert_eq!(s.len(), survey_rows.len(), "frames in = frames out");
     let pick = |v: &[f64], rows: &[usize]| rows.iter().map(|&i| v[i]).collect::<Vec<f64>>();
-    assert_eq!(col(&s, "t"), pick(&col(&sim, "t"), &survey_rows));
-    assert_eq!(col(&s, "LINE"), pick(&line, &survey_rows));
+    // (TIME is written with 2 decimals, as SGL does)
+    let t_in = pick(&col(&sim, "t"), &survey_rows);
+    assert!(col(&s, "t")
+        .iter()
+        .zip(&t_in)
+        .all(|(a, b)| (a - b).abs() < 0.006));
+    assert!(
+        col(&s, "LINE") == pick(&line, &survey_rows),
+        "LINE not carried row for row"
+    );
     for c in ["UTM-X", "UTM-Y", "BARO", "FLT", "YEAR", "DOY"] {
         assert!(s.col(c).is_some(), "{c} not carried");
     }
@@ -189,12 +197,13 @@ fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
     let b = read_trace(&box_kf, &ColumnMap::new()).unwrap();
     let box_rows = rows_of(&[BOX]);
     assert_eq!(b.len(), box_rows.len());
-    let (lat, lon, alt, g) = (
-        col(&b, "LAT"),
-        col(&b, "LONG"),
-        col(&b, "UTM-Z"),
-        col(&b, "igrf"),
+    // (position columns are consumed, not carried: take them from the simulation)
+    let (lat, lon, alt) = (
+        pick(&col(&sim, "lat"), &box_rows),
+        pick(&col(&sim, "lon"), &box_rows),
+        pick(&col(&sim, "alt"), &box_rows),
     );
+    let g = col(&b, "igrf");
     let dist_m = |k: usize| {
         let dn = (lat[k] - REF.0) * 111_200.0;
         let de = (lon[k] - REF.1) * 111_200.0 * REF.0.to_radians().cos();
