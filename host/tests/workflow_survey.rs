@@ -75,15 +75,14 @@ fn sgl_file(dir: &Path) -> (PathBuf, Trace, Vec<f64>) {
          UNCOMPMAG1 FLUXA_X FLUXA_Y FLUXA_Z\n",
     );
     let mut prev = f64::NAN;
-    for i in 0..sim.len() {
-        if line[i] != prev {
-            text.push_str(&format!("Line {:.2}\n", line[i]));
-            prev = line[i];
+    for (i, &li) in line.iter().enumerate() {
+        if li != prev {
+            text.push_str(&format!("Line {li:.2}\n"));
+            prev = li;
         }
         text.push_str(&format!(
-            "{:.2} 1003 {} {} {:.2} {:.2} {:.2} {:.3} {:.9} {:.9} {:.2} {:.4} {:.4} {:.4} {:.4} \
+            "{li:.2} 1003 {} {} {:.2} {:.2} {:.2} {:.3} {:.9} {:.9} {:.2} {:.4} {:.4} {:.4} {:.4} \
              {:.3} {:.3} {:.3}\n",
-            line[i],
             YEAR_DOY.0,
             YEAR_DOY.1,
             c("t")[i],

@@ -4,7 +4,7 @@
 //! (`N`, `dt`) become metadata; matrices per sample (`Cnb` 3×3×N) have no place in a
 //! trace and are listed in the `h5_skipped` metadata; a vector of another length is an
 //! error, as MagNav's own `read_check` would misalign it.
-use super::{ColumnMap, RowOrigin, Trace, TraceError};
+use super::{ColumnMap, Trace, TraceError};
 use std::path::Path;
 
 /// The 8-byte signature at the start of an HDF5 file (or of its superblock after a user
@@ -237,7 +237,7 @@ pub fn read_hdf5(path: &Path, map: &ColumnMap, check_time: bool) -> Result<Trace
         }
     }
     // Messages about a row name its 1-based row of the datasets.
-    let mut origin = RowOrigin::new(&name);
+    let mut origin = super::RowOrigin::new(&name);
     for i in 0..rows {
         origin.push(i as u64 + 1);
     }
