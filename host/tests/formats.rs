@@ -6,7 +6,8 @@
 use hdf5_metno as h5;
 use magcomp::trace::{read_trace, ColumnMap, Trace};
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
+use std::sync::Mutex;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_magcomp"))
@@ -18,8 +19,24 @@ fn tmp(name: &str) -> PathBuf {
     d
 }
 
+/// Held while an HDF5 file is open for writing and while a child is spawned: a child
+/// forked by another test thread meanwhile would inherit the open file and its lock
+/// (HDF5 locks files with flock), so the file would stay locked while that child runs.
+static FORK_GUARD: Mutex<()> = Mutex::new(());
+
+fn guard() -> std::sync::MutexGuard<'static, ()> {
+    FORK_GUARD.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn run(cmd: &mut Command) -> (bool, String, String) {
-    let out = cmd.output().expect("run magcomp");
+    let child = {
+        let _g = guard();
+        cmd.stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("run magcomp")
+    };
+    let out = child.wait_with_output().expect("run magcomp");
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),
@@ -63,6 +80,7 @@ fn magnav_name(canonical: &str) -> String {
 /// a 3×3×N `Cnb`, an integer `flight` channel and the text `segment` as strings.
 /// `edit` may change a dataset before it is written (None drops it).
 fn write_magnav_h5(path: &Path, trace: &Trace, edit: impl Fn(&str, Vec<f64>) -> Option<Vec<f64>>) {
+    let _g = guard();
     let f = h5::File::create(path).unwrap();
     let n = trace.len();
     for (name, v) in &trace.numeric {
@@ -116,6 +134,7 @@ fn write_magnav_h5(path: &Path, trace: &Trace, edit: impl Fn(&str, Vec<f64>) -> 
         .unwrap()
         .write_raw(&cnb)
         .unwrap();
+    f.close().unwrap();
 }
 
 /// The columns of a `compensate` output file as text, by name.

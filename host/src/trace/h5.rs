@@ -75,7 +75,20 @@ pub fn read_hdf5(path: &Path, map: &ColumnMap, check_time: bool) -> Result<Trace
              (docs/trace-format.md)",
         ));
     }
-    let file = h5::File::open(path).map_err(|e| err(&name, format!("cannot open: {e}")))?;
+    // HDF5 locks the file (flock) while it is open; where the file system cannot lock
+    // (NFS, Lustre) the lock is skipped instead of refusing the file.
+    let file = h5::File::with_options()
+        .with_fapl(|p| p.file_locking(true))
+        .open(path)
+        .map_err(|e| {
+            let e = e.to_string();
+            let why = if e.contains("lock") {
+                " (another program has the file open for writing)"
+            } else {
+                ""
+            };
+            err(&name, format!("cannot open: {e}{why}"))
+        })?;
     let datasets = file
         .datasets()
         .map_err(|e| err(&name, format!("cannot list the datasets: {e}")))?;
