@@ -1,8 +1,7 @@
 //! File formats as survey users have them (issue 11 item 3): a MagNav.jl HDF5 flight file
 //! read through the CLI gives exactly what the same flight as CSV gives; Geosoft XYZ
 //! output reads back to the CSV output's values; bad HDF5 files are clear errors.
-#![cfg(feature = "hdf5")]
-
+#[cfg(feature = "hdf5")]
 use hdf5_metno as h5;
 use magcomp::trace::{read_trace, ColumnMap, Trace};
 use std::path::{Path, PathBuf};
@@ -63,6 +62,7 @@ fn simulated(dir: &Path) -> (PathBuf, Trace) {
     (csv, t)
 }
 
+#[cfg(feature = "hdf5")]
 /// MagNav's names for the canonical columns (`--map magnav` maps them back).
 fn magnav_name(canonical: &str) -> String {
     match canonical {
@@ -75,6 +75,7 @@ fn magnav_name(canonical: &str) -> String {
     }
 }
 
+#[cfg(feature = "hdf5")]
 /// Writes `trace` as a MagNav-layout HDF5 file: one root dataset per channel (fluxgate
 /// chunked and gzip-compressed, as h5py/HDF5.jl may write them), `N` and `dt` scalars,
 /// a 3×3×N `Cnb`, an integer `flight` channel and the text `segment` as strings.
@@ -137,6 +138,7 @@ fn write_magnav_h5(path: &Path, trace: &Trace, edit: impl Fn(&str, Vec<f64>) -> 
     f.close().unwrap();
 }
 
+#[cfg(feature = "hdf5")]
 /// The columns of a `compensate` output file as text, by name.
 fn columns(path: &Path) -> Vec<(String, Vec<String>)> {
     let text = std::fs::read_to_string(path).unwrap();
@@ -151,10 +153,12 @@ fn columns(path: &Path) -> Vec<(String, Vec<String>)> {
     cols
 }
 
+#[cfg(feature = "hdf5")]
 fn col<'a>(cols: &'a [(String, Vec<String>)], name: &str) -> &'a [String] {
     &cols.iter().find(|(n, _)| n == name).unwrap().1
 }
 
+#[cfg(feature = "hdf5")]
 #[test]
 fn a_magnav_hdf5_file_compensates_exactly_as_the_same_flight_in_csv() {
     let dir = tmp("h5");
@@ -223,6 +227,7 @@ fn a_magnav_hdf5_file_compensates_exactly_as_the_same_flight_in_csv() {
     assert!(col(&cb, "flight").iter().all(|v| v == "1003"));
 }
 
+#[cfg(feature = "hdf5")]
 #[test]
 fn bad_hdf5_files_are_clear_errors() {
     let dir = tmp("badh5");
