@@ -15,6 +15,10 @@ const SIGNATURE: &[u8; 8] = b"\x89HDF\r\n\x1a\n";
 /// up to 64 KiB).
 pub fn is_hdf5(path: &Path) -> bool {
     use std::io::{Read, Seek, SeekFrom};
+    // Only a regular file is sniffed: a pipe or device must not lose its first bytes.
+    if !std::fs::metadata(path).is_ok_and(|m| m.is_file()) {
+        return false;
+    }
     let Ok(mut f) = std::fs::File::open(path) else {
         return false;
     };
