@@ -9,6 +9,8 @@ rustup component list --installed 2>/dev/null | grep -q '^rustfmt' || rustup com
 need=()
 command -v chromium >/dev/null || need+=(chromium)
 command -v arm-none-eabi-size >/dev/null || need+=(binutils-arm-none-eabi)
+# libhdf5 for `.h5` traces (hdf5-metno finds Debian's /usr/lib/*/hdf5/serial via pkg-config)
+pkg-config --exists hdf5 2>/dev/null || need+=(libhdf5-dev pkg-config)
 if [ ${#need[@]} -gt 0 ]; then
     SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO=sudo
     $SUDO apt-get update -qq

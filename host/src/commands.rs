@@ -25,11 +25,14 @@ pub enum Method {
 /// Options shared by every command that reads a trace.
 #[derive(clap::Args, Clone, Debug)]
 pub struct TraceInput {
-    /// Flight trace: CSV per docs/trace-format.md, or whitespace XYZ survey data (`/` comments, `*` missing).
+    /// Flight trace: CSV per docs/trace-format.md, whitespace XYZ survey data (`/` comments,
+    /// `*` missing), or a MagNav.jl HDF5 file (`.h5`: one dataset per channel).
     pub trace: PathBuf,
     /// Column names of your file, e.g.
     /// `t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=UTM-Z`
-    /// (SGL survey XYZ names; docs/trace-format.md lists the canonical ones).
+    /// (SGL survey XYZ names; docs/trace-format.md lists the canonical ones). Presets:
+    /// `magnav` (MagNav HDF5 names), `sgl` (SGL XYZ names), overridable:
+    /// `--map magnav,mag=mag_4_uc`.
     #[arg(long, value_name = "CANONICAL=FILE,...")]
     pub map: Option<String>,
     /// Only these lines, by the `line` column (SGL's `LINE`), e.g. `1002.02,1003.01`.
@@ -588,14 +591,17 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
 }
 
 /// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`, then `carried`
-/// (`input::carried_columns`: `igrf` and the input's unconsumed columns).
+/// (`input::carried_columns`: `igrf` and the input's unconsumed columns); CSV, or
+/// Geosoft XYZ for a `.xyz` path.
 pub fn write_output_csv(
     path: &Path,
     flight: &Flight,
     comp: &Compensation,
     carried: &[(String, crate::input::OutputValues)],
 ) -> Result<()> {
-    crate::output::write_with(path, |w| write_output_rows(w, flight, comp, carried))
+    crate::output::write_table(path, |mut w| {
+        write_output_rows(&mut w, flight, comp, carried)
+    })
 }
 
 fn write_output_rows(

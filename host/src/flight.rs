@@ -34,8 +34,9 @@ pub(crate) fn col<'a>(trace: &'a Trace, name: &str) -> Result<&'a [f64]> {
     trace.col(name).with_context(|| {
         let have: Vec<&str> = trace.numeric.iter().map(|(n, _)| n.as_str()).collect();
         format!(
-            "the trace has no numeric column '{name}' (it has: {}); use --map {name}=COLUMN to name it",
-            have.join(", ")
+            "the trace has no numeric column '{name}' (it has: {}); use --map {name}=COLUMN to name it{}",
+            have.join(", "),
+            crate::trace::preset_hint(&have)
         )
     })
 }

@@ -90,7 +90,8 @@ struct CompensateArgs {
     #[arg(long)]
     realtime: bool,
     /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
-    /// and the input columns the model does not use (LINE, X, Y, …); docs/trace-format.md.
+    /// and the input columns the model does not use (LINE, X, Y, …); `OUT.xyz` writes
+    /// Geosoft XYZ; docs/trace-format.md.
     #[arg(
         short = 'o',
         long = "out",

@@ -174,7 +174,7 @@ fn column_map_renames_and_reports_its_errors() {
     let perr = |s: &str| ColumnMap::parse(s).unwrap_err().to_string();
     assert_eq!(
         perr("mag"),
-        "column map: entry 1 'mag': missing '=' (expected canonical=file_column)"
+        "column map: entry 1 'mag': missing '=' (and not a preset: magnav, sgl) (expected canonical=file_column)"
     );
     assert_eq!(perr("t=tt,=x"), "column map: entry 2 '=x': empty canonical name before '=' (expected canonical=file_column)");
     assert!(perr("t=").contains("empty file column name"));

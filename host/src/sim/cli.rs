@@ -9,7 +9,7 @@ use std::path::PathBuf;
 /// Tolles–Lawson aircraft field with exact dB/dt, diurnal, and realistic sensor errors.
 #[derive(clap::Args, Clone, Debug)]
 pub struct SimulateArgs {
-    /// Output trace file (CSV, see docs/trace-format.md).
+    /// Output trace file (CSV, or Geosoft XYZ for `.xyz`; see docs/trace-format.md).
     #[arg(
         short = 'o',
         long = "out",

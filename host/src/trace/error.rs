@@ -50,6 +50,8 @@ pub enum TraceError {
     },
     /// The trace cannot be written as a valid file (ragged columns, bad names...).
     Write { msg: String },
+    /// An HDF5 file that is not one, or whose datasets do not form a trace.
+    Hdf5 { file: String, msg: String },
 }
 
 impl fmt::Display for TraceError {
@@ -119,9 +121,12 @@ impl fmt::Display for TraceError {
                     } else {
                         available.join(", ")
                     }
-                )
+                )?;
+                let have: Vec<&str> = available.iter().map(String::as_str).collect();
+                write!(f, "{}", super::map::preset_hint(&have))
             }
             TraceError::Write { msg } => write!(f, "cannot write trace: {msg}"),
+            TraceError::Hdf5 { file, msg } => write!(f, "{file}: {msg}"),
         }
     }
 }

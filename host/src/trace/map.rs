@@ -4,10 +4,46 @@ use std::str::FromStr;
 /// Renames file columns to canonical trace-format names, from the `--map` syntax
 /// `canonical=file_name,...` (e.g. `mag=mag_4_uc,flux_x=flux_b_x,t=tt`).
 /// Columns not named in the map keep their file names.
+///
+/// An entry may also be a preset name ([`PRESETS`]: `magnav`, `sgl`): its pairs apply
+/// where the file has the preset's column and not already the canonical one, and
+/// explicit entries override it (`magnav,mag=mag_4_uc`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct ColumnMap {
     /// (canonical, file name) pairs in the order given.
     pairs: Vec<(String, String)>,
+    /// Pairs from presets: used only where they fit the file (see [`ColumnMap::apply`]).
+    optional: Vec<(String, String)>,
+}
+
+/// Built-in maps: (name, what it is for, canonical=file pairs).
+pub const PRESETS: &[(&str, &str, &str)] = &[
+    (
+        "magnav",
+        "MagNav.jl HDF5 flight files (SGL 2020/2021 `Flt*.h5`, XYZ0/XYZ1 files): \
+         tail-stinger scalar mag_1_uc, fluxgate A, INS attitude",
+        "t=tt,mag=mag_1_uc,flux_x=flux_a_x,flux_y=flux_a_y,flux_z=flux_a_z,alt=utm_z,\
+         roll=ins_roll,pitch=ins_pitch,yaw=ins_yaw",
+    ),
+    (
+        "sgl",
+        "SGL survey XYZ files (the MagNav challenge's `Flt*.xyz`): tail-stinger scalar \
+         UNCOMPMAG1, fluxgate A, INS attitude",
+        "t=TIME,mag=UNCOMPMAG1,flux_x=FLUXA_X,flux_y=FLUXA_Y,flux_z=FLUXA_Z,lat=LAT,\
+         lon=LONG,alt=UTM-Z,roll=ROLL,pitch=PITCH,yaw=AZIMUTH",
+    ),
+];
+
+/// For a message about a missing column: the built-in map whose names the file has
+/// (MagNav's `tt`, SGL's `TIME`/`UNCOMPMAG1`), or nothing.
+pub fn preset_hint(columns: &[&str]) -> &'static str {
+    if columns.contains(&"tt") {
+        " (MagNav names: try --map magnav, docs/trace-format.md)"
+    } else if columns.contains(&"TIME") || columns.contains(&"UNCOMPMAG1") {
+        " (SGL names: try --map sgl, docs/trace-format.md)"
+    } else {
+        ""
+    }
 }
 
 impl ColumnMap {
@@ -24,6 +60,14 @@ impl ColumnMap {
             return Ok(map);
         }
         for (i, entry) in spec.split(',').enumerate() {
+            if let Some((_, _, pairs)) = PRESETS.iter().find(|p| p.0 == entry.trim()) {
+                for pair in pairs.split(',') {
+                    let (c, f) = pair.split_once('=').unwrap_or_default();
+                    map.optional
+                        .push((c.trim().to_string(), f.trim().to_string()));
+                }
+                continue;
+            }
             let err = |msg: String| TraceError::Map {
                 msg: format!(
                     "entry {} '{}': {msg} (expected canonical=file_column)",
@@ -32,7 +76,11 @@ impl ColumnMap {
                 ),
             };
             let Some((canon, file)) = entry.split_once('=') else {
-                return Err(err("missing '='".into()));
+                let names: Vec<&str> = PRESETS.iter().map(|p| p.0).collect();
+                return Err(err(format!(
+                    "missing '=' (and not a preset: {})",
+                    names.join(", ")
+                )));
             };
             let (canon, file) = (canon.trim(), file.trim());
             if canon.is_empty() {
@@ -71,7 +119,26 @@ impl ColumnMap {
     }
 
     pub fn is_empty(&self) -> bool {
-        self.pairs.is_empty()
+        self.pairs.is_empty() && self.optional.is_empty()
+    }
+
+    /// The explicit pairs plus the preset pairs that fit `header`: the file has the
+    /// preset's column, nothing explicit names the same canonical or file column, and
+    /// the file has no column of the canonical name already (`alt` beside `utm_z`).
+    fn resolve(&self, header: &[String]) -> ColumnMap {
+        let mut out = ColumnMap {
+            pairs: self.pairs.clone(),
+            optional: Vec::new(),
+        };
+        for (c, f) in &self.optional {
+            let taken = out.pairs.iter().any(|(c2, f2)| c2 == c || f2 == f);
+            let has_file = header.iter().any(|h| h == f);
+            let has_canon = header.iter().any(|h| h == c);
+            if !taken && has_file && !has_canon {
+                out.pairs.push((c.clone(), f.clone()));
+            }
+        }
+        out
     }
 
     /// The canonical name a file column gets (its own name when unmapped).
@@ -87,6 +154,9 @@ impl ColumnMap {
     /// canonical name collides with another, unmapped file column of that name (dropping
     /// either silently would lose data; map the other one elsewhere, e.g. `mag_orig=mag`).
     pub fn apply(&self, header: &[String]) -> Result<Vec<String>, TraceError> {
+        if !self.optional.is_empty() {
+            return self.resolve(header).apply(header);
+        }
         for (canon, file) in &self.pairs {
             if !header.iter().any(|h| h == file) {
                 return Err(TraceError::Map {
@@ -117,5 +187,39 @@ impl FromStr for ColumnMap {
     type Err = TraceError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         ColumnMap::parse(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn names(v: &[&str]) -> Vec<String> {
+        v.iter().map(|s| s.to_string()).collect()
+    }
+
+    #[test]
+    fn a_preset_maps_only_what_the_file_has_and_explicit_entries_win() {
+        let m = ColumnMap::parse("magnav,mag=mag_4_uc").unwrap();
+        // SGL 2020 HDF5: utm_z is the height, mag_4_uc replaces the preset's mag_1_uc.
+        let h = names(&[
+            "tt", "lat", "lon", "utm_z", "mag_1_uc", "mag_4_uc", "flux_a_x",
+        ]);
+        assert_eq!(
+            m.apply(&h).unwrap(),
+            names(&["t", "lat", "lon", "alt", "mag_1_uc", "mag", "flux_x"])
+        );
+        // An XYZ0 file has `alt` itself: utm_z stays a column of its own.
+        let h = names(&["tt", "alt", "utm_z", "mag_1_uc"]);
+        assert_eq!(
+            ColumnMap::parse("magnav").unwrap().apply(&h).unwrap(),
+            names(&["t", "alt", "utm_z", "mag"])
+        );
+    }
+
+    #[test]
+    fn an_unknown_preset_is_an_error_naming_the_presets() {
+        let e = ColumnMap::parse("magnv").unwrap_err().to_string();
+        assert!(e.contains("magnav") && e.contains("sgl"), "{e}");
     }
 }

@@ -1,9 +1,10 @@
 //! The recorded-trace data contract (`docs/trace-format.md`): one row per scalar
 //! sample, named columns, `#` metadata, missing values as NaN (never zero).
 //!
-//! Reading: [`read_trace`] / [`read_trace_from`] (CSV per the contract, or the
-//! whitespace-separated `.xyz` layout of public survey data), with a [`ColumnMap`] that
-//! renames file columns to canonical names. Writing: [`write_trace`] / [`write_trace_to`].
+//! Reading: [`read_trace`] / [`read_trace_from`] (CSV per the contract, the
+//! whitespace-separated `.xyz` layout of public survey data, or a MagNav HDF5 file), with
+//! a [`ColumnMap`] that renames file columns to canonical names. Writing: [`write_trace`]
+//! / [`write_trace_to`] (CSV), or Geosoft XYZ by the `.xyz` extension.
 //!
 //! Column typing rule (decided once per column, streaming):
 //! - `segment` is always text;
@@ -19,19 +20,23 @@
 //! Names are matched after applying the column map.
 
 mod error;
+mod h5;
 mod map;
 mod read;
 mod view;
 mod write;
+mod xyz_out;
 
 pub use error::TraceError;
-pub use map::ColumnMap;
+pub use h5::{has_hdf5_extension, is_hdf5, read_hdf5};
+pub use map::{preset_hint, ColumnMap, PRESETS};
 pub use read::{
     progress_bar, read_trace, read_trace_from, read_trace_from_with, read_trace_with, Layout,
     ReadOptions,
 };
 pub use view::{aux_column_candidate, column_kind, required_columns, ColumnKind};
 pub use write::{write_trace, write_trace_to};
+pub use xyz_out::{is_xyz_path, XyzWriter};
 
 /// A trace held column-wise in memory. Numeric columns are f64 with NaN for missing values;
 /// text columns (e.g. `segment`) are kept as strings.

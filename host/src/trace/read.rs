@@ -55,6 +55,10 @@ pub fn read_trace_with(
     mut opts: ReadOptions<'_>,
 ) -> Result<Trace, TraceError> {
     let name = path.display().to_string();
+    // HDF5 by extension or by signature (a `.dat` from h5py is still HDF5).
+    if super::h5::has_hdf5_extension(path) || super::h5::is_hdf5(path) {
+        return super::h5::read_hdf5(path, map, opts.check_time);
+    }
     let io = |source| TraceError::Io {
         file: name.clone(),
         source,
@@ -178,7 +182,7 @@ impl Col {
 /// Splits a CSV line into trimmed fields, calling `f(index, field)`; returns the count.
 /// Double-quoted fields (`"a,b"`, `""` for a quote) are accepted because spreadsheets
 /// write them; the fast path is taken when the line has no quote at all.
-fn csv_fields(
+pub(super) fn csv_fields(
     line: &str,
     scratch: &mut String,
     mut f: impl FnMut(usize, &str) -> Result<(), TraceError>,
@@ -421,6 +425,11 @@ fn read_impl<R: Read>(
             let text = String::from_utf8_lossy(raw);
             let body = text.trim_start().get(1..).unwrap_or("");
             if layout == Layout::Xyz {
+                // `/ key: value` (as our XYZ writer puts them) is metadata as well; the
+                // last comment is the header either way.
+                if let Some(kv) = parse_meta(body) {
+                    meta.push(kv);
+                }
                 xyz_names = Some((line_no, body.to_string()));
             } else if let Some(kv) = parse_meta(body) {
                 meta.push(kv);

@@ -6,10 +6,11 @@ use std::io::Write;
 use std::path::Path;
 
 /// Writes `trace` to a file, atomically ([`crate::output`]): on an error nothing
-/// (or the previous file) is left under `path`.
+/// (or the previous file) is left under `path`. A `.xyz` path gets Geosoft XYZ
+/// ([`super::XyzWriter`]), anything else CSV.
 pub fn write_trace(path: &Path, trace: &Trace) -> anyhow::Result<()> {
     let name = path.display().to_string();
-    crate::output::write_with(path, |w| {
+    crate::output::write_table(path, |w| {
         write_trace_to(w, trace).map_err(|e| rename_io(e, &name))?;
         Ok(())
     })
