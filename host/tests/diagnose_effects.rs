@@ -6,7 +6,8 @@
 //! Tests marked `#[ignore]` keep the full bar for effects that do not meet it; the reason,
 //! with the measured numbers, is in the attribute.
 
-use magcomp::diagnose::{diagnose, run_diagnose, DiagnoseArgs, DiagnoseOptions, Diagnosis};
+use magcomp::cli::diagnose::{run as run_diagnose, DiagnoseArgs};
+use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use magcomp::flight::Flight;
 use magcomp::metrics::error_rms_nt;
 use magcomp::model_spec::ModelSpec;
@@ -450,7 +451,7 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let csv = dir.join("pump.csv");
     magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
     let args = DiagnoseArgs {
-        input: magcomp::commands::TraceInput::new(csv.clone()),
+        input: magcomp::cli::args::TraceInput::new(csv.clone()),
         model: "tl16+field".into(),
         json: true,
         report: Some(dir.join("report")),
@@ -493,7 +494,7 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let e = format!(
         "{:#}",
         run_diagnose(&DiagnoseArgs {
-            input: magcomp::commands::TraceInput::new(dir.join("bad.csv")),
+            input: magcomp::cli::args::TraceInput::new(dir.join("bad.csv")),
             ..args
         })
         .unwrap_err()

@@ -1,8 +1,9 @@
 //! `magcomp report` on a flight with a hidden effect, before/after two models: the page is
 //! self-contained, holds every plot the issue asks for, and renders in headless Chromium
 //! (skipped with a message when Chromium is absent). Run in release.
+use magcomp::cli::report::{run as run_report, ReportArgs};
 use magcomp::model_spec::ModelSpec;
-use magcomp::report::flight_report::{build_report, run_report, write_report, ReportArgs};
+use magcomp::report::flight_report::{build_report, write_report};
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
 use magcomp::trace::write_trace;
 use std::path::{Path, PathBuf};
@@ -78,7 +79,7 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let csv = dir.join("flight.csv");
     write_trace(&csv, &trace()).expect("write");
     let args = ReportArgs {
-        input: magcomp::commands::TraceInput::new(csv.clone()),
+        input: magcomp::cli::args::TraceInput::new(csv.clone()),
         model: vec!["tl16+field".into()],
         out: dir.join("out"),
     };
@@ -91,7 +92,7 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let e = format!("{:#}", run_report(&bad).unwrap_err());
     assert!(e.contains("wobble"), "{e}");
     let missing = ReportArgs {
-        input: magcomp::commands::TraceInput::new(dir.join("nope.csv")),
+        input: magcomp::cli::args::TraceInput::new(dir.join("nope.csv")),
         ..args
     };
     let e = format!("{:#}", run_report(&missing).unwrap_err());

@@ -26,7 +26,6 @@
 //! tested), which keeps 20 min at 1 kHz at ~1.5 s in release builds.
 
 pub mod anomaly;
-pub mod cli;
 pub mod flight;
 pub mod geo;
 pub mod hidden;
@@ -34,7 +33,6 @@ pub mod physics;
 pub mod signals;
 
 pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
-pub use cli::SimulateArgs;
 pub use flight::{KinState, Plan};
 pub use geo::{EarthField, LocalFrame};
 pub use hidden::{parse_hidden, HiddenEffect, HiddenKind};

@@ -1,16 +1,17 @@
-//! The `magcomp diagnose` command line.
+//! `magcomp diagnose`: compare the model with the measurements, find where it fails and
+//! which physical effect is missing (`crate::diagnose`), optionally with the report page.
 
-use super::{candidates, diagnose, DiagnoseOptions};
+use super::args::TraceInput;
+use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions};
 use crate::model_spec::ModelSpec;
-use crate::trace::{read_trace, ColumnMap, Trace};
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use std::path::PathBuf;
 
 /// `magcomp diagnose`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DiagnoseArgs {
     #[command(flatten)]
-    pub input: crate::commands::TraceInput,
+    pub input: TraceInput,
     /// Model spec, e.g. `tl16+field+current:cur_pump`.
     #[arg(long, default_value = crate::model_spec::DEFAULT_MODEL)]
     pub model: String,
@@ -38,20 +39,11 @@ pub struct DiagnoseArgs {
     #[arg(long)]
     pub iterate: bool,
     /// With `--iterate`: the most terms to add.
-    #[arg(long, default_value_t = super::iterate::DEFAULT_MAX_STEPS, value_name = "N")]
+    #[arg(long, default_value_t = iterate::DEFAULT_MAX_STEPS, value_name = "N")]
     pub max_steps: usize,
 }
 
-/// Reads a trace with an optional column map, naming the file in errors.
-pub fn load_trace(path: &std::path::Path, map: Option<&str>) -> Result<Trace> {
-    let map = match map {
-        Some(m) => ColumnMap::parse(m).with_context(|| format!("bad --map '{m}'"))?,
-        None => ColumnMap::new(),
-    };
-    read_trace(path, &map).with_context(|| format!("cannot read trace {}", path.display()))
-}
-
-pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
+pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if !(args.alpha > 0.0 && args.alpha < 1.0) {
         bail!("--alpha must be in (0, 1), got {}", args.alpha);
     }
@@ -84,7 +76,7 @@ pub fn run_diagnose(args: &DiagnoseArgs) -> Result<()> {
         ..Default::default()
     };
     if args.iterate {
-        let it = super::iterate::iterate(&trace, &model, &opts, args.max_steps)?;
+        let it = iterate::iterate(&trace, &model, &opts, args.max_steps)?;
         if let Some(dir) = &args.report {
             let path = crate::report::flight_report::write_report(
                 &trace,
