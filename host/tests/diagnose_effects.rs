@@ -450,33 +450,32 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     std::fs::create_dir_all(&dir).expect("dir");
     let csv = dir.join("pump.csv");
     magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
-    let args = DiagnoseArgs {
-        input: magcomp::cli::args::TraceInput::new(csv.clone()),
-        model: "tl16+field".into(),
+    let mut args = DiagnoseArgs {
         json: true,
         report: Some(dir.join("report")),
-        aux: None,
-        alpha: 0.01,
         min_explained: 0.02,
-        iterate: false,
         max_steps: 5,
+        ..DiagnoseArgs::new(csv.clone())
     };
+    args.est.model = Some("tl16+field".into());
     run_diagnose(&args).expect("diagnose");
     assert!(dir.join("report/index.html").exists());
     let e = format!(
         "{:#}",
-        run_diagnose(&DiagnoseArgs {
-            model: "tl16+bogus".into(),
-            ..args.clone()
+        run_diagnose(&{
+            let mut a = args.clone();
+            a.est.model = Some("tl16+bogus".into());
+            a
         })
         .unwrap_err()
     );
     assert!(e.contains("bogus"), "{e}");
     let e = format!(
         "{:#}",
-        run_diagnose(&DiagnoseArgs {
-            model: "tl16+field+current:cur_nope".into(),
-            ..args.clone()
+        run_diagnose(&{
+            let mut a = args.clone();
+            a.est.model = Some("tl16+field+current:cur_nope".into());
+            a
         })
         .unwrap_err()
     );

@@ -79,12 +79,17 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let csv = dir.join("flight.csv");
     write_trace(&csv, &trace()).expect("write");
     let args = ReportArgs {
-        input: magcomp::cli::args::TraceInput::new(csv.clone()),
         model: vec!["tl16+field".into()],
-        out: dir.join("out"),
+        ..ReportArgs::new(csv.clone(), dir.join("out"))
     };
     run_report(&args).expect("report");
-    assert!(dir.join("out/index.html").exists());
+    let html = std::fs::read_to_string(dir.join("out/index.html")).expect("page");
+    assert!(html.contains("data-plot=\"overlay-0-0\""), "no overlay");
+    // No --model: the default model's page.
+    let default = ReportArgs::new(csv.clone(), dir.join("default"));
+    run_report(&default).expect("report, default model");
+    let html = std::fs::read_to_string(dir.join("default/index.html")).expect("page");
+    assert!(html.contains(&format!("Model {}", magcomp::model_spec::DEFAULT_MODEL)));
     let bad = ReportArgs {
         model: vec!["tl16+wobble".into()],
         ..args.clone()

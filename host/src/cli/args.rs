@@ -4,7 +4,8 @@
 use crate::coefficients::{
     read_coefficients, refuse_conflicting_settings, CoefficientFile, Method,
 };
-use crate::compensation::EstimatorSettings;
+use crate::compensation::{compensate_trace, summarise, Compensation, EstimatorSettings, Summary};
+use crate::flight::Flight;
 use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
 use anyhow::{Context, Result};
 use clap::builder::PossibleValue;
@@ -88,7 +89,7 @@ impl TraceInput {
 }
 
 /// Estimator settings shared by calibrate, compensate, report and diagnose.
-#[derive(clap::Args, Clone, Debug)]
+#[derive(clap::Args, Clone, Debug, Default)]
 pub struct EstimatorArgs {
     /// Model: `+`-joined terms, e.g. `tl16+field` (the paper's), `tl16+field+current:cur_pump`.
     /// Terms: tl16 (= permanent+induced+eddy), field, current:CH, current_rate:CH, lag, rate,
@@ -100,6 +101,14 @@ pub struct EstimatorArgs {
     /// Default: kf; with --coeffs, the file's.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
+    #[command(flatten)]
+    pub tuning: TuningArgs,
+}
+
+/// The estimator's tuning, shared by every command that estimates (`report` has its own
+/// `--model`, given several times to compare models).
+#[derive(clap::Args, Clone, Debug)]
+pub struct TuningArgs {
     /// Field-model roughness σ1 (nT/m^2.5), the same along the whole track (the paper's
     /// stationary anomaly). Default: fitted to the along-track spectrum, and, post-flight,
     /// the anomaly process whose σ1 follows the local roughness of the anomaly (or the
@@ -123,18 +132,58 @@ pub struct EstimatorArgs {
     pub speed_mps: Option<f64>,
 }
 
+impl Default for TuningArgs {
+    /// As the command line's defaults.
+    fn default() -> Self {
+        Self {
+            sigma1: None,
+            noise_nt: None,
+            tl_terms: EstimatorSettings::default().tl_terms,
+            tl_ridge: None,
+            speed_mps: None,
+        }
+    }
+}
+
+/// One compensation of a flight as `report`/`diagnose --coeffs|--method` evaluate it.
+pub struct Evaluated {
+    pub flight: Flight,
+    pub comp: Compensation,
+    pub summary: Summary,
+    /// Where the coefficients came from, for the reader.
+    pub source: String,
+}
+
 impl EstimatorArgs {
+    /// Compensates `trace` as `compensate` would (post-flight): with the coefficient file
+    /// when given (its plausibility checked, `qc::applied`), else calibrating on the trace.
+    pub fn evaluate(&self, trace: &Trace, coeffs: Option<&Path>) -> Result<Evaluated> {
+        let file = self.coefficients(coeffs)?;
+        let (flight, comp) = compensate_trace(trace, &self.settings(), file.as_ref(), false)?;
+        let summary = summarise(&flight, &comp);
+        let source = match coeffs {
+            Some(p) => format!("coefficients from {}", p.display()),
+            None => "calibrated on this flight".into(),
+        };
+        Ok(Evaluated {
+            flight,
+            comp,
+            summary,
+            source,
+        })
+    }
+
     /// The settings, defaults filled in.
     pub fn settings(&self) -> EstimatorSettings {
         let d = EstimatorSettings::default();
         EstimatorSettings {
             model: self.model.clone().unwrap_or(d.model),
             method: self.method.unwrap_or(d.method),
-            sigma1: self.sigma1,
-            noise_nt: self.noise_nt,
-            tl_terms: self.tl_terms.clone(),
-            tl_ridge: self.tl_ridge,
-            speed_mps: self.speed_mps,
+            sigma1: self.tuning.sigma1,
+            noise_nt: self.tuning.noise_nt,
+            tl_terms: self.tuning.tl_terms.clone(),
+            tl_ridge: self.tuning.tl_ridge,
+            speed_mps: self.tuning.speed_mps,
         }
     }
 

@@ -1,20 +1,30 @@
 //! `magcomp diagnose`: compare the model with the measurements, find where it fails and
 //! which physical effect is missing (`crate::diagnose`), optionally with the report page.
+//! With `--coeffs FILE` or `--method`, also the figures and warnings of that compensation
+//! on this flight (an applied calibration checked, not re-fitted).
 
-use super::args::TraceInput;
-use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions};
-use crate::model_spec::ModelSpec;
-use anyhow::{bail, Result};
-use std::path::PathBuf;
+use super::args::{EstimatorArgs, Evaluated, TraceInput};
+use crate::coefficients::Method;
+use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions, Diagnosis};
+use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
+use crate::report::calibration::{self, Evaluation};
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
 
 /// `magcomp diagnose`.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DiagnoseArgs {
     #[command(flatten)]
     pub input: TraceInput,
-    /// Model spec, e.g. `tl16+field+current:cur_pump`.
-    #[arg(long, default_value = crate::model_spec::DEFAULT_MODEL)]
-    pub model: String,
+    /// --model (the model diagnosed), --method and the tuning: with --method or
+    /// --coeffs, the compensation whose figures and warnings are shown beside the diagnosis.
+    #[command(flatten)]
+    pub est: EstimatorArgs,
+    /// Check an applied calibration: these coefficients (from `calibrate`) on this flight,
+    /// not re-fitted (figures and plausibility warnings; `warnings` and `applied` in
+    /// --json). The file decides the method and, for the Kalman filter, the model diagnosed.
+    #[arg(long, value_name = "COEFFS.json")]
+    pub coeffs: Option<PathBuf>,
     /// Print exactly one JSON object on stdout instead of the table.
     #[arg(long)]
     pub json: bool,
@@ -43,6 +53,24 @@ pub struct DiagnoseArgs {
     pub max_steps: usize,
 }
 
+impl DiagnoseArgs {
+    /// The trace and the default settings, for code that builds one by hand.
+    pub fn new(trace: impl Into<PathBuf>) -> Self {
+        DiagnoseArgs {
+            input: TraceInput::new(trace),
+            est: EstimatorArgs::default(),
+            coeffs: None,
+            json: false,
+            report: None,
+            aux: None,
+            alpha: 0.01,
+            min_explained: 0.15,
+            iterate: false,
+            max_steps: iterate::DEFAULT_MAX_STEPS,
+        }
+    }
+}
+
 pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if !(args.alpha > 0.0 && args.alpha < 1.0) {
         bail!("--alpha must be in (0, 1), got {}", args.alpha);
@@ -53,14 +81,35 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             args.min_explained
         );
     }
+    let evaluates = args.coeffs.is_some() || args.est.method.is_some();
+    if args.iterate && evaluates {
+        bail!("--iterate adds terms and re-fits the model: it cannot check one compensation (--coeffs, --method); run them separately");
+    }
+    let inputs: Vec<&Path> = std::iter::once(args.input.trace.as_path())
+        .chain(args.coeffs.as_deref())
+        .collect();
     if let Some(dir) = &args.report {
         crate::output::refuse_overwriting(
-            &[&args.input.trace],
+            &inputs,
             &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
         )?;
     }
     let trace = args.input.read()?;
-    let model = ModelSpec::parse(&args.model)?;
+    // The compensation checked first: a bad --coeffs fails before the long diagnosis.
+    let evaluated = if evaluates {
+        Some(args.est.evaluate(&trace, args.coeffs.as_deref())?)
+    } else {
+        None
+    };
+    // The model diagnosed: the coefficient file's (Kalman filter), else --model.
+    let model_text = match evaluated
+        .as_ref()
+        .and_then(|e| e.comp.coefficients.as_ref())
+    {
+        Some(c) if c.method == Method::Kf => c.model.clone(),
+        _ => args.est.model.clone().unwrap_or(DEFAULT_MODEL.into()),
+    };
+    let model = ModelSpec::parse(&model_text)?;
     let aux = args
         .aux
         .as_deref()
@@ -97,20 +146,73 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     }
     let d = diagnose(&trace, &model, &opts)?;
     if let Some(dir) = &args.report {
-        let path = crate::report::flight_report::write_report(
-            &trace,
-            std::slice::from_ref(&model),
-            Some(&d),
-            dir,
-        )?;
+        let path = match &evaluated {
+            Some(ev) => write_evaluation(&trace, ev, dir)?,
+            None => crate::report::flight_report::write_report(
+                &trace,
+                std::slice::from_ref(&model),
+                Some(&d),
+                dir,
+            )?,
+        };
         if !args.json {
             println!("report written to {}", path.display());
         }
     }
     if args.json {
-        println!("{}", d.to_json());
+        println!("{}", json(&d, evaluated.as_ref())?);
     } else {
         print!("{}", d.table());
+        if let Some(ev) = &evaluated {
+            println!("compensation checked ({}):", ev.source);
+            super::compensate::print_summary(&ev.summary);
+        }
+    }
+    if let Some(ev) = &evaluated {
+        super::compensate::print_warnings(&ev.summary);
     }
     Ok(())
+}
+
+/// The diagnosis as JSON with `warnings` (the compensation's when one is checked, else
+/// the filter's) and, when one is checked, `applied` (its summary, as `compensate --json`).
+fn json(d: &Diagnosis, evaluated: Option<&Evaluated>) -> Result<String> {
+    let mut v = serde_json::to_value(d)?;
+    let warnings = match evaluated {
+        Some(ev) => ev.summary.warnings.clone(),
+        None => d.run.warnings.clone(),
+    };
+    if let Some(obj) = v.as_object_mut() {
+        obj.insert("warnings".into(), serde_json::to_value(warnings)?);
+        if let Some(ev) = evaluated {
+            let mut applied = serde_json::to_value(&ev.summary)?;
+            if let Some(a) = applied.as_object_mut() {
+                a.insert("source".into(), ev.source.clone().into());
+            }
+            obj.insert("applied".into(), applied);
+        }
+    }
+    Ok(serde_json::to_string_pretty(&v)?)
+}
+
+/// The page of the checked compensation (`report --coeffs`'s).
+pub(super) fn write_evaluation(
+    trace: &crate::trace::Trace,
+    ev: &Evaluated,
+    dir: &Path,
+) -> Result<PathBuf> {
+    let page = calibration::build(
+        trace,
+        &Evaluation {
+            flight: &ev.flight,
+            comp: &ev.comp,
+            summary: &ev.summary,
+            source: ev.source.clone(),
+        },
+    );
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create report directory {}", dir.display()))?;
+    let path = dir.join(crate::report::flight_report::REPORT_PAGE);
+    page.write(&path)?;
+    Ok(path)
 }

@@ -123,6 +123,17 @@ pub fn build_report(
         for s in model_sections(&flight, r, i) {
             page = page.section(s);
         }
+        page = page.section(super::calibration::overlay_section(
+            trace,
+            &flight,
+            &r.diag.run.compensated_nt,
+            &r.diag.run.interference_nt,
+            &format!("overlay-{i}"),
+            &format!(
+                "Model {}: uncompensated, compensated and interference",
+                r.spec.text()
+            ),
+        ));
     }
     Ok(page)
 }
