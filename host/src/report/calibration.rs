@@ -73,6 +73,18 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
         page = page.section(fom_section(t));
     }
     if let Some(c) = &ev.comp.coefficients {
+        let labels: Vec<String> = c
+            .coefficients
+            .iter()
+            .map(|c| format!("{} ({})", c.name, c.unit))
+            .collect();
+        let lrefs: Vec<&str> = labels.iter().map(String::as_str).collect();
+        let values: Vec<f64> = c.coefficients.iter().map(|c| c.value).collect();
+        let sigmas: Vec<f64> = c.coefficients.iter().map(|c| c.sigma).collect();
+        let plot = Plot::new("coefficients", "Coefficients ±1σ")
+            .y_label("value (unit in label)")
+            .bars(&lrefs, &values, Some(&sigmas))
+            .bar_color(PALETTE[4]);
         let rows: Vec<Vec<String>> = c
             .coefficients
             .iter()
@@ -85,7 +97,9 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
             })
             .collect();
         page = page.section(
-            Section::new("Coefficients").table(&["coefficient", "value ± 1σ", "unit"], &rows),
+            Section::new("Coefficients")
+                .plot_sized(plot, 960, 360)
+                .table(&["coefficient", "value ± 1σ", "unit"], &rows),
         );
     }
     page
@@ -263,7 +277,26 @@ pub fn fom_section(t: &FomTable) -> Section {
             fmt_opt(r.aircraft_sum_nt, 3),
         ]);
     }
+    let labels: Vec<String> = t
+        .rows
+        .iter()
+        .flat_map(|r| {
+            r.cells
+                .iter()
+                .map(move |c| format!("{} {}", r.heading, c.kind))
+        })
+        .collect();
+    let lrefs: Vec<&str> = labels.iter().map(String::as_str).collect();
+    let comp: Vec<f64> = t
+        .rows
+        .iter()
+        .flat_map(|r| r.cells.iter().map(|c| c.compensated_nt))
+        .collect();
+    let bars = Plot::new("fom", "Compensated peak-to-peak per manoeuvre")
+        .y_label("peak-to-peak (nT)")
+        .bars(&lrefs, &comp, None);
     Section::new("Figure of merit per heading and manoeuvre")
+        .plot_sized(bars, 960, 300)
         .paragraph(&format!(
             "{} manoeuvres ({}; headings from {}, manoeuvres from {}). Peak-to-peak in the \
              manoeuvre band. Uncompensated {:.3} nT, FOM {:.3} nT, IR {:.2}{}.",
