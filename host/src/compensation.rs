@@ -397,6 +397,30 @@ fn run_method(
     }
 }
 
+/// `trace` with the compensation applied: its scalar replaced by the compensated one (and
+/// the simulator's truth interference by what the compensation left of it), so that a
+/// diagnosis of it under a model without deviation terms studies the calibration as
+/// applied, not re-fitted.
+pub fn compensated_trace(trace: &Trace, flight: &Flight, comp: &Compensation) -> Result<Trace> {
+    let n = trace.len();
+    ensure!(
+        flight.len() == n && comp.compensated_nt.len() == n,
+        "internal: {} compensated samples for {n} rows",
+        comp.compensated_nt.len()
+    );
+    let mut out = trace.clone();
+    out.set_col("mag", comp.compensated_nt.clone());
+    if let Some(t) = trace.col("truth_interference") {
+        let left = t
+            .iter()
+            .zip(&comp.interference_nt)
+            .map(|(t, i)| t - i)
+            .collect();
+        out.set_col("truth_interference", left);
+    }
+    Ok(out)
+}
+
 /// FOM, IR, residual, and error/oracle against truth when the trace has it.
 pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
     let residual = crate::metrics::band_rms_nt(flight, &comp.compensated_nt);

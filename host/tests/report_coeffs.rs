@@ -190,6 +190,40 @@ fn report_and_diagnose_check_an_applied_calibration() {
     );
     let applied_err = v["applied"]["error_rms_nt"].as_f64().expect("applied");
     assert!((applied_err - other_err).abs() < 1e-6);
+    // What the foreign coefficients leave is aircraft interference: a deviation term
+    // explains it. What the aircraft's own leave, nothing does.
+    let best = &v["candidates"][0];
+    println!(
+        "diagnose --coeffs other: best candidate {} explains {:.3}",
+        best["term"], best["explained_fraction"]
+    );
+    assert_eq!(best["significant"], true, "{best}");
+    let term = best["term"].as_str().expect("term");
+    assert!(
+        ["permanent", "induced", "induced_high", "eddy"].contains(&term),
+        "{term}"
+    );
+    let json = run_ok(
+        bin()
+            .arg("diagnose")
+            .arg(&both)
+            .args(["--time", &survey_time, "--coeffs"])
+            .arg(&own)
+            .arg("--json"),
+    );
+    let v: serde_json::Value = serde_json::from_str(&json).expect("diagnose json");
+    let significant: Vec<&serde_json::Value> = v["candidates"]
+        .as_array()
+        .expect("candidates")
+        .iter()
+        .filter(|c| c["significant"] == true)
+        .collect();
+    assert!(significant.is_empty(), "own coefficients: {significant:?}");
+    assert!(v["warnings"]
+        .as_array()
+        .expect("warnings")
+        .iter()
+        .all(|w| !w.as_str().unwrap_or("").contains(FOREIGN)));
 
     // The file decides the method and the model: saying otherwise is an error.
     let e = run_err(

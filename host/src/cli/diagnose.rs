@@ -4,7 +4,7 @@
 //! on this flight (an applied calibration checked, not re-fitted).
 
 use super::args::{EstimatorArgs, Evaluated, TraceInput};
-use crate::coefficients::Method;
+use crate::compensation::compensated_trace;
 use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions, Diagnosis};
 use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
 use crate::report::calibration::{self, Evaluation};
@@ -101,15 +101,18 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     } else {
         None
     };
-    // The model diagnosed: the coefficient file's (Kalman filter), else --model.
-    let model_text = match evaluated
-        .as_ref()
-        .and_then(|e| e.comp.coefficients.as_ref())
-    {
-        Some(c) if c.method == Method::Kf => c.model.clone(),
-        _ => args.est.model.clone().unwrap_or(DEFAULT_MODEL.into()),
+    // With a compensation checked, what it left is diagnosed under the anomaly model
+    // alone: its coefficients stay as given, and a deviation term that explains the
+    // residual (`induced`, `eddy`, …) says what they do not fit.
+    let residual = match &evaluated {
+        Some(ev) => Some(compensated_trace(&trace, &ev.flight, &ev.comp)?),
+        None => None,
     };
-    let model = ModelSpec::parse(&model_text)?;
+    let model = match &residual {
+        Some(_) => ModelSpec::parse("field")?,
+        None => ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?,
+    };
+    let diagnosed = residual.as_ref().unwrap_or(&trace);
     let aux = args
         .aux
         .as_deref()
@@ -144,7 +147,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
         return Ok(());
     }
-    let d = diagnose(&trace, &model, &opts)?;
+    let d = diagnose(diagnosed, &model, &opts)?;
     if let Some(dir) = &args.report {
         let path = match &evaluated {
             Some(ev) => write_evaluation(&trace, ev, dir)?,
@@ -162,7 +165,10 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     if args.json {
         println!("{}", json(&d, evaluated.as_ref())?);
     } else {
-        print!("{}", d.table());
+        match &evaluated {
+            Some(_) => print!("{}", applied_table(&d)),
+            None => print!("{}", d.table()),
+        }
         if let Some(ev) = &evaluated {
             println!("compensation checked ({}):", ev.source);
             super::compensate::print_summary(&ev.summary);
@@ -172,6 +178,29 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         super::compensate::print_warnings(&ev.summary);
     }
     Ok(())
+}
+
+/// The table of a checked compensation's residual: a significant term is interference the
+/// coefficients leave, not a term to add to the anomaly-only model diagnosed.
+fn applied_table(d: &Diagnosis) -> String {
+    let mut out = String::new();
+    for line in d.table().lines() {
+        if line.starts_with("suggestion:") {
+            if let Some(c) = d.candidates.iter().find(|c| c.significant) {
+                out.push_str(&format!(
+                    "the applied coefficients leave interference that `{}` explains ({:.0} % of what they left): they do not fit this flight; calibrate on this aircraft\n",
+                    c.term,
+                    100.0 * c.explained_fraction
+                ));
+            }
+        } else if line.starts_with("no candidate is significant") {
+            out.push_str("no candidate is significant: the applied coefficients leave no interference a term explains\n");
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
 }
 
 /// The diagnosis as JSON with `warnings` (the compensation's when one is checked, else
