@@ -31,7 +31,7 @@ use magcomp_core::MagCounts;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 const KNOT_MPS: f64 = 1852.0 / 3600.0;
 /// ADS131M03 status word with all three DRDY bits set.
@@ -39,7 +39,7 @@ const SPI_STATUS: u16 = 0x0007;
 /// Delay of the first GPS byte after its epoch (µs).
 const GPS_DELAY_US: u64 = 100;
 
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum FluxFormat {
     /// Serial ASCII lines `X,Y,Z*hh`.
     #[default]
@@ -435,52 +435,6 @@ pub fn write_capture<W: Write>(
     Ok(summary)
 }
 
-fn window(v: &Option<Vec<f64>>, what: &str) -> Result<Option<(f64, f64)>> {
-    match v.as_deref() {
-        None => Ok(None),
-        Some([a, b]) => Ok(Some((*a, *b))),
-        Some(other) => bail!("{what} needs START:END in seconds, got {other:?}"),
-    }
-}
-
-/// Flags for `magcomp simulate --capture FILE` (flattened into `SimulateArgs` or the
-/// simulate subcommand by the CLI).
-#[derive(clap::Args, Clone, Debug, Default)]
-pub struct CaptureArgs {
-    /// Also write the flight as a raw sensor capture (`docs/protocols.md` §7): scalar
-    /// lines, fluxgate frames and GPS NMEA as the sensors would send them.
-    #[arg(long, value_name = "FILE")]
-    pub capture: Option<PathBuf>,
-
-    /// Fluxgate format in the capture: serial ASCII lines or ADS131M03 SPI frames.
-    #[arg(long, value_enum, default_value = "ascii", value_name = "FORMAT")]
-    pub capture_flux: FluxFormat,
-
-    /// GPS epoch rate in the capture (Hz): GGA + RMC + VTG per epoch.
-    #[arg(long, default_value_t = 5.0, value_name = "HZ")]
-    pub capture_gps_hz: f64,
-
-    /// UTC time of day at the start of the flight, `HH:MM:SS` (the GPS sentences' time).
-    #[arg(long, default_value = "12:00:00", value_name = "HH:MM:SS")]
-    pub capture_start: String,
-
-    /// Fluxgate dropout: no fluxgate frames in `START:END` (s from the start).
-    #[arg(long, value_delimiter = ':', num_args = 1, value_name = "START:END")]
-    pub capture_flux_dropout: Option<Vec<f64>>,
-
-    /// GPS outage: the receiver reports no fix in `START:END` (s from the start).
-    #[arg(long, value_delimiter = ':', num_args = 1, value_name = "START:END")]
-    pub capture_gps_outage: Option<Vec<f64>>,
-
-    /// Fraction of bytes corrupted at random on every port (e.g. 0.01); line ends kept.
-    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
-    pub capture_corrupt: f64,
-
-    /// Seed of the corruption.
-    #[arg(long, default_value_t = 1)]
-    pub capture_seed: u64,
-}
-
 /// `HH:MM:SS[.s]` → seconds of day.
 pub fn parse_time_of_day(s: &str) -> Result<f64> {
     let p: Vec<&str> = s.trim().split(':').collect();
@@ -493,31 +447,6 @@ pub fn parse_time_of_day(s: &str) -> Result<f64> {
     let sec: f64 = p[2].parse().map_err(|_| bad())?;
     ensure!(h < 24 && m < 60 && (0.0..60.0).contains(&sec), bad());
     Ok(f64::from(h * 3600 + m * 60) + sec)
-}
-
-impl CaptureArgs {
-    pub fn to_options(&self) -> Result<CaptureOptions> {
-        let o = CaptureOptions {
-            flux_format: self.capture_flux,
-            gps_rate_hz: self.capture_gps_hz,
-            start_tod_s: parse_time_of_day(&self.capture_start)?,
-            flux_dropout_s: window(&self.capture_flux_dropout, "--capture-flux-dropout")?,
-            gps_outage_s: window(&self.capture_gps_outage, "--capture-gps-outage")?,
-            corrupt_fraction: self.capture_corrupt,
-            seed: self.capture_seed,
-            ..CaptureOptions::default()
-        };
-        o.validate()?;
-        Ok(o)
-    }
-
-    /// Writes the capture when `--capture` was given; returns what was written.
-    pub fn write_if_requested(&self, trace: &Trace) -> Result<Option<CaptureSummary>> {
-        let Some(path) = &self.capture else {
-            return Ok(None);
-        };
-        write_capture_file(trace, &self.to_options()?, path).map(Some)
-    }
 }
 
 #[cfg(test)]

@@ -191,14 +191,6 @@ impl Flight {
         }
     }
 
-    /// The same flight with its fluxgate corrected by a scalar calibration (`fluxcal`).
-    pub fn with_fluxgate_calibration(&self, cal: &crate::fluxgate::FluxgateCalibration) -> Self {
-        let mut f = self.clone();
-        for s in &mut f.samples {
-            s.flux_nt = cal.apply(s.flux_nt.map(f64::from)).map(|v| v as f32);
-        }
-        f
-    }
     pub fn is_empty(&self) -> bool {
         self.samples.is_empty()
     }

@@ -241,6 +241,15 @@ pub fn fit_flight(flight: &Flight, interference_nt: &[f64]) -> Result<FluxgateFi
     fit_modulus(&flight_flux(flight), &reference)
 }
 
+/// The same flight with its fluxgate corrected by a scalar calibration (`fluxcal`).
+pub fn calibrated_flight(flight: &Flight, cal: &FluxgateCalibration) -> Flight {
+    let mut f = flight.clone();
+    for s in &mut f.samples {
+        s.flux_nt = cal.apply(s.flux_nt.map(f64::from)).map(|v| v as f32);
+    }
+    f
+}
+
 /// The flight's fluxgate vectors in f64.
 pub fn flight_flux(flight: &Flight) -> Vec<[f64; 3]> {
     flight

@@ -2,9 +2,10 @@
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
 pub mod capture_sim;
-pub mod commands;
+pub mod cli;
+pub mod coefficients;
+pub mod compensation;
 pub mod crossover;
-pub mod demo;
 pub mod despike;
 pub mod diagnose;
 pub mod excitation;

@@ -18,8 +18,7 @@ use magcomp_core::protocol::record::{decode_record, Record, RecordError};
 use magcomp_core::Flags;
 use std::collections::VecDeque;
 use std::fmt::Write as _;
-use std::io::{IsTerminal, Read, Write};
-use std::path::PathBuf;
+use std::io::{Read, Write};
 use std::time::{Duration, Instant};
 
 /// Lines longer than this are not records (`MAX_RECORD_LEN` is 192): counted, skipped.
@@ -30,31 +29,6 @@ pub const MAX_GAPS: usize = 1000;
 pub const MAX_GAP: u32 = 1_000_000;
 /// Records used for the rate estimate.
 const RATE_WINDOW: usize = 100;
-
-/// Decode and show the compensator's output stream live (values, flags, rates, errors).
-#[derive(clap::Args, Clone, Debug)]
-pub struct MonitorArgs {
-    /// Serial device (configure it with `stty`), a recorded file, or `-` for stdin.
-    #[arg(value_name = "PORT_OR_FILE")]
-    pub input: String,
-
-    /// Save the decoded records as a trace-like CSV
-    /// (t,mag,interference,compensated,anomaly,innovation,flags,seq).
-    #[arg(short = 'o', long, visible_alias = "out", value_name = "TRACE.csv")]
-    pub save: Option<PathBuf>,
-
-    /// Refresh period on a terminal (wall-clock s); summary period otherwise (record s).
-    #[arg(long, default_value_t = 1.0, value_name = "S")]
-    pub interval_s: f64,
-
-    /// No live output: only the final summary.
-    #[arg(long)]
-    pub quiet: bool,
-
-    /// Keep reading at the end of a file that a logger is still writing (stop with Ctrl-C).
-    #[arg(long)]
-    pub follow: bool,
-}
 
 /// Flag bits as words, in bit order.
 pub const FLAG_NAMES: [&str; 12] = [
@@ -631,53 +605,6 @@ fn draw<W: Write>(out: &mut W, m: &Monitor, source: &str) -> Result<()> {
     out.write_all(s.as_bytes())?;
     out.flush()?;
     Ok(())
-}
-
-pub fn run_monitor(args: &MonitorArgs) -> Result<MonitorStats> {
-    anyhow::ensure!(
-        args.interval_s.is_finite() && args.interval_s > 0.0,
-        "--interval-s must be > 0"
-    );
-    let stdout = std::io::stdout();
-    let display = if args.quiet {
-        Display::Quiet
-    } else if stdout.is_terminal() {
-        Display::Live(Duration::from_secs_f64(args.interval_s))
-    } else {
-        Display::Summary(args.interval_s)
-    };
-    if let Some(p) = &args.save {
-        let input = std::path::Path::new(&args.input);
-        let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
-        crate::output::refuse_overwriting(inputs, &[p])?;
-    }
-    let mut save_file = match &args.save {
-        Some(p) => Some(std::io::BufWriter::new(
-            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
-        )),
-        None => None,
-    };
-    let save: Option<&mut dyn Write> = save_file.as_mut().map(|w| w as &mut dyn Write);
-    let mut out = stdout.lock();
-    let stats = if args.input == "-" {
-        monitor_stream(
-            std::io::stdin().lock(),
-            "stdin",
-            display,
-            args.follow,
-            &mut out,
-            save,
-        )?
-    } else {
-        let f =
-            std::fs::File::open(&args.input).with_context(|| format!("opening {}", args.input))?;
-        monitor_stream(f, &args.input, display, args.follow, &mut out, save)?
-    };
-    if let (Some(w), Some(p)) = (save_file.as_mut(), &args.save) {
-        w.flush()
-            .with_context(|| format!("writing {}", p.display()))?;
-    }
-    Ok(stats)
 }
 
 #[cfg(test)]

@@ -739,7 +739,7 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             }
         }
     };
-    let mut run = run_kf_on(&flight.with_fluxgate_calibration(&calibration), opts)?;
+    let mut run = run_kf_on(&fluxgate::calibrated_flight(flight, &calibration), opts)?;
     run.fluxgate_calibration = Some(calibration);
     run.fluxgate_fit = fit;
     Ok(run)

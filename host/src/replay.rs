@@ -9,17 +9,16 @@
 //! `# scalar_hz:` / `# flux_hz:` / `# gps_hz:` comments, else the board's 10/10/1 Hz.
 
 use crate::capture_sim::FluxFormat;
-use crate::model_spec::{with_model, ModelSpec, BOARD_MODEL};
-use crate::output::AtomicFile;
+use crate::model_spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::FluxCalibration;
-use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
+use magcomp_core::protocol::record::Record;
 use magcomp_core::{Compensator, Flags, MagCounts};
 use std::fmt;
-use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+use std::io::BufRead;
+use std::path::Path;
 
 /// State capacity of the host replay (any model the host can build).
 pub const REPLAY_STATES: usize = 64;
@@ -30,55 +29,6 @@ pub const BOARD_RATES_HZ: (f64, f64, f64) = (10.0, 10.0, 1.0);
 
 /// Columns of the records CSV.
 pub const CSV_HEADER: &str = "seq,t,mag,interference,compensated,anomaly,innovation,flags";
-
-/// Replay a raw sensor capture through the board's acquisition code (parsers, aligner,
-/// time base, compensator) and write the output records.
-#[derive(clap::Args, Clone, Debug)]
-pub struct ReplayArgs {
-    /// Capture file (`# magcomp-capture v1`, e.g. from `magcomp simulate --capture`).
-    #[arg(value_name = "CAPTURE")]
-    pub capture: PathBuf,
-
-    /// Model spec (terms joined by `+`). Channel terms see no channels in a capture and
-    /// are flagged AUX_MISSING.
-    #[arg(long, default_value = BOARD_MODEL, value_name = "SPEC")]
-    pub model: String,
-
-    /// Apply these coefficients (survey mode): a `calibrate` JSON file (entries matched
-    /// to the model by `name`) or plain numbers in the model's order, separated by
-    /// commas/whitespace.
-    #[arg(long, value_name = "FILE")]
-    pub coeffs: Option<PathBuf>,
-
-    /// Scalar sample rate (Hz) of the time base; default from the capture header.
-    #[arg(long, value_name = "HZ")]
-    pub rate: Option<f64>,
-
-    /// Fluxgate frame rate (Hz; staleness limit 2.5 periods); default from the capture.
-    #[arg(long, value_name = "HZ")]
-    pub flux_rate: Option<f64>,
-
-    /// GPS epoch rate (Hz; staleness limit 2.5 periods); default from the capture.
-    #[arg(long, value_name = "HZ")]
-    pub gps_rate: Option<f64>,
-
-    /// Fluxgate bytes are ASCII lines or SPI frames; default from the capture.
-    #[arg(long, value_enum, value_name = "FORMAT")]
-    pub flux: Option<FluxFormat>,
-
-    /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,flags.
-    #[arg(
-        short = 'o',
-        long = "out",
-        visible_alias = "output",
-        value_name = "OUT.csv"
-    )]
-    pub output: Option<PathBuf>,
-
-    /// Records as the board sends them (`$MCREC,…*CRC` lines).
-    #[arg(long, value_name = "OUT.txt")]
-    pub records: Option<PathBuf>,
-}
 
 /// Everything the replay needs besides the bytes.
 #[derive(Clone, Debug)]
@@ -246,7 +196,8 @@ fn named_coefficients(arr: &[serde_json::Value], spec: &ModelSpec) -> Result<Vec
         .into_iter()
         .map(|(n, _)| n)
         .collect();
-    let order = crate::commands::order_by_name(entries.iter().map(|e| e.0), &names, "coefficient")?;
+    let order =
+        crate::coefficients::order_by_name(entries.iter().map(|e| e.0), &names, "coefficient")?;
     board_range(order.iter().map(|&i| entries[i].1).collect())
 }
 
@@ -511,70 +462,6 @@ pub fn csv_row(r: &Record) -> String {
         nt_text(r.innovation_nt),
         r.flags.0
     )
-}
-
-pub fn run_replay(args: &ReplayArgs) -> Result<ReplayStats> {
-    let inputs: Vec<&Path> = std::iter::once(args.capture.as_path())
-        .chain(args.coeffs.as_deref())
-        .collect();
-    let outputs: Vec<&Path> = args
-        .output
-        .as_deref()
-        .into_iter()
-        .chain(args.records.as_deref())
-        .collect();
-    crate::output::refuse_overwriting(&inputs, &outputs)?;
-    let model = ModelSpec::parse(&args.model)?;
-    let coefficients = args
-        .coeffs
-        .as_deref()
-        .map(|p| read_coefficients_for(p, Some(&model)))
-        .transpose()?;
-    let mut opts = ReplayOptions::new(model);
-    opts.coefficients = coefficients;
-    opts.flux_calibration = args
-        .coeffs
-        .as_deref()
-        .map(read_flux_calibration)
-        .transpose()?
-        .flatten();
-    opts.rate_hz = args.rate;
-    opts.flux_rate_hz = args.flux_rate;
-    opts.gps_rate_hz = args.gps_rate;
-    opts.flux = args.flux;
-    let f = std::fs::File::open(&args.capture)
-        .with_context(|| format!("opening {}", args.capture.display()))?;
-    let mut csv = args.output.as_deref().map(AtomicFile::create).transpose()?;
-    let mut txt = args
-        .records
-        .as_deref()
-        .map(AtomicFile::create)
-        .transpose()?;
-    if let Some(w) = csv.as_mut() {
-        writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
-    }
-    let mut buf = [0u8; MAX_RECORD_LEN];
-    let stats = replay_capture(BufReader::new(f), &opts, |r| {
-        if let Some(w) = csv.as_mut() {
-            writeln!(w, "{}", csv_row(r))
-                .with_context(|| format!("writing {}", w.path().display()))?;
-        }
-        if let Some(w) = txt.as_mut() {
-            let n = encode_record(r, &mut buf).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-            w.write_all(&buf[..n])
-                .with_context(|| format!("writing {}", w.path().display()))?;
-        }
-        Ok(())
-    })
-    .with_context(|| format!("replaying {}", args.capture.display()))?;
-    for w in [csv, txt].into_iter().flatten() {
-        w.commit()?;
-    }
-    eprintln!("replay: {stats}");
-    if let Some(w) = stats.dropped_warning() {
-        eprintln!("warning: {}: {w}", args.capture.display());
-    }
-    Ok(stats)
 }
 
 #[cfg(test)]

@@ -2,33 +2,10 @@
 //! coefficient, `SETFLUX` for the fluxgate calibration (`fluxcal`), then `SAVE` — written to
 //! the board's port (or stdout), so coefficients reach the aircraft without a rebuild.
 
-use crate::commands::{read_coefficients, CoefficientFile, Method};
+use crate::coefficients::{CoefficientFile, Method};
 use crate::model_spec::ModelSpec;
 use anyhow::{bail, Context, Result};
 use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS};
-use std::io::Write;
-use std::path::PathBuf;
-
-#[derive(clap::Args, Debug, Clone)]
-pub struct UploadArgs {
-    /// Coefficient file from `magcomp calibrate` (Kalman-filter method).
-    #[arg(value_name = "COEFFS.json")]
-    pub coeffs: PathBuf,
-
-    /// Where to write the command lines: the board's output/command port (a serial device
-    /// set up with `stty`, 921 600 Bd) or `-` for stdout. Watch the replies with
-    /// `magcomp monitor` on the same port.
-    #[arg(long, default_value = "-", value_name = "PORT")]
-    pub to: String,
-
-    /// Model compiled into the board (its coefficients must be this model's).
-    #[arg(long, default_value = crate::model_spec::BOARD_MODEL, value_name = "SPEC")]
-    pub board_model: String,
-
-    /// Do not end with `SAVE` (the values then last until the board restarts).
-    #[arg(long)]
-    pub no_save: bool,
-}
 
 /// The command lines for a coefficient file, `SAVE` last unless `save` is false.
 pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Result<Vec<String>> {
@@ -130,42 +107,10 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
         .collect()
 }
 
-pub fn run_upload(args: &UploadArgs) -> Result<()> {
-    if args.to != "-" {
-        crate::output::refuse_overwriting(&[&args.coeffs], &[std::path::Path::new(&args.to)])?;
-    }
-    let file = read_coefficients(&args.coeffs)?;
-    let lines = upload_lines(&file, &args.board_model, !args.no_save)?;
-    if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
-        eprintln!(
-            "note: the crossover rate fit's isotropic part ({:.4} s · d|B|/dt, the anomaly read {:.4} s late) has no board coefficient; the board compensates the rest",
-            r.fit.coefficients[5], r.fit.coefficients[5]
-        );
-    }
-    let text: String = lines.concat();
-    if args.to == "-" {
-        std::io::stdout().write_all(text.as_bytes())?;
-    } else {
-        let mut port = std::fs::OpenOptions::new()
-            .write(true)
-            .open(&args.to)
-            .with_context(|| format!("opening {}", args.to))?;
-        port.write_all(text.as_bytes())
-            .with_context(|| format!("writing {}", args.to))?;
-        eprintln!(
-            "sent {} command lines to {} (replies: magcomp monitor {})",
-            lines.len(),
-            args.to,
-            args.to
-        );
-    }
-    Ok(())
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::commands::{Coefficient, COEFF_FORMAT};
+    use crate::coefficients::{Coefficient, COEFF_FORMAT};
     use crate::fluxgate::FluxgateCalibration;
     use magcomp_core::protocol::command::parse_command;
 
@@ -180,7 +125,6 @@ mod tests {
             sample_rate_hz: 10.0,
             sigma1: None,
             noise_nt: None,
-            model_error_nt: None,
             tl_config: None,
             fluxgate_calibration: flux,
             scalar_lag: None,
@@ -219,7 +163,7 @@ mod tests {
             added_parameters: 6,
         };
         for applied in [true, false] {
-            f.rate_crossover = Some(crate::commands::RateCrossover {
+            f.rate_crossover = Some(crate::coefficients::RateCrossover {
                 labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
                 fit: fit.clone(),
                 applied,

@@ -6,7 +6,8 @@
 //! Tests marked `#[ignore]` keep the full bar for effects that do not meet it; the reason,
 //! with the measured numbers, is in the attribute.
 
-use magcomp::diagnose::{diagnose, run_diagnose, DiagnoseArgs, DiagnoseOptions, Diagnosis};
+use magcomp::cli::diagnose::{run as run_diagnose, DiagnoseArgs};
+use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
 use magcomp::flight::Flight;
 use magcomp::metrics::error_rms_nt;
 use magcomp::model_spec::ModelSpec;
@@ -449,33 +450,32 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     std::fs::create_dir_all(&dir).expect("dir");
     let csv = dir.join("pump.csv");
     magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
-    let args = DiagnoseArgs {
-        input: magcomp::commands::TraceInput::new(csv.clone()),
-        model: "tl16+field".into(),
+    let mut args = DiagnoseArgs {
         json: true,
         report: Some(dir.join("report")),
-        aux: None,
-        alpha: 0.01,
         min_explained: 0.02,
-        iterate: false,
         max_steps: 5,
+        ..DiagnoseArgs::new(csv.clone())
     };
+    args.est.model = Some("tl16+field".into());
     run_diagnose(&args).expect("diagnose");
     assert!(dir.join("report/index.html").exists());
     let e = format!(
         "{:#}",
-        run_diagnose(&DiagnoseArgs {
-            model: "tl16+bogus".into(),
-            ..args.clone()
+        run_diagnose(&{
+            let mut a = args.clone();
+            a.est.model = Some("tl16+bogus".into());
+            a
         })
         .unwrap_err()
     );
     assert!(e.contains("bogus"), "{e}");
     let e = format!(
         "{:#}",
-        run_diagnose(&DiagnoseArgs {
-            model: "tl16+field+current:cur_nope".into(),
-            ..args.clone()
+        run_diagnose(&{
+            let mut a = args.clone();
+            a.est.model = Some("tl16+field+current:cur_nope".into());
+            a
         })
         .unwrap_err()
     );
@@ -493,7 +493,7 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let e = format!(
         "{:#}",
         run_diagnose(&DiagnoseArgs {
-            input: magcomp::commands::TraceInput::new(dir.join("bad.csv")),
+            input: magcomp::cli::args::TraceInput::new(dir.join("bad.csv")),
             ..args
         })
         .unwrap_err()

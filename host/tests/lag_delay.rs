@@ -123,9 +123,9 @@ fn lag_full_bar() {
 /// scalar by it: the survey-mode run gives the calibration's compensation.
 #[test]
 fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
-    use magcomp::commands::{compensate_trace, EstimatorArgs, Method};
+    use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
     let trace = flight(2, 10.0, Some(0.2));
-    let est = EstimatorArgs {
+    let est = EstimatorSettings {
         model: "tl16+field+lag".into(),
         method: Method::Kf,
         sigma1: None,

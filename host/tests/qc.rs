@@ -2,15 +2,15 @@
 //! (issue 11 item 4), applied coefficients checked (item 5), inputs that cannot be
 //! compensated (issue 13 item 2), statistics that skip missing samples (issue 10 item 6).
 
-use magcomp::commands::{compensate_trace, summarise, EstimatorArgs, Method, Summary};
+use magcomp::compensation::{compensate_trace, summarise, EstimatorSettings, Method, Summary};
 use magcomp::flight::Flight;
 use magcomp::qc::{fom, manoeuvres};
 use magcomp::sim::{simulate, SimConfig};
 use magcomp::trace::Trace;
 use std::path::Path;
 
-fn est(method: Method) -> EstimatorArgs {
-    EstimatorArgs {
+fn est(method: Method) -> EstimatorSettings {
+    EstimatorSettings {
         model: "tl16+field".into(),
         method,
         sigma1: None,
@@ -35,7 +35,7 @@ fn unlabelled(t: &Trace) -> Trace {
     u
 }
 
-fn run(t: &Trace, method: Method) -> (Flight, magcomp::commands::Compensation, Summary) {
+fn run(t: &Trace, method: Method) -> (Flight, magcomp::compensation::Compensation, Summary) {
     let (f, c) = compensate_trace(t, &est(method), None, false).expect("compensate");
     let s = summarise(&f, &c);
     (f, c, s)
@@ -44,7 +44,7 @@ fn run(t: &Trace, method: Method) -> (Flight, magcomp::commands::Compensation, S
 fn error_msg(
     t: &Trace,
     method: Method,
-    coeffs: Option<&magcomp::commands::CoefficientFile>,
+    coeffs: Option<&magcomp::compensation::CoefficientFile>,
 ) -> String {
     match compensate_trace(t, &est(method), coeffs, false) {
         Ok(_) => panic!("expected an error"),
@@ -205,7 +205,7 @@ fn foreign_coefficients_warn_matching_ones_do_not() {
     let (_, own) = compensate_trace(&cal(5), &est(Method::Kf), None, false).unwrap();
     let (_, other) = compensate_trace(&cal(3), &est(Method::Kf), None, false).unwrap();
     let (_, other_tl) = compensate_trace(&cal(3), &est(Method::Tl), None, false).unwrap();
-    let apply = |c: &magcomp::commands::Compensation, m: Method| {
+    let apply = |c: &magcomp::compensation::Compensation, m: Method| {
         let file = c.coefficients.clone().unwrap();
         let (f, comp) = compensate_trace(&flight5, &est(m), Some(&file), false).unwrap();
         summarise(&f, &comp)
@@ -227,12 +227,16 @@ fn foreign_coefficients_warn_matching_ones_do_not() {
     }
     // A conflicting --method / --model beside --coeffs is an error.
     let file = own.coefficients.unwrap();
-    assert!(magcomp::commands::refuse_conflicting_settings(&file, Some(Method::Tl), None).is_err());
     assert!(
-        magcomp::commands::refuse_conflicting_settings(&file, None, Some("tl16+field+lag"))
-            .is_err()
+        magcomp::compensation::refuse_conflicting_settings(&file, Some(Method::Tl), None).is_err()
     );
-    assert!(magcomp::commands::refuse_conflicting_settings(
+    assert!(magcomp::compensation::refuse_conflicting_settings(
+        &file,
+        None,
+        Some("tl16+field+lag")
+    )
+    .is_err());
+    assert!(magcomp::compensation::refuse_conflicting_settings(
         &file,
         Some(Method::Kf),
         Some("tl16+field")

@@ -6,7 +6,7 @@
 //! Tolles–Lawson fitted the same way: MagNav's ridge TL18 and plain least squares (no ridge).
 //! Skips, saying so, where the shared data are absent.
 
-use magcomp::commands::{compensate_trace, EstimatorArgs, Method};
+use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
 use magcomp::model_spec::DEFAULT_MODEL;
 use magcomp::tl;
 use magcomp::trace::Trace;
@@ -64,8 +64,8 @@ fn trace(b: &Boxes, range: std::ops::Range<usize>, mag: &str, flux: &str) -> Tra
     }
 }
 
-fn est(method: Method, model: &str) -> EstimatorArgs {
-    EstimatorArgs {
+fn est(method: Method, model: &str) -> EstimatorSettings {
+    EstimatorSettings {
         model: model.into(),
         method,
         sigma1: None,

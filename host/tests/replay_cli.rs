@@ -1,9 +1,10 @@
 //! The clap structs the CLI flattens: flags parse to the documented options.
 
 use clap::Parser;
-use magcomp::capture_sim::{CaptureArgs, FluxFormat};
-use magcomp::monitor::MonitorArgs;
-use magcomp::replay::ReplayArgs;
+use magcomp::capture_sim::FluxFormat;
+use magcomp::cli::monitor::MonitorArgs;
+use magcomp::cli::replay::ReplayArgs;
+use magcomp::cli::simulate::CaptureArgs;
 
 #[derive(Parser)]
 struct Sim {

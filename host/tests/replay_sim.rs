@@ -2,12 +2,11 @@
 //! held against the host pipeline on the same trace.
 
 use magcomp::capture_sim::{trace_to_capture, CaptureOptions, FluxFormat};
+use magcomp::cli::replay::{run as run_replay, ReplayArgs};
 use magcomp::flight::Flight;
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::replay::{
-    csv_row, replay_capture, run_replay, ReplayArgs, ReplayOptions, ReplayStats, CSV_HEADER,
-};
+use magcomp::replay::{csv_row, replay_capture, ReplayOptions, ReplayStats, CSV_HEADER};
 use magcomp::sim::{simulate, SimConfig};
 use magcomp::trace::Trace;
 use magcomp_core::protocol::record::{decode_record, Record};

@@ -1,8 +1,9 @@
 //! `magcomp report` on a flight with a hidden effect, before/after two models: the page is
 //! self-contained, holds every plot the issue asks for, and renders in headless Chromium
 //! (skipped with a message when Chromium is absent). Run in release.
+use magcomp::cli::report::{run as run_report, ReportArgs};
 use magcomp::model_spec::ModelSpec;
-use magcomp::report::flight_report::{build_report, run_report, write_report, ReportArgs};
+use magcomp::report::flight_report::{build_report, write_report};
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
 use magcomp::trace::write_trace;
 use std::path::{Path, PathBuf};
@@ -78,12 +79,17 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let csv = dir.join("flight.csv");
     write_trace(&csv, &trace()).expect("write");
     let args = ReportArgs {
-        input: magcomp::commands::TraceInput::new(csv.clone()),
         model: vec!["tl16+field".into()],
-        out: dir.join("out"),
+        ..ReportArgs::new(csv.clone(), dir.join("out"))
     };
     run_report(&args).expect("report");
-    assert!(dir.join("out/index.html").exists());
+    let html = std::fs::read_to_string(dir.join("out/index.html")).expect("page");
+    assert!(html.contains("data-plot=\"overlay-0-0\""), "no overlay");
+    // No --model: the default model's page.
+    let default = ReportArgs::new(csv.clone(), dir.join("default"));
+    run_report(&default).expect("report, default model");
+    let html = std::fs::read_to_string(dir.join("default/index.html")).expect("page");
+    assert!(html.contains(&format!("Model {}", magcomp::model_spec::DEFAULT_MODEL)));
     let bad = ReportArgs {
         model: vec!["tl16+wobble".into()],
         ..args.clone()
@@ -91,7 +97,7 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let e = format!("{:#}", run_report(&bad).unwrap_err());
     assert!(e.contains("wobble"), "{e}");
     let missing = ReportArgs {
-        input: magcomp::commands::TraceInput::new(dir.join("nope.csv")),
+        input: magcomp::cli::args::TraceInput::new(dir.join("nope.csv")),
         ..args
     };
     let e = format!("{:#}", run_report(&missing).unwrap_err());

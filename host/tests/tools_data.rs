@@ -237,7 +237,11 @@ fn coefficient_files_are_read_by_name() {
     // upload sends the same lines.
     let up = |c: &Path| run_ok(bin().arg("upload").arg(c));
     assert_eq!(up(&swapped), up(&coeffs));
-    assert_eq!(up(&coeffs).lines().count(), 17, "16 SETCOEF and SAVE");
+    // The default model calibrates the fluxgate: its 12 values go with SETFLUX.
+    let lines = up(&coeffs);
+    assert_eq!(lines.lines().filter(|l| l.contains("SETCOEF")).count(), 16);
+    assert_eq!(lines.lines().filter(|l| l.contains("SETFLUX")).count(), 12);
+    assert_eq!(lines.lines().count(), 29, "16 SETCOEF, 12 SETFLUX and SAVE");
     // An unknown or a missing name is an error naming it; so is a short file for upload.
     let bad = d.join("bad.json");
     edited(&coeffs, &bad, |c| c[3]["name"] = "induced.wobble".into());

@@ -101,7 +101,7 @@ pub(crate) fn fluxcal_test(
     };
     let rerun = match &run.preprocessing {
         None => run_kf(
-            &flight.with_fluxgate_calibration(&fit.calibration),
+            &fluxgate::calibrated_flight(flight, &fit.calibration),
             &KfOptions::new(model.clone()),
         )?,
         Some(p) => {

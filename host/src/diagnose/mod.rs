@@ -17,7 +17,6 @@
 //! "significant" by any test that counts 7000 samples.
 
 pub mod candidates;
-mod cli;
 pub mod custom;
 mod effect_tests;
 mod failures;
@@ -27,7 +26,6 @@ mod lag_detector;
 mod regression;
 pub mod stats;
 
-pub use cli::{load_trace, run_diagnose, DiagnoseArgs};
 pub use failures::residual_spectrum;
 pub use iterate::{iterate, Iteration, IterationStep};
 pub use regression::scalar_relative_nt;

@@ -2,7 +2,8 @@
 //! (or another installation) still produce numbers; these checks say loudly when they fit
 //! the flight worse than no compensation at all, or leave far more than they predicted.
 
-use crate::commands::{CoefficientFile, Compensation};
+use crate::coefficients::CoefficientFile;
+use crate::compensation::Compensation;
 use crate::flight::Flight;
 use crate::metrics::{band_rms_nt, improvement_ratio};
 

@@ -16,44 +16,6 @@ use std::path::{Path, PathBuf};
 /// The page's file name in the report directory.
 pub const REPORT_PAGE: &str = "index.html";
 
-/// `magcomp report`.
-#[derive(clap::Args, Debug, Clone)]
-pub struct ReportArgs {
-    #[command(flatten)]
-    pub input: crate::commands::TraceInput,
-    /// Model spec; give it twice (or more) to compare before/after, e.g.
-    /// `--model tl16+field --model tl16+field+current:cur_pump`. Default: the default
-    /// model (`tl16+field`).
-    #[arg(long)]
-    pub model: Vec<String>,
-    /// Output directory (created); the page is DIR/index.html.
-    #[arg(
-        short = 'o',
-        long = "out",
-        visible_alias = "output",
-        value_name = "DIR"
-    )]
-    pub out: PathBuf,
-}
-
-pub fn run_report(args: &ReportArgs) -> Result<()> {
-    crate::output::refuse_overwriting(&[&args.input.trace], &[&args.out.join(REPORT_PAGE)])?;
-    let trace = args.input.read()?;
-    let default = [crate::model_spec::DEFAULT_MODEL.to_string()];
-    let given: &[String] = if args.model.is_empty() {
-        &default
-    } else {
-        &args.model
-    };
-    let models = given
-        .iter()
-        .map(|m| ModelSpec::parse(m))
-        .collect::<Result<Vec<_>>>()?;
-    let path = write_report(&trace, &models, None, &args.out)?;
-    println!("report written to {}", path.display());
-    Ok(())
-}
-
 /// Per-model results shown on the page.
 struct ModelResult {
     spec: ModelSpec,
@@ -161,6 +123,17 @@ pub fn build_report(
         for s in model_sections(&flight, r, i) {
             page = page.section(s);
         }
+        page = page.section(super::calibration::overlay_section(
+            trace,
+            &flight,
+            &r.diag.run.compensated_nt,
+            &r.diag.run.interference_nt,
+            &format!("overlay-{i}"),
+            &format!(
+                "Model {}: uncompensated, compensated and interference",
+                r.spec.text()
+            ),
+        ));
     }
     Ok(page)
 }

@@ -17,10 +17,13 @@ td.num{text-align:right;font-variant-numeric:tabular-nums}
 caption{caption-side:top;text-align:left;font-weight:bold;padding:4px 0}
 figure{margin:1em 0}
 svg.plot{max-width:100%;height:auto;display:block}
+p.warning{border-left:5px solid #c0392b;background:#fdecea;padding:8px 12px;font-weight:600}
 ";
 
 enum Block {
     Paragraph(String),
+    /// Shown in red: what the reader must not miss (e.g. implausible coefficients).
+    Warning(String),
     Table {
         caption: Option<String>,
         header: Vec<String>,
@@ -106,6 +109,11 @@ impl HtmlReport {
         self.intro.push(Block::Paragraph(text.into()));
         self
     }
+    /// A warning under the title (red box), before any section.
+    pub fn warning(mut self, text: &str) -> Self {
+        self.intro.push(Block::Warning(text.into()));
+        self
+    }
     pub fn section(mut self, section: Section) -> Self {
         self.sections.push(section);
         self
@@ -179,6 +187,9 @@ fn render_block(out: &mut String, b: &Block) {
     match b {
         Block::Paragraph(text) => {
             let _ = writeln!(out, "<p>{}</p>", escape(text));
+        }
+        Block::Warning(text) => {
+            let _ = writeln!(out, "<p class=\"warning\">warning: {}</p>", escape(text));
         }
         Block::Table {
             caption,

@@ -16,6 +16,7 @@
 //! Every plot is `<svg class="plot" data-plot="ID">`; long series are reduced to the
 //! min and max sample per pixel column, so a 1 h 10 Hz line is a few tens of kB.
 
+pub mod calibration;
 pub mod flight_report;
 mod html;
 mod plot;

@@ -26,7 +26,6 @@
 //! tested), which keeps 20 min at 1 kHz at ~1.5 s in release builds.
 
 pub mod anomaly;
-pub mod cli;
 mod config;
 pub mod flight;
 pub mod geo;
@@ -37,7 +36,6 @@ pub mod signals;
 mod world;
 
 pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
-pub use cli::SimulateArgs;
 pub use config::{FlightKind, SimConfig, B_STAR_NT};
 pub use flight::{KinState, Plan};
 pub use geo::{EarthField, LocalFrame};

@@ -13,6 +13,15 @@ pub const CHROMIUM: &str = "/usr/bin/chromium";
 /// Runs headless Chromium with the flags this machine needs (no network, no sandbox as
 /// root, a fresh profile), killing it after 90 s; `None` if it could not start or timed out.
 pub fn chromium(args: &[String], profile: &Path) -> Option<Output> {
+    run_chromium(args, profile, false)
+}
+
+/// As [`chromium`], with the browser's log (console messages, page errors) on `stderr`.
+pub fn chromium_logged(args: &[String], profile: &Path) -> Option<Output> {
+    run_chromium(args, profile, true)
+}
+
+fn run_chromium(args: &[String], profile: &Path, log: bool) -> Option<Output> {
     let mut cmd = Command::new(CHROMIUM);
     cmd.args([
         "--headless",
@@ -26,12 +35,22 @@ pub fn chromium(args: &[String], profile: &Path) -> Option<Output> {
         "--hide-scrollbars",
     ]);
     cmd.arg(format!("--user-data-dir={}", profile.display()));
+    if log {
+        cmd.args(["--enable-logging=stderr", "--v=0"]);
+    }
     cmd.args(args);
     let mut child = cmd
         .stdout(Stdio::piped())
-        .stderr(Stdio::null())
+        .stderr(if log { Stdio::piped() } else { Stdio::null() })
         .spawn()
         .ok()?;
+    let err_reader = child.stderr.take().map(|mut e| {
+        std::thread::spawn(move || {
+            let mut buf = Vec::new();
+            std::io::Read::read_to_end(&mut e, &mut buf).ok();
+            buf
+        })
+    });
     // Read stdout on a thread so a large DOM cannot fill the pipe and stall the browser.
     let mut stdout = child.stdout.take()?;
     let reader = std::thread::spawn(move || {
@@ -46,7 +65,9 @@ pub fn chromium(args: &[String], profile: &Path) -> Option<Output> {
                 return Some(Output {
                     status,
                     stdout: reader.join().unwrap_or_default(),
-                    stderr: Vec::new(),
+                    stderr: err_reader
+                        .map(|r| r.join().unwrap_or_default())
+                        .unwrap_or_default(),
                 })
             }
             Ok(None) if start.elapsed() < Duration::from_secs(90) => {

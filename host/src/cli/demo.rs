@@ -1,7 +1,9 @@
 //! `magcomp demo`: the whole job on built-in simulated data — calibration flight, survey
 //! flight, Kalman filter and Tolles–Lawson side by side against the simulator's truth.
 
-use crate::commands::{compensate_trace, summarise, write_output_csv, EstimatorArgs, Method};
+use crate::compensation::{
+    compensate_trace, summarise, write_output_csv, EstimatorSettings, Method,
+};
 use crate::sim::{simulate, FlightKind, Geology, GeologyPreset, SimConfig};
 use crate::trace::write_trace;
 use anyhow::{Context, Result};
@@ -21,8 +23,8 @@ pub struct DemoArgs {
     pub physics: String,
 }
 
-fn est(method: Method) -> EstimatorArgs {
-    EstimatorArgs {
+fn est(method: Method) -> EstimatorSettings {
+    EstimatorSettings {
         model: crate::model_spec::DEFAULT_MODEL.into(),
         method,
         sigma1: None,
@@ -188,7 +190,7 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
     let better = model.with(&named.term)?;
     let mut rows = Vec::new();
     for spec in [&model, &better] {
-        let e = EstimatorArgs {
+        let e = EstimatorSettings {
             model: spec.text(),
             ..est(Method::Kf)
         };

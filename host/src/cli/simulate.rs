@@ -1,7 +1,15 @@
-//! `magcomp simulate` command-line flags.
+//! `magcomp simulate`: a calibration and/or survey flight with known truth, and with
+//! `--capture` the raw bytes its sensors would have sent.
 
-use super::{parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, Physics, SimConfig};
+use crate::capture_sim::{
+    parse_time_of_day, write_capture_file, CaptureOptions, CaptureSummary, FluxFormat,
+};
+use crate::sim::{
+    parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, Physics, SimConfig,
+};
+use crate::trace::Trace;
 use anyhow::{bail, Context, Result};
+use clap::builder::PossibleValue;
 use std::path::PathBuf;
 
 /// Simulate an airborne magnetometer flight (calibration cloverleaf and/or survey lines)
@@ -356,6 +364,109 @@ impl SimulateArgs {
         cfg.validate()?;
         Ok(cfg)
     }
+}
+
+fn window(v: &Option<Vec<f64>>, what: &str) -> Result<Option<(f64, f64)>> {
+    match v.as_deref() {
+        None => Ok(None),
+        Some([a, b]) => Ok(Some((*a, *b))),
+        Some(other) => bail!("{what} needs START:END in seconds, got {other:?}"),
+    }
+}
+
+/// Flags for `magcomp simulate --capture FILE` (flattened into `SimulateArgs` or the
+/// simulate subcommand by the CLI).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct CaptureArgs {
+    /// Also write the flight as a raw sensor capture (`docs/protocols.md` §7): scalar
+    /// lines, fluxgate frames and GPS NMEA as the sensors would send them.
+    #[arg(long, value_name = "FILE")]
+    pub capture: Option<PathBuf>,
+
+    /// Fluxgate format in the capture: serial ASCII lines or ADS131M03 SPI frames.
+    #[arg(long, value_enum, default_value = "ascii", value_name = "FORMAT")]
+    pub capture_flux: FluxFormat,
+
+    /// GPS epoch rate in the capture (Hz): GGA + RMC + VTG per epoch.
+    #[arg(long, default_value_t = 5.0, value_name = "HZ")]
+    pub capture_gps_hz: f64,
+
+    /// UTC time of day at the start of the flight, `HH:MM:SS` (the GPS sentences' time).
+    #[arg(long, default_value = "12:00:00", value_name = "HH:MM:SS")]
+    pub capture_start: String,
+
+    /// Fluxgate dropout: no fluxgate frames in `START:END` (s from the start).
+    #[arg(long, value_delimiter = ':', num_args = 1, value_name = "START:END")]
+    pub capture_flux_dropout: Option<Vec<f64>>,
+
+    /// GPS outage: the receiver reports no fix in `START:END` (s from the start).
+    #[arg(long, value_delimiter = ':', num_args = 1, value_name = "START:END")]
+    pub capture_gps_outage: Option<Vec<f64>>,
+
+    /// Fraction of bytes corrupted at random on every port (e.g. 0.01); line ends kept.
+    #[arg(long, default_value_t = 0.0, value_name = "FRACTION")]
+    pub capture_corrupt: f64,
+
+    /// Seed of the corruption.
+    #[arg(long, default_value_t = 1)]
+    pub capture_seed: u64,
+}
+
+impl CaptureArgs {
+    pub fn to_options(&self) -> Result<CaptureOptions> {
+        let o = CaptureOptions {
+            flux_format: self.capture_flux,
+            gps_rate_hz: self.capture_gps_hz,
+            start_tod_s: parse_time_of_day(&self.capture_start)?,
+            flux_dropout_s: window(&self.capture_flux_dropout, "--capture-flux-dropout")?,
+            gps_outage_s: window(&self.capture_gps_outage, "--capture-gps-outage")?,
+            corrupt_fraction: self.capture_corrupt,
+            seed: self.capture_seed,
+            ..CaptureOptions::default()
+        };
+        o.validate()?;
+        Ok(o)
+    }
+
+    /// Writes the capture when `--capture` was given; returns what was written.
+    pub fn write_if_requested(&self, trace: &Trace) -> Result<Option<CaptureSummary>> {
+        let Some(path) = &self.capture else {
+            return Ok(None);
+        };
+        write_capture_file(trace, &self.to_options()?, path).map(Some)
+    }
+}
+
+impl clap::ValueEnum for FluxFormat {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[FluxFormat::Ascii, FluxFormat::Spi]
+    }
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        Some(PossibleValue::new(self.name()).help(match self {
+            FluxFormat::Ascii => "serial ASCII lines `X,Y,Z*hh`",
+            FluxFormat::Spi => "15-byte ADS131M03 SPI frames (one capture line each)",
+        }))
+    }
+}
+
+/// Writes the flight (and the capture when asked).
+pub fn run(sim: &SimulateArgs, capture: &CaptureArgs) -> Result<()> {
+    let out = sim
+        .output
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("flight.csv"));
+    let outputs: Vec<&std::path::Path> = std::iter::once(out.as_path())
+        .chain(capture.capture.as_deref())
+        .collect();
+    crate::output::refuse_overwriting(&[], &outputs)?;
+    let cfg = sim.to_config()?;
+    let trace = crate::sim::simulate(&cfg)?;
+    crate::trace::write_trace(&out, &trace)?;
+    eprintln!("wrote {} rows to {}", trace.len(), out.display());
+    if let Some(c) = capture.write_if_requested(&trace)? {
+        eprintln!("{c:?}");
+    }
+    Ok(())
 }
 
 #[cfg(test)]

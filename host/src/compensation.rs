@@ -1,5 +1,10 @@
-//! The `magcomp` subcommands that calibrate and compensate, as library functions.
+//! Calibrating and compensating a trace with either method (`calibrate`, `compensate`,
+//! `report`, `diagnose` and `demo` call these), the summary figures, and the output CSV.
 
+pub use crate::coefficients::{
+    read_coefficients, refuse_conflicting_settings, Coefficient, CoefficientFile, Method,
+    RateCrossover, COEFF_FORMAT,
+};
 use crate::flight::Flight;
 use crate::metrics::{
     error_rms_nt, fom, improvement_ratio, manoeuvre_band, oracle_floor_nt, ManoeuvreFom,
@@ -7,194 +12,45 @@ use crate::metrics::{
 use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
 use crate::pipeline::{run_kf, KfOptions};
 use crate::tl;
-use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
+use crate::trace::Trace;
 use anyhow::{bail, ensure, Context, Result};
-use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use serde::Serialize;
+use std::path::Path;
 
-/// Estimation method.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Method {
-    /// The Kalman filter of the paper: deviation coefficients and the anomaly together.
-    Kf,
-    /// Classic Tolles–Lawson: band-passed least squares (MagNav.jl conventions).
-    Tl,
-}
-
-/// Options shared by every command that reads a trace.
-#[derive(clap::Args, Clone, Debug)]
-pub struct TraceInput {
-    /// Flight trace: CSV per docs/trace-format.md, whitespace XYZ survey data (`/` comments,
-    /// `*` missing), or a MagNav.jl HDF5 file (`.h5`: one dataset per channel).
-    pub trace: PathBuf,
-    /// Column names of your file, e.g.
-    /// `t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=UTM-Z`
-    /// (SGL survey XYZ names; docs/trace-format.md lists the canonical ones). Presets:
-    /// `magnav` (MagNav HDF5 names), `sgl` (SGL XYZ names), overridable:
-    /// `--map magnav,mag=mag_4_uc`.
-    #[arg(long, value_name = "CANONICAL=FILE,...")]
-    pub map: Option<String>,
-    /// Only these lines, by the `line` column (SGL's `LINE`), e.g. `1002.02,1003.01`.
-    #[arg(long, value_name = "LINE,...")]
-    pub lines: Option<String>,
-    /// Only rows with T0 ≤ t ≤ T1 (seconds, the `t` column; `T0:` or `:T1` leave a side open).
-    #[arg(long, value_name = "T0:T1", allow_hyphen_values = true)]
-    pub time: Option<String>,
-    /// Survey date for the core field (IGRF-14) when the file has no `igrf` column and no
-    /// `date` or YEAR/DOY columns.
-    #[arg(long, value_name = "YYYY-MM-DD")]
-    pub date: Option<String>,
-}
-
-impl TraceInput {
-    pub fn read(&self) -> Result<Trace> {
-        let map = match &self.map {
-            Some(m) => ColumnMap::parse(m)?,
-            None => ColumnMap::new(),
-        };
-        let bar = progress_bar(0);
-        let mut cb = |done: u64, total: u64| {
-            bar.set_length(total);
-            bar.set_position(done);
-        };
-        let opts = ReadOptions {
-            progress: Some(&mut cb),
-            ..Default::default()
-        };
-        let t = read_trace_with(&self.trace, &map, opts)
-            .with_context(|| format!("reading {}", self.trace.display()))?;
-        bar.finish_and_clear();
-        let sel = crate::input::Selection::parse(self.lines.as_deref(), self.time.as_deref())?;
-        let (t, core) = crate::input::prepare(t, &sel, self.date.as_deref())
-            .with_context(|| format!("preparing {}", self.trace.display()))?;
-        if let Some(m) = core.message() {
-            eprintln!("{m}");
-        }
-        Ok(t)
-    }
-
-    /// Just the file, for code that builds one by hand.
-    pub fn new(trace: impl Into<PathBuf>) -> Self {
-        TraceInput {
-            trace: trace.into(),
-            map: None,
-            lines: None,
-            time: None,
-            date: None,
-        }
-    }
-}
-
-/// Estimator settings shared by calibrate and compensate.
-#[derive(clap::Args, Clone, Debug)]
-pub struct EstimatorArgs {
-    /// Model: `+`-joined terms, e.g. `tl16+field` (the paper's), `tl16+field+current:cur_pump`.
-    /// Terms: tl16 (= permanent+induced+eddy), field, current:CH, current_rate:CH, lag, rate,
-    /// diurnal[:base], induced_high, fluxcal, fluxtemp:CH, periodic:CH.
-    #[arg(long, default_value = DEFAULT_MODEL, value_name = "SPEC")]
+/// Estimator settings (the command line's `EstimatorArgs`, `cli::args`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EstimatorSettings {
+    /// Model spec: `+`-joined terms (`model_spec`).
     pub model: String,
-    /// kf: the paper's Kalman filter; tl: classic Tolles–Lawson (18 terms, band-passed).
-    #[arg(long, value_enum, default_value_t = Method::Kf)]
     pub method: Method,
-    /// Field-model roughness σ1 (nT/m^2.5), the same along the whole track (the paper's
-    /// stationary anomaly). Default: fitted to the along-track spectrum, and, post-flight,
-    /// the anomaly process whose σ1 follows the local roughness of the anomaly (or the
-    /// stationary one) that makes the data most likely (reported as `field_process`).
-    #[arg(long, value_name = "NT_PER_M2_5")]
+    /// Field-model roughness σ1 (nT/m^2.5); None: fitted to the data.
     pub sigma1: Option<f64>,
-    /// Scalar measurement noise 1σ (nT); default: estimated from the data.
-    #[arg(long, value_name = "NT")]
+    /// Scalar measurement noise 1σ (nT); None: estimated from the data.
     pub noise_nt: Option<f64>,
-    /// Tolles–Lawson terms for --method tl: tl18 (MagNav), tl16, or groups like permanent+induced.
-    #[arg(long, default_value = "tl18", value_name = "TERMS")]
+    /// Tolles–Lawson terms of `Method::Tl` (`tl18`, `tl16`, groups).
     pub tl_terms: String,
-    /// Ridge parameter λ of --method tl (default MagNav's 0.001); 0 gives plain
-    /// band-passed least squares (TL18-OLS, the yardstick of the Kalman filter).
-    #[arg(long, value_name = "LAMBDA", allow_negative_numbers = true)]
+    /// Ridge λ of `Method::Tl`; None: MagNav's default.
     pub tl_ridge: Option<f64>,
-    /// Assumed ground speed (m/s) for a trace without positions (no lat/lon): the Kalman
-    /// filter then models the anomaly in time, as if flown at this speed (docs/trace-format.md).
-    /// Ignored when the trace has positions or a ground speed of its own.
-    #[arg(long, value_name = "M_PER_S")]
+    /// Assumed ground speed (m/s) for a trace without positions.
     pub speed_mps: Option<f64>,
+}
+
+impl Default for EstimatorSettings {
+    fn default() -> Self {
+        Self {
+            model: DEFAULT_MODEL.into(),
+            method: Method::Kf,
+            sigma1: None,
+            noise_nt: None,
+            tl_terms: "tl18".into(),
+            tl_ridge: None,
+            speed_mps: None,
+        }
+    }
 }
 
 /// The accuracy an aeromagnetic survey asks of compensation (nT rms).
 pub const SURVEY_TOLERANCE_NT: f64 = 0.1;
-
-/// One coefficient with its 1σ.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Coefficient {
-    pub name: String,
-    pub unit: String,
-    pub value: f64,
-    pub sigma: f64,
-}
-
-/// The file `calibrate` writes and `compensate --coeffs` reads.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct CoefficientFile {
-    pub format: String,
-    pub model: String,
-    pub method: Method,
-    pub sample_rate_hz: f64,
-    #[serde(default)]
-    pub sigma1: Option<f64>,
-    #[serde(default)]
-    pub noise_nt: Option<f64>,
-    /// KF: signal the model could not follow beyond the scalar's noise on the calibration
-    /// flight (nT rms); `compensate --coeffs` counts it in the predicted error.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub model_error_nt: Option<f64>,
-    #[serde(default)]
-    pub tl_config: Option<tl::TlConfig>,
-    /// With `fluxcal`: the fluxgate calibration the coefficients were estimated with
-    /// (`B = matrix·B_F + bias_nt`, body frame); apply the same on the board.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fluxgate_calibration: Option<crate::fluxgate::FluxgateCalibration>,
-    /// With `lag`: the scalar's estimated delay behind the fluxgate/GPS (s) and its 1σ;
-    /// `compensate --coeffs` re-aligns the scalar by it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scalar_lag: Option<crate::preprocess::ScalarLag>,
-    /// With `fluxtemp:CH`: the fluxgate's temperature coefficients (bias nT/°C, scale 1/°C,
-    /// each with its 1σ) and reference temperature; applied before the direction cosines.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fluxgate_temperature: Option<crate::preprocess::FluxgateTemperature>,
-    /// The anomaly process the calibration used (KF; see `pipeline::FIELD_PROFILES`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub field_process: Option<String>,
-    /// With `rate`: the coefficients fitted to the flight's crossovers (s, in
-    /// `crossover::RATE_LABELS` order) with their test; applied by `compensate --coeffs`
-    /// when `applied` (the fit was significant).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rate_crossover: Option<RateCrossover>,
-    /// KF: how well the calibration flight determined the interference, by the filter's
-    /// own covariance (`pipeline::predicted_interference_error_nt`, nT rms).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub predicted_error_nt: Option<f64>,
-    /// KF: the coefficients' covariance (rows in the model's coefficient order, as
-    /// `calibrate` writes `coefficients`; physical units), so
-    /// that `compensate --coeffs` can predict the error on the flight it compensates.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub covariance: Option<Vec<Vec<f64>>>,
-    /// KF on a trace without positions: the ground speed assumed for the anomaly process
-    /// (m/s), reused by `compensate --coeffs` unless `--speed-mps` is given.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub assumed_speed_mps: Option<f64>,
-    pub coefficients: Vec<Coefficient>,
-}
-
-/// The crossover fit as the coefficient file and the JSON summary carry it.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct RateCrossover {
-    pub labels: Vec<String>,
-    #[serde(flatten)]
-    pub fit: crate::crossover::RateFit,
-    pub applied: bool,
-}
-
-pub const COEFF_FORMAT: &str = "magcomp-coefficients-v1";
 
 /// Per-sample result of either method.
 #[derive(Clone, Debug, Default)]
@@ -254,7 +110,7 @@ pub struct Summary {
     pub warnings: Vec<String>,
 }
 
-fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
+fn tl_config(flight: &Flight, est: &EstimatorSettings) -> Result<tl::TlConfig> {
     let terms: tl::TlTerms = est.tl_terms.parse()?;
     let mut cfg = tl::TlConfig::for_rate(flight.sample_rate_hz);
     cfg.terms = terms;
@@ -274,7 +130,7 @@ fn tl_config(flight: &Flight, est: &EstimatorArgs) -> Result<tl::TlConfig> {
 /// their plausibility on this flight is checked (`qc::applied`) and warned about.
 pub fn compensate_trace(
     trace: &Trace,
-    est: &EstimatorArgs,
+    est: &EstimatorSettings,
     coeffs: Option<&CoefficientFile>,
     realtime: bool,
 ) -> Result<(Flight, Compensation)> {
@@ -288,7 +144,7 @@ pub fn compensate_trace(
 
 fn run_method(
     trace: &Trace,
-    est: &EstimatorArgs,
+    est: &EstimatorSettings,
     coeffs: Option<&CoefficientFile>,
     realtime: bool,
 ) -> Result<(Flight, Compensation)> {
@@ -544,6 +400,30 @@ fn run_method(
     }
 }
 
+/// `trace` with the compensation applied: its scalar replaced by the compensated one (and
+/// the simulator's truth interference by what the compensation left of it), so that a
+/// diagnosis of it under a model without deviation terms studies the calibration as
+/// applied, not re-fitted.
+pub fn compensated_trace(trace: &Trace, flight: &Flight, comp: &Compensation) -> Result<Trace> {
+    let n = trace.len();
+    ensure!(
+        flight.len() == n && comp.compensated_nt.len() == n,
+        "internal: {} compensated samples for {n} rows",
+        comp.compensated_nt.len()
+    );
+    let mut out = trace.clone();
+    out.set_col("mag", comp.compensated_nt.clone());
+    if let Some(t) = trace.col("truth_interference") {
+        let left = t
+            .iter()
+            .zip(&comp.interference_nt)
+            .map(|(t, i)| t - i)
+            .collect();
+        out.set_col("truth_interference", left);
+    }
+    Ok(out)
+}
+
 /// FOM, IR, residual, and error/oracle against truth when the trace has it.
 pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
     let residual = crate::metrics::band_rms_nt(flight, &comp.compensated_nt);
@@ -690,150 +570,4 @@ fn csv_text(s: &str) -> String {
     } else {
         s.to_string()
     }
-}
-
-/// `--coeffs` decides the method and the model: a `--method` or `--model` given beside
-/// it that says otherwise is an error, not silently overridden.
-pub fn refuse_conflicting_settings(
-    coeffs: &CoefficientFile,
-    method: Option<Method>,
-    model: Option<&str>,
-) -> Result<()> {
-    let name = |m: Method| if m == Method::Tl { "tl" } else { "kf" };
-    if let Some(m) = method.filter(|m| *m != coeffs.method) {
-        bail!(
-            "--method {} conflicts with the coefficient file, which holds {} coefficients: drop --method (the file decides) or give a {} coefficient file",
-            name(m),
-            name(coeffs.method),
-            name(m)
-        );
-    }
-    if let Some(m) = model {
-        let same = coeffs.method == Method::Kf
-            && ModelSpec::parse(m).map(|s| s.text()).ok().as_deref() == Some(coeffs.model.as_str());
-        if !same {
-            bail!(
-                "--model {m} conflicts with the coefficient file's model '{}': drop --model (the file decides) or calibrate that model",
-                coeffs.model
-            );
-        }
-    }
-    Ok(())
-}
-
-/// Reads a coefficient file written by `calibrate`. Coefficients are matched to the
-/// file's model by name, whatever their order in the file, and returned in the model's
-/// order (the covariance is in the model's order already); a name the model lacks, one
-/// it needs that is
-/// missing, or one given twice is an error naming it.
-pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let c: CoefficientFile = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a magcomp coefficient file", path.display()))?;
-    if c.format != COEFF_FORMAT {
-        bail!("{}: unknown format '{}'", path.display(), c.format);
-    }
-    if let Some(bad) = c.coefficients.iter().find(|c| !c.value.is_finite()) {
-        bail!(
-            "{}: coefficient '{}' is not finite",
-            path.display(),
-            bad.name
-        );
-    }
-    let names = c
-        .model_coefficient_names()
-        .with_context(|| path.display().to_string())?;
-    c.in_order_of(&names)
-        .with_context(|| format!("{} (model '{}')", path.display(), c.model))
-}
-
-impl CoefficientFile {
-    /// The names of the coefficients the file's model has, in the model's order: the KF
-    /// model's `term.label`s, or the Tolles–Lawson terms of its configuration.
-    pub fn model_coefficient_names(&self) -> Result<Vec<String>> {
-        Ok(match self.method {
-            Method::Kf => ModelSpec::parse(&self.model)?
-                .coefficient_names()
-                .into_iter()
-                .map(|(n, _)| n)
-                .collect(),
-            Method::Tl => self
-                .tl_config
-                .as_ref()
-                .context("the coefficient file has no Tolles–Lawson configuration")?
-                .terms
-                .names(),
-        })
-    }
-
-    /// The same file with its coefficients (and the crossover fit's coefficients) in the
-    /// order of `names`, matched by name; the covariance's size is checked.
-    pub fn in_order_of(&self, names: &[String]) -> Result<CoefficientFile> {
-        let order = order_by_name(
-            self.coefficients.iter().map(|c| c.name.as_str()),
-            names,
-            "coefficient",
-        )?;
-        let mut out = self.clone();
-        out.coefficients = order
-            .iter()
-            .map(|&i| self.coefficients[i].clone())
-            .collect();
-        if let Some(cov) = &self.covariance {
-            // Unnamed rows: in the model's order, whatever the order of the entries.
-            let k = names.len();
-            if cov.len() != k || cov.iter().any(|r| r.len() != k) {
-                bail!("the covariance is not {k} × {k} (one row and column per coefficient of the model)");
-            }
-        }
-        if let Some(r) = &self.rate_crossover {
-            let want = crate::crossover::RATE_LABELS.map(String::from);
-            let o = order_by_name(
-                r.labels.iter().map(String::as_str),
-                &want,
-                "rate_crossover label",
-            )?;
-            let mut r2 = r.clone();
-            for (k, &i) in o.iter().enumerate() {
-                r2.fit.coefficients[k] = r.fit.coefficients[i];
-                r2.fit.sigmas[k] = r.fit.sigmas[i];
-            }
-            r2.labels = want.to_vec();
-            out.rate_crossover = Some(r2);
-        }
-        Ok(out)
-    }
-}
-
-/// For each of `want`, the index of the entry of `have` with that name; an entry that is
-/// not wanted, a wanted one that is missing, or a name given twice is an error naming it.
-pub(crate) fn order_by_name<'a>(
-    have: impl Iterator<Item = &'a str>,
-    want: &[String],
-    what: &str,
-) -> Result<Vec<usize>> {
-    let have: Vec<&str> = have.collect();
-    for (i, n) in have.iter().enumerate() {
-        if !want.iter().any(|w| w == n) {
-            bail!(
-                "unknown {what} '{n}' (the model's are: {})",
-                want.join(", ")
-            );
-        }
-        if have[..i].contains(n) {
-            bail!("{what} '{n}' is given twice");
-        }
-    }
-    want.iter()
-        .map(|w| {
-            have.iter().position(|n| n == w).with_context(|| {
-                format!(
-                    "{what} '{w}' is missing ({} of {} given)",
-                    have.len(),
-                    want.len()
-                )
-            })
-        })
-        .collect()
 }

@@ -1,0 +1,204 @@
+//! Arguments shared by several subcommands: the trace to read, the estimator settings,
+//! and `--coeffs` (a `calibrate` file that decides the method and the model).
+
+use crate::coefficients::{
+    read_coefficients, refuse_conflicting_settings, CoefficientFile, Method,
+};
+use crate::compensation::{compensate_trace, summarise, Compensation, EstimatorSettings, Summary};
+use crate::flight::Flight;
+use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
+use anyhow::{Context, Result};
+use clap::builder::PossibleValue;
+use std::path::{Path, PathBuf};
+
+impl clap::ValueEnum for Method {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[Method::Kf, Method::Tl]
+    }
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        Some(PossibleValue::new(self.name()).help(match self {
+            Method::Kf => {
+                "the paper's Kalman filter: deviation coefficients and the anomaly together"
+            }
+            Method::Tl => {
+                "classic Tolles–Lawson: band-passed least squares (MagNav.jl conventions)"
+            }
+        }))
+    }
+}
+
+/// Options shared by every command that reads a trace.
+#[derive(clap::Args, Clone, Debug)]
+pub struct TraceInput {
+    /// Flight trace: CSV per docs/trace-format.md, whitespace XYZ survey data (`/` comments,
+    /// `*` missing), or a MagNav.jl HDF5 file (`.h5`: one dataset per channel).
+    pub trace: PathBuf,
+    /// Column names of your file, e.g.
+    /// `t=TIME,mag=UNCOMPMAG4,flux_x=FLUXB_X,flux_y=FLUXB_Y,flux_z=FLUXB_Z,lat=LAT,lon=LONG,alt=UTM-Z`
+    /// (SGL survey XYZ names; docs/trace-format.md lists the canonical ones). Presets:
+    /// `magnav` (MagNav HDF5 names), `sgl` (SGL XYZ names), overridable:
+    /// `--map magnav,mag=mag_4_uc`.
+    #[arg(long, value_name = "CANONICAL=FILE,...")]
+    pub map: Option<String>,
+    /// Only these lines, by the `line` column (SGL's `LINE`), e.g. `1002.02,1003.01`.
+    #[arg(long, value_name = "LINE,...")]
+    pub lines: Option<String>,
+    /// Only rows with T0 ≤ t ≤ T1 (seconds, the `t` column; `T0:` or `:T1` leave a side open).
+    #[arg(long, value_name = "T0:T1", allow_hyphen_values = true)]
+    pub time: Option<String>,
+    /// Survey date for the core field (IGRF-14) when the file has no `igrf` column and no
+    /// `date` or YEAR/DOY columns.
+    #[arg(long, value_name = "YYYY-MM-DD")]
+    pub date: Option<String>,
+}
+
+impl TraceInput {
+    pub fn read(&self) -> Result<Trace> {
+        let map = match &self.map {
+            Some(m) => ColumnMap::parse(m)?,
+            None => ColumnMap::new(),
+        };
+        let bar = progress_bar(0);
+        let mut cb = |done: u64, total: u64| {
+            bar.set_length(total);
+            bar.set_position(done);
+        };
+        let opts = ReadOptions {
+            progress: Some(&mut cb),
+            ..Default::default()
+        };
+        let t = read_trace_with(&self.trace, &map, opts)
+            .with_context(|| format!("reading {}", self.trace.display()))?;
+        bar.finish_and_clear();
+        let sel = crate::input::Selection::parse(self.lines.as_deref(), self.time.as_deref())?;
+        let (t, core) = crate::input::prepare(t, &sel, self.date.as_deref())
+            .with_context(|| format!("preparing {}", self.trace.display()))?;
+        if let Some(m) = core.message() {
+            eprintln!("{m}");
+        }
+        Ok(t)
+    }
+
+    /// Just the file, for code that builds one by hand.
+    pub fn new(trace: impl Into<PathBuf>) -> Self {
+        TraceInput {
+            trace: trace.into(),
+            map: None,
+            lines: None,
+            time: None,
+            date: None,
+        }
+    }
+}
+
+/// Estimator settings shared by calibrate, compensate, report and diagnose.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct EstimatorArgs {
+    /// Model: `+`-joined terms, e.g. `tl16+field` (the paper's), `tl16+field+current:cur_pump`.
+    /// Terms: tl16 (= permanent+induced+eddy), field, current:CH, current_rate:CH, lag, rate,
+    /// diurnal[:base], induced_high, fluxcal, fluxtemp:CH, periodic:CH.
+    /// Default: `tl16+field+fluxcal` (the paper's, with the fluxgate calibrated against the
+    /// scalar first); with --coeffs, the file's.
+    #[arg(long, value_name = "SPEC")]
+    pub model: Option<String>,
+    /// kf: the paper's Kalman filter; tl: classic Tolles–Lawson (18 terms, band-passed).
+    /// Default: kf; with --coeffs, the file's.
+    #[arg(long, value_enum)]
+    pub method: Option<Method>,
+    #[command(flatten)]
+    pub tuning: TuningArgs,
+}
+
+/// The estimator's tuning, shared by every command that estimates (`report` has its own
+/// `--model`, given several times to compare models).
+#[derive(clap::Args, Clone, Debug)]
+pub struct TuningArgs {
+    /// Field-model roughness σ1 (nT/m^2.5), the same along the whole track (the paper's
+    /// stationary anomaly). Default: fitted to the along-track spectrum, and, post-flight,
+    /// the anomaly process whose σ1 follows the local roughness of the anomaly (or the
+    /// stationary one) that makes the data most likely (reported as `field_process`).
+    #[arg(long, value_name = "NT_PER_M2_5")]
+    pub sigma1: Option<f64>,
+    /// Scalar measurement noise 1σ (nT); default: estimated from the data.
+    #[arg(long, value_name = "NT")]
+    pub noise_nt: Option<f64>,
+    /// Tolles–Lawson terms for --method tl: tl18 (MagNav), tl16, or groups like permanent+induced.
+    #[arg(long, default_value = "tl18", value_name = "TERMS")]
+    pub tl_terms: String,
+    /// Ridge parameter λ of --method tl (default MagNav's 0.001); 0 gives plain
+    /// band-passed least squares (TL18-OLS, the yardstick of the Kalman filter).
+    #[arg(long, value_name = "LAMBDA", allow_negative_numbers = true)]
+    pub tl_ridge: Option<f64>,
+    /// Assumed ground speed (m/s) for a trace without positions (no lat/lon): the Kalman
+    /// filter then models the anomaly in time, as if flown at this speed (docs/trace-format.md).
+    /// Ignored when the trace has positions or a ground speed of its own.
+    #[arg(long, value_name = "M_PER_S")]
+    pub speed_mps: Option<f64>,
+}
+
+impl Default for TuningArgs {
+    /// As the command line's defaults.
+    fn default() -> Self {
+        Self {
+            sigma1: None,
+            noise_nt: None,
+            tl_terms: EstimatorSettings::default().tl_terms,
+            tl_ridge: None,
+            speed_mps: None,
+        }
+    }
+}
+
+/// One compensation of a flight as `report`/`diagnose --coeffs|--method` evaluate it.
+pub struct Evaluated {
+    pub flight: Flight,
+    pub comp: Compensation,
+    pub summary: Summary,
+    /// Where the coefficients came from, for the reader.
+    pub source: String,
+}
+
+impl EstimatorArgs {
+    /// Compensates `trace` as `compensate` would (post-flight): with the coefficient file
+    /// when given (its plausibility checked, `qc::applied`), else calibrating on the trace.
+    pub fn evaluate(&self, trace: &Trace, coeffs: Option<&Path>) -> Result<Evaluated> {
+        let file = self.coefficients(coeffs)?;
+        let (flight, comp) = compensate_trace(trace, &self.settings(), file.as_ref(), false)?;
+        let summary = summarise(&flight, &comp);
+        let source = match coeffs {
+            Some(p) => format!("coefficients from {}", p.display()),
+            None => "calibrated on this flight".into(),
+        };
+        Ok(Evaluated {
+            flight,
+            comp,
+            summary,
+            source,
+        })
+    }
+
+    /// The settings, defaults filled in.
+    pub fn settings(&self) -> EstimatorSettings {
+        let d = EstimatorSettings::default();
+        EstimatorSettings {
+            model: self.model.clone().unwrap_or(d.model),
+            method: self.method.unwrap_or(d.method),
+            sigma1: self.tuning.sigma1,
+            noise_nt: self.tuning.noise_nt,
+            tl_terms: self.tuning.tl_terms.clone(),
+            tl_ridge: self.tuning.tl_ridge,
+            speed_mps: self.tuning.speed_mps,
+        }
+    }
+
+    /// Reads `--coeffs` when given, refusing a `--method`/`--model` that contradicts it
+    /// (the file decides both).
+    pub fn coefficients(&self, coeffs: Option<&Path>) -> Result<Option<CoefficientFile>> {
+        let Some(path) = coeffs else {
+            return Ok(None);
+        };
+        let c = read_coefficients(path)?;
+        refuse_conflicting_settings(&c, self.method, self.model.as_deref())?;
+        Ok(Some(c))
+    }
+}

@@ -1,0 +1,59 @@
+//! `magcomp calibrate`: estimate the deviation coefficients (with 1σ) from a calibration
+//! flight and write them as a coefficient file.
+
+use super::args::{EstimatorArgs, TraceInput};
+use super::compensate::{print_summary, print_warnings};
+use crate::compensation::{compensate_trace, summarise, SURVEY_TOLERANCE_NT};
+use crate::output::refuse_overwriting;
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct CalibrateArgs {
+    #[command(flatten)]
+    pub input: TraceInput,
+    #[command(flatten)]
+    pub est: EstimatorArgs,
+    /// Where to write the coefficients (JSON).
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "COEFFS.json"
+    )]
+    pub output: PathBuf,
+    /// Print one JSON object with the summary on stdout (as `compensate --json`).
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: &CalibrateArgs) -> Result<()> {
+    refuse_overwriting(&[&a.input.trace], &[&a.output])?;
+    let trace = a.input.read()?;
+    let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
+    let file = comp.coefficients.clone().context("no coefficients")?;
+    crate::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
+    let mut s = summarise(&flight, &comp);
+    if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
+        s.warnings.push(format!(
+            "this flight determined the interference only to {p:.3} nT rms \
+             (filter covariance), more than a survey's {SURVEY_TOLERANCE_NT} nT: \
+             fly the pattern higher, over quieter ground, or with more manoeuvres"
+        ));
+    }
+    if a.json {
+        println!("{}", serde_json::to_string(&s)?);
+    } else {
+        println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
+        for c in &file.coefficients {
+            println!(
+                "{:<28} {:>12.4} {:>10.4}  {}",
+                c.name, c.value, c.sigma, c.unit
+            );
+        }
+        print_summary(&s);
+    }
+    print_warnings(&s);
+    eprintln!("wrote {}", a.output.display());
+    Ok(())
+}

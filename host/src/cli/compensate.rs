@@ -1,0 +1,126 @@
+//! `magcomp compensate`: remove the aircraft interference from a flight (calibrating on it,
+//! or applying a coefficient file), write the output CSV and print the summary.
+
+use super::args::{EstimatorArgs, TraceInput};
+use crate::compensation::{compensate_trace, summarise, write_output_csv, Summary};
+use crate::output::refuse_overwriting;
+use anyhow::Result;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Clone, Debug)]
+pub struct CompensateArgs {
+    #[command(flatten)]
+    pub input: TraceInput,
+    #[command(flatten)]
+    pub est: EstimatorArgs,
+    /// Apply these coefficients (from `calibrate`) instead of calibrating on this trace.
+    #[arg(long, value_name = "COEFFS.json")]
+    pub coeffs: Option<PathBuf>,
+    /// The causal filter's output sample by sample, as the board produces it (default:
+    /// post-flight — calibrate on the whole trace, then apply the final coefficients).
+    #[arg(long)]
+    pub realtime: bool,
+    /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
+    /// and the input columns the model does not use (LINE, X, Y, …); `OUT.xyz` writes
+    /// Geosoft XYZ; docs/trace-format.md.
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "OUT.csv"
+    )]
+    pub out: PathBuf,
+    /// Print one JSON object with the summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: &CompensateArgs) -> Result<()> {
+    let inputs: Vec<&std::path::Path> = std::iter::once(a.input.trace.as_path())
+        .chain(a.coeffs.as_deref())
+        .collect();
+    refuse_overwriting(&inputs, &[&a.out])?;
+    let trace = a.input.read()?;
+    let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
+    let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
+    let carried = crate::input::carried_columns(&trace, &flight.channels);
+    write_output_csv(&a.out, &flight, &comp, &carried)?;
+    let s = summarise(&flight, &comp);
+    if a.json {
+        let mut v = serde_json::to_value(&s)?;
+        // Where the core field came from: the file, or the model and epoch used.
+        for key in [
+            crate::input::META_CORE_FIELD,
+            crate::input::META_CORE_FIELD_EPOCH,
+        ] {
+            if let (Some(m), Some(obj)) = (trace.meta(key), v.as_object_mut()) {
+                obj.insert(key.into(), m.parse::<f64>().map_or(m.into(), Into::into));
+            }
+        }
+        println!("{v}");
+    } else {
+        print_summary(&s);
+        eprintln!("wrote {}", a.out.display());
+    }
+    print_warnings(&s);
+    Ok(())
+}
+
+/// Warnings go to stderr always, whatever else is printed.
+pub fn print_warnings(s: &Summary) {
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+}
+
+pub fn print_summary(s: &Summary) {
+    println!("model {} ({:?}), {} samples", s.model, s.method, s.samples);
+    println!(
+        "  residual in manoeuvre band: {:.4} nT rms",
+        s.residual_rms_nt
+    );
+    if let Some(ir) = s.improvement_ratio {
+        println!("  improvement ratio:          {ir:.2}");
+    }
+    if let Some(f) = s.fom_nt {
+        println!("  figure of merit (FOM):      {f:.3} nT");
+    }
+    if let Some(a) = s.aircraft_fom_nt {
+        println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
+    }
+    if let Some(t) = &s.fom_table {
+        println!("{}", crate::qc::fom::format_table(t));
+    }
+    if let Some(p) = s.predicted_error_nt {
+        println!(
+            "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
+        );
+    }
+    if let Some(e) = s.error_rms_nt {
+        println!("  error vs truth:             {e:.4} nT rms");
+    }
+    if let Some(o) = s.oracle_floor_nt {
+        println!("  oracle floor of the model:  {o:.4} nT rms (filter regressors only)");
+    }
+    if let Some(r) = &s.rate_crossover {
+        println!(
+            "  rate at {} crossovers:      differences {:.3} → {:.3} nT rms, p = {:.1e}, {}",
+            r.fit.crossings,
+            r.fit.rms_before_nt,
+            r.fit.rms_after_nt,
+            r.fit.p_value,
+            if r.applied {
+                "applied"
+            } else {
+                "not significant, not applied"
+            }
+        );
+        for (l, (v, e)) in r
+            .labels
+            .iter()
+            .zip(r.fit.coefficients.iter().zip(&r.fit.sigmas))
+        {
+            println!("    {l:<10} {v:>9.4} ± {e:.4} s");
+        }
+    }
+}

@@ -1,0 +1,247 @@
+//! `magcomp diagnose`: compare the model with the measurements, find where it fails and
+//! which physical effect is missing (`crate::diagnose`), optionally with the report page.
+//! With `--coeffs FILE` or `--method`, also the figures and warnings of that compensation
+//! on this flight (an applied calibration checked, not re-fitted).
+
+use super::args::{EstimatorArgs, Evaluated, TraceInput};
+use crate::compensation::compensated_trace;
+use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions, Diagnosis};
+use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
+use crate::report::calibration::{self, Evaluation};
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+
+/// `magcomp diagnose`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct DiagnoseArgs {
+    #[command(flatten)]
+    pub input: TraceInput,
+    /// --model (the model diagnosed), --method and the tuning: with --method or
+    /// --coeffs, the compensation whose figures and warnings are shown beside the diagnosis.
+    #[command(flatten)]
+    pub est: EstimatorArgs,
+    /// Check an applied calibration: these coefficients (from `calibrate`) on this flight,
+    /// not re-fitted (figures and plausibility warnings; `warnings` and `applied` in
+    /// --json). The file decides the method and, for the Kalman filter, the model diagnosed.
+    #[arg(long, value_name = "COEFFS.json")]
+    pub coeffs: Option<PathBuf>,
+    /// Print exactly one JSON object on stdout instead of the table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the HTML report into this directory.
+    #[arg(short = 'o', long, visible_alias = "out", value_name = "DIR")]
+    pub report: Option<PathBuf>,
+    /// Candidate driver channels, comma-separated globs (case-insensitive), e.g.
+    /// `CUR_*,V_*`. Default: every unmapped numeric column except position, navigation,
+    /// air data, attitude, time/date, LINE/FLT-like identifiers, other magnetometers
+    /// (UNCOMPMAG*, COMPMAG*, mag_*), base stations, fluxgates and constant columns.
+    #[arg(long, value_name = "GLOB,...")]
+    pub aux: Option<String>,
+    /// Family-wise false-positive rate over all candidates.
+    #[arg(long, default_value_t = 0.01)]
+    pub alpha: f64,
+    /// Smallest share of the residual variance a significant candidate must explain.
+    #[arg(long, default_value_t = 0.15)]
+    pub min_explained: f64,
+    /// Add the best significant candidate and diagnose again, until nothing is significant
+    /// (several effects at once); prints the path: model, residual and, with truth, the
+    /// error at each step. With `--json`, an array of the steps.
+    #[arg(long)]
+    pub iterate: bool,
+    /// With `--iterate`: the most terms to add.
+    #[arg(long, default_value_t = iterate::DEFAULT_MAX_STEPS, value_name = "N")]
+    pub max_steps: usize,
+}
+
+impl DiagnoseArgs {
+    /// The trace and the default settings, for code that builds one by hand.
+    pub fn new(trace: impl Into<PathBuf>) -> Self {
+        DiagnoseArgs {
+            input: TraceInput::new(trace),
+            est: EstimatorArgs::default(),
+            coeffs: None,
+            json: false,
+            report: None,
+            aux: None,
+            alpha: 0.01,
+            min_explained: 0.15,
+            iterate: false,
+            max_steps: iterate::DEFAULT_MAX_STEPS,
+        }
+    }
+}
+
+pub fn run(args: &DiagnoseArgs) -> Result<()> {
+    if !(args.alpha > 0.0 && args.alpha < 1.0) {
+        bail!("--alpha must be in (0, 1), got {}", args.alpha);
+    }
+    if !(0.0..1.0).contains(&args.min_explained) {
+        bail!(
+            "--min-explained must be in [0, 1), got {}",
+            args.min_explained
+        );
+    }
+    let evaluates = args.coeffs.is_some() || args.est.method.is_some();
+    if args.iterate && evaluates {
+        bail!("--iterate adds terms and re-fits the model: it cannot check one compensation (--coeffs, --method); run them separately");
+    }
+    let inputs: Vec<&Path> = std::iter::once(args.input.trace.as_path())
+        .chain(args.coeffs.as_deref())
+        .collect();
+    if let Some(dir) = &args.report {
+        crate::output::refuse_overwriting(
+            &inputs,
+            &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
+        )?;
+    }
+    let trace = args.input.read()?;
+    // The compensation checked first: a bad --coeffs fails before the long diagnosis.
+    let evaluated = if evaluates {
+        Some(args.est.evaluate(&trace, args.coeffs.as_deref())?)
+    } else {
+        None
+    };
+    // With a compensation checked, what it left is diagnosed under the anomaly model
+    // alone: its coefficients stay as given, and a deviation term that explains the
+    // residual (`induced`, `eddy`, …) says what they do not fit.
+    let residual = match &evaluated {
+        Some(ev) => Some(compensated_trace(&trace, &ev.flight, &ev.comp)?),
+        None => None,
+    };
+    let model = match &residual {
+        Some(_) => ModelSpec::parse("field")?,
+        None => ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?,
+    };
+    let diagnosed = residual.as_ref().unwrap_or(&trace);
+    let aux = args
+        .aux
+        .as_deref()
+        .map(candidates::AuxSelection::parse)
+        .transpose()?;
+    if let Some(sel) = &aux {
+        candidates::check_selection(&trace, sel)?;
+    }
+    let opts = DiagnoseOptions {
+        alpha: args.alpha,
+        min_explained: args.min_explained,
+        aux,
+        ..Default::default()
+    };
+    if args.iterate {
+        let it = iterate::iterate(&trace, &model, &opts, args.max_steps)?;
+        if let Some(dir) = &args.report {
+            let path = crate::report::flight_report::write_report(
+                &trace,
+                &it.models()?,
+                it.steps.first().map(|s| &s.diagnosis),
+                dir,
+            )?;
+            if !args.json {
+                println!("report written to {}", path.display());
+            }
+        }
+        if args.json {
+            println!("{}", it.to_json());
+        } else {
+            print!("{}", it.table());
+        }
+        return Ok(());
+    }
+    let d = diagnose(diagnosed, &model, &opts)?;
+    if let Some(dir) = &args.report {
+        let path = match &evaluated {
+            Some(ev) => write_evaluation(&trace, ev, dir)?,
+            None => crate::report::flight_report::write_report(
+                &trace,
+                std::slice::from_ref(&model),
+                Some(&d),
+                dir,
+            )?,
+        };
+        if !args.json {
+            println!("report written to {}", path.display());
+        }
+    }
+    if args.json {
+        println!("{}", json(&d, evaluated.as_ref())?);
+    } else {
+        match &evaluated {
+            Some(_) => print!("{}", applied_table(&d)),
+            None => print!("{}", d.table()),
+        }
+        if let Some(ev) = &evaluated {
+            println!("compensation checked ({}):", ev.source);
+            super::compensate::print_summary(&ev.summary);
+        }
+    }
+    if let Some(ev) = &evaluated {
+        super::compensate::print_warnings(&ev.summary);
+    }
+    Ok(())
+}
+
+/// The table of a checked compensation's residual: a significant term is interference the
+/// coefficients leave, not a term to add to the anomaly-only model diagnosed.
+fn applied_table(d: &Diagnosis) -> String {
+    let mut out = String::new();
+    for line in d.table().lines() {
+        if line.starts_with("suggestion:") {
+            if let Some(c) = d.candidates.iter().find(|c| c.significant) {
+                out.push_str(&format!(
+                    "the applied coefficients leave interference that `{}` explains ({:.0} % of what they left): they do not fit this flight; calibrate on this aircraft\n",
+                    c.term,
+                    100.0 * c.explained_fraction
+                ));
+            }
+        } else if line.starts_with("no candidate is significant") {
+            out.push_str("no candidate is significant: the applied coefficients leave no interference a term explains\n");
+        } else {
+            out.push_str(line);
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// The diagnosis as JSON with `warnings` (the compensation's when one is checked, else
+/// the filter's) and, when one is checked, `applied` (its summary, as `compensate --json`).
+fn json(d: &Diagnosis, evaluated: Option<&Evaluated>) -> Result<String> {
+    let mut v = serde_json::to_value(d)?;
+    let warnings = match evaluated {
+        Some(ev) => ev.summary.warnings.clone(),
+        None => d.run.warnings.clone(),
+    };
+    if let Some(obj) = v.as_object_mut() {
+        obj.insert("warnings".into(), serde_json::to_value(warnings)?);
+        if let Some(ev) = evaluated {
+            let mut applied = serde_json::to_value(&ev.summary)?;
+            if let Some(a) = applied.as_object_mut() {
+                a.insert("source".into(), ev.source.clone().into());
+            }
+            obj.insert("applied".into(), applied);
+        }
+    }
+    Ok(serde_json::to_string_pretty(&v)?)
+}
+
+/// The page of the checked compensation (`report --coeffs`'s).
+pub(super) fn write_evaluation(
+    trace: &crate::trace::Trace,
+    ev: &Evaluated,
+    dir: &Path,
+) -> Result<PathBuf> {
+    let page = calibration::build(
+        trace,
+        &Evaluation {
+            flight: &ev.flight,
+            comp: &ev.comp,
+            summary: &ev.summary,
+            source: ev.source.clone(),
+        },
+    );
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create report directory {}", dir.display()))?;
+    let path = dir.join(crate::report::flight_report::REPORT_PAGE);
+    page.write(&path)?;
+    Ok(path)
+}

@@ -1,0 +1,80 @@
+//! `magcomp monitor`: decode and show the board's output stream live (a port, a file, or
+//! `-`), optionally saving the records (`crate::monitor`).
+
+use crate::monitor::{monitor_stream, Display, MonitorStats};
+use anyhow::{Context, Result};
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::time::Duration;
+
+/// Decode and show the compensator's output stream live (values, flags, rates, errors).
+#[derive(clap::Args, Clone, Debug)]
+pub struct MonitorArgs {
+    /// Serial device (configure it with `stty`), a recorded file, or `-` for stdin.
+    #[arg(value_name = "PORT_OR_FILE")]
+    pub input: String,
+
+    /// Save the decoded records as a trace-like CSV
+    /// (t,mag,interference,compensated,anomaly,innovation,flags,seq).
+    #[arg(short = 'o', long, visible_alias = "out", value_name = "TRACE.csv")]
+    pub save: Option<PathBuf>,
+
+    /// Refresh period on a terminal (wall-clock s); summary period otherwise (record s).
+    #[arg(long, default_value_t = 1.0, value_name = "S")]
+    pub interval_s: f64,
+
+    /// No live output: only the final summary.
+    #[arg(long)]
+    pub quiet: bool,
+
+    /// Keep reading at the end of a file that a logger is still writing (stop with Ctrl-C).
+    #[arg(long)]
+    pub follow: bool,
+}
+
+pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
+    anyhow::ensure!(
+        args.interval_s.is_finite() && args.interval_s > 0.0,
+        "--interval-s must be > 0"
+    );
+    let stdout = std::io::stdout();
+    let display = if args.quiet {
+        Display::Quiet
+    } else if stdout.is_terminal() {
+        Display::Live(Duration::from_secs_f64(args.interval_s))
+    } else {
+        Display::Summary(args.interval_s)
+    };
+    if let Some(p) = &args.save {
+        let input = std::path::Path::new(&args.input);
+        let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
+        crate::output::refuse_overwriting(inputs, &[p])?;
+    }
+    let mut save_file = match &args.save {
+        Some(p) => Some(std::io::BufWriter::new(
+            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
+        )),
+        None => None,
+    };
+    let save: Option<&mut dyn Write> = save_file.as_mut().map(|w| w as &mut dyn Write);
+    let mut out = stdout.lock();
+    let stats = if args.input == "-" {
+        monitor_stream(
+            std::io::stdin().lock(),
+            "stdin",
+            display,
+            args.follow,
+            &mut out,
+            save,
+        )?
+    } else {
+        let f =
+            std::fs::File::open(&args.input).with_context(|| format!("opening {}", args.input))?;
+        monitor_stream(f, &args.input, display, args.follow, &mut out, save)?
+    };
+    if let (Some(w), Some(p)) = (save_file.as_mut(), &args.save) {
+        w.flush()
+            .with_context(|| format!("writing {}", p.display()))?;
+    }
+    Ok(stats)
+}

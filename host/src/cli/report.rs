@@ -1,0 +1,98 @@
+//! `magcomp report`: the self-contained HTML page. Without `--coeffs`/`--method`/
+//! `--speed-mps`, the diagnosis page of one or more models (`report::flight_report`);
+//! with them, the page of that one compensation (`report::calibration`): an applied
+//! calibration checked on this flight, or Tolles–Lawson / the Kalman filter fitted on it.
+
+use super::args::{EstimatorArgs, TraceInput, TuningArgs};
+use crate::coefficients::Method;
+use crate::model_spec::ModelSpec;
+use crate::report::flight_report::{write_report, REPORT_PAGE};
+use anyhow::{bail, Result};
+use std::path::{Path, PathBuf};
+
+/// `magcomp report`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ReportArgs {
+    #[command(flatten)]
+    pub input: TraceInput,
+    /// Model spec; give it twice (or more) to compare before/after, e.g.
+    /// `--model tl16+field --model tl16+field+current:cur_pump`. Default: the default
+    /// model (`tl16+field+fluxcal`); with --coeffs, the file's.
+    #[arg(long)]
+    pub model: Vec<String>,
+    /// Evaluate one compensation instead of diagnosing models: kf (the Kalman filter
+    /// calibrated on this flight) or tl (classic Tolles–Lawson fitted on it). With
+    /// --coeffs, the file decides.
+    #[arg(long, value_enum)]
+    pub method: Option<Method>,
+    /// Check an applied calibration: these coefficients (from `calibrate`) on this
+    /// flight, not re-fitted; the page warns at the top when they do not fit it.
+    #[arg(long, value_name = "COEFFS.json")]
+    pub coeffs: Option<PathBuf>,
+    #[command(flatten)]
+    pub tuning: TuningArgs,
+    /// Output directory (created); the page is DIR/index.html.
+    #[arg(
+        short = 'o',
+        long = "out",
+        visible_alias = "output",
+        value_name = "DIR"
+    )]
+    pub out: PathBuf,
+}
+
+impl ReportArgs {
+    /// Just the trace and the output directory, for code that builds one by hand.
+    pub fn new(trace: impl Into<PathBuf>, out: impl Into<PathBuf>) -> Self {
+        ReportArgs {
+            input: TraceInput::new(trace),
+            model: Vec::new(),
+            method: None,
+            coeffs: None,
+            tuning: TuningArgs::default(),
+            out: out.into(),
+        }
+    }
+
+    /// One compensation is evaluated (rather than models diagnosed).
+    fn evaluates(&self) -> bool {
+        self.coeffs.is_some() || self.method.is_some() || self.tuning.speed_mps.is_some()
+    }
+}
+
+pub fn run(args: &ReportArgs) -> Result<()> {
+    let inputs: Vec<&Path> = std::iter::once(args.input.trace.as_path())
+        .chain(args.coeffs.as_deref())
+        .collect();
+    let page_path = args.out.join(REPORT_PAGE);
+    crate::output::refuse_overwriting(&inputs, &[&page_path])?;
+    let trace = args.input.read()?;
+    if args.evaluates() {
+        if args.model.len() > 1 {
+            bail!("--coeffs, --method and --speed-mps evaluate one compensation: give at most one --model (several --model compare models by their diagnosis, without these)");
+        }
+        let est = EstimatorArgs {
+            model: args.model.first().cloned(),
+            method: args.method,
+            tuning: args.tuning.clone(),
+        };
+        let ev = est.evaluate(&trace, args.coeffs.as_deref())?;
+        let path = super::diagnose::write_evaluation(&trace, &ev, &args.out)?;
+        super::compensate::print_warnings(&ev.summary);
+        println!("report written to {}", path.display());
+        return Ok(());
+    }
+    let default = [crate::model_spec::DEFAULT_MODEL.to_string()];
+    let given: &[String] = if args.model.is_empty() {
+        &default
+    } else {
+        &args.model
+    };
+    let models = given
+        .iter()
+        .map(|m| ModelSpec::parse(m))
+        .collect::<Result<Vec<_>>>()?;
+    let path = write_report(&trace, &models, None, &args.out)?;
+    println!("report written to {}", path.display());
+    Ok(())
+}
