@@ -156,9 +156,9 @@ pub struct Candidate {
     /// manoeuvre-band interference beyond the model's own terms (nT; `identifiability.rs`).
     /// None for candidates that are not regressors (`field`, `fluxcal`, `fluxtemp`).
     pub excitation_nt: Option<f64>,
-    /// Share of the residual variance it removes on held-out manoeuvres (fitted on the
-    /// other folds, `holdout.rs`); what materiality and the ranking are judged on. None
-    /// for candidates not tested as regressors.
+    /// Share of the residual variance it removes on held-out pieces of the flight (each
+    /// fitted on all the others, `holdout.rs`): what materiality is judged on. None for
+    /// candidates not tested as regressors.
     pub heldout_explained_fraction: Option<f64>,
     /// Held-out residual rms after adding it (nT): the predicted error fall.
     pub heldout_rms_after_nt: Option<f64>,
@@ -722,12 +722,11 @@ pub fn diagnose_with(
     // (BIC): a 6-parameter term that explains 0.1 % more than a 1-parameter one nested in
     // it is not the better explanation.
     let n_rows = rows.len() as f64;
+    // In-sample shares rank (the closest explanation first, even when it is not
+    // recommended): what is recommended was already judged held out.
     let bic = |c: &Candidate| {
-        let share = c
-            .heldout_explained_fraction
-            .unwrap_or(c.explained_fraction)
-            .max(0.0);
-        n_rows * (1.0 / (1.0 - share).max(1e-12)).ln() - c.added_parameters as f64 * n_rows.ln()
+        n_rows * (1.0 / (1.0 - c.explained_fraction).max(1e-12)).ln()
+            - c.added_parameters as f64 * n_rows.ln()
     };
     candidates.sort_by(|a, b| {
         b.significant
