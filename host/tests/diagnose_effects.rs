@@ -244,7 +244,12 @@ fn a_window_limited_effect_is_located() {
                 "seed {seed}: spurious {f:?}"
             );
         }
-        assert_eq!(d.candidates[0].term, "current:cur_pump", "seed {seed}");
+        assert_eq!(
+            d.candidates[0].term,
+            "current:cur_pump",
+            "seed {seed}\n{}",
+            d.table()
+        );
     }
 }
 
@@ -260,7 +265,11 @@ fn a_clean_flight_with_decoys_has_no_significant_candidate() {
             "seed {seed}: false positive\n{}",
             d.table()
         );
-        assert!(d.candidates.len() >= 9, "every catalogue term is tried");
+        // Tested or listed as untestable on this flight (`rate`: no crossovers).
+        assert!(
+            d.candidates.len() + d.untestable.len() >= 9,
+            "every catalogue term is tried"
+        );
         assert!(d.candidates.iter().any(|c| c.term == "current:cur_fan"));
         assert!(d.nis < 2.0, "seed {seed}: NIS {}", d.nis);
     }

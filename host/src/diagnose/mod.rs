@@ -20,6 +20,8 @@ pub mod candidates;
 pub mod custom;
 mod effect_tests;
 mod failures;
+pub mod holdout;
+mod identifiability;
 pub(crate) mod innovations;
 pub mod iterate;
 mod lag_detector;
@@ -42,7 +44,9 @@ use failures::{band_failures, segment_stats, time_failures};
 use innovations::{filter_columns, FieldSettings};
 use magcomp_core::model::catalog::{info, AnyTerm, ChannelUse, CATALOG};
 use magcomp_core::model::Term;
-use regression::{build_columns, fit, nested_test, usable_rows, Block, ColTerm};
+use regression::{
+    build_columns, build_columns_with, fit, nested_test, usable_rows, Block, ColTerm,
+};
 use serde::Serialize;
 use stats::{chi2_sf, lag1_autocorr, median};
 
@@ -146,6 +150,26 @@ pub struct Candidate {
     pub f_statistic: f64,
     /// Tail probability of that statistic (before the Bonferroni correction).
     pub p_value: f64,
+    /// How far a prior-1σ change of its best-determined coefficients moves the
+    /// manoeuvre-band interference beyond the model's own terms (nT; `identifiability.rs`).
+    /// None for candidates that are not regressors (`field`, `fluxcal`, `fluxtemp`).
+    pub excitation_nt: Option<f64>,
+    /// Share of the residual variance it removes on held-out pieces of the flight (each
+    /// fitted on all the others, `holdout.rs`): what materiality is judged on. None for
+    /// candidates not tested as regressors.
+    pub heldout_explained_fraction: Option<f64>,
+    /// Held-out residual rms after adding it (nT): the predicted error fall.
+    pub heldout_rms_after_nt: Option<f64>,
+}
+
+/// A candidate this flight cannot determine: listed, not tested or ranked.
+#[derive(Clone, Debug, Serialize)]
+pub struct Untestable {
+    pub term: String,
+    pub effect: String,
+    /// Why, in words.
+    pub reason: String,
+    pub excitation_nt: Option<f64>,
 }
 
 /// Time series behind the diagnosis, for the report.
@@ -165,6 +189,8 @@ pub struct Diagnosis {
     pub residual_rms_nt: f64,
     pub failures: Vec<Failure>,
     pub candidates: Vec<Candidate>,
+    /// Candidates the flight cannot determine (not ranked).
+    pub untestable: Vec<Untestable>,
     pub bands: Vec<BandFailure>,
     pub segments: Vec<SegmentStat>,
     /// Mean normalised innovation squared over the flight.
@@ -212,17 +238,19 @@ impl Diagnosis {
         let _ = writeln!(s, "candidate terms (best first):");
         let _ = writeln!(
             s,
-            "  {:<4} {:<24} {:>9} {:>12} {:>4} {:>9} {:>9} {:>7}  effect",
-            "rank", "term", "explained", "rms after nT", "dof", "F", "p", "signif."
+            "  {:<4} {:<24} {:>9} {:>9} {:>12} {:>4} {:>9} {:>9} {:>7}  effect",
+            "rank", "term", "explained", "held-out", "rms after nT", "dof", "F", "p", "signif."
         );
         for (i, c) in self.candidates.iter().enumerate() {
             let _ = writeln!(
                 s,
-                "  {:<4} {:<24} {:>8.1}% {:>12.4} {:>4} {:>9.1} {:>9.1e} {:>7}  {}",
+                "  {:<4} {:<24} {:>8.1}% {:>9} {:>12.4} {:>4} {:>9.1} {:>9.1e} {:>7}  {}",
                 i + 1,
                 c.term,
                 100.0 * c.explained_fraction,
-                c.residual_rms_after_nt,
+                c.heldout_explained_fraction
+                    .map_or("—".to_string(), |h| format!("{:.1}%", 100.0 * h)),
+                c.heldout_rms_after_nt.unwrap_or(c.residual_rms_after_nt),
                 c.added_parameters,
                 c.f_statistic,
                 c.p_value,
@@ -239,8 +267,14 @@ impl Diagnosis {
         if self.candidates.iter().any(|c| !c.material) {
             let _ = writeln!(
                 s,
-                "  (small: explains less than the materiality bar, whatever its p)"
+                "  (small: explains less than the materiality bar, whatever its p; judged on held-out manoeuvres where shown)"
             );
+        }
+        if !self.untestable.is_empty() {
+            let _ = writeln!(s, "not testable on this flight (not ranked):");
+            for u in &self.untestable {
+                let _ = writeln!(s, "  {:<29} {}", u.term, u.reason);
+            }
         }
         match self.candidates.iter().find(|c| c.significant) {
             Some(c) => {
@@ -342,6 +376,17 @@ fn rpm_like(name: &str, v: &[f64]) -> bool {
         .filter(|x| x.is_finite())
         .fold(f64::MAX, f64::min);
     min >= 0.0 && median(v) >= 300.0
+}
+
+/// Prior 1σ of each of a candidate's coefficients (the scale `identifiability` measures in).
+fn prior_sigma_of(c: &ColTerm) -> Vec<f64> {
+    let term: Option<Box<dyn Term>> = match c.extra {
+        Some(x) => Some((x.make)(0)),
+        None => AnyTerm::make(&c.spec.name, 0).map(|t| Box::new(t) as Box<dyn Term>),
+    };
+    term.map_or_else(Vec::new, |t| {
+        (0..t.len()).map(|i| t.prior_sigma(i) as f64).collect()
+    })
 }
 
 /// Diagnoses `trace` under `model`.
@@ -456,6 +501,13 @@ pub fn diagnose_with(
         None => trace,
     };
     let tc = build_columns(trace, &all_terms, fs)?;
+    // The same columns from the INS attitude's field direction: what attitude drives.
+    let tc_att = build_columns_with(trace, &all_terms, fs, true)?;
+    let base_att: Vec<&[f64]> = tc_att.cols[..model.terms.len()]
+        .iter()
+        .flatten()
+        .map(|c| c.as_slice())
+        .collect();
     // Column 0: the scalar relative to its first value, core-field change removed.
     let y = scalar_relative_nt(&flight);
     let mut columns: Vec<&[f64]> = vec![&y];
@@ -489,19 +541,51 @@ pub fn diagnose_with(
     let e0: Vec<f64> = e0w.iter().zip(&sd).map(|(a, s)| a * s).collect();
     let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
     let residual_rms = rms(&e0);
+    let folds = holdout::folds(&flight, &rows);
 
     // Candidates.
     let m = cand_specs.len().max(1) as f64;
     let mut candidates = Vec::new();
+    let mut untestable = Vec::new();
     let mut bi = n_model;
     let mut cand_cols: std::collections::HashMap<String, Vec<usize>> = Default::default();
     for (text, spec) in &cand_specs {
         // For candidates tested on the fluxgate: the change they make to the compensation.
         let mut fluxgate_change: Option<f64> = None;
+        let mut excitation_nt: Option<f64> = None;
+        let mut heldout: Option<f64> = None;
         let (effect, explained, after, q, f, p) = match spec {
-            Some(_) => {
+            Some(ct) => {
                 let b = &blocks[bi];
+                let cand_att: Vec<&[f64]> = tc_att.cols[bi].iter().map(|c| c.as_slice()).collect();
                 bi += 1;
+                let name = text.split(':').next().unwrap_or(text);
+                let effect = match ct.extra {
+                    Some(x) => x.effect,
+                    None => info(name).map(|i| i.effect).unwrap_or(""),
+                };
+                excitation_nt = identifiability::candidate_excitation_nt(
+                    &base_att,
+                    &cand_att,
+                    &prior_sigma_of(ct),
+                    fs,
+                    ct.spec.channel.is_some(),
+                );
+                let floor = crate::excitation::EXCITATION_FLOOR_NT;
+                // Environment terms (`diurnal`) are not driven by manoeuvres: the field
+                // states, not the attitude, separate them.
+                let environment = AnyTerm::make(name, 0).is_some_and(|t| !t.is_interference());
+                if let Some(x) = excitation_nt.filter(|x| *x < floor && !environment) {
+                    untestable.push(Untestable {
+                        term: text.clone(),
+                        effect: effect.to_string(),
+                        reason: format!(
+                            "not excited: a prior-1σ change moves the manoeuvre-band interference by {x:.4} nT beyond the model's own terms (< {floor} nT); fly roll, pitch and yaw manoeuvres on four headings"
+                        ),
+                        excitation_nt,
+                    });
+                    continue;
+                }
                 cand_cols.insert(text.clone(), b.idx.clone());
                 let mut full = base_idx.clone();
                 full.extend_from_slice(&b.idx);
@@ -515,17 +599,26 @@ pub fn diagnose_with(
                 };
                 let after = residual_rms * (1.0 - explained).sqrt();
                 let (f, p, q) = nested_test(&inn.cols, &rows, &base_idx, &b.idx, opts.ar_order);
-                let name = text.split(':').next().unwrap_or(text);
-                let effect = match spec.as_ref().and_then(|c| c.extra) {
-                    Some(x) => x.effect,
-                    None => info(name).map(|i| i.effect).unwrap_or(""),
-                };
-                match (name == "rate")
-                    .then(|| rate_crossover_test(&flight, &run, residual_rms, effect))
-                    .flatten()
-                {
-                    Some(t) => t,
-                    None => (effect.to_string(), explained, after, q, f, p),
+                heldout = Some(holdout::heldout_explained(
+                    &inn.cols, &rows, &folds, &base_idx, &b.idx,
+                ));
+                if name == "rate" {
+                    // On one pass `rate` is a shift of the anomaly along the track, which the
+                    // residual cannot show (issue 4): only crossovers test it.
+                    match rate_crossover_test(&flight, &run, residual_rms, effect) {
+                        Some(t) => t,
+                        None => {
+                            untestable.push(Untestable {
+                                term: text.clone(),
+                                effect: effect.to_string(),
+                                reason: "no crossovers: on single passes the term is a shift of the anomaly along the track; it is tested only where lines cross".into(),
+                                excitation_nt,
+                            });
+                            continue;
+                        }
+                    }
+                } else {
+                    (effect.to_string(), explained, after, q, f, p)
                 }
             }
             None if text == "fluxcal" || text.starts_with("fluxtemp:") => {
@@ -602,7 +695,11 @@ pub fn diagnose_with(
                 )
             }
         };
-        let material = explained >= opts.min_explained
+        // Judged held out where it can be: a term that fits geology or noise in-sample
+        // does not keep its share on manoeuvres it was not fitted on. (`rate` tested at
+        // crossovers keeps the crossover fit's share.)
+        let heldout = heldout.filter(|_| !text.starts_with("rate"));
+        let material = heldout.unwrap_or(explained) >= opts.min_explained
             && fluxgate_change.is_none_or(|c| c >= opts.min_fluxcal_change_nt);
         candidates.push(Candidate {
             term: text.clone(),
@@ -614,12 +711,17 @@ pub fn diagnose_with(
             added_parameters: q,
             f_statistic: f,
             p_value: p,
+            excitation_nt,
+            heldout_explained_fraction: heldout,
+            heldout_rms_after_nt: heldout.map(|h| residual_rms * (1.0 - h).max(0.0).sqrt()),
         });
     }
     // Significant first; then by explained share penalised for the parameters added
     // (BIC): a 6-parameter term that explains 0.1 % more than a 1-parameter one nested in
     // it is not the better explanation.
     let n_rows = rows.len() as f64;
+    // In-sample shares rank (the closest explanation first, even when it is not
+    // recommended): what is recommended was already judged held out.
     let bic = |c: &Candidate| {
         n_rows * (1.0 / (1.0 - c.explained_fraction).max(1e-12)).ln()
             - c.added_parameters as f64 * n_rows.ln()
@@ -686,6 +788,7 @@ pub fn diagnose_with(
         residual_rms_nt: residual_rms,
         failures,
         candidates,
+        untestable,
         bands,
         segments,
         nis,

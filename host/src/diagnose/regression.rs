@@ -31,6 +31,18 @@ pub(crate) struct ColTerm<'a> {
 }
 
 pub(crate) fn build_columns(trace: &Trace, cterms: &[ColTerm], fs_hz: f64) -> Result<TermColumns> {
+    build_columns_with(trace, cterms, fs_hz, false)
+}
+
+/// [`build_columns`]; with `attitude_only` the direction cosines (and their rate) are the
+/// INS attitude's `e_ref` instead of the fluxgate's, so the columns hold only the variation
+/// attitude drives (no geology's field direction). Epochs without `e_ref` keep the fluxgate's.
+pub(crate) fn build_columns_with(
+    trace: &Trace,
+    cterms: &[ColTerm],
+    fs_hz: f64,
+    attitude_only: bool,
+) -> Result<TermColumns> {
     let terms: Vec<TermSpec> = cterms.iter().map(|c| c.spec.clone()).collect();
     let n = trace.len();
     let mut cols: Vec<Vec<Vec<f64>>> = vec![Vec::new(); terms.len()];
@@ -80,6 +92,9 @@ pub(crate) fn build_columns(trace: &Trace, cterms: &[ColTerm], fs_hz: f64) -> Re
         if epochs.len() != n {
             bail!("internal: {} epochs for {n} samples", epochs.len());
         }
+        if attitude_only {
+            use_attitude_direction(&mut epochs, ecfg.half_width);
+        }
         if geometry.is_none() {
             geometry = Some(Geometry {
                 ds_m: epochs.iter().map(|e| e.ds_m as f64).collect(),
@@ -116,6 +131,26 @@ pub(crate) fn build_columns(trace: &Trace, cterms: &[ColTerm], fs_hz: f64) -> Re
         cols,
         geometry: geometry.context("internal: no epochs")?,
     })
+}
+
+/// `e ← e_ref` and `ė ←` its centred difference over ±`h` epochs, where `e_ref` is known.
+fn use_attitude_direction(epochs: &mut [magcomp_core::epoch::Epoch], h: usize) {
+    let n = epochs.len();
+    let refs: Vec<([f32; 3], f64)> = epochs.iter().map(|e| (e.e_ref, e.t_s)).collect();
+    let ok = |k: usize| refs[k].0.iter().all(|v| v.is_finite());
+    for (k, ep) in epochs.iter_mut().enumerate() {
+        if !ok(k) {
+            continue;
+        }
+        ep.e = refs[k].0;
+        let (a, b) = (k.saturating_sub(h), (k + h).min(n - 1));
+        let dt = refs[b].1 - refs[a].1;
+        if b > a && ok(a) && ok(b) && dt > 0.0 {
+            for i in 0..3 {
+                ep.e_dot_per_s[i] = ((refs[b].0[i] - refs[a].0[i]) as f64 / dt) as f32;
+            }
+        }
+    }
 }
 
 /// One term block of the regression.

@@ -9,17 +9,21 @@
 //! once). The residual variance is smallest at the true τ. A grid over ±[`MAX_LAG_S`] in
 //! 20 ms steps, then Brent's method, finds the minimum; the 1σ comes from the curvature
 //! there (`var τ = 2·RSS/(n_eff·RSS'')`, `n_eff` from the residual's lag-1 correlation).
-//! A band-passed (0.1–0.9 Hz) objective was tried first: it throws away the turns and the
-//! slow part of the manoeuvres and gave τ to ±2 ms at 10 Hz, which left 2.3× the clean
-//! error at τ = 0.05 s; the innovation domain keeps every frequency the model explains.
 //!
-//! **Known limit.** The objective has a flat bottom ±40 ms wide: a shift of the
-//! interference is, to first order, `δ·dI/dt`, which the eddy terms absorb (`K·ė` and
-//! `d(e_i e_j)/dt·|B|` lie in, or next to, the span of `e_i ė_j·|B|`). Inside it the minimum
-//! moves with the model's own misfit: on the simulated cloverleaf τ = 0.05 s is found to
-//! 1–2 ms, τ = 0.2 s to +36 ms at 10 Hz and −10 ms at 1 kHz. The filter's innovation
-//! likelihood (one causal pass with the tie point) was tried as a second stage in that
-//! basin and was no better (+44 ms at 10 Hz).
+//! **Band.** The scalar, its core-field change and the regressors pass the same zero-phase
+//! band-pass (0.005 Hz up to `0.06 / Δ`, Δ the centred derivative's half-span: 0.6 Hz at
+//! 10 Hz, 1.2 Hz at 1 kHz) and are decimated to ~10 Hz for the search. Two biases made τ
+//! ≥ 0.2 s come out 10–36 ms off with the full band, because a shift of the interference
+//! is, to first order, `δ·dI/dt`, which the eddy terms absorb (`d(e_i e_j)/dt·|B|` lies in
+//! the span of `e_i ė_j·|B|`), leaving a flat-bottomed objective that any small
+//! τ-dependent misfit moves: (1) reading white noise between samples smooths it (the
+//! interpolator attenuates near Nyquist), so the residual is smaller at half-sample shifts:
+//! τ = 0.2 s (2 samples at 10 Hz) came out at 0.236 s; (2) `ė` from a ±Δ difference has
+//! the gain `sin ωΔ/ωΔ` (93 % at 1 Hz, 10 Hz data), a misfit that grows with frequency like
+//! the shift's own signature. With the band: τ within 0–5 ms at 10 Hz and 1 ms at 1 kHz
+//! (τ = 0.05/0.2/0.5 s, tests/lag_delay.rs), the error 0.79–1.33× the clean floor. A
+//! 0.1–0.9 Hz band tried first kept the noise bias out but the derivative's gain error in.
+//! Decimating makes the 1 kHz search as cheap as the 10 Hz one (3.5 s instead of 350 s).
 //!
 //! **Re-align.** `mag(t) ← mag(t + τ)` by a Kaiser-windowed sinc (±16 taps, β = 8). Why not
 //! cubic: a Catmull–Rom cubic loses ~1 % of the amplitude at 0.1·fs (a 1 Hz manoeuvre at
@@ -47,6 +51,13 @@ pub const MAX_LAG_S: f64 = 1.0;
 /// Grid step of the coarse search (s): well below the period of the fastest manoeuvre
 /// band content (1.1 s), so the grid cannot step over the minimum's basin.
 const GRID_STEP_S: f64 = 0.02;
+/// Lower edge of the band kept for the estimate (Hz): every manoeuvre and turn.
+const ESTIMATE_LOW_HZ: f64 = 0.005;
+/// Upper edge × the centred derivative's half-span (Hz·s): where `ė` (a ±Δ difference)
+/// still has 97.6 % of the true rate's gain (module notes). 0.6 Hz at 10 Hz (Δ = 0.1 s).
+const ESTIMATE_HIGH_HZ_S: f64 = 0.06;
+/// Rate the band-limited columns are decimated to for the search (Hz).
+const SEARCH_RATE_HZ: f64 = 10.0;
 /// Half-length of the windowed-sinc kernel (samples).
 const HALF_TAPS: usize = 16;
 const KAISER_BETA: f64 = 8.0;
@@ -266,6 +277,20 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
     if cols.is_empty() {
         bail!("the model has no regressors to estimate the scalar lag against");
     }
+    // The scalar, its core-field change and the regressors through the same zero-phase
+    // filter: it commutes with the shift and with constant coefficients.
+    let half_span_s = CompensatorConfig::for_rate(fs as f32).epoch.half_width as f64 / fs;
+    let band = (
+        ESTIMATE_LOW_HZ,
+        (ESTIMATE_HIGH_HZ_S / half_span_s).min(0.2 * fs.min(SEARCH_RATE_HZ)),
+    );
+    let gaps = crate::tl::Gaps {
+        breaks: &[],
+        max_fill: n,
+        min_len: 0,
+    };
+    let lp = |x: &[f64]| crate::tl::bandpass_gaps(x, 4, band.0, band.1, fs, &gaps);
+    let cols: Vec<Vec<f64>> = cols.iter().map(|c| lp(c)).collect::<Result<_>>()?;
     // The scalar relative to its first value, and the core-field change (at the true
     // instants: only the scalar is shifted).
     let m0 = flight
@@ -288,6 +313,8 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
             }
         })
         .collect();
+    let mag_rel = lp(&mag_rel)?;
+    let igrf_rel = lp(&igrf_rel)?;
     // One missing-sample pattern for every trial τ (the ends and whatever is within the
     // largest shift of a missing reading), so the regressors' innovations are computed once.
     let bad: Vec<bool> = (0..n)
@@ -309,9 +336,24 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
         }
         near_bad[i] |= next_bad.is_some_and(|b| b - i <= max_shift);
     }
+    // Decimated to ~10 Hz (the columns hold nothing above 2 Hz): the search's cost no
+    // longer grows with the sample rate. The scalar is still read at full-rate positions.
+    let dec = ((fs / SEARCH_RATE_HZ).floor() as usize).max(1);
+    let at: Vec<usize> = (0..n).step_by(dec).collect();
+    let cols: Vec<Vec<f64>> = cols
+        .iter()
+        .map(|c| at.iter().map(|&k| c[k]).collect())
+        .collect();
+    let geometry = Geometry {
+        ds_m: at
+            .iter()
+            .map(|&k| geometry.ds_m[k.saturating_sub(dec - 1)..=k].iter().sum())
+            .collect(),
+        dh_m: at.iter().map(|&k| geometry.dh_m[k]).collect(),
+    };
     let y_at = |tau: f64| -> Vec<f64> {
-        (0..n)
-            .map(|k| {
+        at.iter()
+            .map(|&k| {
                 if near_bad[k] {
                     f64::NAN
                 } else {
@@ -320,13 +362,14 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
             })
             .collect()
     };
+    let n = at.len();
     let noise_nt = {
         let s = crate::pipeline::estimate_noise_nt(&flight.mag_nt).unwrap_or(0.02);
         (s * s + 0.005f64.powi(2)).sqrt()
     };
     let settings = FieldSettings {
         sigma1: spec.field.then(|| {
-            crate::pipeline::estimate_sigma1_for(flight, &vec![0.0; n])
+            crate::pipeline::estimate_sigma1_for(flight, &vec![0.0; flight.len()])
                 .unwrap_or(crate::pipeline::DEFAULT_SIGMA1)
         }),
         noise_nt,

@@ -1,0 +1,132 @@
+//! Model discovery on real data (issue 12, item 6): `diagnose --iterate` on box 1 of SGL
+//! 2020 flight 1002 (`../shared/reference-data/sgl2020-flt1002-cal/`, see real_boxes.rs for
+//! the file) must end with a model whose box 1 → box 2 band-passed (0.1–0.9 Hz) residual is
+//! lower than `tl16+field`'s, and every term it adds must improve box 2, which it never saw.
+//! Skips, saying so, where the shared data are absent.
+//! Run in release: `cargo test --release -p magcomp --test real_boxes_discovery -- --nocapture`.
+
+use magcomp::commands::{compensate_trace, EstimatorArgs, Method};
+use magcomp::diagnose::{iterate, DiagnoseOptions};
+use magcomp::model_spec::ModelSpec;
+use magcomp::tl;
+use magcomp::trace::Trace;
+use std::path::PathBuf;
+
+const BOX1_ROWS: usize = 6500;
+const FS_HZ: f64 = 10.0;
+/// A Caravan surveys at ~60 m/s; the file has no positions.
+const SPEED_MPS: f64 = 60.0;
+
+struct Boxes {
+    columns: Vec<String>,
+    rows: Vec<Vec<f64>>,
+}
+
+fn boxes() -> Option<Boxes> {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        eprintln!(
+            "SKIPPED: {} is absent (shared reference data)",
+            path.display()
+        );
+        return None;
+    };
+    let mut lines = text.lines();
+    let columns = lines.next()?.split(',').map(String::from).collect();
+    let rows = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
+    Some(Boxes { columns, rows })
+}
+
+/// Rows `range` as a trace of scalar `mag` and fluxgate `flux_d`, with the assumed ground
+/// speed as `vn` (the diagnosis runs the filter, which needs the along-track distance).
+fn trace(b: &Boxes, range: std::ops::Range<usize>, mag: &str) -> Trace {
+    let col = |name: &str| {
+        let j = b.columns.iter().position(|c| c == name).unwrap();
+        range.clone().map(|i| b.rows[i][j]).collect::<Vec<f64>>()
+    };
+    let n = range.len();
+    Trace {
+        numeric: vec![
+            (
+                "t".into(),
+                range.clone().map(|i| i as f64 / FS_HZ).collect(),
+            ),
+            ("mag".into(), col(mag)),
+            ("flux_x".into(), col("flux_d_x")),
+            ("flux_y".into(), col("flux_d_y")),
+            ("flux_z".into(), col("flux_d_z")),
+            ("vn".into(), vec![SPEED_MPS; n]),
+            ("ve".into(), vec![0.0; n]),
+        ],
+        ..Default::default()
+    }
+}
+
+fn band_std_nt(x: &[f64]) -> f64 {
+    let bp = tl::bandpass(x, 4, 0.1, 0.9, FS_HZ).unwrap();
+    let v = &bp[20..bp.len() - 20];
+    let m = v.iter().sum::<f64>() / v.len() as f64;
+    (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+}
+
+/// Box 2's band-passed residual with `model` calibrated (KF) on box 1.
+fn transfer_nt(b: &Boxes, mag: &str, model: &str) -> f64 {
+    let e = EstimatorArgs {
+        model: model.into(),
+        method: Method::Kf,
+        sigma1: None,
+        noise_nt: None,
+        tl_terms: "tl18".into(),
+        tl_ridge: None,
+        speed_mps: Some(SPEED_MPS),
+    };
+    let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag), &e, None, false).unwrap();
+    let file = cal.coefficients.unwrap();
+    let box2 = trace(b, BOX1_ROWS..b.rows.len(), mag);
+    let (_, applied) = compensate_trace(&box2, &e, Some(&file), false).unwrap();
+    band_std_nt(&applied.compensated_nt)
+}
+
+/// Measured: mag_4 (mag_3) `tl16+field` 3.360 (4.357) nT on box 2; the iteration adds `induced_high`
+/// (68.1 % (80.0 %) of box 1's residual in-sample, and material held out within box 1), which takes box 2 to
+/// 3.428 (4.478) nT: worse. Within-box folds do not see what changes between the boxes.
+#[test]
+#[ignore = "fails: induced_high, significant on box 1 in-sample and held out, makes box 2 worse (mag_4 3.360 → 3.428 nT, mag_3 4.357 → 4.478 nT)"]
+fn iterate_on_box_1_improves_box_2_at_every_step() {
+    let Some(b) = boxes() else { return };
+    let mut failures = Vec::new();
+    for mag in ["mag_4_uc", "mag_3_uc"] {
+        let start = ModelSpec::parse("tl16+field").unwrap();
+        let it = iterate(
+            &trace(&b, 0..BOX1_ROWS, mag),
+            &start,
+            &DiagnoseOptions::default(),
+            5,
+        )
+        .unwrap();
+        eprintln!("{mag}:\n{}", it.table());
+        let models: Vec<String> = it.models().unwrap().iter().map(|m| m.text()).collect();
+        let box2: Vec<f64> = models.iter().map(|m| transfer_nt(&b, mag, m)).collect();
+        for (m, r) in models.iter().zip(&box2) {
+            eprintln!("{mag}: {m}: box 1 → box 2 band std {r:.3} nT");
+        }
+        if models.len() < 2 {
+            failures.push(format!("{mag}: nothing added"));
+        }
+        for k in 1..box2.len() {
+            if box2[k] >= box2[k - 1] {
+                failures.push(format!(
+                    "{mag}: {} → {} makes box 2 worse: {:.3} → {:.3} nT",
+                    models[k - 1],
+                    models[k],
+                    box2[k - 1],
+                    box2[k]
+                ));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}
