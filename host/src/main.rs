@@ -101,6 +101,14 @@ struct CompensateArgs {
     /// Print one JSON object with the summary on stdout.
     #[arg(long)]
     json: bool,
+    /// Stream the flight (memory bounded by a window, not by the flight): `auto` streams
+    /// `--coeffs` runs on inputs ≥ 256 MiB, `always` streams or says why it cannot,
+    /// `never` reads the flight into memory. Streaming covers --coeffs (KF survey mode
+    /// without lag/fluxtemp/fluxcal/rate, or --method tl); its summary leaves out the
+    /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
+    /// (docs/streaming.md).
+    #[arg(long, value_enum, default_value_t = magcomp::stream::StreamMode::Auto)]
+    stream: magcomp::stream::StreamMode,
 }
 
 /// Warnings go to stderr always, whatever else is printed.
@@ -239,7 +247,6 @@ fn main() -> Result<()> {
                 .chain(a.coeffs.as_deref())
                 .collect();
             refuse_overwriting(&inputs, &[&a.out])?;
-            let trace = a.input.read()?;
             let coeffs = a.coeffs.as_deref().map(read_coefficients).transpose()?;
             if let Some(c) = &coeffs {
                 magcomp::commands::refuse_conflicting_settings(
@@ -248,6 +255,18 @@ fn main() -> Result<()> {
                     given("model").then_some(a.est.model.as_str()),
                 )?;
             }
+            if magcomp::stream::run_compensate_if_streamed(
+                &a.input,
+                &a.est,
+                coeffs.as_ref(),
+                a.realtime,
+                a.stream,
+                &a.out,
+                a.json,
+            )? {
+                return Ok(());
+            }
+            let trace = a.input.read()?;
             let (flight, comp) = compensate_trace(&trace, &a.est, coeffs.as_ref(), a.realtime)?;
             let carried = magcomp::input::carried_columns(&trace, &flight.channels);
             write_output_csv(&a.out, &flight, &comp, &carried)?;

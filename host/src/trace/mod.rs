@@ -21,6 +21,7 @@
 mod error;
 mod map;
 mod read;
+pub mod rows;
 mod view;
 mod write;
 

@@ -1,0 +1,214 @@
+//! Streaming `compensate --coeffs` (host/src/stream) against the in-memory path on the
+//! same simulated survey: the output files must be identical line for line (frames in =
+//! frames out), with a scalar glitch, a bad latitude, a time gap, a run of missing
+//! positions, an extra numeric and text column, the core field from the file or computed
+//! from a date, KF and Tolles–Lawson, and a `--time` selection.
+use magcomp::commands::{
+    compensate_trace, summarise, write_output_csv, CoefficientFile, EstimatorArgs, Method,
+    TraceInput,
+};
+use magcomp::input::take_rows;
+use magcomp::sim::{simulate, FlightKind, SimConfig};
+use magcomp::trace::{write_trace, Trace};
+use std::path::{Path, PathBuf};
+
+fn est(method: Method) -> EstimatorArgs {
+    EstimatorArgs {
+        model: "tl16+field".into(),
+        method,
+        // Fixed σ1: the calibration here only has to produce coefficients, quickly.
+        sigma1: Some(3e-7),
+        noise_nt: None,
+        tl_terms: "tl18".into(),
+        tl_ridge: None,
+        speed_mps: None,
+    }
+}
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("magcomp-stream-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn coefficients(method: Method) -> CoefficientFile {
+    let cal = simulate(&SimConfig {
+        // The same aircraft as the survey (the seed draws its coefficients).
+        seed: 8,
+        ..SimConfig::default()
+    })
+    .unwrap();
+    let (_, comp) = compensate_trace(&cal, &est(method), None, false).unwrap();
+    comp.coefficients.unwrap()
+}
+
+/// A 10 Hz survey with the faults a real file has.
+fn survey(with_igrf: bool) -> Trace {
+    let t = simulate(&SimConfig {
+        seed: 8,
+        flight: FlightKind::Survey,
+        survey_lines: 2,
+        max_duration_s: Some(300.0),
+        ..SimConfig::default()
+    })
+    .unwrap();
+    let n = t.len();
+    // A 3 s time gap (rows 1200..1230 dropped).
+    let rows: Vec<usize> = (0..n).filter(|i| !(1200..1230).contains(i)).collect();
+    let mut t = take_rows(&t, &rows);
+    let n = t.len();
+    let set = |t: &mut Trace, name: &str, f: &dyn Fn(usize, f64) -> f64| {
+        let mut v = t.col(name).unwrap().to_vec();
+        for (i, x) in v.iter_mut().enumerate() {
+            *x = f(i, *x);
+        }
+        t.set_col(name, v);
+    };
+    set(&mut t, "mag", &|i, x| if i == 650 { x + 4000.0 } else { x });
+    set(&mut t, "lat", &|i, x| match i {
+        900 => 95.0,
+        1500..=1540 => f64::NAN,
+        _ => x,
+    });
+    set(&mut t, "lon", &|i, x| {
+        if (1500..=1540).contains(&i) {
+            f64::NAN
+        } else {
+            x
+        }
+    });
+    t.set_col(
+        "cur_extra",
+        (0..n).map(|i| (i % 17) as f64 * 0.25).collect(),
+    );
+    t.set_text_col(
+        "note",
+        (0..n)
+            .map(|i| {
+                if i % 500 == 0 {
+                    format!("mark, {i}")
+                } else {
+                    String::new()
+                }
+            })
+            .collect(),
+    );
+    if !with_igrf {
+        t.numeric.retain(|(n, _)| n != "igrf");
+    }
+    t
+}
+
+fn in_memory(
+    input: &TraceInput,
+    est: &EstimatorArgs,
+    c: &CoefficientFile,
+    out: &Path,
+) -> magcomp::commands::Summary {
+    let trace = input.read().unwrap();
+    let (flight, comp) = compensate_trace(&trace, est, Some(c), false).unwrap();
+    let carried = magcomp::input::carried_columns(&trace, &flight.channels);
+    write_output_csv(out, &flight, &comp, &carried).unwrap();
+    summarise(&flight, &comp)
+}
+
+fn compare(a: &Path, b: &Path) -> usize {
+    let a = std::fs::read_to_string(a).unwrap();
+    let b = std::fs::read_to_string(b).unwrap();
+    let (la, lb): (Vec<&str>, Vec<&str>) = (a.lines().collect(), b.lines().collect());
+    assert_eq!(la.len(), lb.len(), "lines in memory vs streamed");
+    for (i, (x, y)) in la.iter().zip(&lb).enumerate() {
+        assert_eq!(x, y, "line {}", i + 1);
+    }
+    la.len()
+}
+
+fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>) {
+    let d = dir(name);
+    let coeffs = coefficients(method);
+    let trace = survey(with_igrf);
+    let path = d.join("survey.csv");
+    write_trace(&path, &trace).unwrap();
+    let mut input = TraceInput::new(&path);
+    input.time = time.map(String::from);
+    if !with_igrf {
+        input.date = Some("2024-06-01".into());
+    }
+    let est = est(method);
+    let mem = in_memory(&input, &est, &coeffs, &d.join("mem.csv"));
+    let n_mem = mem.samples;
+    let s =
+        magcomp::stream::compensate(&input, &est, &coeffs, &d.join("stream.csv"), true).unwrap();
+    assert_eq!(s.samples, n_mem, "samples in memory vs streamed");
+    let lines = compare(&d.join("mem.csv"), &d.join("stream.csv"));
+    // Frames in = frames out: the header, two comment lines, one row per selected sample.
+    assert_eq!(lines, n_mem + 3);
+    if time.is_none() {
+        assert_eq!(n_mem, trace.len());
+    }
+    let e = s.error_rms_nt.unwrap();
+    // The figures a streamed run computes are the in-memory ones (running sums).
+    let close = |a: Option<f64>, b: Option<f64>| match (a, b) {
+        (Some(a), Some(b)) => (a - b).abs() <= 1e-9 * a.abs().max(1e-3),
+        (a, b) => a.is_none() && b.is_none(),
+    };
+    assert!(
+        close(s.error_rms_nt, mem.error_rms_nt),
+        "{:?} {:?}",
+        s.error_rms_nt,
+        mem.error_rms_nt
+    );
+    assert!(
+        close(s.predicted_error_nt, mem.predicted_error_nt),
+        "{:?} {:?}",
+        s.predicted_error_nt,
+        mem.predicted_error_nt
+    );
+    if method == Method::Kf {
+        assert!(s.predicted_error_nt.is_some());
+    }
+    eprintln!(
+        "{name}: {n_mem} rows identical; streamed error vs truth {e:.4} nT, warnings {:?}",
+        s.warnings
+    );
+    assert!(
+        s.warnings.iter().any(|w| w.contains("1 time gap")),
+        "{:?}",
+        s.warnings
+    );
+    // The survey error stays what a calibration transferred to a survey gives.
+    assert!(e < if method == Method::Kf { 0.03 } else { 0.1 }, "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn streamed_kf_survey_equals_in_memory() {
+    check("kf", Method::Kf, true, None);
+}
+
+#[test]
+fn streamed_kf_survey_with_computed_core_field_and_time_selection_equals_in_memory() {
+    check("kf-igrf", Method::Kf, false, Some("20:250"));
+}
+
+#[test]
+fn streamed_tl_survey_equals_in_memory() {
+    check("tl", Method::Tl, true, None);
+}
+
+#[test]
+fn what_cannot_stream_says_why() {
+    let mut c = coefficients(Method::Kf);
+    let e = est(Method::Kf);
+    assert!(magcomp::stream::unstreamable(Some(&c), &e, false).is_none());
+    assert!(magcomp::stream::unstreamable(None, &e, false)
+        .unwrap()
+        .contains("calibrating"));
+    assert!(magcomp::stream::unstreamable(Some(&c), &e, true)
+        .unwrap()
+        .contains("realtime"));
+    c.model = "tl16+field+lag".into();
+    assert!(magcomp::stream::unstreamable(Some(&c), &e, false)
+        .unwrap()
+        .contains("lag"));
+}
