@@ -17,7 +17,11 @@ fn magcomp(args: &[&str], dir: &Path) {
         .current_dir(dir)
         .output()
         .expect("running magcomp");
-    assert!(st.status.success(), "magcomp {args:?}: {}", String::from_utf8_lossy(&st.stderr));
+    assert!(
+        st.status.success(),
+        "magcomp {args:?}: {}",
+        String::from_utf8_lossy(&st.stderr)
+    );
 }
 
 /// The base survey's rows repeated, `t` (first column) shifted by the span each time.
@@ -26,7 +30,9 @@ fn write_survey(base: &Path, out: &Path, rows: usize) {
     let mut head = Vec::new();
     let mut data: Vec<(f64, &str)> = Vec::new();
     for line in text.lines() {
-        if data.is_empty() && (line.starts_with('#') || head.iter().all(|l: &&str| l.starts_with('#'))) {
+        if data.is_empty()
+            && (line.starts_with('#') || head.iter().all(|l: &&str| l.starts_with('#')))
+        {
             head.push(line);
             continue;
         }
@@ -56,7 +62,16 @@ fn measure(dir: &Path, input: &str, out: &str, mode: &str) -> (u64, String) {
     let o = Command::new("/usr/bin/time")
         .arg("-v")
         .arg(env!("CARGO_BIN_EXE_magcomp"))
-        .args(["compensate", input, "--coeffs", "coeffs.json", "-o", out, "--stream", mode])
+        .args([
+            "compensate",
+            input,
+            "--coeffs",
+            "coeffs.json",
+            "-o",
+            out,
+            "--stream",
+            mode,
+        ])
         .current_dir(dir)
         .output()
         .expect("/usr/bin/time (GNU time) is needed");
@@ -69,7 +84,10 @@ fn measure(dir: &Path, input: &str, out: &str, mode: &str) -> (u64, String) {
             .unwrap_or("")
             .to_string()
     };
-    (field("Maximum resident set size").parse().unwrap_or(0), field("Elapsed (wall clock)"))
+    (
+        field("Maximum resident set size").parse().unwrap_or(0),
+        field("Elapsed (wall clock)"),
+    )
 }
 
 fn main() {
@@ -90,11 +108,37 @@ fn main() {
         .unwrap_or_else(|_| std::env::temp_dir().join("magcomp-stream-rss"));
     std::fs::create_dir_all(&dir).unwrap();
     if !dir.join("coeffs.json").exists() {
-        magcomp(&["simulate", "--flight", "calibration", "--seed", "8", "-o", "cal.csv"], &dir);
-        magcomp(&["calibrate", "cal.csv", "--sigma1", "3e-7", "-o", "coeffs.json"], &dir);
+        magcomp(
+            &[
+                "simulate",
+                "--flight",
+                "calibration",
+                "--seed",
+                "8",
+                "-o",
+                "cal.csv",
+            ],
+            &dir,
+        );
+        magcomp(
+            &[
+                "calibrate",
+                "cal.csv",
+                "--sigma1",
+                "3e-7",
+                "-o",
+                "coeffs.json",
+            ],
+            &dir,
+        );
     }
     if !dir.join("base.csv").exists() {
-        magcomp(&["simulate", "--flight", "survey", "--seed", "8", "--lines", "4", "-o", "base.csv"], &dir);
+        magcomp(
+            &[
+                "simulate", "--flight", "survey", "--seed", "8", "--lines", "4", "-o", "base.csv",
+            ],
+            &dir,
+        );
     }
     for n in rows {
         let name = format!("survey_{n}.csv");
