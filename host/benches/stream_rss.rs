@@ -7,7 +7,7 @@
 //! Env: `STREAM_RSS_ROWS` (default `1000000,10000000`), `STREAM_RSS_IN_MEMORY_MAX`
 //! (default 1000000: the in-memory run takes ~1 KB/row), `STREAM_RSS_DIR` (default
 //! `$TMPDIR/magcomp-stream-rss`; ~360 bytes of disk per row). Needs GNU `/usr/bin/time`.
-use std::io::{BufRead, BufWriter, Write};
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

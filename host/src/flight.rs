@@ -322,9 +322,11 @@ pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint>
 #[derive(Clone, Debug, Default)]
 pub struct TieDetector {
     coslat: Option<f64>,
-    /// Per cell: start times of distinct passes, Σlat, Σlon, sample count.
-    cells: HashMap<(i64, i64), (Vec<f64>, f64, f64, usize)>,
+    cells: HashMap<(i64, i64), Cell>,
 }
+
+/// Per 40 m cell: start times of distinct passes, Σlat, Σlon, sample count.
+type Cell = (Vec<f64>, f64, f64, usize);
 
 impl TieDetector {
     pub fn push(&mut self, t: f64, lat: f64, lon: f64) {

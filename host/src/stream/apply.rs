@@ -252,8 +252,15 @@ impl RegressorCov {
     }
 }
 
-/// The columns `input::carried_columns` carries: (output name, column, numeric).
-fn carried(plan: &Plan) -> (bool, Vec<(String, usize)>, Vec<(String, usize)>) {
+/// The columns `input::carried_columns` carries: `igrf` or not, then (output name,
+/// column) of the numeric and the text ones.
+struct Carried {
+    igrf: bool,
+    nums: Vec<(String, usize)>,
+    texts: Vec<(String, usize)>,
+}
+
+fn carried(plan: &Plan) -> Carried {
     const OUTPUT: &[&str] = &[
         "t",
         "mag",
@@ -282,7 +289,7 @@ fn carried(plan: &Plan) -> (bool, Vec<(String, usize)>, Vec<(String, usize)>) {
         .filter(|&i| h.kinds[i] == Kind::Text)
         .map(|i| (rename(&h.names[i]), i))
         .collect();
-    (igrf, nums, texts)
+    Carried { igrf, nums, texts }
 }
 
 fn num(v: f64, d: usize) -> String {
@@ -358,8 +365,8 @@ fn feed(
     plan: &Plan,
     quiet: bool,
     mut sink: impl FnMut(Pending) -> Result<()>,
-) -> Result<(Listed<f64>, Vec<(usize, f64, f64)>, usize)> {
-    let (_, nums, texts) = carried(plan);
+) -> Result<Found> {
+    let Carried { nums, texts, .. } = carried(plan);
     let cols = &plan.cols;
     let mut filter = RowFilter::new(src.sel.clone());
     let mut positions = PositionChecker::default();
@@ -441,7 +448,18 @@ fn feed(
             plan.rows
         );
     }
-    Ok((glitches, gaps, gap_count))
+    Ok(Found {
+        glitches,
+        gaps,
+        gap_count,
+    })
+}
+
+/// What [`feed`] found on the way: glitches, the first time gaps and their count.
+struct Found {
+    glitches: Listed<f64>,
+    gaps: Vec<(usize, f64, f64)>,
+    gap_count: usize,
 }
 
 /// The third pass; writes `out`.
@@ -454,7 +472,7 @@ pub(crate) fn run(
     out: &Path,
     quiet: bool,
 ) -> Result<RunResult> {
-    let (igrf, nums, texts) = carried(plan);
+    let Carried { igrf, nums, texts } = carried(plan);
     let header = |w: &mut dyn Write, model: &str, kf: bool| -> Result<()> {
         writeln!(w, "# model: {model}")?;
         writeln!(w, "# method: {}", if kf { "kf" } else { "tl" })?;
@@ -583,7 +601,7 @@ fn run_kf(
                 }
                 Ok(())
             };
-            let (glitches, gaps, gap_count) = feed(src, plan, quiet, |p| {
+            let found = feed(src, plan, quiet, |p| {
                 if p.after_gap {
                     gap_rows.insert(p.row);
                     if p.row > 0 {
@@ -615,9 +633,9 @@ fn run_kf(
                 model: spec.text(),
                 error_rms_nt: truth.then(|| error.rms()),
                 predicted_error_nt: covariance.as_ref().and_then(|c| regs.predicted(c)),
-                glitches,
-                gaps,
-                gap_count,
+                glitches: found.glitches,
+                gaps: found.gaps,
+                gap_count: found.gap_count,
             })
         })
     })
@@ -694,7 +712,7 @@ fn run_tl(
             }
             Ok(())
         };
-        let (glitches, gaps, gap_count) = feed(src, plan, quiet, |p| {
+        let found = feed(src, plan, quiet, |p| {
             if p.after_gap {
                 // A new stretch: no difference across the gap.
                 let n = block.len();
@@ -713,9 +731,9 @@ fn run_tl(
             model: model.clone(),
             error_rms_nt: truth.then(|| error.rms()),
             predicted_error_nt: None,
-            glitches,
-            gaps,
-            gap_count,
+            glitches: found.glitches,
+            gaps: found.gaps,
+            gap_count: found.gap_count,
         })
     })
 }

@@ -123,7 +123,7 @@ impl Progress {
     }
     pub fn tick(&mut self) {
         self.rows += 1;
-        if self.quiet || self.rows % 65_536 != 0 {
+        if self.quiet || !self.rows.is_multiple_of(65_536) {
             return;
         }
         let now = Instant::now();
@@ -239,7 +239,7 @@ pub fn compensate(
         progress.tick();
         let k = first.rows;
         let mut rs = row_sample(row, c, None, &[]);
-        first.push(c, &mut rs);
+        first.push(&mut rs);
         if let Some(d) = c.date {
             scan_year(&mut date_col, stats::year_of_date(row.text(d), k));
         }

@@ -3,7 +3,7 @@
 //! checks, scalar noise), each computed exactly as `Flight::from_trace`, `input::prepare`,
 //! `qc::inputs::check` and `pipeline::estimate_noise_nt` compute them, from one row at a
 //! time.
-use super::rows::{Cols, RowSample};
+use super::rows::RowSample;
 use crate::flight::{FieldDirection, TieDetector};
 use crate::position::{PositionChecker, PositionFault};
 use anyhow::Result;
@@ -203,7 +203,7 @@ impl FirstPass {
         }
     }
 
-    pub fn push(&mut self, cols: &Cols, rs: &mut RowSample) {
+    pub fn push(&mut self, rs: &mut RowSample) {
         let s = &mut rs.sample;
         if let Some(t0) = self.prev_t {
             self.dt.push(s.t_s - t0);
@@ -249,7 +249,6 @@ impl FirstPass {
             self.has_speed = true;
         }
         self.tie.push(s.t_s, s.lat_deg, s.lon_deg);
-        let _ = cols;
     }
 
     pub fn sample_rate_hz(&self) -> Option<f64> {

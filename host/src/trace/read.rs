@@ -317,7 +317,7 @@ pub(super) fn check_header(
             });
         }
     }
-    Ok(map.apply(names)?)
+    map.apply(names)
 }
 
 struct Reader<'m> {
