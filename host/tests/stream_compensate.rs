@@ -81,6 +81,12 @@ fn survey(with_igrf: bool) -> Trace {
         "cur_extra",
         (0..n).map(|i| (i % 17) as f64 * 0.25).collect(),
     );
+    t.set_col(
+        "line",
+        (0..n)
+            .map(|i| if i < 1800 { 1001.0 } else { 1002.0 })
+            .collect(),
+    );
     t.set_text_col(
         "note",
         (0..n)
@@ -123,7 +129,7 @@ fn compare(a: &Path, b: &Path) -> usize {
     la.len()
 }
 
-fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>) {
+fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>, lines: Option<&str>) {
     let d = dir(name);
     let coeffs = coefficients(method);
     let trace = survey(with_igrf);
@@ -131,6 +137,7 @@ fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>) {
     write_trace(&path, &trace).unwrap();
     let mut input = TraceInput::new(&path);
     input.time = time.map(String::from);
+    input.lines = lines.map(String::from);
     if !with_igrf {
         input.date = Some("2024-06-01".into());
     }
@@ -140,10 +147,10 @@ fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>) {
     let s =
         magcomp::stream::compensate(&input, &est, &coeffs, &d.join("stream.csv"), true).unwrap();
     assert_eq!(s.samples, n_mem, "samples in memory vs streamed");
-    let lines = compare(&d.join("mem.csv"), &d.join("stream.csv"));
+    let out_lines = compare(&d.join("mem.csv"), &d.join("stream.csv"));
     // Frames in = frames out: the header, two comment lines, one row per selected sample.
-    assert_eq!(lines, n_mem + 3);
-    if time.is_none() {
+    assert_eq!(out_lines, n_mem + 3);
+    if time.is_none() && lines.is_none() {
         assert_eq!(n_mem, trace.len());
     }
     let e = s.error_rms_nt.unwrap();
@@ -171,11 +178,14 @@ fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>) {
         "{name}: {n_mem} rows identical; streamed error vs truth {e:.4} nT, warnings {:?}",
         s.warnings
     );
-    assert!(
-        s.warnings.iter().any(|w| w.contains("1 time gap")),
-        "{:?}",
-        s.warnings
-    );
+    // The gap is in line 1001 and before t = 250 s.
+    if lines.is_none() {
+        assert!(
+            s.warnings.iter().any(|w| w.contains("1 time gap")),
+            "{:?}",
+            s.warnings
+        );
+    }
     // The survey error stays what a calibration transferred to a survey gives.
     assert!(e < if method == Method::Kf { 0.03 } else { 0.1 }, "{e}");
     std::fs::remove_dir_all(&d).ok();
@@ -183,17 +193,23 @@ fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>) {
 
 #[test]
 fn streamed_kf_survey_equals_in_memory() {
-    check("kf", Method::Kf, true, None);
+    check("kf", Method::Kf, true, None, None);
 }
 
 #[test]
 fn streamed_kf_survey_with_computed_core_field_and_time_selection_equals_in_memory() {
-    check("kf-igrf", Method::Kf, false, Some("20:250"));
+    check("kf-igrf", Method::Kf, false, Some("20:250"), None);
 }
 
 #[test]
 fn streamed_tl_survey_equals_in_memory() {
-    check("tl", Method::Tl, true, None);
+    check("tl", Method::Tl, true, None, None);
+}
+
+#[test]
+fn streamed_line_selection_equals_in_memory() {
+    // Line 1002 only: rows 1800.. (after the gap), the line column carried to the output.
+    check("kf-lines", Method::Kf, true, None, Some("1002"));
 }
 
 #[test]
