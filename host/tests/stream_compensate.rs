@@ -129,12 +129,26 @@ fn compare(a: &Path, b: &Path) -> usize {
     la.len()
 }
 
-fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>, lines: Option<&str>) {
+fn check(
+    name: &str,
+    method: Method,
+    with_igrf: bool,
+    time: Option<&str>,
+    lines: Option<&str>,
+    xyz: bool,
+) {
     let d = dir(name);
     let coeffs = coefficients(method);
     let trace = survey(with_igrf);
-    let path = d.join("survey.csv");
-    write_trace(&path, &trace).unwrap();
+    let path = if xyz {
+        let p = d.join("survey.xyz");
+        write_xyz(&p, &trace);
+        p
+    } else {
+        let p = d.join("survey.csv");
+        write_trace(&p, &trace).unwrap();
+        p
+    };
     let mut input = TraceInput::new(&path);
     input.time = time.map(String::from);
     input.lines = lines.map(String::from);
@@ -193,23 +207,56 @@ fn check(name: &str, method: Method, with_igrf: bool, time: Option<&str>, lines:
 
 #[test]
 fn streamed_kf_survey_equals_in_memory() {
-    check("kf", Method::Kf, true, None, None);
+    check("kf", Method::Kf, true, None, None, false);
 }
 
 #[test]
 fn streamed_kf_survey_with_computed_core_field_and_time_selection_equals_in_memory() {
-    check("kf-igrf", Method::Kf, false, Some("20:250"), None);
+    check("kf-igrf", Method::Kf, false, Some("20:250"), None, false);
 }
 
 #[test]
 fn streamed_tl_survey_equals_in_memory() {
-    check("tl", Method::Tl, true, None, None);
+    check("tl", Method::Tl, true, None, None, false);
 }
 
 #[test]
 fn streamed_line_selection_equals_in_memory() {
     // Line 1002 only: rows 1800.. (after the gap), the line column carried to the output.
-    check("kf-lines", Method::Kf, true, None, Some("1002"));
+    check("kf-lines", Method::Kf, true, None, Some("1002"), false);
+}
+
+/// Geosoft-style XYZ of the numeric columns: `/` header, `Line` separators, `*` missing.
+fn write_xyz(path: &Path, t: &Trace) {
+    use std::fmt::Write as _;
+    let mut out = String::from("/ simulated survey\n/ ");
+    let names: Vec<&str> = t.numeric.iter().map(|(n, _)| n.as_str()).collect();
+    out.push_str(&names.join(" "));
+    out.push('\n');
+    let line = t.col("line").unwrap();
+    for i in 0..t.len() {
+        if i == 0 || line[i] != line[i - 1] {
+            writeln!(out, "Line {}", line[i]).unwrap();
+        }
+        let row: Vec<String> = t
+            .numeric
+            .iter()
+            .map(|(_, v)| {
+                if v[i].is_finite() {
+                    v[i].to_string()
+                } else {
+                    "*".into()
+                }
+            })
+            .collect();
+        writeln!(out, "{}", row.join(" ")).unwrap();
+    }
+    std::fs::write(path, out).unwrap();
+}
+
+#[test]
+fn streamed_xyz_survey_equals_in_memory() {
+    check("kf-xyz", Method::Kf, true, None, None, true);
 }
 
 #[test]
