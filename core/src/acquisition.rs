@@ -77,6 +77,7 @@ impl AcqConfig {
             flux_stale_us: (2.5e6 / self.flux_hz) as u64,
             gps_stale_us: (2.5e6 / self.gps_hz) as u64,
             extrapolate_gps: false,
+            flux_period_us: (1e6 / self.flux_hz) as u64,
         }
     }
 
@@ -243,6 +244,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             flux_stale_us: 0,
             gps_stale_us: 0,
             extrapolate_gps: false,
+            flux_period_us: 0,
         };
         Self {
             cfg,

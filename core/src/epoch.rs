@@ -353,7 +353,12 @@ impl<const W: usize> EpochBuilder<W> {
         let a = at(lo)?;
         let b = at(hi)?;
         let mut flags = c.s.flags;
-        if lo + hw != k || hi != k + hw {
+        // A one-sided derivative at the ends, or one whose end sample was interpolated
+        // across a lost fluxgate frame (the aligner flags that sample).
+        if lo + hw != k
+            || hi != k + hw
+            || (a.s.flags.0 | b.s.flags.0) & Flags::DERIVATIVE_DEGRADED != 0
+        {
             flags.set(Flags::DERIVATIVE_DEGRADED);
         }
         if !c.e_valid {

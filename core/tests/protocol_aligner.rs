@@ -233,3 +233,62 @@ fn gll_and_gns_positions_reach_the_aligner_like_gga_rmc() {
         assert_eq!((s.lat_deg, s.lon_deg), (46.0, 8.0));
     }
 }
+
+/// Scalar at 10 Hz, fluxgate frames at `flux_hz` arriving `phase_us` after each scalar
+/// tick (mod the period), frame `lost` never arriving: the samples flagged
+/// DERIVATIVE_DEGRADED.
+fn lost_frame_flags(flux_hz: u64, phase_us: u64, lost: Option<u64>) -> Vec<usize> {
+    let period = 1_000_000 / flux_hz;
+    let mut a = Aligner::new(AlignerConfig {
+        flux_stale_us: period * 5 / 2,
+        gps_stale_us: 2_000_000,
+        extrapolate_gps: false,
+        flux_period_us: period,
+    });
+    let mut frame = 0u64;
+    let mut flagged = Vec::new();
+    for k in 1..100u64 {
+        let t = k * 100_000;
+        // Every frame due before this scalar tick (they arrive in time order).
+        while frame * period + phase_us <= t {
+            if Some(frame) != lost {
+                a.push_flux(frame * period + phase_us, [frame as f32, 0.0, 40_000.0]);
+            }
+            frame += 1;
+        }
+        let s = a.push_scalar(t, Some(MagCounts(1)));
+        if s.flags.contains(Flags::DERIVATIVE_DEGRADED) {
+            flagged.push(k as usize);
+        }
+    }
+    flagged
+}
+
+#[test]
+fn a_sample_held_across_a_lost_fluxgate_frame_is_flagged_at_any_phase() {
+    // Equal rates: the normal age of the held frame is the sensors' phase (here 2–98 ms);
+    // the one lost frame makes the next sample's frame a period older, whatever the phase.
+    for phase_us in [2_000, 30_000, 70_000, 98_000] {
+        assert_eq!(
+            lost_frame_flags(10, phase_us, None),
+            Vec::<usize>::new(),
+            "{phase_us}"
+        );
+        // Frame 40 (due at 4.0 s + phase) lost: the scalar at 4.1 s (k = 41) holds frame 39.
+        assert_eq!(
+            lost_frame_flags(10, phase_us, Some(40)),
+            vec![41],
+            "{phase_us}"
+        );
+    }
+    // A 100 Hz fluxgate: no false flag however the ages spread over the period; a lost
+    // frame just before a scalar tick is caught.
+    for phase_us in [1_000, 5_000, 9_000] {
+        assert_eq!(
+            lost_frame_flags(100, phase_us, None),
+            Vec::<usize>::new(),
+            "{phase_us}"
+        );
+    }
+    assert_eq!(lost_frame_flags(100, 5_000, Some(399)), vec![40]);
+}

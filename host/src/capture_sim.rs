@@ -84,6 +84,9 @@ pub struct CaptureOptions {
     pub gps_outage_s: Option<(f64, f64)>,
     /// Fraction of bytes replaced by random bytes (0 ≤ f ≤ 0.5), all ports.
     pub corrupt_fraction: f64,
+    /// Corrupt only this port's bytes (None: every port). The scalar port is the one
+    /// without a checksum, so its corruption reaches the filter as wrong values.
+    pub corrupt_port: Option<Port>,
     pub seed: u64,
 }
 
@@ -99,6 +102,7 @@ impl Default for CaptureOptions {
             flux_dropout_s: None,
             gps_outage_s: None,
             corrupt_fraction: 0.0,
+            corrupt_port: None,
             seed: 1,
         }
     }
@@ -385,7 +389,10 @@ pub fn write_capture<W: Write>(
 
     if opts.corrupt_fraction > 0.0 {
         let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-        for (_, _, _, bytes) in chunks.iter_mut() {
+        for (_, _, port, bytes) in chunks.iter_mut() {
+            if opts.corrupt_port.is_some_and(|p| p != *port) {
+                continue;
+            }
             for b in bytes.iter_mut() {
                 if *b == b'\r' || *b == b'\n' || !rng.gen_bool(opts.corrupt_fraction) {
                     continue;

@@ -303,34 +303,52 @@ impl Flight {
 /// The point the track passes most often on distinct passes (≥ 3), e.g. the cloverleaf
 /// centre: a 40 m grid, passes separated by ≥ 30 s.
 pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint> {
-    let cell_m = 40.0;
-    let lat0 = lat.iter().copied().find(|v| v.is_finite())?;
-    let coslat = lat0.to_radians().cos();
-    // Per cell: start times of distinct passes, Σlat, Σlon, sample count.
-    type Cell = (Vec<f64>, f64, f64, usize);
-    let mut cells: HashMap<(i64, i64), Cell> = HashMap::new();
+    let mut d = TieDetector::default();
     for i in 0..t.len() {
-        if !(lat[i].is_finite() && lon[i].is_finite()) {
-            continue;
+        d.push(t[i], lat[i], lon[i]);
+    }
+    d.finish()
+}
+
+/// [`detect_tie_point`] fed one fix at a time; memory grows with the area covered (40 m
+/// cells), not with the samples.
+#[derive(Clone, Debug, Default)]
+pub struct TieDetector {
+    coslat: Option<f64>,
+    cells: HashMap<(i64, i64), Cell>,
+}
+
+/// Per 40 m cell: start times of distinct passes, Σlat, Σlon, sample count.
+type Cell = (Vec<f64>, f64, f64, usize);
+
+impl TieDetector {
+    pub fn push(&mut self, t: f64, lat: f64, lon: f64) {
+        const CELL_M: f64 = 40.0;
+        if !(lat.is_finite() && lon.is_finite()) {
+            return;
         }
-        let n = lat[i].to_radians() * 6_371_000.0;
-        let e = lon[i].to_radians() * 6_371_000.0 * coslat;
-        let key = ((n / cell_m).floor() as i64, (e / cell_m).floor() as i64);
-        let c = cells.entry(key).or_default();
-        if c.0.last().is_none_or(|&last| t[i] - last > 30.0) {
-            c.0.push(t[i]);
+        let coslat = *self.coslat.get_or_insert(lat.to_radians().cos());
+        let n = lat.to_radians() * 6_371_000.0;
+        let e = lon.to_radians() * 6_371_000.0 * coslat;
+        let key = ((n / CELL_M).floor() as i64, (e / CELL_M).floor() as i64);
+        let c = self.cells.entry(key).or_default();
+        if c.0.last().is_none_or(|&last| t - last > 30.0) {
+            c.0.push(t);
         } else if let Some(last) = c.0.last_mut() {
-            *last = t[i];
+            *last = t;
         }
-        c.1 += lat[i];
-        c.2 += lon[i];
+        c.1 += lat;
+        c.2 += lon;
         c.3 += 1;
     }
-    let best = cells.values().max_by_key(|c| (c.0.len(), c.3))?;
-    (best.0.len() >= 3).then(|| TiePoint {
-        lat_deg: best.1 / best.3 as f64,
-        lon_deg: best.2 / best.3 as f64,
-    })
+
+    pub fn finish(&self) -> Option<TiePoint> {
+        let best = self.cells.values().max_by_key(|c| (c.0.len(), c.3))?;
+        (best.0.len() >= 3).then(|| TiePoint {
+            lat_deg: best.1 / best.3 as f64,
+            lon_deg: best.2 / best.3 as f64,
+        })
+    }
 }
 
 /// Main-field direction in NED: the fluxgate direction rotated by the INS attitude,
@@ -344,33 +362,49 @@ pub(crate) fn main_field_direction(
     pitch: &[f64],
     yaw: &[f64],
 ) -> Option<[f32; 3]> {
-    let mut acc = [0.0f64; 3];
-    let mut count = 0usize;
+    let mut acc = FieldDirection::default();
     for i in 0..fx.len() {
-        let b = [fx[i], fy[i], fz[i]];
+        acc.push([fx[i], fy[i], fz[i]], [roll[i], pitch[i], yaw[i]]);
+    }
+    acc.finish()
+}
+
+/// [`main_field_direction`] accumulated one sample at a time.
+#[derive(Clone, Debug, Default)]
+pub struct FieldDirection {
+    acc: [f64; 3],
+    count: usize,
+}
+
+impl FieldDirection {
+    /// Fluxgate vector (nT) and attitude (roll, pitch, yaw in degrees) of one sample.
+    pub fn push(&mut self, b: [f64; 3], a: [f64; 3]) {
         let nb = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-        let a = [roll[i], pitch[i], yaw[i]];
         if !(nb.is_finite() && nb > 1.0 && a.iter().all(|v| v.is_finite())) {
-            continue;
+            return;
         }
         let r = body_from_ned(a[0].to_radians(), a[1].to_radians(), a[2].to_radians());
         // e_ned = R_bnᵀ · e_body
-        for (j, acc_j) in acc.iter_mut().enumerate() {
+        for (j, acc_j) in self.acc.iter_mut().enumerate() {
             *acc_j += (r[0][j] * b[0] + r[1][j] * b[1] + r[2][j] * b[2]) / nb;
         }
-        count += 1;
+        self.count += 1;
     }
-    if count == 0 {
-        return None;
+
+    pub fn finish(&self) -> Option<[f32; 3]> {
+        if self.count == 0 {
+            return None;
+        }
+        let acc = self.acc;
+        let norm = (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]).sqrt();
+        (norm > 0.0).then(|| {
+            [
+                (acc[0] / norm) as f32,
+                (acc[1] / norm) as f32,
+                (acc[2] / norm) as f32,
+            ]
+        })
     }
-    let norm = (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2]).sqrt();
-    (norm > 0.0).then(|| {
-        [
-            (acc[0] / norm) as f32,
-            (acc[1] / norm) as f32,
-            (acc[2] / norm) as f32,
-        ]
-    })
 }
 
 /// Rotation NED → body for ZYX (yaw, pitch, roll) Euler angles.

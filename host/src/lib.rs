@@ -26,6 +26,7 @@ pub mod reference_kf;
 pub mod replay;
 pub mod report;
 pub mod sim;
+pub mod stream;
 pub mod tl;
 pub mod trace;
 pub mod upload;

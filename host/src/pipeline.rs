@@ -174,7 +174,27 @@ pub fn estimate_noise_nt(mag_nt: &[f64]) -> Option<f64> {
 }
 
 fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) -> CompensatorConfig {
-    let mut cfg = CompensatorConfig::for_rate(flight.sample_rate_hz as f32);
+    let geometry = (
+        flight.sample_rate_hz,
+        flight.earth_dir_ned,
+        flight.tie_point,
+    );
+    config_for(geometry, opts, sigma1, noise_nt)
+}
+
+/// The filter's configuration from what it needs of a flight (sample rate, main-field
+/// direction, tie point): shared with the streaming `compensate` (`crate::stream`).
+pub(crate) fn config_for(
+    (sample_rate_hz, earth_dir_ned, tie_point): (
+        f64,
+        Option<[f32; 3]>,
+        Option<magcomp_core::compensator::TiePoint>,
+    ),
+    opts: &KfOptions,
+    sigma1: f64,
+    noise_nt: f64,
+) -> CompensatorConfig {
+    let mut cfg = CompensatorConfig::for_rate(sample_rate_hz as f32);
     cfg.sigma1 = sigma1 as f32;
     cfg.sigma2 = (sigma1 * opts.sigma2_ratio) as f32;
     cfg.noise_nt = noise_nt as f32;
@@ -184,9 +204,9 @@ fn base_config(flight: &Flight, opts: &KfOptions, sigma1: f64, noise_nt: f64) ->
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }
-    cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
+    cfg.epoch.earth_dir_ned = earth_dir_ned;
     if opts.tie_points {
-        cfg.tie_points[0] = flight.tie_point;
+        cfg.tie_points[0] = tie_point;
     }
     cfg
 }

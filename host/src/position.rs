@@ -68,66 +68,80 @@ pub fn flat_distance_m(a: (f64, f64), b: (f64, f64)) -> f64 {
 /// `NO_GPS`; a height out of range is set to NaN and flagged likewise; a sample without a
 /// position is flagged `NO_GPS` too. Returns the refused values by row.
 pub fn check_positions(samples: &mut [AlignedSample]) -> Vec<(usize, PositionFault)> {
+    let mut checker = PositionChecker::default();
     let mut faults = Vec::new();
-    // Last accepted fix (t, lat, lon), and the run of refused jumps that agree with each
-    // other (count, last of them).
-    let mut last: Option<(f64, f64, f64)> = None;
-    let mut run: (usize, Option<(f64, f64, f64)>) = (0, None);
-    let plausible = |from: (f64, f64, f64), to: (f64, f64, f64)| -> (bool, f64) {
-        let dt = (to.0 - from.0).abs();
-        let d = flat_distance_m((from.1, from.2), (to.1, to.2));
-        (
-            d <= MAX_SPEED_MPS * dt + JUMP_SLACK_M,
-            if dt > 0.0 { d / dt } else { f64::INFINITY },
-        )
-    };
     for (i, s) in samples.iter_mut().enumerate() {
+        checker.check(s, |f| faults.push((i, f)));
+    }
+    faults
+}
+
+/// [`check_positions`] one sample at a time (the streaming `compensate` checks each row
+/// as it is read): the last accepted fix and the run of refused jumps that agree with
+/// each other.
+#[derive(Clone, Debug, Default)]
+pub struct PositionChecker {
+    last: Option<(f64, f64, f64)>,
+    run: (usize, Option<(f64, f64, f64)>),
+}
+
+impl PositionChecker {
+    /// Checks `s` in place; `fault` is called for each refused value (a height and a
+    /// position may both be refused).
+    pub fn check(&mut self, s: &mut AlignedSample, mut fault: impl FnMut(PositionFault)) {
+        let plausible = |from: (f64, f64, f64), to: (f64, f64, f64)| -> (bool, f64) {
+            let dt = (to.0 - from.0).abs();
+            let d = flat_distance_m((from.1, from.2), (to.1, to.2));
+            (
+                d <= MAX_SPEED_MPS * dt + JUMP_SLACK_M,
+                if dt > 0.0 { d / dt } else { f64::INFINITY },
+            )
+        };
         let alt = f64::from(s.alt_m);
         if !alt.is_nan() && !(ALT_RANGE_M.0..=ALT_RANGE_M.1).contains(&alt) {
-            faults.push((i, PositionFault::Alt(alt)));
+            fault(PositionFault::Alt(alt));
             s.alt_m = f32::NAN;
             s.flags.set(Flags::NO_GPS);
         }
         let (lat, lon) = (s.lat_deg, s.lon_deg);
         if lat.is_nan() && lon.is_nan() {
             s.flags.set(Flags::NO_GPS);
-            continue;
+            return;
         }
-        let fault = if !(-90.0..=90.0).contains(&lat) {
+        let bad = if !(-90.0..=90.0).contains(&lat) {
             Some(PositionFault::Lat(lat))
         } else if !(-180.0..=180.0).contains(&lon) {
             Some(PositionFault::Lon(lon))
         } else {
             None
         };
-        let fault = fault.or_else(|| {
+        let bad = bad.or_else(|| {
             let here = (s.t_s, lat, lon);
-            let (ok, speed_mps) = last.map_or((true, 0.0), |l| plausible(l, here));
+            let (ok, speed_mps) = self.last.map_or((true, 0.0), |l| plausible(l, here));
             if ok {
-                last = Some(here);
-                run = (0, None);
+                self.last = Some(here);
+                self.run = (0, None);
                 return None;
             }
             // A refused fix: part of a consistent run (the track really moved)?
-            run = match run.1 {
-                Some(prev) if plausible(prev, here).0 => (run.0 + 1, Some(here)),
+            self.run = match self.run.1 {
+                Some(prev) if plausible(prev, here).0 => (self.run.0 + 1, Some(here)),
                 _ => (1, Some(here)),
             };
-            if run.0 >= REANCHOR_FIXES {
-                last = Some(here);
-                run = (0, None);
+            if self.run.0 >= REANCHOR_FIXES {
+                self.last = Some(here);
+                self.run = (0, None);
                 return None;
             }
             Some(PositionFault::Jump { speed_mps })
         });
-        if let Some(f) = fault {
-            faults.push((i, f));
+        if let Some(f) = bad {
+            fault(f);
             s.lat_deg = f64::NAN;
             s.lon_deg = f64::NAN;
             s.flags.set(Flags::NO_GPS);
         }
     }
-    faults
 }
 
 /// One warning for the refused positions, naming the file and lines (at most

@@ -5,7 +5,7 @@
 //! Skips, saying so, where the shared data are absent.
 //! Run in release: `cargo test --release -p magcomp --test real_boxes_discovery -- --nocapture`.
 
-use magcomp::commands::{compensate_trace, EstimatorArgs, Method};
+use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
 use magcomp::diagnose::{iterate, DiagnoseOptions};
 use magcomp::model_spec::ModelSpec;
 use magcomp::tl;
@@ -74,7 +74,7 @@ fn band_std_nt(x: &[f64]) -> f64 {
 
 /// Box 2's band-passed residual with `model` calibrated (KF) on box 1.
 fn transfer_nt(b: &Boxes, mag: &str, model: &str) -> f64 {
-    let e = EstimatorArgs {
+    let e = EstimatorSettings {
         model: model.into(),
         method: Method::Kf,
         sigma1: None,

@@ -261,14 +261,19 @@ fn check4_kalman_filter_on_the_positionless_vector() {
             ..EstimatorSettings::default()
         };
         let (flight, comp): (Flight, _) = compensate_trace(&trace, &est, None, false).unwrap();
-        (summarise(&flight, &comp).improvement_ratio.unwrap(), comp.warnings)
+        (
+            summarise(&flight, &comp).improvement_ratio.unwrap(),
+            comp.warnings,
+        )
     };
     let (kf, warnings) = ir(Method::Kf);
     let (tl, _) = ir(Method::Tl);
     println!("check 4: improvement ratio KF {kf:.3}, TL18 {tl:.3}");
     assert!(kf >= tl, "KF IR {kf:.3} below TL18's {tl:.3}");
     assert!(
-        warnings.iter().any(|w| w.contains("fluxgate not calibrated")),
+        warnings
+            .iter()
+            .any(|w| w.contains("fluxgate not calibrated")),
         "{warnings:?}"
     );
 }

@@ -18,6 +18,8 @@ use crate::flags::Flags;
 use crate::units::MagCounts;
 
 const FLUX_HISTORY: usize = 4;
+/// Samples whose held-frame age sets what is normal (see `AlignerConfig::flux_period_us`).
+pub const AGE_HISTORY: usize = 16;
 /// Mean Earth radius (m): along-track extrapolation over a few seconds only.
 const EARTH_RADIUS_M: f64 = 6_371_008.8;
 
@@ -27,6 +29,14 @@ pub struct AlignerConfig {
     pub gps_stale_us: u64,
     /// Extrapolate position with speed and track to the scalar time.
     pub extrapolate_gps: bool,
+    /// Nominal fluxgate frame period (0 = unknown). A sample whose fluxgate frame is held
+    /// a quarter period longer than any of the last [`AGE_HISTORY`] samples' (the frame
+    /// after it was lost), or interpolated between frames more than 1.5 periods apart, is
+    /// flagged `DERIVATIVE_DEGRADED`: its value is a period old or a straight line across
+    /// the lost frame, and the centred derivative of its neighbours spans it (0.36 nT of
+    /// error on them at 0.1 % corrupted bytes). A fixed age limit cannot tell: at equal
+    /// rates the normal age is the sensors' constant phase, anywhere in 0–1 period.
+    pub flux_period_us: u64,
 }
 
 impl Default for AlignerConfig {
@@ -36,6 +46,7 @@ impl Default for AlignerConfig {
             flux_stale_us: 50_000,
             gps_stale_us: 2_000_000,
             extrapolate_gps: true,
+            flux_period_us: 0,
         }
     }
 }
@@ -57,6 +68,9 @@ pub struct GpsFix {
 #[derive(Clone, Debug)]
 pub struct Aligner {
     pub cfg: AlignerConfig,
+    /// Ages (µs) of the held fluxgate frame at the last samples that lost none.
+    ages: [u64; AGE_HISTORY],
+    n_ages: usize,
     flux: [(u64, [f32; 3]); FLUX_HISTORY],
     n_flux: usize,
     gps: Option<GpsFix>,
@@ -70,6 +84,8 @@ impl Aligner {
     pub const fn new(cfg: AlignerConfig) -> Self {
         Self {
             cfg,
+            ages: [0; AGE_HISTORY],
+            n_ages: 0,
             flux: [(0, [0.0; 3]); FLUX_HISTORY],
             n_flux: 0,
             gps: None,
@@ -180,27 +196,52 @@ impl Aligner {
         self.gps_valid = true;
     }
 
-    fn flux_at(&self, t_us: u64) -> ([f32; 3], bool) {
+    /// The fluxgate at `t_us`: (value, stale, interpolated across a lost frame, age of
+    /// the held frame when one is held).
+    fn flux_at(&self, t_us: u64) -> ([f32; 3], bool, bool, Option<u64>) {
         let h = &self.flux[..self.n_flux];
         let after = h.iter().position(|f| f.0 > t_us);
         let limit = self.cfg.flux_stale_us;
         match after {
             None => match h.last() {
-                Some(&(t, v)) => (v, t_us - t > limit),
-                None => ([f32::NAN; 3], true),
+                Some(&(t, v)) => (v, t_us - t > limit, false, Some(t_us - t)),
+                None => ([f32::NAN; 3], true, false, None),
             },
             Some(0) => {
                 let (t, v) = h[0];
-                (v, t - t_us > limit)
+                (v, t - t_us > limit, false, None)
             }
             Some(i) => {
                 let (t0, v0) = h[i - 1];
                 let (t1, v1) = h[i];
                 let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
                 let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
-                (v, t1 - t0 > limit)
+                let period = self.cfg.flux_period_us;
+                let lost = period > 0 && 2 * (t1 - t0) > 3 * period;
+                (v, t1 - t0 > limit, lost, None)
             }
         }
+    }
+
+    /// Whether a frame held `age_us` is one whose successor was lost: older by a quarter
+    /// period than every recent normal age (learnt from [`AGE_HISTORY`] samples first).
+    fn held_across_loss(&mut self, age_us: u64) -> bool {
+        let period = self.cfg.flux_period_us;
+        if period == 0 {
+            return false;
+        }
+        let normal = self.ages[..self.n_ages].iter().copied().max().unwrap_or(0);
+        let lost = self.n_ages >= 4 && 4 * age_us > 4 * normal + period;
+        if !lost {
+            // Rotate: the newest age replaces the oldest once the history is full.
+            if self.n_ages < AGE_HISTORY {
+                self.n_ages += 1;
+            } else {
+                self.ages.rotate_left(1);
+            }
+            self.ages[self.n_ages - 1] = age_us;
+        }
+        lost
     }
 
     /// A scalar sample at `t_us` (`None`: missing/invalid) → its aligned sample.
@@ -210,10 +251,16 @@ impl Aligner {
         if mag.is_none() {
             s.flags.set(Flags::MAG_MISSING);
         }
-        let (flux, stale) = self.flux_at(t_us);
+        let (flux, stale, mut lost, age) = self.flux_at(t_us);
+        if let Some(age) = age {
+            lost |= self.held_across_loss(age);
+        }
         s.flux_nt = flux;
         if stale {
             s.flags.set(Flags::FLUX_STALE);
+        }
+        if lost {
+            s.flags.set(Flags::DERIVATIVE_DEGRADED);
         }
         match self.gps {
             Some(g) => {

@@ -2,9 +2,11 @@
 //! or applying a coefficient file), write the output CSV and print the summary.
 
 use super::args::{EstimatorArgs, TraceInput};
+use crate::coefficients::CoefficientFile;
 use crate::compensation::{compensate_trace, summarise, write_output_csv, Summary};
 use crate::output::refuse_overwriting;
-use anyhow::Result;
+use crate::stream::{compensate, unstreamable, StreamInput, AUTO_STREAM_BYTES};
+use anyhow::{bail, Result};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Clone, Debug)]
@@ -33,6 +35,26 @@ pub struct CompensateArgs {
     /// Print one JSON object with the summary on stdout.
     #[arg(long)]
     pub json: bool,
+    /// Stream the flight (memory bounded by a window, not by the flight): `auto` streams
+    /// `--coeffs` runs on inputs ≥ 256 MiB, `always` streams or says why it cannot,
+    /// `never` reads the flight into memory. Streaming covers --coeffs (KF survey mode
+    /// without lag/fluxtemp/rate, or --method tl); its summary leaves out the
+    /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
+    /// (docs/streaming.md).
+    #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
+    pub stream: StreamMode,
+}
+
+/// When `compensate` streams.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Default)]
+pub enum StreamMode {
+    /// Stream when the run can be streamed and the input is ≥ 256 MiB.
+    #[default]
+    Auto,
+    /// Stream (an error says why when the run cannot be streamed).
+    Always,
+    /// Read the whole flight into memory.
+    Never,
 }
 
 pub fn run(a: &CompensateArgs) -> Result<()> {
@@ -40,8 +62,11 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         .chain(a.coeffs.as_deref())
         .collect();
     refuse_overwriting(&inputs, &[&a.out])?;
-    let trace = a.input.read()?;
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
+    if run_if_streamed(a, coeffs.as_ref())? {
+        return Ok(());
+    }
+    let trace = a.input.read()?;
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
     let carried = crate::input::carried_columns(&trace, &flight.channels);
     write_output_csv(&a.out, &flight, &comp, &carried)?;
@@ -123,4 +148,74 @@ pub fn print_summary(s: &Summary) {
             println!("    {l:<10} {v:>9.4} ± {e:.4} s");
         }
     }
+}
+
+/// The `compensate` hook: streams when `mode` (and, for `auto`, the input's size) says
+/// so, prints the summary and returns true; false leaves the run to the in-memory path.
+fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Result<bool> {
+    let (est, mode, out, json) = (a.est.settings(), a.stream, a.out.as_path(), a.json);
+    let input = StreamInput {
+        trace: &a.input.trace,
+        map: a.input.map.as_deref(),
+        lines: a.input.lines.as_deref(),
+        time: a.input.time.as_deref(),
+        date: a.input.date.as_deref(),
+    };
+    let why_not = match unstreamable(coeffs, &est, a.realtime) {
+        Some(w) => Some(w),
+        None if crate::trace::is_hdf5_path(&a.input.trace) => {
+            Some("HDF5 files are read into memory".to_string())
+        }
+        None => None,
+    };
+    let stream = match (mode, &why_not) {
+        (StreamMode::Never, _) => false,
+        (StreamMode::Always, Some(w)) => {
+            bail!("--stream always: this run cannot be streamed: {w}")
+        }
+        (StreamMode::Always, None) => true,
+        (StreamMode::Auto, _) => {
+            let big = std::fs::metadata(input.trace)
+                .map(|m| m.len() >= AUTO_STREAM_BYTES)
+                .unwrap_or(false);
+            if big {
+                if let Some(w) = &why_not {
+                    eprintln!(
+                        "note: {} is read into memory (~1 KB per row), not streamed: {w}",
+                        input.trace.display()
+                    );
+                }
+            }
+            big && why_not.is_none()
+        }
+    };
+    let Some(coeffs) = coeffs.filter(|_| stream) else {
+        return Ok(false);
+    };
+    let s = compensate(&input, &est, coeffs, out, false)?;
+    if json {
+        println!("{}", serde_json::to_string(&s)?);
+    } else {
+        println!(
+            "model {} ({:?}), {} samples (streamed)",
+            s.model, s.method, s.samples
+        );
+        if let Some(p) = s.predicted_error_nt {
+            println!(
+                "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
+            );
+        }
+        if let Some(e) = s.error_rms_nt {
+            println!("  error vs truth:             {e:.4} nT rms");
+        }
+        println!(
+            "  not computed when streamed: {} (--stream never computes them)",
+            s.not_computed.join(", ")
+        );
+        eprintln!("wrote {}", out.display());
+    }
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(true)
 }

@@ -23,6 +23,7 @@ mod error;
 mod h5;
 mod map;
 mod read;
+pub mod rows;
 mod view;
 mod write;
 mod xyz_out;
@@ -31,8 +32,8 @@ pub use error::TraceError;
 pub use h5::{has_hdf5_extension, is_hdf5, read_hdf5};
 pub use map::{preset_hint, ColumnMap, PRESETS};
 pub use read::{
-    progress_bar, read_trace, read_trace_from, read_trace_from_with, read_trace_with, Layout,
-    ReadOptions,
+    is_hdf5_path, progress_bar, read_trace, read_trace_from, read_trace_from_with, read_trace_with,
+    Layout, ReadOptions,
 };
 pub use view::{aux_column_candidate, column_kind, required_columns, ColumnKind};
 pub use write::{write_trace, write_trace_to};

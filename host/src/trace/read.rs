@@ -54,16 +54,29 @@ pub fn read_trace_with(
     map: &ColumnMap,
     mut opts: ReadOptions<'_>,
 ) -> Result<Trace, TraceError> {
-    let name = path.display().to_string();
-    // HDF5 by extension or by signature (a `.dat` from h5py is still HDF5).
-    if super::h5::has_hdf5_extension(path) || super::h5::is_hdf5(path) {
+    if is_hdf5_path(path) {
         return super::h5::read_hdf5(path, map, opts.check_time);
     }
-    let io = |source| TraceError::Io {
+    let (file, name, total) = open(path, &mut opts)?;
+    read_impl(file, &name, map, opts, total)
+}
+
+/// HDF5 by extension or by signature (a `.dat` from h5py is still HDF5).
+pub fn is_hdf5_path(path: &Path) -> bool {
+    super::h5::has_hdf5_extension(path) || super::h5::is_hdf5(path)
+}
+
+/// Opens a trace file: (file, its name for messages, its size); an `.xyz` extension
+/// sets the layout when it is `Auto`.
+pub(super) fn open(
+    path: &Path,
+    opts: &mut ReadOptions<'_>,
+) -> Result<(File, String, u64), TraceError> {
+    let name = path.display().to_string();
+    let file = File::open(path).map_err(|source| TraceError::Io {
         file: name.clone(),
         source,
-    };
-    let file = File::open(path).map_err(io)?;
+    })?;
     let total = file.metadata().map(|m| m.len()).unwrap_or(0);
     if opts.layout == Layout::Auto {
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
@@ -71,7 +84,7 @@ pub fn read_trace_with(
             opts.layout = Layout::Xyz;
         }
     }
-    read_impl(file, &name, map, opts, total)
+    Ok((file, name, total))
 }
 
 /// Reads a trace from any reader (layout detected from the content); `name_for_errors`
@@ -114,13 +127,13 @@ pub fn progress_bar(total_bytes: u64) -> indicatif::ProgressBar {
 }
 
 /// Values that mean "missing" in any layout.
-fn is_missing(text: &str) -> bool {
+pub(super) fn is_missing(text: &str) -> bool {
     text.is_empty() || text == "*" || text.eq_ignore_ascii_case("nan")
 }
 
 /// Some(value) for a number or a missing marker (NaN), None for anything else.
 /// Infinite values are refused: no sensor reports them, so they are corruption.
-fn parse_num(text: &str) -> Option<f64> {
+pub(super) fn parse_num(text: &str) -> Option<f64> {
     match text.parse::<f64>() {
         Ok(v) if v.is_finite() => Some(v),
         Ok(v) if v.is_nan() => Some(f64::NAN),
@@ -261,6 +274,60 @@ fn parse_meta(comment: &str) -> Option<(String, String)> {
     ok.then(|| (key.to_string(), value.trim().to_string()))
 }
 
+/// What the line scanner ([`scan`]) hands its rows to: the column store of
+/// [`read_trace_with`], or the row-at-a-time sink of [`super::rows`].
+pub(super) trait Sink {
+    fn header(&mut self, names: Vec<String>, line: u64) -> Result<(), TraceError>;
+    fn field(&mut self, line: u64, i: usize, text: &str) -> Result<(), TraceError>;
+    fn end_row(&mut self, line: u64, found: usize) -> Result<(), TraceError>;
+    fn columns(&self) -> usize;
+}
+
+impl Sink for Reader<'_> {
+    fn header(&mut self, names: Vec<String>, line: u64) -> Result<(), TraceError> {
+        self.set_header(names, line)
+    }
+    fn field(&mut self, line: u64, i: usize, text: &str) -> Result<(), TraceError> {
+        Reader::field(self, line, i, text)
+    }
+    fn end_row(&mut self, line: u64, found: usize) -> Result<(), TraceError> {
+        Reader::end_row(self, line, found)
+    }
+    fn columns(&self) -> usize {
+        self.cols.len()
+    }
+}
+
+/// Header checks shared by every sink: no empty or duplicate name; the map applied.
+pub(super) fn check_header(
+    file: &str,
+    map: &ColumnMap,
+    names: &[String],
+    line: u64,
+) -> Result<Vec<String>, TraceError> {
+    for (i, n) in names.iter().enumerate() {
+        if n.is_empty() {
+            return Err(TraceError::Header {
+                file: file.to_string(),
+                line,
+                msg: format!("column {} has an empty name", i + 1),
+            });
+        }
+        if let Some(j) = names[..i].iter().position(|m| m == n) {
+            return Err(TraceError::Header {
+                file: file.to_string(),
+                line,
+                msg: format!(
+                    "duplicate column name '{n}' (columns {} and {})",
+                    j + 1,
+                    i + 1
+                ),
+            });
+        }
+    }
+    map.apply(names)
+}
+
 struct Reader<'m> {
     file: String,
     map: &'m ColumnMap,
@@ -273,27 +340,7 @@ struct Reader<'m> {
 
 impl Reader<'_> {
     fn set_header(&mut self, names: Vec<String>, line: u64) -> Result<(), TraceError> {
-        for (i, n) in names.iter().enumerate() {
-            if n.is_empty() {
-                return Err(TraceError::Header {
-                    file: self.file.clone(),
-                    line,
-                    msg: format!("column {} has an empty name", i + 1),
-                });
-            }
-            if let Some(j) = names[..i].iter().position(|m| m == n) {
-                return Err(TraceError::Header {
-                    file: self.file.clone(),
-                    line,
-                    msg: format!(
-                        "duplicate column name '{n}' (columns {} and {})",
-                        j + 1,
-                        i + 1
-                    ),
-                });
-            }
-        }
-        let canon = self.map.apply(&names)?;
+        let canon = check_header(&self.file, self.map, &names, line)?;
         self.t_idx = canon
             .iter()
             .position(|n| n == "t")
@@ -355,9 +402,45 @@ fn read_impl<R: Read>(
     reader: R,
     name: &str,
     map: &ColumnMap,
-    mut opts: ReadOptions<'_>,
+    opts: ReadOptions<'_>,
     total_bytes: u64,
 ) -> Result<Trace, TraceError> {
+    let mut rd = Reader {
+        file: name.to_string(),
+        map,
+        check_time: opts.check_time,
+        cols: Vec::new(),
+        t_idx: None,
+        prev_t: f64::NEG_INFINITY,
+        origin: RowOrigin::new(name),
+    };
+    let meta = scan(reader, name, opts, total_bytes, &mut rd)?;
+    let mut trace = Trace {
+        meta,
+        origin: Some(rd.origin),
+        ..Trace::default()
+    };
+    for col in rd.cols {
+        match col.data {
+            // Never had a value: numeric and all missing.
+            ColData::Pending(n) => trace.numeric.push((col.name, vec![f64::NAN; n])),
+            ColData::Num(v) => trace.numeric.push((col.name, v)),
+            ColData::Text(v) => trace.text.push((col.name, v)),
+        }
+    }
+    Ok(trace)
+}
+
+/// Reads every line of `reader` into `sink` (header, fields, row ends) and returns the
+/// `# key: value` metadata. Layout detection, BOM, comments, quoting and the XYZ line
+/// separators are handled here, once for every sink.
+pub(super) fn scan<R: Read>(
+    reader: R,
+    name: &str,
+    mut opts: ReadOptions<'_>,
+    total_bytes: u64,
+    rd: &mut impl Sink,
+) -> Result<Vec<(String, String)>, TraceError> {
     let io = |source| TraceError::Io {
         file: name.to_string(),
         source,
@@ -374,15 +457,6 @@ fn read_impl<R: Read>(
             Layout::Csv
         };
     }
-    let mut rd = Reader {
-        file: name.to_string(),
-        map,
-        check_time: opts.check_time,
-        cols: Vec::new(),
-        t_idx: None,
-        prev_t: f64::NEG_INFINITY,
-        origin: RowOrigin::new(name),
-    };
     let mut meta = Vec::new();
     let mut have_header = false;
     let mut xyz_names: Option<(u64, String)> = None;
@@ -448,7 +522,7 @@ fn read_impl<R: Read>(
                     names.push(f.to_string());
                     Ok(())
                 })?;
-                rd.set_header(names, line_no)?;
+                rd.header(names, line_no)?;
                 have_header = true;
                 continue;
             }
@@ -468,14 +542,14 @@ fn read_impl<R: Read>(
                         file: name.to_string(),
                     });
                 }
-                rd.set_header(names, hl)?;
+                rd.header(names, hl)?;
                 have_header = true;
             }
             let mut toks = line.split_ascii_whitespace();
             let first_tok = toks.next().unwrap_or("");
             if (first_tok.eq_ignore_ascii_case("line") || first_tok.eq_ignore_ascii_case("tie"))
                 && toks.clone().count() <= 1
-                && rd.cols.len() > 2
+                && rd.columns() > 2
             {
                 continue; // Geosoft line separator, not a data row
             }
@@ -495,18 +569,5 @@ fn read_impl<R: Read>(
             file: name.to_string(),
         });
     }
-    let mut trace = Trace {
-        meta,
-        origin: Some(rd.origin),
-        ..Trace::default()
-    };
-    for col in rd.cols {
-        match col.data {
-            // Never had a value: numeric and all missing.
-            ColData::Pending(n) => trace.numeric.push((col.name, vec![f64::NAN; n])),
-            ColData::Num(v) => trace.numeric.push((col.name, v)),
-            ColData::Text(v) => trace.text.push((col.name, v)),
-        }
-    }
-    Ok(trace)
+    Ok(meta)
 }

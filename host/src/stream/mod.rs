@@ -1,0 +1,522 @@
+//! Streaming `compensate --coeffs`: a calibration applied to a survey of any length in
+//! memory bounded by a window, not by the flight.
+//!
+//! Three passes over the file, one row at a time (`trace::rows`):
+//! 1. the figures that need no sample rate: row selection, sample rate (exact median time
+//!    step), main-field direction, tie point, position checks, date source, input checks;
+//! 2. (only when needed) the scalar's noise (exact median of the despiked third
+//!    difference) and the core field's gaps (IGRF-14 from positions and date);
+//! 3. the core compensator (KF, survey mode) or Tolles–Lawson, sample by sample, each
+//!    output row written as it comes to a temporary file renamed at the end.
+//!
+//! Every per-sample number is computed as the in-memory path computes it (`tests/
+//! stream_compensate.rs` holds them equal). What needs the whole flight in memory is not
+//! streamed: calibrating, `--realtime`, models with `lag`, `fluxtemp` or
+//! `rate`, a coefficient file without σ1; [`unstreamable`] says which, and
+//! `compensate` then reads the flight into memory. The summary's band-passed figures
+//! (residual, IR, FOM) and the applied-coefficient checks are computed in memory only; a
+//! streamed run says so.
+mod apply;
+pub mod rows;
+pub mod stats;
+
+use crate::coefficients::{CoefficientFile, Method};
+use crate::compensation::EstimatorSettings;
+use crate::input::Selection;
+use crate::model_spec::ModelSpec;
+use crate::trace::rows::for_each_row;
+use crate::trace::{ColumnMap, ReadOptions};
+use anyhow::{bail, Context, Result};
+use rows::{row_sample, Cols, RowFilter};
+use serde::Serialize;
+use stats::{DateScan, DateSource, FirstPass, SecondPass};
+use std::path::Path;
+use std::time::Instant;
+
+/// `compensate` streams on its own above this input size (~1.3 M rows of a typical
+/// trace, ~1.3 GB in memory); `--stream always|never` decides otherwise.
+pub const AUTO_STREAM_BYTES: u64 = 256 << 20;
+
+/// The trace a streamed run reads: the file and the selection and date options every
+/// command takes (`cli::args::TraceInput`).
+#[derive(Clone, Copy, Debug)]
+pub struct StreamInput<'a> {
+    pub trace: &'a Path,
+    pub map: Option<&'a str>,
+    pub lines: Option<&'a str>,
+    pub time: Option<&'a str>,
+    pub date: Option<&'a str>,
+}
+
+/// Why this run cannot be streamed (None: it can).
+pub fn unstreamable(
+    coeffs: Option<&CoefficientFile>,
+    est: &EstimatorSettings,
+    realtime: bool,
+) -> Option<String> {
+    let Some(c) = coeffs else {
+        return Some("calibrating (no --coeffs) needs the whole flight".into());
+    };
+    if realtime {
+        return Some("--realtime is run in memory".into());
+    }
+    if c.method == Method::Tl {
+        return None;
+    }
+    let spec = match ModelSpec::parse(&c.model) {
+        Ok(s) => s,
+        Err(e) => return Some(format!("model '{}': {e}", c.model)),
+    };
+    if crate::preprocess::needed(&spec) {
+        return Some("`lag`/`fluxtemp` pre-process the whole flight".into());
+    }
+    if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
+        return Some("the model has `fluxcal` but the file no fluxgate_calibration".into());
+    }
+    if spec.terms.iter().any(|t| t.name == "rate") {
+        return Some("`rate` needs the flight's crossovers".into());
+    }
+    if spec.field && est.sigma1.or(c.sigma1).is_none() {
+        return Some(
+            "the coefficient file has no sigma1 (it is then estimated from the whole flight)"
+                .into(),
+        );
+    }
+    None
+}
+
+/// What a streamed run reports (`compensate --json` when streamed).
+#[derive(Clone, Debug, Serialize)]
+pub struct StreamSummary {
+    pub model: String,
+    pub method: Method,
+    pub samples: usize,
+    pub streamed: bool,
+    pub error_rms_nt: Option<f64>,
+    pub predicted_error_nt: Option<f64>,
+    pub sample_rate_hz: f64,
+    pub noise_nt: Option<f64>,
+    /// Figures the in-memory path gives that a streamed run does not compute.
+    pub not_computed: Vec<String>,
+    pub warnings: Vec<String>,
+}
+
+/// Rows/s on stderr for a stage that runs longer than a second.
+pub struct Progress {
+    stage: String,
+    start: Instant,
+    last: Instant,
+    rows: u64,
+    quiet: bool,
+}
+
+impl Progress {
+    pub fn new(stage: &str, quiet: bool) -> Self {
+        let now = Instant::now();
+        Self {
+            stage: stage.into(),
+            start: now,
+            last: now,
+            rows: 0,
+            quiet,
+        }
+    }
+    pub fn tick(&mut self) {
+        self.rows += 1;
+        if self.quiet || !self.rows.is_multiple_of(65_536) {
+            return;
+        }
+        let now = Instant::now();
+        if now.duration_since(self.last).as_secs_f64() >= 5.0
+            || (self.last == self.start && now.duration_since(self.start).as_secs_f64() >= 1.0)
+        {
+            self.last = now;
+            let s = now.duration_since(self.start).as_secs_f64();
+            eprintln!(
+                "{}: {} rows, {:.0} rows/s",
+                self.stage,
+                self.rows,
+                self.rows as f64 / s
+            );
+        }
+    }
+    pub fn done(&self) {
+        let s = self.start.elapsed().as_secs_f64();
+        if !self.quiet && s >= 1.0 {
+            eprintln!(
+                "{}: {} rows in {s:.1} s, {:.0} rows/s",
+                self.stage,
+                self.rows,
+                self.rows as f64 / s
+            );
+        }
+    }
+}
+
+/// The core field as `input::prepare` decides it.
+#[derive(Clone, Debug, PartialEq)]
+enum Core {
+    FromFile,
+    Computed(DateSource, String),
+    /// No date: the change over the flight is only reported.
+    Missing,
+    NoPosition,
+}
+
+/// Everything the third pass needs from the first two.
+pub(crate) struct Plan {
+    pub cols: Cols,
+    pub head: crate::trace::rows::RowsHeader,
+    pub rows: usize,
+    pub sample_rate_hz: f64,
+    pub gap_limit_s: f64,
+    pub earth_dir_ned: Option<[f32; 3]>,
+    pub tie_point: Option<magcomp_core::compensator::TiePoint>,
+    pub base0: Option<f64>,
+    pub offsets: Vec<f64>,
+    pub assumed_speed_mps: Option<f64>,
+    pub noise_nt: f64,
+    pub igrf: Option<(DateSource, apply::GapFill)>,
+    pub channels: Vec<String>,
+    /// The coefficient file's fluxgate calibration, applied to every fluxgate vector before
+    /// the compensator (as `pipeline::run_kf_estimator` does in memory).
+    pub fluxgate_calibration: Option<crate::fluxgate::FluxgateCalibration>,
+}
+
+/// `compensate --coeffs` streamed: writes `out` and returns the summary. `quiet`: no
+/// progress lines.
+pub fn compensate(
+    input: &StreamInput<'_>,
+    est: &EstimatorSettings,
+    coeffs: &CoefficientFile,
+    out: &Path,
+    quiet: bool,
+) -> Result<StreamSummary> {
+    if let Some(why) = unstreamable(Some(coeffs), est, false) {
+        bail!("this run cannot be streamed: {why} (use --stream never)");
+    }
+    let map = match input.map {
+        Some(m) => ColumnMap::parse(m)?,
+        None => ColumnMap::new(),
+    };
+    let sel = Selection::parse(input.lines, input.time)?;
+    let spec = match coeffs.method {
+        Method::Kf => Some(ModelSpec::parse(&coeffs.model)?),
+        Method::Tl => None,
+    };
+    let channels = spec.as_ref().map(|s| s.channels()).unwrap_or_default();
+    let relative = spec
+        .as_ref()
+        .map(|s| s.relative_channels())
+        .unwrap_or_default();
+    let path = input.trace;
+    let ctx = || format!("reading {}", path.display());
+    let mut warnings = Vec::new();
+
+    // Pass 1.
+    let mut cols: Option<Cols> = None;
+    let mut filter = RowFilter::new(sel.clone());
+    let mut first = FirstPass::new(channels.len());
+    let given_year = match input.date {
+        Some(d) => {
+            let (y, doy) = crate::igrf::parse_date(d).context("--date")?;
+            Some(crate::igrf::decimal_year(y, doy, 0.0))
+        }
+        None => None,
+    };
+    let mut date_col = DateScan::default();
+    let mut doy_scans: Vec<DateScan> = Vec::new();
+    let mut progress = Progress::new("pass 1/3 (flight figures)", quiet);
+    let head = for_each_row(path, &map, ReadOptions::default(), |row| {
+        let c = match &mut cols {
+            Some(c) => c,
+            None => {
+                let c = Cols::resolve(row.names, &channels)?;
+                doy_scans = vec![DateScan::default(); c.year_doy.len()];
+                cols.insert(c)
+            }
+        };
+        if !filter.keep(row, c)? {
+            return Ok(());
+        }
+        progress.tick();
+        let k = first.rows;
+        let mut rs = row_sample(row, c, None, &[]);
+        first.push(&mut rs);
+        if let Some(d) = c.date {
+            scan_year(&mut date_col, stats::year_of_date(row.text(d), k));
+        }
+        for ((y, d, names), scan) in c.year_doy.iter().zip(&mut doy_scans) {
+            scan_year(scan, stats::year_of_doy(row.num(*y), row.num(*d), names, k));
+        }
+        Ok(())
+    })
+    .with_context(ctx)?;
+    progress.done();
+    let mut cols = cols.with_context(|| format!("{}: no data rows", path.display()))?;
+    filter.finish(&head, &cols)?;
+    cols.check_kinds(&head, &channels)?;
+    let n = first.rows;
+    if channels.len() > magcomp_core::MAX_AUX {
+        bail!(
+            "at most {} auxiliary channels can be used at once",
+            magcomp_core::MAX_AUX
+        );
+    }
+    if n < 3 {
+        bail!("the trace has {n} rows; at least 3 are needed");
+    }
+    let median_dt = first.dt.median().context("no time step")?;
+    let sample_rate_hz = 1.0 / median_dt;
+    let withheld = input_checks(&first, n, sample_rate_hz, &mut warnings)?;
+
+    // The core field, as input::prepare decides it.
+    let core = if cols.igrf.is_some() {
+        Core::FromFile
+    } else if cols.lat.is_none() || cols.lon.is_none() || cols.alt.is_none() {
+        Core::NoPosition
+    } else if let Some(y) = given_year {
+        Core::Computed(DateSource::Given(y), "--date".into())
+    } else {
+        let mut chosen = None;
+        if let Some(d) = cols.date {
+            if let Some(e) = &date_col.error {
+                bail!("{e}");
+            }
+            if date_col.any {
+                chosen = Some(Core::Computed(DateSource::Column(d), "column date".into()));
+            }
+        }
+        if chosen.is_none() {
+            for ((y, d, names), scan) in cols.year_doy.iter().zip(&doy_scans) {
+                if let Some(e) = &scan.error {
+                    bail!("{e}");
+                }
+                if scan.any {
+                    chosen = Some(Core::Computed(
+                        DateSource::YearDoy(*y, *d, names.clone()),
+                        format!("columns {names}"),
+                    ));
+                    break;
+                }
+            }
+        }
+        chosen.unwrap_or(Core::Missing)
+    };
+
+    // Pass 2: the scalar's noise (KF without --noise-nt) and the core field's gaps.
+    let need_noise = spec.is_some() && est.noise_nt.is_none();
+    let need_igrf = matches!(core, Core::Computed(..) | Core::Missing);
+    let mut second = SecondPass::new(sample_rate_hz, median_dt);
+    let mut igrf_scan = apply::IgrfScan::default();
+    if need_noise || need_igrf {
+        let mut filter = RowFilter::new(sel.clone());
+        let mut progress = Progress::new("pass 2/3 (noise, core field)", quiet);
+        let mut k = 0usize;
+        let source = match &core {
+            Core::Computed(s, _) => Some(s.clone()),
+            _ => None,
+        };
+        for_each_row(path, &map, ReadOptions::default(), |row| {
+            if !filter.keep(row, &cols)? {
+                return Ok(());
+            }
+            progress.tick();
+            if need_noise {
+                second.push(k, row.line, row.num(cols.t), row.num(cols.mag));
+            }
+            if need_igrf {
+                let year = match &source {
+                    Some(s) => apply::row_year(s, row, k)?,
+                    None => 2025.0,
+                };
+                igrf_scan.push(k, year, &cols, row)?;
+            }
+            k += 1;
+            Ok(())
+        })
+        .with_context(ctx)?;
+        second.finish();
+        progress.done();
+    }
+    let noise_nt = match est.noise_nt {
+        Some(v) => v,
+        None => {
+            let sensor = second.noise_nt().unwrap_or(0.02);
+            (sensor * sensor + 0.005f64.powi(2)).sqrt()
+        }
+    };
+    let igrf = match &core {
+        Core::Computed(source, label) => {
+            let (y0, y1) = igrf_scan.years;
+            eprintln!(
+                "{}",
+                crate::input::CoreField::Computed {
+                    model: crate::igrf::MODEL_NAME.into(),
+                    epochs: (y0, y1),
+                    date_source: label.clone(),
+                }
+                .message()
+                .unwrap_or_default()
+            );
+            Some((source.clone(), igrf_scan.fill.clone()))
+        }
+        Core::Missing => {
+            let (lo, hi) = igrf_scan.range_nt;
+            let change_nt = (hi >= lo).then_some(hi - lo);
+            if let Some(m) = (crate::input::CoreField::Missing { change_nt }).message() {
+                eprintln!("{m}");
+            }
+            None
+        }
+        Core::NoPosition | Core::FromFile => None,
+    };
+
+    let mut assumed_speed_mps = None;
+    if let Some(spec) = &spec {
+        if spec.field && !(first.has_position || first.has_speed) {
+            match est.speed_mps.or(coeffs.assumed_speed_mps) {
+                Some(v) if v.is_finite() && v > 0.0 => {
+                    assumed_speed_mps = Some(v);
+                    warnings.push(format!(
+                        "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
+                    ));
+                }
+                Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
+                None => bail!(
+                    "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
+                ),
+            }
+        }
+    }
+    let offsets = channels
+        .iter()
+        .zip(&first.channel_offsets)
+        .map(|(c, o)| {
+            if relative.contains(c) {
+                o.unwrap_or(0.0)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let plan = Plan {
+        tie_point: first.tie_point(&head.meta),
+        earth_dir_ned: first.field_dir.finish(),
+        base0: first.base0,
+        cols,
+        head,
+        rows: n,
+        sample_rate_hz,
+        gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt,
+        offsets,
+        assumed_speed_mps,
+        noise_nt,
+        igrf,
+        channels,
+        fluxgate_calibration: match coeffs.method {
+            Method::Kf => coeffs.fluxgate_calibration,
+            Method::Tl => None,
+        },
+    };
+    let source = apply::Source {
+        path,
+        map: &map,
+        sel: &sel,
+    };
+    let result = apply::run(&source, &plan, est, coeffs, spec.as_ref(), out, quiet)?;
+    if let Some(w) = stats::glitch_warning(path, &result.glitches) {
+        crate::position::warn_once(&w);
+    }
+    if let Some(w) = stats::faults_warning(path, &first.position_faults) {
+        crate::position::warn_once(&w);
+    }
+    if let Some(w) = result.gaps_warning() {
+        warnings.push(w);
+    }
+    warnings.extend(withheld.iter().map(|why| {
+        format!("{why}: improvement ratio, FOM and predicted error are withheld (null)")
+    }));
+    let not_computed: Vec<String> = [
+        "residual_rms_nt",
+        "improvement_ratio",
+        "fom_nt",
+        "fom_table",
+        "oracle_floor_nt",
+        "applied-coefficient checks",
+    ]
+    .map(String::from)
+    .to_vec();
+    Ok(StreamSummary {
+        model: result.model,
+        method: coeffs.method,
+        samples: n,
+        streamed: true,
+        error_rms_nt: result.error_rms_nt,
+        predicted_error_nt: result.predicted_error_nt.filter(|_| withheld.is_none()),
+        sample_rate_hz,
+        noise_nt: spec.as_ref().map(|_| noise_nt),
+        not_computed,
+        warnings,
+    })
+}
+
+fn scan_year(scan: &mut DateScan, year: Result<f64>) {
+    match year {
+        Ok(y) => scan.any |= y.is_finite(),
+        Err(e) => {
+            if scan.error.is_none() {
+                scan.error = Some(format!("{e:#}"));
+            }
+        }
+    }
+}
+
+/// `qc::inputs::check` for a flight applied coefficients (not calibrating): the same
+/// errors and warnings; returns why figures are withheld.
+fn input_checks(
+    first: &FirstPass,
+    n: usize,
+    sample_rate_hz: f64,
+    warnings: &mut Vec<String>,
+) -> Result<Option<String>> {
+    use crate::qc::inputs::{MIN_DURATION_S, MIN_SAMPLES};
+    if first.mag_finite == 0 {
+        bail!(
+            "the scalar column `mag` has no value on any of the {n} rows (all missing or NaN): nothing to compensate"
+        );
+    }
+    if first.mag_range.1 - first.mag_range.0 == 0.0 && first.mag_finite > 1 {
+        bail!(
+            "the scalar column `mag` is constant ({} nT on all {} finite rows): a stuck or placeholder magnetometer cannot be compensated",
+            first.first_mag.unwrap_or(f64::NAN),
+            first.mag_finite
+        );
+    }
+    if first.flux_field_rows == 0 {
+        bail!(
+            "the fluxgate (flux_x, flux_y, flux_z) reads less than 1000 nT or nothing on every row (all zero or missing): the direction of the field is unknown, nothing can be compensated"
+        );
+    }
+    if first.flux_field_rows < n / 2 {
+        warnings.push(format!(
+            "the fluxgate reads less than 1000 nT or nothing on {} of {n} rows",
+            n - first.flux_field_rows
+        ));
+    }
+    let flux_constant = first
+        .flux_range
+        .iter()
+        .all(|(lo, hi)| lo <= hi && hi - lo == 0.0);
+    let duration_s = n as f64 / sample_rate_hz;
+    let short = duration_s < MIN_DURATION_S || n < MIN_SAMPLES;
+    Ok(if flux_constant {
+        Some("the fluxgate reads the same vector on every row".into())
+    } else if short {
+        Some(format!(
+            "the flight is only {duration_s:.1} s / {n} samples long (less than {MIN_DURATION_S} s or {MIN_SAMPLES} samples)"
+        ))
+    } else {
+        None
+    })
+}

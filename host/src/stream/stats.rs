@@ -1,0 +1,434 @@
+//! The first two streaming passes: the whole-flight figures the in-memory path takes from
+//! its columns (sample rate, main-field direction, tie point, date, core-field gaps, input
+//! checks, scalar noise), each computed exactly as `Flight::from_trace`, `input::prepare`,
+//! `qc::inputs::check` and `pipeline::estimate_noise_nt` compute them, from one row at a
+//! time.
+use super::rows::RowSample;
+use crate::flight::{FieldDirection, TieDetector};
+use crate::position::{PositionChecker, PositionFault};
+use anyhow::Result;
+use magcomp_core::compensator::TiePoint;
+use std::collections::{HashMap, VecDeque};
+
+/// An exact median (the element at index `len / 2` of the sorted values, as the in-memory
+/// code takes it) from counts of distinct values: memory grows with the number of distinct
+/// values, not with the rows (a 1 kHz flight's time steps take a handful of values; its
+/// scalar's third differences, written to 1e-4 nT, a few thousand).
+#[derive(Clone, Debug, Default)]
+pub struct ExactMedian {
+    counts: HashMap<u64, u64>,
+    n: u64,
+}
+
+impl ExactMedian {
+    /// `v` must be ≥ 0 (its bit pattern then sorts as the value).
+    pub fn push(&mut self, v: f64) {
+        *self.counts.entry(v.to_bits()).or_default() += 1;
+        self.n += 1;
+    }
+    pub fn len(&self) -> u64 {
+        self.n
+    }
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+    pub fn distinct(&self) -> usize {
+        self.counts.len()
+    }
+    pub fn median(&self) -> Option<f64> {
+        if self.n == 0 {
+            return None;
+        }
+        let mut keys: Vec<(u64, u64)> = self.counts.iter().map(|(k, c)| (*k, *c)).collect();
+        keys.sort_unstable();
+        let mid = self.n / 2;
+        let mut seen = 0;
+        for (k, c) in keys {
+            seen += c;
+            if seen > mid {
+                return Some(f64::from_bits(k));
+            }
+        }
+        None
+    }
+}
+
+/// `despike::glitches` over a stream: a sample is judged once its `half` neighbours on
+/// either side are in (or the flight has ended). Holds `2·half + 1` raw values.
+pub struct Despiker {
+    half: usize,
+    /// (row, raw mag) of the window; the front is the oldest.
+    window: VecDeque<(usize, f64)>,
+    /// Next row to judge.
+    next: usize,
+    neighbours: Vec<f64>,
+}
+
+impl Despiker {
+    pub fn new(sample_rate_hz: f64) -> Self {
+        // The same neighbourhood as despike::glitches: ±0.3 s, 3–15 samples a side.
+        let half = ((0.3 * sample_rate_hz).round() as usize).clamp(3, 15);
+        Self {
+            half,
+            window: VecDeque::with_capacity(2 * half + 2),
+            next: 0,
+            neighbours: Vec::with_capacity(2 * half),
+        }
+    }
+
+    pub fn delay(&self) -> usize {
+        self.half
+    }
+
+    /// Adds row `row`'s raw scalar; returns the judged (row, is_glitch) if one is due.
+    pub fn push(&mut self, row: usize, mag: f64) -> Option<(usize, bool)> {
+        self.window.push_back((row, mag));
+        if row >= self.next + self.half {
+            let out = self.judge(self.next);
+            self.next += 1;
+            self.trim();
+            return Some(out);
+        }
+        None
+    }
+
+    /// The rows not yet judged, at the end of the flight.
+    pub fn finish(&mut self) -> Vec<(usize, bool)> {
+        let mut out = Vec::new();
+        while let Some(&(last, _)) = self.window.back() {
+            if self.next > last {
+                break;
+            }
+            out.push(self.judge(self.next));
+            self.next += 1;
+            self.trim();
+        }
+        out
+    }
+
+    fn trim(&mut self) {
+        while self
+            .window
+            .front()
+            .is_some_and(|(r, _)| r + self.half < self.next)
+        {
+            self.window.pop_front();
+        }
+    }
+
+    fn judge(&mut self, i: usize) -> (usize, bool) {
+        const FLOOR_NT: f64 = 50.0;
+        const SPREAD_FACTOR: f64 = 10.0;
+        let v = self
+            .window
+            .iter()
+            .find(|(r, _)| *r == i)
+            .map_or(f64::NAN, |(_, m)| *m);
+        if !v.is_finite() {
+            return (i, false);
+        }
+        self.neighbours.clear();
+        self.neighbours.extend(
+            self.window
+                .iter()
+                .filter(|(r, _)| *r != i && r + self.half >= i && *r <= i + self.half)
+                .map(|(_, m)| *m)
+                .filter(|x| x.is_finite()),
+        );
+        if self.neighbours.len() < 3 {
+            return (i, false);
+        }
+        self.neighbours.sort_by(|a, b| a.total_cmp(b));
+        let median = self.neighbours[self.neighbours.len() / 2];
+        let spread = self.neighbours[self.neighbours.len() - 1] - self.neighbours[0];
+        (i, (v - median).abs() > FLOOR_NT + SPREAD_FACTOR * spread)
+    }
+}
+
+/// Up to `MAX_LISTED` examples and a total, for a warning that names lines.
+#[derive(Clone, Debug)]
+pub struct Listed<T> {
+    pub first: Vec<(u64, T)>,
+    pub total: usize,
+}
+
+impl<T> Default for Listed<T> {
+    fn default() -> Self {
+        Self {
+            first: Vec::new(),
+            total: 0,
+        }
+    }
+}
+
+impl<T> Listed<T> {
+    pub const MAX_LISTED: usize = 5;
+    pub fn push(&mut self, line: u64, v: T) {
+        if self.first.len() < Self::MAX_LISTED {
+            self.first.push((line, v));
+        }
+        self.total += 1;
+    }
+}
+
+/// Pass 1: what needs no sample rate.
+#[derive(Default)]
+pub struct FirstPass {
+    pub rows: usize,
+    pub dt: ExactMedian,
+    pub mag_finite: usize,
+    pub mag_range: (f64, f64),
+    pub first_mag: Option<f64>,
+    pub flux_field_rows: usize,
+    pub flux_range: [(f64, f64); 3],
+    /// First finite value of each model channel that is relative (and of `base`).
+    pub channel_offsets: Vec<Option<f64>>,
+    pub base0: Option<f64>,
+    pub has_position: bool,
+    pub has_speed: bool,
+    pub positions: PositionChecker,
+    pub position_faults: Listed<PositionFault>,
+    pub tie: TieDetector,
+    pub field_dir: FieldDirection,
+    pub prev_t: Option<f64>,
+}
+
+impl FirstPass {
+    pub fn new(channels: usize) -> Self {
+        Self {
+            mag_range: (f64::MAX, f64::MIN),
+            flux_range: [(f64::MAX, f64::MIN); 3],
+            channel_offsets: vec![None; channels],
+            ..Default::default()
+        }
+    }
+
+    pub fn push(&mut self, rs: &mut RowSample) {
+        let s = &mut rs.sample;
+        if let Some(t0) = self.prev_t {
+            self.dt.push(s.t_s - t0);
+        }
+        self.prev_t = Some(s.t_s);
+        self.rows += 1;
+        if rs.mag_nt.is_finite() {
+            self.mag_finite += 1;
+            self.mag_range = (
+                self.mag_range.0.min(rs.mag_nt),
+                self.mag_range.1.max(rs.mag_nt),
+            );
+            self.first_mag.get_or_insert(rs.mag_nt);
+        }
+        let b = s.flux_nt.map(f64::from);
+        let m = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+        if m.is_finite() && m >= 1_000.0 {
+            self.flux_field_rows += 1;
+        }
+        for (k, r) in self.flux_range.iter_mut().enumerate() {
+            if b[k].is_finite() {
+                *r = (r.0.min(b[k]), r.1.max(b[k]));
+            }
+        }
+        for (o, v) in self.channel_offsets.iter_mut().zip(&rs.raw_channels) {
+            if v.is_finite() {
+                o.get_or_insert(*v);
+            }
+        }
+        if rs.raw_base.is_finite() {
+            self.base0.get_or_insert(rs.raw_base);
+        }
+        if let Some(a) = rs.raw_attitude {
+            self.field_dir.push(rs.raw_flux, a);
+        }
+        let line = rs.line;
+        self.positions
+            .check(s, |f| self.position_faults.push(line, f));
+        if s.lat_deg.is_finite() && s.lon_deg.is_finite() {
+            self.has_position = true;
+        }
+        if s.ground_speed_mps.is_finite() {
+            self.has_speed = true;
+        }
+        self.tie.push(s.t_s, s.lat_deg, s.lon_deg);
+    }
+
+    pub fn sample_rate_hz(&self) -> Option<f64> {
+        self.dt.median().map(|d| 1.0 / d)
+    }
+
+    pub fn tie_point(&self, meta: &[(String, String)]) -> Option<TiePoint> {
+        let m = |k: &str| {
+            meta.iter()
+                .find(|(key, _)| key == k)
+                .and_then(|(_, v)| v.trim().parse().ok())
+        };
+        match (m("cal_centre_lat"), m("cal_centre_lon")) {
+            (Some(lat_deg), Some(lon_deg)) => Some(TiePoint { lat_deg, lon_deg }),
+            _ => self.tie.finish(),
+        }
+    }
+}
+
+/// Pass 2 (needs the sample rate): glitches, time gaps, the scalar's noise.
+pub struct SecondPass {
+    pub despiker: Despiker,
+    pub gap_limit_s: f64,
+    pub prev_t: Option<f64>,
+    /// (data row, gap length, t before) of the first gaps, and their count.
+    pub gaps: Vec<(usize, f64, f64)>,
+    pub gap_count: usize,
+    pub glitches: Listed<f64>,
+    /// Despiked scalar of the last 4 judged rows, for the third difference.
+    last4: VecDeque<f64>,
+    pub d3: ExactMedian,
+    pending: VecDeque<(usize, u64, f64)>,
+}
+
+impl SecondPass {
+    pub fn new(sample_rate_hz: f64, median_dt_s: f64) -> Self {
+        Self {
+            despiker: Despiker::new(sample_rate_hz),
+            gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt_s,
+            prev_t: None,
+            gaps: Vec::new(),
+            gap_count: 0,
+            glitches: Listed::default(),
+            last4: VecDeque::with_capacity(4),
+            d3: ExactMedian::default(),
+            pending: VecDeque::new(),
+        }
+    }
+
+    pub fn push(&mut self, row: usize, line: u64, t_s: f64, mag_nt: f64) {
+        if let Some(t0) = self.prev_t {
+            if t_s - t0 > self.gap_limit_s {
+                if self.gaps.len() < 3 {
+                    self.gaps.push((row, t_s - t0, t0));
+                }
+                self.gap_count += 1;
+            }
+        }
+        self.prev_t = Some(t_s);
+        self.pending.push_back((row, line, mag_nt));
+        if let Some(j) = self.despiker.push(row, mag_nt) {
+            self.judged(j);
+        }
+    }
+
+    pub fn finish(&mut self) {
+        for j in self.despiker.finish() {
+            self.judged(j);
+        }
+    }
+
+    fn judged(&mut self, (row, glitch): (usize, bool)) {
+        let Some((r, line, mag)) = self.pending.pop_front() else {
+            return;
+        };
+        debug_assert_eq!(r, row);
+        let v = if glitch {
+            self.glitches.push(line, mag);
+            f64::NAN
+        } else {
+            mag
+        };
+        if self.last4.len() == 4 {
+            self.last4.pop_front();
+        }
+        self.last4.push_back(v);
+        if self.last4.len() == 4 {
+            let w = &self.last4;
+            let d = w[3] - 3.0 * w[2] + 3.0 * w[1] - w[0];
+            if d.is_finite() {
+                self.d3.push(d.abs());
+            }
+        }
+    }
+
+    /// `pipeline::estimate_noise_nt` of the despiked scalar.
+    pub fn noise_nt(&self) -> Option<f64> {
+        if self.d3.len() < 16 {
+            return None;
+        }
+        self.d3.median().map(|m| m * 1.4826 / 20f64.sqrt())
+    }
+}
+
+/// `input::prepare`'s core field from a date: the decimal year of a row by the source
+/// the first pass chose.
+#[derive(Clone, Debug, PartialEq)]
+pub enum DateSource {
+    Given(f64),
+    Column(usize),
+    YearDoy(usize, usize, String),
+}
+
+/// Per candidate date source: any finite year, and the first bad value.
+#[derive(Default, Clone, Debug)]
+pub struct DateScan {
+    pub any: bool,
+    pub error: Option<String>,
+}
+
+/// Decimal year of `text` in a `date` column (NaN when empty).
+pub fn year_of_date(text: &str, row: usize) -> Result<f64> {
+    use anyhow::Context;
+    if text.is_empty() {
+        return Ok(f64::NAN);
+    }
+    let (y, doy) = crate::igrf::parse_date(text)
+        .with_context(|| format!("column 'date', data row {}", row + 1))?;
+    Ok(crate::igrf::decimal_year(y, doy, 0.0))
+}
+
+/// Decimal year of a year/day-of-year pair (NaN when either is missing).
+pub fn year_of_doy(y: f64, d: f64, names: &str, row: usize) -> Result<f64> {
+    if !(y.is_finite() && d.is_finite()) {
+        return Ok(f64::NAN);
+    }
+    if y.fract() != 0.0 || !(1.0..=366.0).contains(&d) {
+        let (yc, dc) = names.split_once('/').unwrap_or((names, ""));
+        anyhow::bail!(
+            "columns '{yc}'/'{dc}', data row {}: {y}/{d} is not a year and day of year",
+            row + 1
+        );
+    }
+    Ok(crate::igrf::decimal_year(y as i32, d.floor() as u32, 0.0))
+}
+
+/// `Flight::from_trace`'s glitch warning from the listed glitches.
+pub fn glitch_warning(path: &std::path::Path, g: &Listed<f64>) -> Option<String> {
+    if g.total == 0 {
+        return None;
+    }
+    let mut msg = format!(
+        "{}: {} scalar glitch(es) far outside their neighbours, taken as missing (samples flagged MAG_MISSING):",
+        path.display(),
+        g.total
+    );
+    for (line, v) in &g.first {
+        msg.push_str(&format!("\n  line {line}: mag = {v}"));
+    }
+    if g.total > g.first.len() {
+        msg.push_str(&format!("\n  … and {} more", g.total - g.first.len()));
+    }
+    Some(msg)
+}
+
+/// `position::faults_warning` from the listed faults.
+pub fn faults_warning(path: &std::path::Path, f: &Listed<PositionFault>) -> Option<String> {
+    if f.total == 0 {
+        return None;
+    }
+    let mut msg = format!(
+        "{}: {} unusable position(s), treated as missing (samples flagged NO_GPS):",
+        path.display(),
+        f.total
+    );
+    for (line, v) in &f.first {
+        msg.push_str(&format!("\n  line {line}: {v}"));
+    }
+    if f.total > f.first.len() {
+        msg.push_str(&format!("\n  … and {} more", f.total - f.first.len()));
+    }
+    Some(msg)
+}

@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Peak memory of `compensate --coeffs` streamed and in memory at 1 M and 10 M rows
+# (host/benches/stream_rss.rs says how the inputs are made). Usage:
+#   scripts/stream_rss.sh                      # 1,000,000 and 10,000,000 rows
+#   STREAM_RSS_ROWS=200000 scripts/stream_rss.sh
+set -euo pipefail
+cd "$(dirname "$0")/.."
+exec nice -n 10 cargo bench -p magcomp --bench stream_rss
