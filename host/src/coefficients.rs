@@ -168,6 +168,24 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
 }
 
 impl CoefficientFile {
+    /// A Tolles–Lawson fit holding this file's coefficients (what `tl::interference` applies).
+    pub fn tl_fit(&self, config: crate::tl::TlConfig) -> crate::tl::TlFit {
+        crate::tl::TlFit {
+            coefficients: self.coefficients.iter().map(|c| c.value).collect(),
+            sigma: self.coefficients.iter().map(|c| c.sigma).collect(),
+            names: self.coefficients.iter().map(|c| c.name.clone()).collect(),
+            config,
+            rows_used: 0,
+            rows_nonfinite: 0,
+            rows_short_runs: 0,
+            runs_used: 0,
+            residual_std_nt: f64::NAN,
+            cond_normal: f64::NAN,
+            rank: 0,
+            noise_gain: 1.0,
+        }
+    }
+
     /// The names of the coefficients the file's model has, in the model's order: the KF
     /// model's `term.label`s, or the Tolles–Lawson terms of its configuration.
     pub fn model_coefficient_names(&self) -> Result<Vec<String>> {

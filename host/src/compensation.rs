@@ -293,20 +293,7 @@ fn run_method(
                         .tl_config
                         .clone()
                         .context("the coefficient file has no Tolles–Lawson configuration")?;
-                    tl::TlFit {
-                        coefficients: c.coefficients.iter().map(|c| c.value).collect(),
-                        sigma: c.coefficients.iter().map(|c| c.sigma).collect(),
-                        names: c.coefficients.iter().map(|c| c.name.clone()).collect(),
-                        config: cfg,
-                        rows_used: 0,
-                        rows_nonfinite: 0,
-                        rows_short_runs: 0,
-                        runs_used: 0,
-                        residual_std_nt: f64::NAN,
-                        cond_normal: f64::NAN,
-                        rank: 0,
-                        noise_gain: 1.0,
-                    }
+                    c.tl_fit(cfg)
                 }
                 None => tl::fit(
                     &flux,

@@ -385,11 +385,8 @@ pub enum OutputValues {
     Text(Vec<String>),
 }
 
-/// The input columns the estimation does not consume (line, UTM X/Y, other channels,
-/// text labels), carried to the output row for row so nobody has to join by time; and
-/// `igrf`, the core field used. `consumed`: the aux channels the model reads. Names that
-/// would collide with an output column get an `in_` prefix.
-pub fn carried_columns(trace: &Trace, consumed: &[String]) -> Vec<(String, OutputValues)> {
+/// The output name of a carried input column: `in_` before a name an output column has.
+pub fn carried_name(name: &str) -> String {
     const OUTPUT: &[&str] = &[
         "t",
         "mag",
@@ -400,13 +397,19 @@ pub fn carried_columns(trace: &Trace, consumed: &[String]) -> Vec<(String, Outpu
         "flags",
         "igrf",
     ];
-    let rename = |n: &str| {
-        if OUTPUT.contains(&n) {
-            format!("in_{n}")
-        } else {
-            n.to_string()
-        }
-    };
+    if OUTPUT.contains(&name) {
+        format!("in_{name}")
+    } else {
+        name.to_string()
+    }
+}
+
+/// The input columns the estimation does not consume (line, UTM X/Y, other channels,
+/// text labels), carried to the output row for row so nobody has to join by time; and
+/// `igrf`, the core field used. `consumed`: the aux channels the model reads. Names that
+/// would collide with an output column get an `in_` prefix.
+pub fn carried_columns(trace: &Trace, consumed: &[String]) -> Vec<(String, OutputValues)> {
+    let rename = carried_name;
     let mut out = Vec::new();
     if let Some(g) = trace.col("igrf") {
         out.push(("igrf".to_string(), OutputValues::Num(g.to_vec())));

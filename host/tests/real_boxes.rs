@@ -11,57 +11,14 @@ use magcomp::model_spec::DEFAULT_MODEL;
 use magcomp::tl;
 use magcomp::trace::Trace;
 use magcomp_core::Flags;
-use std::path::PathBuf;
 
-const BOX1_ROWS: usize = 6500;
-const FS_HZ: f64 = 10.0;
-/// The board's assumed ground speed for a trace without positions (a Caravan surveys at
-/// ~60 m/s).
-const SPEED_MPS: f64 = 60.0;
+#[path = "common/real_boxes.rs"]
+mod real_boxes_data;
+use real_boxes_data::{band_std_nt, boxes, Boxes, BOX1_ROWS, FS_HZ, SPEED_MPS};
 
-struct Boxes {
-    columns: Vec<String>,
-    rows: Vec<Vec<f64>>,
-}
-
-fn boxes() -> Option<Boxes> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
-    let Ok(text) = std::fs::read_to_string(&path) else {
-        eprintln!(
-            "SKIPPED: {} is absent (shared reference data)",
-            path.display()
-        );
-        return None;
-    };
-    let mut lines = text.lines();
-    let columns = lines.next()?.split(',').map(String::from).collect();
-    let rows = lines
-        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-        .collect();
-    Some(Boxes { columns, rows })
-}
-
-/// Rows `range` as a positionless trace (`t`, `mag`, `flux_*`) of scalar `mag` and
-/// fluxgate `flux` (e.g. `mag_4_uc`, `flux_d`).
+/// Rows `range` as a positionless trace of scalar `mag` and fluxgate `flux`.
 fn trace(b: &Boxes, range: std::ops::Range<usize>, mag: &str, flux: &str) -> Trace {
-    let col = |name: &str| {
-        let j = b.columns.iter().position(|c| c == name).unwrap();
-        range.clone().map(|i| b.rows[i][j]).collect::<Vec<f64>>()
-    };
-    Trace {
-        numeric: vec![
-            (
-                "t".into(),
-                range.clone().map(|i| i as f64 / FS_HZ).collect(),
-            ),
-            ("mag".into(), col(mag)),
-            ("flux_x".into(), col(&format!("{flux}_x"))),
-            ("flux_y".into(), col(&format!("{flux}_y"))),
-            ("flux_z".into(), col(&format!("{flux}_z"))),
-        ],
-        ..Default::default()
-    }
+    b.trace(range, mag, flux)
 }
 
 fn est(method: Method, model: &str) -> EstimatorSettings {
@@ -74,14 +31,6 @@ fn est(method: Method, model: &str) -> EstimatorSettings {
         tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
     }
-}
-
-/// Standard deviation of the 0.1–0.9 Hz band (20 samples trimmed at each end, as MagNav).
-fn band_std_nt(x: &[f64]) -> f64 {
-    let bp = tl::bandpass(x, 4, 0.1, 0.9, FS_HZ).unwrap();
-    let v = &bp[20..bp.len() - 20];
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
 }
 
 /// Box 2's band-passed residual with `method`/`model` calibrated on box 1.

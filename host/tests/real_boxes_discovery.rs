@@ -8,68 +8,20 @@
 use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
 use magcomp::diagnose::{iterate, DiagnoseOptions};
 use magcomp::model_spec::ModelSpec;
-use magcomp::tl;
 use magcomp::trace::Trace;
-use std::path::PathBuf;
 
-const BOX1_ROWS: usize = 6500;
-const FS_HZ: f64 = 10.0;
-/// A Caravan surveys at ~60 m/s; the file has no positions.
-const SPEED_MPS: f64 = 60.0;
-
-struct Boxes {
-    columns: Vec<String>,
-    rows: Vec<Vec<f64>>,
-}
-
-fn boxes() -> Option<Boxes> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
-    let Ok(text) = std::fs::read_to_string(&path) else {
-        eprintln!(
-            "SKIPPED: {} is absent (shared reference data)",
-            path.display()
-        );
-        return None;
-    };
-    let mut lines = text.lines();
-    let columns = lines.next()?.split(',').map(String::from).collect();
-    let rows = lines
-        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
-        .collect();
-    Some(Boxes { columns, rows })
-}
+#[path = "common/real_boxes.rs"]
+mod real_boxes_data;
+use real_boxes_data::{band_std_nt, boxes, Boxes, BOX1_ROWS, SPEED_MPS};
 
 /// Rows `range` as a trace of scalar `mag` and fluxgate `flux_d`, with the assumed ground
 /// speed as `vn` (the diagnosis runs the filter, which needs the along-track distance).
 fn trace(b: &Boxes, range: std::ops::Range<usize>, mag: &str) -> Trace {
-    let col = |name: &str| {
-        let j = b.columns.iter().position(|c| c == name).unwrap();
-        range.clone().map(|i| b.rows[i][j]).collect::<Vec<f64>>()
-    };
     let n = range.len();
-    Trace {
-        numeric: vec![
-            (
-                "t".into(),
-                range.clone().map(|i| i as f64 / FS_HZ).collect(),
-            ),
-            ("mag".into(), col(mag)),
-            ("flux_x".into(), col("flux_d_x")),
-            ("flux_y".into(), col("flux_d_y")),
-            ("flux_z".into(), col("flux_d_z")),
-            ("vn".into(), vec![SPEED_MPS; n]),
-            ("ve".into(), vec![0.0; n]),
-        ],
-        ..Default::default()
-    }
-}
-
-fn band_std_nt(x: &[f64]) -> f64 {
-    let bp = tl::bandpass(x, 4, 0.1, 0.9, FS_HZ).unwrap();
-    let v = &bp[20..bp.len() - 20];
-    let m = v.iter().sum::<f64>() / v.len() as f64;
-    (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+    let mut t = b.trace(range, mag, "flux_d");
+    t.numeric.push(("vn".into(), vec![SPEED_MPS; n]));
+    t.numeric.push(("ve".into(), vec![0.0; n]));
+    t
 }
 
 /// Box 2's band-passed residual with `model` calibrated (KF) on box 1.

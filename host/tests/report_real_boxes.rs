@@ -6,45 +6,19 @@
 //! fluxgate. Skips, saying so, where the shared data or Chromium are absent.
 
 mod common;
+#[path = "common/real_boxes.rs"]
+mod real_boxes_data;
 
 use common::cli::{bin, run_ok_with_stderr, tmp};
 use common::{chromium_logged, CHROMIUM};
 use std::path::{Path, PathBuf};
 
-const FS_HZ: f64 = 10.0;
-
 /// The boxes as a positionless CSV (`t,mag,flux_x,flux_y,flux_z` of `mag_4_uc`, `flux_d`).
 fn boxes_csv(dir: &Path) -> Option<PathBuf> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
-    let Ok(text) = std::fs::read_to_string(&path) else {
-        eprintln!(
-            "SKIPPED: {} is absent (shared reference data)",
-            path.display()
-        );
-        return None;
-    };
-    let mut lines = text.lines();
-    let header: Vec<&str> = lines.next()?.split(',').collect();
-    let col = |name: &str| header.iter().position(|c| *c == name).expect(name);
-    let cols = [
-        col("mag_4_uc"),
-        col("flux_d_x"),
-        col("flux_d_y"),
-        col("flux_d_z"),
-    ];
-    let mut out = String::from("t,mag,flux_x,flux_y,flux_z\n");
-    for (i, l) in lines.enumerate() {
-        let v: Vec<&str> = l.split(',').collect();
-        out.push_str(&format!("{}", i as f64 / FS_HZ));
-        for &j in &cols {
-            out.push(',');
-            out.push_str(v[j]);
-        }
-        out.push('\n');
-    }
+    let b = real_boxes_data::boxes()?;
     let csv = dir.join("boxes.csv");
-    std::fs::write(&csv, out).expect("write boxes.csv");
+    magcomp::trace::write_trace(&csv, &b.trace(0..b.len(), "mag_4_uc", "flux_d"))
+        .expect("write boxes.csv");
     Some(csv)
 }
 

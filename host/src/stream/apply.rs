@@ -262,23 +262,7 @@ struct Carried {
 }
 
 fn carried(plan: &Plan) -> Carried {
-    const OUTPUT: &[&str] = &[
-        "t",
-        "mag",
-        "interference",
-        "compensated",
-        "anomaly",
-        "innovation",
-        "flags",
-        "igrf",
-    ];
-    let rename = |n: &str| {
-        if OUTPUT.contains(&n) {
-            format!("in_{n}")
-        } else {
-            n.to_string()
-        }
-    };
+    let rename = crate::input::carried_name;
     let h = &plan.head;
     let igrf = plan.cols.igrf.is_some() || plan.igrf.is_some();
     let nums = (0..h.names.len())
@@ -661,20 +645,7 @@ fn run_tl(
         .tl_config
         .clone()
         .context("the coefficient file has no Tolles–Lawson configuration")?;
-    let fit = crate::tl::TlFit {
-        coefficients: coeffs.coefficients.iter().map(|c| c.value).collect(),
-        sigma: coeffs.coefficients.iter().map(|c| c.sigma).collect(),
-        names: coeffs.coefficients.iter().map(|c| c.name.clone()).collect(),
-        config: cfg,
-        rows_used: 0,
-        rows_nonfinite: 0,
-        rows_short_runs: 0,
-        runs_used: 0,
-        residual_std_nt: f64::NAN,
-        cond_normal: f64::NAN,
-        rank: 0,
-        noise_gain: 1.0,
-    };
+    let fit = coeffs.tl_fit(cfg);
     if fit.coefficients.len() != fit.config.terms.columns().len() {
         bail!(
             "{} Tolles–Lawson coefficients for {} terms",
