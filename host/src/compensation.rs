@@ -103,7 +103,9 @@ pub struct Summary {
     /// The AARC-style FOM table over the labelled or detected manoeuvres (`qc::fom`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fom_table: Option<crate::qc::fom::FomTable>,
-    /// KF: the FOM of (compensated − the filter's anomaly estimate): what the aircraft left.
+    /// The FOM of (compensated − a field estimate): what the aircraft left. The field
+    /// estimate is the KF's anomaly; for TL, that of the default model's filter fitted on
+    /// this flight (`qc::fom::compensation_fom_table`; needs positions).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub aircraft_fom_nt: Option<f64>,
     /// What the user must know about this result (also on stderr); empty when none.
@@ -432,7 +434,7 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
     let table = if withheld {
         None
     } else {
-        crate::qc::fom::flight_fom_table(flight, &comp.compensated_nt, comp.anomaly_nt.as_deref())
+        crate::qc::fom::compensation_fom_table(flight, comp)
     };
     let (error, oracle) = match &flight.truth_interference_nt {
         Some(t) => (

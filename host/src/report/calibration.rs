@@ -309,7 +309,8 @@ pub fn fom_section(t: &FomTable) -> Section {
             t.improvement_ratio,
             t.aircraft_fom_nt
                 .map(|a| format!(
-                    "; aircraft-only FOM {a:.3} nT (compensated − the filter's anomaly estimate)"
+                    "; aircraft-only FOM {a:.3} nT (compensated − {})",
+                    t.field_estimate.as_deref().unwrap_or("the field estimate")
                 ))
                 .unwrap_or_default()
         ))
