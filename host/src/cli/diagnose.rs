@@ -112,6 +112,22 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         Some(_) => ModelSpec::parse("field")?,
         None => ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?,
     };
+    // Without position, the diagnosis models the anomaly at --speed-mps (an evaluated
+    // Kalman filter has said so already).
+    let speed = args.est.tuning.speed_mps;
+    let warn = evaluated
+        .as_ref()
+        .is_none_or(|ev| ev.comp.method != Some(crate::coefficients::Method::Kf));
+    let (residual, trace) = match residual {
+        Some(r) => (
+            Some(super::args::diagnosis_trace(r, speed, model.field, warn)?),
+            trace,
+        ),
+        None => (
+            None,
+            super::args::diagnosis_trace(trace, speed, model.field, warn)?,
+        ),
+    };
     let diagnosed = residual.as_ref().unwrap_or(&trace);
     let aux = args
         .aux

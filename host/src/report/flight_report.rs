@@ -92,6 +92,12 @@ pub fn build_report(
             .collect::<Vec<_>>()
             .join(" | ")
     ));
+    if !flight.has_position() && flight.has_track() {
+        page = page.paragraph(
+            "The trace has no position: the anomaly is modelled in time, at the ground speed \
+             given (--speed-mps, or the trace's ground_speed column; docs/trace-format.md).",
+        );
+    }
     // One line per model: what the diagnosis says, so the page answers the question first.
     for r in &results {
         let verdict = match r.diag.candidates.iter().find(|c| c.significant) {
