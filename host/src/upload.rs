@@ -125,6 +125,7 @@ mod tests {
             sample_rate_hz: 10.0,
             sigma1: None,
             noise_nt: None,
+            model_error_nt: None,
             tl_config: None,
             fluxgate_calibration: flux,
             scalar_lag: None,

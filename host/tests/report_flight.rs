@@ -183,7 +183,9 @@ fn a_survey_with_ties_gets_the_crossover_plot() {
 /// The page's "MODEL: residual rms R nT, error against truth E nT; …" figures.
 fn verdict_error_nt(html: &str, model: &str) -> f64 {
     let key = format!("{model}: residual rms ");
-    let at = html.find(&key).unwrap_or_else(|| panic!("no verdict for {model}"));
+    let at = html
+        .find(&key)
+        .unwrap_or_else(|| panic!("no verdict for {model}"));
     let rest = &html[at..];
     let e = rest.find("error against truth ").expect("error figure") + "error against truth ".len();
     rest[e..]
@@ -218,7 +220,10 @@ fn a_trace_without_position_gets_the_diagnosis_page_at_the_assumed_speed() {
     let html = std::fs::read_to_string(dir.join("out/index.html")).expect("page");
     // The diagnosis page (signal/residual/spectrum plots), not one compensation's page.
     for id in ["signal-0", "residual-0", "spectrum-0"] {
-        assert!(html.contains(&format!("data-plot=\"{id}\"")), "no plot {id}");
+        assert!(
+            html.contains(&format!("data-plot=\"{id}\"")),
+            "no plot {id}"
+        );
     }
     assert!(!html.contains("data-plot=\"overlay-0\""));
     assert!(html.contains("The trace has no position"));

@@ -297,15 +297,23 @@ fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
             figure(&html, "figure of merit, FOM (nT)"),
             figure(&html, "aircraft-only FOM (nT)"),
         );
-        println!("report --coeffs {method}.json: FOM {fom:.3} nT, aircraft-only FOM {aircraft:.3} nT");
+        println!(
+            "report --coeffs {method}.json: FOM {fom:.3} nT, aircraft-only FOM {aircraft:.3} nT"
+        );
         page_fom.push((fom, aircraft));
     }
     let ((_, p_kf), (_, p_tl)) = (page_fom[0], page_fom[1]);
     // The pages' estimates of the field differ a little from the one above (a longer
     // stretch; TL's is the default model's own fit), not the order.
     assert!(p_kf < p_tl, "page: KF {p_kf} TL {p_tl}");
-    assert!((p_kf - a_kf).abs() < 0.25 * a_kf, "page KF {p_kf} vs {a_kf}");
-    assert!((p_tl - a_tl).abs() < 0.25 * a_tl, "page TL {p_tl} vs {a_tl}");
+    assert!(
+        (p_kf - a_kf).abs() < 0.25 * a_kf,
+        "page KF {p_kf} vs {a_kf}"
+    );
+    assert!(
+        (p_tl - a_tl).abs() < 0.25 * a_tl,
+        "page TL {p_tl} vs {a_tl}"
+    );
 }
 
 /// The value cell of the page's figures table row `label`.

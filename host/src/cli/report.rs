@@ -99,4 +99,3 @@ pub fn run(args: &ReportArgs) -> Result<()> {
     println!("report written to {}", path.display());
     Ok(())
 }
-

@@ -15,10 +15,10 @@ use crate::flight::Flight;
 use crate::metrics::{band_passed, is_manoeuvre, peak_to_peak};
 use crate::model_spec::ModelSpec;
 use crate::pipeline::KfOptions;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// One manoeuvre's figures (nT, peak-to-peak in the manoeuvre band).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FomCell {
     pub label: String,
     pub kind: String,
@@ -31,7 +31,7 @@ pub struct FomCell {
 }
 
 /// One heading (leg).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FomRow {
     pub heading: String,
     pub heading_deg: f64,
@@ -41,7 +41,7 @@ pub struct FomRow {
     pub aircraft_sum_nt: Option<f64>,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FomTable {
     /// `labels` (the trace's `segment` column) or `detected` (`qc::manoeuvres`).
     pub source: String,
@@ -181,7 +181,10 @@ pub const FIELD_ESTIMATE_MODEL: &str = crate::model_spec::DEFAULT_MODEL;
 /// along-track distance); otherwise the aircraft columns are absent.
 pub fn compensation_fom_table(flight: &Flight, comp: &Compensation) -> Option<FomTable> {
     let (pattern, source) = pattern_of(flight)?;
-    let own = comp.anomaly_nt.as_deref().map(|a| (a.to_vec(), "kf anomaly"));
+    let own = comp
+        .anomaly_nt
+        .as_deref()
+        .map(|a| (a.to_vec(), "kf anomaly"));
     let field = own.or_else(|| {
         field_estimate_nt(flight).map(|a| (a, "kf anomaly (default model fitted on this flight)"))
     });

@@ -3,7 +3,11 @@
 use super::{Series, CHAR_W, FONT_PX};
 use std::fmt::Write;
 /// Legend placement: (series index, row, x) with wrapping across the plot width.
-pub(super) fn legend_layout(names: &[(usize, &Series)], left: f64, right: f64) -> Vec<(usize, usize, f64)> {
+pub(super) fn legend_layout(
+    names: &[(usize, &Series)],
+    left: f64,
+    right: f64,
+) -> Vec<(usize, usize, f64)> {
     let mut row = 0;
     let mut x = left;
     let mut out = Vec::new();
@@ -100,7 +104,12 @@ pub(super) fn path_data(x: &[f64], y: &[f64]) -> String {
 /// keeps the sample with the lowest and the one with the highest y, in their original
 /// order, so every spike and dip survives. NaN in x or y is a gap: it flushes the
 /// bucket and is kept as one (NaN, NaN) separator.
-pub(super) fn minmax_by_bucket(x: &[f64], y: &[f64], origin: f64, width: f64) -> (Vec<f64>, Vec<f64>) {
+pub(super) fn minmax_by_bucket(
+    x: &[f64],
+    y: &[f64],
+    origin: f64,
+    width: f64,
+) -> (Vec<f64>, Vec<f64>) {
     let mut ox = Vec::new();
     let mut oy = Vec::new();
     let mut cur: Option<(i64, usize, usize)> = None; // (bucket, argmin, argmax)

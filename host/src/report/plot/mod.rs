@@ -3,8 +3,8 @@
 //! needs no fonts or scripts (text uses the viewer's sans-serif).
 use super::escape;
 use super::ticks::{format_tick, log_minor_ticks, log_ticks, nice_ticks};
-use geometry::{legend_layout, minmax_by_bucket, path_data, sanitize_id, text_w, tick_step, widen};
 pub use geometry::downsample_minmax;
+use geometry::{legend_layout, minmax_by_bucket, path_data, sanitize_id, text_w, tick_step, widen};
 use std::collections::HashSet;
 use std::fmt::Write;
 
