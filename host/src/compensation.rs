@@ -14,7 +14,7 @@ use crate::pipeline::{run_kf, KfOptions};
 use crate::tl;
 use crate::trace::Trace;
 use anyhow::{bail, ensure, Context, Result};
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Estimator settings (the command line's `EstimatorArgs`, `cli::args`).
@@ -73,15 +73,18 @@ pub struct Compensation {
 
 pub type CoefficientFileOpt = Option<CoefficientFile>;
 
-/// Summary numbers (`compensate --json`).
-#[derive(Clone, Debug, Serialize)]
+/// Summary numbers (`compensate --json`). Deserializable so that summaries written by
+/// earlier versions (with the old key names) can be read back.
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Summary {
     pub model: String,
     pub method: Method,
     pub samples: usize,
     /// RMS of the compensated signal in the manoeuvre band (0.1–0.9 Hz) over the flight:
-    /// what is left where aircraft interference lives.
-    pub residual_rms_nt: f64,
+    /// what is left where aircraft interference lives. Not the diagnosis's "residual" (the
+    /// filter's one-step innovation); the key was `residual_rms_nt` before.
+    #[serde(alias = "residual_rms_nt")]
+    pub compensated_band_rms_nt: f64,
     pub improvement_ratio: Option<f64>,
     pub fom_nt: Option<f64>,
     pub error_rms_nt: Option<f64>,
@@ -98,12 +101,14 @@ pub struct Summary {
     /// With `rate`: the crossover fit (and whether it was applied).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rate_crossover: Option<RateCrossover>,
-    #[serde(skip_serializing_if = "Vec::is_empty")]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub manoeuvres: Vec<ManoeuvreFom>,
     /// The AARC-style FOM table over the labelled or detected manoeuvres (`qc::fom`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fom_table: Option<crate::qc::fom::FomTable>,
-    /// KF: the FOM of (compensated − the filter's anomaly estimate): what the aircraft left.
+    /// The FOM of (compensated − a field estimate): what the aircraft left. The field
+    /// estimate is the KF's anomaly; for TL, that of the default model's filter fitted on
+    /// this flight (`qc::fom::compensation_fom_table`; needs positions).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub aircraft_fom_nt: Option<f64>,
     /// What the user must know about this result (also on stderr); empty when none.
@@ -411,15 +416,15 @@ pub fn compensated_trace(trace: &Trace, flight: &Flight, comp: &Compensation) ->
     Ok(out)
 }
 
-/// FOM, IR, residual, and error/oracle against truth when the trace has it.
+/// FOM, IR, compensated band rms, and error/oracle against truth when the trace has it.
 pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
-    let residual = crate::metrics::band_rms_nt(flight, &comp.compensated_nt);
+    let band_rms = crate::metrics::band_rms_nt(flight, &comp.compensated_nt);
     let withheld = comp.withheld.is_some();
     let f = fom(flight, &comp.compensated_nt).filter(|_| !withheld);
     let table = if withheld {
         None
     } else {
-        crate::qc::fom::flight_fom_table(flight, &comp.compensated_nt, comp.anomaly_nt.as_deref())
+        crate::qc::fom::compensation_fom_table(flight, comp)
     };
     let (error, oracle) = match &flight.truth_interference_nt {
         Some(t) => (
@@ -432,7 +437,7 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
         model: comp.model.clone(),
         method: comp.method.unwrap_or(Method::Kf),
         samples: flight.len(),
-        residual_rms_nt: residual,
+        compensated_band_rms_nt: band_rms,
         improvement_ratio: improvement_ratio(flight, &comp.compensated_nt).filter(|_| !withheld),
         fom_nt: f.as_ref().map(|f| f.0).or(table.as_ref().map(|t| t.fom_nt)),
         aircraft_fom_nt: table.as_ref().and_then(|t| t.aircraft_fom_nt),

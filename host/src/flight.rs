@@ -79,6 +79,7 @@ impl Flight {
         let base0 = base.and_then(|b| b.iter().copied().find(|v| v.is_finite()));
         let vn = trace.col("vn");
         let ve = trace.col("ve");
+        let ground_speed = trace.col("ground_speed");
         let att = match (trace.col("roll"), trace.col("pitch"), trace.col("yaw")) {
             (Some(r), Some(p), Some(y)) => Some((r, p, y)),
             _ => None,
@@ -109,6 +110,8 @@ impl Flight {
             }
             if let (Some(vn), Some(ve)) = (vn, ve) {
                 s.ground_speed_mps = vn[i].hypot(ve[i]) as f32;
+            } else if let Some(gs) = ground_speed {
+                s.ground_speed_mps = gs[i] as f32;
             }
             if let Some((r, p, y)) = att {
                 s.attitude_deg = [r[i] as f32, p[i] as f32, y[i] as f32];
@@ -302,6 +305,25 @@ impl Flight {
 
 /// The point the track passes most often on distinct passes (≥ 3), e.g. the cloverleaf
 /// centre: a 40 m grid, passes separated by ≥ 30 s.
+/// Name of the optional ground-speed column (m/s; used where `vn`/`ve` are absent).
+pub const GROUND_SPEED_COLUMN: &str = "ground_speed";
+
+/// `trace` with a constant [`GROUND_SPEED_COLUMN`] of `speed_mps` when it has no track
+/// (neither position nor a ground speed), so that every flight built from it — the
+/// diagnosis builds its own — models the anomaly in time at that speed. Returns whether
+/// the speed was added; a trace with a track is returned unchanged.
+pub fn with_assumed_ground_speed(trace: &Trace, speed_mps: f64) -> Result<(Trace, bool)> {
+    if !(speed_mps.is_finite() && speed_mps > 0.0) {
+        bail!("--speed-mps must be a positive speed in m/s, not {speed_mps}");
+    }
+    if Flight::from_trace(trace, &[], &[])?.has_track() {
+        return Ok((trace.clone(), false));
+    }
+    let mut out = trace.clone();
+    out.set_col(GROUND_SPEED_COLUMN, vec![speed_mps; trace.len()]);
+    Ok((out, true))
+}
+
 pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint> {
     let mut d = TieDetector::default();
     for i in 0..t.len() {

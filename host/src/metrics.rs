@@ -51,7 +51,7 @@ pub fn rms_demeaned(v: &[f64]) -> f64 {
 }
 
 /// One manoeuvre's contribution to the FOM.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
 pub struct ManoeuvreFom {
     pub label: String,
     pub t_start: f64,

@@ -48,11 +48,19 @@ fn simulate_calibrate_compensate_json_contract() {
                 .arg(&out),
         );
         let j: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+        // "residual" is the diagnosis's one-step innovation; the compensated signal's rms in
+        // the manoeuvre band has its own key, and a summary with the old key still reads.
+        assert!(j.get("residual_rms_nt").is_none(), "{j}");
+        let band_rms = j["compensated_band_rms_nt"].as_f64().unwrap();
+        let old = stdout.replace("\"compensated_band_rms_nt\"", "\"residual_rms_nt\"");
+        let s: magcomp::compensation::Summary = serde_json::from_str(old.trim()).unwrap();
+        assert_eq!(s.compensated_band_rms_nt, band_rms);
+        assert_eq!(s.samples, rows_in);
         for key in [
             "model",
             "method",
             "samples",
-            "residual_rms_nt",
+            "compensated_band_rms_nt",
             "improvement_ratio",
             "fom_nt",
             "error_rms_nt",

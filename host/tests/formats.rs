@@ -215,7 +215,7 @@ fn a_magnav_hdf5_file_compensates_exactly_as_the_same_flight_in_csv() {
         serde_json::from_str(sb.trim()).unwrap(),
     );
     for k in [
-        "residual_rms_nt",
+        "compensated_band_rms_nt",
         "error_rms_nt",
         "predicted_error_nt",
         "samples",

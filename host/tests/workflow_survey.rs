@@ -149,7 +149,14 @@ fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
     let table = &summaries[0]["fom_table"];
     assert_eq!(table["source"], "detected", "{table}");
     assert_eq!(table["manoeuvres"], 12, "{table}");
-    assert!(summaries[0]["aircraft_fom_nt"].as_f64().is_some());
+    // Both methods' aircraft-only FOM (TL's with the default model's anomaly estimate).
+    let cal_fom = |k: usize| summaries[k]["aircraft_fom_nt"].as_f64().unwrap();
+    println!(
+        "calibrate: aircraft-only FOM KF {:.3} TL {:.3} nT",
+        cal_fom(0),
+        cal_fom(1)
+    );
+    assert!(cal_fom(0) < cal_fom(1));
 
     // 2. Apply each to the box itself (for the FOM ranking) and the KF to the survey lines.
     let apply = |lines: &str, method: &str, out: &Path| {
@@ -260,6 +267,62 @@ fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
     assert!(e_kf < e_tl, "the KF's true error is the lower on this box");
     assert!(a_kf < a_tl, "the FOM table ranks as the true error does");
 
-    // TODO(lead): `report --coeffs kf.json` on the survey lines (issue 11 item 5) once
-    // the report takes applied coefficients.
+    // 6. `report --coeffs` with each calibration on the box and the survey lines: the page
+    // of the applied calibration, its FOM table over the box's detected manoeuvres, and
+    // its aircraft-only FOM ranking the KF ahead of TL as the true error above does.
+    let lines = format!("{BOX},1001.01,1002.01,1003.01");
+    let mut page_fom = Vec::new();
+    for method in ["kf", "tl"] {
+        let out_dir = dir.join(format!("report_{method}"));
+        let out = run_ok(
+            bin()
+                .arg("report")
+                .arg(&xyz)
+                .args(["--map", "sgl", "--lines", &lines, "--coeffs"])
+                .arg(dir.join(format!("{method}.json")))
+                .arg("-o")
+                .arg(&out_dir),
+        );
+        // (the gaps between the selected lines are warned about, as they should be)
+        assert!(!out.contains("DO NOT FIT"), "{method}: {out}");
+        assert!(out.contains("3 time gap(s)"), "{method}: {out}");
+        let html = std::fs::read_to_string(out_dir.join("index.html")).unwrap();
+        assert!(html.contains("<caption>FOM table</caption>"), "{method}");
+        assert!(html.contains("12 manoeuvres (detected"), "{method}");
+        // The overlay per line: the box and the three survey lines.
+        for l in ["1000.01", "1001.01", "1002.01", "1003.01"] {
+            assert!(html.contains(&format!("Line {l}")), "{method}: no line {l}");
+        }
+        let (fom, aircraft) = (
+            figure(&html, "figure of merit, FOM (nT)"),
+            figure(&html, "aircraft-only FOM (nT)"),
+        );
+        println!(
+            "report --coeffs {method}.json: FOM {fom:.3} nT, aircraft-only FOM {aircraft:.3} nT"
+        );
+        page_fom.push((fom, aircraft));
+    }
+    let ((_, p_kf), (_, p_tl)) = (page_fom[0], page_fom[1]);
+    // The pages' estimates of the field differ a little from the one above (a longer
+    // stretch; TL's is the default model's own fit), not the order.
+    assert!(p_kf < p_tl, "page: KF {p_kf} TL {p_tl}");
+    assert!(
+        (p_kf - a_kf).abs() < 0.25 * a_kf,
+        "page KF {p_kf} vs {a_kf}"
+    );
+    assert!(
+        (p_tl - a_tl).abs() < 0.25 * a_tl,
+        "page TL {p_tl} vs {a_tl}"
+    );
+}
+
+/// The value cell of the page's figures table row `label`.
+fn figure(html: &str, label: &str) -> f64 {
+    let key = format!("<td>{label}</td><td class=\"num\">");
+    let at = html
+        .find(&key)
+        .unwrap_or_else(|| panic!("no '{label}' row"))
+        + key.len();
+    let end = at + html[at..].find('<').expect("cell end");
+    html[at..end].parse().expect("number")
 }

@@ -202,3 +202,31 @@ impl EstimatorArgs {
         Ok(Some(c))
     }
 }
+
+/// The trace a diagnosis reads (it builds its own flights from it). Without a track
+/// (position or ground speed) and with `speed_mps`, it gets that ground speed as its
+/// `ground_speed` column, and (`warn`) the user is told so on stderr; without either, a
+/// model with the anomaly process (`field`) is refused as the compensation refuses it: the
+/// filter would hold the anomaly in place and call its changes interference.
+pub fn diagnosis_trace(
+    trace: Trace,
+    speed_mps: Option<f64>,
+    field: bool,
+    warn: bool,
+) -> Result<Trace> {
+    let Some(v) = speed_mps else {
+        if field && !Flight::from_trace(&trace, &[], &[])?.has_track() {
+            anyhow::bail!(
+                "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time"
+            );
+        }
+        return Ok(trace);
+    };
+    let (out, added) = crate::flight::with_assumed_ground_speed(&trace, v)?;
+    if added && warn {
+        eprintln!(
+            "warning: the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
+        );
+    }
+    Ok(out)
+}

@@ -101,8 +101,8 @@ pub fn print_warnings(s: &Summary) {
 pub fn print_summary(s: &Summary) {
     println!("model {} ({:?}), {} samples", s.model, s.method, s.samples);
     println!(
-        "  residual in manoeuvre band: {:.4} nT rms",
-        s.residual_rms_nt
+        "  compensated rms in the manoeuvre band: {:.4} nT",
+        s.compensated_band_rms_nt
     );
     if let Some(ir) = s.improvement_ratio {
         println!("  improvement ratio:          {ir:.2}");

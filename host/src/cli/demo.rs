@@ -199,13 +199,13 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
     }
     println!(
         "{:<36} {:>12} {:>10} {:>12}",
-        "model", "residual nT", "FOM nT", "error nT"
+        "model", "band rms nT", "FOM nT", "error nT"
     );
     for (m, s) in &rows {
         println!(
             "{:<36} {:>12} {:>10} {:>12}",
             m,
-            fmt(Some(s.residual_rms_nt), 4),
+            fmt(Some(s.compensated_band_rms_nt), 4),
             fmt(s.fom_nt, 3),
             fmt(s.error_rms_nt, 4)
         );

@@ -40,7 +40,8 @@ pub struct DiagnoseArgs {
     /// Family-wise false-positive rate over all candidates.
     #[arg(long, default_value_t = 0.01)]
     pub alpha: f64,
-    /// Smallest share of the residual variance a significant candidate must explain.
+    /// Smallest share of the residual variance a significant candidate must explain (the
+    /// residual: the filter's one-step innovation, docs/trace-format.md).
     #[arg(long, default_value_t = 0.15)]
     pub min_explained: f64,
     /// Add the best significant candidate and diagnose again, until nothing is significant
@@ -103,16 +104,32 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     };
     // With a compensation checked, what it left is diagnosed under the anomaly model
     // alone: its coefficients stay as given, and a deviation term that explains the
-    // residual (`induced`, `eddy`, …) says what they do not fit.
-    let residual = match &evaluated {
+    // filter's residual on it (`induced`, `eddy`, …) says what they do not fit.
+    let left = match &evaluated {
         Some(ev) => Some(compensated_trace(&trace, &ev.flight, &ev.comp)?),
         None => None,
     };
-    let model = match &residual {
+    let model = match &left {
         Some(_) => ModelSpec::parse("field")?,
         None => ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?,
     };
-    let diagnosed = residual.as_ref().unwrap_or(&trace);
+    // Without position, the diagnosis models the anomaly at --speed-mps (an evaluated
+    // Kalman filter has said so already).
+    let speed = args.est.tuning.speed_mps;
+    let warn = evaluated
+        .as_ref()
+        .is_none_or(|ev| ev.comp.method != Some(crate::coefficients::Method::Kf));
+    let (left, trace) = match left {
+        Some(r) => (
+            Some(super::args::diagnosis_trace(r, speed, model.field, warn)?),
+            trace,
+        ),
+        None => (
+            None,
+            super::args::diagnosis_trace(trace, speed, model.field, warn)?,
+        ),
+    };
+    let diagnosed = left.as_ref().unwrap_or(&trace);
     let aux = args
         .aux
         .as_deref()
@@ -180,7 +197,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     Ok(())
 }
 
-/// The table of a checked compensation's residual: a significant term is interference the
+/// The diagnosis table of what a checked compensation left: a significant term is interference the
 /// coefficients leave, not a term to add to the anomaly-only model diagnosed.
 fn applied_table(d: &Diagnosis) -> String {
     let mut out = String::new();

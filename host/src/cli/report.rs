@@ -1,7 +1,8 @@
-//! `magcomp report`: the self-contained HTML page. Without `--coeffs`/`--method`/
-//! `--speed-mps`, the diagnosis page of one or more models (`report::flight_report`);
-//! with them, the page of that one compensation (`report::calibration`): an applied
-//! calibration checked on this flight, or Tolles–Lawson / the Kalman filter fitted on it.
+//! `magcomp report`: the self-contained HTML page. Without `--coeffs`/`--method`, the
+//! diagnosis page of one or more models (`report::flight_report`; a trace without
+//! position at the `--speed-mps` ground speed); with them, the page of that one
+//! compensation (`report::calibration`): an applied calibration checked on this flight,
+//! or Tolles–Lawson / the Kalman filter fitted on it.
 
 use super::args::{EstimatorArgs, TraceInput, TuningArgs};
 use crate::coefficients::Method;
@@ -56,7 +57,7 @@ impl ReportArgs {
 
     /// One compensation is evaluated (rather than models diagnosed).
     fn evaluates(&self) -> bool {
-        self.coeffs.is_some() || self.method.is_some() || self.tuning.speed_mps.is_some()
+        self.coeffs.is_some() || self.method.is_some()
     }
 }
 
@@ -69,7 +70,7 @@ pub fn run(args: &ReportArgs) -> Result<()> {
     let trace = args.input.read()?;
     if args.evaluates() {
         if args.model.len() > 1 {
-            bail!("--coeffs, --method and --speed-mps evaluate one compensation: give at most one --model (several --model compare models by their diagnosis, without these)");
+            bail!("--coeffs and --method evaluate one compensation: give at most one --model (several --model compare models by their diagnosis, without these)");
         }
         let est = EstimatorArgs {
             model: args.model.first().cloned(),
@@ -92,6 +93,8 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         .iter()
         .map(|m| ModelSpec::parse(m))
         .collect::<Result<Vec<_>>>()?;
+    let field = models.iter().any(|m| m.field);
+    let trace = super::args::diagnosis_trace(trace, args.tuning.speed_mps, field, true)?;
     let path = write_report(&trace, &models, None, &args.out)?;
     println!("report written to {}", path.display());
     Ok(())

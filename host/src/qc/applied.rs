@@ -7,11 +7,12 @@ use crate::compensation::Compensation;
 use crate::flight::Flight;
 use crate::metrics::{band_rms_nt, improvement_ratio};
 
-/// The aircraft-only residual (KF) may exceed the predicted error plus the scalar noise
-/// by this factor before the calibration is called implausible. Matching simulated
-/// coefficients leave 3–8× (the residual holds the anomaly estimate's own error);
+/// The aircraft-only band rms (KF: compensated − anomaly estimate in the manoeuvre band)
+/// may exceed the predicted error plus the scalar noise by this factor before the
+/// calibration is called implausible. Matching simulated coefficients leave 3–8× (it holds
+/// the anomaly estimate's own error);
 /// another aircraft's, ~10³× (`qc_applied` test).
-pub const RESIDUAL_FACTOR: f64 = 20.0;
+pub const AIRCRAFT_RMS_FACTOR: f64 = 20.0;
 
 /// Warnings about `coeffs` applied to `flight` (empty when plausible).
 pub fn check(flight: &Flight, comp: &Compensation, coeffs: &CoefficientFile) -> Vec<String> {
@@ -40,9 +41,9 @@ pub fn check(flight: &Flight, comp: &Compensation, coeffs: &CoefficientFile) -> 
         let aircraft: Vec<f64> = corrected.iter().zip(anomaly).map(|(c, a)| c - a).collect();
         let rms = band_rms_nt(flight, &aircraft);
         let expected = pred.hypot(noise);
-        if rms > RESIDUAL_FACTOR * expected {
+        if rms > AIRCRAFT_RMS_FACTOR * expected {
             out.push(format!(
-                "THE APPLIED COEFFICIENTS DO NOT FIT THIS FLIGHT: the aircraft-only residual (compensated − anomaly estimate, manoeuvre band) is {rms:.3} nT rms, {:.0}× the {expected:.4} nT the calibration predicts with the scalar noise",
+                "THE APPLIED COEFFICIENTS DO NOT FIT THIS FLIGHT: what the aircraft left (compensated − anomaly estimate, manoeuvre band) is {rms:.3} nT rms, {:.0}× the {expected:.4} nT the calibration predicts with the scalar noise",
                 rms / expected
             ));
         }

@@ -10,12 +10,15 @@
 //! as good as that estimate, and the same estimate should be used to compare methods.
 
 use super::manoeuvres::{Leg, Manoeuvre, Pattern};
+use crate::compensation::Compensation;
 use crate::flight::Flight;
 use crate::metrics::{band_passed, is_manoeuvre, peak_to_peak};
-use serde::Serialize;
+use crate::model_spec::ModelSpec;
+use crate::pipeline::KfOptions;
+use serde::{Deserialize, Serialize};
 
 /// One manoeuvre's figures (nT, peak-to-peak in the manoeuvre band).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FomCell {
     pub label: String,
     pub kind: String,
@@ -28,7 +31,7 @@ pub struct FomCell {
 }
 
 /// One heading (leg).
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FomRow {
     pub heading: String,
     pub heading_deg: f64,
@@ -38,7 +41,7 @@ pub struct FomRow {
     pub aircraft_sum_nt: Option<f64>,
 }
 
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct FomTable {
     /// `labels` (the trace's `segment` column) or `detected` (`qc::manoeuvres`).
     pub source: String,
@@ -165,24 +168,55 @@ pub fn fom_table(
     })
 }
 
-/// The table for a compensation: over the labelled manoeuvres when the trace has them,
-/// else over the detected pattern; the KF's anomaly (when given) as the field estimate.
-pub fn flight_fom_table(
-    flight: &Flight,
-    compensated_nt: &[f64],
-    anomaly_nt: Option<&[f64]>,
-) -> Option<FomTable> {
-    let (pattern, source) = match labelled_pattern(flight) {
-        Some(p) => (p, "labels"),
-        None => (super::manoeuvres::detect(flight)?, "detected"),
-    };
+/// The model whose Kalman-filter anomaly estimate is the field estimate of a compensation
+/// that has none of its own (Tolles–Lawson): the default model, fitted on this flight.
+pub const FIELD_ESTIMATE_MODEL: &str = crate::model_spec::DEFAULT_MODEL;
+
+/// The FOM table of a compensation with its aircraft-only columns. The Kalman filter's own
+/// anomaly estimate is the field estimate; a compensation without one (Tolles–Lawson) gets
+/// that of the default model's filter fitted on this flight, so that both methods' aircraft
+/// figures separate the field the same way (without it TL could only be ranked by the plain
+/// FOM, which favours the method that fits the band, not the aircraft). The filter runs only
+/// when there is a pattern to tabulate and the flight has a track (its anomaly model needs the
+/// along-track distance); otherwise the aircraft columns are absent.
+pub fn compensation_fom_table(flight: &Flight, comp: &Compensation) -> Option<FomTable> {
+    let (pattern, source) = pattern_of(flight)?;
+    let own = comp
+        .anomaly_nt
+        .as_deref()
+        .map(|a| (a.to_vec(), "kf anomaly"));
+    let field = own.or_else(|| {
+        field_estimate_nt(flight).map(|a| (a, "kf anomaly (default model fitted on this flight)"))
+    });
     fom_table(
         flight,
         &pattern,
         source,
-        compensated_nt,
-        anomaly_nt.map(|a| (a, "kf anomaly")),
+        &comp.compensated_nt,
+        field.as_ref().map(|(a, n)| (a.as_slice(), *n)),
     )
+}
+
+/// The anomaly estimate of [`FIELD_ESTIMATE_MODEL`]'s filter calibrated on `flight`; None
+/// without a track or when the filter fails (the aircraft figures are then not shown).
+pub fn field_estimate_nt(flight: &Flight) -> Option<Vec<f64>> {
+    if !flight.has_track() {
+        return None;
+    }
+    let spec = ModelSpec::parse(FIELD_ESTIMATE_MODEL).ok()?;
+    if !spec.channels().is_empty() {
+        return None;
+    }
+    let run = crate::pipeline::run_kf(flight, &KfOptions::new(spec)).ok()?;
+    Some(run.anomaly_nt)
+}
+
+/// The labelled pattern when the trace has one, else the detected one.
+fn pattern_of(flight: &Flight) -> Option<(Pattern, &'static str)> {
+    match labelled_pattern(flight) {
+        Some(p) => Some((p, "labels")),
+        None => Some((super::manoeuvres::detect(flight)?, "detected")),
+    }
 }
 
 /// The table as text, one line per heading: `heading  man: unc/comp …  Σ unc/comp`.

@@ -51,8 +51,8 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
     };
     page = page.paragraph(&format!(
         "{} samples at {:.0} Hz, {:.0} s. Method {}, model {}: {}. Compensated = scalar − \
-         interference (docs/trace-format.md); the residual is the compensated signal in the \
-         manoeuvre band (0.1–0.9 Hz), where aircraft interference lives.",
+         interference (docs/trace-format.md); the compensated rms in the manoeuvre band \
+         (0.1–0.9 Hz) is what is left where aircraft interference lives.",
         flight.len(),
         flight.sample_rate_hz,
         duration_s,
@@ -109,8 +109,8 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
 pub fn figures_section(s: &Summary) -> Section {
     let rows = vec![
         vec![
-            "residual in the manoeuvre band (nT rms)".into(),
-            format!("{:.4}", s.residual_rms_nt),
+            "compensated rms in the manoeuvre band (nT)".into(),
+            format!("{:.4}", s.compensated_band_rms_nt),
         ],
         vec![
             "improvement ratio (IR)".into(),
@@ -309,7 +309,8 @@ pub fn fom_section(t: &FomTable) -> Section {
             t.improvement_ratio,
             t.aircraft_fom_nt
                 .map(|a| format!(
-                    "; aircraft-only FOM {a:.3} nT (compensated − the filter's anomaly estimate)"
+                    "; aircraft-only FOM {a:.3} nT (compensated − {})",
+                    t.field_estimate.as_deref().unwrap_or("the field estimate")
                 ))
                 .unwrap_or_default()
         ))

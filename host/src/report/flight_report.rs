@@ -92,6 +92,12 @@ pub fn build_report(
             .collect::<Vec<_>>()
             .join(" | ")
     ));
+    if !flight.has_position() && flight.has_track() {
+        page = page.paragraph(
+            "The trace has no position: the anomaly is modelled in time, at the ground speed \
+             given (--speed-mps, or the trace's ground_speed column; docs/trace-format.md).",
+        );
+    }
     // One line per model: what the diagnosis says, so the page answers the question first.
     for r in &results {
         let verdict = match r.diag.candidates.iter().find(|c| c.significant) {
@@ -490,7 +496,7 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
 
 /// The fluxgate against the scalar: `|B_F| − (scalar − interference)` before and after the
 /// 9-parameter calibration (`fluxcal`), the check that exposes a bent fluxgate the TL fit
-/// hides from the scalar residual.
+/// hides from the compensated scalar.
 fn fluxgate_section(
     flight: &Flight,
     run: &crate::pipeline::KfRun,
@@ -526,7 +532,7 @@ fn fluxgate_section(
             .paragraph(&format!(
                 "A fluxgate's bias, scale and non-orthogonality bend the direction cosines \
                  every TL regressor is built from, and the TL fit hides most of it from the \
-                 scalar residual. Its modulus does not: sd {:.1} nT raw, {:.2} nT after a \
+                 compensated scalar. Its modulus does not: sd {:.1} nT raw, {:.2} nT after a \
                  9-parameter calibration (white fluxgate noise is the floor). When the \
                  diagnosis marks `fluxcal` significant, add it to the model.",
                 fit.modulus_sd_before_nt, fit.modulus_sd_after_nt

@@ -11,8 +11,23 @@ pub fn required_columns() -> &'static [&'static str] {
 
 /// Numeric columns defined by trace-format.md (required and optional).
 const DEFINED_NUMERIC: &[&str] = &[
-    "t", "mag", "flux_x", "flux_y", "flux_z", "lat", "lon", "alt", "vn", "ve", "vd", "roll",
-    "pitch", "yaw", "base", "igrf",
+    "t",
+    "mag",
+    "flux_x",
+    "flux_y",
+    "flux_z",
+    "lat",
+    "lon",
+    "alt",
+    "vn",
+    "ve",
+    "vd",
+    "roll",
+    "pitch",
+    "yaw",
+    "base",
+    "igrf",
+    "ground_speed",
 ];
 
 /// How the reader types a column, from its canonical name alone.
