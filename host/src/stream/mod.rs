@@ -438,7 +438,7 @@ pub fn compensate(
         format!("{why}: improvement ratio, FOM and predicted error are withheld (null)")
     }));
     let not_computed: Vec<String> = [
-        "residual_rms_nt",
+        "compensated_band_rms_nt",
         "improvement_ratio",
         "fom_nt",
         "fom_table",
