@@ -451,7 +451,8 @@ fn calibrate_warns_when_the_flight_left_the_interference_undetermined() {
     println!("predicted: 150 m strong {low_predicted:.4} nT, 3000 m {high_predicted:.4} nT");
     assert!(low_predicted > 0.1, "{low_predicted}");
     assert!(
-        low_stderr.contains("warning: this flight determined the interference only to"),
+        low_stderr.contains("warning: the predicted error of this calibration is")
+            && low_stderr.contains("fly the pattern higher"),
         "{low_stderr}"
     );
     assert!(high_predicted < 0.01, "{high_predicted}");

@@ -35,10 +35,18 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     crate::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
     let mut s = summarise(&flight, &comp);
     if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
+        // The predicted error is the coefficients' uncertainty and the model error together;
+        // the advice depends on which dominates.
+        let advice = match file.model_error_nt {
+            Some(m) if m > 0.7 * p => {
+                "most of it is signal the model cannot follow: add the missing effect \
+                 (`magcomp diagnose`)"
+            }
+            _ => "fly the pattern higher, over quieter ground, or with more manoeuvres",
+        };
         s.warnings.push(format!(
-            "this flight determined the interference only to {p:.3} nT rms \
-             (filter covariance), more than a survey's {SURVEY_TOLERANCE_NT} nT: \
-             fly the pattern higher, over quieter ground, or with more manoeuvres"
+            "the predicted error of this calibration is {p:.3} nT rms, more than a \
+             survey's {SURVEY_TOLERANCE_NT} nT: {advice}"
         ));
     }
     if a.json {

@@ -122,7 +122,7 @@ pub fn figures_section(s: &Summary) -> Section {
             fmt_opt(s.aircraft_fom_nt, 3),
         ],
         vec![
-            "predicted error, filter covariance (nT rms)".into(),
+            "predicted error: coefficient covariance and model error (nT rms)".into(),
             fmt_opt(s.predicted_error_nt, 4),
         ],
         // Six decimals: the figure is compared with `compensate --json`'s.
