@@ -30,7 +30,7 @@ pub struct AlignerConfig {
     /// Extrapolate position with speed and track to the scalar time.
     pub extrapolate_gps: bool,
     /// Nominal fluxgate frame period (0 = unknown). A sample whose fluxgate frame is held
-    /// a quarter period longer than any of the last [`AGE_HISTORY`] samples' (the frame
+    /// ¾ period longer than the median of the last [`AGE_HISTORY`] samples' (the frame
     /// after it was lost), or interpolated between frames more than 1.5 periods apart, is
     /// flagged `DERIVATIVE_DEGRADED`: its value is a period old or a straight line across
     /// the lost frame, and the centred derivative of its neighbours spans it (0.36 nT of
@@ -68,7 +68,7 @@ pub struct GpsFix {
 #[derive(Clone, Debug)]
 pub struct Aligner {
     pub cfg: AlignerConfig,
-    /// Ages (µs) of the held fluxgate frame at the last samples that lost none.
+    /// Ages (µs) of the held fluxgate frame at the last samples.
     ages: [u64; AGE_HISTORY],
     n_ages: usize,
     flux: [(u64, [f32; 3]); FLUX_HISTORY],
@@ -102,8 +102,10 @@ impl Aligner {
             return;
         }
         if self.n_flux > 0 && t_us < self.flux[self.n_flux - 1].0 {
-            // Clock went backwards (restart, new replay): forget the history.
+            // Clock went backwards (restart, new replay): forget the history, the frame
+            // ages learnt from it included.
             self.n_flux = 0;
+            self.n_ages = 0;
         }
         if self.n_flux == FLUX_HISTORY {
             self.flux.copy_within(1.., 0);
@@ -223,24 +225,31 @@ impl Aligner {
         }
     }
 
-    /// Whether a frame held `age_us` is one whose successor was lost: older by a quarter
-    /// period than every recent normal age (learnt from [`AGE_HISTORY`] samples first).
+    /// Whether a frame held `age_us` is one whose successor was lost: older by three
+    /// quarters of a period than the median age of the last [`AGE_HISTORY`] samples (at
+    /// least 8). Every age enters the history, lost ones too, so the reference follows the
+    /// ports' phase whatever came before (a sensor restart, a resumed replay) and cannot
+    /// ratchet upwards: two aligners that saw different pasts agree again after 8 samples.
     fn held_across_loss(&mut self, age_us: u64) -> bool {
         let period = self.cfg.flux_period_us;
         if period == 0 {
             return false;
         }
-        let normal = self.ages[..self.n_ages].iter().copied().max().unwrap_or(0);
-        let lost = self.n_ages >= 4 && 4 * age_us > 4 * normal + period;
-        if !lost {
-            // Rotate: the newest age replaces the oldest once the history is full.
-            if self.n_ages < AGE_HISTORY {
-                self.n_ages += 1;
-            } else {
-                self.ages.rotate_left(1);
-            }
-            self.ages[self.n_ages - 1] = age_us;
+        let lost = self.n_ages >= AGE_HISTORY / 2 && {
+            let mut sorted = [0u64; AGE_HISTORY];
+            let recent = &mut sorted[..self.n_ages];
+            recent.copy_from_slice(&self.ages[..self.n_ages]);
+            recent.sort_unstable();
+            let median = recent[self.n_ages / 2];
+            4 * age_us > 4 * median + 3 * period
+        };
+        // Rotate: the newest age replaces the oldest once the history is full.
+        if self.n_ages < AGE_HISTORY {
+            self.n_ages += 1;
+        } else {
+            self.ages.rotate_left(1);
         }
+        self.ages[self.n_ages - 1] = age_us;
         lost
     }
 
