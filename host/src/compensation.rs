@@ -502,13 +502,7 @@ fn write_output_rows(
         write!(w, ",{name}")?;
     }
     writeln!(w)?;
-    let num = |v: f64, d: usize| {
-        if v.is_finite() {
-            format!("{v:.d$}")
-        } else {
-            String::new()
-        }
-    };
+    let num = fixed_cell;
     for i in 0..flight.len() {
         write!(
             w,
@@ -539,7 +533,7 @@ fn write_output_rows(
         for (_, col) in carried {
             match col {
                 // Carried values are written as read (shortest round-trip form).
-                crate::input::OutputValues::Num(v) => write!(w, ",{}", num_carried(v[i]))?,
+                crate::input::OutputValues::Num(v) => write!(w, ",{}", number_cell(v[i]))?,
                 crate::input::OutputValues::Text(v) => write!(w, ",{}", csv_text(&v[i]))?,
             }
         }
@@ -548,7 +542,18 @@ fn write_output_rows(
     Ok(())
 }
 
-fn num_carried(v: f64) -> String {
+/// An output cell of a computed value: `d` decimals, empty when missing. The streamed path
+/// (`stream::apply`) writes its rows with the same cells, so the two files are identical.
+pub(crate) fn fixed_cell(v: f64, d: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.d$}")
+    } else {
+        String::new()
+    }
+}
+
+/// An output cell of a carried input number: as read, empty when missing.
+pub(crate) fn number_cell(v: f64) -> String {
     if v.is_finite() {
         v.to_string()
     } else {
@@ -556,7 +561,8 @@ fn num_carried(v: f64) -> String {
     }
 }
 
-fn csv_text(s: &str) -> String {
+/// An output cell of text, quoted when it holds a comma, a quote or a newline.
+pub(crate) fn csv_text(s: &str) -> String {
     if s.contains([',', '"', '\n']) {
         format!("\"{}\"", s.replace('"', "\"\""))
     } else {

@@ -708,13 +708,6 @@ pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     run_kf_estimator(flight, opts)
 }
 
-/// A fitted fluxgate calibration is applied when the direction uncertainty it leaves is
-/// below this share of the direction correction it makes. On calibration patterns the
-/// fluxgate in the aircraft's field is turned by 2–12 mrad with 0.1 mrad uncertainty (1–2 %);
-/// on a straight line without manoeuvres the uncertainty (3.6 mrad) exceeds the correction
-/// (2.7 mrad): the fit there would turn fluxgate noise and geology into direction errors.
-pub const FLUXCAL_MAX_SIGMA_SHARE: f64 = 0.25;
-
 /// The estimator on a flight as given. With `fluxcal` in the model the fluxgate is first
 /// calibrated against the scalar (the stored calibration, or one fitted on this flight to
 /// the scalar minus a first pass's interference) and the filter runs on the calibrated
@@ -731,27 +724,13 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         None => {
             // `fluxcal` adds no filter state, so the first pass is the model without it.
             let mut first = run_kf_on(flight, opts)?;
-            let refused = match fluxgate::fit_flight(flight, &first.interference_nt) {
-                Ok(fit)
-                    if fit.direction_sigma_rad
-                        <= FLUXCAL_MAX_SIGMA_SHARE * fit.direction_change_rad =>
-                {
-                    Err(fit)
-                }
-                Ok(fit) => Ok(format!(
-                    "the flight's attitudes do not determine the fluxgate calibration: it \
-                     would turn the direction by {:.1e} rad rms with an uncertainty of \
-                     {:.1e} rad (a calibration is applied when its uncertainty is below {} \
-                     of its correction)",
-                    fit.direction_change_rad, fit.direction_sigma_rad, FLUXCAL_MAX_SIGMA_SHARE
-                )),
-                Err(e) => Ok(format!("{e:#}")),
-            };
-            match refused {
-                Err(fit) => (fit.calibration, Some(fit)),
-                Ok(reason) => {
+            let fitted = fluxgate::fit_flight(flight, &first.interference_nt)
+                .and_then(fluxgate::FluxgateFit::determined);
+            match fitted {
+                Ok(fit) => (fit.calibration, Some(fit)),
+                Err(reason) => {
                     first.warnings.push(format!(
-                        "fluxgate not calibrated against the scalar, used as measured: {reason}"
+                        "fluxgate not calibrated against the scalar, used as measured: {reason:#}"
                     ));
                     first.fluxgate_calibration = Some(fluxgate::FluxgateCalibration::IDENTITY);
                     return Ok(first);

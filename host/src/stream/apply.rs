@@ -7,7 +7,7 @@ use super::rows::{row_sample, Cols, RowFilter};
 use super::stats::{year_of_date, year_of_doy, DateSource, Despiker, Listed};
 use super::{Plan, Progress};
 use crate::coefficients::CoefficientFile;
-use crate::compensation::EstimatorSettings;
+use crate::compensation::{csv_text, fixed_cell as num, number_cell, EstimatorSettings};
 use crate::input::Selection;
 use crate::model_spec::{with_model, ModelSpec};
 use crate::pipeline::{HostCompensator, KfOptions};
@@ -277,22 +277,6 @@ fn carried(plan: &Plan) -> Carried {
     Carried { igrf, nums, texts }
 }
 
-fn num(v: f64, d: usize) -> String {
-    if v.is_finite() {
-        format!("{v:.d$}")
-    } else {
-        String::new()
-    }
-}
-
-fn csv_text(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
-}
-
 /// Output of one row: `compensation::write_output_rows`' layout.
 fn write_row(
     w: &mut impl Write,
@@ -314,27 +298,10 @@ fn write_row(
         write!(w, ",{},{},{:#06x}", num(a, 4), num(nu, 5), f)?;
     }
     if igrf {
-        let g = p.sample.igrf_nt;
-        write!(
-            w,
-            ",{}",
-            if g.is_finite() {
-                g.to_string()
-            } else {
-                String::new()
-            }
-        )?;
+        write!(w, ",{}", number_cell(p.sample.igrf_nt))?;
     }
-    for v in &p.carried_num {
-        write!(
-            w,
-            ",{}",
-            if v.is_finite() {
-                v.to_string()
-            } else {
-                String::new()
-            }
-        )?;
+    for &v in &p.carried_num {
+        write!(w, ",{}", number_cell(v))?;
     }
     for t in &p.carried_text {
         write!(w, ",{}", csv_text(t))?;

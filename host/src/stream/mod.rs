@@ -71,7 +71,7 @@ pub fn unstreamable(
         return Some("`lag`/`fluxtemp` pre-process the whole flight".into());
     }
     if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
-        return Some("the model has `fluxcal` but the file no fluxgate_calibration".into());
+        return Some("the model has `fluxcal` but the file has no fluxgate_calibration".into());
     }
     if spec.terms.iter().any(|t| t.name == "rate") {
         return Some("`rate` needs the flight's crossovers".into());

@@ -126,6 +126,26 @@ pub fn progress_bar(total_bytes: u64) -> indicatif::ProgressBar {
     bar
 }
 
+/// The data contract's time rule, for the column store and the row reader alike: `t`
+/// present and strictly increasing. `previous` advances to `t` when it holds.
+pub(super) fn check_time_order(
+    file: &str,
+    line: u64,
+    t: f64,
+    previous: &mut f64,
+) -> Result<(), TraceError> {
+    if t.is_nan() || t <= *previous {
+        return Err(TraceError::Time {
+            file: file.to_string(),
+            line,
+            value: t,
+            previous: *previous,
+        });
+    }
+    *previous = t;
+    Ok(())
+}
+
 /// Values that mean "missing" in any layout.
 pub(super) fn is_missing(text: &str) -> bool {
     text.is_empty() || text == "*" || text.eq_ignore_ascii_case("nan")
@@ -382,15 +402,7 @@ impl Reader<'_> {
         if let Some(ti) = self.t_idx {
             if let ColData::Num(v) = &self.cols[ti].data {
                 let t = v.last().copied().unwrap_or(f64::NAN);
-                if t.is_nan() || t <= self.prev_t {
-                    return Err(TraceError::Time {
-                        file: self.file.clone(),
-                        line,
-                        value: t,
-                        previous: self.prev_t,
-                    });
-                }
-                self.prev_t = t;
+                check_time_order(&self.file, line, t, &mut self.prev_t)?;
             }
         }
         self.origin.push(line);

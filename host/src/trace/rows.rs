@@ -139,16 +139,7 @@ impl<F: FnMut(&Row) -> anyhow::Result<()>> Sink for RowSink<'_, F> {
             });
         }
         if let Some(ti) = self.t_idx {
-            let t = self.nums[ti];
-            if t.is_nan() || t <= self.prev_t {
-                return Err(TraceError::Time {
-                    file: self.file.clone(),
-                    line,
-                    value: t,
-                    previous: self.prev_t,
-                });
-            }
-            self.prev_t = t;
+            super::read::check_time_order(&self.file, line, self.nums[ti], &mut self.prev_t)?;
         }
         let row = Row {
             line,
