@@ -61,6 +61,39 @@ pub(crate) fn rate_crossover_test(
     ))
 }
 
+/// How many times the scalar's unexplained signal (its model error) the fluxgate's
+/// modulus misfits after its 9-parameter calibration against the compensated scalar:
+/// geology cancels in that comparison, so a ratio well above 1 is a field the fluxgate sees
+/// and the scalar's residual cannot account for — the aircraft's own field at the
+/// fluxgate (`fluxmod`'s premise). `None` where the fit cannot be made.
+pub(crate) fn fluxgate_own_field_ratio(flight: &Flight, run: &KfRun) -> Option<f64> {
+    let interference: Vec<f64> = match &run.preprocessing {
+        Some(_) => flight
+            .mag_nt
+            .iter()
+            .zip(&run.compensated_nt)
+            .map(|(m, c)| m - c)
+            .collect(),
+        None => run.interference_nt.clone(),
+    };
+    let fit = fluxgate::fit_flight(flight, &interference).ok()?;
+    // Against the larger of what the scalar leaves unexplained and the fluxgate's own
+    // white noise (third differences of the calibrated modulus, as `fluxcal_test`).
+    let resid: Vec<f64> = fit
+        .residual_nt
+        .iter()
+        .copied()
+        .filter(|v| v.is_finite())
+        .collect();
+    let fluxgate_noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
+    let rms = run
+        .model_error_nt
+        .unwrap_or(0.0)
+        .max(run.noise_nt)
+        .max(fluxgate_noise_nt);
+    (rms > 0.0).then(|| fit.modulus_sd_after_nt / rms)
+}
+
 /// `fluxcal` is not a regressor: it is tested on the fluxgate itself. The 9-parameter
 /// scalar calibration is fitted to the scalar minus the interference estimate; the F-test
 /// is on the fluxgate modulus (effective sample count from the residual's lag-1

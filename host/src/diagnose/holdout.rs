@@ -13,7 +13,7 @@
 //! coefficients were wrong (−33 % held out for a real effect); dealt in turn, a cloverleaf's
 //! five segments per heading made each fold one kind of segment.
 
-use super::regression::fit;
+use super::regression::{add_penalty, fit_map};
 use super::stats::{gram_lstsq, gram_of};
 use crate::flight::Flight;
 /// Longest piece of a unit (s): about one manoeuvre.
@@ -68,7 +68,7 @@ pub fn folds(flight: &Flight, rows: &[usize]) -> Folds {
 
 /// Sum over folds of the held-out RSS of `w[0]` on the columns `idx` of `w` (rows
 /// `0..w[0].len()`), each fold scored with the fit on all the others.
-fn heldout_rss(w: &[Vec<f64>], folds: &Folds, idx: &[usize]) -> f64 {
+fn heldout_rss(w: &[Vec<f64>], folds: &Folds, idx: &[usize], penalty: &[f64]) -> f64 {
     let mut all = vec![0usize];
     all.extend_from_slice(idx);
     let fold_gram = |m: &Vec<usize>| {
@@ -88,7 +88,9 @@ fn heldout_rss(w: &[Vec<f64>], folds: &Folds, idx: &[usize]) -> f64 {
     per_fold
         .iter()
         .map(|(g, sel)| {
-            let (theta, _, _) = gram_lstsq(&(&total - g), &local);
+            let mut rest = &total - g;
+            add_penalty(&mut rest, &all, penalty);
+            let (theta, _, _) = gram_lstsq(&rest, &local);
             (0..sel[0].len())
                 .map(|k| {
                     let e = sel[0][k]
@@ -116,17 +118,24 @@ pub(crate) fn heldout_explained(
     folds: &Folds,
     base: &[usize],
     cand: &[usize],
+    penalty: &[f64],
 ) -> f64 {
-    let (e0, rss0, _, _) = fit(w, rows, base);
+    let (e0, rss0, _, _) = fit_map(w, rows, base, penalty);
     let mut local = vec![e0];
+    // The candidate's priors, carried to its local columns (1, 2, …).
+    let mut local_penalty = vec![0.0];
     for &c in cand {
         let mut cw = vec![w[c].clone()];
         cw.extend(base.iter().map(|&b| w[b].clone()));
         let idx: Vec<usize> = (1..cw.len()).collect();
-        local.push(fit(&cw, rows, &idx).0);
+        let base_penalty: Vec<f64> = std::iter::once(0.0)
+            .chain(base.iter().map(|&b| penalty.get(b).copied().unwrap_or(0.0)))
+            .collect();
+        local.push(fit_map(&cw, rows, &idx, &base_penalty).0);
+        local_penalty.push(penalty.get(c).copied().unwrap_or(0.0));
     }
     let idx: Vec<usize> = (1..local.len()).collect();
-    let rss1 = heldout_rss(&local, folds, &idx);
+    let rss1 = heldout_rss(&local, folds, &idx, &local_penalty);
     if rss0 > 0.0 {
         (1.0 - rss1 / rss0).clamp(-1.0, 1.0)
     } else {
@@ -156,8 +165,8 @@ mod tests {
                 .map(|f| (f * n / 4..(f + 1) * n / 4).collect())
                 .collect(),
         };
-        let real = heldout_explained(&w, &rows, &folds, &[], &[1]);
-        let spurious = heldout_explained(&w, &rows, &folds, &[1], &[2]);
+        let real = heldout_explained(&w, &rows, &folds, &[], &[1], &[]);
+        let spurious = heldout_explained(&w, &rows, &folds, &[1], &[2], &[]);
         // Signal variance 0.32, noise 1/12: 79 % explained.
         assert!((real - 0.32 / (0.32 + 1.0 / 12.0)).abs() < 0.03, "{real}");
         assert!(spurious <= 0.001, "{spurious}");

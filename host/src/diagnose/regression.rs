@@ -173,6 +173,19 @@ pub(crate) fn fit(
     rows: &[usize],
     idx: &[usize],
 ) -> (Vec<f64>, f64, usize, Vec<f64>) {
+    fit_map(w, rows, idx, &[])
+}
+
+/// [`fit`] with the coefficients' priors: `penalty[c]` (indexed like `w`; empty = none) is
+/// added to column `c`'s Gram diagonal, the maximum a posteriori fit for a zero-mean prior
+/// of variance noise/penalty, which is how the filter itself weighs a coefficient against
+/// the data. RSS is the data part only.
+pub(crate) fn fit_map(
+    w: &[Vec<f64>],
+    rows: &[usize],
+    idx: &[usize],
+    penalty: &[f64],
+) -> (Vec<f64>, f64, usize, Vec<f64>) {
     let mut all = vec![0usize];
     all.extend_from_slice(idx);
     let sel: Vec<Vec<f64>> = all
@@ -180,7 +193,8 @@ pub(crate) fn fit(
         .map(|&c| rows.iter().map(|&k| w[c][k]).collect())
         .collect();
     let refs: Vec<&[f64]> = sel.iter().map(|v| v.as_slice()).collect();
-    let g = gram_of(&refs);
+    let mut g = gram_of(&refs);
+    add_penalty(&mut g, &all, penalty);
     let local: Vec<usize> = (1..all.len()).collect();
     let (theta, _, rank) = gram_lstsq(&g, &local);
     let e = residual_of(&sel, &theta);
@@ -188,6 +202,15 @@ pub(crate) fn fit(
     // d(e_i e_j)/dt against the eddy terms) make the latter cancel catastrophically.
     let rss = e.iter().map(|v| v * v).sum();
     (e, rss, rank, theta)
+}
+
+/// Adds `penalty[all[i]]` to the diagonal of `g` (whose row/column `i` is column `all[i]`).
+pub(crate) fn add_penalty(g: &mut nalgebra::DMatrix<f64>, all: &[usize], penalty: &[f64]) {
+    for (i, &c) in all.iter().enumerate() {
+        if let Some(p) = penalty.get(c) {
+            g[(i, i)] += p;
+        }
+    }
 }
 
 /// `sel[0] − Σ θ_j·sel[j+1]`.
