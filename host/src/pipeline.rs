@@ -156,6 +156,14 @@ pub struct KfRun {
     pub preprocessing: Option<crate::preprocess::Preprocessing>,
 }
 
+impl KfRun {
+    /// The scalar's own noise (nT): the run's noise without the model error it adapted for.
+    pub fn sensor_noise_nt(&self) -> f64 {
+        let me = self.model_error_nt.unwrap_or(0.0);
+        (self.noise_nt * self.noise_nt - me * me).max(0.0).sqrt()
+    }
+}
+
 /// Robust white-noise level of the scalar: the third difference of white noise has
 /// variance 20σ²; the median absolute deviation ignores manoeuvres and spikes.
 pub fn estimate_noise_nt(mag_nt: &[f64]) -> Option<f64> {

@@ -198,7 +198,7 @@ fn check(seed: u64, site: (f64, f64)) -> (f64, f64, f64) {
     let st = SensorTemp { channel: 0 };
     let terms: [&dyn Term; 4] = [&Permanent, &Induced, &Eddy, &st];
     let (interference, coefficients) =
-        post_flight_with_terms(&flight, true, &terms, base.sigma1, base.noise_nt)
+        post_flight_with_terms(&flight, true, &terms, base.sigma1, base.sensor_noise_nt())
             .expect("compensate");
     let after = error_rms_nt(&interference, &truth, None);
     let kappa_hat = coefficients[16];
@@ -229,10 +229,10 @@ fn sensor_temp_is_found_added_and_the_error_falls() {
 
 /// Near the magnetic equator (10° N 10° E, inclination ≈ 21°) the field direction in the
 /// airframe swings with heading, so the catalogue's vector proxy `T·e_i` cannot stand in
-/// for a scalar offset; the new term still meets the bar. Measured: 0.336 → 0.041 nT
-/// (proxy 0.095) and 0.831 → 0.075 nT (proxy 0.146).
+/// for a scalar offset; the new term still meets the bar. Measured: 0.383 → 0.041 nT
+/// (proxy 0.107) and 0.292 → 0.086 nT (proxy 0.167). Seed 2 had regressed to 0.163 nT while
+/// the custom filter ran with the base run's adapted noise, which counts the drift itself.
 #[test]
-#[ignore = "regressed this session: seed 2 at 10° N 0.2917 → 0.1629 nT against a bar of 0.6× (0.1057 already after the first merges of the session, before the estimator changes); see the closing note"]
 fn sensor_temp_at_low_magnetic_latitude() {
     for seed in [1u64, 2] {
         let (before, after, with_proxy) = check(seed, (10.0, 10.0));
