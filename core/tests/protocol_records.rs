@@ -152,7 +152,7 @@ fn commands() {
     assert_eq!(p("MCCMD,SETFLUX,12,1"), Err(CommandError::IndexOutOfBounds));
     assert_eq!(p("MCCMD,GETFLUX,12"), Err(CommandError::IndexOutOfBounds));
     assert_eq!(p("MCCMD,SETFLUX,0,NaN"), Err(CommandError::BadArgument));
-    // The scalar's delay τ (s): one value in [0, 0.5]; GETLAG takes none.
+    // The scalar's delay τ (s): one value in [0, 0.51]; GETLAG takes none.
     assert_eq!(p("MCCMD,GETLAG"), Ok(Command::GetLag));
     assert_eq!(p("MCCMD,SETLAG,0.205"), Ok(Command::SetLag(0.205)));
     assert_eq!(p("MCCMD,SETLAG,0"), Ok(Command::SetLag(0.0)));

@@ -405,7 +405,12 @@ fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
     let (recs, bad) = b.records();
     assert!(bad.is_empty(), "{bad:?}");
     let n = cap.scalar_t_s.len();
-    assert_eq!(recs.len(), n, "{name}: frames in {n}, records out {}", recs.len());
+    assert_eq!(
+        recs.len(),
+        n,
+        "{name}: frames in {n}, records out {}",
+        recs.len()
+    );
     hil_tests::check_contiguous(&recs).unwrap();
     let stale: Vec<u32> = recs
         .iter()
@@ -420,7 +425,10 @@ fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
         hil_tests::compare_records(&recs, &replay(&cap), 1e-3).is_err(),
         "{name}: the delay changed nothing"
     );
-    eprintln!("{name}: SETLAG 0.3 s: {n} frames in, {} records out, = host replay with τ", recs.len());
+    eprintln!(
+        "{name}: SETLAG 0.3 s: {n} frames in, {} records out, = host replay with τ",
+        recs.len()
+    );
     // stored with the coefficients: SAVE, change it, RESET reloads the stored τ
     assert!(reply(&mut b, "MCCMD,SAVE").starts_with("$MCACK,SAVE"));
     reply(&mut b, "MCCMD,SETLAG,0");
@@ -553,7 +561,11 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
 
     let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
     let sent = lines.lines().count();
-    assert_eq!(sent, 16 + 12 + 1, "SETCOEF × 16, SETFLUX × 12, SAVE");
+    assert_eq!(
+        sent,
+        16 + 12 + 1 + 1,
+        "SETCOEF × 16, SETFLUX × 12, SETLAG (0: no `lag`), SAVE"
+    );
     for l in lines.lines() {
         let r = b.command_raw(format!("{l}\r\n").as_bytes()).unwrap();
         assert!(r.starts_with("$MCACK"), "{l} → {r}");
@@ -572,6 +584,11 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
         let f = values(&b.command("MCCMD,GETFLUX").unwrap());
         assert_eq!(c, want_coef, "{when}: coefficients");
         assert_eq!(f, want_flux, "{when}: fluxgate calibration");
+        assert_eq!(
+            values(&b.command("MCCMD,GETLAG").unwrap()),
+            [0.0],
+            "{when}: τ"
+        );
     };
     check(&mut b, "after upload");
     assert!(

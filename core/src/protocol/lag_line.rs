@@ -7,19 +7,22 @@
 //! The record keeps the scalar's time stamp and sequence number: one record per scalar
 //! sample, as always.
 //!
-//! Sized for the worst case the board supports: τ up to [`MAX_LAG_S`] at a fluxgate of
-//! [`LAG_TOP_FLUX_HZ`] (500 frames, plus the two bracketing ones), so [`LAG_FRAMES`] = 512.
+//! Sized for the worst case the board supports: τ up to 0.5 s at a fluxgate of
+//! [`LAG_TOP_FLUX_HZ`] (500 frames, plus the two bracketing ones), so [`LAG_FRAMES`] = 512,
+//! which holds [`MAX_LAG_S`] = 0.51 s at that rate.
 //! Stamps are held as their low 32 bits relative to the newest frame's full stamp (16 bytes a
 //! frame, 8 KiB in all); frames further than [`MAX_SPAN_US`] behind the newest are dropped,
 //! so the 32-bit differences never wrap. All-zero when new, so a board's `static` of it sits
 //! in `.bss` and costs no flash.
 
-/// Longest delay the board applies (s): the `lag` estimate's range on real installations.
-pub const MAX_LAG_S: f32 = 0.5;
-/// Fluxgate rate (Hz) at which the delay line still holds [`MAX_LAG_S`]: the board's top rate.
-pub const LAG_TOP_FLUX_HZ: f32 = 1000.0;
 /// Frames held: 0.5 s × 1 kHz + 2 bracketing frames, rounded up to a power of two.
 pub const LAG_FRAMES: usize = 512;
+/// Fluxgate rate (Hz) at which the delay line still holds [`MAX_LAG_S`]: the board's top rate.
+pub const LAG_TOP_FLUX_HZ: f32 = 1000.0;
+/// Longest delay the board applies (s): what the line holds at [`LAG_TOP_FLUX_HZ`], 0.51 s,
+/// so a true 0.5 s lag still fits with its estimate's error (τ̂ = 0.5038 s on a simulated
+/// flight with τ = 0.5 s at 10 Hz).
+pub const MAX_LAG_S: f32 = (LAG_FRAMES - 2) as f32 / LAG_TOP_FLUX_HZ;
 /// Widest stamp span kept (µs, ~36 min): far beyond any staleness limit.
 pub const MAX_SPAN_US: u64 = 1 << 31;
 
@@ -156,7 +159,8 @@ mod tests {
     fn lag_bounds() {
         assert_eq!(check_lag(0.0, 10.0), Ok(()));
         assert_eq!(check_lag(0.5, 1000.0), Ok(()));
-        assert_eq!(check_lag(0.5001, 10.0), Err(LagError::OutOfRange));
+        assert_eq!(check_lag(MAX_LAG_S, 1000.0), Ok(()));
+        assert_eq!(check_lag(0.5101, 10.0), Err(LagError::OutOfRange));
         assert_eq!(check_lag(-0.01, 10.0), Err(LagError::OutOfRange));
         assert_eq!(check_lag(f32::NAN, 10.0), Err(LagError::OutOfRange));
         assert_eq!(check_lag(0.5, 1100.0), Err(LagError::BeyondLine));
