@@ -134,3 +134,115 @@ fn board_lag_brings_the_survey_error_to_the_undelayed_flights() {
         );
     }
 }
+
+/// `magcomp replay --model tl16+field+lag --coeffs FILE`: τ comes from the file's
+/// `scalar_lag` (as `upload` sends it with `SETLAG`), `--lag-s` overrides it; the records
+/// are the library replay's with that τ; no τ, or one the board cannot hold, is refused.
+#[test]
+fn replay_cli_takes_the_lag_from_the_coefficient_file() {
+    use magcomp::cli::replay::{run as run_replay, ReplayArgs};
+    use magcomp::replay::{csv_row, CSV_HEADER};
+    let mut cfg = SimConfig {
+        seed: SEED,
+        max_duration_s: Some(60.0),
+        ..SimConfig::default()
+    };
+    cfg.hidden = vec![parse_hidden("lag:0.2").expect("spec")];
+    let trace = simulate(&cfg).expect("simulate");
+    let dir = std::env::temp_dir().join(format!("magcomp-replay-lag-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cap = dir.join("flight.cap");
+    std::fs::write(
+        &cap,
+        trace_to_capture(&trace, &CaptureOptions::default()).unwrap(),
+    )
+    .unwrap();
+    let model = "tl16+field+lag";
+    let names = ModelSpec::parse(model).unwrap().coefficient_names();
+    assert_eq!(names.len(), 16, "`lag` adds no filter state");
+    let coefficients: Vec<f32> = (0..16).map(|i| (i as f32 - 7.5) * 0.25).collect();
+    let entries: Vec<String> = names
+        .iter()
+        .zip(&coefficients)
+        .map(|((n, _), v)| format!(r#"{{"name":"{n}","unit":"nT","value":{v},"sigma":0.1}}"#))
+        .collect();
+    let file = |lag: &str| {
+        format!(
+            r#"{{"format":"magcomp-coefficients-v1","model":"{model}","method":"kf","sample_rate_hz":10,{lag}"coefficients":[{}]}}"#,
+            entries.join(",")
+        )
+    };
+    let coeffs = dir.join("c.json");
+    std::fs::write(
+        &coeffs,
+        file(r#""scalar_lag":{"lag_s":0.2,"sigma_s":0.0012},"#),
+    )
+    .unwrap();
+    let args = ReplayArgs {
+        capture: cap,
+        model: model.into(),
+        coeffs: Some(coeffs.clone()),
+        lag_s: None,
+        rate: None,
+        flux_rate: None,
+        gps_rate: None,
+        flux: None,
+        output: Some(dir.join("rec.csv")),
+        records: None,
+    };
+    let rows = |args: &ReplayArgs| -> Vec<String> {
+        let stats = run_replay(args).unwrap();
+        assert_eq!(stats.records as usize, trace.len());
+        let csv = std::fs::read_to_string(dir.join("rec.csv")).unwrap();
+        csv.lines().skip(1).map(String::from).collect()
+    };
+    let from_file = rows(&args);
+    let expected = |lag_s: f32| -> Vec<String> {
+        let mut o = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
+        o.coefficients = Some(coefficients.clone());
+        o.lag_s = Some(lag_s);
+        let mut out = Vec::new();
+        let bytes = trace_to_capture(&trace, &CaptureOptions::default()).unwrap();
+        replay_capture(bytes.as_slice(), &o, |r| {
+            out.push(csv_row(r));
+            Ok(())
+        })
+        .unwrap();
+        out
+    };
+    assert_eq!(
+        std::fs::read_to_string(dir.join("rec.csv"))
+            .unwrap()
+            .lines()
+            .next(),
+        Some(CSV_HEADER)
+    );
+    assert_eq!(from_file, expected(0.2), "τ from the file");
+    let stale = |rows: &[String]| {
+        rows.iter()
+            .take_while(|r| {
+                let flags: u16 = r.rsplit(',').next().unwrap().parse().unwrap();
+                flags & Flags::FLUX_STALE != 0
+            })
+            .count()
+    };
+    assert_eq!(stale(&from_file), 2, "τ = 0.2 s at 10 Hz");
+    let overridden = rows(&ReplayArgs {
+        lag_s: Some(0.35),
+        ..args.clone()
+    });
+    assert_eq!(overridden, expected(0.35), "--lag-s overrides the file");
+    assert_ne!(overridden, from_file);
+    for (lag, needle) in [(Some(0.6), "cannot delay the fluxgate"), (None, "no τ")] {
+        if lag.is_none() {
+            std::fs::write(&coeffs, file("")).unwrap();
+        }
+        let e = run_replay(&ReplayArgs {
+            lag_s: lag,
+            ..args.clone()
+        })
+        .unwrap_err();
+        assert!(format!("{e:#}").contains(needle), "{lag:?}: {e:#}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
