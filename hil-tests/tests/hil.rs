@@ -425,6 +425,19 @@ fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
         hil_tests::compare_records(&recs, &replay(&cap), 1e-3).is_err(),
         "{name}: the delay changed nothing"
     );
+    // `magcomp replay --lag-s 0.3` (when MAGCOMP_BIN is set) gives the board's records too
+    let cap_path = b.dir.join("capture.txt");
+    cap.write_raw(std::io::BufWriter::new(
+        std::fs::File::create(&cap_path).unwrap(),
+    ))
+    .unwrap();
+    let out = b.dir.join("replay.txt");
+    if let Some(host) = hil_tests::host_replay_with(&cap_path, &out, &["--lag-s", "0.3"]) {
+        let host = host.unwrap_or_else(|e| panic!("{name}: magcomp replay: {e}"));
+        hil_tests::compare_records(&recs, &host, 1e-3)
+            .unwrap_or_else(|e| panic!("{name}: board vs magcomp replay --lag-s 0.3: {e}"));
+        eprintln!("{name}: = `magcomp replay --lag-s 0.3` within 1e-3 nT");
+    }
     eprintln!(
         "{name}: SETLAG 0.3 s: {n} frames in, {} records out, = host replay with τ",
         recs.len()

@@ -39,7 +39,7 @@ pub enum LagError {
 
 /// Whether `lag_s` fits the line at a nominal fluxgate rate of `flux_hz`.
 pub fn check_lag(lag_s: f32, flux_hz: f64) -> Result<(), LagError> {
-    if !(lag_s >= 0.0 && lag_s <= MAX_LAG_S) {
+    if !(0.0..=MAX_LAG_S).contains(&lag_s) {
         return Err(LagError::OutOfRange);
     }
     // Frames between t − τ and t, plus the two that bracket t − τ.
