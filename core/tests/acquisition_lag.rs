@@ -201,3 +201,43 @@ fn delays_beyond_the_line_or_without_one_are_refused() {
     assert_eq!(fast.set_lag_s(0.5), Err(LagError::BeyondLine));
     assert_eq!(fast.set_lag_s(0.25), Ok(()));
 }
+
+mod no_panic {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// Any order of frames and samples, stamps anywhere in u64 (backwards, huge jumps),
+        /// any τ the aligner is given: no panic, and a sample is either paired with a finite
+        /// fluxgate value or flagged FLUX_STALE.
+        #[test]
+        fn delayed_pairing_is_total(
+            ops in proptest::collection::vec((any::<bool>(), any::<u64>(), -1.0e5f32..1.0e5), 1..300),
+            lag_us in prop_oneof![Just(0u64), 1u64..600_000, Just(u64::MAX)],
+            period_us in prop_oneof![Just(0u64), 1u64..1_000_000, Just(u64::MAX)],
+        ) {
+            let mut al = Aligner::new(AlignerConfig {
+                flux_stale_us: 250_000,
+                gps_stale_us: 2_500_000,
+                extrapolate_gps: false,
+                flux_period_us: period_us,
+            });
+            al.set_lag_us(lag_us);
+            let mut line = LagLine::new();
+            for (is_flux, t, v) in ops {
+                if is_flux {
+                    if al.push_flux(t, [v, -v, v]) {
+                        line.push(t, [v, -v, v]);
+                    }
+                } else {
+                    let s = al.push_scalar_delayed(t, Some(MagCounts(1)), Some(&line));
+                    prop_assert!(
+                        s.flux_nt.iter().all(|x| x.is_finite()) || s.flags.contains(Flags::FLUX_STALE)
+                    );
+                }
+            }
+        }
+    }
+}

@@ -243,7 +243,11 @@ impl Aligner {
             recent.copy_from_slice(&self.ages[..self.n_ages]);
             recent.sort_unstable();
             let median = recent[self.n_ages / 2];
-            4 * age_us > 4 * median + 3 * period
+            // Saturating: a time jump of any size must not overflow (no panic on any input).
+            age_us.saturating_mul(4)
+                > median
+                    .saturating_mul(4)
+                    .saturating_add(period.saturating_mul(3))
         };
         // Rotate: the newest age replaces the oldest once the history is full.
         if self.n_ages < AGE_HISTORY {
@@ -395,7 +399,7 @@ fn interpolate(
             let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
             let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
             let period = cfg.flux_period_us;
-            let lost = period > 0 && 2 * (t1 - t0) > 3 * period;
+            let lost = period > 0 && (t1 - t0).saturating_mul(2) > period.saturating_mul(3);
             (v, t1 - t0 > limit, lost, None)
         }
     }
