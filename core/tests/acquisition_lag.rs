@@ -15,8 +15,12 @@ const RATE_HZ: f64 = 10.0;
 type Acq<'a> = Acquisition<'a, 32, 16>;
 
 fn acq<'a>(flux_hz: f64) -> Acq<'a> {
-    let comp = Compensator::new(Model::paper(), compensator_config(RATE_HZ as f32, 16)).unwrap();
-    Acquisition::new(AcqConfig::new(RATE_HZ, flux_hz, 1.0), comp).unwrap()
+    acq_at(RATE_HZ, flux_hz)
+}
+
+fn acq_at<'a>(scalar_hz: f64, flux_hz: f64) -> Acq<'a> {
+    let comp = Compensator::new(Model::paper(), compensator_config(scalar_hz as f32, 16)).unwrap();
+    Acquisition::new(AcqConfig::new(scalar_hz, flux_hz, 1.0), comp).unwrap()
 }
 
 /// Field vector of a manoeuvring aircraft, body frame (nT), at fluxgate epoch `k`.
@@ -68,38 +72,38 @@ fn stale(recs: &[Record]) -> Vec<usize> {
         .collect()
 }
 
-/// τ = 3 periods through the line gives, record for record, what the acquisition without a
-/// delay gives when the fluxgate itself arrives 3 periods late: bit-identical interference
-/// (survey mode: coefficients × regressors of e, ė) once the derivative window is past
-/// the first τ; those first 3 records are FLUX_STALE, none is lost.
-#[test]
-fn a_whole_sample_delay_equals_a_fluxgate_sent_late() {
-    let n = 200;
+/// τ = `delay` periods through the line gives, record for record, what the acquisition
+/// without a delay gives when the fluxgate itself arrives `delay` periods late:
+/// bit-identical interference (survey mode: coefficients × regressors of e, ė) once the
+/// derivative window is past the first τ; those first `delay` records are FLUX_STALE, none
+/// is lost.
+fn whole_sample_delay_equals_a_fluxgate_sent_late(rate_hz: f64, delay: usize, n: usize) {
+    let lag_s = (delay as f64 / rate_hz) as f32;
     let mut line = LagLine::new();
-    let mut a = acq(RATE_HZ);
+    let mut a = acq_at(rate_hz, rate_hz);
     a.attach_lag_line(&mut line);
-    a.set_lag_s(0.3).unwrap();
-    assert_eq!(a.lag_s(), 0.3);
+    a.set_lag_s(lag_s).unwrap();
+    assert_eq!(a.lag_s(), lag_s);
     a.set_coefficients(&coefficients()).unwrap();
     let lagged = run(&mut a, &stream(n, 0, None));
-    let mut b = acq(RATE_HZ);
+    let mut b = acq_at(rate_hz, rate_hz);
     b.set_coefficients(&coefficients()).unwrap();
-    let late = run(&mut b, &stream(n, 3, None));
+    let late = run(&mut b, &stream(n, delay as i64, None));
     // Without the delay, the same stream is another pairing altogether.
-    let mut c = acq(RATE_HZ);
+    let mut c = acq_at(rate_hz, rate_hz);
     c.set_coefficients(&coefficients()).unwrap();
     let plain = run(&mut c, &stream(n, 0, None));
     assert_eq!((lagged.len(), late.len()), (n, n));
     assert_eq!(a.counters().records as usize, n);
-    assert_eq!(stale(&lagged), vec![0, 1, 2]);
+    assert_eq!(stale(&lagged), (0..delay).collect::<Vec<_>>());
     assert!(stale(&late).is_empty());
-    let half = compensator_config(RATE_HZ as f32, 16).epoch.half_width;
+    let half = compensator_config(rate_hz as f32, 16).epoch.half_width;
     let mut worst_plain = 0f32;
-    for k in 3 + half + 1..n {
+    for k in delay + half + 1..n {
         assert_eq!(
             lagged[k].interference_nt.to_bits(),
             late[k].interference_nt.to_bits(),
-            "record {k}: {} vs {}",
+            "{rate_hz} Hz, record {k}: {} vs {}",
             lagged[k].interference_nt,
             late[k].interference_nt
         );
@@ -112,6 +116,19 @@ fn a_whole_sample_delay_equals_a_fluxgate_sent_late() {
         worst_plain > 1.0,
         "undelayed differs by {worst_plain} nT only"
     );
+}
+
+#[test]
+fn a_whole_sample_delay_equals_a_fluxgate_sent_late() {
+    whole_sample_delay_equals_a_fluxgate_sent_late(RATE_HZ, 3, 200);
+}
+
+/// The line's design point: 0.5 s at a 1 kHz fluxgate (500 frames back), and its limit,
+/// 0.51 s (510 frames).
+#[test]
+fn half_a_second_at_1_khz_is_held_by_the_line() {
+    whole_sample_delay_equals_a_fluxgate_sent_late(1000.0, 500, 1500);
+    whole_sample_delay_equals_a_fluxgate_sent_late(1000.0, 510, 1200);
 }
 
 /// Sub-sample τ: linear interpolation between the frames that bracket t − τ; a fluxgate
