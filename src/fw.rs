@@ -11,10 +11,11 @@ use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use magcomp_core::protocol::command::{
     Command, CommandError, CommandReader, FLUX_CAL_LEN, Mode, blob_len, decode_blob,
-    encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id,
+    encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id, lag_blob_id,
 };
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 use magcomp_core::protocol::fluxgate::FluxCalibration;
+use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::record::{Record, encode_record};
 
 #[cfg(feature = "board-emu")]
@@ -111,6 +112,9 @@ async fn main(spawner: Spawner) {
         defmt::error!("compensator init failed");
         board::exit(false)
     }
+    // the fluxgate's delay line for `SETLAG` (8 KiB): all zeros, so in .bss, not flash
+    static LAG_LINE: ConstStaticCell<LagLine> = ConstStaticCell::new(LagLine::new());
+    acq.attach_lag_line(LAG_LINE.take());
     spawner.spawn(acq_task(acq, b.store).unwrap());
     spawner.spawn(scalar_task(b.scalar).unwrap());
     spawner.spawn(gps_task(b.gps).unwrap());
@@ -244,8 +248,9 @@ async fn send_record(r: &Record) {
     OUT.send(line).await;
 }
 
-/// The store holds the model's blob, then the fluxgate calibration's; a store written
-/// before `fluxcal` existed has only the first and loads as "no fluxgate calibration".
+/// The store holds the model's blob, then the fluxgate calibration's, then the scalar
+/// delay's; a store written before `fluxcal` / `SETLAG` existed loads as "no fluxgate
+/// calibration" / τ = 0.
 fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut blob = [0u8; crate::COEF_BLOB_MAX];
     store.read(&mut blob).map_err(|_| ())?;
@@ -257,6 +262,12 @@ fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -
         .ok()
         .and_then(|()| FluxCalibration::from_array(&f));
     acq.set_flux_calibration(flux.unwrap_or(FluxCalibration::IDENTITY));
+    let mut lag = [0f32; 1];
+    let at = blob_len(N_COEF) + blob_len(FLUX_CAL_LEN);
+    let stored = decode_blob(&blob[at..], lag_blob_id(), &mut lag).is_ok();
+    if !(stored && acq.set_lag_s(lag[0]).is_ok()) {
+        let _ = acq.set_lag_s(0.0);
+    }
     Ok(())
 }
 
@@ -269,7 +280,10 @@ fn save_coefficients(store: &mut board::CoefStore, acq: &BoardAcquisition) -> bo
     let Ok(m) = encode_blob(flux_blob_id(), &flux, &mut blob[n..]) else {
         return false;
     };
-    store.write(&blob[..n + m]).is_ok()
+    let Ok(l) = encode_blob(lag_blob_id(), &[acq.lag_s()], &mut blob[n + m..]) else {
+        return false;
+    };
+    store.write(&blob[..n + m + l]).is_ok()
 }
 
 fn mode(acq: &BoardAcquisition) -> Mode {
@@ -370,6 +384,11 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
                 None => refused(CommandError::ValueOutOfBounds),
             }
         }
+        Command::GetLag => ack_values(b"GETLAG", &[acq.lag_s()]),
+        Command::SetLag(v) => match acq.set_lag_s(v) {
+            Ok(()) => ack_values(b"SETLAG", &[v]),
+            Err(_) => refused(CommandError::ValueOutOfBounds),
+        },
         Command::Save => {
             if save_coefficients(store, acq) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))

@@ -31,6 +31,7 @@ use crate::protocol::fluxgate::AxisMap;
 use crate::protocol::fluxgate::{
     decode_spi_frame, FluxAsciiReader, FluxCalibration, FluxError, FluxStats, FluxgateCal,
 };
+use crate::protocol::lag_line::{check_lag, LagError, LagLine};
 use crate::protocol::nmea::{Fix, NmeaError, NmeaReader, NmeaStats, Sentence};
 use crate::protocol::record::Record;
 use crate::protocol::scalar::{
@@ -172,6 +173,11 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     nmea: NmeaReader,
     aligner: Aligner,
     comp: Compensator<'a, N, W>,
+    /// The fluxgate's delay line (`lag`), when the caller gave one (8 KiB: the board keeps
+    /// it in its own zero-initialised static).
+    lag_line: Option<&'a mut LagLine>,
+    /// τ (s) as set, 0 = none.
+    lag_s: f32,
     period_us: u64,
     /// Next scalar sample index.
     k: u32,
@@ -199,6 +205,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             nmea: NmeaReader::new(),
             aligner: Aligner::new(cfg.aligner_config()),
             comp,
+            lag_line: None,
+            lag_s: 0.0,
             period_us: cfg.period_us().max(1),
             k: 0,
             seq: 0,
@@ -254,6 +262,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             nmea: NmeaReader::new(),
             aligner: Aligner::new(aligner),
             comp: Compensator::placeholder(model),
+            lag_line: None,
+            lag_s: 0.0,
             period_us: 1,
             k: 0,
             seq: 0,
@@ -284,6 +294,11 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.flux_spi = FluxStats::default();
         self.nmea = NmeaReader::new();
         self.aligner = Aligner::new(cfg.aligner_config());
+        // A fresh start has no delay until one is set (the board reloads its stored τ).
+        self.lag_s = 0.0;
+        if let Some(l) = self.lag_line.as_deref_mut() {
+            l.clear();
+        }
         self.period_us = cfg.period_us().max(1);
         self.k = 0;
         self.seq = 0;
@@ -355,6 +370,33 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.comp.set_coefficients(c)
     }
 
+    /// Gives the acquisition a delay line for the fluxgate (needed for a τ > 0); it starts
+    /// empty, so the first τ of records are `FLUX_STALE`.
+    pub fn attach_lag_line(&mut self, line: &'a mut LagLine) {
+        line.clear();
+        self.lag_line = Some(line);
+    }
+
+    /// The scalar's delay τ (s, `lag`, `SETLAG`): from the next sample on, each scalar
+    /// sample at t is paired with the fluxgate at t − τ. Refused (nothing changed) when
+    /// outside [0, `MAX_LAG_S`], longer than the line at the nominal fluxgate rate, or > 0
+    /// without a line. A τ set mid-flight applies at once; the line already holds the past.
+    pub fn set_lag_s(&mut self, lag_s: f32) -> Result<(), LagError> {
+        check_lag(lag_s, self.cfg.flux_hz)?;
+        if lag_s > 0.0 && self.lag_line.is_none() {
+            return Err(LagError::NoLine);
+        }
+        self.lag_s = lag_s;
+        self.aligner
+            .set_lag_us(libm::round(f64::from(lag_s) * 1e6) as u64);
+        Ok(())
+    }
+
+    /// τ (s) as set.
+    pub fn lag_s(&self) -> f32 {
+        self.lag_s
+    }
+
     /// The fluxgate's scalar calibration (`fluxcal`) applied to every frame.
     pub fn flux_calibration(&self) -> FluxCalibration {
         self.cfg.flux_scalar_cal
@@ -389,7 +431,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         if r.is_err() {
             inc(&mut self.counters.scalar_errors);
         }
-        let mut s = self.aligner.push_scalar_result(t_us, r);
+        let mut s = self
+            .aligner
+            .push_scalar_result_delayed(t_us, r, self.lag_line.as_deref());
         if let (None, false, Some((tod_s, at_us))) =
             (self.anchor, s.flags.contains(Flags::NO_GPS), self.last_fix)
         {
@@ -434,7 +478,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 } else {
                     self.cfg.flux_scalar_cal.apply(v)
                 };
-                self.aligner.push_flux(self.now_us(), v);
+                let now = self.now_us();
+                if self.aligner.push_flux(now, v) {
+                    if let Some(l) = self.lag_line.as_deref_mut() {
+                        l.push(now, v);
+                    }
+                }
             }
             Err(_) => {
                 inc(&mut self.counters.flux_errors);

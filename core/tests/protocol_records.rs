@@ -152,6 +152,20 @@ fn commands() {
     assert_eq!(p("MCCMD,SETFLUX,12,1"), Err(CommandError::IndexOutOfBounds));
     assert_eq!(p("MCCMD,GETFLUX,12"), Err(CommandError::IndexOutOfBounds));
     assert_eq!(p("MCCMD,SETFLUX,0,NaN"), Err(CommandError::BadArgument));
+    // The scalar's delay τ (s): one value in [0, 0.51]; GETLAG takes none.
+    assert_eq!(p("MCCMD,GETLAG"), Ok(Command::GetLag));
+    assert_eq!(p("MCCMD,SETLAG,0.205"), Ok(Command::SetLag(0.205)));
+    assert_eq!(p("MCCMD,SETLAG,0"), Ok(Command::SetLag(0.0)));
+    assert_eq!(p("MCCMD,SETLAG,0.5"), Ok(Command::SetLag(0.5)));
+    assert_eq!(
+        p("MCCMD,SETLAG,0.5001"),
+        Err(CommandError::ValueOutOfBounds)
+    );
+    assert_eq!(p("MCCMD,SETLAG,-0.01"), Err(CommandError::ValueOutOfBounds));
+    assert_eq!(p("MCCMD,SETLAG"), Err(CommandError::BadArgument));
+    assert_eq!(p("MCCMD,SETLAG,0,1"), Err(CommandError::BadArgument));
+    assert_eq!(p("MCCMD,SETLAG,x"), Err(CommandError::BadArgument));
+    assert_eq!(p("MCCMD,GETLAG,0"), Err(CommandError::BadArgument));
     assert_eq!(p("MCCMD,SAVE"), Ok(Command::Save));
     assert_eq!(p("MCCMD,RESET"), Ok(Command::Reset));
     assert_eq!(p("MCCMD,FLUSH"), Ok(Command::Flush));
@@ -182,6 +196,9 @@ fn commands() {
             value: 123_456.79,
         },
         Command::Flush,
+        Command::GetLag,
+        Command::SetLag(0.2),
+        Command::SetLag(0.499_99),
         Command::GetFlux(Some(4)),
         Command::SetFlux {
             index: 2,

@@ -8,6 +8,7 @@ use magcomp_core::protocol::command::{
 };
 use magcomp_core::protocol::common::xor_checksum;
 use magcomp_core::protocol::fluxgate::{decode_spi_frame, encode_spi_frame, ADC_FULL_SCALE};
+use magcomp_core::protocol::lag_line::MAX_LAG_S;
 use magcomp_core::protocol::nmea::{parse_sentence, Sentence};
 use magcomp_core::protocol::record::{decode_record, encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::{Flags, MagCounts};
@@ -29,6 +30,9 @@ fn command() -> impl Strategy<Value = Command> {
         proptest::option::of(0u16..12).prop_map(Command::GetFlux),
         (0u16..21, coef()).prop_map(|(index, value)| Command::SetCoef { index, value }),
         (0u16..12, coef()).prop_map(|(index, value)| Command::SetFlux { index, value }),
+        Just(Command::GetLag),
+        // τ over the whole accepted range, the bounds included.
+        prop_oneof![Just(0.0f32), Just(MAX_LAG_S), 0.0f32..=MAX_LAG_S].prop_map(Command::SetLag),
     ]
 }
 

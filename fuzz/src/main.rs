@@ -12,7 +12,9 @@ mod mutate;
 mod targets;
 
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
-use magcomp_core::protocol::command::{encode_blob, encode_command, flux_blob_id, Command, Mode};
+use magcomp_core::protocol::command::{
+    encode_blob, encode_command, flux_blob_id, lag_blob_id, Command, Mode,
+};
 use magcomp_core::protocol::fluxgate::encode_spi_frame;
 use magcomp_core::protocol::record::{encode_record, Record};
 use magcomp_core::{Flags, MagCounts};
@@ -82,6 +84,8 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                     index: 0,
                     value: 1.0001,
                 },
+                Command::GetLag,
+                Command::SetLag(0.205),
             ] {
                 let n = encode_command(&c, &mut out).unwrap();
                 s.extend_from_slice(&out[..n]);
@@ -94,6 +98,8 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
             let n = encode_blob(0x5A5A_0000, &coef, &mut out).unwrap();
             v.push(out[..n].to_vec());
             let n = encode_blob(flux_blob_id(), &coef[..12], &mut out).unwrap();
+            v.push(out[..n].to_vec());
+            let n = encode_blob(lag_blob_id(), &[0.205], &mut out).unwrap();
             v.push(out[..n].to_vec());
         }
         Seeds::Record => {

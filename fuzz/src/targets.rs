@@ -163,6 +163,12 @@ fn command(data: &[u8]) {
         if let Command::SetCoef { index, value } | Command::SetFlux { index, value } = c {
             assert!(value.is_finite() && value.abs() < MAX_COEF_ABS && (index as usize) < N_COEF);
         }
+        if let Command::SetLag(v) = c {
+            assert!(
+                (0.0..=magcomp_core::protocol::lag_line::MAX_LAG_S).contains(&v),
+                "{v}"
+            );
+        }
         let n = encode_command(&c, &mut out).expect("a parsed command encodes");
         assert_eq!(parse_command(&out[..n], N_COEF), Ok(c), "round trip");
     }
@@ -177,9 +183,13 @@ fn command(data: &[u8]) {
 /// Flash blob: a blob that decodes re-encodes to the same bytes.
 fn blob(data: &[u8]) {
     let hash = u32::from_le_bytes([data.get(8).copied().unwrap_or(0), 0, 0, 0]) | 0x5A5A_0000;
-    for n in [16usize, 12] {
+    for n in [16usize, 12, 1] {
         let mut coef = vec![0f32; n];
-        for h in [hash, magcomp_core::protocol::command::flux_blob_id()] {
+        for h in [
+            hash,
+            magcomp_core::protocol::command::flux_blob_id(),
+            magcomp_core::protocol::command::lag_blob_id(),
+        ] {
             if decode_blob(data, h, &mut coef).is_ok() {
                 assert!(coef.iter().all(|c| c.is_finite()), "{coef:?}");
                 let mut out = vec![0u8; blob_len(n)];
@@ -249,7 +259,11 @@ fn model() -> &'static ModelSpec {
 /// scalar line, contiguous sequence numbers, finite time, and a value that is not finite
 /// only on a flagged record.
 fn acquisition(data: &[u8]) {
-    let opts = ReplayOptions::new(model().clone());
+    let mut opts = ReplayOptions::new(model().clone());
+    // Half the inputs through the fluxgate's delay line (τ 0.01–0.51 s from the first byte).
+    if let Some(&b) = data.first().filter(|b| *b & 1 == 1) {
+        opts.lag_s = Some(f32::from(b % 52) * 0.01);
+    }
     let mut recs = Vec::new();
     let Ok(st) = replay_capture(data, &opts, |r| {
         recs.push(*r);

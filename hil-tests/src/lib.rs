@@ -148,6 +148,15 @@ pub fn host_replay(
     capture_path: &std::path::Path,
     out: &std::path::Path,
 ) -> Option<Result<Vec<Record>, String>> {
+    host_replay_with(capture_path, out, &[])
+}
+
+/// As [`host_replay`] with extra `magcomp replay` arguments (e.g. `--lag-s 0.3`).
+pub fn host_replay_with(
+    capture_path: &std::path::Path,
+    out: &std::path::Path,
+    extra: &[&str],
+) -> Option<Result<Vec<Record>, String>> {
     let exe = std::env::var("MAGCOMP_BIN").ok()?;
     let run = || -> Result<Vec<Record>, String> {
         let st = std::process::Command::new(&exe)
@@ -155,6 +164,7 @@ pub fn host_replay(
             .arg(capture_path)
             .arg("--records")
             .arg(out)
+            .args(extra)
             .status()
             .map_err(|e| format!("{exe}: {e}"))?;
         if !st.success() {

@@ -7,12 +7,19 @@
 use crate::board_config::{self, BoardAcquisition, FluxAsciiPort, GpsPort, ScalarPort};
 use crate::capture::{Capture, Port};
 use magcomp_core::model::Model;
+use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::record::Record;
 
 pub use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
 
 /// Every record the board should emit for `cap`, flushed at the end of the stream.
 pub fn replay(cap: &Capture) -> Vec<Record> {
+    replay_lagged(cap, 0.0)
+}
+
+/// As [`replay`], with the scalar's delay τ set (`SETLAG`) before the first byte: the
+/// board's delay line is attached at boot, as `src/fw.rs` does.
+pub fn replay_lagged(cap: &Capture, lag_s: f32) -> Vec<Record> {
     let (mut scalar, mut flux, mut gps) = (ScalarPort::new(), FluxAsciiPort::new(), GpsPort::new());
     let mut acq = Box::new(BoardAcquisition::placeholder(Model {
         field: false,
@@ -20,6 +27,11 @@ pub fn replay(cap: &Capture) -> Vec<Record> {
     }));
     if let Err(e) = board_config::start(&mut acq) {
         panic!("acquisition init: {e:?}");
+    }
+    // The board's line is a `static`; here one per replay, leaked (8 KiB, tests only).
+    acq.attach_lag_line(Box::leak(Box::new(LagLine::new())));
+    if let Err(e) = acq.set_lag_s(lag_s) {
+        panic!("SETLAG {lag_s}: {e:?}");
     }
     let mut out = Vec::new();
     for c in &cap.chunks {

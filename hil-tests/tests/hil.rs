@@ -367,6 +367,90 @@ fn malformed_commands_rejected_valid_ones_applied() {
     assert_eq!(cmd_errors, rejected, "command error counter: {s}");
 }
 
+/// `SETLAG` over the command port (issue 12 item 1, the board side of `lag`): `GETLAG`
+/// returns it, out-of-range values are refused, `SAVE` + `RESET` reload it; a flight
+/// streamed with τ = 0.3 s gives one record per scalar sample, the first 3 (τ at 10 Hz)
+/// `FLUX_STALE` while the delay line fills, and equals the host run of the board's code
+/// with the same τ (and not the undelayed one).
+#[test]
+fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
+    let name = "lag";
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let reply = |b: &mut Board, body: &str| {
+        let r = b.command(body).unwrap();
+        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
+        r
+    };
+    let value = |r: &str| -> f64 {
+        r.split(['*', ','])
+            .nth(2)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(f64::NAN)
+    };
+    assert_eq!(value(&reply(&mut b, "MCCMD,GETLAG")), 0.0, "τ = 0 at boot");
+    for bad in ["0.6", "-0.1", "x"] {
+        let r = reply(&mut b, &format!("MCCMD,SETLAG,{bad}"));
+        assert!(r.starts_with("$MCERR,"), "SETLAG,{bad} → {r}");
+    }
+    let r = reply(&mut b, "MCCMD,SETLAG,0.3");
+    assert!(r.starts_with("$MCACK,SETLAG,"), "{r}");
+    assert!((value(&reply(&mut b, "MCCMD,GETLAG")) - 0.3).abs() < 1e-7);
+    let cap = synthetic_flight(&FlightSpec::new(0x1A6, 8.0));
+    b.stream(&cap, speed()).unwrap();
+    b.flush().unwrap();
+    let (recs, bad) = b.records();
+    assert!(bad.is_empty(), "{bad:?}");
+    let n = cap.scalar_t_s.len();
+    assert_eq!(
+        recs.len(),
+        n,
+        "{name}: frames in {n}, records out {}",
+        recs.len()
+    );
+    hil_tests::check_contiguous(&recs).unwrap();
+    let stale: Vec<u32> = recs
+        .iter()
+        .filter(|r| r.flags.contains(Flags::FLUX_STALE))
+        .map(|r| r.seq)
+        .collect();
+    assert_eq!(stale, [0, 1, 2], "{name}: FLUX_STALE records");
+    let lagged = hil_tests::replay::replay_lagged(&cap, 0.3);
+    hil_tests::compare_records(&recs, &lagged, 1e-3)
+        .unwrap_or_else(|e| panic!("{name}: board vs replay with τ = 0.3 s: {e}"));
+    assert!(
+        hil_tests::compare_records(&recs, &replay(&cap), 1e-3).is_err(),
+        "{name}: the delay changed nothing"
+    );
+    // `magcomp replay --lag-s 0.3` (when MAGCOMP_BIN is set) gives the board's records too
+    let cap_path = b.dir.join("capture.txt");
+    cap.write_raw(std::io::BufWriter::new(
+        std::fs::File::create(&cap_path).unwrap(),
+    ))
+    .unwrap();
+    let out = b.dir.join("replay.txt");
+    if let Some(host) = hil_tests::host_replay_with(&cap_path, &out, &["--lag-s", "0.3"]) {
+        let host = host.unwrap_or_else(|e| panic!("{name}: magcomp replay: {e}"));
+        hil_tests::compare_records(&recs, &host, 1e-3)
+            .unwrap_or_else(|e| panic!("{name}: board vs magcomp replay --lag-s 0.3: {e}"));
+        eprintln!("{name}: = `magcomp replay --lag-s 0.3` within 1e-3 nT");
+    }
+    eprintln!(
+        "{name}: SETLAG 0.3 s: {n} frames in, {} records out, = host replay with τ",
+        recs.len()
+    );
+    // stored with the coefficients: SAVE, change it, RESET reloads the stored τ
+    assert!(reply(&mut b, "MCCMD,SAVE").starts_with("$MCACK,SAVE"));
+    reply(&mut b, "MCCMD,SETLAG,0");
+    assert_eq!(value(&reply(&mut b, "MCCMD,GETLAG")), 0.0);
+    assert!(reply(&mut b, "MCCMD,RESET").starts_with("$MCACK,RESET,"));
+    let stored = value(&reply(&mut b, "MCCMD,GETLAG"));
+    assert!((stored - 0.3).abs() < 1e-7, "τ after RESET: {stored}");
+}
+
 /// A flight from the project's simulator (`magcomp simulate --capture`: cloverleaf leg with
 /// manoeuvres, real NMEA, fluxgate `X,Y,Z*hh` lines), when `MAGCOMP_BIN` names `magcomp`.
 #[test]
@@ -490,7 +574,11 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
 
     let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
     let sent = lines.lines().count();
-    assert_eq!(sent, 16 + 12 + 1, "SETCOEF × 16, SETFLUX × 12, SAVE");
+    assert_eq!(
+        sent,
+        16 + 12 + 1 + 1,
+        "SETCOEF × 16, SETFLUX × 12, SETLAG (0: no `lag`), SAVE"
+    );
     for l in lines.lines() {
         let r = b.command_raw(format!("{l}\r\n").as_bytes()).unwrap();
         assert!(r.starts_with("$MCACK"), "{l} → {r}");
@@ -509,6 +597,11 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
         let f = values(&b.command("MCCMD,GETFLUX").unwrap());
         assert_eq!(c, want_coef, "{when}: coefficients");
         assert_eq!(f, want_flux, "{when}: fluxgate calibration");
+        assert_eq!(
+            values(&b.command("MCCMD,GETLAG").unwrap()),
+            [0.0],
+            "{when}: τ"
+        );
     };
     check(&mut b, "after upload");
     assert!(

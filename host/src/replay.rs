@@ -7,6 +7,8 @@
 //! matters, not their timestamps (the board's records do not depend on UART jitter either).
 //! Rates come from `--rate`/`--flux-rate`/`--gps-rate`, else from the capture's
 //! `# scalar_hz:` / `# flux_hz:` / `# gps_hz:` comments, else the board's 10/10/1 Hz.
+//! The scalar's delay τ (`lag`, the board's `SETLAG`) goes through the board's delay line:
+//! each scalar sample is paired with the fluxgate at t − τ.
 
 use crate::capture_sim::FluxFormat;
 use crate::model_spec::{with_model, ModelSpec};
@@ -14,6 +16,7 @@ use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::FluxCalibration;
+use magcomp_core::protocol::lag_line::{LagLine, LAG_FRAMES, MAX_LAG_S};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::{Compensator, Flags, MagCounts};
 use std::fmt;
@@ -41,6 +44,8 @@ pub struct ReplayOptions {
     pub flux: Option<FluxFormat>,
     /// The fluxgate calibration (`fluxcal`) the board applies (`SETFLUX`).
     pub flux_calibration: Option<FluxCalibration>,
+    /// The scalar's delay τ (s) the board applies (`SETLAG`): the fluxgate is delayed.
+    pub lag_s: Option<f32>,
 }
 
 impl ReplayOptions {
@@ -53,6 +58,7 @@ impl ReplayOptions {
             gps_rate_hz: None,
             flux: None,
             flux_calibration: None,
+            lag_s: None,
         }
     }
 }
@@ -230,6 +236,21 @@ pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
     })
 }
 
+/// The scalar's delay τ (s) of a `calibrate --model …+lag` JSON file, if it has one.
+pub fn read_scalar_lag(path: &Path) -> Result<Option<f64>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    let Some(l) = v.get("scalar_lag").filter(|l| !l.is_null()) else {
+        return Ok(None);
+    };
+    let l: crate::preprocess::ScalarLag = serde_json::from_value(l.clone())
+        .with_context(|| format!("scalar_lag in {}", path.display()))?;
+    Ok(Some(l.lag_s))
+}
+
 pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
     let vals: Vec<f64> = if text.trim_start().starts_with('{') || text.trim_start().starts_with('[')
     {
@@ -333,8 +354,19 @@ pub fn replay_capture<R: BufRead>(
             compensator_config(scalar_hz as f32, REPLAY_WINDOW),
         )
         .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+        // The board's delay line (a static there): 8 KiB, so on the heap here.
+        let mut lag_line = Box::new(LagLine::new());
         let mut acq = Acquisition::new(cfg, comp)
             .map_err(|e| anyhow::anyhow!("rates {scalar_hz}/{flux_hz}/{gps_hz} Hz: {e:?}"))?;
+        acq.attach_lag_line(&mut lag_line);
+        if let Some(l) = opts.lag_s {
+            acq.set_lag_s(l).map_err(|e| {
+                anyhow::anyhow!(
+                    "the board cannot delay the fluxgate by τ = {l} s ({e:?}): 0 – {MAX_LAG_S} s, at most {} frames at {flux_hz} Hz",
+                    LAG_FRAMES - 2
+                )
+            })?;
+        }
         if let Some(c) = &opts.coefficients {
             acq.set_coefficients(c).map_err(|_| {
                 anyhow::anyhow!(

@@ -1,11 +1,14 @@
 //! `magcomp upload`: a `calibrate` JSON as the board's command lines — `SETCOEF` for every
-//! coefficient, `SETFLUX` for the fluxgate calibration (`fluxcal`), then `SAVE` — written to
-//! the board's port (or stdout), so coefficients reach the aircraft without a rebuild.
+//! coefficient, `SETFLUX` for the fluxgate calibration (`fluxcal`), `SETLAG` for the
+//! scalar's delay (`lag`; 0 without it, so an earlier upload's τ does not stay), then
+//! `SAVE` — written to the board's port (or stdout), so coefficients reach the aircraft
+//! without a rebuild.
 
 use crate::coefficients::{CoefficientFile, Method};
 use crate::model_spec::ModelSpec;
 use anyhow::{bail, Context, Result};
 use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS};
+use magcomp_core::protocol::lag_line::MAX_LAG_S;
 
 /// The command lines for a coefficient file, `SAVE` last unless `save` is false.
 pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Result<Vec<String>> {
@@ -14,23 +17,41 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
     }
     let board = ModelSpec::parse(board_model)?;
     let theirs = ModelSpec::parse(&file.model)?;
-    // The board has no delay line for the scalar nor a temperature input for the fluxgate
-    // yet: refuse rather than upload coefficients fitted on a re-aligned/corrected flight.
+    // The board has no temperature input for the fluxgate yet: refuse rather than upload
+    // coefficients fitted on a corrected flight.
     for t in &theirs.terms {
-        if t.name == "lag" || t.name == "fluxtemp" {
+        if t.name == "fluxtemp" {
             bail!(
-                "the coefficients are for model '{}': the board cannot apply `{}` yet (it re-aligns the scalar / corrects the fluxgate for temperature on the host only); calibrate without it for the board",
+                "the coefficients are for model '{}': the board cannot apply `{}` yet (it corrects the fluxgate for temperature on the host only); calibrate without it for the board",
                 theirs.text(),
                 t.text()
             );
         }
     }
-    // `fluxcal` adds no filter state: its coefficients are the board model's.
+    // `lag`: the board delays the fluxgate by τ (SETLAG) instead of re-aligning the scalar.
+    let lag_s = if theirs.terms.iter().any(|t| t.name == "lag") {
+        let l = file.scalar_lag.with_context(|| {
+            format!(
+                "the coefficients are for model '{}' but the file holds no scalar_lag (τ)",
+                theirs.text()
+            )
+        })?;
+        if !(0.0..=f64::from(MAX_LAG_S)).contains(&l.lag_s) {
+            bail!(
+                "the scalar's delay τ = {:.4} s is outside what the board can apply (0 – {MAX_LAG_S} s: it delays the fluxgate, so the scalar must lag it)",
+                l.lag_s
+            );
+        }
+        l.lag_s as f32
+    } else {
+        0.0
+    };
+    // `fluxcal` and `lag` add no filter state: their coefficients are the board model's.
     let without_fluxcal = ModelSpec {
         terms: theirs
             .terms
             .iter()
-            .filter(|t| t.name != "fluxcal")
+            .filter(|t| t.name != "fluxcal" && t.name != "lag")
             .cloned()
             .collect(),
         ..theirs.clone()
@@ -95,6 +116,7 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
             });
         }
     }
+    cmds.push(Command::SetLag(lag_s));
     if save {
         cmds.push(Command::Save);
     }
@@ -164,14 +186,15 @@ mod tests {
             added_parameters: 6,
         };
         for applied in [true, false] {
+            // 21 SETCOEF, then SETLAG 0
             f.rate_crossover = Some(crate::coefficients::RateCrossover {
                 labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
                 fit: fit.clone(),
                 applied,
             });
             let lines = upload_lines(&f, "tl16+field+rate", false).unwrap();
-            assert_eq!(lines.len(), 21);
-            for (k, l) in lines[16..].iter().enumerate() {
+            assert_eq!(lines.len(), 21 + 1);
+            for (k, l) in lines[16..21].iter().enumerate() {
                 let Ok(Command::SetCoef { index, value }) = parse_command(l.as_bytes(), 21) else {
                     panic!("{l}");
                 };
@@ -194,16 +217,20 @@ mod tests {
         };
         let f = file("tl16+field+fluxcal", 16, Some(cal));
         let lines = upload_lines(&f, "tl16+field", true).unwrap();
-        assert_eq!(lines.len(), 16 + 12 + 1);
+        assert_eq!(lines.len(), 16 + 12 + 1 + 1);
         let mut coef = [f32::NAN; 16];
         let mut flux = [f32::NAN; 12];
+        let mut lag = f32::NAN;
         for l in &lines[..lines.len() - 1] {
             match parse_command(l.as_bytes(), 16).unwrap() {
                 Command::SetCoef { index, value } => coef[index as usize] = value,
                 Command::SetFlux { index, value } => flux[index as usize] = value,
+                Command::SetLag(v) => lag = v,
                 c => panic!("unexpected {c:?}"),
             }
         }
+        // No `lag` in the model: τ = 0, so an earlier upload's delay does not stay.
+        assert_eq!(lag, 0.0);
         assert_eq!(
             parse_command(lines.last().unwrap().as_bytes(), 16),
             Ok(Command::Save)
@@ -216,10 +243,46 @@ mod tests {
         assert_eq!(flux[11], 410.0);
     }
 
+    /// `lag` → the board model plus `SETLAG τ` (the board delays the fluxgate); a τ the
+    /// board cannot apply (negative: the scalar leads; beyond 0.5 s) or a missing one is
+    /// refused; `fluxtemp` still is.
+    #[test]
+    fn a_lag_file_sends_setlag_and_an_impossible_lag_is_refused() {
+        let with = |lag_s: Option<f64>| {
+            let mut f = file("tl16+field+lag", 16, None);
+            f.scalar_lag = lag_s.map(|lag_s| crate::preprocess::ScalarLag {
+                lag_s,
+                sigma_s: 0.0012,
+            });
+            upload_lines(&f, "tl16+field", true)
+        };
+        let lines = with(Some(0.2048)).unwrap();
+        assert_eq!(lines.len(), 16 + 1 + 1);
+        assert_eq!(
+            parse_command(lines[16].as_bytes(), 16),
+            Ok(Command::SetLag(0.2048))
+        );
+        assert_eq!(parse_command(lines[17].as_bytes(), 16), Ok(Command::Save));
+        assert!(with(Some(0.5)).is_ok());
+        for (lag, needle) in [
+            (Some(-0.05), "outside what the board can apply"),
+            (Some(0.6), "outside what the board can apply"),
+            (None, "holds no scalar_lag"),
+        ] {
+            let e = with(lag).unwrap_err();
+            assert!(format!("{e:#}").contains(needle), "{lag:?}: {e:#}");
+        }
+        let e = upload_lines(
+            &file("tl16+field+fluxtemp:temp_flux", 16, None),
+            "tl16+field",
+            true,
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("cannot apply `fluxtemp"), "{e}");
+    }
+
     #[test]
     fn wrong_model_method_or_range_is_refused() {
-        let e = upload_lines(&file("tl16+field+lag", 16, None), "tl16+field", true).unwrap_err();
-        assert!(e.to_string().contains("cannot apply `lag`"), "{e}");
         let e = upload_lines(
             &file("tl16+field+induced_high", 23, None),
             "tl16+field",
@@ -247,7 +310,7 @@ mod tests {
             upload_lines(&file("tl16+field", 16, None), "tl16+field", false)
                 .unwrap()
                 .len(),
-            16
+            16 + 1
         );
     }
 

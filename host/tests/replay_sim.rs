@@ -306,6 +306,7 @@ fn run_replay_writes_csv_and_mcrec_lines() {
         flux_rate: None,
         gps_rate: None,
         flux: None,
+        lag_s: None,
         output: Some(dir.join("rec.csv")),
         records: Some(dir.join("rec.txt")),
     };

@@ -241,7 +241,19 @@ fn coefficient_files_are_read_by_name() {
     let lines = up(&coeffs);
     assert_eq!(lines.lines().filter(|l| l.contains("SETCOEF")).count(), 16);
     assert_eq!(lines.lines().filter(|l| l.contains("SETFLUX")).count(), 12);
-    assert_eq!(lines.lines().count(), 29, "16 SETCOEF, 12 SETFLUX and SAVE");
+    // No `lag` in the model: SETLAG 0, so a τ left by an earlier upload does not stay.
+    assert_eq!(
+        lines
+            .lines()
+            .filter(|l| l.starts_with("$MCCMD,SETLAG,0"))
+            .count(),
+        1
+    );
+    assert_eq!(
+        lines.lines().count(),
+        30,
+        "16 SETCOEF, 12 SETFLUX, SETLAG and SAVE"
+    );
     // An unknown or a missing name is an error naming it; so is a short file for upload.
     let bad = d.join("bad.json");
     edited(&coeffs, &bad, |c| c[3]["name"] = "induced.wobble".into());

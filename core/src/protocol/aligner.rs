@@ -7,10 +7,14 @@
 //!   when both are already in (a caller that wants bracketing every time delays its scalar
 //!   by one fluxgate period); otherwise the nearest frame is held. `FLUX_STALE` when the
 //!   held frame, or the gap being interpolated across, exceeds `flux_stale_us`.
+//! - Delay (`lag`, the board's side): with a [`LagLine`] and τ set, the fluxgate is taken at
+//!   `t − τ` from the line instead (same interpolation; `FLUX_STALE` until the line reaches
+//!   back that far). GPS is not delayed (module `lag_line` says why).
 //! - GPS: position/height/speed from the latest valid GGA/RMC/GLL/GNS/VTG, held or (optionally)
 //!   extrapolated along track; `NO_GPS` with no fix or a fix older than `gps_stale_us`.
 //! - `PARSE_ERROR` when any parser error was reported since the previous scalar sample.
 
+use super::lag_line::LagLine;
 use super::nmea::Sentence;
 use super::scalar::{ScalarError, ScalarFrame};
 use crate::epoch::AlignedSample;
@@ -76,6 +80,8 @@ pub struct Aligner {
     gps: Option<GpsFix>,
     gps_valid: bool,
     parse_error: bool,
+    /// Delay of the fluxgate behind the scalar (µs) when paired through a delay line.
+    lag_us: u64,
     /// Scalar samples emitted.
     pub samples: u32,
 }
@@ -91,15 +97,17 @@ impl Aligner {
             gps: None,
             gps_valid: false,
             parse_error: false,
+            lag_us: 0,
             samples: 0,
         }
     }
 
-    /// A fluxgate vector (body frame, nT) received at `t_us`.
-    pub fn push_flux(&mut self, t_us: u64, flux_nt: [f32; 3]) {
+    /// A fluxgate vector (body frame, nT) received at `t_us`; false when refused (not
+    /// finite: a parse error on the next sample).
+    pub fn push_flux(&mut self, t_us: u64, flux_nt: [f32; 3]) -> bool {
         if !flux_nt.iter().all(|v| v.is_finite()) {
             self.parse_error = true;
-            return;
+            return false;
         }
         if self.n_flux > 0 && t_us < self.flux[self.n_flux - 1].0 {
             // Clock went backwards (restart, new replay): forget the history, the frame
@@ -113,6 +121,7 @@ impl Aligner {
         }
         self.flux[self.n_flux] = (t_us, flux_nt);
         self.n_flux += 1;
+        true
     }
 
     /// Any parser error on any port: flags the next sample.
@@ -198,30 +207,23 @@ impl Aligner {
         self.gps_valid = true;
     }
 
-    /// The fluxgate at `t_us`: (value, stale, interpolated across a lost frame, age of
-    /// the held frame when one is held).
+    /// The fluxgate at `t_us` from the aligner's own history: (value, stale, interpolated
+    /// across a lost frame, age of the held frame when one is held).
     fn flux_at(&self, t_us: u64) -> ([f32; 3], bool, bool, Option<u64>) {
         let h = &self.flux[..self.n_flux];
-        let after = h.iter().position(|f| f.0 > t_us);
-        let limit = self.cfg.flux_stale_us;
-        match after {
-            None => match h.last() {
-                Some(&(t, v)) => (v, t_us - t > limit, false, Some(t_us - t)),
-                None => ([f32::NAN; 3], true, false, None),
-            },
-            Some(0) => {
-                let (t, v) = h[0];
-                (v, t - t_us > limit, false, None)
-            }
-            Some(i) => {
-                let (t0, v0) = h[i - 1];
-                let (t1, v1) = h[i];
-                let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
-                let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
-                let period = self.cfg.flux_period_us;
-                let lost = period > 0 && 2 * (t1 - t0) > 3 * period;
-                (v, t1 - t0 > limit, lost, None)
-            }
+        interpolate(h.len(), |i| h[i], t_us, &self.cfg, false)
+    }
+
+    /// The fluxgate at `t_us − τ` from the delay line (`lag_line`); `FLUX_STALE` until
+    /// the line reaches back that far (start, or a line restarted by a clock reset).
+    fn flux_delayed(&self, line: &LagLine, t_us: u64) -> ([f32; 3], bool, bool, Option<u64>) {
+        let oldest = || match line.is_empty() {
+            true => [f32::NAN; 3],
+            false => line.get(0).1,
+        };
+        match t_us.checked_sub(self.lag_us) {
+            Some(t) => interpolate(line.len(), |i| line.get(i), t, &self.cfg, true),
+            None => (oldest(), true, false, None),
         }
     }
 
@@ -241,7 +243,11 @@ impl Aligner {
             recent.copy_from_slice(&self.ages[..self.n_ages]);
             recent.sort_unstable();
             let median = recent[self.n_ages / 2];
-            4 * age_us > 4 * median + 3 * period
+            // Saturating: a time jump of any size must not overflow (no panic on any input).
+            age_us.saturating_mul(4)
+                > median
+                    .saturating_mul(4)
+                    .saturating_add(period.saturating_mul(3))
         };
         // Rotate: the newest age replaces the oldest once the history is full.
         if self.n_ages < AGE_HISTORY {
@@ -255,12 +261,37 @@ impl Aligner {
 
     /// A scalar sample at `t_us` (`None`: missing/invalid) → its aligned sample.
     pub fn push_scalar(&mut self, t_us: u64, mag: Option<MagCounts>) -> AlignedSample {
+        self.push_scalar_delayed(t_us, mag, None)
+    }
+
+    /// The delay applied to the fluxgate (µs): with a delay line, a scalar sample at t is
+    /// paired with the fluxgate at t − τ (`lag_line`). 0 = none.
+    pub fn set_lag_us(&mut self, lag_us: u64) {
+        self.lag_us = lag_us;
+    }
+
+    pub fn lag_us(&self) -> u64 {
+        self.lag_us
+    }
+
+    /// As [`push_scalar`](Self::push_scalar), the fluxgate taken from `line` at
+    /// `t_us − τ` when a delay is set (the line is fed by the caller with every frame
+    /// [`push_flux`](Self::push_flux) accepts).
+    pub fn push_scalar_delayed(
+        &mut self,
+        t_us: u64,
+        mag: Option<MagCounts>,
+        line: Option<&LagLine>,
+    ) -> AlignedSample {
         let mut s = AlignedSample::empty(t_us as f64 / 1e6);
         s.mag = mag;
         if mag.is_none() {
             s.flags.set(Flags::MAG_MISSING);
         }
-        let (flux, stale, mut lost, age) = self.flux_at(t_us);
+        let (flux, stale, mut lost, age) = match line {
+            Some(l) if self.lag_us > 0 => self.flux_delayed(l, t_us),
+            _ => self.flux_at(t_us),
+        };
         if let Some(age) = age {
             lost |= self.held_across_loss(age);
         }
@@ -309,12 +340,67 @@ impl Aligner {
         t_us: u64,
         r: Result<ScalarFrame, ScalarError>,
     ) -> AlignedSample {
+        self.push_scalar_result_delayed(t_us, r, None)
+    }
+
+    /// As [`push_scalar_result`](Self::push_scalar_result) through a delay line.
+    pub fn push_scalar_result_delayed(
+        &mut self,
+        t_us: u64,
+        r: Result<ScalarFrame, ScalarError>,
+        line: Option<&LagLine>,
+    ) -> AlignedSample {
         match r {
-            Ok(f) => self.push_scalar(t_us, Some(f.mag)),
+            Ok(f) => self.push_scalar_delayed(t_us, Some(f.mag), line),
             Err(_) => {
                 self.parse_error = true;
-                self.push_scalar(t_us, None)
+                self.push_scalar_delayed(t_us, None, line)
             }
+        }
+    }
+}
+
+/// The fluxgate at `t_us` from `n` frames, oldest first (`frame(i)` = stamp µs, value):
+/// linear between the two frames that bracket `t_us`, else the nearest one held. Returns
+/// (value, stale, interpolated across a lost frame, age of the held frame when one is
+/// held). `strict`: a time before the oldest frame is stale whatever the distance (a delay
+/// line not yet filled), rather than held from the first frame within the limit.
+fn interpolate(
+    n: usize,
+    frame: impl Fn(usize) -> (u64, [f32; 3]),
+    t_us: u64,
+    cfg: &AlignerConfig,
+    strict: bool,
+) -> ([f32; 3], bool, bool, Option<u64>) {
+    // First frame stamped after t (binary search: the delay line holds up to 512).
+    let (mut lo, mut hi) = (0, n);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if frame(mid).0 > t_us {
+            hi = mid;
+        } else {
+            lo = mid + 1;
+        }
+    }
+    let limit = cfg.flux_stale_us;
+    match lo {
+        _ if n == 0 => ([f32::NAN; 3], true, false, None),
+        i if i == n => {
+            let (t, v) = frame(n - 1);
+            (v, t_us - t > limit, false, Some(t_us - t))
+        }
+        0 => {
+            let (t, v) = frame(0);
+            (v, strict || t - t_us > limit, false, None)
+        }
+        i => {
+            let (t0, v0) = frame(i - 1);
+            let (t1, v1) = frame(i);
+            let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
+            let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
+            let period = cfg.flux_period_us;
+            let lost = period > 0 && (t1 - t0).saturating_mul(2) > period.saturating_mul(3);
+            (v, t1 - t0 > limit, lost, None)
         }
     }
 }

@@ -7,9 +7,12 @@
 //! $MCCMD,GETCOEF*HH        $MCCMD,GETCOEF,3*HH     $MCCMD,SETCOEF,3,-1.25E-2*HH
 //! $MCCMD,SAVE*HH           $MCCMD,RESET*HH         $MCCMD,FLUSH*HH
 //! $MCCMD,GETFLUX*HH        $MCCMD,GETFLUX,9*HH     $MCCMD,SETFLUX,9,312.5*HH
+//! $MCCMD,GETLAG*HH         $MCCMD,SETLAG,2.05E-1*HH
 //! ```
 //! `GETFLUX`/`SETFLUX` address the fluxgate's scalar calibration (`fluxcal`), 12 values:
-//! the matrix row by row (0–8), then the bias in nT (9–11).
+//! the matrix row by row (0–8), then the bias in nT (9–11). `GETLAG`/`SETLAG` the scalar's
+//! delay τ in seconds (`lag`, 0 – [`MAX_LAG_S`]): the board pairs each scalar sample with
+//! the fluxgate at t − τ (`lag_line`).
 //! Replies (CRC-16, like records): `$MCACK,<CMD>[,<values>]*HHHH` and
 //! `$MCERR,<code>,<TEXT>*HHHH`.
 
@@ -17,6 +20,7 @@ use super::common::{
     crc16_ccitt, crc32, fields, hex_val, parse_float_field, parse_hex_u32, parse_u32, xor_checksum,
     Cursor,
 };
+use super::lag_line::MAX_LAG_S;
 
 /// Longest command line.
 pub const MAX_COMMAND_LEN: usize = 96;
@@ -51,6 +55,9 @@ pub enum Command {
         index: u16,
         value: f32,
     },
+    /// The scalar's delay τ (s).
+    GetLag,
+    SetLag(f32),
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -180,6 +187,18 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         b"GETCOEF" => get(n_coef, Command::GetCoef),
         b"SETCOEF" => set(n_coef, |index, value| Command::SetCoef { index, value }),
         b"GETFLUX" => get(FLUX_CAL_LEN, Command::GetFlux),
+        b"GETLAG" => none(Command::GetLag),
+        b"SETLAG" => match (a1, a2) {
+            (Some(v), None) => {
+                let v = value(v)?;
+                if (0.0..=MAX_LAG_S).contains(&v) {
+                    Ok(Command::SetLag(v))
+                } else {
+                    Err(CommandError::ValueOutOfBounds)
+                }
+            }
+            _ => Err(CommandError::BadArgument),
+        },
         b"SETFLUX" => set(FLUX_CAL_LEN, |index, value| Command::SetFlux {
             index,
             value,
@@ -220,6 +239,11 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::Flush => c.bytes(b"FLUSH")?,
             Command::GetFlux(i) => get(&mut c, b"GETFLUX", i)?,
             Command::SetFlux { index, value } => set(&mut c, b"SETFLUX", index, value)?,
+            Command::GetLag => c.bytes(b"GETLAG")?,
+            Command::SetLag(v) => {
+                c.bytes(b"SETLAG,")?;
+                c.sci(v as f64)?
+            }
         }
         let x = xor_checksum(&c.written()[1..]);
         c.byte(b'*')?;
@@ -380,6 +404,12 @@ pub enum BlobError {
 /// older firmware's) loads as "no calibration".
 pub fn flux_blob_id() -> u32 {
     model_hash(b"fluxcal")
+}
+
+/// Id of the third blob: the scalar's delay τ (s, one value), after the fluxgate
+/// calibration's. A store without it (an older firmware's) loads as τ = 0.
+pub fn lag_blob_id() -> u32 {
+    model_hash(b"lag")
 }
 
 /// FNV-1a 32-bit: a stable model id from the model's spec string.

@@ -9,6 +9,7 @@ pub mod capture;
 pub mod command;
 pub mod common;
 pub mod fluxgate;
+pub mod lag_line;
 pub mod nmea;
 pub mod record;
 pub mod scalar;

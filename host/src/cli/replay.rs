@@ -5,8 +5,8 @@ use crate::capture_sim::FluxFormat;
 use crate::model_spec::{ModelSpec, BOARD_MODEL};
 use crate::output::AtomicFile;
 use crate::replay::{
-    csv_row, read_coefficients_for, read_flux_calibration, replay_capture, ReplayOptions,
-    ReplayStats, CSV_HEADER,
+    csv_row, read_coefficients_for, read_flux_calibration, read_scalar_lag, replay_capture,
+    ReplayOptions, ReplayStats, CSV_HEADER,
 };
 use anyhow::{Context, Result};
 use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
@@ -31,6 +31,12 @@ pub struct ReplayArgs {
     /// commas/whitespace.
     #[arg(long, value_name = "FILE")]
     pub coeffs: Option<PathBuf>,
+
+    /// The scalar's delay τ behind the fluxgate (s, 0–0.5), as the board's `SETLAG`: each
+    /// scalar sample is paired with the fluxgate at t − τ. Default: the coefficient file's
+    /// `scalar_lag` when the model has `lag` (docs/firmware.md).
+    #[arg(long, value_name = "SECONDS")]
+    pub lag_s: Option<f32>,
 
     /// Scalar sample rate (Hz) of the time base; default from the capture header.
     #[arg(long, value_name = "HZ")]
@@ -79,6 +85,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .as_deref()
         .map(|p| read_coefficients_for(p, Some(&model)))
         .transpose()?;
+    let model_has_lag = model.terms.iter().any(|t| t.name == "lag");
     let mut opts = ReplayOptions::new(model);
     opts.coefficients = coefficients;
     opts.flux_calibration = args
@@ -87,6 +94,17 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .map(read_flux_calibration)
         .transpose()?
         .flatten();
+    let file_lag = match args.coeffs.as_deref() {
+        Some(p) if model_has_lag => read_scalar_lag(p)?,
+        _ => None,
+    };
+    opts.lag_s = args.lag_s.or(file_lag.map(|l| l as f32));
+    if model_has_lag && opts.lag_s.is_none() {
+        anyhow::bail!(
+            "model '{}' has `lag` but no τ is given: pass --lag-s or a coefficient file with scalar_lag",
+            args.model
+        );
+    }
     opts.rate_hz = args.rate;
     opts.flux_rate_hz = args.flux_rate;
     opts.gps_rate_hz = args.gps_rate;
