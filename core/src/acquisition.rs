@@ -309,15 +309,19 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     }
 
     /// Restarts the compensator alone, in place (priors, derivative window, calibrate
-    /// mode); the time base, counters and sequence numbers continue. Call
-    /// [`flush`](Self::flush) first so no sample loses its record. On error the
-    /// compensator is unchanged.
+    /// mode) and the aligner's lost-frame reference with it, so a restarted filter learns
+    /// from what a fresh board would (the old run's frame phase flagged the first four
+    /// samples of a replay restarted in place, which then did not update); the time base,
+    /// counters and sequence numbers continue. Call [`flush`](Self::flush) first so no
+    /// sample loses its record. On error the compensator is unchanged.
     pub fn reset_compensator(
         &mut self,
         model: Model<'a>,
         comp: CompensatorConfig,
     ) -> Result<(), CompensatorError> {
-        self.comp.reset_in_place(model, comp)
+        self.comp.reset_in_place(model, comp)?;
+        self.aligner.forget_frame_ages();
+        Ok(())
     }
 
     pub fn config(&self) -> &AcqConfig {

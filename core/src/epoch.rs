@@ -122,6 +122,11 @@ pub struct Epoch {
     /// Base-station external field (nT, relative), NaN if none.
     pub base_nt: f32,
     pub flags: Flags,
+    /// The fluxgate behind this epoch's direction or its derivative was held across a lost
+    /// frame or stale: the regressors may be off by the field's change over the gap, so
+    /// the filter predicts with them but does not learn from them. (A one-sided
+    /// derivative at a flight's ends is flagged `DERIVATIVE_DEGRADED` but not suspect.)
+    pub regressors_suspect: bool,
 }
 
 /// What `push` needs of the previous sample.
@@ -353,12 +358,13 @@ impl<const W: usize> EpochBuilder<W> {
         let a = at(lo)?;
         let b = at(hi)?;
         let mut flags = c.s.flags;
-        // A one-sided derivative at the ends, or one whose end sample was interpolated
-        // across a lost fluxgate frame (the aligner flags that sample).
-        if lo + hw != k
-            || hi != k + hw
-            || (a.s.flags.0 | b.s.flags.0) & Flags::DERIVATIVE_DEGRADED != 0
-        {
+        // Ends of the derivative (and the sample itself) interpolated across a lost
+        // fluxgate frame (the aligner flags such a sample) or held past the staleness limit.
+        let held = Flags::DERIVATIVE_DEGRADED | Flags::FLUX_STALE;
+        let ends_suspect = (a.s.flags.0 | b.s.flags.0) & held != 0 || !a.e_valid || !b.e_valid;
+        let regressors_suspect = ends_suspect || c.s.flags.0 & held != 0 || !c.e_valid;
+        // A one-sided derivative at the ends, or one across a held frame.
+        if lo + hw != k || hi != k + hw || ends_suspect {
             flags.set(Flags::DERIVATIVE_DEGRADED);
         }
         if !c.e_valid {
@@ -446,6 +452,7 @@ impl<const W: usize> EpochBuilder<W> {
             aux_cycles,
             base_nt: c.s.base_nt,
             flags,
+            regressors_suspect,
         })
     }
 

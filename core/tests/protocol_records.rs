@@ -157,8 +157,9 @@ fn commands() {
     assert_eq!(p("MCCMD,SETLAG,0.205"), Ok(Command::SetLag(0.205)));
     assert_eq!(p("MCCMD,SETLAG,0"), Ok(Command::SetLag(0.0)));
     assert_eq!(p("MCCMD,SETLAG,0.5"), Ok(Command::SetLag(0.5)));
+    assert_eq!(p("MCCMD,SETLAG,0.51"), Ok(Command::SetLag(0.51)));
     assert_eq!(
-        p("MCCMD,SETLAG,0.5001"),
+        p("MCCMD,SETLAG,0.5101"),
         Err(CommandError::ValueOutOfBounds)
     );
     assert_eq!(p("MCCMD,SETLAG,-0.01"), Err(CommandError::ValueOutOfBounds));

@@ -235,3 +235,26 @@ fn ascii_fluxgate() {
         .collect();
     assert_eq!(out, vec![Err(FluxError::BadNumber), Ok([1.0, 2.0, 3.0])]);
 }
+
+/// A checksummed stream refuses lines without a checksum from its first valid one on: a
+/// corrupted byte that became a line end cuts `15847.677,-14708.960,46768.073*00` into
+/// `15847.677,-14708.960,4676` (parses, Z wrong by 42,092 nT) and `.073*00` (refused).
+#[test]
+fn a_checksummed_fluxgate_stream_refuses_a_frame_cut_short() {
+    let mut r = FluxAsciiReader::new();
+    let out: Vec<_> = b"1,2,3\r\n15896.450,-14842.334,46708.926*0E\r\n15847.677,-14708.960,4676\n.073*00\r\n15798.902,-14573.949,46826.278*09\r\n"
+        .iter()
+        .filter_map(|&b| r.push(b))
+        .collect();
+    assert_eq!(
+        out,
+        vec![
+            Ok([1.0, 2.0, 3.0]),
+            Ok([15896.45, -14842.334, 46708.926]),
+            Err(FluxError::Checksum),
+            Err(FluxError::Checksum),
+            Ok([15798.902, -14573.949, 46826.278]),
+        ]
+    );
+    assert_eq!((r.stats.ok, r.stats.errors), (3, 2));
+}

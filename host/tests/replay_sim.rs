@@ -459,7 +459,8 @@ fn final_error_nt(recs: &[Record], truth: &[f64]) -> f64 {
         .filter(|(r, _)| !r.flags.contains(Flags::NOT_CONVERGED) && !r.flags.degraded())
         .map(|(r, t)| r.interference_nt as f64 - t)
         .collect();
-    assert!(d.len() > n / 8, "{} of {n} records usable", d.len());
+    // At 1 % of the fluxgate's bytes corrupted ~60 % of the records are flagged.
+    assert!(d.len() > n / 16, "{} of {n} records usable", d.len());
     let m = d.iter().sum::<f64>() / d.len() as f64;
     (d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt()
 }
@@ -510,6 +511,57 @@ fn corrupted_scalar_bytes_in_calibration_leave_the_final_error_within_twice_the_
         assert!(
             e <= 2.0 * e_clean + 0.02,
             "{} %: final error {e} nT vs clean {e_clean}",
+            fraction * 100.0
+        );
+    }
+}
+
+#[test]
+fn corrupted_fluxgate_and_gps_bytes_in_calibration_leave_the_final_error_within_twice_the_clean() {
+    // The fluxgate's and the receiver's lines carry checksums, so a corrupted frame is lost,
+    // not wrong: 1 % of the fluxgate's bytes loses ~28 % of its frames. What must not
+    // happen is learning from what a lost frame leaves behind: a held direction, a
+    // derivative across the gap, or a frame cut short by a byte that became a line end
+    // (parsed without its checksum). Measured (final error, clean 0.306 nT): fluxgate
+    // 0.3 % 3.94 nT before those were refused, 0.43 after; fluxgate 1 % 0.32; GPS 1 % 0.42.
+    let trace = simulate(&SimConfig {
+        seed: 7,
+        ..SimConfig::default()
+    })
+    .unwrap();
+    let truth = trace.col("truth_interference").unwrap().to_vec();
+    let o = opts();
+    let clean = trace_to_capture(&trace, &CaptureOptions::default()).unwrap();
+    let (a, _) = replay(&clean, &o);
+    let e_clean = final_error_nt(&a, &truth);
+    use magcomp_core::protocol::capture::Port;
+    for (port, fraction) in [(Port::Flux, 0.003), (Port::Flux, 0.01), (Port::Gps, 0.01)] {
+        let bad = trace_to_capture(
+            &trace,
+            &CaptureOptions {
+                corrupt_fraction: fraction,
+                corrupt_port: Some(port),
+                seed: 5,
+                ..CaptureOptions::default()
+            },
+        )
+        .unwrap();
+        let (b, sb) = replay(&bad, &o);
+        assert_eq!(b.len(), trace.len(), "one record per scalar sample");
+        let e = final_error_nt(&b, &truth);
+        eprintln!(
+            "{} % of {port:?} bytes corrupted: {} fluxgate / {} GPS errors; final error {e:.4} nT (clean {e_clean:.4})",
+            fraction * 100.0,
+            sb.counters.flux_errors,
+            sb.counters.gps_errors,
+        );
+        assert!(
+            sb.counters.flux_errors + sb.counters.gps_errors > 0,
+            "the corruption must reach the decoders"
+        );
+        assert!(
+            e <= 2.0 * e_clean + 0.02,
+            "{} % of {port:?}: final error {e} nT vs clean {e_clean}",
             fraction * 100.0
         );
     }
