@@ -67,7 +67,21 @@ pub(crate) fn rate_crossover_test(
 /// and the scalar's residual cannot account for — the aircraft's own field at the
 /// fluxgate (`fluxmod`'s premise). `None` where the fit cannot be made.
 pub(crate) fn fluxgate_own_field_ratio(flight: &Flight, run: &KfRun) -> Option<f64> {
-    let interference: Vec<f64> = match &run.preprocessing {
+    let fit = fluxgate::fit_flight(flight, &interference_for_fluxgate(flight, run)).ok()?;
+    // Against the larger of what the scalar leaves unexplained and the fluxgate's own
+    // white noise.
+    let rms = run
+        .model_error_nt
+        .unwrap_or(0.0)
+        .max(run.noise_nt)
+        .max(calibrated_modulus_noise_nt(&fit).1);
+    (rms > 0.0).then(|| fit.modulus_sd_after_nt / rms)
+}
+
+/// The interference the fluxgate is fitted against: `run`'s estimate, or with a prepared
+/// flight (`lag`/`fluxtemp`) the prepared scalar minus `run`'s compensated output.
+fn interference_for_fluxgate(flight: &Flight, run: &KfRun) -> Vec<f64> {
+    match &run.preprocessing {
         Some(_) => flight
             .mag_nt
             .iter()
@@ -75,23 +89,20 @@ pub(crate) fn fluxgate_own_field_ratio(flight: &Flight, run: &KfRun) -> Option<f
             .map(|(m, c)| m - c)
             .collect(),
         None => run.interference_nt.clone(),
-    };
-    let fit = fluxgate::fit_flight(flight, &interference).ok()?;
-    // Against the larger of what the scalar leaves unexplained and the fluxgate's own
-    // white noise (third differences of the calibrated modulus, as `fluxcal_test`).
+    }
+}
+
+/// The calibrated modulus' finite residuals and their white noise (nT, from third
+/// differences: robust to the smooth misfit the sd includes).
+fn calibrated_modulus_noise_nt(fit: &fluxgate::FluxgateFit) -> (Vec<f64>, f64) {
     let resid: Vec<f64> = fit
         .residual_nt
         .iter()
         .copied()
         .filter(|v| v.is_finite())
         .collect();
-    let fluxgate_noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
-    let rms = run
-        .model_error_nt
-        .unwrap_or(0.0)
-        .max(run.noise_nt)
-        .max(fluxgate_noise_nt);
-    (rms > 0.0).then(|| fit.modulus_sd_after_nt / rms)
+    let noise = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
+    (resid, noise)
 }
 
 /// `fluxcal` is not a regressor: it is tested on the fluxgate itself. The 9-parameter
@@ -111,16 +122,7 @@ pub(crate) fn fluxcal_test(
     model: &ModelSpec,
     run: &KfRun,
 ) -> Result<FluxcalTest> {
-    let interference: Vec<f64> = match &run.preprocessing {
-        Some(_) => flight
-            .mag_nt
-            .iter()
-            .zip(&run.compensated_nt)
-            .map(|(m, c)| m - c)
-            .collect(),
-        None => run.interference_nt.clone(),
-    };
-    let fit = match fluxgate::fit_flight(flight, &interference) {
+    let fit = match fluxgate::fit_flight(flight, &interference_for_fluxgate(flight, run)) {
         Ok(f) => f,
         Err(e) => {
             return Ok(FluxcalTest {
@@ -146,12 +148,7 @@ pub(crate) fn fluxcal_test(
     };
     let change_nt =
         crate::metrics::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None);
-    let resid: Vec<f64> = fit
-        .residual_nt
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
+    let (resid, noise_nt) = calibrated_modulus_noise_nt(&fit);
     let rho = lag1_autocorr(&resid).clamp(-0.99, 0.99);
     let n_eff = (resid.len() as f64 * (1.0 - rho) / (1.0 + rho)).max(20.0);
     let (v0, v1) = (
@@ -168,9 +165,6 @@ pub(crate) fn fluxcal_test(
     // The calibration must fit the fluxgate down to its own white noise: when the scalar
     // reference still holds a large unmodelled effect (a current the fluxgate does not
     // see), the fit absorbs part of it and the "change" it makes is that effect reshuffled.
-    // White noise of the calibrated modulus from its third differences (robust to the
-    // smooth misfit the sd includes).
-    let noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
     // Not fitting down to the noise makes the change immaterial (share 0 below), not the
     // F-test insignificant: F and p stay what the test gave, so the table never shows a
     // huge F with p = 1.
