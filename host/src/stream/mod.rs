@@ -17,6 +17,7 @@
 //! (residual, IR, FOM) and the applied-coefficient checks are computed in memory only; a
 //! streamed run says so.
 mod apply;
+pub mod decimate;
 pub mod rows;
 pub mod stats;
 
@@ -99,6 +100,17 @@ pub struct StreamSummary {
     /// Figures the in-memory path gives that a streamed run does not compute.
     pub not_computed: Vec<String>,
     pub warnings: Vec<String>,
+    /// Post-flight on a long, fast flight: the coefficients were calibrated on this
+    /// decimated copy, then applied here at the full rate (`decimate`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decimated: Option<decimate::Decimation>,
+}
+
+/// No progress lines: stderr is not a terminal (a log, a pipe) and `--progress` was not
+/// given.
+pub fn quiet_progress(progress_flag: bool) -> bool {
+    use std::io::IsTerminal;
+    !progress_flag && !std::io::stderr().is_terminal()
 }
 
 /// Rows/s on stderr for a stage that runs longer than a second.
@@ -458,6 +470,7 @@ pub fn compensate(
         noise_nt: spec.as_ref().map(|_| noise_nt),
         not_computed,
         warnings,
+        decimated: None,
     })
 }
 
