@@ -208,10 +208,11 @@ impl StreamingLeastSquares {
             let rkk = self.r[k * m + k];
             let h = rkk.hypot(x[k]);
             let (c, s) = (rkk / h, x[k] / h);
-            for j in k..m {
-                let (a, b) = (self.r[k * m + j], x[j]);
-                self.r[k * m + j] = c * a + s * b;
-                x[j] = c * b - s * a;
+            let row_k = &mut self.r[k * m..(k + 1) * m];
+            for (a, b) in row_k[k..].iter_mut().zip(&mut x[k..]) {
+                let (ra, xb) = (*a, *b);
+                *a = c * ra + s * xb;
+                *b = c * xb - s * ra;
             }
         }
         self.scratch = x;

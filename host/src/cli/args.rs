@@ -60,9 +60,27 @@ impl TraceInput {
             None => ColumnMap::new(),
         };
         let bar = progress_bar(0);
+        // The bar draws on a terminal only; with --progress into a log, a line every 5 s.
+        let lines = {
+            use std::io::IsTerminal;
+            !std::io::stderr().is_terminal() && !crate::stream::quiet_progress(false)
+        };
+        let start = std::time::Instant::now();
+        let mut last = start;
         let mut cb = |done: u64, total: u64| {
             bar.set_length(total);
             bar.set_position(done);
+            if lines && last.elapsed().as_secs_f64() >= 5.0 {
+                last = std::time::Instant::now();
+                let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
+                eprintln!(
+                    "reading {}: {:.0} of {:.0} MiB, {:.0} MiB/s",
+                    self.trace.display(),
+                    mib(done),
+                    mib(total),
+                    mib(done) / start.elapsed().as_secs_f64()
+                );
+            }
         };
         let opts = ReadOptions {
             progress: Some(&mut cb),

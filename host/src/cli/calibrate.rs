@@ -31,11 +31,16 @@ pub struct CalibrateArgs {
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
     refuse_overwriting(&[&a.input.trace], &[&a.output])?;
+    crate::stream::progress::force_progress(a.long.progress);
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
+    let stage = crate::stream::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
+    drop(stage);
     let file = comp.coefficients.clone().context("no coefficients")?;
     crate::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
+    let stage = crate::stream::Stage::new("summary figures (FOM, IR, oracle floor)");
     let mut s = summarise(&flight, &comp);
+    drop(stage);
     s.decimated = decimated;
     if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
         // The predicted error is the coefficients' uncertainty and the model error together;

@@ -66,6 +66,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         .chain(a.coeffs.as_deref())
         .collect();
     refuse_overwriting(&inputs, &[&a.out])?;
+    crate::stream::progress::force_progress(a.long.progress);
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
     if run_if_streamed(a, coeffs.as_ref())? {
         return Ok(());
@@ -81,10 +82,17 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     } else {
         a.input.read()?
     };
+    let stage = crate::stream::Stage::new("compensation (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
+    drop(stage);
     let carried = crate::input::carried_columns(&trace, &flight.channels);
-    write_output_csv(&a.out, &flight, &comp, &carried)?;
+    {
+        let _stage = crate::stream::Stage::new("writing the output");
+        write_output_csv(&a.out, &flight, &comp, &carried)?;
+    }
+    let stage = crate::stream::Stage::new("summary figures (FOM, IR, oracle floor)");
     let s = summarise(&flight, &comp);
+    drop(stage);
     if a.json {
         let mut v = serde_json::to_value(&s)?;
         // Where the core field came from: the file, or the model and epoch used.
@@ -209,12 +217,16 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
 /// streamed: every input row gets its output row.
 fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Result<()> {
     let est = a.est.settings();
+    let stage = crate::stream::Stage::new("calibration on the decimated copy");
     let (flight, comp) = compensate_trace(&trace, &est, None, false)?;
+    drop(stage);
     let file = comp
         .coefficients
         .clone()
         .context("the calibration gave no coefficients")?;
+    let stage = crate::stream::Stage::new("summary figures of the decimated copy");
     let calibration = summarise(&flight, &comp);
+    drop(stage);
     // The copy's memory is not needed for the streamed pass.
     drop((trace, flight, comp));
     if let Some(why) = unstreamable(Some(&file), &est, false) {

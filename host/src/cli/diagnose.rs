@@ -98,6 +98,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
         )?;
     }
+    crate::stream::progress::force_progress(args.long.progress);
     let (trace, decimated) = args.input.read_for_calibration(&args.long)?;
     // The compensation checked first: a bad --coeffs fails before the long diagnosis.
     let evaluated = if evaluates {
@@ -148,7 +149,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         ..Default::default()
     };
     if args.iterate {
+        let stage = crate::stream::Stage::new("diagnosis, iterated");
         let it = iterate::iterate(&trace, &model, &opts, args.max_steps)?;
+        drop(stage);
         if let Some(dir) = &args.report {
             let path = crate::report::flight_report::write_report(
                 &trace,
@@ -167,7 +170,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
         return Ok(());
     }
+    let stage = crate::stream::Stage::new("diagnosis (candidate terms and their tests)");
     let d = diagnose(diagnosed, &model, &opts)?;
+    drop(stage);
     if let Some(dir) = &args.report {
         let path = match &evaluated {
             Some(ev) => write_evaluation(&trace, ev, dir)?,

@@ -72,7 +72,8 @@ impl Decimation {
 /// The decimation factor for a flight of `rows` at `sample_rate_hz`: None when it stays
 /// at its own rate.
 pub fn factor_for(rows: usize, sample_rate_hz: f64, above_rows: usize) -> Option<usize> {
-    if rows <= above_rows || !(sample_rate_hz > DECIMATED_RATE_HZ * (1.0 + 1e-9)) {
+    let fast = sample_rate_hz.is_finite() && sample_rate_hz > DECIMATED_RATE_HZ * (1.0 + 1e-9);
+    if rows <= above_rows || !fast {
         return None;
     }
     Some((sample_rate_hz / DECIMATED_RATE_HZ - 1e-9).ceil() as usize)

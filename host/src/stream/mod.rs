@@ -18,6 +18,7 @@
 //! streamed run says so.
 mod apply;
 pub mod decimate;
+pub mod progress;
 pub mod rows;
 pub mod stats;
 
@@ -28,11 +29,11 @@ use crate::model_spec::ModelSpec;
 use crate::trace::rows::for_each_row;
 use crate::trace::{ColumnMap, ReadOptions};
 use anyhow::{bail, Context, Result};
+pub use progress::{quiet_progress, Progress, Stage};
 use rows::{row_sample, Cols, RowFilter};
 use serde::Serialize;
 use stats::{DateScan, DateSource, FirstPass, SecondPass};
 use std::path::Path;
-use std::time::Instant;
 
 /// `compensate` streams on its own above this input size (~1.3 M rows of a typical
 /// trace, ~1.3 GB in memory); `--stream always|never` decides otherwise.
@@ -104,65 +105,6 @@ pub struct StreamSummary {
     /// decimated copy, then applied here at the full rate (`decimate`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub decimated: Option<decimate::Decimation>,
-}
-
-/// No progress lines: stderr is not a terminal (a log, a pipe) and `--progress` was not
-/// given.
-pub fn quiet_progress(progress_flag: bool) -> bool {
-    use std::io::IsTerminal;
-    !progress_flag && !std::io::stderr().is_terminal()
-}
-
-/// Rows/s on stderr for a stage that runs longer than a second.
-pub struct Progress {
-    stage: String,
-    start: Instant,
-    last: Instant,
-    rows: u64,
-    quiet: bool,
-}
-
-impl Progress {
-    pub fn new(stage: &str, quiet: bool) -> Self {
-        let now = Instant::now();
-        Self {
-            stage: stage.into(),
-            start: now,
-            last: now,
-            rows: 0,
-            quiet,
-        }
-    }
-    pub fn tick(&mut self) {
-        self.rows += 1;
-        if self.quiet || !self.rows.is_multiple_of(65_536) {
-            return;
-        }
-        let now = Instant::now();
-        if now.duration_since(self.last).as_secs_f64() >= 5.0
-            || (self.last == self.start && now.duration_since(self.start).as_secs_f64() >= 1.0)
-        {
-            self.last = now;
-            let s = now.duration_since(self.start).as_secs_f64();
-            eprintln!(
-                "{}: {} rows, {:.0} rows/s",
-                self.stage,
-                self.rows,
-                self.rows as f64 / s
-            );
-        }
-    }
-    pub fn done(&self) {
-        let s = self.start.elapsed().as_secs_f64();
-        if !self.quiet && s >= 1.0 {
-            eprintln!(
-                "{}: {} rows in {s:.1} s, {:.0} rows/s",
-                self.stage,
-                self.rows,
-                self.rows as f64 / s
-            );
-        }
-    }
 }
 
 /// The core field as `input::prepare` decides it.
