@@ -21,7 +21,8 @@
 //! filtered. Text columns are the centre row's. Scalar glitches are taken out before the
 //! filter (the streaming despiker), or one +4000 nT value would become a 70-sample bump.
 //! The filter does not reach across a time gap (more than 1.5 median steps) or rows left
-//! out by `--lines`/`--time`: near such an edge it averages the taps on its own side.
+//! out by `--lines`/`--time`: near such an edge its taps are cut symmetrically (the first
+//! row of a stretch is taken as it is).
 use super::rows::{Cols, RowFilter};
 use super::stats::{Despiker, ExactMedian};
 use super::{Progress, StreamInput};
@@ -242,6 +243,21 @@ impl Decimator {
     fn emit(&mut self, i: usize) {
         let c = &self.window[i];
         self.origin.push(c.line);
+        // The window holds consecutive rows (row k at k − k0) and a stretch is contiguous;
+        // near its edge the taps are cut symmetrically, so a ramp stays unbiased.
+        let k0 = self.window[0].k;
+        let ci = c.k - k0;
+        let from = c.k.saturating_sub(self.half).max(k0) - k0;
+        let to = (c.k + self.half - k0).min(self.window.len() - 1);
+        let first = (from..=ci)
+            .find(|&j| self.window[j].stretch == c.stretch)
+            .unwrap_or(ci);
+        let last = (ci..=to)
+            .rev()
+            .find(|&j| self.window[j].stretch == c.stretch)
+            .unwrap_or(ci);
+        let reach = (ci - first).min(last - ci);
+        let (lo, hi) = (ci - reach, ci + reach);
         for col in 0..self.out_nums.len() {
             if !self.numeric[col] {
                 self.out_texts[col].push(c.texts[col].clone());
@@ -251,24 +267,18 @@ impl Decimator {
                 self.out_nums[col].push(c.nums[col]);
                 continue;
             }
-            let (mut sum, mut weight) = (0.0, 0.0);
-            // The window holds consecutive rows: row k is at k − k0.
-            let k0 = self.window[0].k;
-            let from = (c.k.saturating_sub(self.half)).max(k0) - k0;
-            let to = (c.k + self.half - k0).min(self.window.len() - 1);
-            for h in self.window.range(from..=to) {
-                if h.stretch != c.stretch {
-                    continue;
-                }
+            let (mut sum, mut weight, mut all) = (0.0, 0.0, 0.0);
+            for h in self.window.range(lo..=hi) {
+                let w = self.taps[h.k + self.half - c.k];
+                all += w;
                 let v = h.nums[col];
                 if v.is_finite() {
-                    let w = self.taps[h.k + self.half - c.k];
                     sum += w * v;
                     weight += w;
                 }
             }
             // Fewer than half the taps' weight: too little to stand for the sample.
-            self.out_nums[col].push(if weight >= 0.5 {
+            self.out_nums[col].push(if weight >= 0.5 * all {
                 sum / weight
             } else {
                 f64::NAN
@@ -452,6 +462,60 @@ mod tests {
             let g = gain(&taps, f_hz as f64 / 1000.0);
             assert!(g < 3e-4, "{f_hz} Hz: gain {g}");
         }
+    }
+
+    /// A 1 kHz file with a 2 s time gap and a +4000 nT glitch: no output value mixes the
+    /// two sides of the gap (the scalar steps by 1000 nT there), each stretch gives
+    /// ⌈rows / 10⌉ outputs at its own rows' times, the glitch leaves no trace, and a ramp
+    /// (the fluxgate) comes out unbiased: the filter is symmetric.
+    #[test]
+    fn stretches_stay_apart_and_glitches_are_taken_out() {
+        use super::{read_decimated, scan};
+        use crate::stream::StreamInput;
+        let path =
+            std::env::temp_dir().join(format!("magcomp-decimate-{}.csv", std::process::id()));
+        let mut text = String::from("t,mag,flux_x,flux_y,flux_z,segment\n");
+        let mut times = Vec::new();
+        for i in 0..3000usize {
+            // rows 0..1234 then, after a 2 s gap, rows 1234..3000
+            let t = i as f64 * 0.001 + if i >= 1234 { 2.0 } else { 0.0 };
+            let mag =
+                if i >= 1234 { 51_000.0 } else { 50_000.0 } + if i == 600 { 4000.0 } else { 0.0 };
+            text.push_str(&format!("{t:.3},{mag},{},0,40000,line\n", 10.0 * t));
+            times.push(t);
+        }
+        std::fs::write(&path, text).unwrap();
+        let input = StreamInput {
+            trace: &path,
+            map: None,
+            lines: None,
+            time: None,
+            date: None,
+        };
+        let (rows, dt, kinds) = scan(&input, true).unwrap();
+        assert_eq!(rows, 3000);
+        let (trace, d) = read_decimated(&input, 10, (rows, dt, &kinds), true).unwrap();
+        std::fs::remove_file(&path).ok();
+        assert_eq!(d.rows_out, 124 + 177);
+        assert_eq!(trace.len(), 301);
+        assert_eq!(d.glitches_removed, 1);
+        let (t, mag, fx) = (
+            trace.col("t").unwrap(),
+            trace.col("mag").unwrap(),
+            trace.col("flux_x").unwrap(),
+        );
+        for (j, (&t, &m)) in t.iter().zip(mag).enumerate() {
+            let want = if j < 124 { 50_000.0 } else { 51_000.0 };
+            assert!((m - want).abs() < 1e-6, "output {j} (t = {t}): {m}");
+            assert!(
+                (fx[j] - 10.0 * t).abs() < 1e-9,
+                "output {j}: ramp {} at t = {t}",
+                fx[j]
+            );
+        }
+        assert_eq!(t[123], times[1230]);
+        assert_eq!(t[124], times[1234]);
+        assert_eq!(trace.text_col("segment").unwrap()[0], "line");
     }
 
     #[test]
