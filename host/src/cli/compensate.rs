@@ -41,7 +41,8 @@ pub struct CompensateArgs {
     pub json: bool,
     /// Stream the flight (memory bounded by a window, not by the flight): `auto` streams
     /// `--coeffs` runs on inputs ≥ 256 MiB, `always` streams or says why it cannot,
-    /// `never` reads the flight into memory. Streaming covers --coeffs (KF survey mode
+    /// `never` reads the flight into memory (and, without --coeffs, does not decimate a
+    /// long flight either). Streaming covers --coeffs (KF survey mode
     /// without lag/fluxtemp/rate, or --method tl); its summary leaves out the
     /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
     /// (docs/streaming.md).
@@ -217,6 +218,19 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
 /// streamed: every input row gets its output row.
 fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Result<()> {
     let est = a.est.settings();
+    // Said before the long calibration, not after it.
+    if est.method == crate::coefficients::Method::Kf {
+        let spec = crate::model_spec::ModelSpec::parse(&est.model)?;
+        if crate::preprocess::needed(&spec) || spec.terms.iter().any(|t| t.name == "rate") {
+            bail!(
+                "{}; model '{}' cannot be applied streamed to the full-rate file \
+                 (`lag`/`fluxtemp` pre-process the whole flight, `rate` needs its crossovers): \
+                 --full-rate runs the whole flight in memory",
+                d.message(),
+                est.model
+            );
+        }
+    }
     let stage = crate::stream::Stage::new("calibration on the decimated copy");
     let (flight, comp) = compensate_trace(&trace, &est, None, false)?;
     drop(stage);
@@ -231,7 +245,7 @@ fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Resu
     drop((trace, flight, comp));
     if let Some(why) = unstreamable(Some(&file), &est, false) {
         bail!(
-            "{}, but its coefficients cannot be applied streamed to the full-rate file: {why}. \
+            "{}; its coefficients cannot be applied streamed to the full-rate file: {why}. \
              --full-rate runs the whole flight in memory",
             d.message()
         );

@@ -57,7 +57,7 @@ pub struct Decimation {
 impl Decimation {
     pub fn message(&self) -> String {
         format!(
-            "the flight ({} rows at {:.4} Hz) was calibrated on an anti-aliased copy decimated \
+            "the flight ({} rows at {:.4} Hz) is calibrated on an anti-aliased copy decimated \
              by {} to {:.4} Hz ({} rows; {} scalar glitch(es) taken out first) to keep memory \
              bounded (docs/streaming.md; --full-rate reads it whole)",
             self.rows_in,
