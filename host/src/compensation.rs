@@ -113,6 +113,10 @@ pub struct Summary {
     pub aircraft_fom_nt: Option<f64>,
     /// What the user must know about this result (also on stderr); empty when none.
     pub warnings: Vec<String>,
+    /// The flight was calibrated on an anti-aliased decimated copy (a long, fast flight:
+    /// docs/streaming.md); the figures above are the copy's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decimated: Option<crate::stream::decimate::Decimation>,
 }
 
 fn tl_config(flight: &Flight, est: &EstimatorSettings) -> Result<tl::TlConfig> {
@@ -459,6 +463,7 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
             .and_then(|c| c.rate_crossover.clone()),
         manoeuvres: f.map(|f| f.1).unwrap_or_default(),
         warnings: comp.warnings.clone(),
+        decimated: None,
     }
 }
 

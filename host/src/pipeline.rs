@@ -219,6 +219,9 @@ pub(crate) fn config_for(
     cfg
 }
 
+/// Filter passes made by this process (numbers the progress lines).
+static PASSES: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
 /// Outputs, interference regressors, coefficients, their covariance (k×k, row-major),
 /// filter health.
 type Pass = (Vec<Output>, Vec<Vec<f32>>, Vec<f64>, Vec<f64>, bool);
@@ -275,6 +278,12 @@ fn pass(
         let k = model.coefficient_count();
         let mut outs = Vec::with_capacity(flight.len());
         let mut healthy = true;
+        // Post-flight calibration makes a dozen or more passes; each says how it goes.
+        let pass_no = PASSES.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+        let mut progress = crate::stream::Progress::new(
+            &format!("Kalman filter pass {pass_no}"),
+            crate::stream::quiet_progress(false),
+        );
         let mut regs = Vec::new();
         let mut buf = vec![0.0f32; k];
         let mut keep = |ep: &Epoch, comp: &HostCompensator| {
@@ -305,7 +314,9 @@ fn pass(
                 outs.push(out);
             }
             healthy &= comp.filter().is_healthy();
+            progress.tick();
         }
+        progress.done();
         while let Some((ep, out)) = comp.flush_epoch() {
             keep(&ep, &comp);
             outs.push(out);

@@ -6,6 +6,7 @@ use crate::coefficients::{
 };
 use crate::compensation::{compensate_trace, summarise, Compensation, EstimatorSettings, Summary};
 use crate::flight::Flight;
+use crate::stream::decimate::{self, Decimation};
 use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
 use anyhow::{Context, Result};
 use clap::builder::PossibleValue;
@@ -59,9 +60,27 @@ impl TraceInput {
             None => ColumnMap::new(),
         };
         let bar = progress_bar(0);
+        // The bar draws on a terminal only; with --progress into a log, a line every 5 s.
+        let lines = {
+            use std::io::IsTerminal;
+            !std::io::stderr().is_terminal() && !crate::stream::quiet_progress(false)
+        };
+        let start = std::time::Instant::now();
+        let mut last = start;
         let mut cb = |done: u64, total: u64| {
             bar.set_length(total);
             bar.set_position(done);
+            if lines && last.elapsed().as_secs_f64() >= 5.0 {
+                last = std::time::Instant::now();
+                let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
+                eprintln!(
+                    "reading {}: {:.0} of {:.0} MiB, {:.0} MiB/s",
+                    self.trace.display(),
+                    mib(done),
+                    mib(total),
+                    mib(done) / start.elapsed().as_secs_f64()
+                );
+            }
         };
         let opts = ReadOptions {
             progress: Some(&mut cb),
@@ -79,6 +98,49 @@ impl TraceInput {
         Ok(t)
     }
 
+    /// The trace for a calibration or a diagnosis: a long flight sampled faster than
+    /// 100 Hz is read into an anti-aliased decimated copy (`stream::decimate`), anything
+    /// else as [`TraceInput::read`] reads it. The decimation, when made, is returned (and
+    /// said on stderr).
+    pub fn read_for_calibration(
+        &self,
+        long: &LongFlightArgs,
+    ) -> Result<(Trace, Option<Decimation>)> {
+        let size = std::fs::metadata(&self.trace).map(|m| m.len()).unwrap_or(0);
+        // No trace row is shorter than 10 bytes (t, mag and three fluxgate values): a
+        // smaller file cannot hold that many rows, and is read without a counting pass.
+        let may_be_long = (size / 10) as usize > long.decimate_above_rows;
+        if long.full_rate || !may_be_long || crate::trace::is_hdf5_path(&self.trace) {
+            return Ok((self.read()?, None));
+        }
+        let input = self.stream_input();
+        let quiet = crate::stream::quiet_progress(long.progress);
+        let (rows, dt, kinds) = decimate::scan(&input, quiet)?;
+        let Some(factor) = decimate::factor_for(rows, 1.0 / dt, long.decimate_above_rows) else {
+            return Ok((self.read()?, None));
+        };
+        let (t, d) = decimate::read_decimated(&input, factor, (rows, dt, &kinds), quiet)?;
+        let (t, core) =
+            crate::input::prepare(t, &crate::input::Selection::default(), self.date.as_deref())
+                .with_context(|| format!("preparing {}", self.trace.display()))?;
+        if let Some(m) = core.message() {
+            eprintln!("{m}");
+        }
+        eprintln!("note: {}", d.message());
+        Ok((t, Some(d)))
+    }
+
+    /// The same input for the streaming readers.
+    pub fn stream_input(&self) -> crate::stream::StreamInput<'_> {
+        crate::stream::StreamInput {
+            trace: &self.trace,
+            map: self.map.as_deref(),
+            lines: self.lines.as_deref(),
+            time: self.time.as_deref(),
+            date: self.date.as_deref(),
+        }
+    }
+
     /// Just the file, for code that builds one by hand.
     pub fn new(trace: impl Into<PathBuf>) -> Self {
         TraceInput {
@@ -87,6 +149,34 @@ impl TraceInput {
             lines: None,
             time: None,
             date: None,
+        }
+    }
+}
+
+/// How `calibrate`, post-flight `compensate` and `diagnose` keep a long flight's memory
+/// bounded (docs/streaming.md).
+#[derive(clap::Args, Clone, Debug)]
+pub struct LongFlightArgs {
+    /// Calibrate (or diagnose) on an anti-aliased copy decimated to at most 100 Hz when
+    /// the flight has more rows than this and is sampled faster than 100 Hz; `compensate`
+    /// then applies the coefficients at the full rate, streamed (docs/streaming.md).
+    #[arg(long, value_name = "ROWS", default_value_t = decimate::DECIMATE_ABOVE_ROWS)]
+    pub decimate_above_rows: usize,
+    /// Never decimate: the whole flight at its own rate, in memory (~1.2 KB per row for
+    /// calibrate, ~2.4 KB for diagnose).
+    #[arg(long)]
+    pub full_rate: bool,
+    /// Progress lines (stage, rows, rows/s) on stderr even when it is not a terminal.
+    #[arg(long)]
+    pub progress: bool,
+}
+
+impl Default for LongFlightArgs {
+    fn default() -> Self {
+        Self {
+            decimate_above_rows: decimate::DECIMATE_ABOVE_ROWS,
+            full_rate: false,
+            progress: false,
         }
     }
 }

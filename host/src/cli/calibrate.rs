@@ -1,7 +1,7 @@
 //! `magcomp calibrate`: estimate the deviation coefficients (with 1σ) from a calibration
 //! flight and write them as a coefficient file.
 
-use super::args::{EstimatorArgs, TraceInput};
+use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
 use crate::compensation::{compensate_trace, summarise, SURVEY_TOLERANCE_NT};
 use crate::output::refuse_overwriting;
@@ -14,6 +14,8 @@ pub struct CalibrateArgs {
     pub input: TraceInput,
     #[command(flatten)]
     pub est: EstimatorArgs,
+    #[command(flatten)]
+    pub long: LongFlightArgs,
     /// Where to write the coefficients (JSON).
     #[arg(
         short = 'o',
@@ -29,11 +31,17 @@ pub struct CalibrateArgs {
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
     refuse_overwriting(&[&a.input.trace], &[&a.output])?;
-    let trace = a.input.read()?;
+    crate::stream::progress::force_progress(a.long.progress);
+    let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
+    let stage = crate::stream::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
+    drop(stage);
     let file = comp.coefficients.clone().context("no coefficients")?;
     crate::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
+    let stage = crate::stream::Stage::new("summary figures (FOM, IR, oracle floor)");
     let mut s = summarise(&flight, &comp);
+    drop(stage);
+    s.decimated = decimated;
     if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
         // The predicted error is the coefficients' uncertainty and the model error together;
         // the advice depends on which dominates.

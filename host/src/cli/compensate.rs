@@ -1,12 +1,14 @@
 //! `magcomp compensate`: remove the aircraft interference from a flight (calibrating on it,
 //! or applying a coefficient file), write the output CSV and print the summary.
 
-use super::args::{EstimatorArgs, TraceInput};
+use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use crate::coefficients::CoefficientFile;
 use crate::compensation::{compensate_trace, summarise, write_output_csv, Summary};
 use crate::output::refuse_overwriting;
-use crate::stream::{compensate, unstreamable, StreamInput, AUTO_STREAM_BYTES};
-use anyhow::{bail, Result};
+use crate::stream::decimate::Decimation;
+use crate::stream::{compensate, quiet_progress, unstreamable, StreamSummary, AUTO_STREAM_BYTES};
+use crate::trace::Trace;
+use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Clone, Debug)]
@@ -15,6 +17,8 @@ pub struct CompensateArgs {
     pub input: TraceInput,
     #[command(flatten)]
     pub est: EstimatorArgs,
+    #[command(flatten)]
+    pub long: LongFlightArgs,
     /// Apply these coefficients (from `calibrate`) instead of calibrating on this trace.
     #[arg(long, value_name = "COEFFS.json")]
     pub coeffs: Option<PathBuf>,
@@ -37,7 +41,8 @@ pub struct CompensateArgs {
     pub json: bool,
     /// Stream the flight (memory bounded by a window, not by the flight): `auto` streams
     /// `--coeffs` runs on inputs ≥ 256 MiB, `always` streams or says why it cannot,
-    /// `never` reads the flight into memory. Streaming covers --coeffs (KF survey mode
+    /// `never` reads the flight into memory (and, without --coeffs, does not decimate a
+    /// long flight either). Streaming covers --coeffs (KF survey mode
     /// without lag/fluxtemp/rate, or --method tl); its summary leaves out the
     /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
     /// (docs/streaming.md).
@@ -62,15 +67,33 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         .chain(a.coeffs.as_deref())
         .collect();
     refuse_overwriting(&inputs, &[&a.out])?;
+    crate::stream::progress::force_progress(a.long.progress);
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
     if run_if_streamed(a, coeffs.as_ref())? {
         return Ok(());
     }
-    let trace = a.input.read()?;
+    // Post-flight on a long, fast flight: calibrated on a decimated copy, then applied to
+    // every row streamed (the second pass over the file).
+    let trace = if coeffs.is_none() && !a.realtime && a.stream != StreamMode::Never {
+        let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
+        match decimated {
+            Some(d) => return compensate_decimated(a, trace, d),
+            None => trace,
+        }
+    } else {
+        a.input.read()?
+    };
+    let stage = crate::stream::Stage::new("compensation (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
+    drop(stage);
     let carried = crate::input::carried_columns(&trace, &flight.channels);
-    write_output_csv(&a.out, &flight, &comp, &carried)?;
+    {
+        let _stage = crate::stream::Stage::new("writing the output");
+        write_output_csv(&a.out, &flight, &comp, &carried)?;
+    }
+    let stage = crate::stream::Stage::new("summary figures (FOM, IR, oracle floor)");
     let s = summarise(&flight, &comp);
+    drop(stage);
     if a.json {
         let mut v = serde_json::to_value(&s)?;
         // Where the core field came from: the file, or the model and epoch used.
@@ -154,13 +177,7 @@ pub fn print_summary(s: &Summary) {
 /// so, prints the summary and returns true; false leaves the run to the in-memory path.
 fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Result<bool> {
     let (est, mode, out, json) = (a.est.settings(), a.stream, a.out.as_path(), a.json);
-    let input = StreamInput {
-        trace: &a.input.trace,
-        map: a.input.map.as_deref(),
-        lines: a.input.lines.as_deref(),
-        time: a.input.time.as_deref(),
-        date: a.input.date.as_deref(),
-    };
+    let input = a.input.stream_input();
     let why_not = match unstreamable(coeffs, &est, a.realtime) {
         Some(w) => Some(w),
         None if crate::trace::is_hdf5_path(&a.input.trace) => {
@@ -192,7 +209,60 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
     let Some(coeffs) = coeffs.filter(|_| stream) else {
         return Ok(false);
     };
-    let s = compensate(&input, &est, coeffs, out, false)?;
+    let s = compensate(&input, &est, coeffs, out, quiet_progress(a.long.progress))?;
+    print_stream_summary(&s, json, out)?;
+    Ok(true)
+}
+
+/// Calibrates on the decimated copy, then applies the coefficients to the full-rate file
+/// streamed: every input row gets its output row.
+fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Result<()> {
+    let est = a.est.settings();
+    // Said before the long calibration, not after it.
+    if est.method == crate::coefficients::Method::Kf {
+        let spec = crate::model_spec::ModelSpec::parse(&est.model)?;
+        if crate::preprocess::needed(&spec) || spec.terms.iter().any(|t| t.name == "rate") {
+            bail!(
+                "{}; model '{}' cannot be applied streamed to the full-rate file \
+                 (`lag`/`fluxtemp` pre-process the whole flight, `rate` needs its crossovers): \
+                 --full-rate runs the whole flight in memory",
+                d.message(),
+                est.model
+            );
+        }
+    }
+    let stage = crate::stream::Stage::new("calibration on the decimated copy");
+    let (flight, comp) = compensate_trace(&trace, &est, None, false)?;
+    drop(stage);
+    let file = comp
+        .coefficients
+        .clone()
+        .context("the calibration gave no coefficients")?;
+    let stage = crate::stream::Stage::new("summary figures of the decimated copy");
+    let calibration = summarise(&flight, &comp);
+    drop(stage);
+    // The copy's memory is not needed for the streamed pass.
+    drop((trace, flight, comp));
+    if let Some(why) = unstreamable(Some(&file), &est, false) {
+        bail!(
+            "{}; its coefficients cannot be applied streamed to the full-rate file: {why}. \
+             --full-rate runs the whole flight in memory",
+            d.message()
+        );
+    }
+    let mut s = compensate(
+        &a.input.stream_input(),
+        &est,
+        &file,
+        &a.out,
+        quiet_progress(a.long.progress),
+    )?;
+    s.warnings.splice(0..0, calibration.warnings);
+    s.decimated = Some(d);
+    print_stream_summary(&s, a.json, &a.out)
+}
+
+fn print_stream_summary(s: &StreamSummary, json: bool, out: &std::path::Path) -> Result<()> {
     if json {
         println!("{}", serde_json::to_string(&s)?);
     } else {
@@ -217,5 +287,5 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
     for w in &s.warnings {
         eprintln!("warning: {w}");
     }
-    Ok(true)
+    Ok(())
 }

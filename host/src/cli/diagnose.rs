@@ -3,7 +3,7 @@
 //! With `--coeffs FILE` or `--method`, also the figures and warnings of that compensation
 //! on this flight (an applied calibration checked, not re-fitted).
 
-use super::args::{EstimatorArgs, Evaluated, TraceInput};
+use super::args::{EstimatorArgs, Evaluated, LongFlightArgs, TraceInput};
 use crate::compensation::compensated_trace;
 use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions, Diagnosis};
 use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
@@ -20,6 +20,8 @@ pub struct DiagnoseArgs {
     /// --coeffs, the compensation whose figures and warnings are shown beside the diagnosis.
     #[command(flatten)]
     pub est: EstimatorArgs,
+    #[command(flatten)]
+    pub long: LongFlightArgs,
     /// Check an applied calibration: these coefficients (from `calibrate`) on this flight,
     /// not re-fitted (figures and plausibility warnings; `warnings` and `applied` in
     /// --json). The file decides the method and, for the Kalman filter, the model diagnosed.
@@ -60,6 +62,7 @@ impl DiagnoseArgs {
         DiagnoseArgs {
             input: TraceInput::new(trace),
             est: EstimatorArgs::default(),
+            long: LongFlightArgs::default(),
             coeffs: None,
             json: false,
             report: None,
@@ -95,7 +98,8 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
         )?;
     }
-    let trace = args.input.read()?;
+    crate::stream::progress::force_progress(args.long.progress);
+    let (trace, decimated) = args.input.read_for_calibration(&args.long)?;
     // The compensation checked first: a bad --coeffs fails before the long diagnosis.
     let evaluated = if evaluates {
         Some(args.est.evaluate(&trace, args.coeffs.as_deref())?)
@@ -145,7 +149,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         ..Default::default()
     };
     if args.iterate {
+        let stage = crate::stream::Stage::new("diagnosis, iterated");
         let it = iterate::iterate(&trace, &model, &opts, args.max_steps)?;
+        drop(stage);
         if let Some(dir) = &args.report {
             let path = crate::report::flight_report::write_report(
                 &trace,
@@ -164,7 +170,9 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
         return Ok(());
     }
+    let stage = crate::stream::Stage::new("diagnosis (candidate terms and their tests)");
     let d = diagnose(diagnosed, &model, &opts)?;
+    drop(stage);
     if let Some(dir) = &args.report {
         let path = match &evaluated {
             Some(ev) => write_evaluation(&trace, ev, dir)?,
@@ -180,7 +188,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
     }
     if args.json {
-        println!("{}", json(&d, evaluated.as_ref())?);
+        println!("{}", json(&d, evaluated.as_ref(), decimated.as_ref())?);
     } else {
         match &evaluated {
             Some(_) => print!("{}", applied_table(&d)),
@@ -222,7 +230,11 @@ fn applied_table(d: &Diagnosis) -> String {
 
 /// The diagnosis as JSON with `warnings` (the compensation's when one is checked, else
 /// the filter's) and, when one is checked, `applied` (its summary, as `compensate --json`).
-fn json(d: &Diagnosis, evaluated: Option<&Evaluated>) -> Result<String> {
+fn json(
+    d: &Diagnosis,
+    evaluated: Option<&Evaluated>,
+    decimated: Option<&crate::stream::decimate::Decimation>,
+) -> Result<String> {
     let mut v = serde_json::to_value(d)?;
     let warnings = match evaluated {
         Some(ev) => ev.summary.warnings.clone(),
@@ -230,6 +242,9 @@ fn json(d: &Diagnosis, evaluated: Option<&Evaluated>) -> Result<String> {
     };
     if let Some(obj) = v.as_object_mut() {
         obj.insert("warnings".into(), serde_json::to_value(warnings)?);
+        if let Some(dec) = decimated {
+            obj.insert("decimated".into(), serde_json::to_value(dec)?);
+        }
         if let Some(ev) = evaluated {
             let mut applied = serde_json::to_value(&ev.summary)?;
             if let Some(a) = applied.as_object_mut() {

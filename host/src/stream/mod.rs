@@ -17,6 +17,8 @@
 //! (residual, IR, FOM) and the applied-coefficient checks are computed in memory only; a
 //! streamed run says so.
 mod apply;
+pub mod decimate;
+pub mod progress;
 pub mod rows;
 pub mod stats;
 
@@ -27,11 +29,11 @@ use crate::model_spec::ModelSpec;
 use crate::trace::rows::for_each_row;
 use crate::trace::{ColumnMap, ReadOptions};
 use anyhow::{bail, Context, Result};
+pub use progress::{quiet_progress, Progress, Stage};
 use rows::{row_sample, Cols, RowFilter};
 use serde::Serialize;
 use stats::{DateScan, DateSource, FirstPass, SecondPass};
 use std::path::Path;
-use std::time::Instant;
 
 /// `compensate` streams on its own above this input size (~1.3 M rows of a typical
 /// trace, ~1.3 GB in memory); `--stream always|never` decides otherwise.
@@ -99,58 +101,10 @@ pub struct StreamSummary {
     /// Figures the in-memory path gives that a streamed run does not compute.
     pub not_computed: Vec<String>,
     pub warnings: Vec<String>,
-}
-
-/// Rows/s on stderr for a stage that runs longer than a second.
-pub struct Progress {
-    stage: String,
-    start: Instant,
-    last: Instant,
-    rows: u64,
-    quiet: bool,
-}
-
-impl Progress {
-    pub fn new(stage: &str, quiet: bool) -> Self {
-        let now = Instant::now();
-        Self {
-            stage: stage.into(),
-            start: now,
-            last: now,
-            rows: 0,
-            quiet,
-        }
-    }
-    pub fn tick(&mut self) {
-        self.rows += 1;
-        if self.quiet || !self.rows.is_multiple_of(65_536) {
-            return;
-        }
-        let now = Instant::now();
-        if now.duration_since(self.last).as_secs_f64() >= 5.0
-            || (self.last == self.start && now.duration_since(self.start).as_secs_f64() >= 1.0)
-        {
-            self.last = now;
-            let s = now.duration_since(self.start).as_secs_f64();
-            eprintln!(
-                "{}: {} rows, {:.0} rows/s",
-                self.stage,
-                self.rows,
-                self.rows as f64 / s
-            );
-        }
-    }
-    pub fn done(&self) {
-        let s = self.start.elapsed().as_secs_f64();
-        if !self.quiet && s >= 1.0 {
-            eprintln!(
-                "{}: {} rows in {s:.1} s, {:.0} rows/s",
-                self.stage,
-                self.rows,
-                self.rows as f64 / s
-            );
-        }
-    }
+    /// Post-flight on a long, fast flight: the coefficients were calibrated on this
+    /// decimated copy, then applied here at the full rate (`decimate`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decimated: Option<decimate::Decimation>,
 }
 
 /// The core field as `input::prepare` decides it.
@@ -458,6 +412,7 @@ pub fn compensate(
         noise_nt: spec.as_ref().map(|_| noise_nt),
         not_computed,
         warnings,
+        decimated: None,
     })
 }
 

@@ -436,8 +436,16 @@ fn read_impl<R: Read>(
         match col.data {
             // Never had a value: numeric and all missing.
             ColData::Pending(n) => trace.numeric.push((col.name, vec![f64::NAN; n])),
-            ColData::Num(v) => trace.numeric.push((col.name, v)),
-            ColData::Text(v) => trace.text.push((col.name, v)),
+            // Grown by doubling: up to half of each column would be spare capacity
+            // for the whole run.
+            ColData::Num(mut v) => {
+                v.shrink_to_fit();
+                trace.numeric.push((col.name, v))
+            }
+            ColData::Text(mut v) => {
+                v.shrink_to_fit();
+                trace.text.push((col.name, v))
+            }
         }
     }
     Ok(trace)
