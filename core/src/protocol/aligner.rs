@@ -133,6 +133,15 @@ impl Aligner {
         true
     }
 
+    /// A fluxgate frame received at `t_us` whose value cannot be used (a temperature
+    /// correction without a temperature): kept as NaN, so a sample that holds or
+    /// interpolates it is `FLUX_STALE`, without a parse error.
+    pub fn push_flux_unusable(&mut self, t_us: u64) {
+        if self.push_flux(t_us, [0.0; 3]) {
+            self.flux[self.n_flux - 1].1 = [f32::NAN; 3];
+        }
+    }
+
     /// Any parser error on any port: flags the next sample.
     pub fn note_parse_error(&mut self) {
         self.parse_error = true;
