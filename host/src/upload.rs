@@ -362,7 +362,7 @@ mod tests {
             upload_lines(&file("tl16+field", 16, None), "tl16+field", false)
                 .unwrap()
                 .len(),
-            16 + 1
+            16 + 1 + 7
         );
     }
 
