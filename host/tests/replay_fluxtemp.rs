@@ -143,3 +143,93 @@ fn board_fluxtemp_on(seed: u64) {
         "without SETFTEMP {e_without:.4} nT, with {e_with:.4} nT"
     );
 }
+
+/// `magcomp replay --model tl16+field+fluxtemp:temp_flux --coeffs FILE`: the file's
+/// `fluxgate_temperature` is applied (records = the library replay's with that
+/// correction, ≠ without); a file without one, or with an absurd one, is refused.
+#[test]
+fn replay_cli_takes_the_correction_from_the_coefficient_file() {
+    use magcomp::cli::replay::{run as run_replay, ReplayArgs};
+    use magcomp::replay::csv_row;
+    let cfg = SimConfig {
+        seed: 2,
+        max_duration_s: Some(60.0),
+        hidden: vec![parse_hidden("fluxtemp:temp_flux:8").expect("spec")],
+        ..SimConfig::default()
+    };
+    let trace = simulate(&cfg).expect("simulate");
+    let dir = std::env::temp_dir().join(format!("magcomp-replay-ftemp-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let cap = dir.join("flight.cap");
+    std::fs::write(
+        &cap,
+        trace_to_capture(&trace, &CaptureOptions::default()).unwrap(),
+    )
+    .unwrap();
+    let names = ModelSpec::parse(MODEL).unwrap().coefficient_names();
+    assert_eq!(names.len(), 16, "`fluxtemp` adds no filter state");
+    let coefficients: Vec<f32> = (0..16).map(|i| (i as f32 - 7.5) * 0.25).collect();
+    let entries: Vec<String> = names
+        .iter()
+        .zip(&coefficients)
+        .map(|((n, _), v)| format!(r#"{{"name":"{n}","unit":"nT","value":{v},"sigma":0.1}}"#))
+        .collect();
+    let file = |extra: &str| {
+        format!(
+            r#"{{"format":"magcomp-coefficients-v1","model":"{MODEL}","method":"kf","sample_rate_hz":10,{extra}"coefficients":[{}]}}"#,
+            entries.join(",")
+        )
+    };
+    let ft = |s1: f64| {
+        format!(
+            r#""fluxgate_temperature":{{"channel":"temp_flux","reference_degc":18.0,"bias_nt_per_degc":[5.0,-3.5,3.5],"bias_sigma_nt_per_degc":[0.1,0.1,0.1],"scale_per_degc":[0.0,{s1},0.0],"scale_sigma_per_degc":[0.0,0.0,0.0]}},"#
+        )
+    };
+    let coeffs = dir.join("c.json");
+    let args = ReplayArgs {
+        capture: cap.clone(),
+        model: MODEL.into(),
+        coeffs: Some(coeffs.clone()),
+        lag_s: None,
+        rate: None,
+        flux_rate: None,
+        gps_rate: None,
+        flux: None,
+        output: Some(dir.join("rec.csv")),
+        records: None,
+    };
+    std::fs::write(&coeffs, file(&ft(1e-5))).unwrap();
+    let stats = run_replay(&args).unwrap();
+    assert_eq!(stats.records as usize, trace.len());
+    let csv = std::fs::read_to_string(dir.join("rec.csv")).unwrap();
+    let from_file: Vec<String> = csv.lines().skip(1).map(String::from).collect();
+    let cal = FluxTempCal {
+        t_ref_degc: 18.0,
+        bias_nt_per_degc: [5.0, -3.5, 3.5],
+        scale_per_degc: [0.0, 1e-5, 0.0],
+    };
+    let library = |c: Option<FluxTempCal>| -> Vec<String> {
+        let mut o = ReplayOptions::new(ModelSpec::parse(MODEL).expect("spec"));
+        o.coefficients = Some(coefficients.clone());
+        o.flux_temp = c;
+        let bytes = std::fs::read(&cap).unwrap();
+        let mut rows = Vec::new();
+        replay_capture(bytes.as_slice(), &o, |r| {
+            rows.push(csv_row(r));
+            Ok(())
+        })
+        .unwrap();
+        rows
+    };
+    assert_eq!(from_file, library(Some(cal)));
+    assert_ne!(from_file, library(None));
+    for (extra, needle) in [
+        (String::new(), "no correction is given"),
+        (ft(0.5), "not a plausible one"),
+    ] {
+        std::fs::write(&coeffs, file(&extra)).unwrap();
+        let e = run_replay(&args).unwrap_err();
+        assert!(format!("{e:#}").contains(needle), "{e:#}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}
