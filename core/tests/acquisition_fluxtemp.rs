@@ -277,3 +277,46 @@ fn ftemp_commands_round_trip() {
         assert_eq!(parse_command(&out[..n], 16), Ok(cmd));
     }
 }
+
+/// Through the delay line (`SETLAG`) the corrected vectors are delayed with their frames:
+/// τ = 2 periods shifts the FLUX_STALE records of the frames without T by 2 and gives the
+/// interference of a corrected fluxgate sent 2 periods late.
+#[test]
+fn correction_goes_through_the_delay_line() {
+    use magcomp_core::protocol::lag_line::LagLine;
+    let n = 80;
+    let line = |delay: usize, with_t: bool| {
+        move |k: usize| {
+            let Some(k) = k.checked_sub(delay) else {
+                return "20000.000,0.000,45000.000,20.0000".to_string();
+            };
+            let (b, t) = frame_at(k);
+            if (20..30).contains(&k) || !with_t {
+                let b = if with_t { b } else { corrected(b, t) };
+                format!("{:.3},{:.3},{:.3}", b[0], b[1], b[2])
+            } else {
+                format!("{:.3},{:.3},{:.3},{:.4}", b[0], b[1], b[2], t)
+            }
+        }
+    };
+    let mut lag = LagLine::new();
+    let mut a = acq();
+    a.attach_lag_line(&mut lag);
+    a.set_lag_s((2.0 / RATE_HZ) as f32).unwrap();
+    a.set_flux_temp_calibration(CAL);
+    let recs = run(&mut a, &stream(n, line(0, true)));
+    assert_eq!(recs.len(), n);
+    let stale: Vec<usize> = (0..n)
+        .filter(|&k| recs[k].flags.contains(Flags::FLUX_STALE))
+        .collect();
+    let want: Vec<usize> = (0..2).chain(22..32).collect();
+    assert_eq!(stale, want);
+    // Against a host-corrected fluxgate sent 2 periods late, no delay on the board.
+    let mut b = acq();
+    let late = run(&mut b, &stream(n, line(2, false)));
+    let half = compensator_config(RATE_HZ as f32, 16).epoch.half_width;
+    for k in (2 + half + 1..n).filter(|k| !(22 - half..32 + half + 1).contains(k)) {
+        let e = (recs[k].interference_nt - late[k].interference_nt).abs();
+        assert!(e < 2e-3, "record {k}: {e} nT");
+    }
+}

@@ -425,7 +425,13 @@ fn interpolate(
             let (t0, v0) = frame(i - 1);
             let (t1, v1) = frame(i);
             let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
-            let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
+            // A frame with zero weight does not enter (an unusable NaN frame after one
+            // the delay lands on exactly would otherwise flag the sample).
+            let v = if w == 0.0 {
+                v0
+            } else {
+                [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]))
+            };
             let period = cfg.flux_period_us;
             let lost = period > 0 && (t1 - t0).saturating_mul(2) > period.saturating_mul(3);
             (v, t1 - t0 > limit, lost, None)
