@@ -59,8 +59,9 @@ pub fn restart_filter(acq: &mut BoardAcquisition) -> Result<(), CompensatorError
 /// One frame (or parse failure) from a sensor port, in arrival order.
 pub enum Event {
     Scalar(Result<ScalarFrame, ScalarError>),
-    /// Body frame (x forward, y starboard, z down), nT.
-    Flux(Result<[f32; 3], FluxError>),
+    /// Body frame (x forward, y starboard, z down), nT; the sensor's temperature (°C, NaN
+    /// when the frame has none: SPI, a 3-field ASCII line).
+    Flux(Result<[f32; 3], FluxError>, f32),
     Gps(Result<Sentence, NmeaError>),
 }
 
@@ -69,8 +70,8 @@ impl Event {
     pub fn apply(self, acq: &mut BoardAcquisition) -> Option<Record> {
         match self {
             Event::Scalar(r) => acq.scalar_result(r),
-            Event::Flux(r) => {
-                acq.flux_result(r);
+            Event::Flux(r, temp_degc) => {
+                acq.flux_result_temp(r, temp_degc);
                 None
             }
             Event::Gps(r) => {
@@ -145,8 +146,9 @@ impl FluxAsciiPort {
     }
     pub fn push(&mut self, b: u8) -> Option<Event> {
         let axes = self.axes;
-        self.reader
-            .push(b)
-            .map(|r| Event::Flux(r.map(|v| axes.to_body(v))))
+        self.reader.push_frame(b).map(|r| match r {
+            Ok((v, t)) => Event::Flux(Ok(axes.to_body(v)), t),
+            Err(e) => Event::Flux(Err(e), f32::NAN),
+        })
     }
 }

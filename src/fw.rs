@@ -10,11 +10,12 @@ use embassy_sync::channel::Channel;
 use embassy_time::Timer;
 use embedded_io_async::{Read, Write};
 use magcomp_core::protocol::command::{
-    Command, CommandError, CommandReader, FLUX_CAL_LEN, Mode, blob_len, decode_blob,
-    encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id, lag_blob_id,
+    Command, CommandError, CommandReader, FLUX_CAL_LEN, FLUX_TEMP_LEN, Mode, blob_len, decode_blob,
+    encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id,
+    flux_temp_blob_id, lag_blob_id,
 };
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
-use magcomp_core::protocol::fluxgate::FluxCalibration;
+use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::record::{Record, encode_record};
 
@@ -190,7 +191,7 @@ async fn flux_spi_task(mut f: board::FluxPort) {
             Ok(()) => decode_spi_frame(&frame).map(|a| cal.scale(a.counts)),
             Err(_) => Err(FluxError::BadLength),
         };
-        EVENTS.send(Event::Flux(ev)).await;
+        EVENTS.send(Event::Flux(ev, f32::NAN)).await;
     }
 }
 
@@ -217,7 +218,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
         #[cfg(feature = "hil-sync")]
         let port = match ev {
             Event::Scalar(_) => 0,
-            Event::Flux(_) => 1,
+            Event::Flux(..) => 1,
             Event::Gps(_) => 2,
         };
         if let Some(r) = ev.apply(acq) {
@@ -249,8 +250,8 @@ async fn send_record(r: &Record) {
 }
 
 /// The store holds the model's blob, then the fluxgate calibration's, then the scalar
-/// delay's; a store written before `fluxcal` / `SETLAG` existed loads as "no fluxgate
-/// calibration" / τ = 0.
+/// delay's, then the fluxgate temperature drift's; a store written before `fluxcal` /
+/// `SETLAG` / `SETFTEMP` existed loads as "no fluxgate calibration" / τ = 0 / no drift.
 fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut blob = [0u8; crate::COEF_BLOB_MAX];
     store.read(&mut blob).map_err(|_| ())?;
@@ -268,6 +269,12 @@ fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -
     if !(stored && acq.set_lag_s(lag[0]).is_ok()) {
         let _ = acq.set_lag_s(0.0);
     }
+    let mut ft = [0f32; FLUX_TEMP_LEN];
+    let at = at + blob_len(1);
+    let temp = decode_blob(&blob[at..], flux_temp_blob_id(), &mut ft)
+        .ok()
+        .and_then(|()| FluxTempCal::from_array(&ft));
+    acq.set_flux_temp_calibration(temp.unwrap_or(FluxTempCal::NONE));
     Ok(())
 }
 
@@ -283,7 +290,11 @@ fn save_coefficients(store: &mut board::CoefStore, acq: &BoardAcquisition) -> bo
     let Ok(l) = encode_blob(lag_blob_id(), &[acq.lag_s()], &mut blob[n + m..]) else {
         return false;
     };
-    store.write(&blob[..n + m + l]).is_ok()
+    let ft = acq.flux_temp_calibration().to_array();
+    let Ok(t) = encode_blob(flux_temp_blob_id(), &ft, &mut blob[n + m + l..]) else {
+        return false;
+    };
+    store.write(&blob[..n + m + l + t]).is_ok()
 }
 
 fn mode(acq: &BoardAcquisition) -> Mode {
@@ -385,6 +396,24 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
             }
         }
         Command::GetLag => ack_values(b"GETLAG", &[acq.lag_s()]),
+        Command::GetFluxTemp(Some(i)) => {
+            let v = acq.flux_temp_calibration().to_array()[usize::from(i) % FLUX_TEMP_LEN];
+            Line::fill(|out| encode_ack_indexed(b"GETFTEMP", i, v, out))
+        }
+        Command::GetFluxTemp(None) => {
+            ack_values(b"GETFTEMP", &acq.flux_temp_calibration().to_array())
+        }
+        Command::SetFluxTemp { index, value } => {
+            let mut v = acq.flux_temp_calibration().to_array();
+            v[usize::from(index) % FLUX_TEMP_LEN] = value;
+            match FluxTempCal::from_array(&v) {
+                Some(cal) => {
+                    acq.set_flux_temp_calibration(cal);
+                    Line::fill(|out| encode_ack_indexed(b"SETFTEMP", index, value, out))
+                }
+                None => refused(CommandError::ValueOutOfBounds),
+            }
+        }
         Command::SetLag(v) => match acq.set_lag_s(v) {
             Ok(()) => ack_values(b"SETLAG", &[v]),
             Err(_) => refused(CommandError::ValueOutOfBounds),

@@ -44,9 +44,11 @@ mod fw;
 #[cfg(target_os = "none")]
 pub const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
 /// Size of the coefficient store: the model's blob (header, coefficients, CRC-32), then the
-/// fluxgate calibration's and the scalar delay's (`SETLAG`, one value) blobs of the same
-/// format. A store written before either existed loads them as identity / τ = 0.
+/// fluxgate calibration's, the scalar delay's (`SETLAG`, one value) and the fluxgate
+/// temperature drift's (`SETFTEMP`, 7 values) blobs of the same format. A store written
+/// before one existed loads it as identity / τ = 0 / no drift.
 #[cfg(target_os = "none")]
 pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(board_config::N_COEF)
     + magcomp_core::protocol::command::blob_len(magcomp_core::protocol::command::FLUX_CAL_LEN)
-    + magcomp_core::protocol::command::blob_len(1);
+    + magcomp_core::protocol::command::blob_len(1)
+    + magcomp_core::protocol::command::blob_len(magcomp_core::protocol::command::FLUX_TEMP_LEN);

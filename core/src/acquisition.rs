@@ -29,7 +29,8 @@ use crate::protocol::aligner::{Aligner, AlignerConfig};
 use crate::protocol::capture::Port;
 use crate::protocol::fluxgate::AxisMap;
 use crate::protocol::fluxgate::{
-    decode_spi_frame, FluxAsciiReader, FluxCalibration, FluxError, FluxStats, FluxgateCal,
+    decode_spi_frame, FluxAsciiReader, FluxCalibration, FluxError, FluxStats, FluxTempCal,
+    FluxgateCal,
 };
 use crate::protocol::lag_line::{check_lag, LagError, LagLine};
 use crate::protocol::nmea::{Fix, NmeaError, NmeaReader, NmeaStats, Sentence};
@@ -56,6 +57,9 @@ pub struct AcqConfig {
     pub flux_cal: FluxgateCal,
     /// Body frame → calibrated body frame (`fluxcal`; identity when none).
     pub flux_scalar_cal: FluxCalibration,
+    /// The fluxgate's temperature drift (`fluxtemp`, `SETFTEMP`), applied before
+    /// `flux_scalar_cal` (none when all zero).
+    pub flux_temp_cal: FluxTempCal,
 }
 
 impl AcqConfig {
@@ -68,6 +72,7 @@ impl AcqConfig {
             scalar: ScalarConfig::default(),
             flux_cal: FluxgateCal::full_scale(FLUX_FULL_SCALE_NT),
             flux_scalar_cal: FluxCalibration::IDENTITY,
+            flux_temp_cal: FluxTempCal::NONE,
         }
     }
 
@@ -247,6 +252,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 axis_map: AXES,
             },
             flux_scalar_cal: FluxCalibration::IDENTITY,
+            flux_temp_cal: FluxTempCal::NONE,
         };
         let aligner = AlignerConfig {
             flux_stale_us: 0,
@@ -452,11 +458,25 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         Some(self.record(out))
     }
 
-    /// One byte from the fluxgate's serial ASCII port (sensor frame, nT).
+    /// The fluxgate's temperature correction (`fluxtemp`) applied to every frame.
+    pub fn flux_temp_calibration(&self) -> FluxTempCal {
+        self.cfg.flux_temp_cal
+    }
+
+    /// Applies a temperature correction to every frame from now on ([`FluxTempCal::NONE`]
+    /// clears it). With one set, a frame without a temperature is `FLUX_STALE`.
+    pub fn set_flux_temp_calibration(&mut self, cal: FluxTempCal) {
+        self.cfg.flux_temp_cal = cal;
+    }
+
+    /// One byte from the fluxgate's serial ASCII port (sensor frame, nT; `X,Y,Z[,T]`).
     pub fn push_flux_byte(&mut self, b: u8) {
-        if let Some(r) = self.flux.push(b) {
+        if let Some(r) = self.flux.push_frame(b) {
             let cal = self.cfg.flux_cal;
-            self.flux_result(r.map(|v| cal.to_body(v)));
+            match r {
+                Ok((v, t)) => self.flux_result_temp(Ok(cal.to_body(v)), t),
+                Err(e) => self.flux_result(Err(e)),
+            }
         }
     }
 
@@ -472,11 +492,30 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.flux_result(r);
     }
 
-    /// A fluxgate vector already decoded and in the body frame (nT), or its error.
+    /// A fluxgate vector already decoded and in the body frame (nT), or its error; no
+    /// temperature (an SPI frame).
     pub fn flux_result(&mut self, r: Result<[f32; 3], FluxError>) {
+        self.flux_result_temp(r, f32::NAN);
+    }
+
+    /// As [`flux_result`](Self::flux_result), with the sensor's temperature (°C, NaN if
+    /// none). The temperature correction is applied here, per frame with its own T, so the
+    /// aligner and the delay line hold and interpolate corrected vectors.
+    pub fn flux_result_temp(&mut self, r: Result<[f32; 3], FluxError>, temp_degc: f32) {
         match r {
             Ok(v) => {
                 inc(&mut self.counters.flux_frames);
+                let v = self.cfg.flux_temp_cal.apply(v, temp_degc);
+                if !v[0].is_finite() {
+                    // A correction is set and this frame has no temperature: the frame
+                    // counts (timing, lost-frame checks) but samples using it are FLUX_STALE.
+                    let now = self.now_us();
+                    self.aligner.push_flux_unusable(now);
+                    if let Some(l) = self.lag_line.as_deref_mut() {
+                        l.push(now, v);
+                    }
+                    return;
+                }
                 let v = if self.cfg.flux_scalar_cal.is_identity() {
                     v
                 } else {

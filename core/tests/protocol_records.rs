@@ -205,6 +205,11 @@ fn commands() {
             index: 2,
             value: -1.5e-3,
         },
+        Command::GetFluxTemp(None),
+        Command::SetFluxTemp {
+            index: 6,
+            value: 2.5e-5,
+        },
     ] {
         let mut b = [0u8; 96];
         let n = encode_command(&c, &mut b).unwrap();

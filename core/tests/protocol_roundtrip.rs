@@ -33,6 +33,8 @@ fn command() -> impl Strategy<Value = Command> {
         Just(Command::GetLag),
         // τ over the whole accepted range, the bounds included.
         prop_oneof![Just(0.0f32), Just(MAX_LAG_S), 0.0f32..=MAX_LAG_S].prop_map(Command::SetLag),
+        proptest::option::of(0u16..7).prop_map(Command::GetFluxTemp),
+        (0u16..7, coef()).prop_map(|(index, value)| Command::SetFluxTemp { index, value }),
     ]
 }
 

@@ -225,7 +225,9 @@ fn ascii_fluxgate() {
         Err(FluxError::Checksum)
     );
     assert_eq!(parse_ascii_line(b"1,2"), Err(FluxError::BadLength));
-    assert_eq!(parse_ascii_line(b"1,2,3,4"), Err(FluxError::BadLength));
+    // A 4th field is the sensor's temperature (°C, `fluxtemp`); a 5th is too many.
+    assert_eq!(parse_ascii_line(b"1,2,3,4"), Ok([1.0, 2.0, 3.0]));
+    assert_eq!(parse_ascii_line(b"1,2,3,4,5"), Err(FluxError::BadLength));
     assert_eq!(parse_ascii_line(b"1,x,3"), Err(FluxError::BadNumber));
     assert_eq!(parse_ascii_line(b"1,2,300000"), Err(FluxError::OutOfRange));
     let mut r = FluxAsciiReader::new();

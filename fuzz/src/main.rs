@@ -13,7 +13,7 @@ mod targets;
 
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::command::{
-    encode_blob, encode_command, flux_blob_id, lag_blob_id, Command, Mode,
+    encode_blob, encode_command, flux_blob_id, flux_temp_blob_id, lag_blob_id, Command, Mode,
 };
 use magcomp_core::protocol::fluxgate::encode_spi_frame;
 use magcomp_core::protocol::record::{encode_record, Record};
@@ -55,7 +55,7 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
             }
         }
         Seeds::Scalar => v.push(b"53620.4401\r\n48000.0000\r\n99999.9999\r\n".to_vec()),
-        Seeds::Flux => v.push(b"12345.678,-123.400,45678.900\r\n0,0,0\r\n".to_vec()),
+        Seeds::Flux => v.push(b"12345.678,-123.400,45678.900\r\n0,0,0\r\n1,2,3,21.5*04\r\n".to_vec()),
         Seeds::Spi => {
             let mut s = Vec::new();
             for (st, c) in [(0x0007, [1, -1, 8_388_607]), (0x0200, [0, 0, -8_388_608])] {
@@ -86,6 +86,11 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                 },
                 Command::GetLag,
                 Command::SetLag(0.205),
+                Command::GetFluxTemp(None),
+                Command::SetFluxTemp {
+                    index: 4,
+                    value: 2.5e-5,
+                },
             ] {
                 let n = encode_command(&c, &mut out).unwrap();
                 s.extend_from_slice(&out[..n]);
@@ -100,6 +105,9 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
             let n = encode_blob(flux_blob_id(), &coef[..12], &mut out).unwrap();
             v.push(out[..n].to_vec());
             let n = encode_blob(lag_blob_id(), &[0.205], &mut out).unwrap();
+            v.push(out[..n].to_vec());
+            let ft = [21.5, 0.4, -0.2, 0.8, 1e-5, -2e-5, 3e-6];
+            let n = encode_blob(flux_temp_blob_id(), &ft, &mut out).unwrap();
             v.push(out[..n].to_vec());
         }
         Seeds::Record => {

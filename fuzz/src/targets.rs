@@ -124,12 +124,14 @@ fn flux_ascii(data: &[u8]) {
     let mut rd = FluxAsciiReader::new();
     let mut n = 0u32;
     for &b in data {
-        if let Some(r) = rd.push(b) {
+        if let Some(r) = rd.push_frame(b) {
             n += 1;
-            if let Ok(v) = r {
+            if let Ok((v, t)) = r {
                 assert!(v
                     .iter()
                     .all(|x| x.is_finite() && x.abs() as f64 <= MAX_ASCII_NT));
+                // The optional 4th field: NaN when absent, else finite within ±200 °C.
+                assert!(t.is_nan() || t.abs() <= 200.0, "{t}");
             }
         }
     }
@@ -163,6 +165,9 @@ fn command(data: &[u8]) {
         if let Command::SetCoef { index, value } | Command::SetFlux { index, value } = c {
             assert!(value.is_finite() && value.abs() < MAX_COEF_ABS && (index as usize) < N_COEF);
         }
+        if let Command::SetFluxTemp { index, value } = c {
+            assert!(value.is_finite() && usize::from(index) < 7);
+        }
         if let Command::SetLag(v) = c {
             assert!(
                 (0.0..=magcomp_core::protocol::lag_line::MAX_LAG_S).contains(&v),
@@ -183,12 +188,13 @@ fn command(data: &[u8]) {
 /// Flash blob: a blob that decodes re-encodes to the same bytes.
 fn blob(data: &[u8]) {
     let hash = u32::from_le_bytes([data.get(8).copied().unwrap_or(0), 0, 0, 0]) | 0x5A5A_0000;
-    for n in [16usize, 12, 1] {
+    for n in [16usize, 12, 7, 1] {
         let mut coef = vec![0f32; n];
         for h in [
             hash,
             magcomp_core::protocol::command::flux_blob_id(),
             magcomp_core::protocol::command::lag_blob_id(),
+            magcomp_core::protocol::command::flux_temp_blob_id(),
         ] {
             if decode_blob(data, h, &mut coef).is_ok() {
                 assert!(coef.iter().all(|c| c.is_finite()), "{coef:?}");

@@ -451,6 +451,60 @@ fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
     assert!((stored - 0.3).abs() < 1e-7, "τ after RESET: {stored}");
 }
 
+/// `SETFTEMP` over the command port (issue 12 item 5, the board side of `fluxtemp`): none at
+/// boot, 7 values set one at a time and read back exactly, absurd or non-finite ones
+/// refused (the value kept), `SAVE` + `RESET` reload them.
+#[test]
+fn fluxtemp_set_over_the_command_port_is_stored() {
+    let name = "fluxtemp";
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let reply = |b: &mut Board, body: &str| {
+        let r = b.command(body).unwrap();
+        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
+        r
+    };
+    let values = |r: &str| -> Vec<f32> {
+        r.split('*')
+            .next()
+            .unwrap()
+            .split(',')
+            .skip(2)
+            .map(|v| v.parse().unwrap())
+            .collect()
+    };
+    assert_eq!(
+        values(&reply(&mut b, "MCCMD,GETFTEMP")),
+        [0.0; 7],
+        "none at boot"
+    );
+    let want: [f32; 7] = [21.5, 0.41, -0.2, 0.8, 1e-5, -2e-5, 3e-6];
+    for (i, v) in want.iter().enumerate() {
+        let r = reply(&mut b, &format!("MCCMD,SETFTEMP,{i},{v:e}"));
+        assert!(r.starts_with("$MCACK,SETFTEMP,"), "{i}: {r}");
+    }
+    for bad in ["0,250", "2,5000", "5,0.5", "1,x", "7,0"] {
+        let r = reply(&mut b, &format!("MCCMD,SETFTEMP,{bad}"));
+        assert!(r.starts_with("$MCERR,"), "SETFTEMP,{bad} → {r}");
+    }
+    assert_eq!(values(&reply(&mut b, "MCCMD,GETFTEMP")), want);
+    assert!(reply(&mut b, "MCCMD,SAVE").starts_with("$MCACK,SAVE"));
+    for i in 0..7 {
+        reply(&mut b, &format!("MCCMD,SETFTEMP,{i},0"));
+    }
+    assert_eq!(values(&reply(&mut b, "MCCMD,GETFTEMP")), [0.0; 7]);
+    assert!(reply(&mut b, "MCCMD,RESET").starts_with("$MCACK,RESET,"));
+    assert_eq!(
+        values(&reply(&mut b, "MCCMD,GETFTEMP")),
+        want,
+        "after RESET"
+    );
+    eprintln!("{name}: SETFTEMP × 7 read back exactly, 5 bad values refused, SAVE + RESET reloads");
+}
+
 /// A flight from the project's simulator (`magcomp simulate --capture`: cloverleaf leg with
 /// manoeuvres, real NMEA, fluxgate `X,Y,Z*hh` lines), when `MAGCOMP_BIN` names `magcomp`.
 #[test]
@@ -576,8 +630,8 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
     let sent = lines.lines().count();
     assert_eq!(
         sent,
-        16 + 12 + 1 + 1,
-        "SETCOEF × 16, SETFLUX × 12, SETLAG (0: no `lag`), SAVE"
+        16 + 12 + 1 + 7 + 1,
+        "SETCOEF × 16, SETFLUX × 12, SETLAG (0: no `lag`), SETFTEMP × 7 (0: no `fluxtemp`), SAVE"
     );
     for l in lines.lines() {
         let r = b.command_raw(format!("{l}\r\n").as_bytes()).unwrap();
@@ -601,6 +655,11 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
             values(&b.command("MCCMD,GETLAG").unwrap()),
             [0.0],
             "{when}: τ"
+        );
+        assert_eq!(
+            values(&b.command("MCCMD,GETFTEMP").unwrap()),
+            [0.0; 7],
+            "{when}: fluxgate temperature correction"
         );
     };
     check(&mut b, "after upload");

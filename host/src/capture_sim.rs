@@ -87,6 +87,10 @@ pub struct CaptureOptions {
     /// Corrupt only this port's bytes (None: every port). The scalar port is the one
     /// without a checksum, so its corruption reaches the filter as wrong values.
     pub corrupt_port: Option<Port>,
+    /// The trace column written as the fluxgate line's 4th field, the sensor's
+    /// temperature (°C, `X,Y,Z,T*hh`). None: the simulator's `fluxtemp:CH` channel when
+    /// the trace has one (`truth_hidden_fluxtemp_CH`), else 3 fields. ASCII only.
+    pub flux_temp_channel: Option<String>,
     pub seed: u64,
 }
 
@@ -103,6 +107,7 @@ impl Default for CaptureOptions {
             gps_outage_s: None,
             corrupt_fraction: 0.0,
             corrupt_port: None,
+            flux_temp_channel: None,
             seed: 1,
         }
     }
@@ -274,6 +279,13 @@ pub fn write_capture<W: Write>(
     let fx = col(trace, "flux_x")?;
     let fy = col(trace, "flux_y")?;
     let fz = col(trace, "flux_z")?;
+    let temp_channel = opts.flux_temp_channel.clone().or_else(|| {
+        trace.numeric.iter().find_map(|(name, _)| {
+            let ch = name.strip_prefix("truth_hidden_fluxtemp_")?;
+            trace.col(ch).map(|_| ch.to_string())
+        })
+    });
+    let temp = temp_channel.as_deref().map(|c| col(trace, c)).transpose()?;
     let lat = col(trace, "lat")?;
     let lon = col(trace, "lon")?;
     let alt = col(trace, "alt")?;
@@ -325,7 +337,11 @@ pub fn write_capture<W: Write>(
             if f.iter().all(|v| v.is_finite()) {
                 let bytes = match opts.flux_format {
                     FluxFormat::Ascii => {
-                        let body = format!("{:.3},{:.3},{:.3}", f[0], f[1], f[2]);
+                        let mut body = format!("{:.3},{:.3},{:.3}", f[0], f[1], f[2]);
+                        // A missing temperature is a 3-field line (T = NaN on the board).
+                        if let Some(t) = temp.map(|c| c[k]).filter(|t| t.is_finite()) {
+                            body.push_str(&format!(",{t:.4}"));
+                        }
                         format!("{body}*{:02X}\r\n", xor_checksum(body.as_bytes())).into_bytes()
                     }
                     FluxFormat::Spi => {

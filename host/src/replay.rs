@@ -7,6 +7,8 @@
 //! matters, not their timestamps (the board's records do not depend on UART jitter either).
 //! Rates come from `--rate`/`--flux-rate`/`--gps-rate`, else from the capture's
 //! `# scalar_hz:` / `# flux_hz:` / `# gps_hz:` comments, else the board's 10/10/1 Hz.
+//! The fluxgate's temperature drift (`fluxtemp`, `SETFTEMP`) is corrected per fluxgate line
+//! with the line's 4th field, as on the board.
 //! The scalar's delay τ (`lag`, the board's `SETLAG`) goes through the board's delay line:
 //! each scalar sample is paired with the fluxgate at t − τ.
 
@@ -15,7 +17,7 @@ use crate::model_spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
-use magcomp_core::protocol::fluxgate::FluxCalibration;
+use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::{LagLine, LAG_FRAMES, MAX_LAG_S};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::{Compensator, Flags, MagCounts};
@@ -46,6 +48,9 @@ pub struct ReplayOptions {
     pub flux_calibration: Option<FluxCalibration>,
     /// The scalar's delay τ (s) the board applies (`SETLAG`): the fluxgate is delayed.
     pub lag_s: Option<f32>,
+    /// The fluxgate's temperature drift the board corrects (`fluxtemp`, `SETFTEMP`), with
+    /// the temperature of each fluxgate line (4th field).
+    pub flux_temp: Option<FluxTempCal>,
 }
 
 impl ReplayOptions {
@@ -59,6 +64,7 @@ impl ReplayOptions {
             flux: None,
             flux_calibration: None,
             lag_s: None,
+            flux_temp: None,
         }
     }
 }
@@ -236,6 +242,33 @@ pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
     })
 }
 
+/// The fluxgate temperature correction of a `calibrate --model …+fluxtemp:CH` JSON file,
+/// if it has one, as the board holds it (f32, checked plausible like `SETFTEMP`).
+pub fn read_flux_temperature(path: &Path) -> Result<Option<FluxTempCal>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    let Some(c) = v.get("fluxgate_temperature").filter(|c| !c.is_null()) else {
+        return Ok(None);
+    };
+    let c: crate::preprocess::FluxgateTemperature = serde_json::from_value(c.clone())
+        .with_context(|| format!("fluxgate_temperature in {}", path.display()))?;
+    board_flux_temperature(&c)
+        .map(Some)
+        .with_context(|| format!("fluxgate_temperature in {}", path.display()))
+}
+
+/// The host's temperature correction as the board's 7 values (`SETFTEMP`).
+pub fn board_flux_temperature(c: &crate::preprocess::FluxgateTemperature) -> Result<FluxTempCal> {
+    let (b, s) = (&c.bias_nt_per_degc, &c.scale_per_degc);
+    let v = [c.reference_degc, b[0], b[1], b[2], s[0], s[1], s[2]].map(|x| x as f32);
+    FluxTempCal::from_array(&v).with_context(|| {
+        format!("the fluxgate temperature correction {v:?} is not a plausible one (|T_ref| ≤ 200 °C, |b| ≤ 1000 nT/°C, |s| ≤ 0.01/°C)")
+    })
+}
+
 /// The scalar's delay τ (s) of a `calibrate --model …+lag` JSON file, if it has one.
 pub fn read_scalar_lag(path: &Path) -> Result<Option<f64>> {
     let text =
@@ -346,6 +379,9 @@ pub fn replay_capture<R: BufRead>(
     let mut cfg = AcqConfig::new(scalar_hz, flux_hz, gps_hz);
     if let Some(c) = opts.flux_calibration {
         cfg.flux_scalar_cal = c;
+    }
+    if let Some(c) = opts.flux_temp {
+        cfg.flux_temp_cal = c;
     }
     let spec = &opts.model;
     with_model(spec, |model| -> Result<ReplayStats> {

@@ -1,6 +1,7 @@
 //! `magcomp upload`: a `calibrate` JSON as the board's command lines — `SETCOEF` for every
 //! coefficient, `SETFLUX` for the fluxgate calibration (`fluxcal`), `SETLAG` for the
-//! scalar's delay (`lag`; 0 without it, so an earlier upload's τ does not stay), then
+//! scalar's delay (`lag`; 0 without it, so an earlier upload's τ does not stay),
+//! `SETFTEMP` for the fluxgate's temperature drift (`fluxtemp`; all zero without it), then
 //! `SAVE` — written to the board's port (or stdout), so coefficients reach the aircraft
 //! without a rebuild.
 
@@ -8,6 +9,7 @@ use crate::coefficients::{CoefficientFile, Method};
 use crate::model_spec::ModelSpec;
 use anyhow::{bail, Context, Result};
 use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS};
+use magcomp_core::protocol::fluxgate::FluxTempCal;
 use magcomp_core::protocol::lag_line::MAX_LAG_S;
 
 /// The command lines for a coefficient file, `SAVE` last unless `save` is false.
@@ -17,17 +19,19 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
     }
     let board = ModelSpec::parse(board_model)?;
     let theirs = ModelSpec::parse(&file.model)?;
-    // The board has no temperature input for the fluxgate yet: refuse rather than upload
-    // coefficients fitted on a corrected flight.
-    for t in &theirs.terms {
-        if t.name == "fluxtemp" {
-            bail!(
-                "the coefficients are for model '{}': the board cannot apply `{}` yet (it corrects the fluxgate for temperature on the host only); calibrate without it for the board",
-                theirs.text(),
-                t.text()
-            );
-        }
-    }
+    // `fluxtemp`: the board corrects each fluxgate frame with the temperature on its line
+    // (4th field) before `fluxcal`, as the host does before calibrating.
+    let flux_temp = if theirs.terms.iter().any(|t| t.name == "fluxtemp") {
+        let c = file.fluxgate_temperature.as_ref().with_context(|| {
+            format!(
+                "the coefficients are for model '{}' but the file holds no fluxgate_temperature",
+                theirs.text()
+            )
+        })?;
+        crate::replay::board_flux_temperature(c)?
+    } else {
+        FluxTempCal::NONE
+    };
     // `lag`: the board delays the fluxgate by τ (SETLAG) instead of re-aligning the scalar.
     let lag_s = if theirs.terms.iter().any(|t| t.name == "lag") {
         let l = file.scalar_lag.with_context(|| {
@@ -46,12 +50,12 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
     } else {
         0.0
     };
-    // `fluxcal` and `lag` add no filter state: their coefficients are the board model's.
+    // `fluxcal`, `lag` and `fluxtemp` add no filter state: their coefficients are the board model's.
     let without_fluxcal = ModelSpec {
         terms: theirs
             .terms
             .iter()
-            .filter(|t| t.name != "fluxcal" && t.name != "lag")
+            .filter(|t| !matches!(t.name.as_str(), "fluxcal" | "lag" | "fluxtemp"))
             .cloned()
             .collect(),
         ..theirs.clone()
@@ -117,6 +121,13 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
         }
     }
     cmds.push(Command::SetLag(lag_s));
+    // Always all 7: zeros clear an earlier upload's correction.
+    for (i, value) in flux_temp.to_array().into_iter().enumerate() {
+        cmds.push(Command::SetFluxTemp {
+            index: i as u16,
+            value,
+        });
+    }
     if save {
         cmds.push(Command::Save);
     }
@@ -186,14 +197,14 @@ mod tests {
             added_parameters: 6,
         };
         for applied in [true, false] {
-            // 21 SETCOEF, then SETLAG 0
+            // 21 SETCOEF, then SETLAG 0 and 7 × SETFTEMP 0
             f.rate_crossover = Some(crate::coefficients::RateCrossover {
                 labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
                 fit: fit.clone(),
                 applied,
             });
             let lines = upload_lines(&f, "tl16+field+rate", false).unwrap();
-            assert_eq!(lines.len(), 21 + 1);
+            assert_eq!(lines.len(), 21 + 1 + 7);
             for (k, l) in lines[16..21].iter().enumerate() {
                 let Ok(Command::SetCoef { index, value }) = parse_command(l.as_bytes(), 21) else {
                     panic!("{l}");
@@ -217,20 +228,24 @@ mod tests {
         };
         let f = file("tl16+field+fluxcal", 16, Some(cal));
         let lines = upload_lines(&f, "tl16+field", true).unwrap();
-        assert_eq!(lines.len(), 16 + 12 + 1 + 1);
+        assert_eq!(lines.len(), 16 + 12 + 1 + 7 + 1);
         let mut coef = [f32::NAN; 16];
         let mut flux = [f32::NAN; 12];
         let mut lag = f32::NAN;
+        let mut ftemp = [f32::NAN; 7];
         for l in &lines[..lines.len() - 1] {
             match parse_command(l.as_bytes(), 16).unwrap() {
                 Command::SetCoef { index, value } => coef[index as usize] = value,
                 Command::SetFlux { index, value } => flux[index as usize] = value,
                 Command::SetLag(v) => lag = v,
+                Command::SetFluxTemp { index, value } => ftemp[index as usize] = value,
                 c => panic!("unexpected {c:?}"),
             }
         }
         // No `lag` in the model: τ = 0, so an earlier upload's delay does not stay.
         assert_eq!(lag, 0.0);
+        // No `fluxtemp`: the correction cleared.
+        assert_eq!(ftemp, [0.0; 7]);
         assert_eq!(
             parse_command(lines.last().unwrap().as_bytes(), 16),
             Ok(Command::Save)
@@ -245,7 +260,7 @@ mod tests {
 
     /// `lag` → the board model plus `SETLAG τ` (the board delays the fluxgate); a τ the
     /// board cannot apply (negative: the scalar leads; beyond 0.5 s) or a missing one is
-    /// refused; `fluxtemp` still is.
+    /// refused.
     #[test]
     fn a_lag_file_sends_setlag_and_an_impossible_lag_is_refused() {
         let with = |lag_s: Option<f64>| {
@@ -257,12 +272,12 @@ mod tests {
             upload_lines(&f, "tl16+field", true)
         };
         let lines = with(Some(0.2048)).unwrap();
-        assert_eq!(lines.len(), 16 + 1 + 1);
+        assert_eq!(lines.len(), 16 + 1 + 7 + 1);
         assert_eq!(
             parse_command(lines[16].as_bytes(), 16),
             Ok(Command::SetLag(0.2048))
         );
-        assert_eq!(parse_command(lines[17].as_bytes(), 16), Ok(Command::Save));
+        assert_eq!(parse_command(lines[24].as_bytes(), 16), Ok(Command::Save));
         assert!(with(Some(0.5)).is_ok());
         for (lag, needle) in [
             (Some(-0.05), "outside what the board can apply"),
@@ -272,13 +287,50 @@ mod tests {
             let e = with(lag).unwrap_err();
             assert!(format!("{e:#}").contains(needle), "{lag:?}: {e:#}");
         }
-        let e = upload_lines(
-            &file("tl16+field+fluxtemp:temp_flux", 16, None),
-            "tl16+field",
-            true,
-        )
-        .unwrap_err();
-        assert!(e.to_string().contains("cannot apply `fluxtemp"), "{e}");
+    }
+
+    /// `fluxtemp` → the board model plus 7 `SETFTEMP` (T_ref, b, s); a file without the
+    /// correction, or with an absurd one, is refused.
+    #[test]
+    fn a_fluxtemp_file_sends_setftemp() {
+        let with = |c: Option<crate::preprocess::FluxgateTemperature>| {
+            let mut f = file("tl16+field+fluxtemp:temp_flux", 16, None);
+            f.fluxgate_temperature = c;
+            upload_lines(&f, "tl16+field", true)
+        };
+        let c = crate::preprocess::FluxgateTemperature {
+            channel: "temp_flux".into(),
+            reference_degc: 21.5,
+            bias_nt_per_degc: [0.41, -0.2, 0.8],
+            bias_sigma_nt_per_degc: [0.01; 3],
+            scale_per_degc: [1e-5, -2e-5, 3e-6],
+            scale_sigma_per_degc: [1e-6; 3],
+        };
+        let lines = with(Some(c.clone())).unwrap();
+        assert_eq!(lines.len(), 16 + 1 + 7 + 1);
+        let sent: Vec<Command> = lines[17..24]
+            .iter()
+            .map(|l| parse_command(l.as_bytes(), 16).unwrap())
+            .collect();
+        let want = [21.5, 0.41, -0.2, 0.8, 1e-5, -2e-5, 3e-6];
+        for (i, cmd) in sent.iter().enumerate() {
+            assert_eq!(
+                *cmd,
+                Command::SetFluxTemp {
+                    index: i as u16,
+                    value: want[i] as f32
+                }
+            );
+        }
+        let e = with(None).unwrap_err();
+        assert!(
+            format!("{e:#}").contains("no fluxgate_temperature"),
+            "{e:#}"
+        );
+        let mut absurd = c;
+        absurd.scale_per_degc[1] = 0.5;
+        let e = with(Some(absurd)).unwrap_err();
+        assert!(format!("{e:#}").contains("not a plausible"), "{e:#}");
     }
 
     #[test]
@@ -310,7 +362,7 @@ mod tests {
             upload_lines(&file("tl16+field", 16, None), "tl16+field", false)
                 .unwrap()
                 .len(),
-            16 + 1
+            16 + 1 + 7
         );
     }
 

@@ -249,10 +249,19 @@ fn coefficient_files_are_read_by_name() {
             .count(),
         1
     );
+    // No `fluxtemp`: 7 SETFTEMP zeros clear an earlier upload's correction.
+    assert_eq!(
+        lines
+            .lines()
+            .filter(|l| l.starts_with("$MCCMD,SETFTEMP,")
+                && l.split('*').next().is_some_and(|b| b.ends_with(",0")))
+            .count(),
+        7
+    );
     assert_eq!(
         lines.lines().count(),
-        30,
-        "16 SETCOEF, 12 SETFLUX, SETLAG and SAVE"
+        37,
+        "16 SETCOEF, 12 SETFLUX, SETLAG, 7 SETFTEMP and SAVE"
     );
     // An unknown or a missing name is an error naming it; so is a short file for upload.
     let bad = d.join("bad.json");

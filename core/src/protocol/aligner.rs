@@ -133,6 +133,15 @@ impl Aligner {
         true
     }
 
+    /// A fluxgate frame received at `t_us` whose value cannot be used (a temperature
+    /// correction without a temperature): kept as NaN, so a sample that holds or
+    /// interpolates it is `FLUX_STALE`, without a parse error.
+    pub fn push_flux_unusable(&mut self, t_us: u64) {
+        if self.push_flux(t_us, [0.0; 3]) {
+            self.flux[self.n_flux - 1].1 = [f32::NAN; 3];
+        }
+    }
+
     /// Any parser error on any port: flags the next sample.
     pub fn note_parse_error(&mut self) {
         self.parse_error = true;
@@ -416,7 +425,13 @@ fn interpolate(
             let (t0, v0) = frame(i - 1);
             let (t1, v1) = frame(i);
             let w = ((t_us - t0) as f64 / (t1 - t0) as f64) as f32;
-            let v = [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]));
+            // A frame with zero weight does not enter (an unusable NaN frame after one
+            // the delay lands on exactly would otherwise flag the sample).
+            let v = if w == 0.0 {
+                v0
+            } else {
+                [0, 1, 2].map(|k| v0[k] + w * (v1[k] - v0[k]))
+            };
             let period = cfg.flux_period_us;
             let lost = period > 0 && (t1 - t0).saturating_mul(2) > period.saturating_mul(3);
             (v, t1 - t0 > limit, lost, None)

@@ -8,11 +8,13 @@
 //! $MCCMD,SAVE*HH           $MCCMD,RESET*HH         $MCCMD,FLUSH*HH
 //! $MCCMD,GETFLUX*HH        $MCCMD,GETFLUX,9*HH     $MCCMD,SETFLUX,9,312.5*HH
 //! $MCCMD,GETLAG*HH         $MCCMD,SETLAG,2.05E-1*HH
+//! $MCCMD,GETFTEMP*HH       $MCCMD,GETFTEMP,4*HH    $MCCMD,SETFTEMP,1,4.0E-1*HH
 //! ```
 //! `GETFLUX`/`SETFLUX` address the fluxgate's scalar calibration (`fluxcal`), 12 values:
 //! the matrix row by row (0–8), then the bias in nT (9–11). `GETLAG`/`SETLAG` the scalar's
 //! delay τ in seconds (`lag`, 0 – [`MAX_LAG_S`]): the board pairs each scalar sample with
-//! the fluxgate at t − τ (`lag_line`).
+//! the fluxgate at t − τ (`lag_line`). `GETFTEMP`/`SETFTEMP` the fluxgate's temperature
+//! drift (`fluxtemp`, [`FLUX_TEMP_LEN`] values): T_ref (°C), b (nT/°C) ×3, s (1/°C) ×3.
 //! Replies (CRC-16, like records): `$MCACK,<CMD>[,<values>]*HHHH` and
 //! `$MCERR,<code>,<TEXT>*HHHH`.
 
@@ -20,6 +22,7 @@ use super::common::{
     crc16_ccitt, crc32, fields, hex_val, parse_float_field, parse_hex_u32, parse_u32, xor_checksum,
     Cursor,
 };
+pub use super::fluxgate::FLUX_TEMP_LEN;
 use super::lag_line::MAX_LAG_S;
 
 /// Longest command line.
@@ -58,6 +61,12 @@ pub enum Command {
     /// The scalar's delay τ (s).
     GetLag,
     SetLag(f32),
+    /// The fluxgate's temperature drift: [`FLUX_TEMP_LEN`] values.
+    GetFluxTemp(Option<u16>),
+    SetFluxTemp {
+        index: u16,
+        value: f32,
+    },
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -188,6 +197,11 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         b"SETCOEF" => set(n_coef, |index, value| Command::SetCoef { index, value }),
         b"GETFLUX" => get(FLUX_CAL_LEN, Command::GetFlux),
         b"GETLAG" => none(Command::GetLag),
+        b"GETFTEMP" => get(FLUX_TEMP_LEN, Command::GetFluxTemp),
+        b"SETFTEMP" => set(FLUX_TEMP_LEN, |index, value| Command::SetFluxTemp {
+            index,
+            value,
+        }),
         b"SETLAG" => match (a1, a2) {
             (Some(v), None) => {
                 let v = value(v)?;
@@ -240,6 +254,8 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::GetFlux(i) => get(&mut c, b"GETFLUX", i)?,
             Command::SetFlux { index, value } => set(&mut c, b"SETFLUX", index, value)?,
             Command::GetLag => c.bytes(b"GETLAG")?,
+            Command::GetFluxTemp(i) => get(&mut c, b"GETFTEMP", i)?,
+            Command::SetFluxTemp { index, value } => set(&mut c, b"SETFTEMP", index, value)?,
             Command::SetLag(v) => {
                 c.bytes(b"SETLAG,")?;
                 c.sci(v as f64)?
@@ -410,6 +426,12 @@ pub fn flux_blob_id() -> u32 {
 /// calibration's. A store without it (an older firmware's) loads as τ = 0.
 pub fn lag_blob_id() -> u32 {
     model_hash(b"lag")
+}
+
+/// Id of the fourth blob: the fluxgate's temperature drift ([`FLUX_TEMP_LEN`] values),
+/// after the delay's. A store without it (an older firmware's) loads as no correction.
+pub fn flux_temp_blob_id() -> u32 {
+    model_hash(b"fluxtemp")
 }
 
 /// FNV-1a 32-bit: a stable model id from the model's spec string.

@@ -208,8 +208,17 @@ pub const MAX_FLUX_LINE: usize = 64;
 /// Largest accepted ASCII component (nT).
 pub const MAX_ASCII_NT: f64 = 200_000.0;
 
+/// Largest accepted ASCII temperature magnitude (°C): beyond it the field is garbage.
+pub const MAX_ASCII_DEGC: f64 = 200.0;
+
 /// Parses `X,Y,Z` in nT (sensor frame) with an optional `*hh` XOR checksum over `X,Y,Z`.
 pub fn parse_ascii_line(line: &[u8]) -> Result<[f32; 3], FluxError> {
+    parse_ascii_frame(line).map(|(v, _)| v)
+}
+
+/// Parses `X,Y,Z[,T]` (nT, sensor frame; T the sensor's temperature in °C) with an
+/// optional `*hh` XOR checksum over everything before it. T is NaN on a 3-field line.
+pub fn parse_ascii_frame(line: &[u8]) -> Result<([f32; 3], f32), FluxError> {
     let mut line = line;
     while let [rest @ .., b'\r' | b'\n' | b' '] = line {
         line = rest;
@@ -232,23 +241,89 @@ pub fn parse_ascii_line(line: &[u8]) -> Result<[f32; 3], FluxError> {
         None => line,
     };
     let mut out = [0f32; 3];
+    let mut temp_degc = f32::NAN;
     let mut n = 0;
     for f in body.split(|&b| b == b',') {
-        if n == 3 {
+        if n == 4 {
             return Err(FluxError::BadLength);
         }
         let d = parse_decimal(f).map_err(|_| FluxError::BadNumber)?;
         let v = d.to_f64();
-        if v.abs() > MAX_ASCII_NT {
+        let limit = if n == 3 { MAX_ASCII_DEGC } else { MAX_ASCII_NT };
+        if v.abs() > limit {
             return Err(FluxError::OutOfRange);
         }
-        out[n] = v as f32;
+        if n == 3 {
+            temp_degc = v as f32;
+        } else {
+            out[n] = v as f32;
+        }
         n += 1;
     }
-    if n != 3 {
+    if n < 3 {
         return Err(FluxError::BadLength);
     }
-    Ok(out)
+    Ok((out, temp_degc))
+}
+
+/// Number of `SETFTEMP`/`GETFTEMP` values: T_ref, b×3, s×3.
+pub const FLUX_TEMP_LEN: usize = 7;
+
+/// The fluxgate's temperature drift (`fluxtemp:CH`), the host's formula in f32:
+/// `B = B_F + (T − T_ref)·(b + s∘B_F)` on the body-frame vector before `fluxcal`'s
+/// calibration (the host corrects the raw fluxgate first, then calibrates).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FluxTempCal {
+    pub t_ref_degc: f32,
+    pub bias_nt_per_degc: [f32; 3],
+    pub scale_per_degc: [f32; 3],
+}
+
+impl FluxTempCal {
+    /// No correction (all zero): the vector passes unchanged, whatever the temperature.
+    pub const NONE: Self = Self {
+        t_ref_degc: 0.0,
+        bias_nt_per_degc: [0.0; 3],
+        scale_per_degc: [0.0; 3],
+    };
+
+    pub fn is_none(&self) -> bool {
+        self.bias_nt_per_degc == [0.0; 3] && self.scale_per_degc == [0.0; 3]
+    }
+
+    /// The corrected vector; NaN (the sample is then `FLUX_STALE`) when a correction is set
+    /// and the temperature is missing, so it is never silently left uncorrected.
+    pub fn apply(&self, b: [f32; 3], t_degc: f32) -> [f32; 3] {
+        if self.is_none() {
+            return b;
+        }
+        let d = t_degc - self.t_ref_degc;
+        if !d.is_finite() {
+            return [f32::NAN; 3];
+        }
+        [0, 1, 2].map(|i| b[i] + d * (self.bias_nt_per_degc[i] + self.scale_per_degc[i] * b[i]))
+    }
+
+    /// 7 values: T_ref (°C), b (nT/°C) ×3, s (1/°C) ×3.
+    pub fn to_array(&self) -> [f32; FLUX_TEMP_LEN] {
+        let (b, s) = (&self.bias_nt_per_degc, &self.scale_per_degc);
+        [self.t_ref_degc, b[0], b[1], b[2], s[0], s[1], s[2]]
+    }
+
+    /// From 7 values; `None` unless plausible for a working fluxgate: T_ref within
+    /// ±[`MAX_ASCII_DEGC`], |b| ≤ 1 000 nT/°C, |s| ≤ 0.01/°C (1 %/°C; real drifts are
+    /// ~1 nT/°C and ~10 ppm/°C).
+    pub fn from_array(v: &[f32; FLUX_TEMP_LEN]) -> Option<Self> {
+        let plausible = v.iter().all(|x| x.is_finite())
+            && libm::fabsf(v[0]) <= MAX_ASCII_DEGC as f32
+            && v[1..4].iter().all(|b| libm::fabsf(*b) <= 1_000.0)
+            && v[4..].iter().all(|s| libm::fabsf(*s) <= 0.01);
+        plausible.then(|| Self {
+            t_ref_degc: v[0],
+            bias_nt_per_degc: [v[1], v[2], v[3]],
+            scale_per_degc: [v[4], v[5], v[6]],
+        })
+    }
 }
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -290,6 +365,11 @@ impl FluxAsciiReader {
 
     /// Feeds a byte; a non-empty line yields one result (sensor-frame nT).
     pub fn push(&mut self, b: u8) -> Option<Result<[f32; 3], FluxError>> {
+        self.push_frame(b).map(|r| r.map(|(v, _)| v))
+    }
+
+    /// As [`push`](Self::push), with the line's temperature (°C, NaN on a 3-field line).
+    pub fn push_frame(&mut self, b: u8) -> Option<Result<([f32; 3], f32), FluxError>> {
         if b == b'\r' || b == b'\n' {
             if self.len == 0 && !self.overlong {
                 return None;
@@ -301,7 +381,7 @@ impl FluxAsciiReader {
             } else if self.checksummed && !has_checksum {
                 Err(FluxError::Checksum)
             } else {
-                parse_ascii_line(line)
+                parse_ascii_frame(line)
             };
             if r.is_ok() && has_checksum {
                 self.checksummed = true;

@@ -5,8 +5,8 @@ use crate::capture_sim::FluxFormat;
 use crate::model_spec::{ModelSpec, BOARD_MODEL};
 use crate::output::AtomicFile;
 use crate::replay::{
-    csv_row, read_coefficients_for, read_flux_calibration, read_scalar_lag, replay_capture,
-    ReplayOptions, ReplayStats, CSV_HEADER,
+    csv_row, read_coefficients_for, read_flux_calibration, read_flux_temperature, read_scalar_lag,
+    replay_capture, ReplayOptions, ReplayStats, CSV_HEADER,
 };
 use anyhow::{Context, Result};
 use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
@@ -86,6 +86,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .map(|p| read_coefficients_for(p, Some(&model)))
         .transpose()?;
     let model_has_lag = model.terms.iter().any(|t| t.name == "lag");
+    let model_has_fluxtemp = model.terms.iter().any(|t| t.name == "fluxtemp");
     let mut opts = ReplayOptions::new(model);
     opts.coefficients = coefficients;
     opts.flux_calibration = args
@@ -102,6 +103,19 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     if model_has_lag && opts.lag_s.is_none() {
         anyhow::bail!(
             "model '{}' has `lag` but no τ is given: pass --lag-s or a coefficient file with scalar_lag",
+            args.model
+        );
+    }
+    // Like the fluxgate calibration: applied whenever the file holds one (upload sends it).
+    opts.flux_temp = args
+        .coeffs
+        .as_deref()
+        .map(read_flux_temperature)
+        .transpose()?
+        .flatten();
+    if model_has_fluxtemp && opts.flux_temp.is_none() {
+        anyhow::bail!(
+            "model '{}' has `fluxtemp` but no correction is given: pass a coefficient file with fluxgate_temperature",
             args.model
         );
     }

@@ -7,7 +7,7 @@ use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::PathBuf;
 
-/// Send a `calibrate` coefficient file to the board (SETCOEF, SETFLUX, SETLAG, SAVE lines).
+/// Send a `calibrate` coefficient file to the board (SETCOEF, SETFLUX, SETLAG, SETFTEMP, SAVE lines).
 #[derive(clap::Args, Debug, Clone)]
 pub struct UploadArgs {
     /// Coefficient file from `magcomp calibrate` (Kalman-filter method).
