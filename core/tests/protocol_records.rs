@@ -260,6 +260,55 @@ fn replies() {
     assert!(check_reply(&b[..n]).is_none());
 }
 
+/// What a sender reads from a reply: ACK payload, the board's verdict, or a transport error
+/// (resend), for every error code; records and damaged replies are not replies.
+#[test]
+fn replies_classified_for_the_sender() {
+    let mut b = [0u8; 96];
+    let all = [
+        CommandError::Framing,
+        CommandError::BadChecksum,
+        CommandError::UnknownCommand,
+        CommandError::BadArgument,
+        CommandError::IndexOutOfBounds,
+        CommandError::ValueOutOfBounds,
+        CommandError::Overlong,
+    ];
+    for e in all {
+        let n = encode_error(e, &mut b).unwrap();
+        assert_eq!(parse_reply(&b[..n]), Some(Reply::Refused(e)));
+        assert_eq!(CommandError::from_code(e.code()), Some(e));
+    }
+    let transport: Vec<_> = all.into_iter().filter(|e| e.is_transport()).collect();
+    assert_eq!(
+        transport,
+        [
+            CommandError::Framing,
+            CommandError::BadChecksum,
+            CommandError::Overlong
+        ]
+    );
+    assert_eq!(CommandError::from_code(0), None);
+    assert_eq!(CommandError::from_code(8), None);
+    let n = encode_ack(b"SETLAG", &[b"0.3"], &mut b).unwrap();
+    assert_eq!(parse_reply(&b[..n]), Some(Reply::Ack(&b"SETLAG,0.3"[..])));
+    b[9] ^= 1;
+    assert_eq!(parse_reply(&b[..n]), None, "CRC fails: not a reply");
+    let storage = b"$MCERR,8,STORAGE";
+    let line = format!(
+        "{}*{:04X}",
+        std::str::from_utf8(storage).unwrap(),
+        magcomp_core::protocol::common::crc16_ccitt(&storage[1..])
+    );
+    assert_eq!(
+        parse_reply(line.as_bytes()),
+        Some(Reply::BoardError(&b"8,STORAGE"[..]))
+    );
+    let mut b = [0u8; MAX_RECORD_LEN];
+    let n = encode_record(&rec(1, 0.5, 0.0, 0.0, 1.0, 0), &mut b).unwrap();
+    assert_eq!(parse_reply(&b[..n]), None, "a record is not a reply");
+}
+
 #[test]
 fn coefficient_blob() {
     let coef: Vec<f32> = (0..21).map(|i| (i as f32 - 10.0) * 0.37e-3).collect();

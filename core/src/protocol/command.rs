@@ -107,6 +107,61 @@ impl CommandError {
             CommandError::Overlong => "OVERLONG",
         }
     }
+
+    /// The error with this `$MCERR` code.
+    pub fn from_code(code: u8) -> Option<Self> {
+        [
+            CommandError::Framing,
+            CommandError::BadChecksum,
+            CommandError::UnknownCommand,
+            CommandError::BadArgument,
+            CommandError::IndexOutOfBounds,
+            CommandError::ValueOutOfBounds,
+            CommandError::Overlong,
+        ]
+        .into_iter()
+        .find(|e| e.code() == code)
+    }
+
+    /// The errors a well-formed command gets only when its bytes were damaged on the line (a
+    /// byte lost or changed, two lines run together): it was not executed, and resending it
+    /// is the remedy. The others are the board's verdict on the command itself.
+    pub fn is_transport(self) -> bool {
+        matches!(
+            self,
+            CommandError::Framing | CommandError::BadChecksum | CommandError::Overlong
+        )
+    }
+}
+
+/// A reply line, as the sender of a command reads it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reply<'a> {
+    /// `$MCACK,<CMD>[,<values>]`: the text after `MCACK,` (without the CRC).
+    Ack(&'a [u8]),
+    /// `$MCERR,<code>,<TEXT>` for the command line received.
+    Refused(CommandError),
+    /// `$MCERR` the board raised on its own account (`8,STORAGE`: the flash write failed).
+    BoardError(&'a [u8]),
+}
+
+/// Classifies an output line; `None` for records and for replies whose CRC fails.
+pub fn parse_reply(line: &[u8]) -> Option<Reply<'_>> {
+    let payload = check_reply(line)?;
+    if let Some(ack) = payload.strip_prefix(b"MCACK,") {
+        return Some(Reply::Ack(ack));
+    }
+    let err = payload.strip_prefix(b"MCERR,")?;
+    let code = err.split(|&b| b == b',').next().and_then(parse_u32);
+    Some(
+        match code
+            .and_then(|c| u8::try_from(c).ok())
+            .and_then(CommandError::from_code)
+        {
+            Some(e) => Reply::Refused(e),
+            None => Reply::BoardError(err),
+        },
+    )
 }
 
 /// Parses one command line; `n_coef` is the model's state count (index bound).
