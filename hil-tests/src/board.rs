@@ -11,6 +11,7 @@
 //! `MAGCOMP_HIL_GPS` (115200 Bd), set raw with `stty`. `MAGCOMP_FW_ELF` names the ELF.
 
 use crate::capture::{Capture, Port};
+use magcomp_core::protocol::command::{Reply, parse_reply};
 use magcomp_core::protocol::common::xor_checksum;
 use magcomp_core::protocol::fluxgate::FluxAsciiReader;
 use magcomp_core::protocol::nmea::{NmeaReader, Sentence};
@@ -185,6 +186,9 @@ impl Input {
     }
 }
 
+/// Resends of one command line that arrived damaged.
+pub const MAX_RESENDS: usize = 3;
+
 pub struct Board {
     child: Option<Child>,
     inputs: HashMap<Port, Input>,
@@ -196,6 +200,8 @@ pub struct Board {
     sync: bool,
     /// Output lines already searched for `$MCSYN`.
     syn_from: usize,
+    /// Commands resent because the board received them damaged (see [`Board::command_line`]).
+    resends: usize,
     pub started: Instant,
 }
 
@@ -352,6 +358,7 @@ impl Board {
             dir,
             sync: false,
             syn_from: 0,
+            resends: 0,
             started: Instant::now(),
         })
     }
@@ -411,6 +418,7 @@ impl Board {
             dir,
             sync: false,
             syn_from: 0,
+            resends: 0,
             started: Instant::now(),
         })
     }
@@ -517,12 +525,46 @@ impl Board {
         self.cmd.write_all(b).map_err(|e| e.to_string())
     }
 
-    /// Sends `$<body>*HH` and returns the next `$MCACK`/`$MCERR` reply line.
+    /// Sends `$<body>*HH` and returns its reply (see [`Board::command_line`]).
     pub fn command(&mut self, body: &str) -> Result<String> {
-        self.command_raw(&sentence(body))
+        self.command_line(&sentence(body))
     }
 
-    /// Sends raw bytes and returns the next reply line.
+    /// Sends a well-formed command line and returns its `$MCACK`/`$MCERR` reply. A reply that
+    /// says the line arrived damaged (`FRAMING`, `CHECKSUM`, `OVERLONG`: not executed) gets
+    /// it resent, at most [`MAX_RESENDS`] times. Why a line can arrive damaged on a board
+    /// with a perfect link: embassy-stm32 0.6's BufferedUart clears TC with a read-modify-write
+    /// of SR, which also clears an RXNE set between its read and its write, so a command byte
+    /// arriving as the board ends a transmission is lost (QEMU widens that window; on silicon
+    /// it is a few cycles). `magcomp upload` resends the same way.
+    pub fn command_line(&mut self, bytes: &[u8]) -> Result<String> {
+        for _ in 0..=MAX_RESENDS {
+            let r = self.command_raw(bytes)?;
+            match parse_reply(r.as_bytes()) {
+                Some(Reply::Refused(e)) if e.is_transport() => {
+                    self.resends += 1;
+                    eprintln!(
+                        "note: {:?} arrived damaged ({r}), resent",
+                        String::from_utf8_lossy(bytes).trim_end()
+                    );
+                }
+                _ => return Ok(r),
+            }
+        }
+        Err(format!(
+            "{:?} still damaged after {MAX_RESENDS} resends",
+            String::from_utf8_lossy(bytes)
+        ))
+    }
+
+    /// Commands resent so far because they arrived damaged: each one is also an `$MCERR`
+    /// the board counted.
+    pub fn resends(&self) -> usize {
+        self.resends
+    }
+
+    /// Sends raw bytes and returns the next reply line (no resend: for lines meant to be
+    /// malformed).
     pub fn command_raw(&mut self, bytes: &[u8]) -> Result<String> {
         let from = self.n_lines();
         self.send_command_bytes(bytes)?;
