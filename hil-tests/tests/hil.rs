@@ -24,6 +24,24 @@ fn scalar_line(
     parse_scalar_line(&b[..end], &ScalarConfig::default())
 }
 
+/// Sends a command and returns its reply, whose CRC must check.
+fn reply(b: &mut Board, body: &str) -> String {
+    let r = b.command(body).unwrap_or_else(|e| panic!("{body}: {e}"));
+    assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
+    r
+}
+
+/// The values of a reply `$MCACK,<CMD>,v1,v2…*HHHH`.
+fn reply_values(r: &str) -> Vec<f32> {
+    r.split('*')
+        .next()
+        .unwrap_or_default()
+        .split(',')
+        .skip(2)
+        .map(|v| v.parse().unwrap_or_else(|_| panic!("value {v:?} in {r}")))
+        .collect()
+}
+
 /// Speed factor of the stream (1.0 = real time). `MAGCOMP_HIL_SPEED` can raise it for a
 /// quick local run; CI keeps the sensors' real rates.
 fn speed() -> f64 {
@@ -396,11 +414,6 @@ fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
         return;
     }
     let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let reply = |b: &mut Board, body: &str| {
-        let r = b.command(body).unwrap();
-        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
-        r
-    };
     let value = |r: &str| -> f64 {
         r.split(['*', ','])
             .nth(2)
@@ -478,22 +491,8 @@ fn fluxtemp_set_over_the_command_port_is_stored() {
         return;
     }
     let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
-    let reply = |b: &mut Board, body: &str| {
-        let r = b.command(body).unwrap();
-        assert!(check_reply(r.as_bytes()).is_some(), "reply CRC: {r}");
-        r
-    };
-    let values = |r: &str| -> Vec<f32> {
-        r.split('*')
-            .next()
-            .unwrap()
-            .split(',')
-            .skip(2)
-            .map(|v| v.parse().unwrap())
-            .collect()
-    };
     assert_eq!(
-        values(&reply(&mut b, "MCCMD,GETFTEMP")),
+        reply_values(&reply(&mut b, "MCCMD,GETFTEMP")),
         [0.0; 7],
         "none at boot"
     );
@@ -506,15 +505,15 @@ fn fluxtemp_set_over_the_command_port_is_stored() {
         let r = reply(&mut b, &format!("MCCMD,SETFTEMP,{bad}"));
         assert!(r.starts_with("$MCERR,"), "SETFTEMP,{bad} → {r}");
     }
-    assert_eq!(values(&reply(&mut b, "MCCMD,GETFTEMP")), want);
+    assert_eq!(reply_values(&reply(&mut b, "MCCMD,GETFTEMP")), want);
     assert!(reply(&mut b, "MCCMD,SAVE").starts_with("$MCACK,SAVE"));
     for i in 0..7 {
         reply(&mut b, &format!("MCCMD,SETFTEMP,{i},0"));
     }
-    assert_eq!(values(&reply(&mut b, "MCCMD,GETFTEMP")), [0.0; 7]);
+    assert_eq!(reply_values(&reply(&mut b, "MCCMD,GETFTEMP")), [0.0; 7]);
     assert!(reply(&mut b, "MCCMD,RESET").starts_with("$MCACK,RESET,"));
     assert_eq!(
-        values(&reply(&mut b, "MCCMD,GETFTEMP")),
+        reply_values(&reply(&mut b, "MCCMD,GETFTEMP")),
         want,
         "after RESET"
     );
@@ -653,30 +652,21 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
         let r = b.command_line(format!("{l}\r\n").as_bytes()).unwrap();
         assert!(r.starts_with("$MCACK"), "{l} → {r}");
     }
-    let values = |r: &str| -> Vec<f32> {
-        r.split('*')
-            .next()
-            .unwrap()
-            .split(',')
-            .skip(2)
-            .map(|v| v.parse().unwrap())
-            .collect()
-    };
     let check = |b: &mut Board, when: &str| {
-        let c = values(&b.command("MCCMD,GETCOEF").unwrap());
-        let f = values(&b.command("MCCMD,GETFLUX").unwrap());
+        let c = reply_values(&b.command("MCCMD,GETCOEF").unwrap());
+        let f = reply_values(&b.command("MCCMD,GETFLUX").unwrap());
         assert!(
             coefficients_read_back(&c, &want_coef),
             "{when}: coefficients {c:?} ≠ {want_coef:?}"
         );
         assert_eq!(f, want_flux, "{when}: fluxgate calibration");
         assert_eq!(
-            values(&b.command("MCCMD,GETLAG").unwrap()),
+            reply_values(&b.command("MCCMD,GETLAG").unwrap()),
             [0.0],
             "{when}: τ"
         );
         assert_eq!(
-            values(&b.command("MCCMD,GETFTEMP").unwrap()),
+            reply_values(&b.command("MCCMD,GETFTEMP").unwrap()),
             [0.0; 7],
             "{when}: fluxgate temperature correction"
         );
@@ -776,15 +766,7 @@ fn commands_back_to_back_all_take_effect() {
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert!(r.starts_with(&format!("$MCACK,SETCOEF,{i},")), "{r}");
         }
-        let all = b.command("MCCMD,GETCOEF").unwrap();
-        let got: Vec<f32> = all
-            .split('*')
-            .next()
-            .unwrap()
-            .split(',')
-            .skip(2)
-            .map(|v| v.parse().unwrap())
-            .collect();
+        let got = reply_values(&reply(&mut b, "MCCMD,GETCOEF"));
         assert!(
             coefficients_read_back(&got, &want),
             "{name}: round {round}: {got:?} ≠ {want:?}"

@@ -6,8 +6,11 @@
 //! simulator's truth must be close to the host's own, and clearly worse without SETFTEMP.
 //! Run: `cargo test --release -p magcomp --test replay_fluxtemp -- --nocapture`.
 
+#[path = "common/board_replay.rs"]
+mod board_replay;
+
+use board_replay::{board_flight, coefficient_file, rms_about_mean, survey_replay, write_capture};
 use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-use magcomp::flight::Flight;
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions};
 use magcomp::replay::{board_flux_temperature, replay_capture, ReplayOptions};
@@ -29,40 +32,18 @@ fn flight_trace(seed: u64) -> Trace {
     simulate(&cfg).expect("simulate")
 }
 
-/// The trace as the board sees it: no core-field model (as `replay_sim.rs`).
-fn flight(trace: &Trace, spec: &ModelSpec) -> Flight {
-    let mut t = trace.clone();
-    t.numeric.retain(|(name, _)| name != "igrf");
-    Flight::from_trace(&t, &spec.channels(), &spec.relative_channels()).expect("flight")
-}
-
 fn replay(trace: &Trace, coefficients: &[f32], flux_temp: Option<FluxTempCal>) -> Vec<Record> {
-    let cap = trace_to_capture(trace, &CaptureOptions::default()).expect("capture");
-    let mut o = ReplayOptions::new(ModelSpec::parse("tl16+field").expect("spec"));
-    o.coefficients = Some(coefficients.to_vec());
-    o.flux_temp = flux_temp;
-    let mut recs = Vec::new();
-    replay_capture(cap.as_slice(), &o, |r| {
-        recs.push(*r);
-        Ok(())
-    })
-    .expect("replay");
-    assert_eq!(recs.len(), trace.len(), "one record per scalar sample");
-    assert!(recs.iter().all(|r| r.flags.contains(Flags::SURVEY_MODE)));
-    recs
+    survey_replay(trace, coefficients, |o| o.flux_temp = flux_temp)
 }
 
 /// RMS (mean removed) of `est − truth` where `keep`, and how many.
 fn rms_nt(est: impl Iterator<Item = f64>, truth: &[f64], keep: &[bool]) -> (f64, usize) {
-    let d: Vec<f64> = est
-        .zip(truth)
-        .zip(keep)
-        .filter(|(_, k)| **k)
-        .map(|((e, t), _)| e - t)
-        .collect();
-    let m = d.iter().sum::<f64>() / d.len() as f64;
-    let rms = (d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
-    (rms, d.len())
+    rms_about_mean(
+        est.zip(truth)
+            .zip(keep)
+            .filter(|(_, k)| **k)
+            .map(|((e, t), _)| e - t),
+    )
 }
 
 /// Seeds 2 and 3: the drift costs the uncorrected board a clear error there (seed 7 at
@@ -97,7 +78,7 @@ fn board_fluxtemp_on(seed: u64) {
     );
 
     let spec = ModelSpec::parse(MODEL).expect("spec");
-    let run = run_kf(&flight(&trace, &spec), &KfOptions::new(spec)).expect("kf");
+    let run = run_kf(&board_flight(&trace, &spec), &KfOptions::new(spec)).expect("kf");
     let coefficients: Vec<f32> = run.coefficients.iter().map(|v| *v as f32).collect();
     let correction = run
         .preprocessing
@@ -159,27 +140,8 @@ fn replay_cli_takes_the_correction_from_the_coefficient_file() {
     };
     let trace = simulate(&cfg).expect("simulate");
     let dir = std::env::temp_dir().join(format!("magcomp-replay-ftemp-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let cap = dir.join("flight.cap");
-    std::fs::write(
-        &cap,
-        trace_to_capture(&trace, &CaptureOptions::default()).unwrap(),
-    )
-    .unwrap();
-    let names = ModelSpec::parse(MODEL).unwrap().coefficient_names();
-    assert_eq!(names.len(), 16, "`fluxtemp` adds no filter state");
-    let coefficients: Vec<f32> = (0..16).map(|i| (i as f32 - 7.5) * 0.25).collect();
-    let entries: Vec<String> = names
-        .iter()
-        .zip(&coefficients)
-        .map(|((n, _), v)| format!(r#"{{"name":"{n}","unit":"nT","value":{v},"sigma":0.1}}"#))
-        .collect();
-    let file = |extra: &str| {
-        format!(
-            r#"{{"format":"magcomp-coefficients-v1","model":"{MODEL}","method":"kf","sample_rate_hz":10,{extra}"coefficients":[{}]}}"#,
-            entries.join(",")
-        )
-    };
+    let cap = write_capture(&trace, &dir);
+    let (coefficients, file) = coefficient_file(MODEL);
     let ft = |s1: f64| {
         format!(
             r#""fluxgate_temperature":{{"channel":"temp_flux","reference_degc":18.0,"bias_nt_per_degc":[5.0,-3.5,3.5],"bias_sigma_nt_per_degc":[0.1,0.1,0.1],"scale_per_degc":[0.0,{s1},0.0],"scale_sigma_per_degc":[0.0,0.0,0.0]}},"#

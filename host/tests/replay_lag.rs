@@ -6,8 +6,11 @@
 //! the board is not told τ.
 //! Run: `cargo test --release -p magcomp --test replay_lag -- --nocapture`.
 
+#[path = "common/board_replay.rs"]
+mod board_replay;
+
+use board_replay::{board_flight, coefficient_file, rms_about_mean, survey_replay, write_capture};
 use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-use magcomp::flight::Flight;
 use magcomp::model_spec::ModelSpec;
 use magcomp::pipeline::{run_kf, KfOptions};
 use magcomp::replay::{replay_capture, ReplayOptions};
@@ -31,17 +34,10 @@ fn flight_trace(lag_s: Option<f64>) -> Trace {
     simulate(&cfg).expect("simulate")
 }
 
-/// The trace as the board sees it: no core-field model (as `replay_sim.rs`).
-fn flight(trace: &Trace, spec: &ModelSpec) -> Flight {
-    let mut t = trace.clone();
-    t.numeric.retain(|(name, _)| name != "igrf");
-    Flight::from_trace(&t, &spec.channels(), &spec.relative_channels()).expect("flight")
-}
-
 /// Host calibration: the coefficients (model order, as `SETCOEF` sends them) and τ̂.
 fn calibrate(trace: &Trace, model: &str) -> (Vec<f32>, Option<f64>) {
     let spec = ModelSpec::parse(model).expect("spec");
-    let run = run_kf(&flight(trace, &spec), &KfOptions::new(spec)).expect("kf");
+    let run = run_kf(&board_flight(trace, &spec), &KfOptions::new(spec)).expect("kf");
     let lag = run
         .preprocessing
         .as_ref()
@@ -51,19 +47,7 @@ fn calibrate(trace: &Trace, model: &str) -> (Vec<f32>, Option<f64>) {
 }
 
 fn replay(trace: &Trace, coefficients: &[f32], lag_s: Option<f32>) -> Vec<Record> {
-    let cap = trace_to_capture(trace, &CaptureOptions::default()).expect("capture");
-    let mut o = ReplayOptions::new(ModelSpec::parse("tl16+field").expect("spec"));
-    o.coefficients = Some(coefficients.to_vec());
-    o.lag_s = lag_s;
-    let mut recs = Vec::new();
-    replay_capture(cap.as_slice(), &o, |r| {
-        recs.push(*r);
-        Ok(())
-    })
-    .expect("replay");
-    assert_eq!(recs.len(), trace.len(), "one record per scalar sample");
-    assert!(recs.iter().all(|r| r.flags.contains(Flags::SURVEY_MODE)));
-    recs
+    survey_replay(trace, coefficients, |o| o.lag_s = lag_s)
 }
 
 /// What the scalar of record k holds: the aircraft's interference at t_k − τ, i.e. the
@@ -84,15 +68,12 @@ fn truth_in_scalar(trace: &Trace, lag_s: f64) -> Vec<f64> {
 /// RMS (mean removed) of the records' interference − truth on undegraded records, and
 /// how many records that is.
 fn error_nt(recs: &[Record], truth: &[f64]) -> (f64, usize) {
-    let d: Vec<f64> = recs
-        .iter()
-        .zip(truth)
-        .filter(|(r, t)| !r.flags.degraded() && t.is_finite())
-        .map(|(r, t)| r.interference_nt as f64 - t)
-        .collect();
-    let m = d.iter().sum::<f64>() / d.len() as f64;
-    let rms = (d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt();
-    (rms, d.len())
+    rms_about_mean(
+        recs.iter()
+            .zip(truth)
+            .filter(|(r, t)| !r.flags.degraded() && t.is_finite())
+            .map(|(r, t)| r.interference_nt as f64 - t),
+    )
 }
 
 #[test]
@@ -150,28 +131,9 @@ fn replay_cli_takes_the_lag_from_the_coefficient_file() {
     cfg.hidden = vec![parse_hidden("lag:0.2").expect("spec")];
     let trace = simulate(&cfg).expect("simulate");
     let dir = std::env::temp_dir().join(format!("magcomp-replay-lag-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let cap = dir.join("flight.cap");
-    std::fs::write(
-        &cap,
-        trace_to_capture(&trace, &CaptureOptions::default()).unwrap(),
-    )
-    .unwrap();
+    let cap = write_capture(&trace, &dir);
     let model = "tl16+field+lag";
-    let names = ModelSpec::parse(model).unwrap().coefficient_names();
-    assert_eq!(names.len(), 16, "`lag` adds no filter state");
-    let coefficients: Vec<f32> = (0..16).map(|i| (i as f32 - 7.5) * 0.25).collect();
-    let entries: Vec<String> = names
-        .iter()
-        .zip(&coefficients)
-        .map(|((n, _), v)| format!(r#"{{"name":"{n}","unit":"nT","value":{v},"sigma":0.1}}"#))
-        .collect();
-    let file = |lag: &str| {
-        format!(
-            r#"{{"format":"magcomp-coefficients-v1","model":"{model}","method":"kf","sample_rate_hz":10,{lag}"coefficients":[{}]}}"#,
-            entries.join(",")
-        )
-    };
+    let (coefficients, file) = coefficient_file(model);
     let coeffs = dir.join("c.json");
     std::fs::write(
         &coeffs,
