@@ -8,7 +8,7 @@
 //! it then answers `$MCERR,2,CHECKSUM` (or FRAMING/OVERLONG) and does not apply the line,
 //! or — if the terminator was lost — does not answer until the next line ends.
 
-use anyhow::{anyhow, bail, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use magcomp_core::protocol::command::{encode_command, parse_reply, Command, Reply};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
@@ -226,9 +226,10 @@ impl<W: Write> BoardLink<W> {
     }
 
     fn send(&mut self, bytes: &[u8]) -> Result<()> {
-        self.out.write_all(bytes)?;
-        self.out.flush()?;
-        Ok(())
+        self.out
+            .write_all(bytes)
+            .and_then(|()| self.out.flush())
+            .context("writing to the board's port")
     }
 
     /// Reads until `cmd`'s reply or `deadline`; on the timeout, ends a partial line and
@@ -346,11 +347,9 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
         if same {
             read_back_ok += 1;
         } else {
-            mismatches.push(format!(
-                "{}: board {got:e}, file {sent:e}",
-                ack_key(&get).0.to_owned()
-                    + &ack_key(&get).1.map_or(String::new(), |i| format!(",{i}"))
-            ));
+            let (word, index) = ack_key(&get);
+            let index = index.map_or(String::new(), |i| format!(",{i}"));
+            mismatches.push(format!("{word}{index}: board {got:e}, file {sent:e}"));
         }
     }
     let read_back = std::mem::take(&mut link.stats);
@@ -367,4 +366,56 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
         read_back_ok,
         read_back,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn two_ulp_of_f32_and_no_more() {
+        // measured on QEMU: SETCOEF 11,-61.25 → GETCOEF -61.2500038 (1 ulp = 3.8e-6)
+        assert!(within_2_ulp(-61.25, -61.250_004));
+        let two = f32::from_bits((-61.25f32).to_bits() + 2);
+        let three = f32::from_bits((-61.25f32).to_bits() + 3);
+        assert!(within_2_ulp(-61.25, two));
+        assert!(!within_2_ulp(-61.25, three));
+        assert!(within_2_ulp(0.0, 0.0));
+        assert!(!within_2_ulp(0.0, 1e-30));
+        assert!(!within_2_ulp(1.0, f32::NAN));
+    }
+
+    #[test]
+    fn an_ack_answers_only_its_own_line() {
+        let set = Command::SetCoef {
+            index: 3,
+            value: -61.25,
+        };
+        assert_eq!(
+            answers(&set, b"SETCOEF,3,-6.12500000E1").unwrap(),
+            Some(Some(-61.25))
+        );
+        // a late ACK of another line, another command
+        assert_eq!(answers(&set, b"SETCOEF,2,-6.12500000E1").unwrap(), None);
+        assert_eq!(answers(&set, b"SETFLUX,3,-6.12500000E1").unwrap(), None);
+        // the same line echoed with another value: the board holds something else
+        let e = answers(&set, b"SETCOEF,3,-6.1E1").unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("with value -6.1e1, -6.125e1 was sent"),
+            "{e}"
+        );
+        // exact for the others
+        let lag = Command::SetLag(0.2);
+        assert_eq!(
+            answers(&lag, b"SETLAG,2.00000003E-1").unwrap(),
+            Some(Some(0.2))
+        );
+        assert!(answers(&lag, b"SETLAG,2.00000018E-1").is_err());
+        assert_eq!(answers(&Command::Save, b"SAVE").unwrap(), Some(None));
+        assert_eq!(
+            answers(&Command::GetCoef(Some(3)), b"GETCOEF,3,1.5").unwrap(),
+            Some(Some(1.5))
+        );
+    }
 }

@@ -32,11 +32,16 @@ enum Fault {
     /// One byte (the 11th) of every n-th line received is lost.
     DropByteEvery(usize),
     /// The k-th line received (1-based) loses its `\r\n`; with `damaged`, also a byte.
-    DropTerminatorOf { k: usize, damaged: bool },
+    DropTerminatorOf {
+        k: usize,
+        damaged: bool,
+    },
     /// `SETFLUX,index` is refused with VALUE (as an implausible calibration would be).
     RefuseFlux(u16),
     /// Reads everything, answers nothing.
     Silent,
+    /// `SETFLUX,index` is acknowledged with the value sent but 0.5 more is stored.
+    StoreFluxOff(u16),
 }
 
 /// What the board holds: coefficients as the filter's scaled state x = c / σ.
@@ -111,14 +116,19 @@ fn handle(cmd: Command, s: &mut BoardState, r: &mut FakeReport, fault: Fault) ->
             indexed(b"SETCOEF", index, value)
         }
         Command::GetCoef(Some(i)) => indexed(b"GETCOEF", i, s.coef(usize::from(i))),
-        Command::GetCoef(None) => {
-            ack_values(b"GETCOEF", &(0..N_COEF).map(|i| s.coef(i)).collect::<Vec<_>>())
-        }
+        Command::GetCoef(None) => ack_values(
+            b"GETCOEF",
+            &(0..N_COEF).map(|i| s.coef(i)).collect::<Vec<_>>(),
+        ),
         Command::SetFlux { index, value } => {
             let mut v = s.flux;
             v[usize::from(index)] = value;
             match (fault, FluxCalibration::from_array(&v)) {
                 (Fault::RefuseFlux(i), _) if i == index => error(CommandError::ValueOutOfBounds),
+                (Fault::StoreFluxOff(i), Some(_)) if i == index => {
+                    s.flux[usize::from(index)] = value + 0.5;
+                    indexed(b"SETFLUX", index, value)
+                }
                 (_, Some(_)) => {
                     s.flux = v;
                     indexed(b"SETFLUX", index, value)
@@ -268,7 +278,12 @@ fn file() -> CoefficientFile {
 }
 
 /// What the file puts on the board: coefficients, fluxcal, τ, fluxtemp.
-fn want() -> ([f32; N_COEF], [f32; FLUX_CAL_LEN], f32, [f32; FLUX_TEMP_LEN]) {
+fn want() -> (
+    [f32; N_COEF],
+    [f32; FLUX_CAL_LEN],
+    f32,
+    [f32; FLUX_TEMP_LEN],
+) {
     let mut c = [0.0; N_COEF];
     let mut f = [0.0; FLUX_CAL_LEN];
     let mut lag = f32::NAN;
@@ -290,7 +305,12 @@ fn want() -> ([f32; N_COEF], [f32; FLUX_CAL_LEN], f32, [f32; FLUX_TEMP_LEN]) {
 fn assert_holds_the_file(s: &BoardState) -> usize {
     let (c, f, lag, t) = want();
     for i in 0..N_COEF {
-        assert!(within_2_ulp(s.coef(i), c[i]), "coef {i}: {} vs {}", s.coef(i), c[i]);
+        assert!(
+            within_2_ulp(s.coef(i), c[i]),
+            "coef {i}: {} vs {}",
+            s.coef(i),
+            c[i]
+        );
     }
     assert_eq!(s.flux, f);
     assert_eq!(s.lag_s, lag);
@@ -356,14 +376,20 @@ fn a_lost_byte_in_every_fifth_line_is_resent() {
     assert_eq!(d, r.board.lines_received / 5);
     assert_eq!(r.board.lines_received, LINES + READ_BACK + d);
     assert_eq!(s.exchange.resends + s.read_back.resends, d);
-    assert_eq!(s.exchange.transport_errors + s.read_back.transport_errors, d);
+    assert_eq!(
+        s.exchange.transport_errors + s.read_back.transport_errors,
+        d
+    );
     assert_eq!(s.exchange.timeouts + s.read_back.timeouts, 0);
     assert!(s.exchange.resends >= 7, "{:?}", s.exchange);
     assert_eq!(s.exchange.acknowledged, LINES);
     assert_eq!(s.read_back_ok, READ_BACK);
     assert_eq!(r.board.saves, 1);
     assert_holds_the_file(&r.board.saved.unwrap());
-    println!("{d} damaged lines, {} resends", s.exchange.resends + s.read_back.resends);
+    println!(
+        "{d} damaged lines, {} resends",
+        s.exchange.resends + s.read_back.resends
+    );
 }
 
 #[test]
@@ -385,7 +411,10 @@ fn a_lost_terminator_is_recovered_by_the_timeout() {
     assert_holds_the_file(&r.board.saved.unwrap());
     // also damaged: the \r\n makes it a CHECKSUM error, the line is resent once.
     let r = run(
-        Fault::DropTerminatorOf { k: 9, damaged: true },
+        Fault::DropTerminatorOf {
+            k: 9,
+            damaged: true,
+        },
         Duration::from_millis(200),
     );
     let s = r.result.unwrap();
@@ -404,7 +433,10 @@ fn a_refused_value_stops_before_save() {
     assert_eq!(r.board.saves, 0, "SAVE never sent");
     // 16 SETCOEF + SETFLUX 0–4, then nothing
     assert_eq!(r.board.lines_received, 16 + 5);
-    assert_eq!(r.board.ram.flux[4], 1.0, "SETFLUX,4 not applied: the identity's 1 stays");
+    assert_eq!(
+        r.board.ram.flux[4], 1.0,
+        "SETFLUX,4 not applied: the identity's 1 stays"
+    );
 }
 
 #[test]
@@ -416,11 +448,27 @@ fn a_silent_board_is_an_error_after_the_retries_not_a_hang() {
         e.contains("no acknowledgement for '$MCCMD,SETCOEF,0,") && e.contains("after 3 resends"),
         "{e}"
     );
-    assert_eq!(r.board.lines_received, 4, "1 send + 3 resends of the first line");
+    assert_eq!(
+        r.board.lines_received, 4,
+        "1 send + 3 resends of the first line"
+    );
     assert_eq!(r.board.saves, 0);
     // 4 × (timeout + drain of timeout/4) = 0.5 s; generous bound against a hang
     assert!(r.elapsed < Duration::from_secs(5), "{:?}", r.elapsed);
     assert!(r.elapsed >= timeout * 4, "{:?}", r.elapsed);
+}
+
+#[test]
+fn a_value_stored_wrong_fails_the_read_back() {
+    let r = run(Fault::StoreFluxOff(9), Duration::from_secs(2));
+    let e = format!("{:#}", r.result.unwrap_err());
+    // the file's bias 320.5 nT, stored as 321
+    assert!(
+        e.contains("read-back differs from the file in 1 of 36 values: GETFLUX,9: board 3.21e2, file 3.205e2"),
+        "{e}"
+    );
+    assert_eq!(r.board.saves, 1);
+    assert_eq!(r.board.lines_received, LINES + READ_BACK);
 }
 
 /// `magcomp upload --to SOCKET`: the exchange from the command line; exit 0 with the
@@ -430,7 +478,10 @@ fn cli_upload_to_a_socket() {
     let d = tmp("upload-socket");
     let coeffs = d.join("coeffs.json");
     std::fs::write(&coeffs, serde_json::to_string(&file()).unwrap()).unwrap();
-    for (fault, ok) in [(Fault::DropByteEvery(7), true), (Fault::RefuseFlux(2), false)] {
+    for (fault, ok) in [
+        (Fault::DropByteEvery(7), true),
+        (Fault::RefuseFlux(2), false),
+    ] {
         let sock = d.join("board.sock");
         let _ = std::fs::remove_file(&sock);
         let listener = UnixListener::bind(&sock).unwrap();

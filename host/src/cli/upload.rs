@@ -123,11 +123,15 @@ pub fn run(args: &UploadArgs) -> Result<()> {
     };
     let (writer, lines): (Box<dyn Write>, LineSource) = match open_port(&args.to, true)? {
         Port::Tty(f) => {
-            let r = f.try_clone().with_context(|| format!("opening {}", args.to))?;
+            let r = f
+                .try_clone()
+                .with_context(|| format!("opening {}", args.to))?;
             (Box::new(f), LineSource::spawn(r))
         }
         Port::Socket(s) => {
-            let r = s.try_clone().with_context(|| format!("opening {}", args.to))?;
+            let r = s
+                .try_clone()
+                .with_context(|| format!("opening {}", args.to))?;
             (Box::new(s), LineSource::spawn(r))
         }
     };
