@@ -197,7 +197,7 @@ fn fake_board(mut port: UnixStream, fault: Fault) -> JoinHandle<FakeReport> {
                     r.lines_received += 1;
                     let k = r.lines_received;
                     match fault {
-                        Fault::DropByteEvery(every) if k % every == 0 => {
+                        Fault::DropByteEvery(every) if k.is_multiple_of(every) => {
                             line.remove(10);
                             r.damaged += 1;
                         }
@@ -222,7 +222,7 @@ fn fake_board(mut port: UnixStream, fault: Fault) -> JoinHandle<FakeReport> {
                     };
                     replies += 1;
                     // records and sync lines between replies: not replies, skipped
-                    if replies % 3 == 0 {
+                    if replies.is_multiple_of(3) {
                         let _ = port.write_all(b"$MCREC,17,1.5,2.5,NaN*0000\r\n$MCSYN,4,4,1\r\n");
                     }
                     if port.write_all(&reply).is_err() {
@@ -304,12 +304,11 @@ fn want() -> (
 /// exactly; the number of coefficients that came back not bit-exact.
 fn assert_holds_the_file(s: &BoardState) -> usize {
     let (c, f, lag, t) = want();
-    for i in 0..N_COEF {
+    for (i, &want) in c.iter().enumerate() {
         assert!(
-            within_2_ulp(s.coef(i), c[i]),
-            "coef {i}: {} vs {}",
-            s.coef(i),
-            c[i]
+            within_2_ulp(s.coef(i), want),
+            "coef {i}: {} vs {want}",
+            s.coef(i)
         );
     }
     assert_eq!(s.flux, f);
