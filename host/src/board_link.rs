@@ -249,13 +249,13 @@ impl<W: Write> BoardLink<W> {
                     return Ok(Outcome::Resend);
                 }
                 Some(Reply::Refused(e)) => bail!(
-                    "the board refused '{}': $MCERR {},{} (nothing saved)",
+                    "the board refused '{}': $MCERR {},{}",
                     line.trim_end(),
                     e.code(),
                     e.text()
                 ),
                 Some(Reply::BoardError(b)) => bail!(
-                    "the board answered '{}' with $MCERR,{} (nothing saved)",
+                    "the board answered '{}' with $MCERR,{}",
                     line.trim_end(),
                     String::from_utf8_lossy(b)
                 ),
@@ -295,7 +295,7 @@ impl<W: Write> BoardLink<W> {
             }
         }
         bail!(
-            "no acknowledgement for '{}' after {} resends ({} transport errors, {} timeouts of {:.2} s so far; nothing saved unless SAVE was acknowledged)",
+            "no acknowledgement for '{}' after {} resends ({} transport errors, {} timeouts of {:.2} s so far)",
             line.trim_end(),
             self.opts.max_resends,
             self.stats.transport_errors,
@@ -321,10 +321,13 @@ pub struct UploadSummary {
 /// value back and compares it with the one sent.
 pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<UploadSummary> {
     for c in cmds.iter().filter(|c| **c != Command::Save) {
-        link.exchange(c)?;
+        link.exchange(c).context(
+            "stopped before SAVE: the stored values are unchanged; the board runs partly new ones until RESET reloads them",
+        )?;
     }
     if cmds.contains(&Command::Save) {
-        link.exchange(&Command::Save)?;
+        link.exchange(&Command::Save)
+            .context("SAVE not acknowledged: the stored values may be the old ones")?;
     }
     let exchange = std::mem::take(&mut link.stats);
     let mut mismatches = Vec::new();
@@ -333,12 +336,15 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
         let (Some(get), Some((sent, coef))) = (read_back_of(c), set_value(c)) else {
             continue;
         };
-        let got = link.exchange(&get)?.ok_or_else(|| {
-            anyhow!(
-                "the board's reply to {} holds no value",
-                command_line(&get).unwrap_or_default().trim_end()
-            )
-        })?;
+        let got = link
+            .exchange(&get)
+            .context("reading back")?
+            .ok_or_else(|| {
+                anyhow!(
+                    "the board's reply to {} holds no value",
+                    command_line(&get).unwrap_or_default().trim_end()
+                )
+            })?;
         let same = if coef {
             within_2_ulp(sent, got)
         } else {

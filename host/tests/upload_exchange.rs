@@ -428,7 +428,10 @@ fn a_lost_terminator_is_recovered_by_the_timeout() {
 fn a_refused_value_stops_before_save() {
     let r = run(Fault::RefuseFlux(4), Duration::from_secs(2));
     let e = format!("{:#}", r.result.unwrap_err());
-    assert!(e.contains("SETFLUX,4,") && e.contains("6,VALUE"), "{e}");
+    assert!(
+        e.contains("stopped before SAVE") && e.contains("SETFLUX,4,") && e.contains("6,VALUE"),
+        "{e}"
+    );
     assert_eq!(r.board.saves, 0, "SAVE never sent");
     // 16 SETCOEF + SETFLUX 0–4, then nothing
     assert_eq!(r.board.lines_received, 16 + 5);

@@ -139,7 +139,7 @@ pub fn run(args: &UploadArgs) -> Result<()> {
     let s = upload(&mut link, &cmds).with_context(|| format!("uploading to {}", args.to))?;
     let e = s.exchange;
     println!(
-        "sent {} lines to {}: {} acknowledged, {} resends ({} damaged, {} unanswered){}; read-back OK: {} of {} values equal the file",
+        "sent {} lines to {}: {} acknowledged, {} resends ({} damaged, {} unanswered){}; read-back OK: {} of {} values equal the file ({} resends)",
         e.lines_sent,
         args.to,
         e.acknowledged,
@@ -148,7 +148,8 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         e.timeouts,
         if args.no_save { ", not saved (--no-save)" } else { ", saved" },
         s.read_back_ok,
-        s.read_back.lines_sent
+        s.read_back.lines_sent,
+        s.read_back.resends
     );
     Ok(())
 }
