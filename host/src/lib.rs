@@ -1,6 +1,7 @@
 //! magcomp host library: everything the `magcomp` command does, reusable from tests and
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
 
+pub mod board_link;
 pub mod capture_sim;
 pub mod cli;
 pub mod coefficients;

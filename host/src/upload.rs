@@ -14,6 +14,22 @@ use magcomp_core::protocol::lag_line::MAX_LAG_S;
 
 /// The command lines for a coefficient file, `SAVE` last unless `save` is false.
 pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Result<Vec<String>> {
+    let mut buf = [0u8; 96];
+    upload_commands(file, board_model, save)?
+        .iter()
+        .map(|c| {
+            let n = encode_command(c, &mut buf).context("command line too long")?;
+            Ok(String::from_utf8_lossy(&buf[..n]).into_owned())
+        })
+        .collect()
+}
+
+/// The commands for a coefficient file, `SAVE` last unless `save` is false.
+pub fn upload_commands(
+    file: &CoefficientFile,
+    board_model: &str,
+    save: bool,
+) -> Result<Vec<Command>> {
     if file.method != Method::Kf {
         bail!("Tolles–Lawson coefficients cannot be loaded into the board's filter: calibrate with --method kf");
     }
@@ -131,13 +147,7 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
     if save {
         cmds.push(Command::Save);
     }
-    let mut buf = [0u8; 96];
-    cmds.iter()
-        .map(|c| {
-            let n = encode_command(c, &mut buf).context("command line too long")?;
-            Ok(String::from_utf8_lossy(&buf[..n]).into_owned())
-        })
-        .collect()
+    Ok(cmds)
 }
 
 #[cfg(test)]

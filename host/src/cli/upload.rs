@@ -1,22 +1,30 @@
 //! `magcomp upload`: send a `calibrate` coefficient file to the board as command lines
-//! (`crate::upload`).
+//! (`crate::upload`), each acknowledged, resent when damaged, and read back
+//! (`crate::board_link`).
 
+use crate::board_link::{command_line, upload, BoardLink, ExchangeOptions, LineSource};
 use crate::coefficients::read_coefficients;
-use crate::upload::upload_lines;
-use anyhow::{Context, Result};
+use crate::upload::upload_commands;
+use anyhow::{bail, Context, Result};
 use std::io::Write;
+use std::os::unix::fs::FileTypeExt;
+use std::os::unix::net::UnixStream;
 use std::path::PathBuf;
+use std::time::Duration;
 
-/// Send a `calibrate` coefficient file to the board (SETCOEF, SETFLUX, SETLAG, SETFTEMP, SAVE lines).
+/// Send a `calibrate` coefficient file to the board (SETCOEF, SETFLUX, SETLAG, SETFTEMP, SAVE
+/// lines), each line acknowledged by the board, then read back.
 #[derive(clap::Args, Debug, Clone)]
 pub struct UploadArgs {
     /// Coefficient file from `magcomp calibrate` (Kalman-filter method).
     #[arg(value_name = "COEFFS.json")]
     pub coeffs: PathBuf,
 
-    /// Where to write the command lines: the board's output/command port (a serial device
-    /// set up with `stty`, 921 600 Bd) or `-` for stdout. Watch the replies with
-    /// `magcomp monitor` on the same port.
+    /// The board's output/command port: a serial device (set up with `stty ... raw`,
+    /// 921 600 Bd), a unix socket (ser2net, socat, QEMU), or `-` to print the lines to
+    /// stdout. On a port every line must be acknowledged (resent up to 3 times when it
+    /// arrives damaged or unanswered), SAVE is sent only then, and every value is read back
+    /// (see README.md, "Uploading coefficients").
     #[arg(long, default_value = "-", value_name = "PORT")]
     pub to: String,
 
@@ -27,36 +35,121 @@ pub struct UploadArgs {
     /// Do not end with `SAVE` (the values then last until the board restarts).
     #[arg(long)]
     pub no_save: bool,
+
+    /// Write the lines to the port without reading the board's replies (no retry, no
+    /// read-back): only for a port whose replies cannot be read.
+    #[arg(long)]
+    pub no_verify: bool,
+
+    /// How long to wait for the board's reply to a line before ending it with a bare
+    /// line break and resending it (SAVE: 5× this).
+    #[arg(long, default_value_t = 2.0, value_name = "S")]
+    pub reply_timeout_s: f64,
+}
+
+/// The port: written by the exchange, its clone read by the line thread.
+enum Port {
+    Tty(std::fs::File),
+    Socket(UnixStream),
+}
+
+fn open_port(path: &str, read: bool) -> Result<Port> {
+    let meta = std::fs::metadata(path).with_context(|| format!("opening {path}"))?;
+    if meta.file_type().is_socket() {
+        return Ok(Port::Socket(
+            UnixStream::connect(path).with_context(|| format!("connecting to {path}"))?,
+        ));
+    }
+    if meta.is_file() && !read {
+        // --no-verify into a file: the lines, as before
+    } else if meta.is_file() {
+        bail!("{path} is a regular file, not the board's port: nothing can answer there (write the lines with --to - or --no-verify)");
+    }
+    Ok(Port::Tty(
+        std::fs::OpenOptions::new()
+            .read(read)
+            .write(true)
+            .open(path)
+            .with_context(|| format!("opening {path}"))?,
+    ))
 }
 
 pub fn run(args: &UploadArgs) -> Result<()> {
     if args.to != "-" {
         crate::output::refuse_overwriting(&[&args.coeffs], &[std::path::Path::new(&args.to)])?;
     }
+    if !(args.reply_timeout_s.is_finite() && args.reply_timeout_s > 0.0) {
+        bail!(
+            "--reply-timeout-s must be a positive number of seconds, not {}",
+            args.reply_timeout_s
+        );
+    }
     let file = read_coefficients(&args.coeffs)?;
-    let lines = upload_lines(&file, &args.board_model, !args.no_save)?;
+    let cmds = upload_commands(&file, &args.board_model, !args.no_save)?;
     if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
         eprintln!(
             "note: the crossover rate fit's isotropic part ({:.4} s · d|B|/dt, the anomaly read {:.4} s late) has no board coefficient; the board compensates the rest",
             r.fit.coefficients[5], r.fit.coefficients[5]
         );
     }
-    let text: String = lines.concat();
+    let text: String = cmds
+        .iter()
+        .map(command_line)
+        .collect::<Result<Vec<_>>>()?
+        .concat();
     if args.to == "-" {
         std::io::stdout().write_all(text.as_bytes())?;
-    } else {
-        let mut port = std::fs::OpenOptions::new()
-            .write(true)
-            .open(&args.to)
-            .with_context(|| format!("opening {}", args.to))?;
+        return Ok(());
+    }
+    if args.no_verify {
+        let mut port: Box<dyn Write> = match open_port(&args.to, false)? {
+            Port::Tty(f) => Box::new(f),
+            Port::Socket(s) => Box::new(s),
+        };
         port.write_all(text.as_bytes())
+            .and_then(|()| port.flush())
             .with_context(|| format!("writing {}", args.to))?;
         eprintln!(
-            "sent {} command lines to {} (replies: magcomp monitor {})",
-            lines.len(),
+            "sent {} command lines to {} unverified (replies: magcomp monitor {})",
+            cmds.len(),
             args.to,
             args.to
         );
+        return Ok(());
     }
+    let opts = ExchangeOptions {
+        reply_timeout: Duration::from_secs_f64(args.reply_timeout_s),
+        ..ExchangeOptions::default()
+    };
+    let (writer, lines): (Box<dyn Write>, LineSource) = match open_port(&args.to, true)? {
+        Port::Tty(f) => {
+            let r = f
+                .try_clone()
+                .with_context(|| format!("opening {}", args.to))?;
+            (Box::new(f), LineSource::spawn(r))
+        }
+        Port::Socket(s) => {
+            let r = s
+                .try_clone()
+                .with_context(|| format!("opening {}", args.to))?;
+            (Box::new(s), LineSource::spawn(r))
+        }
+    };
+    let mut link = BoardLink::new(writer, lines, opts);
+    let s = upload(&mut link, &cmds).with_context(|| format!("uploading to {}", args.to))?;
+    let e = s.exchange;
+    println!(
+        "sent {} lines to {}: {} acknowledged, {} resends ({} damaged, {} unanswered){}; read-back OK: {} of {} values equal the file ({} resends)",
+        e.lines_sent,
+        args.to,
+        e.acknowledged,
+        e.resends,
+        e.transport_errors,
+        e.timeouts,
+        if args.no_save { ", not saved (--no-save)" } else { ", saved" },
+        s.read_back_ok,
+        s.read_back.lines_sent,
+        s.read_back.resends
+    );
     Ok(())
 }
