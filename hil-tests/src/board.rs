@@ -19,9 +19,10 @@ use magcomp_core::protocol::record::{Record, decode_record};
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 use std::collections::HashMap;
 use std::io::{Read, Write};
-use std::os::unix::net::UnixStream;
+use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 use std::thread;
 use std::time::{Duration, Instant};
@@ -192,7 +193,8 @@ pub const MAX_RESENDS: usize = 3;
 pub struct Board {
     child: Option<Child>,
     inputs: HashMap<Port, Input>,
-    cmd: Box<dyn Write + Send>,
+    /// The output port's write side (commands); shared with [`Board::serve_command_port`].
+    cmd: Arc<Mutex<Box<dyn Write + Send>>>,
     lines: Arc<Mutex<Vec<String>>>,
     /// Working directory of this run (sockets, QEMU logs, CSVs).
     pub dir: PathBuf,
@@ -353,7 +355,7 @@ impl Board {
         Ok(Board {
             child: Some(child),
             inputs,
-            cmd: Box::new(out),
+            cmd: Arc::new(Mutex::new(Box::new(out))),
             lines,
             dir,
             sync: false,
@@ -413,7 +415,7 @@ impl Board {
         Ok(Board {
             child: None,
             inputs,
-            cmd: Box::new(out),
+            cmd: Arc::new(Mutex::new(Box::new(out))),
             lines,
             dir,
             sync: false,
@@ -522,7 +524,8 @@ impl Board {
 
     /// Sends raw bytes on the command port.
     pub fn send_command_bytes(&mut self, b: &[u8]) -> Result<()> {
-        self.cmd.write_all(b).map_err(|e| e.to_string())
+        let mut cmd = self.cmd.lock().map_err(|_| "command port lock poisoned")?;
+        cmd.write_all(b).map_err(|e| e.to_string())
     }
 
     /// Sends `$<body>*HH` and returns its reply (see [`Board::command_line`]).
@@ -561,6 +564,49 @@ impl Board {
     /// the board counted.
     pub fn resends(&self) -> usize {
         self.resends
+    }
+
+    /// Serves the board's command port on a unix socket at `path`, as ser2net or socat do
+    /// for a real port, to one client (e.g. `magcomp upload --to PATH`): its bytes go to the
+    /// board, the board's output lines from the moment it connects go to it. The thread ends
+    /// when the client disconnects.
+    pub fn serve_command_port(&self, path: &Path) -> Result<thread::JoinHandle<()>> {
+        let listener = UnixListener::bind(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let (cmd, lines) = (self.cmd.clone(), self.lines.clone());
+        Ok(thread::spawn(move || {
+            let Ok((client, _)) = listener.accept() else {
+                return;
+            };
+            let mut from = lines.lock().map(|l| l.len()).unwrap_or(0);
+            let done = Arc::new(AtomicBool::new(false));
+            if let Ok(mut rx) = client.try_clone() {
+                let done = done.clone();
+                thread::spawn(move || {
+                    let mut buf = [0u8; 256];
+                    while let Ok(n @ 1..) = rx.read(&mut buf) {
+                        let Ok(mut c) = cmd.lock() else { break };
+                        if c.write_all(&buf[..n]).is_err() {
+                            break;
+                        }
+                    }
+                    done.store(true, Ordering::Relaxed);
+                });
+            }
+            let mut tx = client;
+            while !done.load(Ordering::Relaxed) {
+                let new: Vec<String> = match lines.lock() {
+                    Ok(l) => l[from..].to_vec(),
+                    Err(_) => break,
+                };
+                from += new.len();
+                for l in new {
+                    if tx.write_all(format!("{l}\r\n").as_bytes()).is_err() {
+                        return;
+                    }
+                }
+                thread::sleep(Duration::from_millis(2));
+            }
+        }))
     }
 
     /// Sends raw bytes and returns the next reply line (no resend: for lines meant to be

@@ -641,17 +641,35 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
         "a fluxgate bias was fitted"
     );
 
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    // its own directory: `Board::start` clears the board's, and this one holds the files
+    let mut b = Board::start(&format!("{name}-board")).unwrap_or_else(|e| panic!("{name}: {e}"));
     let sent = lines.lines().count();
     assert_eq!(
         sent,
         16 + 12 + 1 + 7 + 1,
         "SETCOEF × 16, SETFLUX × 12, SETLAG (0: no `lag`), SETFTEMP × 7 (0: no `fluxtemp`), SAVE"
     );
-    for l in lines.lines() {
-        let r = b.command_line(format!("{l}\r\n").as_bytes()).unwrap();
-        assert!(r.starts_with("$MCACK"), "{l} → {r}");
-    }
+    // `magcomp upload --to PORT` itself, on the board's command port served as a socket
+    // (as ser2net/socat serve a real one): every line acknowledged, SAVE, read-back
+    let sock = b.dir.join("command.sock");
+    let server = b.serve_command_port(&sock).unwrap();
+    let out = std::process::Command::new(&bin)
+        .args(["upload".as_ref(), coeffs.as_os_str(), "--to".as_ref()])
+        .arg(&sock)
+        .output()
+        .expect("run magcomp upload");
+    let said = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "magcomp upload --to: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        said.contains(&format!("{sent} acknowledged")) && said.contains("read-back OK"),
+        "{said}"
+    );
+    server.join().unwrap();
+    eprintln!("{name}: {}", said.trim());
     let check = |b: &mut Board, when: &str| {
         let c = reply_values(&b.command("MCCMD,GETCOEF").unwrap());
         let f = reply_values(&b.command("MCCMD,GETFLUX").unwrap());
