@@ -168,6 +168,35 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
 }
 
 impl CoefficientFile {
+    /// A file of `model`'s coefficients with nothing else known: every optional member
+    /// (calibrations, τ, covariance, …) absent, to be filled by who knows it.
+    pub fn new(
+        model: impl Into<String>,
+        method: Method,
+        sample_rate_hz: f64,
+        coefficients: Vec<Coefficient>,
+    ) -> Self {
+        Self {
+            format: COEFF_FORMAT.into(),
+            model: model.into(),
+            method,
+            sample_rate_hz,
+            sigma1: None,
+            noise_nt: None,
+            model_error_nt: None,
+            tl_config: None,
+            fluxgate_calibration: None,
+            scalar_lag: None,
+            fluxgate_temperature: None,
+            field_process: None,
+            rate_crossover: None,
+            predicted_error_nt: None,
+            covariance: None,
+            assumed_speed_mps: None,
+            coefficients,
+        }
+    }
+
     /// A Tolles–Lawson fit holding this file's coefficients (what `tl::interference` applies).
     pub fn tl_fit(&self, config: crate::tl::TlConfig) -> crate::tl::TlFit {
         crate::tl::TlFit {

@@ -351,34 +351,25 @@ fn run_method(
                         .collect::<Vec<_>>()
                 })
                 .collect();
+            let coefficients = fit
+                .names
+                .iter()
+                .zip(fit.coefficients.iter().zip(&fit.sigma))
+                .map(|(n, (v, s))| Coefficient {
+                    name: n.clone(),
+                    unit: "nT".into(),
+                    value: *v,
+                    sigma: *s,
+                })
+                .collect();
             let file = CoefficientFile {
-                format: COEFF_FORMAT.into(),
-                model: format!("{:?}", fit.config.terms).to_lowercase(),
-                method: Method::Tl,
-                sample_rate_hz: flight.sample_rate_hz,
-                sigma1: None,
-                noise_nt: None,
-                model_error_nt: None,
                 tl_config: Some(fit.config.clone()),
-                fluxgate_calibration: None,
-                scalar_lag: None,
-                fluxgate_temperature: None,
-                field_process: None,
-                rate_crossover: None,
-                predicted_error_nt: None,
-                covariance: None,
-                assumed_speed_mps: None,
-                coefficients: fit
-                    .names
-                    .iter()
-                    .zip(fit.coefficients.iter().zip(&fit.sigma))
-                    .map(|(n, (v, s))| Coefficient {
-                        name: n.clone(),
-                        unit: "nT".into(),
-                        value: *v,
-                        sigma: *s,
-                    })
-                    .collect(),
+                ..CoefficientFile::new(
+                    format!("{:?}", fit.config.terms).to_lowercase(),
+                    Method::Tl,
+                    flight.sample_rate_hz,
+                    coefficients,
+                )
             };
             let comp = Compensation {
                 model: file.model.clone(),

@@ -153,7 +153,7 @@ pub fn upload_commands(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::coefficients::{Coefficient, COEFF_FORMAT};
+    use crate::coefficients::Coefficient;
     use crate::fluxgate::FluxgateCalibration;
     use magcomp_core::protocol::command::parse_command;
 
@@ -161,31 +161,17 @@ mod tests {
     /// past the model's count).
     fn file(model: &str, n: usize, flux: Option<FluxgateCalibration>) -> CoefficientFile {
         let names = ModelSpec::parse(model).unwrap().coefficient_names();
+        let coefficients = (0..n)
+            .map(|i| Coefficient {
+                name: names.get(i).map_or(format!("c{i}"), |n| n.0.clone()),
+                unit: "nT".into(),
+                value: (i as f64 - 7.5) * 3.25e-2,
+                sigma: 0.1,
+            })
+            .collect();
         CoefficientFile {
-            format: COEFF_FORMAT.into(),
-            model: model.into(),
-            method: Method::Kf,
-            sample_rate_hz: 10.0,
-            sigma1: None,
-            noise_nt: None,
-            model_error_nt: None,
-            tl_config: None,
             fluxgate_calibration: flux,
-            scalar_lag: None,
-            fluxgate_temperature: None,
-            field_process: None,
-            rate_crossover: None,
-            predicted_error_nt: None,
-            covariance: None,
-            assumed_speed_mps: None,
-            coefficients: (0..n)
-                .map(|i| Coefficient {
-                    name: names.get(i).map_or(format!("c{i}"), |n| n.0.clone()),
-                    unit: "nT".into(),
-                    value: (i as f64 - 7.5) * 3.25e-2,
-                    sigma: 0.1,
-                })
-                .collect(),
+            ..CoefficientFile::new(model, Method::Kf, 10.0, coefficients)
         }
     }
 

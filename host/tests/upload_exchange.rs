@@ -9,7 +9,7 @@ mod common;
 
 use common::cli::{bin, tmp};
 use magcomp::board_link::{upload, within_2_ulp, BoardLink, ExchangeOptions, LineSource};
-use magcomp::coefficients::{Coefficient, CoefficientFile, Method, COEFF_FORMAT};
+use magcomp::coefficients::{Coefficient, CoefficientFile, Method};
 use magcomp::fluxgate::FluxgateCalibration;
 use magcomp::model_spec::ModelSpec;
 use magcomp::upload::upload_commands;
@@ -240,15 +240,17 @@ fn file() -> CoefficientFile {
     let names = ModelSpec::parse("tl16+field+fluxcal")
         .unwrap()
         .coefficient_names();
+    let coefficients = names
+        .iter()
+        .enumerate()
+        .map(|(i, (n, _))| Coefficient {
+            name: n.clone(),
+            unit: "nT".into(),
+            value: (i as f64 - 7.3) * 8.39,
+            sigma: 0.1,
+        })
+        .collect();
     CoefficientFile {
-        format: COEFF_FORMAT.into(),
-        model: "tl16+field+fluxcal".into(),
-        method: Method::Kf,
-        sample_rate_hz: 10.0,
-        sigma1: None,
-        noise_nt: None,
-        model_error_nt: None,
-        tl_config: None,
         fluxgate_calibration: Some(FluxgateCalibration {
             matrix: [
                 [1.006, 0.002, -0.001],
@@ -257,23 +259,7 @@ fn file() -> CoefficientFile {
             ],
             bias_nt: [320.5, -250.25, 410.0],
         }),
-        scalar_lag: None,
-        fluxgate_temperature: None,
-        field_process: None,
-        rate_crossover: None,
-        predicted_error_nt: None,
-        covariance: None,
-        assumed_speed_mps: None,
-        coefficients: names
-            .iter()
-            .enumerate()
-            .map(|(i, (n, _))| Coefficient {
-                name: n.clone(),
-                unit: "nT".into(),
-                value: (i as f64 - 7.3) * 8.39,
-                sigma: 0.1,
-            })
-            .collect(),
+        ..CoefficientFile::new("tl16+field+fluxcal", Method::Kf, 10.0, coefficients)
     }
 }
 
