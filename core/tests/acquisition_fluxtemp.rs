@@ -2,6 +2,10 @@
 //! optional 4th field, `B = B_F + (T − T_ref)·(b + s∘B_F)` before `fluxcal`, a set
 //! correction without a temperature flagged `FLUX_STALE`, never passed uncorrected.
 
+#[path = "common/acq_run.rs"]
+mod acq_run;
+use acq_run::run;
+
 use magcomp_core::acquisition::{compensator_config, AcqConfig, Acquisition};
 use magcomp_core::model::Model;
 use magcomp_core::protocol::capture::Port;
@@ -9,7 +13,6 @@ use magcomp_core::protocol::command::{encode_command, parse_command, Command, FL
 use magcomp_core::protocol::fluxgate::{
     parse_ascii_frame, parse_ascii_line, FluxAsciiReader, FluxCalibration, FluxError, FluxTempCal,
 };
-use magcomp_core::protocol::record::Record;
 use magcomp_core::{Compensator, Flags};
 
 const RATE_HZ: f64 = 10.0;
@@ -55,17 +58,6 @@ fn stream(n: usize, line: impl Fn(usize) -> String) -> Vec<(Port, Vec<u8>)> {
         ));
     }
     chunks
-}
-
-fn run(a: &mut Acq, chunks: &[(Port, Vec<u8>)]) -> Vec<Record> {
-    let mut out = Vec::new();
-    for (p, bytes) in chunks {
-        a.push_bytes(*p, bytes, |r| out.push(r));
-    }
-    while let Some(r) = a.flush() {
-        out.push(r);
-    }
-    out
 }
 
 /// The host's formula in f64 (host/src/preprocess/fluxtemp.rs).

@@ -2,6 +2,10 @@
 //! fluxgate at t − τ; one record per scalar line whatever τ; `FLUX_STALE` until the line
 //! reaches back τ.
 
+#[path = "common/acq_run.rs"]
+mod acq_run;
+use acq_run::run;
+
 use magcomp_core::acquisition::{compensator_config, AcqConfig, Acquisition};
 use magcomp_core::model::Model;
 use magcomp_core::protocol::aligner::{Aligner, AlignerConfig};
@@ -47,17 +51,6 @@ fn stream(n: usize, delay: i64, gap: Option<(usize, usize)>) -> Vec<(Port, Vec<u
         chunks.push((Port::Scalar, line.into_bytes()));
     }
     chunks
-}
-
-fn run(a: &mut Acq, chunks: &[(Port, Vec<u8>)]) -> Vec<Record> {
-    let mut out = Vec::new();
-    for (p, bytes) in chunks {
-        a.push_bytes(*p, bytes, |r| out.push(r));
-    }
-    while let Some(r) = a.flush() {
-        out.push(r);
-    }
-    out
 }
 
 fn coefficients() -> [f32; 16] {

@@ -1,5 +1,9 @@
 //! `Acquisition`: sensor bytes in, one record per scalar line out, flagged when degraded.
 
+#[path = "common/acq_run.rs"]
+mod acq_run;
+use acq_run::run;
+
 use magcomp_core::acquisition::{compensator_config, AcqConfig, Acquisition};
 use magcomp_core::model::Model;
 use magcomp_core::protocol::capture::Port;
@@ -112,21 +116,6 @@ fn stream_from(
         chunks.push((Port::Scalar, line.into_bytes()));
     }
     Stream { chunks, mags }
-}
-
-fn run(a: &mut Acq, chunks: &[(Port, Vec<u8>)]) -> Vec<Record> {
-    let mut out = Vec::new();
-    for (p, bytes) in chunks {
-        if *p == Port::Flux && bytes.len() == 15 && !bytes.ends_with(b"\n") {
-            a.push_flux_frame(bytes);
-        } else {
-            a.push_bytes(*p, bytes, |r| out.push(r));
-        }
-    }
-    while let Some(r) = a.flush() {
-        out.push(r);
-    }
-    out
 }
 
 fn count(recs: &[Record], bit: u16) -> usize {
