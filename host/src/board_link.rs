@@ -100,6 +100,16 @@ pub fn within_2_ulp(a: f32, b: f32) -> bool {
     (a - b).abs() <= 2.0 * ulp
 }
 
+/// Whether the board holds `got` for the `sent` value: a coefficient within 2 ulp, any
+/// other value exactly.
+fn held_as_sent(sent: f32, got: f32, coefficient: bool) -> bool {
+    if coefficient {
+        within_2_ulp(sent, got)
+    } else {
+        sent == got
+    }
+}
+
 /// The command line as sent (XOR checksum, `\r\n`).
 pub fn command_line(cmd: &Command) -> Result<String> {
     let mut buf = [0u8; 128];
@@ -187,12 +197,7 @@ fn answers(cmd: &Command, ack: &[u8]) -> Result<Option<Option<f32>>> {
         _ => return Ok(None),
     };
     if let (Some((sent, coef)), Some(echo)) = (set_value(cmd), got) {
-        let same = if coef {
-            within_2_ulp(sent, echo)
-        } else {
-            sent == echo
-        };
-        if !same {
+        if !held_as_sent(sent, echo, coef) {
             bail!(
                 "the board acknowledged {} with value {echo:e}, {sent:e} was sent",
                 String::from_utf8_lossy(ack)
@@ -345,12 +350,7 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
                     command_line(&get).unwrap_or_default().trim_end()
                 )
             })?;
-        let same = if coef {
-            within_2_ulp(sent, got)
-        } else {
-            sent == got
-        };
-        if same {
+        if held_as_sent(sent, got, coef) {
             read_back_ok += 1;
         } else {
             let (word, index) = ack_key(&get);
