@@ -62,6 +62,9 @@ pub struct Compensation {
     pub anomaly_nt: Option<Vec<f64>>,
     pub innovation_nt: Option<Vec<f64>>,
     pub flags: Option<Vec<u16>>,
+    /// Real time: each record's stated 1σ bound on its interference (nT; empty while not
+    /// converged); the `interference_sigma` column.
+    pub interference_sigma_nt: Option<Vec<f64>>,
     pub coefficients: CoefficientFileOpt,
     pub regressors: Vec<Vec<f32>>,
     /// What the user must know about this result (printed on stderr, `warnings` in JSON).
@@ -279,6 +282,7 @@ fn run_method(
                 anomaly_nt: Some(run.anomaly_nt),
                 innovation_nt: Some(run.innovation_nt),
                 flags: Some(run.flags),
+                interference_sigma_nt: realtime.then_some(run.interference_sigma_nt),
                 coefficients: Some(file),
                 regressors: run.regressors,
                 warnings,
@@ -491,6 +495,9 @@ fn write_output_rows(
     let kf = comp.anomaly_nt.is_some();
     if kf {
         write!(w, "t,mag,interference,compensated,anomaly,innovation,flags")?;
+        if comp.interference_sigma_nt.is_some() {
+            write!(w, ",interference_sigma")?;
+        }
     } else {
         write!(w, "t,mag,interference,compensated")?;
     }
@@ -525,6 +532,9 @@ fn write_output_rows(
                 ),
                 comp.flags.as_ref().map(|v| v[i]).unwrap_or(0)
             )?;
+            if let Some(s) = &comp.interference_sigma_nt {
+                write!(w, ",{}", num(s[i], 4))?;
+            }
         }
         for (_, col) in carried {
             match col {

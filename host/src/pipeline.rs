@@ -121,6 +121,10 @@ pub struct KfRun {
     pub anomaly_nt: Vec<f64>,
     pub innovation_nt: Vec<f64>,
     pub innovation_var_nt2: Vec<f64>,
+    /// Each record's stated 1σ bound on its interference (nT; NaN while not converged):
+    /// [`magcomp_core::Output::interference_sigma_nt`], real time only (post-flight the
+    /// whole-flight figure `predicted_error_nt` holds for every sample).
+    pub interference_sigma_nt: Vec<f64>,
     pub flags: Vec<u16>,
     /// Regressors of the interference terms per sample (for oracle floors and diagnosis).
     pub regressors: Vec<Vec<f32>>,
@@ -209,6 +213,9 @@ pub(crate) fn config_for(
     cfg.prior_scale = opts.prior_scale as f32;
     cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
     cfg.gate_sigma = opts.gate_sigma as f32;
+    // Post-flight the calibration is judged at its end; the causal safeguard is the
+    // board's, and `--realtime` reproduces the board.
+    cfg.divergence_reset = opts.realtime;
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }
@@ -923,6 +930,8 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         run.anomaly_nt.push(o.anomaly_nt as f64);
         run.innovation_nt.push(o.innovation_nt as f64);
         run.innovation_var_nt2.push(o.innovation_var_nt2 as f64);
+        run.interference_sigma_nt
+            .push(o.interference_sigma_nt as f64);
         run.flags.push(o.flags.0);
     }
     if spec.terms.iter().any(|t| t.name == "rate") {

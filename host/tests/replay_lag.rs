@@ -228,9 +228,11 @@ fn board_calibrating_in_flight_with_setlag_matches_the_undelayed_flight() {
             })
             .map(|(r, t)| r.interference_nt as f64 - t)
             .collect();
-        assert!(d.len() > n / 8, "{} of {n} records usable", d.len());
+        if d.len() <= n / 8 {
+            return None;
+        }
         let m = d.iter().sum::<f64>() / d.len() as f64;
-        (d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt()
+        Some((d.iter().map(|v| (v - m).powi(2)).sum::<f64>() / d.len() as f64).sqrt())
     };
     let calibrating = |trace: &Trace, lag_s: Option<f32>| {
         let cap = trace_to_capture(trace, &CaptureOptions::default()).expect("capture");
@@ -246,20 +248,25 @@ fn board_calibrating_in_flight_with_setlag_matches_the_undelayed_flight() {
         recs
     };
     let clean = flight_trace(None);
-    let floor = final_error(&calibrating(&clean, None), &truth_in_scalar(&clean, 0.0));
+    let floor = final_error(&calibrating(&clean, None), &truth_in_scalar(&clean, 0.0))
+        .expect("the undelayed flight converges");
     for lag in [0.2, 0.5] {
         let trace = flight_trace(Some(lag));
         let truth = truth_in_scalar(&trace, lag);
-        let with = final_error(&calibrating(&trace, Some(lag as f32)), &truth);
+        let with = final_error(&calibrating(&trace, Some(lag as f32)), &truth)
+            .expect("with SETLAG the flight converges");
+        // Without SETLAG the model is wrong: its innovations exceed what the filter
+        // predicts, the NIS widens its account of itself, and it no longer claims to have
+        // converged (before the innovation monitor it showed 2.30 / 14.9 nT as converged).
         let without = final_error(&calibrating(&trace, None), &truth);
         eprintln!(
-            "calibrate mode, τ = {lag} s: final error with SETLAG {with:.4} nT ({:.2}× the undelayed {floor:.4}), without {without:.4} nT",
+            "calibrate mode, τ = {lag} s: final error with SETLAG {with:.4} nT ({:.2}× the undelayed {floor:.4}), without {without:?} nT",
             with / floor
         );
         assert!(with <= 1.5 * floor, "τ {lag}: {with:.4} > 1.5 × {floor:.4}");
         assert!(
-            without > 3.0 * with,
-            "τ {lag}: without {without:.4}, with {with:.4}"
+            without.is_none_or(|w| w > 3.0 * with),
+            "τ {lag}: without {without:?}, with {with:.4}"
         );
     }
 }

@@ -11,6 +11,11 @@ use crate::flags::Flags;
 use crate::model::{Model, MAX_TERM_STATES};
 use crate::units::MagCounts;
 
+pub mod health;
+mod ties;
+use health::{Divergence, InnovationMonitor, ENVELOPE_POINTS};
+use ties::{TieState, TIE_STATE_INIT};
+
 /// Largest number of tie points (revisited locations such as the cloverleaf centre).
 pub const MAX_TIE_POINTS: usize = 2;
 
@@ -83,6 +88,12 @@ pub struct CompensatorConfig {
     pub converged_every: u32,
     /// Length of the running mean the variation is taken about (epochs; ~60 s).
     pub converged_window_epochs: u32,
+    /// Window of the innovation statistics (epochs; ~30 s): the model error they show and
+    /// the filter's consistency (NIS), which widens its account of its own uncertainty.
+    pub consistency_window_epochs: u32,
+    /// Reset to the last good coefficients when the interference runs away from the raw
+    /// signal or beyond what the priors allow (`FILTER_RESET`).
+    pub divergence_reset: bool,
 }
 
 impl CompensatorConfig {
@@ -106,6 +117,8 @@ impl CompensatorConfig {
             converged_sigma_nt: 0.1,
             converged_every: 8,
             converged_window_epochs: (60.0 * sample_rate_hz.max(1.0)) as u32,
+            consistency_window_epochs: (30.0 * sample_rate_hz.max(1.0)) as u32,
+            divergence_reset: true,
         }
     }
 }
@@ -124,6 +137,11 @@ pub struct Output {
     /// Innovation and its predicted variance (NaN when no update was made).
     pub innovation_nt: f32,
     pub innovation_var_nt2: f32,
+    /// The record's stated 1σ bound on the interference (nT): how well the coefficients
+    /// determine it (its variation about the last minute's mean; the level is the
+    /// anomaly's), widened by the innovations' excess over their prediction, plus the model
+    /// error they show. NaN while `NOT_CONVERGED` (the output is then the prior's).
+    pub interference_sigma_nt: f32,
     pub flags: Flags,
 }
 
@@ -138,37 +156,6 @@ pub enum CompensatorError {
     BadConfig,
     /// Coefficient slice of the wrong length or with non-finite values.
     BadCoefficients,
-}
-
-const TIE_STATE_INIT: TieState = TieState {
-    cloned: false,
-    inside: false,
-    acted: false,
-    last_dist_m: 0.0,
-    north_m: 0.0,
-    east_m: 0.0,
-    t_s: 0.0,
-    base_nt: 0.0,
-    local: None,
-    h0_shift_m: 0.0,
-    h_m: 0.0,
-};
-
-#[derive(Clone, Copy, Debug, Default)]
-struct TieState {
-    cloned: bool,
-    inside: bool,
-    acted: bool,
-    last_dist_m: f32,
-    north_m: f32,
-    east_m: f32,
-    t_s: f64,
-    base_nt: f32,
-    local: Option<(f32, f32)>,
-    /// Cumulative `h0` shift when the clone was taken.
-    h0_shift_m: f32,
-    /// Height relative to the first `h0` when the clone was taken (m).
-    h_m: f32,
 }
 
 /// The real-time compensator. `N`: state capacity; `W`: derivative ring capacity.
@@ -205,6 +192,16 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// Running mean of the physical interference regressors (for `NOT_CONVERGED`).
     regressor_mean: [f32; N],
     regressor_mean_count: u32,
+    /// Innovation statistics over `consistency_window_epochs`.
+    innovations: InnovationMonitor,
+    /// The interference variation's 1σ at the last `NOT_CONVERGED` evaluation, widened by
+    /// the innovations' excess (nT): the record's bound is built from it.
+    coefficient_sigma_nt: f32,
+    divergence: Divergence,
+    /// Term coefficients (scaled states) at the last evaluation that found the filter
+    /// converged and consistent: where a divergence resets to.
+    last_good: [f32; N],
+    has_last_good: bool,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
@@ -246,6 +243,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 converged_sigma_nt: 0.0,
                 converged_every: 1,
                 converged_window_epochs: 1,
+                consistency_window_epochs: 1,
+                divergence_reset: false,
             },
             builder: EpochBuilder::empty(),
             filter: UdFilter::empty(),
@@ -271,6 +270,11 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             interference_sigma_nt: f32::NAN,
             regressor_mean: [0.0; N],
             regressor_mean_count: 0,
+            innovations: InnovationMonitor::new(),
+            coefficient_sigma_nt: f32::NAN,
+            divergence: Divergence::new(),
+            last_good: [0.0; N],
+            has_last_good: false,
         }
     }
 
@@ -373,14 +377,22 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.interference_sigma_nt = f32::NAN;
         self.regressor_mean = [0.0; N];
         self.regressor_mean_count = 0;
+        self.innovations = InnovationMonitor::new();
+        self.coefficient_sigma_nt = f32::NAN;
+        self.divergence = Divergence::new();
+        self.last_good = [0.0; N];
+        self.has_last_good = false;
         Ok(())
     }
 
-    /// Calibrate mode: sets `NOT_CONVERGED` while the predicted 1σ of the interference
-    /// estimate for this epoch's regressors exceeds `cfg.converged_sigma_nt`. Evaluated
-    /// every `cfg.converged_every` epochs (an O(n²) product), the flag held in between.
+    /// Calibrate mode: sets `NOT_CONVERGED` while the interference is not determined:
+    /// the predicted 1σ of its variation about the last minute's mean, or of its change to
+    /// any attitude of the survey envelope ([`health::envelope_epoch`]: the manoeuvres and
+    /// the other headings), widened by the innovations' excess over their prediction
+    /// (mean NIS), exceeds `cfg.converged_sigma_nt`. Evaluated every `cfg.converged_every`
+    /// epochs (O(n²) per envelope point), the flag held in between.
     /// `phys`: the epoch's physical regressors (as in `process`).
-    fn convergence(&mut self, phys: &[f32; N], flags: &mut Flags) {
+    fn convergence(&mut self, ep: &Epoch, phys: &[f32; N], flags: &mut Flags) {
         if self.survey || !(self.cfg.converged_sigma_nt > 0.0) {
             return;
         }
@@ -395,22 +407,24 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         }
         if self.converged_countdown == 0 {
             self.converged_countdown = self.cfg.converged_every.max(1);
-            let mut d = [0.0f32; N];
-            let mut at = self.terms_at;
-            for t in self.model.terms {
-                if t.is_interference() {
-                    for i in at..at + t.len() {
-                        d[i] = (phys[i] - self.regressor_mean[i]) * self.scale[i];
-                    }
-                }
-                at += t.len();
+            let mean = self.regressor_mean;
+            let window_var = self.interference_change_variance(phys, &mean);
+            let mut envelope_var = 0.0f32;
+            let mut other = [0.0f32; N];
+            for k in 0..ENVELOPE_POINTS {
+                self.interference_regressors(&health::envelope_epoch(ep, k), &mut other);
+                let v = self.interference_change_variance(phys, &other);
+                envelope_var = if v.is_nan() { v } else { envelope_var.max(v) };
             }
-            let var = self.filter.predicted_variance(&d[..self.n], 0.0);
+            let nis = self.innovations.nis(self.cfg.noise_nt * self.cfg.noise_nt);
+            let inflation = if nis.is_finite() { nis.max(1.0) } else { 1.0 };
+            let var = window_var.max(envelope_var) * inflation;
             self.interference_sigma_nt = if var > 0.0 {
                 libm::sqrtf(var)
             } else {
                 var.max(0.0)
             };
+            self.coefficient_sigma_nt = libm::sqrtf((window_var * inflation).max(0.0));
             // A survey's tolerance, not the flight's own noise: on a real box (noise 2.7 nT)
             // a limit at the noise cleared after the first heading (55 s) and the output
             // then swung 110–170 nT on the next headings, whose attitudes the filter had
@@ -420,11 +434,117 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             // before there is any variation to judge.
             self.not_converged = !(var <= lim * lim)
                 || self.regressor_mean_count < self.cfg.converged_window_epochs / 4;
+            if !self.not_converged && inflation < 3.0 {
+                self.last_good[self.terms_at..self.n]
+                    .copy_from_slice(&self.filter.state()[self.terms_at..self.n]);
+                self.has_last_good = true;
+            }
         }
         self.converged_countdown -= 1;
         if self.not_converged {
             flags.set(Flags::NOT_CONVERGED);
         }
+    }
+
+    /// The physical interference regressors of `ep` (zero for the other states).
+    fn interference_regressors(&self, ep: &Epoch, out: &mut [f32; N]) {
+        *out = [0.0; N];
+        let mut at = self.terms_at;
+        for t in self.model.terms {
+            let l = t.len();
+            if t.is_interference() {
+                t.regressors(ep, &mut out[at..at + l]);
+            }
+            at += l;
+        }
+    }
+
+    /// Predicted variance (nT²) of the interference difference between regressors `phys`
+    /// and `other` (interference terms only).
+    fn interference_change_variance(&self, phys: &[f32; N], other: &[f32; N]) -> f32 {
+        let mut d = [0.0f32; N];
+        let mut at = self.terms_at;
+        for t in self.model.terms {
+            if t.is_interference() {
+                for i in at..at + t.len() {
+                    d[i] = (phys[i] - other[i]) * self.scale[i];
+                }
+            }
+            at += t.len();
+        }
+        self.filter.predicted_variance(&d[..self.n], 0.0)
+    }
+
+    /// What the innovations show beyond the configured (sensor) noise (nT rms) over the
+    /// last `consistency_window_epochs`: signal the model does not describe, which stays
+    /// in the compensated output.
+    pub fn model_error_nt(&self) -> f32 {
+        let r_sensor = self.cfg.noise_nt * self.cfg.noise_nt;
+        let excess = self.innovations.observed_r() - r_sensor;
+        if excess > 0.0 {
+            libm::sqrtf(excess)
+        } else {
+            0.0
+        }
+    }
+
+    /// The record's stated 1σ bound on its interference (see [`Output`]).
+    fn interference_bound_nt(&self) -> f32 {
+        if self.survey {
+            let r = self.cfg.noise_nt * self.cfg.noise_nt;
+            return libm::sqrtf(self.innovations.observed_r().max(r));
+        }
+        if self.not_converged {
+            return f32::NAN;
+        }
+        let m = self.model_error_nt();
+        libm::sqrtf(self.coefficient_sigma_nt * self.coefficient_sigma_nt + m * m)
+    }
+
+    /// Feeds the divergence check with this epoch's raw signal and the interference the
+    /// current coefficients give; true when a filter that had converged once has run away:
+    /// its interference swings far beyond the raw signal, or lies beyond
+    /// `PRIOR_SIGMAS` × what the priors allow at this attitude (no aircraft's field).
+    fn diverged(&mut self, ep: &Epoch, phys: &[f32; N]) -> bool {
+        /// The real survey line's diverged real-time interference reached −883 nT
+        /// (board path −28,391 nT) where the priors allow ~250 nT at 1σ.
+        const PRIOR_SIGMAS: f32 = 6.0;
+        if !self.cfg.divergence_reset || !self.has_last_good {
+            return false;
+        }
+        let x = self.filter.state();
+        let (mut estimate, mut prior_var) = (0.0f32, 0.0f32);
+        let mut at = self.terms_at;
+        for t in self.model.terms {
+            if t.is_interference() {
+                for (k, i) in (at..at + t.len()).enumerate() {
+                    estimate += x[i] * self.scale[i] * phys[i];
+                    let m = libm::fabsf(t.prior_mean(k)) + self.scale[i];
+                    prior_var += (m * phys[i]) * (m * phys[i]);
+                }
+            }
+            at += t.len();
+        }
+        let window = self.cfg.converged_window_epochs;
+        let runaway = self.divergence.push(ep.dmag_nt, estimate, window);
+        runaway || libm::fabsf(estimate) > PRIOR_SIGMAS * libm::sqrtf(prior_var)
+    }
+
+    /// Divergence: back to the coefficients of the last converged, consistent evaluation,
+    /// with the prior's uncertainty; the field states and tie points start again. The next
+    /// records are `NOT_CONVERGED` until it has re-learnt.
+    fn reset_to_last_good(&mut self) {
+        let mut x0 = [0.0f32; N];
+        x0[self.terms_at..self.n].copy_from_slice(&self.last_good[self.terms_at..self.n]);
+        let ok = self.filter.reset(self.n, &x0, &[1.0; N]);
+        debug_assert!(ok);
+        self.ties = [TIE_STATE_INIT; MAX_TIE_POINTS];
+        self.regressor_mean_count = 0;
+        self.not_converged = true;
+        self.converged_countdown = 0;
+        self.divergence = Divergence::new();
+        self.updates = 0;
+        self.reject_run = 0;
     }
 
     /// Predicted 1σ of the interference estimate (nT) at the last `NOT_CONVERGED`
@@ -715,9 +835,15 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 }
                 None => {}
             }
+            self.innovations.push(
+                innovation_nt,
+                innovation_var,
+                r,
+                self.cfg.consistency_window_epochs,
+            );
         }
         flags.set(self.tie_points(ep));
-        self.convergence(&phys, &mut flags);
+        self.convergence(ep, &phys, &mut flags);
         let mut dh_out = ep.dh_m;
         if self.field.is_some()
             && self.cfg.h0_reanchor_m > 0.0
@@ -726,6 +852,10 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         {
             self.reanchor_h0(ep.dh_m);
             dh_out = 0.0;
+        }
+        if !self.survey && self.diverged(ep, &phys) {
+            self.reset_to_last_good();
+            flags.set(Flags::FILTER_RESET | Flags::NOT_CONVERGED);
         }
         // Outputs from the updated state.
         let x = self.filter.state();
@@ -766,6 +896,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             anomaly_nt,
             innovation_nt,
             innovation_var_nt2: innovation_var,
+            interference_sigma_nt: self.interference_bound_nt(),
             flags,
         }
     }
@@ -802,104 +933,5 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         for i in first_clone..first_clone + n_clone {
             x[i] += shift_nt / scale[i];
         }
-    }
-
-    /// Tie-point logic: on the first pass near a point the field value is cloned; on later
-    /// passes `B_h(now) − B_h(then) = 0` is applied with a variance that grows with the
-    /// distance between the two passes times the horizontal gradient (model.md §3).
-    /// Returns the flag bits to set: `TIE_POINT` when a tie was applied, `TIE_REJECTED`
-    /// when one was refused by the gate.
-    fn tie_points(&mut self, ep: &Epoch) -> u16 {
-        let Some(field) = self.field else {
-            return 0;
-        };
-        let mut bits = 0;
-        for k in 0..self.n_clone {
-            let Some(tp) = self.cfg.tie_points[k] else {
-                continue;
-            };
-            let st = &mut self.ties[k];
-            if st.local.is_none() {
-                st.local = self.builder.local_position(tp.lat_deg, tp.lon_deg);
-            }
-            let Some((pn, pe)) = st.local else {
-                continue;
-            };
-            let dn = ep.north_m - pn;
-            let de = ep.east_m - pe;
-            let dist = libm::sqrtf(dn * dn + de * de);
-            if dist > self.cfg.tie_radius_m {
-                st.inside = false;
-                st.acted = false;
-                continue;
-            }
-            let closest_passed = st.inside && !st.acted && dist > st.last_dist_m;
-            st.inside = true;
-            st.last_dist_m = dist;
-            if !closest_passed {
-                continue;
-            }
-            st.acted = true;
-            let clone = self.n_offset + k;
-            let bh = self.field_at;
-            if !st.cloned {
-                st.cloned = true;
-                st.north_m = ep.north_m;
-                st.east_m = ep.east_m;
-                st.t_s = ep.t_s;
-                st.base_nt = ep.base_nt;
-                st.h0_shift_m = self.h0_shift_m;
-                st.h_m = ep.dh_m + self.h0_shift_m;
-                self.filter.clone_state(clone, bh);
-                continue;
-            }
-            let sep_n = ep.north_m - st.north_m;
-            let sep_e = ep.east_m - st.east_m;
-            // The separation of the two passes is three-dimensional: the tie holds the
-            // field at one height, and B_z·(h − h0) is only a linearisation of how it
-            // changes with height, so a height difference counts like a horizontal one.
-            let sep_u = ep.dh_m + self.h0_shift_m - st.h_m;
-            let sep_u = if sep_u.is_finite() { sep_u } else { 0.0 };
-            let sep_m = libm::sqrtf(sep_n * sep_n + sep_e * sep_e + sep_u * sep_u);
-            // Horizontal gradient: the along-track estimate plus 2σ, never below the floor
-            // (the cross-track gradient is unobserved; isotropy makes them alike).
-            let g_scale = field.scale[1];
-            let g_est = libm::fabsf(self.filter.state()[bh + 1] * g_scale)
-                + 2.0 * libm::sqrtf(self.filter.variance(bh + 1).max(0.0)) * g_scale;
-            let g = g_est.max(self.cfg.tie_gradient_floor_nt_per_m);
-            // The field at the point also changed in time (diurnal): measured by the base
-            // station when there is one, otherwise allowed for at a quiet-day drift rate.
-            // With a `diurnal` term the external variation is already a term of its own and
-            // not in B_h: the tie is then B_h(now) = B_h(then), uncertain by the term's ±10 %.
-            let (z_tie, r_time) = if ep.base_nt.is_finite() && st.base_nt.is_finite() {
-                let d_base = ep.base_nt - st.base_nt;
-                if self.models_diurnal {
-                    (0.0, 0.03 * 0.03 + (0.1 * d_base) * (0.1 * d_base))
-                } else {
-                    (d_base, 0.03 * 0.03)
-                }
-            } else {
-                let drift = self.cfg.tie_drift_nt_per_s * (ep.t_s - st.t_s) as f32;
-                (0.0, drift * drift)
-            };
-            let r_tie =
-                (sep_m * g) * (sep_m * g) + r_time + 2.0 * self.cfg.noise_nt * self.cfg.noise_nt;
-            // Both B_h are fields at their own h0: bring the clone to today's h0 with the
-            // current vertical gradient (its uncertainty is carried by the filter).
-            let dh0 = self.h0_shift_m - st.h0_shift_m;
-            let mut h = [0.0f32; N];
-            h[bh] = self.scale[bh];
-            h[clone] = -self.scale[clone];
-            h[bh + 3] = -dh0 * self.scale[bh + 3];
-            let gate = self.cfg.tie_gate_sigma;
-            match self.filter.update_gated(&h, z_tie, r_tie, |nu, s| {
-                gate > 0.0 && nu * nu > gate * gate * s
-            }) {
-                Some(Ok(_)) => bits |= Flags::TIE_POINT,
-                Some(Err(_)) => bits |= Flags::TIE_REJECTED,
-                None => {}
-            }
-        }
-        bits
     }
 }
