@@ -12,8 +12,8 @@ use anyhow::{bail, Context, Result};
 use clap::builder::PossibleValue;
 use std::path::PathBuf;
 
-/// Simulate an airborne magnetometer flight (calibration cloverleaf and/or survey lines)
-/// with an exact physical model: buried dipole geology, exact field modulus, vector
+/// Simulate an airborne magnetometer flight (calibration cloverleaf and/or survey lines,
+/// or a take-off from the apron) with an exact physical model: buried dipole geology, exact field modulus, vector
 /// Tolles–Lawson aircraft field with exact dB/dt, diurnal, and realistic sensor errors.
 #[derive(clap::Args, Clone, Debug)]
 pub struct SimulateArgs {
@@ -27,7 +27,14 @@ pub struct SimulateArgs {
     pub output: Option<PathBuf>,
 
     /// What to fly: `calibration` (cloverleaf, 4 headings × roll/pitch/yaw), `survey`
-    /// (parallel lines), or `calibration+survey`.
+    /// (parallel lines), `calibration+survey`, or `takeoff`: from power-up on the apron
+    /// (60 s `ground`, engine off; 30 s `engine_start`: a 5–20 nT body field the model does
+    /// not know, `truth_hidden_engine`, its current written with `--hidden engine:CH`),
+    /// `taxi` at 6–8 m/s with two 90° turns past hangar steel and a parked vehicle (tens to
+    /// hundreds of nT, in `truth_anomaly`), `takeoff` roll and rotation, `climb` at
+    /// 3–4 m/s with one or two `climb_turn`s banked 15–25°, `level_off` at
+    /// --survey-altitude-m, then `line_1001` (--line-length-m) and, with --lines ≥ 2, a
+    /// `turn` onto its reciprocal `line_1002`; no calibration manoeuvres.
     #[arg(long, default_value = "calibration", value_name = "KIND")]
     pub flight: String,
 
@@ -162,7 +169,8 @@ pub struct SimulateArgs {
 
     /// Geology preset: `quiet` (deep basement: ~0.001–0.01 nT/m at 3000 m), `moderate`,
     /// `strong` (shallow magnetic rocks: hundreds of nT, 0.1–several nT/m at ≤400 m),
-    /// or `none`. [default: quiet; broad: quiet scaled to --anomaly-pp-nt]
+    /// or `none`. [default: quiet; takeoff: strong; broad: quiet scaled to
+    /// --anomaly-pp-nt]
     #[arg(long)]
     pub geology: Option<String>,
 
@@ -228,7 +236,9 @@ pub struct SimulateArgs {
     /// Add an effect the default model does not know (repeatable): `current:CH`,
     /// `current_rate:CH`, `lag:SECONDS`, `rate`, `diurnal`, `induced_high`, `fluxcal`,
     /// `periodic:CH`, `fluxtemp:CH[:K]` (the fluxgate drifts with the temperature written
-    /// as CH, bias coefficients K/4…K nT/°C per axis, default K 0.8); suffix `@T0:T1` (s) limits it to a time window. Its contribution is written as
+    /// as CH, bias coefficients K/4…K nT/°C per axis, default K 0.8), `engine[:CH]` (takeoff
+    /// only, where it is always present: CH records the generator current); suffix
+    /// `@T0:T1` (s) limits it to a time window. Its contribution is written as
     /// `truth_hidden_<name>`.
     #[arg(long = "hidden", value_name = "SPEC")]
     pub hidden: Vec<String>,
@@ -240,7 +250,7 @@ pub struct SimulateArgs {
     pub decoys: Vec<String>,
 
     /// Standard deviation (nT) that hidden effects are scaled to inside their window
-    /// (`rate` is physical and not scaled; `periodic` gets half).
+    /// (`rate` and `engine` are physical and not scaled; `periodic` gets half).
     #[arg(long, default_value_t = 2.0)]
     pub hidden_std_nt: f64,
 
@@ -260,7 +270,9 @@ fn pair(v: &Option<Vec<f64>>, what: &str) -> Result<Option<(f64, f64)>> {
 impl SimulateArgs {
     pub fn to_config(&self) -> Result<SimConfig> {
         // The profile gives what the flags below leave unset.
+        let flight = FlightKind::parse(&self.flight)?;
         let profile = match Physics::parse(&self.physics)? {
+            Physics::Classic if flight == FlightKind::Takeoff => SimConfig::takeoff(self.seed),
             Physics::Classic => SimConfig::default(),
             Physics::Broad => SimConfig::broad(self.seed),
         };
@@ -313,7 +325,7 @@ impl SimulateArgs {
             .map(|s| parse_hidden(s).with_context(|| format!("--hidden {s}")))
             .collect::<Result<Vec<_>>>()?;
         let cfg = SimConfig {
-            flight: FlightKind::parse(&self.flight)?,
+            flight,
             seed: self.seed,
             sample_rate_hz: self.rate_hz,
             speed_mps: self.speed_mps,
@@ -491,6 +503,20 @@ mod tests {
     fn defaults_match_config_default() {
         let cli = Cli::try_parse_from(["x"]).unwrap();
         assert_eq!(cli.args.to_config().unwrap(), SimConfig::default());
+    }
+
+    #[test]
+    fn takeoff_matches_its_constructor() {
+        let cli = Cli::try_parse_from(["x", "--flight", "takeoff", "--seed", "4"]).unwrap();
+        assert_eq!(cli.args.to_config().unwrap(), SimConfig::takeoff(4));
+        for bad in [
+            vec!["x", "--hidden", "engine"],
+            vec!["x", "--flight", "takeoff", "--hidden", "engine@1:2"],
+            vec!["x", "--flight", "takeoff", "--altitude-swing-m", "20"],
+        ] {
+            let r = Cli::try_parse_from(bad.clone()).map(|c| c.args.to_config());
+            assert!(!matches!(r, Ok(Ok(_))), "{bad:?}");
+        }
     }
 
     #[test]

@@ -4,6 +4,7 @@
 //! body x forward, y starboard, z down.
 
 use super::signals::{smooth_step, SineSum};
+use super::takeoff::TakeoffProfile;
 use anyhow::{bail, Result};
 use std::f64::consts::{PI, TAU};
 
@@ -79,6 +80,10 @@ pub struct Plan {
     /// Wind speed (m/s) and the direction it blows from (rad): sets the crab angle.
     pub wind: (f64, f64),
     pub cal_centre_ne_m: Option<[f64; 2]>,
+    /// A take-off (`takeoff.rs`): speed, height and wheels as functions of time. None =
+    /// flying all along at `speed_mps`, at `h0_agl_m` changed by the ramps, swing and
+    /// pitch manoeuvres.
+    pub takeoff: Option<TakeoffProfile>,
 }
 
 fn manoeuvre_env(tau: f64, dur: f64, ramp: f64) -> (f64, f64) {
@@ -191,6 +196,11 @@ impl Builder {
     }
 
     pub fn turn(&mut self, delta: f64) {
+        self.turn_labelled(delta, "turn");
+    }
+
+    /// A turn through `delta` rad whose segment label is `label`.
+    pub fn turn_labelled(&mut self, delta: f64, label: &str) {
         if delta.abs() < 1e-9 {
             return;
         }
@@ -212,7 +222,7 @@ impl Builder {
                 ramp_s: self.ramp_s,
                 plateau_s: plateau,
             },
-            label: "turn".to_string(),
+            label: label.to_string(),
         });
         self.t_s += dur;
         self.pos[0] += d[0];
@@ -225,6 +235,9 @@ impl Builder {
     /// `target` (≥ d_min), which the caller flies straight.
     pub fn connect(&mut self, target: [f64; 2], course1: f64, d_min: f64) -> Result<f64> {
         let v = self.speed;
+        if v <= 0.0 {
+            bail!("cannot join flight legs at a ground speed of {v} m/s");
+        }
         let c0 = self.course;
         let signed = |from: f64, to: f64, dir: f64| -> f64 {
             let d = (dir * (to - from)).rem_euclid(TAU);
@@ -315,15 +328,27 @@ impl Plan {
         }
     }
 
+    /// Ground speed (m/s) at t.
+    pub fn speed(&self, t: f64) -> f64 {
+        match &self.takeoff {
+            Some(p) => p.speed(t),
+            None => self.speed_mps,
+        }
+    }
+
     /// Horizontal velocity (north, east) and vertical rate (up) at t.
     pub fn velocity(&self, t: f64) -> [f64; 3] {
         let (c, _) = self.course(t);
         let (_, climb) = self.height(t);
-        [self.speed_mps * c.cos(), self.speed_mps * c.sin(), climb]
+        let v = self.speed(t);
+        [v * c.cos(), v * c.sin(), climb]
     }
 
     /// Height above ground and climb rate.
     pub fn height(&self, t: f64) -> (f64, f64) {
+        if let Some(p) = &self.takeoff {
+            return p.height(t);
+        }
         let mut h = self.h0_agl_m;
         let mut hd = 0.0;
         for r in &self.alt_ramps {
@@ -361,6 +386,9 @@ impl Plan {
 
     /// Full attitude and height at t.
     pub fn state(&self, t: f64) -> KinState {
+        if let Some(p) = &self.takeoff {
+            return p.state(self, t);
+        }
         let (course, rate) = self.course(t);
         let (h, climb) = self.height(t);
         let v = self.speed_mps;

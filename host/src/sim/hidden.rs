@@ -30,6 +30,10 @@ pub enum HiddenKind {
         channel: String,
         max_nt_per_degc: f64,
     },
+    /// The engine's generator coming on line at the take-off's engine start: a body-axis
+    /// field (5–20 nT steady, with a decaying transient) with its current optionally
+    /// written as a channel (`takeoff.rs`). Part of every take-off; no other flight.
+    Engine { channel: Option<String> },
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -52,6 +56,7 @@ impl HiddenEffect {
             HiddenKind::FluxCal => "fluxcal".into(),
             HiddenKind::Periodic { channel } => format!("periodic_{channel}"),
             HiddenKind::FluxTemp { channel, .. } => format!("fluxtemp_{channel}"),
+            HiddenKind::Engine { .. } => "engine".into(),
         }
     }
     pub fn column(&self) -> String {
@@ -67,6 +72,7 @@ impl HiddenEffect {
             | HiddenKind::CurrentRate { channel }
             | HiddenKind::Periodic { channel }
             | HiddenKind::FluxTemp { channel, .. } => Some(channel),
+            HiddenKind::Engine { channel } => channel.as_deref(),
             _ => None,
         }
     }
@@ -209,6 +215,9 @@ pub fn parse_hidden(spec: &str) -> Result<HiddenEffect> {
             );
             HiddenKind::Lag { lag_s }
         }
+        "engine" => HiddenKind::Engine {
+            channel: arg.map(|a| need_ch(Some(a))).transpose()?,
+        },
         "rate" => {
             no_arg(arg)?;
             HiddenKind::Rate
@@ -226,7 +235,7 @@ pub fn parse_hidden(spec: &str) -> Result<HiddenEffect> {
             HiddenKind::FluxCal
         }
         other => bail!(
-            "unknown hidden effect `{other}` (known: current:CH, current_rate:CH, lag:SECONDS, rate, diurnal, induced_high, fluxcal, periodic:CH, fluxtemp:CH)"
+            "unknown hidden effect `{other}` (known: current:CH, current_rate:CH, lag:SECONDS, rate, diurnal, induced_high, fluxcal, periodic:CH, fluxtemp:CH, engine[:CH])"
         ),
     };
     Ok(HiddenEffect {
@@ -255,6 +264,15 @@ mod tests {
             HiddenKind::Lag { lag_s: 0.1 }
         );
         assert_eq!(parse_hidden("rate").unwrap().kind, HiddenKind::Rate);
+        assert_eq!(
+            parse_hidden("engine").unwrap().kind,
+            HiddenKind::Engine { channel: None }
+        );
+        let e = parse_hidden("engine:cur_alt").unwrap();
+        assert_eq!(
+            (e.name().as_str(), e.channel()),
+            ("engine", Some("cur_alt"))
+        );
         let ft = parse_hidden("fluxtemp:temp_flux").unwrap();
         assert_eq!(ft.name(), "fluxtemp_temp_flux");
         assert_eq!(ft.channel(), Some("temp_flux"));
@@ -280,6 +298,7 @@ mod tests {
             "fluxtemp:t x",
             "fluxtemp:t:0",
             "fluxtemp:t:x",
+            "engine:mag",
         ] {
             assert!(parse_hidden(bad).is_err(), "{bad}");
         }

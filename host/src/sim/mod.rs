@@ -22,8 +22,9 @@
 //! takes `igrf`'s place in the identity above.
 //!
 //! Above 20 Hz the environment field (main + anomaly) is evaluated exactly at 50 ms knots
-//! with its exact time derivative and Hermite-interpolated between them (error < 1e-4 nT,
-//! tested), which keeps 20 min at 1 kHz at ~1.5 s in release builds.
+//! (10 ms on a take-off, which taxis metres from the apron's steel) with its exact time
+//! derivative and Hermite-interpolated between them (error < 1e-4 nT, tested), which keeps
+//! 20 min at 1 kHz at ~1.5 s in release builds.
 
 pub mod anomaly;
 mod config;
@@ -33,6 +34,7 @@ pub mod hidden;
 pub mod physics;
 mod plan;
 pub mod signals;
+pub mod takeoff;
 mod world;
 
 pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
@@ -59,7 +61,12 @@ use std::f64::consts::TAU;
 pub struct SimTruth {
     pub plan: Plan,
     pub frame: LocalFrame,
+    /// Every Earth-side source: the geology, then the apron's (take-off).
     pub anomaly: Anomaly,
+    /// The apron's steel (take-off; empty otherwise), also in `anomaly`.
+    pub apron: Anomaly,
+    /// The take-off's engine start (its field is in `truth_hidden_engine`, not `delta_b_nt`).
+    pub engine: Option<takeoff::EngineStart>,
     pub ground_elev_m: f64,
     pub k_nt: Vector3<f64>,
     pub l: Matrix3<f64>,
@@ -119,6 +126,7 @@ pub fn dcm_ned_to_body(roll: f64, pitch: f64, yaw: f64) -> Matrix3<f64> {
 /// Simulates a flight and also returns the ground truth behind it.
 pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     cfg.validate()?;
+    let cfg: &SimConfig = &takeoff::with_engine(cfg);
     let seed = cfg.seed;
     let frame = LocalFrame {
         lat0_deg: cfg.start_lat_deg,
@@ -189,7 +197,7 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     );
 
     // Field track at knots.
-    let q = (rate / 20.0).ceil().max(1.0) as usize;
+    let q = (rate / takeoff::knot_rate_hz(cfg)).ceil().max(1.0) as usize;
     let mut knots: Vec<usize> = (0..n).step_by(q).collect();
     if *knots.last().unwrap_or(&0) != n - 1 {
         knots.push(n - 1);
@@ -235,24 +243,9 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
             anomaly.sources.iter_mut().for_each(|s| s.moment_am2 *= f);
         }
     }
+    let apron = takeoff::add_apron(&mut field, &mut anomaly, &plan, &knots, &pos_ned, e0, cfg);
 
-    // Diurnal: slow sinusoids (10 min – 3 h) + a smooth random walk.
-    let mut rd = rng_for(seed, 3);
-    let diurnal = (
-        SineSum::random(3, 600.0, 10_800.0, cfg.diurnal_nt * 0.8, &mut rd),
-        SmoothWalk::random(dur + 10.0, 120.0, cfg.diurnal_nt * 0.15, &mut rd),
-    );
-    let micro = cfg
-        .hidden
-        .iter()
-        .find(|h| h.kind == HiddenKind::Diurnal)
-        .map(|h| {
-            let mut r = rng_for(seed, stream_of(&h.name()));
-            (
-                SineSum::random(7, 20.0, 300.0, cfg.hidden_std_nt, &mut r),
-                h.window_s,
-            )
-        });
+    let (diurnal, micro) = diurnal_draws(cfg, dur);
 
     // Aircraft (Cessna Caravan-like). Permanent K: ~10–60 nT per axis; induced L: a few
     // 1e-4 (×50 000 nT → tens of nT); eddy M: ~1e-4 s (×~1e4 nT/s in a 5° manoeuvre → ~1 nT).
@@ -370,33 +363,27 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
                 None
             }
             HiddenKind::Diurnal => None,
+            HiddenKind::Engine { channel } => Some(takeoff::engine_effect(
+                &world,
+                channel.as_deref(),
+                &times,
+                &mut aux,
+                &mut meta_extra,
+                &mut r,
+            )),
         };
         if let Some(e) = eff {
             vec_effects.push((hi, e, 1.0));
         }
     }
-    for d in &cfg.decoys {
-        let mut r = rng_for(seed, stream_of(&format!("decoy:{d}")));
-        // A decoy named like a temperature is drawn as one (cabin, outside air, …).
-        let v: Vec<f64> = if d.to_ascii_lowercase().contains("temp") {
-            let wave = TempWave::random(&mut r);
-            times
-                .iter()
-                .map(|&t| wave.eval(t).0 + 0.01 * r.sample::<f64, _>(StandardNormal))
-                .collect()
-        } else {
-            let wave = CurrentWave::random(dur, &mut r);
-            times.iter().map(|&t| wave.eval(t).0).collect()
-        };
-        aux.push((d.clone(), v));
-    }
+    aux.extend(decoy_channels(cfg, dur, &times));
 
     // Scale each effect (except the physical `rate`) to the target std inside its window,
     // measured on its projection on the field direction (what the scalar sees).
     for (hi, eff, scale) in vec_effects.iter_mut() {
         let h = &cfg.hidden[*hi];
         let target = match eff {
-            VecEffect::Rate { .. } => continue,
+            VecEffect::Rate { .. } | VecEffect::Engine(_) => continue,
             VecEffect::Periodic { .. } => cfg.hidden_std_nt / 2.0,
             _ => cfg.hidden_std_nt,
         };
@@ -772,7 +759,7 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     if let Some(a) = cfg.anomaly_pp_nt {
         meta.push(("anomaly_pp_nt".into(), format!("{a}")));
     }
-    if cfg.flight != FlightKind::Survey {
+    if cfg.flight.has_calibration() {
         meta.push(("cal_altitude_m".into(), format!("{}", cfg.cal_altitude_m)));
     }
     if cfg.flight != FlightKind::Calibration {
@@ -780,6 +767,8 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
             "survey_altitude_m".into(),
             format!("{}", cfg.survey_altitude_m),
         ));
+    }
+    if cfg.flight.has_survey() {
         meta.push(("line_spacing_m".into(), format!("{}", cfg.line_spacing_m)));
         if cfg.tie_lines > 0 {
             meta.push(("tie_spacing_m".into(), format!("{}", cfg.tie_spacing_m)));
@@ -817,6 +806,7 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
     if let Some((_, lag_s)) = lag {
         meta.push(("truth_lag_s".into(), format!("{lag_s}")));
     }
+    meta.extend(takeoff::apron_meta(&apron, &frame, cfg.ground_elev_m));
     meta.extend(meta_extra);
     trace.meta = meta;
 
@@ -824,6 +814,8 @@ pub fn simulate_detailed(cfg: &SimConfig) -> Result<SimOutput> {
         plan: world.plan.clone(),
         frame,
         anomaly,
+        apron,
+        engine: vec_effects.iter().find_map(|(_, e, _)| e.engine()),
         ground_elev_m: cfg.ground_elev_m,
         k_nt: k,
         l,

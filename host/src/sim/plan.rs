@@ -1,9 +1,17 @@
 //! The flight plan: cloverleaf calibration pattern, survey lines, tie lines and the
-//! turns and transits between them.
+//! turns and transits between them; the take-off's is in `takeoff.rs`.
 
 use super::*;
 
 pub(super) fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> {
+    match cfg.flight {
+        FlightKind::Takeoff => takeoff::build_plan(cfg, rng),
+        _ => pattern_plan(cfg, rng),
+    }
+}
+
+/// Cloverleaf and/or survey block at constant speed.
+fn pattern_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> {
     let v = cfg.speed_mps;
     let rate = cfg.turn_rate_deg_s.to_radians();
     let per = cfg.manoeuvre_period_s;
@@ -17,8 +25,8 @@ pub(super) fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> 
         .map(|h| h.to_radians().rem_euclid(TAU))
         .collect();
     let line_course = cfg.line_heading_deg.to_radians().rem_euclid(TAU);
-    let do_cal = cfg.flight != FlightKind::Survey;
-    let do_survey = cfg.flight != FlightKind::Calibration;
+    let do_cal = cfg.flight.has_calibration();
+    let do_survey = cfg.flight.has_survey();
     let first_course = if do_cal { cal_course[0] } else { line_course };
     let survey_origin = if do_cal {
         cfg.survey_offset_m
@@ -171,5 +179,6 @@ pub(super) fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> 
         turb,
         wind: (cfg.wind_mps, rng.gen_range(0.0..TAU)),
         cal_centre_ne_m: do_cal.then_some(centre),
+        takeoff: None,
     })
 }

@@ -7,7 +7,8 @@ use super::*;
 /// Environment field (main + anomaly) along the path, stored at knots with its exact
 /// time derivative and Hermite-interpolated between them. At ≤ 20 Hz every sample is a
 /// knot; above, knots are every 50 ms, where the cubic's error is < 1e-6 nT (the field
-/// varies over hundreds of metres = seconds of flight).
+/// varies over hundreds of metres = seconds of flight); a take-off's every 10 ms (its
+/// taxi passes steel 5–35 m away: ~1e-6 nT).
 pub(super) struct FieldTrack {
     pub(super) t: Vec<f64>,
     pub(super) be: Vec<Vector3<f64>>,
@@ -69,13 +70,41 @@ impl FieldTrack {
     }
 }
 
+/// The fast external variation of the `diurnal` hidden effect, and its window.
+pub(super) type Micropulsations = (SineSum, Option<(f64, f64)>);
+
+/// The diurnal variation (slow sinusoids of 10 min – 3 h + a smooth random walk) and the
+/// `diurnal` hidden effect's micropulsations, if it is asked for.
+pub(super) fn diurnal_draws(
+    cfg: &SimConfig,
+    dur: f64,
+) -> ((SineSum, SmoothWalk), Option<Micropulsations>) {
+    let mut rd = rng_for(cfg.seed, 3);
+    let diurnal = (
+        SineSum::random(3, 600.0, 10_800.0, cfg.diurnal_nt * 0.8, &mut rd),
+        SmoothWalk::random(dur + 10.0, 120.0, cfg.diurnal_nt * 0.15, &mut rd),
+    );
+    let micro = cfg
+        .hidden
+        .iter()
+        .find(|h| h.kind == HiddenKind::Diurnal)
+        .map(|h| {
+            let mut r = rng_for(cfg.seed, stream_of(&h.name()));
+            (
+                SineSum::random(7, 20.0, 300.0, cfg.hidden_std_nt, &mut r),
+                h.window_s,
+            )
+        });
+    (diurnal, micro)
+}
+
 /// Random parts of the world that are fixed for a flight.
 pub(super) struct World {
     pub(super) plan: Plan,
     pub(super) field: FieldTrack,
     pub(super) e0: Vector3<f64>,
     pub(super) diurnal: (SineSum, SmoothWalk),
-    pub(super) micro: Option<(SineSum, Option<(f64, f64)>)>,
+    pub(super) micro: Option<Micropulsations>,
     pub(super) k: Vector3<f64>,
     pub(super) l: Matrix3<f64>,
     pub(super) m: Matrix3<f64>,
@@ -158,9 +187,18 @@ pub(super) enum VecEffect {
         phase: [f64; 2],
         h2: f64,
     },
+    /// The take-off's engine start (physical size, not scaled).
+    Engine(takeoff::EngineStart),
 }
 
 impl VecEffect {
+    pub(super) fn engine(&self) -> Option<takeoff::EngineStart> {
+        match self {
+            VecEffect::Engine(e) => Some(e.clone()),
+            _ => None,
+        }
+    }
+
     /// Unscaled field (nT, body axes) at one instant.
     pub(super) fn field(&self, t: f64, i: &Inst) -> Vector3<f64> {
         match self {
@@ -202,8 +240,30 @@ impl VecEffect {
                 let a = TAU * rpm.cycles(t);
                 dir * ((a + phase[0]).cos() + h2 * (2.0 * a + phase[1]).cos())
             }
+            VecEffect::Engine(e) => e.field(t),
         }
     }
+}
+
+/// The decoy channels: current-like waveforms, or temperature-like ones for a name
+/// containing `temp` (cabin, outside air, …), with no magnetic effect.
+pub(super) fn decoy_channels(cfg: &SimConfig, dur: f64, times: &[f64]) -> Vec<(String, Vec<f64>)> {
+    let mut out = Vec::new();
+    for d in &cfg.decoys {
+        let mut r = rng_for(cfg.seed, stream_of(&format!("decoy:{d}")));
+        let v: Vec<f64> = if d.to_ascii_lowercase().contains("temp") {
+            let wave = TempWave::random(&mut r);
+            times
+                .iter()
+                .map(|&t| wave.eval(t).0 + 0.01 * r.sample::<f64, _>(StandardNormal))
+                .collect()
+        } else {
+            let wave = CurrentWave::random(dur, &mut r);
+            times.iter().map(|&t| wave.eval(t).0).collect()
+        };
+        out.push((d.clone(), v));
+    }
+    out
 }
 
 pub(super) fn random_dir(rng: &mut ChaCha8Rng) -> Vector3<f64> {
