@@ -375,6 +375,11 @@ fn run_method(
                     coefficients,
                 )
             };
+            let mut warnings = qc.warnings;
+            // A calibration only: applied coefficients were judged where they were fitted.
+            if coeffs.is_none() {
+                warnings.extend(crate::excitation::tl_warning(&flight));
+            }
             let comp = Compensation {
                 model: file.model.clone(),
                 method: Some(Method::Tl),
@@ -382,7 +387,7 @@ fn run_method(
                 compensated_nt: compensated,
                 coefficients: Some(file),
                 regressors,
-                warnings: qc.warnings,
+                warnings,
                 withheld: qc.withheld,
                 ..Default::default()
             };

@@ -76,3 +76,70 @@ pub fn unexcited_combinations(
     weak.sort_by(|x, y| x.0.total_cmp(&y.0));
     weak.into_iter().map(|(_, w)| w).collect()
 }
+
+/// The warning for `weak` of `total` interference combinations not excited; `held`: the
+/// estimator holds them at their prior (the Kalman filter) rather than fitting them to
+/// whatever the flight holds (Tolles–Lawson's least squares).
+pub fn warning(weak: usize, total: usize, held: bool) -> String {
+    let what = if held {
+        "they are held at their prior instead of being fitted to the Earth's field, so what \
+         they describe is not compensated"
+    } else {
+        "least squares fits them anyway, to the Earth's field and the noise in that band, so \
+         the coefficients along them are not the aircraft's and move the output where \
+         the attitude departs from this flight's"
+    };
+    format!(
+        "{weak} of {total} coefficient combinations are not excited by manoeuvres on this flight \
+         (a prior 1σ of them moves the manoeuvre-band interference by less than \
+         {EXCITATION_FLOOR_NT} nT): {what}. Calibrate on a pattern with roll, pitch and yaw \
+         manoeuvres on four headings"
+    )
+}
+
+/// The paper's 16 deviation regressors of every sample (physical units, as the filter forms
+/// them from the fluxgate; no filter is run).
+pub fn paper_regressors(flight: &Flight) -> Vec<Vec<f32>> {
+    let model = magcomp_core::model::Model::paper();
+    let mut cfg = magcomp_core::epoch::EpochConfig::for_rate(flight.sample_rate_hz as f32);
+    cfg.earth_dir_ned = flight.earth_dir_ned;
+    let Some(mut builder) = magcomp_core::EpochBuilder::<128>::new(cfg) else {
+        return Vec::new();
+    };
+    let k = model.coefficient_count();
+    let mut rows = Vec::with_capacity(flight.len());
+    let mut row_of = |ep: &magcomp_core::Epoch| {
+        let mut row = vec![0.0f32; k];
+        let mut at = 0;
+        for t in model.terms {
+            t.regressors(ep, &mut row[at..at + t.len()]);
+            at += t.len();
+        }
+        rows.push(row);
+    };
+    for s in &flight.samples {
+        if let Some(ep) = builder.push(s) {
+            row_of(&ep);
+        }
+    }
+    while let Some(ep) = builder.flush() {
+        row_of(&ep);
+    }
+    rows
+}
+
+/// What a Tolles–Lawson calibration on `flight` cannot determine: the warning the Kalman
+/// filter gives, from the same test on the paper's 16 regressors at their priors (TL18's
+/// own columns are collinear by construction, so their weakest direction says nothing
+/// about the flight). None when the manoeuvres excite every combination.
+pub fn tl_warning(flight: &Flight) -> Option<String> {
+    let model = magcomp_core::model::Model::paper();
+    let prior: Vec<f64> = model
+        .terms
+        .iter()
+        .flat_map(|t| (0..t.len()).map(|i| t.prior_sigma(i) as f64))
+        .collect();
+    let interference = vec![true; prior.len()];
+    let weak = unexcited_combinations(flight, &paper_regressors(flight), &prior, &interference);
+    (!weak.is_empty()).then(|| warning(weak.len(), prior.len(), false))
+}

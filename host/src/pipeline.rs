@@ -832,15 +832,10 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             .collect();
         let weak = crate::excitation::unexcited_combinations(flight, &regs, &prior, &interference);
         if !weak.is_empty() {
-            warnings.push(format!(
-                "{} of {} coefficient combinations are not excited by manoeuvres on this flight \
-                 (a prior 1σ of them moves the manoeuvre-band interference by less than {} nT): \
-                 they are held at their prior instead of being fitted to the Earth's field, so \
-                 what they describe is not compensated. Calibrate on a pattern with roll, pitch \
-                 and yaw manoeuvres on four headings",
+            warnings.push(crate::excitation::warning(
                 weak.len(),
                 interference.iter().filter(|i| **i).count(),
-                crate::excitation::EXCITATION_FLOOR_NT
+                true,
             ));
         }
         let mut o = opts.clone();
