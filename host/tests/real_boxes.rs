@@ -206,3 +206,43 @@ fn positionless_trace_needs_an_assumed_speed_for_the_filter() {
         .iter()
         .any(|w| w.contains("assumed ground speed")));
 }
+
+/// Survey mode says when most of a flight is refused: box-1 coefficients applied to box 2
+/// have 68 % of the samples refused by the gate (at the scalar's noise), and the run says
+/// so, with the share and the calibration's own model error (it used to say nothing).
+#[test]
+fn applied_coefficients_say_when_most_samples_are_refused() {
+    let Some(b) = boxes() else { return };
+    let e = est(Method::Kf, DEFAULT_MODEL);
+    let (_, cal) = compensate_trace(
+        &trace(&b, 0..BOX1_ROWS, "mag_4_uc", "flux_d"),
+        &e,
+        None,
+        false,
+    )
+    .unwrap();
+    let file = cal.coefficients.unwrap();
+    let box2 = trace(&b, BOX1_ROWS..b.rows.len(), "mag_4_uc", "flux_d");
+    let (_, applied) = compensate_trace(&box2, &e, Some(&file), false).unwrap();
+    let flags = applied.flags.unwrap();
+    let refused = flags
+        .iter()
+        .filter(|&&f| f & Flags::INNOVATION_REJECTED != 0)
+        .count() as f64
+        / flags.len() as f64;
+    let warning = applied
+        .warnings
+        .iter()
+        .find(|w| w.contains("refused by the innovation gate"));
+    eprintln!(
+        "box 1 → box 2: {:.1} % refused; {warning:?}",
+        100.0 * refused
+    );
+    assert!(refused > 0.05);
+    let w = warning.expect("a warning about the refused samples");
+    assert!(
+        w.starts_with(&format!("{:.0} % of the samples", 100.0 * refused)),
+        "{w}"
+    );
+    assert!(w.contains("unexplained"), "{w}");
+}
