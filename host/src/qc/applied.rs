@@ -137,6 +137,6 @@ mod tests {
             w[0]
         );
         assert!(w[0].contains("3.20 nT"));
-        assert!(flag_shares(&vec![0u16; 10], None).is_empty());
+        assert!(flag_shares(&[0u16; 10], None).is_empty());
     }
 }
