@@ -109,6 +109,9 @@ pub struct Epoch {
     pub dt_s: f32,
     pub ds_m: f32,
     pub speed_mps: f32,
+    /// The ground speed the GNSS/INS reported for this sample (m/s; NaN when none): unlike
+    /// `speed_mps` never derived from held positions, so it can tell a parked aircraft.
+    pub reported_speed_mps: f32,
     /// Height above the reference height `h0` (m).
     pub dh_m: f32,
     /// Local horizontal position relative to the first fix (m).
@@ -444,6 +447,7 @@ impl<const W: usize> EpochBuilder<W> {
             dt_s: c.dt_s,
             ds_m: c.ds_m,
             speed_mps: speed,
+            reported_speed_mps: c.s.ground_speed_mps,
             dh_m,
             north_m: c.north_m as f32,
             east_m: c.east_m as f32,

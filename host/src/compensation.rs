@@ -300,6 +300,11 @@ fn run_method(
             for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
                 select[i] = false;
             }
+            // Nor on the ground (parked, taxiing), where the filter does not learn either.
+            let span = crate::excitation::default_airborne_span(&flight);
+            for (i, s) in select.iter_mut().enumerate() {
+                *s &= span.contains(&i);
+            }
             let fit = match coeffs {
                 Some(c) => {
                     let cfg = c

@@ -216,6 +216,9 @@ pub(crate) fn config_for(
     // Post-flight the calibration is judged at its end; the causal safeguard is the
     // board's, and `--realtime` reproduces the board.
     cfg.divergence_reset = opts.realtime;
+    if !opts.realtime {
+        cfg.min_update_speed_mps = magcomp_core::compensator::GROUND_SPEED_MPS;
+    }
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }
@@ -830,7 +833,9 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             .iter()
             .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
             .collect();
-        let weak = crate::excitation::unexcited_combinations(flight, &regs, &prior, &interference);
+        let span = crate::excitation::default_airborne_span(flight);
+        let weak =
+            crate::excitation::unexcited_combinations(flight, &regs[span], &prior, &interference);
         if !weak.is_empty() {
             warnings.push(crate::excitation::warning(
                 weak.len(),

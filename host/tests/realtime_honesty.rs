@@ -192,3 +192,32 @@ fn tl_on_a_take_off_warns_about_unexcited_combinations() {
         );
     }
 }
+
+/// Post-flight, a take-off does no harm where it flew: the ground (parked, engine start,
+/// taxi past hangar steel) does not teach the filter (`GROUND_SPEED_MPS`), and the
+/// combinations the climb turn and the lines leave unexcited are held. Measured, airborne
+/// rows, the level removed: 0.042 / 0.017 nT (seeds 1 / 2; calibrated on the ground rows
+/// too, 9.6 nT on the whole flight of seed 1). The parked rows before the engine start stay
+/// off by the engine's own field (6.8 / 10.1 nT), an effect no model here holds.
+#[test]
+fn a_take_off_calibrated_after_landing_does_no_harm_in_the_air() {
+    use magcomp::compensation::{compensate_trace, EstimatorSettings};
+    for seed in [1, 2] {
+        let trace = simulate(&SimConfig::takeoff(seed)).expect("simulate");
+        let (f, comp) =
+            compensate_trace(&trace, &EstimatorSettings::default(), None, false).expect("kf");
+        let truth = f.truth_interference_nt.clone().expect("truth");
+        let segments = f.segments.clone().expect("segments");
+        let air: Vec<usize> = (0..f.len())
+            .filter(|&i| !["ground", "engine_start", "taxi"].contains(&segments[i].as_str()))
+            .collect();
+        let err: Vec<f64> = air
+            .iter()
+            .map(|&i| comp.interference_nt[i] - truth[i])
+            .collect();
+        let mean = err.iter().sum::<f64>() / err.len() as f64;
+        let rms = (err.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / err.len() as f64).sqrt();
+        eprintln!("take-off seed {seed}, post-flight KF, airborne: {rms:.4} nT");
+        assert!(rms <= 0.1, "seed {seed}: {rms:.3} nT");
+    }
+}

@@ -29,6 +29,7 @@ pub fn post_flight_with_terms(
     cfg.tie_points[0] = flight.tie_point;
     // A post-flight calibration pass, judged at its end (as `pipeline` runs them).
     cfg.divergence_reset = false;
+    cfg.min_update_speed_mps = magcomp_core::compensator::GROUND_SPEED_MPS;
     let model = Model { field, terms };
     let k = model.coefficient_count();
     let mut comp =
