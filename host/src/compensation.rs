@@ -301,7 +301,7 @@ fn run_method(
                 select[i] = false;
             }
             // Nor on the ground (parked, taxiing), where the filter does not learn either.
-            let span = crate::excitation::default_airborne_span(&flight);
+            let span = crate::excitation::airborne_span(&flight);
             for (i, s) in select.iter_mut().enumerate() {
                 *s &= span.contains(&i);
             }

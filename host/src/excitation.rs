@@ -141,26 +141,22 @@ pub fn tl_warning(flight: &Flight) -> Option<String> {
         .collect();
     let interference = vec![true; prior.len()];
     let regressors = paper_regressors(flight);
-    let span = default_airborne_span(flight);
+    let span = airborne_span(flight);
     let weak = unexcited_combinations(flight, &regressors[span], &prior, &interference);
     (!weak.is_empty()).then(|| warning(weak.len(), prior.len(), false))
 }
 
-/// The rows from the first to the last sample flown at or above `min_speed_mps` (a sample
-/// without a reported speed counts as flying): what a calibration may learn from. On the
-/// ground (parked, taxiing) heading changes excite every combination, but the filter does
-/// not learn there (`CompensatorConfig::min_update_speed_mps`), so they cannot count.
-pub fn airborne_span(flight: &Flight, min_speed_mps: f32) -> std::ops::Range<usize> {
+/// The rows from the first to the last sample flown at or above
+/// [`magcomp_core::compensator::GROUND_SPEED_MPS`] (a sample without a reported speed counts
+/// as flying): what a post-flight calibration learns from. On the ground (parked, taxiing)
+/// heading changes excite every combination, but the filter does not learn there
+/// (`CompensatorConfig::min_update_speed_mps`), so they cannot count.
+pub fn airborne_span(flight: &Flight) -> std::ops::Range<usize> {
+    let min_speed_mps = magcomp_core::compensator::GROUND_SPEED_MPS;
     let flying = |s: &magcomp_core::AlignedSample| {
         s.ground_speed_mps.is_nan() || s.ground_speed_mps >= min_speed_mps
     };
     let first = flight.samples.iter().position(flying).unwrap_or(0);
     let last = flight.samples.iter().rposition(flying).map_or(0, |i| i + 1);
     first..last.max(first)
-}
-
-/// [`airborne_span`] at the post-flight ground-speed limit
-/// ([`magcomp_core::compensator::GROUND_SPEED_MPS`]).
-pub fn default_airborne_span(flight: &Flight) -> std::ops::Range<usize> {
-    airborne_span(flight, magcomp_core::compensator::GROUND_SPEED_MPS)
 }

@@ -213,12 +213,7 @@ pub(crate) fn config_for(
     cfg.prior_scale = opts.prior_scale as f32;
     cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
     cfg.gate_sigma = opts.gate_sigma as f32;
-    // Post-flight the calibration is judged at its end; the causal safeguard is the
-    // board's, and `--realtime` reproduces the board.
-    cfg.divergence_reset = opts.realtime;
-    if !opts.realtime {
-        cfg.min_update_speed_mps = magcomp_core::compensator::GROUND_SPEED_MPS;
-    }
+    set_run_mode(&mut cfg, opts.realtime);
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }
@@ -227,6 +222,16 @@ pub(crate) fn config_for(
         cfg.tie_points[0] = tie_point;
     }
     cfg
+}
+
+/// Real time (the board, which `--realtime` reproduces) or a post-flight pass: post-flight
+/// the calibration is judged at its end, so the causal divergence reset is off, and nothing
+/// is learnt on the ground (`GROUND_SPEED_MPS`).
+pub(crate) fn set_run_mode(cfg: &mut CompensatorConfig, realtime: bool) {
+    cfg.divergence_reset = realtime;
+    if !realtime {
+        cfg.min_update_speed_mps = magcomp_core::compensator::GROUND_SPEED_MPS;
+    }
 }
 
 /// Filter passes made by this process (numbers the progress lines).
@@ -833,7 +838,7 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             .iter()
             .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
             .collect();
-        let span = crate::excitation::default_airborne_span(flight);
+        let span = crate::excitation::airborne_span(flight);
         let weak =
             crate::excitation::unexcited_combinations(flight, &regs[span], &prior, &interference);
         if !weak.is_empty() {

@@ -41,15 +41,26 @@ fn transfer_nt(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) ->
 /// Box 2's band-passed residual and the error the KF predicted for box 2 from box 1's
 /// coefficients (`compensate --coeffs`'s `predicted_error_nt`).
 fn transfer(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) -> (f64, Option<f64>) {
-    let e = est(method, model);
-    let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag, flux), &e, None, false).unwrap();
-    let file = cal.coefficients.unwrap();
-    let box2 = trace(b, BOX1_ROWS..b.rows.len(), mag, flux);
-    let (_, applied) = compensate_trace(&box2, &e, Some(&file), false).unwrap();
+    let applied = applied_to_box2(b, mag, flux, method, model);
     (
         band_std_nt(&applied.compensated_nt),
         applied.coefficients.and_then(|c| c.predicted_error_nt),
     )
+}
+
+/// Box 2 compensated with `method`/`model` calibrated on box 1.
+fn applied_to_box2(
+    b: &Boxes,
+    mag: &str,
+    flux: &str,
+    method: Method,
+    model: &str,
+) -> magcomp::compensation::Compensation {
+    let e = est(method, model);
+    let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag, flux), &e, None, false).unwrap();
+    let file = cal.coefficients.unwrap();
+    let box2 = trace(b, BOX1_ROWS..b.rows.len(), mag, flux);
+    compensate_trace(&box2, &e, Some(&file), false).unwrap().1
 }
 
 /// Plain band-passed least-squares TL18 (λ = 0), box 1 → box 2.
@@ -213,17 +224,7 @@ fn positionless_trace_needs_an_assumed_speed_for_the_filter() {
 #[test]
 fn applied_coefficients_say_when_most_samples_are_refused() {
     let Some(b) = boxes() else { return };
-    let e = est(Method::Kf, DEFAULT_MODEL);
-    let (_, cal) = compensate_trace(
-        &trace(&b, 0..BOX1_ROWS, "mag_4_uc", "flux_d"),
-        &e,
-        None,
-        false,
-    )
-    .unwrap();
-    let file = cal.coefficients.unwrap();
-    let box2 = trace(&b, BOX1_ROWS..b.rows.len(), "mag_4_uc", "flux_d");
-    let (_, applied) = compensate_trace(&box2, &e, Some(&file), false).unwrap();
+    let applied = applied_to_box2(&b, "mag_4_uc", "flux_d", Method::Kf, DEFAULT_MODEL);
     let flags = applied.flags.unwrap();
     let refused = flags
         .iter()

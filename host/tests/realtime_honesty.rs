@@ -133,35 +133,25 @@ fn a_take_off_and_straight_lines_show_nothing_wrong_as_good() {
     }
 }
 
-/// The same take-off through the board's acquisition path (sensor bytes → records, the
-/// firmware's filter size and configuration): no record is shown as good while the
-/// interference is not determined.
+/// The same take-off through the board's path (`magcomp replay` of its capture: sensor
+/// bytes → records, the firmware's filter size and configuration, byte-identical to the
+/// board in the hil tests): no record is shown as good while the interference is not
+/// determined.
 #[test]
 fn the_board_shows_nothing_as_good_through_a_take_off() {
     use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-    use magcomp_core::acquisition::{compensator_config, AcqConfig, Acquisition};
-    use magcomp_core::model::Model;
-    use magcomp_core::protocol::capture::{decode_line, MAX_CHUNK};
-    use magcomp_core::Compensator;
+    use magcomp::replay::{replay_capture, ReplayOptions};
     for seed in [1, 3] {
         let trace = simulate(&SimConfig::takeoff(seed)).expect("simulate");
         let cap = trace_to_capture(&trace, &CaptureOptions::default()).expect("capture");
-        let comp = Compensator::<24, 16>::new(Model::paper(), compensator_config(10.0, 16))
-            .expect("compensator");
-        let mut acq = Acquisition::new(AcqConfig::new(10.0, 10.0, 1.0), comp).expect("acq");
+        let opts = ReplayOptions::new(ModelSpec::parse("tl16+field").expect("spec"));
         let (mut records, mut good) = (0usize, 0usize);
-        let mut buf = [0u8; MAX_CHUNK];
-        for l in cap.split(|&b| b == b'\n') {
-            let Ok(Some(c)) = decode_line(l, &mut buf) else {
-                continue;
-            };
-            for &b in &buf[..c.len] {
-                if let Some(r) = acq.push_byte(c.port, b) {
-                    records += 1;
-                    good += usize::from(shown_as_good(r.flags.0));
-                }
-            }
-        }
+        replay_capture(cap.as_slice(), &opts, |r| {
+            records += 1;
+            good += usize::from(shown_as_good(r.flags.0));
+            Ok(())
+        })
+        .expect("replay");
         eprintln!("board, take-off seed {seed}: {good} of {records} records shown as good");
         assert!(
             records + 1 >= trace.len(),

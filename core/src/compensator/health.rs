@@ -109,11 +109,6 @@ impl InnovationMonitor {
         self.mean_hph += a * ((s - r).max(0.0) - self.mean_hph);
     }
 
-    /// Innovations averaged so far (up to the window).
-    pub fn count(&self) -> u32 {
-        self.count
-    }
-
     /// The measurement variance the innovations show: `E[ν²] − E[H·P·Hᵀ]` (nT²; may be
     /// negative early on, while the state uncertainty dominates).
     pub fn observed_r(&self) -> f32 {

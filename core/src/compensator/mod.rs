@@ -448,7 +448,11 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 let mut envelope_var = 0.0f32;
                 let mut other = [0.0f32; N];
                 for k in 0..ENVELOPE_POINTS {
-                    self.interference_regressors(&health::envelope_epoch(ep, k), &mut other);
+                    // only the interference terms' entries are read below
+                    self.term_regressors(
+                        &health::envelope_epoch(ep, k),
+                        &mut other[self.terms_at..self.n],
+                    );
                     let v = self.interference_change_variance(phys, &other);
                     envelope_var = if v.is_nan() { v } else { envelope_var.max(v) };
                 }
@@ -486,17 +490,24 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         }
     }
 
-    /// The physical interference regressors of `ep` (zero for the other states).
-    fn interference_regressors(&self, ep: &Epoch, out: &mut [f32; N]) {
-        *out = [0.0; N];
+    /// The interference for physical regressors `phys`: with the prior means when
+    /// `prior`, else with the current coefficient estimates.
+    fn interference_from(&self, phys: &[f32; N], prior: bool) -> f32 {
+        let x = self.filter.state();
+        let mut interference = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
             let l = t.len();
             if t.is_interference() {
-                t.regressors(ep, &mut out[at..at + l]);
+                let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
+                for (i, ((xi, si), pi)) in xs.iter().zip(ss).zip(ps).enumerate() {
+                    let c = if prior { t.prior_mean(i) } else { xi * si };
+                    interference += c * pi;
+                }
             }
             at += l;
         }
+        interference
     }
 
     /// Predicted variance (nT²) of the interference difference between regressors `phys`
@@ -552,13 +563,12 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if !self.cfg.divergence_reset || !self.has_last_good {
             return false;
         }
-        let x = self.filter.state();
-        let (mut estimate, mut prior_var) = (0.0f32, 0.0f32);
+        let estimate = self.interference_from(phys, false);
+        let mut prior_var = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
             if t.is_interference() {
                 for (k, i) in (at..at + t.len()).enumerate() {
-                    estimate += x[i] * self.scale[i] * phys[i];
                     let m = libm::fabsf(t.prior_mean(k)) + self.scale[i];
                     prior_var += (m * phys[i]) * (m * phys[i]);
                 }
@@ -905,24 +915,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             // Until the flight has determined the interference, the output is the prior's
             // (zero, or the loaded coefficients'): a half-learnt estimate put ~9 000 nT
             // excursions into the first 30 s of a real box.
-            let not_converged = self.not_converged;
-            interference = 0.0;
-            let mut at = self.terms_at;
-            for t in self.model.terms {
-                let l = t.len();
-                if t.is_interference() {
-                    let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
-                    for (i, ((xi, si), pi)) in xs.iter().zip(ss).zip(ps).enumerate() {
-                        let c = if not_converged {
-                            t.prior_mean(i)
-                        } else {
-                            xi * si
-                        };
-                        interference += c * pi;
-                    }
-                }
-                at += l;
-            }
+            interference = self.interference_from(&phys, self.not_converged);
         }
         let anomaly_nt = if self.field.is_some() {
             let a = self.field_at;

@@ -27,9 +27,7 @@ pub fn post_flight_with_terms(
     cfg.noise_nt = noise_nt as f32;
     cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
     cfg.tie_points[0] = flight.tie_point;
-    // A post-flight calibration pass, judged at its end (as `pipeline` runs them).
-    cfg.divergence_reset = false;
-    cfg.min_update_speed_mps = magcomp_core::compensator::GROUND_SPEED_MPS;
+    crate::pipeline::set_run_mode(&mut cfg, false);
     let model = Model { field, terms };
     let k = model.coefficient_count();
     let mut comp =
