@@ -97,6 +97,17 @@ pub struct CoefficientFile {
     /// (m/s), reused by `compensate --coeffs` unless `--speed-mps` is given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub assumed_speed_mps: Option<f64>,
+    /// Calibration: the manoeuvre-band rms (nT) the compensated signal is expected to show
+    /// on another flight of this installation flown like this one: this flight's own
+    /// compensated band rms with the band part of the jackknife error added
+    /// (`crate::jackknife`). Real SGL boxes, box 1 → box 2 and back: measured / this =
+    /// 0.90–1.32 for `mag_3`, `mag_4` and `mag_5`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_band_rms_nt: Option<f64>,
+    /// KF calibration: the flight's own check of its coefficients (jackknife figures of the
+    /// filter and of band-passed least squares, and which was used: `pipeline::crosscheck`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cross_check: Option<crate::jackknife::CrossCheck>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -193,6 +204,8 @@ impl CoefficientFile {
             predicted_error_nt: None,
             covariance: None,
             assumed_speed_mps: None,
+            cross_check: None,
+            predicted_band_rms_nt: None,
             coefficients,
         }
     }

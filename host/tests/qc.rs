@@ -18,6 +18,7 @@ fn est(method: Method) -> EstimatorSettings {
         tl_terms: "tl18".into(),
         tl_ridge: None,
         speed_mps: None,
+        cross_check: false,
     }
 }
 

@@ -30,6 +30,7 @@ fn est(method: Method, model: &str) -> EstimatorSettings {
         tl_terms: "tl18".into(),
         tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
+        cross_check: false,
     }
 }
 
@@ -38,13 +39,13 @@ fn transfer_nt(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) ->
     transfer(b, mag, flux, method, model).0
 }
 
-/// Box 2's band-passed residual and the error the KF predicted for box 2 from box 1's
-/// coefficients (`compensate --coeffs`'s `predicted_error_nt`).
+/// Box 2's band-passed residual and the band rms box 1's calibration predicted for a
+/// flight like it (`predicted_band_rms_nt`, carried with the coefficients).
 fn transfer(b: &Boxes, mag: &str, flux: &str, method: Method, model: &str) -> (f64, Option<f64>) {
     let applied = applied_to_box2(b, mag, flux, method, model);
     (
         band_std_nt(&applied.compensated_nt),
-        applied.coefficients.and_then(|c| c.predicted_error_nt),
+        applied.coefficients.and_then(|c| c.predicted_band_rms_nt),
     )
 }
 
@@ -105,8 +106,8 @@ fn kf_transfer_between_real_boxes_beats_tolles_lawson() {
             default <= 1.05 * ridge,
             "{mag}: KF default {default:.3} vs ridge TL18 {ridge:.3}"
         );
-        // The predicted error counts what the model could not follow on box 1 (the
-        // coefficient covariance alone said 0.85–1.3 nT).
+        // Box 1's calibration predicts box 2's band rms: its own band rms with the band
+        // part of its jackknife (the coefficient covariance alone said 0.85–1.3 nT).
         assert!(
             (0.5 * default..=2.0 * default).contains(&predicted),
             "{mag}: predicted {predicted:.3} vs transfer {default:.3}"

@@ -34,6 +34,7 @@ fn transfer_nt(b: &Boxes, mag: &str, model: &str) -> f64 {
         tl_terms: "tl18".into(),
         tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
+        cross_check: false,
     };
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();

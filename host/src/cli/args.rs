@@ -278,6 +278,9 @@ impl EstimatorArgs {
             tl_terms: self.tuning.tl_terms.clone(),
             tl_ridge: self.tuning.tl_ridge,
             speed_mps: self.tuning.speed_mps,
+            // The default method is checked against TL18-OLS; a method asked for by name
+            // is used as asked.
+            cross_check: self.method.is_none(),
         }
     }
 

@@ -141,7 +141,24 @@ pub fn print_summary(s: &Summary) {
     }
     if let Some(p) = s.predicted_error_nt {
         println!(
-            "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
+            "  predicted error:            {p:.4} nT rms (the coefficients' covariance and the flight's own jackknife)"
+        );
+    }
+    if let Some(p) = s.predicted_band_rms_nt {
+        println!(
+            "  predicted band rms:         {p:.4} nT (what a flight like the calibration should show in the manoeuvre band after compensation)"
+        );
+    }
+    if let Some(c) = &s.cross_check {
+        println!(
+            "  cross-check (jackknife):    Kalman filter {:.4} nT, TL18-OLS {:.4} nT, disagreement {:.4} nT: {} used",
+            c.kalman_filter_jackknife_nt,
+            c.tolles_lawson_jackknife_nt,
+            c.disagreement_nt,
+            match c.chosen {
+                crate::jackknife::Estimator::KalmanFilter => "Kalman filter",
+                crate::jackknife::Estimator::TollesLawsonOls => "TL18-OLS",
+            }
         );
     }
     if let Some(e) = s.error_rms_nt {

@@ -140,6 +140,24 @@ impl SimConfig {
         }
     }
 
+    /// The cloverleaf (`SimConfig::default()`'s) and then a straight leg at the pattern's
+    /// altitude (a 180 s return turn, a 12 km line, 10 891 samples at 10 Hz): an in-flight
+    /// calibration is judged once the pattern is over, and the board's `NOT_CONVERGED` waits
+    /// for every heading to be flown and for the estimate to stop moving
+    /// (`magcomp_core::compensator::health`).
+    pub fn calibration_with_exit(seed: u64) -> Self {
+        let d = SimConfig::default();
+        SimConfig {
+            seed,
+            flight: FlightKind::CalibrationSurvey,
+            survey_altitude_m: d.cal_altitude_m,
+            survey_lines: 1,
+            line_length_m: 12_000.0,
+            survey_offset_m: [0.0, 0.0],
+            ..d
+        }
+    }
+
     /// The take-off (`takeoff.rs`): apron, engine start, taxi, take-off, climb through the
     /// low-altitude anomaly to `survey_altitude_m`, a line and its reciprocal, over the
     /// strong geology: the only preset with sources shallow enough (from 150 m) for the

@@ -13,6 +13,8 @@
 //! MagNav's convention.
 
 pub mod filter;
+mod jackknife;
+pub use jackknife::jackknife_refits;
 
 pub use filter::{
     bandpass, bandpass_gaps, butterworth_bandpass, filtfilt, filtfilt_with_pad, Biquad, Gaps, Sos,

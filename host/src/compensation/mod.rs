@@ -6,14 +6,14 @@ pub use crate::coefficients::{
     RateCrossover, COEFF_FORMAT,
 };
 use crate::flight::Flight;
-use crate::metrics::{
-    error_rms_nt, fom, improvement_ratio, manoeuvre_band, oracle_floor_nt, ManoeuvreFom,
-};
-use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
-use crate::pipeline::{run_kf, KfOptions};
-use crate::tl;
+use crate::metrics::{error_rms_nt, fom, improvement_ratio, oracle_floor_nt, ManoeuvreFom};
+use crate::model_spec::DEFAULT_MODEL;
 use crate::trace::Trace;
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{ensure, Result};
+
+mod cross_check;
+mod kf;
+mod tl;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -33,6 +33,10 @@ pub struct EstimatorSettings {
     pub tl_ridge: Option<f64>,
     /// Assumed ground speed (m/s) for a trace without positions.
     pub speed_mps: Option<f64>,
+    /// Post-flight calibration with the Kalman filter as the default, not asked for by
+    /// name: TL18-OLS is used instead when the flight's own evidence trusts it more
+    /// ([`cross_check`]).
+    pub cross_check: bool,
 }
 
 impl Default for EstimatorSettings {
@@ -45,6 +49,7 @@ impl Default for EstimatorSettings {
             tl_terms: "tl18".into(),
             tl_ridge: None,
             speed_mps: None,
+            cross_check: false,
         }
     }
 }
@@ -69,6 +74,10 @@ pub struct Compensation {
     pub regressors: Vec<Vec<f32>>,
     /// What the user must know about this result (printed on stderr, `warnings` in JSON).
     pub warnings: Vec<String>,
+    /// Calibration: the method's jackknife error (nT rms; `crate::jackknife`).
+    pub jackknife_nt: Option<f64>,
+    /// The same in the manoeuvre band: what a band-passed figure on another flight sees.
+    pub band_jackknife_nt: Option<f64>,
     /// Why the figures that would pretend (IR, FOM, predicted error) are withheld
     /// (`qc::inputs`); None when they stand.
     pub withheld: Option<String>,
@@ -98,6 +107,15 @@ pub struct Summary {
     /// says the calibration left part of this flight's interference undetermined.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
+    /// Calibration: the manoeuvre-band rms another flight like this one should show after
+    /// compensation (`CoefficientFile::predicted_band_rms_nt`); with `--coeffs`, the file's,
+    /// to hold against `compensated_band_rms_nt`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_band_rms_nt: Option<f64>,
+    /// Calibration by default: the flight's own check of its coefficients (the jackknife
+    /// errors of the filter and of TL18-OLS; which one is used).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cross_check: Option<crate::jackknife::CrossCheck>,
     /// KF: the anomaly process used ("stationary" or the chosen local-roughness profile).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,
@@ -122,22 +140,6 @@ pub struct Summary {
     pub decimated: Option<crate::stream::decimate::Decimation>,
 }
 
-fn tl_config(flight: &Flight, est: &EstimatorSettings) -> Result<tl::TlConfig> {
-    let terms: tl::TlTerms = est.tl_terms.parse()?;
-    let mut cfg = tl::TlConfig::for_rate(flight.sample_rate_hz);
-    cfg.terms = terms;
-    let (lo, hi) = manoeuvre_band(flight.sample_rate_hz);
-    cfg.pass_hz = Some((lo, hi));
-    if let Some(l) = est.tl_ridge {
-        ensure!(
-            l.is_finite() && l >= 0.0,
-            "--tl-ridge must be a finite λ ≥ 0 (0 = plain least squares), not {l}"
-        );
-        cfg.lambda = l;
-    }
-    Ok(cfg)
-}
-
 /// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace;
 /// their plausibility on this flight is checked (`qc::applied`) and warned about.
 pub fn compensate_trace(
@@ -147,7 +149,18 @@ pub fn compensate_trace(
     realtime: bool,
 ) -> Result<(Flight, Compensation)> {
     let (flight, mut comp) = run_method(trace, est, coeffs, realtime)?;
+    if let (None, Some(band_jackknife)) = (coeffs, comp.band_jackknife_nt) {
+        let own = crate::metrics::band_rms_nt(&flight, &comp.compensated_nt);
+        if let Some(file) = comp.coefficients.as_mut().filter(|_| own.is_finite()) {
+            file.predicted_band_rms_nt = Some(own.hypot(band_jackknife));
+        }
+    }
     if let Some(c) = coeffs {
+        // What the calibration predicted travels with its coefficients.
+        if let Some(file) = comp.coefficients.as_mut() {
+            file.predicted_band_rms_nt = c.predicted_band_rms_nt;
+            file.cross_check.clone_from(&c.cross_check);
+        }
         let w = crate::qc::applied::check(&flight, &comp, c);
         comp.warnings.extend(w);
     }
@@ -163,241 +176,12 @@ fn run_method(
     let method = coeffs.map(|c| c.method).unwrap_or(est.method);
     let model_text = coeffs.map(|c| c.model.clone()).unwrap_or(est.model.clone());
     match method {
-        Method::Kf => {
-            let spec = ModelSpec::parse(&model_text)?;
-            let mut flight =
-                Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
-            let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
-            let mut warnings = qc.warnings.clone();
-            let mut assumed_speed_mps = None;
-            if spec.field && !flight.has_track() {
-                match est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps)) {
-                    Some(v) if v.is_finite() && v > 0.0 => {
-                        flight.assume_ground_speed(v);
-                        assumed_speed_mps = Some(v);
-                        warnings.push(format!(
-                            "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
-                        ));
-                    }
-                    Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
-                    None => bail!(
-                        "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
-                    ),
-                }
-            }
-            let mut opts = KfOptions::new(spec.clone());
-            opts.sigma1 = est.sigma1.or(coeffs.and_then(|c| c.sigma1));
-            opts.noise_nt = est.noise_nt;
-            opts.realtime = realtime;
-            if let Some(c) = coeffs {
-                opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
-                if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
-                    bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
-                }
-                opts.fluxgate_calibration = c.fluxgate_calibration;
-                if spec.terms.iter().any(|t| t.name == "lag") && c.scalar_lag.is_none() {
-                    bail!("the model has `lag` but the coefficient file has no scalar_lag");
-                }
-                if spec.terms.iter().any(|t| t.name == "fluxtemp")
-                    && c.fluxgate_temperature.is_none()
-                {
-                    bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
-                }
-                opts.preprocessing = Some(crate::preprocess::Preprocessing {
-                    scalar_lag: c.scalar_lag,
-                    fluxgate_temperature: c.fluxgate_temperature.clone(),
-                });
-                opts.rate_crossover_coefficients = c
-                    .rate_crossover
-                    .as_ref()
-                    .filter(|r| r.applied)
-                    .map(|r| r.fit.coefficients);
-                opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
-                opts.model_error_nt = c.model_error_nt;
-            }
-            let mut run = run_kf(&flight, &opts)?;
-            warnings.extend(run.warnings.iter().cloned());
-            // Samples next to a time gap: their derivatives span it.
-            for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
-                if let Some(f) = run.flags.get_mut(i) {
-                    *f |= magcomp_core::flags::Flags::DERIVATIVE_DEGRADED;
-                }
-            }
-            if qc.withheld.is_some() {
-                run.predicted_error_nt = None;
-            }
-            let file = CoefficientFile {
-                format: COEFF_FORMAT.into(),
-                model: spec.text(),
-                method: Method::Kf,
-                sample_rate_hz: flight.sample_rate_hz,
-                sigma1: Some(run.sigma1),
-                noise_nt: Some(run.noise_nt),
-                model_error_nt: run.model_error_nt,
-                tl_config: None,
-                fluxgate_calibration: run.fluxgate_calibration,
-                scalar_lag: run.preprocessing.as_ref().and_then(|p| p.scalar_lag),
-                fluxgate_temperature: run
-                    .preprocessing
-                    .as_ref()
-                    .and_then(|p| p.fluxgate_temperature.clone()),
-                field_process: Some(run.field_process.clone()),
-                rate_crossover: match (&run.rate_crossover, coeffs) {
-                    (Some((fit, applied)), _) => Some(RateCrossover {
-                        labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
-                        fit: fit.clone(),
-                        applied: *applied,
-                    }),
-                    (None, Some(c)) => c.rate_crossover.clone(),
-                    (None, None) => None,
-                },
-                predicted_error_nt: run.predicted_error_nt,
-                assumed_speed_mps,
-                covariance: {
-                    let k = run.coefficients.len();
-                    (run.coefficient_covariance.len() == k * k && k > 0).then(|| {
-                        run.coefficient_covariance
-                            .chunks(k)
-                            .map(|row| row.to_vec())
-                            .collect()
-                    })
-                },
-                coefficients: run
-                    .coefficient_names
-                    .iter()
-                    .zip(run.coefficients.iter().zip(&run.coefficient_sigmas))
-                    .map(|((n, u), (v, s))| Coefficient {
-                        name: n.clone(),
-                        unit: u.clone(),
-                        value: *v,
-                        sigma: *s,
-                    })
-                    .collect(),
-            };
-            let comp = Compensation {
-                model: spec.text(),
-                method: Some(Method::Kf),
-                interference_nt: run.interference_nt,
-                compensated_nt: run.compensated_nt,
-                anomaly_nt: Some(run.anomaly_nt),
-                innovation_nt: Some(run.innovation_nt),
-                flags: Some(run.flags),
-                interference_sigma_nt: realtime.then_some(run.interference_sigma_nt),
-                coefficients: Some(file),
-                regressors: run.regressors,
-                warnings,
-                withheld: qc.withheld,
-            };
-            Ok((flight, comp))
+        Method::Kf if est.cross_check && coeffs.is_none() && !realtime => {
+            let kalman = kf::run_kf_method(trace, est, coeffs, realtime, &model_text)?;
+            cross_check::choose(trace, est, kalman)
         }
-        Method::Tl => {
-            let flight = Flight::from_trace(trace, &[], &[])?;
-            let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
-            let flux = crate::fluxgate::flight_flux(&flight);
-            // Not across a time gap: the rows beside it are left out, which splits the
-            // band-passed fit there.
-            let mut select = vec![true; flight.len()];
-            for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
-                select[i] = false;
-            }
-            // Nor on the ground (parked, taxiing), where the filter does not learn either.
-            let span = crate::excitation::airborne_span(&flight);
-            for (i, s) in select.iter_mut().enumerate() {
-                *s &= span.contains(&i);
-            }
-            let fit = match coeffs {
-                Some(c) => {
-                    let cfg = c
-                        .tl_config
-                        .clone()
-                        .context("the coefficient file has no Tolles–Lawson configuration")?;
-                    c.tl_fit(cfg)
-                }
-                None => tl::fit(
-                    &flux,
-                    &flight.mag_nt,
-                    &tl_config(&flight, est)?,
-                    Some(&select),
-                )?,
-            };
-            if fit.coefficients.len() != fit.config.terms.columns().len() {
-                bail!(
-                    "{} Tolles–Lawson coefficients for {} terms",
-                    fit.coefficients.len(),
-                    fit.config.terms.columns().len()
-                );
-            }
-            // Per stretch between time gaps: no derivative spans a gap.
-            let stretches = crate::qc::gaps::stretches(flight.len(), &qc.breaks);
-            let interference: Vec<f64> = stretches
-                .iter()
-                .flat_map(|r| tl::interference(&fit, &flux[r.clone()]))
-                .collect();
-            let compensated = flight
-                .mag_nt
-                .iter()
-                .zip(&interference)
-                .map(|(m, i)| m - i)
-                .collect();
-            let regressors = stretches
-                .iter()
-                .flat_map(|r| {
-                    let a = tl::design_matrix_scaled(
-                        &flux[r.clone()],
-                        &fit.config.terms,
-                        fit.config.bt_scale_nt,
-                        match fit.config.eddy_rate {
-                            tl::EddyRate::PerSample => 1.0,
-                            tl::EddyRate::PerSecond => fit.config.fs_hz,
-                        },
-                    );
-                    (0..a.nrows())
-                        .map(|r| {
-                            (0..a.ncols())
-                                .map(|c| a[(r, c)] as f32)
-                                .collect::<Vec<f32>>()
-                        })
-                        .collect::<Vec<_>>()
-                })
-                .collect();
-            let coefficients = fit
-                .names
-                .iter()
-                .zip(fit.coefficients.iter().zip(&fit.sigma))
-                .map(|(n, (v, s))| Coefficient {
-                    name: n.clone(),
-                    unit: "nT".into(),
-                    value: *v,
-                    sigma: *s,
-                })
-                .collect();
-            let file = CoefficientFile {
-                tl_config: Some(fit.config.clone()),
-                ..CoefficientFile::new(
-                    format!("{:?}", fit.config.terms).to_lowercase(),
-                    Method::Tl,
-                    flight.sample_rate_hz,
-                    coefficients,
-                )
-            };
-            let mut warnings = qc.warnings;
-            // A calibration only: applied coefficients were judged where they were fitted.
-            if coeffs.is_none() {
-                warnings.extend(crate::excitation::tl_warning(&flight));
-            }
-            let comp = Compensation {
-                model: file.model.clone(),
-                method: Some(Method::Tl),
-                interference_nt: interference,
-                compensated_nt: compensated,
-                coefficients: Some(file),
-                regressors,
-                warnings,
-                withheld: qc.withheld,
-                ..Default::default()
-            };
-            Ok((flight, comp))
-        }
+        Method::Kf => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
+        Method::Tl => tl::run_tl_method(trace, est, coeffs),
     }
 }
 
@@ -462,6 +246,16 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
             .coefficients
             .as_ref()
             .and_then(|c| c.field_process.clone()),
+        predicted_band_rms_nt: comp
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.predicted_band_rms_nt)
+            .filter(|_| !withheld),
+        cross_check: comp
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.cross_check.clone())
+            .filter(|_| !withheld),
         rate_crossover: comp
             .coefficients
             .as_ref()

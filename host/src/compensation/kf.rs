@@ -1,0 +1,181 @@
+//! The Kalman filter's run as `calibrate` and `compensate` make it: the flight, the filter
+//! (`pipeline`), and the coefficient file.
+
+use super::{
+    Coefficient, CoefficientFile, Compensation, EstimatorSettings, Method, RateCrossover,
+    COEFF_FORMAT,
+};
+use crate::flight::Flight;
+use crate::model_spec::ModelSpec;
+use crate::pipeline::{run_kf, KfOptions};
+use crate::trace::Trace;
+use anyhow::{bail, Result};
+
+pub(super) fn run_kf_method(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+    model_text: &str,
+) -> Result<(Flight, Compensation)> {
+    let spec = ModelSpec::parse(model_text)?;
+    let mut flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
+    let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
+    let mut warnings = qc.warnings.clone();
+    let mut assumed_speed_mps = None;
+    if spec.field && !flight.has_track() {
+        match est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps)) {
+            Some(v) if v.is_finite() && v > 0.0 => {
+                flight.assume_ground_speed(v);
+                assumed_speed_mps = Some(v);
+                warnings.push(format!(
+                    "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
+                ));
+            }
+            Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
+            None => bail!(
+                "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
+            ),
+        }
+    }
+    // The default calibration looks for a scalar delay the model was not told of.
+    let mut detected_lag = None;
+    let spec =
+        if est.cross_check && coeffs.is_none() && !realtime && !crate::preprocess::needed(&spec) {
+            match crate::preprocess::lag::detect(&flight, &spec) {
+                Some(l) => {
+                    warnings.push(format!(
+                        "the scalar lags the fluxgate by {:.0} ± {:.0} ms: it is re-aligned (the \
+                     `lag` term is added to the model; `--method kf` keeps the model as given)",
+                        l.lag_s * 1e3,
+                        l.sigma_s * 1e3
+                    ));
+                    detected_lag = Some(l);
+                    ModelSpec::parse(&format!("{}+lag", spec.text()))?
+                }
+                None => spec,
+            }
+        } else {
+            spec
+        };
+    let mut opts = KfOptions::new(spec.clone());
+    if let Some(l) = detected_lag {
+        opts.preprocessing = Some(crate::preprocess::Preprocessing {
+            scalar_lag: Some(l),
+            fluxgate_temperature: None,
+        });
+    }
+    opts.sigma1 = est.sigma1.or(coeffs.and_then(|c| c.sigma1));
+    opts.noise_nt = est.noise_nt;
+    opts.realtime = realtime;
+    if let Some(c) = coeffs {
+        opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
+        if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
+            bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
+        }
+        opts.fluxgate_calibration = c.fluxgate_calibration;
+        if spec.terms.iter().any(|t| t.name == "lag") && c.scalar_lag.is_none() {
+            bail!("the model has `lag` but the coefficient file has no scalar_lag");
+        }
+        if spec.terms.iter().any(|t| t.name == "fluxtemp") && c.fluxgate_temperature.is_none() {
+            bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
+        }
+        opts.preprocessing = Some(crate::preprocess::Preprocessing {
+            scalar_lag: c.scalar_lag,
+            fluxgate_temperature: c.fluxgate_temperature.clone(),
+        });
+        opts.rate_crossover_coefficients = c
+            .rate_crossover
+            .as_ref()
+            .filter(|r| r.applied)
+            .map(|r| r.fit.coefficients);
+        opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
+        opts.model_error_nt = c.model_error_nt;
+    }
+    let mut run = run_kf(&flight, &opts)?;
+    warnings.extend(run.warnings.iter().cloned());
+    // Samples next to a time gap: their derivatives span it.
+    for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
+        if let Some(f) = run.flags.get_mut(i) {
+            *f |= magcomp_core::flags::Flags::DERIVATIVE_DEGRADED;
+        }
+    }
+    if qc.withheld.is_some() {
+        run.predicted_error_nt = None;
+    }
+    let file = CoefficientFile {
+        format: COEFF_FORMAT.into(),
+        model: spec.text(),
+        method: Method::Kf,
+        sample_rate_hz: flight.sample_rate_hz,
+        sigma1: Some(run.sigma1),
+        noise_nt: Some(run.noise_nt),
+        model_error_nt: run.model_error_nt,
+        tl_config: None,
+        fluxgate_calibration: run.fluxgate_calibration,
+        scalar_lag: run.preprocessing.as_ref().and_then(|p| p.scalar_lag),
+        fluxgate_temperature: run
+            .preprocessing
+            .as_ref()
+            .and_then(|p| p.fluxgate_temperature.clone()),
+        field_process: Some(run.field_process.clone()),
+        rate_crossover: match (&run.rate_crossover, coeffs) {
+            (Some((fit, applied)), _) => Some(RateCrossover {
+                labels: crate::crossover::RATE_LABELS.map(String::from).to_vec(),
+                fit: fit.clone(),
+                applied: *applied,
+            }),
+            (None, Some(c)) => c.rate_crossover.clone(),
+            (None, None) => None,
+        },
+        predicted_error_nt: run.predicted_error_nt,
+        assumed_speed_mps,
+        cross_check: None,
+        predicted_band_rms_nt: None,
+        covariance: {
+            let k = run.coefficients.len();
+            (run.coefficient_covariance.len() == k * k && k > 0).then(|| {
+                run.coefficient_covariance
+                    .chunks(k)
+                    .map(|row| row.to_vec())
+                    .collect()
+            })
+        },
+        coefficients: run
+            .coefficient_names
+            .iter()
+            .zip(run.coefficients.iter().zip(&run.coefficient_sigmas))
+            .map(|((n, u), (v, s))| Coefficient {
+                name: n.clone(),
+                unit: u.clone(),
+                value: *v,
+                sigma: *s,
+            })
+            .collect(),
+    };
+    let comp = Compensation {
+        model: spec.text(),
+        method: Some(Method::Kf),
+        interference_nt: run.interference_nt,
+        compensated_nt: run.compensated_nt,
+        anomaly_nt: Some(run.anomaly_nt),
+        innovation_nt: Some(run.innovation_nt),
+        flags: Some(run.flags),
+        interference_sigma_nt: realtime.then_some(run.interference_sigma_nt),
+        coefficients: Some(file),
+        regressors: run.regressors,
+        warnings,
+        jackknife_nt: run
+            .jackknife
+            .as_ref()
+            .map(|j| j.sigma_nt)
+            .filter(|_| qc.withheld.is_none()),
+        band_jackknife_nt: run
+            .jackknife
+            .as_ref()
+            .and_then(|j| j.band_sigma_nt)
+            .filter(|_| qc.withheld.is_none()),
+        withheld: qc.withheld,
+    };
+    Ok((flight, comp))
+}
