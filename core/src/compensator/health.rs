@@ -553,7 +553,10 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
                 let mut envelope_var = 0.0f32;
                 let oldest = self.history.oldest().copied();
                 let mut movement_var = match &oldest {
-                    Some(old) => self.interference_moved(phys, old).powi(2),
+                    Some(old) => {
+                        let m = self.interference_moved(phys, old);
+                        m * m
+                    }
                     None => f32::INFINITY,
                 };
                 let mut other = [0.0f32; N];
@@ -563,7 +566,8 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
                     let v = self.interference_change_variance(phys, &other);
                     envelope_var = if v.is_nan() { v } else { envelope_var.max(v) };
                     if let Some(old) = &oldest {
-                        let m = self.interference_moved(&other, old).powi(2);
+                        let m = self.interference_moved(&other, old);
+                        let m = m * m;
                         movement_var = if m.is_nan() { m } else { movement_var.max(m) };
                     }
                 }
