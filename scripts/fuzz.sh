@@ -16,6 +16,6 @@ target/release/magcomp simulate --flight calibration --seed 1 --manoeuvre-cycles
 target/release/magcomp simulate --flight calibration --seed 2 --manoeuvre-cycles 1 --level-s 5 \
     -o "$seeds/cal2.csv" --capture "$seeds/corrupt.cap" --capture-corrupt 0.001 >/dev/null
 corpus=(--corpus "$seeds")
-[ -d ../shared/reference-data/nmea ] && corpus+=(--corpus ../shared/reference-data/nmea)
+[ -d data/reference/nmea ] && corpus+=(--corpus data/reference/nmea)
 [ -f ../shared/reference-data/Flt1003_sample.xyz ] && corpus+=(--corpus ../shared/reference-data/Flt1003_sample.xyz)
 target/release/magcomp-fuzz --seconds "$secs" "${corpus[@]}" "$@"

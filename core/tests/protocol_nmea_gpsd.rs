@@ -1,17 +1,13 @@
 //! Conformance of the NMEA reader against gpsd's regression decodes
-//! (`shared/reference-data/nmea/NAME.log` + `NAME.log.chk`).
+//! (`data/reference/nmea/NAME.log` + `NAME.log.chk`).
 
 use magcomp_core::protocol::nmea::{parse_sentence, NmeaError, NmeaReader, Sentence};
 use std::path::PathBuf;
 
 fn data_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/reference-data/nmea");
-    if d.is_dir() {
-        return Some(d);
-    }
-    // A worktree may sit beside `shared/` one level higher or lower.
-    let d2 = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/reference-data/nmea");
-    d2.is_dir().then_some(d2)
+    // In the repository (gpsd's logs, BSD-2-Clause: data/reference/nmea/NOTICE).
+    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data/reference/nmea");
+    d.is_dir().then_some(d)
 }
 
 /// One decoded sentence with the quantities gpsd reports.
@@ -328,7 +324,7 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
 #[test]
 fn gpsd_conformance() {
     let Some(dir) = data_dir() else {
-        println!("SKIP: shared/reference-data/nmea not found");
+        println!("SKIP: data/reference/nmea not found");
         return;
     };
     let mut names: Vec<String> = std::fs::read_dir(&dir)

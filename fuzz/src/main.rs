@@ -196,15 +196,12 @@ fn load(path: &Path, seeds: &mut Vec<(Seeds, Vec<u8>)>) {
 
 fn default_corpus() -> Vec<PathBuf> {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
-    [
-        "../shared/reference-data/nmea",
-        "../../shared/reference-data/nmea",
-    ]
-    .iter()
-    .map(|p| root.join(p))
-    .filter(|p| p.is_dir())
-    .take(1)
-    .collect()
+    ["data/reference/nmea"]
+        .iter()
+        .map(|p| root.join(p))
+        .filter(|p| p.is_dir())
+        .take(1)
+        .collect()
 }
 
 struct Outcome {

@@ -143,7 +143,7 @@ fn detects_the_twelve_manoeuvres_and_ranks_kf_ahead_of_tl_by_the_aircraft_fom() 
 #[test]
 fn real_boxes_without_positions_show_two_boxes_of_four_headings() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+        .join("../data/reference/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
     if !dir.exists() {
         eprintln!("SKIP: {} is absent", dir.display());
         return;

@@ -1,5 +1,5 @@
 //! The estimator on real data: the two calibration boxes of SGL 2020 flight 1002 (a Cessna
-//! Caravan of the MagNav challenge, `../shared/reference-data/sgl2020-flt1002-cal/`). The
+//! Caravan of the MagNav challenge, `data/reference/sgl2020-flt1002-cal/`). The
 //! file has no time, position or attitude: rows are 10 Hz samples, box 1 is rows 0–6499,
 //! box 2 the rest. The figures are the 0.1–0.9 Hz band-passed standard deviation of the
 //! compensated scalar on box 2 with coefficients from box 1 (a transfer), against classic

@@ -1,5 +1,5 @@
 //! Model discovery on real data (issue 12, item 6): `diagnose --iterate` on box 1 of SGL
-//! 2020 flight 1002 (`../shared/reference-data/sgl2020-flt1002-cal/`, see real_boxes.rs for
+//! 2020 flight 1002 (`data/reference/sgl2020-flt1002-cal/`, see real_boxes.rs for
 //! the file) must end with a model whose box 1 → box 2 band-passed (0.1–0.9 Hz) residual is
 //! lower than `tl16+field`'s, and every term it adds must improve box 2, which it never saw.
 //! Skips, saying so, where the shared data are absent.

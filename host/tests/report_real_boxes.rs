@@ -1,5 +1,5 @@
 //! `magcomp report` on real data, opened in headless Chromium: the two calibration boxes of
-//! SGL 2020 flight 1002 (`../shared/reference-data/sgl2020-flt1002-cal/`, as
+//! SGL 2020 flight 1002 (`data/reference/sgl2020-flt1002-cal/`, as
 //! `real_boxes.rs` reads them: no labels, no positions, 10 Hz rows, t = i/10, the anomaly
 //! modelled in time at 60 m/s). The Kalman filter's page and Tolles–Lawson's must render
 //! every plot with no page error and show the FOM table of the manoeuvres detected from the

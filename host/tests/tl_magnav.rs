@@ -1,11 +1,11 @@
-//! MagNav.jl conformance checks for classic Tolles–Lawson (shared/reference-data/README.md).
+//! MagNav.jl conformance checks for classic Tolles–Lawson (data/reference/README.md).
 //! Skips, with a printed message, where the reference data is absent.
 
 use magcomp::tl::{self, TlConfig, TlTerms};
 use std::path::PathBuf;
 
 fn ref_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/reference-data/magnav-tl");
+    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../data/reference/magnav-tl");
     if d.join("raw_1000x6.csv").is_file() {
         Some(d)
     } else {

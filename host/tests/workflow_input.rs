@@ -361,7 +361,7 @@ fn diagnose_statistics_agree_on_the_real_boxes() {
     use magcomp::diagnose::{diagnose, DiagnoseOptions};
     use magcomp::model_spec::{ModelSpec, BOARD_MODEL};
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+        .join("../data/reference/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
     let Ok(text) = std::fs::read_to_string(&p) else {
         eprintln!("SKIP: {} absent (shared reference data)", p.display());
         return;

@@ -4,7 +4,7 @@
 //! matrix from the vector fluxgate, band-passed zero-phase, ridge regression of the
 //! band-passed scalar on it, and `interference = A·c` on unfiltered data.
 //!
-//! Conventions follow MagNav.jl's `create_TL_A` (see `shared/reference-data/README.md`):
+//! Conventions follow MagNav.jl's `create_TL_A` (see `data/reference/README.md`):
 //! `Bt = |flux|`, `B̂ = flux/Bt`; permanent `B̂i`; induced `B̂i·Bj/Bt_scale`; eddy
 //! `B̂i·dBj/Bt_scale` with `dB` the central difference **per sample** (one-sided at the
 //! ends). Because `dB` is per sample, eddy coefficients depend on the sample rate:

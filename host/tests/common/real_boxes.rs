@@ -1,4 +1,4 @@
-//! The two calibration boxes of SGL 2020 flight 1002 (`../shared/reference-data/
+//! The two calibration boxes of SGL 2020 flight 1002 (`data/reference/
 //! sgl2020-flt1002-cal/`): no time, position or attitude; rows are 10 Hz samples, box 1 is
 //! rows 0–6499, box 2 the rest. Shared by the tests that fly them.
 #![allow(dead_code)] // each test binary uses the part it needs
@@ -19,7 +19,7 @@ pub struct Boxes {
 /// The file, or `None` (saying so) where the shared data are absent.
 pub fn boxes() -> Option<Boxes> {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+        .join("../data/reference/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
     let Ok(text) = std::fs::read_to_string(&path) else {
         eprintln!(
             "SKIPPED: {} is absent (shared reference data)",
