@@ -85,7 +85,7 @@ pub struct CoefficientFile {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rate_crossover: Option<RateCrossover>,
     /// KF: how well the calibration flight determined the interference, by the filter's
-    /// own covariance (`pipeline::predicted_interference_error_nt`, nT rms).
+    /// own covariance (`pipeline::RegressorSpread::sigma_nt`, nT rms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
     /// KF: the coefficients' covariance (rows in the model's coefficient order, as

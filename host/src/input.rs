@@ -148,6 +148,24 @@ fn distinct_values(trace: &Trace, name: &str) -> String {
     )
 }
 
+/// The ground speed the Kalman filter assumes for a trace without positions or speed
+/// (`--speed-mps`, else the coefficient file's): the speed and the warning that says so.
+/// An error without one, or with one that is not a positive speed.
+pub fn assumed_ground_speed(given_mps: Option<f64>) -> Result<(f64, String)> {
+    match given_mps {
+        Some(v) if v.is_finite() && v > 0.0 => Ok((
+            v,
+            format!(
+                "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
+            ),
+        )),
+        Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
+        None => bail!(
+            "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
+        ),
+    }
+}
+
 /// The trace restricted to `rows` (every column, metadata kept).
 pub fn take_rows(trace: &Trace, rows: &[usize]) -> Trace {
     Trace {

@@ -10,6 +10,7 @@
 //! Tolles–Lawson), and the default post-flight calibration uses the method whose figure is
 //! lower ([`CrossCheck`]).
 
+use crate::flight::Flight;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
@@ -96,6 +97,17 @@ pub fn series_sigma_nt(refits: &[Vec<f64>]) -> Option<f64> {
     }
     let sigma = ((g as f64 - 1.0) / g as f64 * var / m).sqrt();
     sigma.is_finite().then_some(sigma)
+}
+
+/// [`series_sigma_nt`] of the refits' manoeuvre-band signals (`metrics::band_passed`):
+/// what a band-passed figure on another flight sees of the error; None when a refit's
+/// series cannot be filtered.
+pub fn band_sigma_nt(flight: &Flight, refits: &[Vec<f64>]) -> Option<f64> {
+    let band: Vec<Vec<f64>> = refits
+        .iter()
+        .map(|s| crate::metrics::band_passed(flight, s))
+        .collect::<Option<_>>()?;
+    series_sigma_nt(&band)
 }
 
 /// Which method's coefficients the flight's evidence trusts.

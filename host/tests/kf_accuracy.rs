@@ -50,7 +50,12 @@ fn truth(f: &Flight) -> Vec<f64> {
 }
 
 fn opts() -> KfOptions {
-    KfOptions::new(ModelSpec::parse(MODEL).unwrap())
+    // The predicted error a calibration reports (`compensate`, `calibrate`): with the
+    // flight's jackknife.
+    KfOptions {
+        jackknife: true,
+        ..KfOptions::new(ModelSpec::parse(MODEL).unwrap())
+    }
 }
 
 /// Classic TL18 (band-passed batch least squares) error on the same flight.

@@ -443,8 +443,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         Ok(())
     }
 
-    /// The interference for physical regressors `phys`: with the prior means when
-    /// `prior`, else with the current coefficient estimates.
+    /// The interference for physical regressors `phys` with the coefficients of `source`.
     fn interference_from(&self, phys: &[f32; N], source: Coefficients) -> f32 {
         let x = match source {
             Coefficients::LastGood => &self.last_good[..],

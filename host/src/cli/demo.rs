@@ -23,16 +23,11 @@ pub struct DemoArgs {
     pub physics: String,
 }
 
+/// The method as named (no cross-check: the demo shows each method on its own).
 fn est(method: Method) -> EstimatorSettings {
     EstimatorSettings {
-        model: crate::model_spec::DEFAULT_MODEL.into(),
         method,
-        sigma1: None,
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
-        speed_mps: None,
-        cross_check: false,
+        ..EstimatorSettings::default()
     }
 }
 

@@ -53,8 +53,11 @@ pub(super) fn choose(
     let Some(tl_nt) = least_squares.1.jackknife_nt else {
         return Ok(kalman);
     };
-    let disagreement_nt =
-        demeaned_rms_difference(&kalman.1.interference_nt, &least_squares.1.interference_nt);
+    let difference: Vec<f64> = (kalman.1.interference_nt.iter())
+        .zip(&least_squares.1.interference_nt)
+        .map(|(a, b)| a - b)
+        .collect();
+    let disagreement_nt = crate::metrics::rms_demeaned(&difference);
     // Two estimates of one interference that differ beyond their errors: one of them is
     // wrong, and the jackknife cannot say which (a band-passed fit over strong geology
     // takes the anomaly into its coefficients the same way in every block: 56–135 nT off
@@ -105,17 +108,4 @@ pub(super) fn choose(
         c.cross_check = Some(figures);
     }
     Ok((flight, comp))
-}
-
-/// RMS over the samples where both are finite of `a − b`, its mean removed.
-fn demeaned_rms_difference(a: &[f64], b: &[f64]) -> f64 {
-    let d: Vec<f64> = a
-        .iter()
-        .zip(b)
-        .map(|(x, y)| x - y)
-        .filter(|v| v.is_finite())
-        .collect();
-    let n = d.len().max(1) as f64;
-    let mean = d.iter().sum::<f64>() / n;
-    (d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / n).sqrt()
 }

@@ -24,19 +24,11 @@ pub(super) fn run_kf_method(
     let mut warnings = qc.warnings.clone();
     let mut assumed_speed_mps = None;
     if spec.field && !flight.has_track() {
-        match est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps)) {
-            Some(v) if v.is_finite() && v > 0.0 => {
-                flight.assume_ground_speed(v);
-                assumed_speed_mps = Some(v);
-                warnings.push(format!(
-                    "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
-                ));
-            }
-            Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
-            None => bail!(
-                "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
-            ),
-        }
+        let given = est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps));
+        let (v, warning) = crate::input::assumed_ground_speed(given)?;
+        flight.assume_ground_speed(v);
+        assumed_speed_mps = Some(v);
+        warnings.push(warning);
     }
     // The default calibration looks for a scalar delay the model was not told of.
     let mut detected_lag = None;
@@ -68,6 +60,8 @@ pub(super) fn run_kf_method(
     opts.sigma1 = est.sigma1.or(coeffs.and_then(|c| c.sigma1));
     opts.noise_nt = est.noise_nt;
     opts.realtime = realtime;
+    // The calibration the user is given reports the flight's own evidence.
+    opts.jackknife = true;
     if let Some(c) = coeffs {
         opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
         if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {

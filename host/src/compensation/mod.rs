@@ -226,6 +226,7 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
         ),
         None => (None, None),
     };
+    let file = comp.coefficients.as_ref();
     Summary {
         model: comp.model.clone(),
         method: comp.method.unwrap_or(Method::Kf),
@@ -237,29 +238,17 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
         fom_table: table,
         error_rms_nt: error,
         oracle_floor_nt: oracle,
-        predicted_error_nt: comp
-            .coefficients
-            .as_ref()
+        predicted_error_nt: file
             .and_then(|c| c.predicted_error_nt)
             .filter(|_| !withheld),
-        field_process: comp
-            .coefficients
-            .as_ref()
-            .and_then(|c| c.field_process.clone()),
-        predicted_band_rms_nt: comp
-            .coefficients
-            .as_ref()
+        field_process: file.and_then(|c| c.field_process.clone()),
+        predicted_band_rms_nt: file
             .and_then(|c| c.predicted_band_rms_nt)
             .filter(|_| !withheld),
-        cross_check: comp
-            .coefficients
-            .as_ref()
+        cross_check: file
             .and_then(|c| c.cross_check.clone())
             .filter(|_| !withheld),
-        rate_crossover: comp
-            .coefficients
-            .as_ref()
-            .and_then(|c| c.rate_crossover.clone()),
+        rate_crossover: file.and_then(|c| c.rate_crossover.clone()),
         manoeuvres: f.map(|f| f.1).unwrap_or_default(),
         warnings: comp.warnings.clone(),
         decimated: None,

@@ -119,13 +119,9 @@ pub(super) fn run_tl_method(
     let predicted_error_nt = refits
         .as_ref()
         .and_then(|r| crate::jackknife::series_sigma_nt(r));
-    let band_jackknife_nt = refits.as_ref().and_then(|r| {
-        let band: Option<Vec<Vec<f64>>> = r
-            .iter()
-            .map(|s| crate::metrics::band_passed(&flight, s))
-            .collect();
-        crate::jackknife::series_sigma_nt(&band?)
-    });
+    let band_jackknife_nt = refits
+        .as_ref()
+        .and_then(|r| crate::jackknife::band_sigma_nt(&flight, r));
     let file = CoefficientFile {
         tl_config: Some(fit.config.clone()),
         predicted_error_nt,

@@ -2,7 +2,7 @@
 //! stretch of the airborne flight (its scalar samples predict and do not update), with
 //! everything else the calibration chose (σ1, noise, anomaly process, held combinations).
 
-use super::{pass, KfOptions};
+use super::{pass, KfOptions, RegressorSpread};
 use crate::flight::Flight;
 use anyhow::Result;
 use magcomp_core::compensator::CompensatorConfig;
@@ -46,7 +46,7 @@ pub(super) fn kf_jackknife(
     flight: &Flight,
     opts: &KfOptions,
     cfg: CompensatorConfig,
-    regs: &[Vec<f32>],
+    (regs, spread): (&[Vec<f32>], &RegressorSpread),
     full: (&[f64], &[f64]),
 ) -> Result<Option<KfJackknife>> {
     let (full_coefficients, full_covariance) = full;
@@ -55,7 +55,7 @@ pub(super) fn kf_jackknife(
         return Ok(None);
     };
     let mut refits = Vec::with_capacity(blocks.len());
-    let variance = |cov: &[f64]| super::predicted_interference_error_nt(regs, cov).map(|s| s * s);
+    let variance = |cov: &[f64]| spread.sigma_nt(cov).map(|s| s * s);
     let Some(full_var) = variance(full_covariance) else {
         return Ok(None);
     };
@@ -86,22 +86,16 @@ pub(super) fn kf_jackknife(
         f64::NAN
     };
     let covariance = crate::jackknife::covariance(&refits);
-    let band_series: Vec<Vec<f64>> = refits
+    let series: Vec<Vec<f64>> = refits
         .iter()
-        .filter_map(|c| {
-            crate::metrics::band_passed(flight, &crate::metrics::interference_of(regs, c))
-        })
+        .map(|c| crate::metrics::interference_of(regs, c))
         .collect();
-    let band_sigma_nt = (band_series.len() == refits.len())
-        .then(|| crate::jackknife::series_sigma_nt(&band_series))
-        .flatten();
-    Ok(
-        super::predicted_interference_error_nt(regs, &covariance).map(|sigma_nt| KfJackknife {
-            blocks: blocks.len(),
-            sigma_nt,
-            band_sigma_nt,
-            covariance,
-            inflation,
-        }),
-    )
+    let band_sigma_nt = crate::jackknife::band_sigma_nt(flight, &series);
+    Ok(spread.sigma_nt(&covariance).map(|sigma_nt| KfJackknife {
+        blocks: blocks.len(),
+        sigma_nt,
+        band_sigma_nt,
+        covariance,
+        inflation,
+    }))
 }

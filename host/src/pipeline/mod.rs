@@ -91,7 +91,10 @@ pub struct KfOptions {
     /// calibration itself; empty = all free.
     pub held_combinations: Vec<Vec<f32>>,
     /// Post-flight calibration: check the coefficients against the flight's own evidence
-    /// (the jackknife, [`crate::jackknife`]).
+    /// (the jackknife, [`crate::jackknife`]: 8 more filter passes). Off by default: the
+    /// calibration a user is given turns it on (`compensation`); the runs made for other
+    /// ends (a first pass for `fluxcal`/`fluxtemp`, diagnosis, a TL flight's field
+    /// estimate) do not report a predicted error.
     pub jackknife: bool,
     /// Samples whose scalar the filter does not learn from (predict only): the
     /// cross-check's refits without one stretch of the flight.
@@ -125,7 +128,7 @@ impl KfOptions {
             model_error_nt: None,
             preprocessing: None,
             held_combinations: Vec::new(),
-            jackknife: true,
+            jackknife: false,
             skip_updates: None,
         }
     }
@@ -149,7 +152,7 @@ pub struct KfRun {
     pub coefficient_names: Vec<(String, String)>,
     pub coefficients: Vec<f64>,
     pub coefficient_sigmas: Vec<f64>,
-    /// [`predicted_interference_error_nt`] on this flight: of the calibration, or of the
+    /// [`RegressorSpread::sigma_nt`] on this flight: of the calibration, or of the
     /// given coefficients when their covariance was given too (None otherwise).
     pub predicted_error_nt: Option<f64>,
     /// The coefficients' covariance (k×k, row-major, physical units): the calibration's,
@@ -453,41 +456,56 @@ fn calibrated_interference(
 /// How well the flight determined the interference, by the filter's own account: the rms
 /// over the flight of the 1σ of the interference estimate with its mean removed (the
 /// level is the anomaly's), `sqrt(tr(P·C))` with `P` the coefficient covariance
-/// (k×k) and `C` the covariance of the interference regressors over the flight. It is the
+/// (k×k) and `C` the covariance of the interference regressors over the flight (this
+/// struct, computed once for the many `P` the jackknife holds against it). It is the
 /// error against the truth to expect when the model holds, and a calibration flight's
 /// quality figure without any truth: high where the pattern left a combination of terms
 /// unobserved (a strong anomaly that changes between the headings, too few manoeuvres).
-pub fn predicted_interference_error_nt(regressors: &[Vec<f32>], covariance: &[f64]) -> Option<f64> {
-    let k = regressors.first()?.len();
-    if covariance.len() != k * k {
-        return None;
-    }
-    let rows: Vec<&Vec<f32>> = regressors
-        .iter()
-        .filter(|r| r.iter().all(|v| v.is_finite()))
-        .collect();
-    if rows.len() < 2 {
-        return None;
-    }
-    let n = rows.len() as f64;
-    let mean: Vec<f64> = (0..k)
-        .map(|j| rows.iter().map(|r| r[j] as f64).sum::<f64>() / n)
-        .collect();
-    let mut regressor_cov = vec![0.0; k * k];
-    for r in &rows {
-        let d: Vec<f64> = (0..k).map(|j| r[j] as f64 - mean[j]).collect();
-        for a in 0..k {
-            for b in 0..k {
-                regressor_cov[a * k + b] += d[a] * d[b] / n;
+pub struct RegressorSpread {
+    k: usize,
+    covariance: Vec<f64>,
+}
+
+impl RegressorSpread {
+    /// None without regressors or with fewer than two finite rows.
+    pub fn of(regressors: &[Vec<f32>]) -> Option<Self> {
+        let k = regressors.first()?.len();
+        let rows: Vec<&Vec<f32>> = regressors
+            .iter()
+            .filter(|r| r.iter().all(|v| v.is_finite()))
+            .collect();
+        if rows.len() < 2 {
+            return None;
+        }
+        let n = rows.len() as f64;
+        let mean: Vec<f64> = (0..k)
+            .map(|j| rows.iter().map(|r| r[j] as f64).sum::<f64>() / n)
+            .collect();
+        let mut covariance = vec![0.0; k * k];
+        for r in &rows {
+            let d: Vec<f64> = (0..k).map(|j| r[j] as f64 - mean[j]).collect();
+            for a in 0..k {
+                for b in 0..k {
+                    covariance[a * k + b] += d[a] * d[b] / n;
+                }
             }
         }
+        Some(Self { k, covariance })
     }
-    let var: f64 = covariance
-        .iter()
-        .zip(&regressor_cov)
-        .map(|(p, c)| p * c)
-        .sum();
-    var.is_finite().then(|| var.max(0.0).sqrt())
+
+    /// `sqrt(tr(P·C))` (nT) for the coefficient covariance `P` (k×k); None when `P` has
+    /// another size or the figure is not finite.
+    pub fn sigma_nt(&self, coefficient_covariance: &[f64]) -> Option<f64> {
+        if coefficient_covariance.len() != self.k * self.k {
+            return None;
+        }
+        let var: f64 = coefficient_covariance
+            .iter()
+            .zip(&self.covariance)
+            .map(|(p, c)| p * c)
+            .sum();
+        var.is_finite().then(|| var.max(0.0).sqrt())
+    }
 }
 
 /// Default σ1 multipliers searched post-flight.
@@ -495,6 +513,15 @@ pub const SIGMA1_CANDIDATES: [f64; 4] = [1.0, 0.3, 0.1, 0.03];
 
 /// Default σ1 when the track is too short for the spectrum (the paper's 1000 m value).
 pub const DEFAULT_SIGMA1: f64 = 1.0e-6;
+
+/// The options of a first pass whose interference only prepares the flight (`fluxcal`,
+/// `fluxtemp`): no jackknife, which only the final pass reports.
+pub(crate) fn first_pass(opts: &KfOptions) -> KfOptions {
+    KfOptions {
+        jackknife: false,
+        ..opts.clone()
+    }
+}
 
 /// Runs the compensator over a flight. With `lag` or `fluxtemp` in the model the flight is
 /// first pre-processed (scalar re-aligned, fluxgate corrected for temperature:
@@ -516,27 +543,36 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     if !opts.model.calibrates_fluxgate() {
         return run_kf_on(flight, opts);
     }
+    let mut not_calibrated = None;
     let (calibration, fit) = match opts.fluxgate_calibration {
         Some(c) => (c, None),
         None if opts.realtime => (fluxgate::FluxgateCalibration::IDENTITY, None),
         None => {
             // `fluxcal` adds no filter state, so the first pass is the model without it.
-            let mut first = run_kf_on(flight, opts)?;
+            let mut first = run_kf_on(flight, &first_pass(opts))?;
             let fitted = fluxgate::fit_flight(flight, &first.interference_nt)
                 .and_then(fluxgate::FluxgateFit::determined);
             match fitted {
                 Ok(fit) => (fit.calibration, Some(fit)),
                 Err(reason) => {
-                    first.warnings.push(format!(
+                    let warning = format!(
                         "fluxgate not calibrated against the scalar, used as measured: {reason:#}"
-                    ));
-                    first.fluxgate_calibration = Some(fluxgate::FluxgateCalibration::IDENTITY);
-                    return Ok(first);
+                    );
+                    if !opts.jackknife {
+                        first.warnings.push(warning);
+                        first.fluxgate_calibration = Some(fluxgate::FluxgateCalibration::IDENTITY);
+                        return Ok(first);
+                    }
+                    // The first pass made no jackknife: the final pass, on the fluxgate
+                    // as measured, does.
+                    not_calibrated = Some(warning);
+                    (fluxgate::FluxgateCalibration::IDENTITY, None)
                 }
             }
         }
     };
     let mut run = run_kf_on(&fluxgate::calibrated_flight(flight, &calibration), opts)?;
+    run.warnings.extend(not_calibrated);
     run.fluxgate_calibration = Some(calibration);
     run.fluxgate_fit = fit;
     Ok(run)
@@ -639,11 +675,19 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         Some(c) => pass(flight, opts, cfg, Some(c), true)?,
         None => pass(flight, opts, cfg, None, true)?,
     };
+    let spread = RegressorSpread::of(&regs);
     // Post-flight: what the flight's own parts say of the coefficients, beside what the
     // filter's model says (`crate::jackknife`); the covariance carries both.
     let mut jackknife = None;
-    let covariance = if opts.jackknife && !opts.realtime && opts.coefficients.is_none() {
-        match jackknife::kf_jackknife(flight, opts, cfg, &regs, (&coeffs, &covariance))? {
+    let checked = opts.jackknife && !opts.realtime && opts.coefficients.is_none();
+    let covariance = match (&spread, checked) {
+        (Some(spread), true) => match jackknife::kf_jackknife(
+            flight,
+            opts,
+            cfg,
+            (&regs, spread),
+            (&coeffs, &covariance),
+        )? {
             Some(j) => {
                 // Summed, not the larger of the two: on the broad simulated flights the
                 // filter's covariance and the jackknife each came out at 0.5–0.8 × the
@@ -661,9 +705,8 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
                 total
             }
             None => covariance,
-        }
-    } else {
-        covariance
+        },
+        _ => covariance,
     };
     let (outs, coeffs, healthy) = if opts.realtime || opts.coefficients.is_some() {
         (cal_outs, coeffs, cal_healthy)
@@ -679,11 +722,12 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     let (coefficient_covariance, predicted_error_nt) =
         match (&opts.coefficients, &opts.coefficient_covariance) {
             (Some(_), Some(given)) => {
-                (given.clone(), predicted_interference_error_nt(&regs, given))
+                let predicted = spread.as_ref().and_then(|s| s.sigma_nt(given));
+                (given.clone(), predicted)
             }
             (Some(_), None) => (covariance, None),
             (None, _) => {
-                let predicted = predicted_interference_error_nt(&regs, &covariance);
+                let predicted = spread.as_ref().and_then(|s| s.sigma_nt(&covariance));
                 (covariance, predicted)
             }
         };

@@ -168,7 +168,7 @@ pub fn run_kf_preprocessed(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             None => {
                 // A first pass of the estimator gives the interference removed from the
                 // scalar reference (the fluxgate does not see the aircraft's field there).
-                let first = run_kf_estimator(&f, opts)?;
+                let first = run_kf_estimator(&f, &crate::pipeline::first_pass(opts))?;
                 fluxtemp::fit_flight(&f, idx, &first.interference_nt)?.correction
             }
         };

@@ -196,7 +196,7 @@ impl Spread {
     }
 }
 
-/// `pipeline::predicted_interference_error_nt` from running sums: the regressors'
+/// `pipeline::RegressorSpread::sigma_nt` from running sums: the regressors'
 /// covariance over the flight (sums of the deviation from the first row, so no large
 /// mean cancels), against the coefficients' covariance.
 struct RegressorCov {

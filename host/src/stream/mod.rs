@@ -329,18 +329,10 @@ pub fn compensate(
     let mut assumed_speed_mps = None;
     if let Some(spec) = &spec {
         if spec.field && !(first.has_position || first.has_speed) {
-            match est.speed_mps.or(coeffs.assumed_speed_mps) {
-                Some(v) if v.is_finite() && v > 0.0 => {
-                    assumed_speed_mps = Some(v);
-                    warnings.push(format!(
-                        "the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
-                    ));
-                }
-                Some(v) => bail!("--speed-mps must be a positive speed in m/s, not {v}"),
-                None => bail!(
-                    "the trace has no position (lat/lon) and no ground speed: the Kalman filter's anomaly model needs the along-track distance. Give the aircraft's ground speed with --speed-mps (e.g. --speed-mps 60) to model the anomaly in time, or use --method tl"
-                ),
-            }
+            let given = est.speed_mps.or(coeffs.assumed_speed_mps);
+            let (v, warning) = crate::input::assumed_ground_speed(given)?;
+            assumed_speed_mps = Some(v);
+            warnings.push(warning);
         }
     }
     let offsets = channels
