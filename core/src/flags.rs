@@ -30,6 +30,13 @@ impl Flags {
     /// A tie-point pseudo-measurement disagreed with the filter beyond its gate and was
     /// refused (e.g. a base channel inconsistent with the scalar).
     pub const TIE_REJECTED: u16 = 1 << 11;
+    /// Calibrate mode, converged: the interference's variation within a minute is
+    /// determined (the record's bound), but not its change between headings or its level
+    /// at this attitude, which the anomaly states share (a pattern flown without revisits:
+    /// each heading's legs lie over other ground). The compensated lines then carry a
+    /// heading-dependent level for tie-line levelling to remove. Held in survey mode after
+    /// an in-flight calibration. Informative: not part of [`Flags::degraded`].
+    pub const LEVEL_UNDETERMINED: u16 = 1 << 12;
 
     pub const fn empty() -> Self {
         Flags(0)

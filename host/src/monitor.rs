@@ -31,7 +31,7 @@ pub const MAX_GAP: u32 = 1_000_000;
 const RATE_WINDOW: usize = 100;
 
 /// Flag bits as words, in bit order.
-pub const FLAG_NAMES: [&str; 12] = [
+pub const FLAG_NAMES: [&str; 13] = [
     "FLUX_STALE",
     "NO_GPS",
     "PARSE_ERROR",
@@ -44,9 +44,10 @@ pub const FLAG_NAMES: [&str; 12] = [
     "NOT_CONVERGED",
     "DERIVATIVE_DEGRADED",
     "TIE_REJECTED",
+    "LEVEL_UNDETERMINED",
 ];
 
-/// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT12`.
+/// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT13`.
 pub fn flag_words(f: Flags) -> String {
     let mut s = String::new();
     for bit in 0..16 {
@@ -615,6 +616,6 @@ mod tests {
     fn flag_words_decode_bits() {
         assert_eq!(flag_words(Flags(0)), "-");
         assert_eq!(flag_words(Flags(0b11)), "FLUX_STALE|NO_GPS");
-        assert_eq!(flag_words(Flags(1 << 8 | 1 << 12)), "SURVEY_MODE|BIT12");
+        assert_eq!(flag_words(Flags(1 << 8 | 1 << 13)), "SURVEY_MODE|BIT13");
     }
 }

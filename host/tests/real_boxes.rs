@@ -168,11 +168,10 @@ fn real_box_innovations_are_not_rejected() {
 }
 
 /// Real time from an unknown start: the output is exactly the raw signal (interference 0)
-/// while `NOT_CONVERGED` (a half-learnt estimate put ~9 000 nT into the first 30 s). On this
-/// aircraft the filter never determines the interference to a survey's 0.1 nT (its own
-/// covariance says ~0.9 nT), so the flag never clears and the real-time output stays raw:
-/// the post-flight calibration is the product here. Should it ever clear, the compensated
-/// signal must vary less than the raw one from then on.
+/// while `NOT_CONVERGED` (a half-learnt estimate put ~9 000 nT into the first 30 s). The
+/// flag clears only once every heading's manoeuvres are flown, near the box's end (when and
+/// how well: `real_boxes_realtime.rs`); from then on the compensated signal must vary less
+/// than the raw one.
 #[test]
 fn real_time_on_a_real_box_starts_sane() {
     let Some(b) = boxes() else { return };

@@ -11,9 +11,13 @@ use crate::flags::Flags;
 use crate::model::{Model, MAX_TERM_STATES};
 use crate::units::MagCounts;
 
+mod config;
 pub mod health;
+mod scalar;
 mod ties;
+pub use config::CompensatorConfig;
 use health::{CoefficientHistory, Divergence, HeadingCoverage, InnovationMonitor};
+pub use scalar::ScalarFusion;
 use ties::{TieState, TIE_STATE_INIT};
 
 /// Ground speed below which an aircraft is on the ground (m/s): above a fast taxi, below
@@ -43,116 +47,6 @@ pub const MAX_TIE_POINTS: usize = 2;
 pub struct TiePoint {
     pub lat_deg: f64,
     pub lon_deg: f64,
-}
-
-/// Filter settings. `for_rate` gives the defaults for a sample rate.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct CompensatorConfig {
-    pub epoch: EpochConfig,
-    /// Scalar measurement noise 1σ (nT): sensor noise plus what the model cannot follow.
-    pub noise_nt: f32,
-    /// Field-model driving noise (nT/m^2.5); σ2 ≈ σ1/10 (model.md §3 findings).
-    pub sigma1: f32,
-    pub sigma2: f32,
-    /// Length over which the field priors are set (m).
-    pub field_length_m: f32,
-    /// Prior 1σ of the field at the first sample relative to the reference (nT).
-    pub bh_prior_nt: f32,
-    /// Multiplier on every term's prior 1σ.
-    pub prior_scale: f32,
-    /// Innovation gate in σ (0 = off). After `gate_max_run` consecutive rejections the
-    /// next sample is accepted anyway, so a real change cannot lock the filter out.
-    pub gate_sigma: f32,
-    /// While the gate is not armed (the first 100 updates) an innovation beyond
-    /// `gate_sigma` is not taken at face value but Huber-weighted: it updates the filter as if its variance were `ν²/k²`
-    /// (k = `gate_sigma`), so its pull is that of a k-σ innovation whatever its size. An
-    /// unweighted +4000 nT glitch in the first seconds used to ruin a whole calibration
-    /// (245 000 nT of interference at the end). Tried as a weighting at 1.5–3σ on every
-    /// sample, it made the real SGL boxes 1.1–2.5× worse: their model error is largest at
-    /// the manoeuvre peaks, which carry the information; on the sample forced in after
-    /// `gate_max_run` rejections it kept a filter that was wrong from re-syncing (a clean
-    /// survey then showed a false `rate` at its crossovers).
-    pub gate_max_run: u32,
-    /// Tie points and the radius within which a pass counts as a revisit (m).
-    pub tie_points: [Option<TiePoint>; MAX_TIE_POINTS],
-    pub tie_radius_m: f32,
-    /// Lower bound of the horizontal gradient assumed in the tie variance (nT/m).
-    pub tie_gradient_floor_nt_per_m: f32,
-    /// External-field drift assumed between two passes when no base station is recorded
-    /// (nT/s; 10 nT/h, a quiet day). With a base station the tie uses its difference.
-    pub tie_drift_nt_per_s: f32,
-    /// A tie whose innovation exceeds this many σ of its predicted spread is refused and
-    /// flagged (`TIE_REJECTED`; 0 = never): a wrong tie pins the field to a false value
-    /// and pushes the difference into the coefficients. The tie's variance assumes the
-    /// gradient across the track is like the one along it; over strong shallow sources it
-    /// is not, and 3–6σ ties made the 400 m flights' error 0.042 / 0.082 nT instead of
-    /// 0.022 / 0.042 (3σ: 0.022 / 0.042; 8σ only caught grossly wrong ties, such as a
-    /// `base` channel whose diurnal variation was already removed from the scalar:
-    /// 0.007 → 0.33 nT).
-    pub tie_gate_sigma: f32,
-    /// Re-anchor the reference height `h0` to the flown height whenever `|h − h0|`
-    /// exceeds this (m; 0 = never). `B_h` is then re-expressed exactly as the field at the
-    /// new `h0` (`B_h ← B_h + B_z·Δh0`), so `B_z·(h − h0)` stays a local linearisation:
-    /// with a fixed `h0` and altitude changes of ±100 m over strong anomalies the secant
-    /// slope the filter learns differs from the local gradient that pitch manoeuvres see.
-    pub h0_reanchor_m: f32,
-    /// Calibrate mode: `NOT_CONVERGED` is set while the predicted 1σ of the interference
-    /// *variation* exceeds this (nT; 0 = never set): `sqrt(dᵀ P d)` with `d` the
-    /// interference regressors minus their running mean over `converged_window_epochs`.
-    /// The constant part of the interference is inseparable from the anomaly level (it
-    /// stays ~2 nT uncertain for ever) and is removed by levelling anyway; what a survey
-    /// needs at 0.1 nT is the part that moves with attitude.
-    pub converged_sigma_nt: f32,
-    /// The 1σ above is evaluated every this many epochs (≥ 1); the flag holds in between.
-    pub converged_every: u32,
-    /// Length of the running mean the variation is taken about (epochs; ~60 s).
-    pub converged_window_epochs: u32,
-    /// Window of the innovation statistics (epochs; ~30 s): the model error they show and
-    /// the filter's consistency (NIS), which widens its account of its own uncertainty.
-    pub consistency_window_epochs: u32,
-    /// Reset to the last good coefficients when the interference runs away from the raw
-    /// signal or beyond what the priors allow (`FILTER_RESET`).
-    pub divergence_reset: bool,
-    /// Below this reported ground speed (m/s; 0 = never) the aircraft is on the ground
-    /// (parked, engine start, taxi): samples predict but do not update the filter. There
-    /// the field is dominated by steel metres away (hangars, vehicles: tens to hundreds of
-    /// nT over tens of metres, far beyond the anomaly process) and by engine-start
-    /// transients; a simulated take-off calibrated on them left 9.6 nT of error. 15 m/s is
-    /// above a fast taxi and below any survey speed (helicopters survey at 25–50 m/s).
-    /// A sample without a reported speed updates. Off by default (0): post-flight
-    /// calibration sets [`GROUND_SPEED_MPS`]; in real time a take-off learnt only in the air
-    /// converged on the climb turns with errors 3.5× its stated bound, where learning the
-    /// apron too keeps it (honestly) `NOT_CONVERGED` — the board turns this on once the
-    /// bound is honest.
-    pub min_update_speed_mps: f32,
-}
-
-impl CompensatorConfig {
-    pub fn for_rate(sample_rate_hz: f32) -> Self {
-        Self {
-            epoch: EpochConfig::for_rate(sample_rate_hz),
-            noise_nt: 0.02,
-            sigma1: 1.0e-6,
-            sigma2: 1.0e-7,
-            field_length_m: 1000.0,
-            bh_prior_nt: 100.0,
-            prior_scale: 1.0,
-            gate_sigma: 8.0,
-            gate_max_run: 5,
-            tie_points: [None; MAX_TIE_POINTS],
-            tie_radius_m: 60.0,
-            tie_gradient_floor_nt_per_m: 0.001,
-            tie_drift_nt_per_s: 10.0 / 3600.0,
-            tie_gate_sigma: 3.0,
-            h0_reanchor_m: 0.0,
-            converged_sigma_nt: 0.1,
-            converged_every: 8,
-            converged_window_epochs: (60.0 * sample_rate_hz.max(1.0)) as u32,
-            consistency_window_epochs: (30.0 * sample_rate_hz.max(1.0)) as u32,
-            divergence_reset: true,
-            min_update_speed_mps: 0.0,
-        }
-    }
 }
 
 /// One output record per scalar sample.
@@ -207,6 +101,8 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     survey: bool,
     last_reference: Option<MagCounts>,
     reject_run: u32,
+    /// What the last scalar fusion did.
+    scalar: ScalarFusion,
     ties: [TieState; MAX_TIE_POINTS],
     updates: u32,
     /// The model has a term for the external (diurnal) field.
@@ -245,6 +141,16 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// moved over it (nT², at the last envelope evaluation).
     history: CoefficientHistory<N>,
     movement_var: f32,
+    /// The same two for the change between headings and for the level at the present
+    /// attitude (nT², at the last envelope evaluation): what `LEVEL_UNDETERMINED` reports.
+    heading_var: f32,
+    level_movement_var: f32,
+    /// `LEVEL_UNDETERMINED` as last evaluated (held in survey mode after an in-flight
+    /// calibration: the frozen coefficients keep what was not determined).
+    level_undetermined: bool,
+    /// 1σ of the interference's change between headings and of its level's movement
+    /// over the last window (nT; NaN before the first evaluation).
+    level_sigma_nt: f32,
     /// Headings manoeuvred on (`NOT_CONVERGED` until all four sectors are).
     coverage: HeadingCoverage,
 }
@@ -272,6 +178,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                     h0_m: None,
                 },
                 noise_nt: 1.0,
+                sensor_noise_nt: 0.0,
                 sigma1: 1.0,
                 sigma2: 1.0,
                 field_length_m: 1.0,
@@ -305,6 +212,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             survey: false,
             last_reference: None,
             reject_run: 0,
+            scalar: ScalarFusion::NONE,
             ties: [TIE_STATE_INIT; MAX_TIE_POINTS],
             updates: 0,
             models_diurnal: false,
@@ -326,6 +234,10 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             has_last_good: false,
             history: CoefficientHistory::new(),
             movement_var: f32::INFINITY,
+            heading_var: f32::INFINITY,
+            level_movement_var: f32::INFINITY,
+            level_undetermined: false,
+            level_sigma_nt: f32::NAN,
             coverage: HeadingCoverage::new(),
         }
     }
@@ -415,6 +327,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.survey = false;
         self.last_reference = None;
         self.reject_run = 0;
+        self.scalar = ScalarFusion::NONE;
         self.ties = [TIE_STATE_INIT; MAX_TIE_POINTS];
         self.updates = 0;
         self.models_diurnal = model
@@ -439,6 +352,10 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.has_last_good = false;
         self.history = CoefficientHistory::new();
         self.movement_var = f32::INFINITY;
+        self.heading_var = f32::INFINITY;
+        self.level_movement_var = f32::INFINITY;
+        self.level_undetermined = false;
+        self.level_sigma_nt = f32::NAN;
         self.coverage = HeadingCoverage::new();
         Ok(())
     }
@@ -506,7 +423,12 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// last `consistency_window_epochs`: signal the model does not describe, which stays
     /// in the compensated output.
     pub fn model_error_nt(&self) -> f32 {
-        let r_sensor = self.cfg.noise_nt * self.cfg.noise_nt;
+        let sensor_nt = if self.cfg.sensor_noise_nt > 0.0 {
+            self.cfg.sensor_noise_nt.min(self.cfg.noise_nt)
+        } else {
+            self.cfg.noise_nt
+        };
+        let r_sensor = sensor_nt * sensor_nt;
         let excess = self.innovations.observed_r() - r_sensor;
         if excess > 0.0 {
             libm::sqrtf(excess)
@@ -539,16 +461,21 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
 
     /// Feeds the divergence check with this epoch's raw signal and the interference the
     /// current coefficients give; true when a filter that had converged once has run away:
-    /// its interference swings far beyond the raw signal, or lies beyond
-    /// `PRIOR_SIGMAS` × what the priors allow at this attitude (no aircraft's field).
+    /// its interference swings far beyond the raw signal, or departs from what the last
+    /// good coefficients give at this attitude by more than `PRIOR_SIGMAS` × what the
+    /// priors allow there (no aircraft's field changes that much between two estimates).
     fn diverged(&mut self, ep: &Epoch, phys: &[f32; N]) -> bool {
         /// The real survey line's diverged real-time interference reached −883 nT
-        /// (board path −28,391 nT) where the priors allow ~250 nT at 1σ.
+        /// (board path −28,391 nT) where the priors allow ~250 nT at 1σ. Measured from the
+        /// last good coefficients, not from zero: a real aircraft can exceed its prior
+        /// (the SGL cabin `mag_3` carries ~2,000 nT that changes with attitude), and then
+        /// a test against zero reset a good estimate at every sample.
         const PRIOR_SIGMAS: f32 = 6.0;
         if !self.cfg.divergence_reset || !self.has_last_good {
             return false;
         }
         let estimate = self.interference_from(phys, Coefficients::Current);
+        let departure = estimate - self.interference_from(phys, Coefficients::LastGood);
         let mut prior_var = 0.0f32;
         let mut at = self.terms_at;
         for t in self.model.terms {
@@ -562,7 +489,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         }
         let window = self.cfg.converged_window_epochs;
         let runaway = self.divergence.push(ep.dmag_nt, estimate, window);
-        runaway || libm::fabsf(estimate) > PRIOR_SIGMAS * libm::sqrtf(prior_var)
+        runaway || libm::fabsf(departure) > PRIOR_SIGMAS * libm::sqrtf(prior_var)
     }
 
     /// Divergence: back to the coefficients of the last converged, consistent evaluation,
@@ -581,6 +508,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.divergence = Divergence::new();
         self.history = CoefficientHistory::new();
         self.movement_var = f32::INFINITY;
+        self.heading_var = f32::INFINITY;
+        self.level_movement_var = f32::INFINITY;
         self.updates = 0;
         self.reject_run = 0;
     }
@@ -589,6 +518,18 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// evaluation (calibrate mode, every `cfg.converged_every` epochs; NaN before the first).
     pub fn interference_sigma_nt(&self) -> f32 {
         self.interference_sigma_nt
+    }
+
+    /// 1σ of what `LEVEL_UNDETERMINED` judges (nT, at the last evaluation; NaN before):
+    /// the interference's change to the other headings and its level's movement over the
+    /// last window.
+    pub fn level_sigma_nt(&self) -> f32 {
+        self.level_sigma_nt
+    }
+
+    /// What the last scalar fusion did (innovation, test ratio, fused or refused).
+    pub fn scalar_fusion(&self) -> ScalarFusion {
+        self.scalar
     }
 
     pub fn model(&self) -> &Model<'a> {
@@ -697,6 +638,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         // Loaded coefficients: the in-flight calibration's own account no longer applies.
         self.coefficient_sigma_nt = f32::NAN;
         self.model_sigma_nt = f32::NAN;
+        self.level_undetermined = false;
         let at = self.terms_at;
         let x = self.filter.state_mut();
         for (i, c) in coeffs.iter().enumerate() {
@@ -771,6 +713,64 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         if ep.mag.is_some() {
             self.rereference(ep.reference);
         }
+        self.predict_field(ep);
+        // Regressors: scaled for the filter, physical for the interference sum.
+        let mut h = [0.0f32; N];
+        let mut phys = [0.0f32; N];
+        let (mut interference, frozen) = self.regressors(ep, &mut h, &mut phys, &mut flags);
+        self.scalar = self.fuse_scalar(ep, &h, frozen, &mut flags);
+        flags.set(self.tie_points(ep));
+        self.convergence(ep, &phys, &mut flags);
+        let mut dh_out = ep.dh_m;
+        if self.field.is_some()
+            && self.cfg.h0_reanchor_m > 0.0
+            && ep.dh_m.is_finite()
+            && libm::fabsf(ep.dh_m) > self.cfg.h0_reanchor_m
+        {
+            self.reanchor_h0(ep.dh_m);
+            dh_out = 0.0;
+        }
+        if !self.survey && self.diverged(ep, &phys) {
+            self.reset_to_last_good();
+            flags.set(Flags::FILTER_RESET | Flags::NOT_CONVERGED);
+        }
+        // Outputs from the updated state.
+        let x = self.filter.state();
+        if !self.survey {
+            // Until the flight has determined the interference, the output is the prior's
+            // (zero, or the loaded coefficients'): a half-learnt estimate put ~9 000 nT
+            // excursions into the first 30 s of a real box.
+            // Once it had converged, a filter that is moving again shows what its last
+            // good coefficients give, flagged: not a jump back to the raw field.
+            let source = match (self.not_converged, self.has_last_good) {
+                (false, _) => Coefficients::Current,
+                (true, true) => Coefficients::LastGood,
+                (true, false) => Coefficients::Prior,
+            };
+            interference = self.interference_from(&phys, source);
+        }
+        let anomaly_nt = if self.field.is_some() {
+            let a = self.field_at;
+            x[a] * self.scale[a] + x[a + 3] * self.scale[a + 3] * dh_out
+        } else {
+            x[0] * self.scale[0]
+        };
+        Output {
+            t_s: ep.t_s,
+            mag: ep.mag,
+            interference_nt: interference,
+            compensated: ep.mag.map(|m| m.minus_nt(interference)),
+            anomaly_nt,
+            innovation_nt: self.scalar.innovation_nt,
+            innovation_var_nt2: self.scalar.innovation_var_nt2,
+            interference_sigma_nt: self.interference_bound_nt(),
+            flags,
+        }
+    }
+
+    /// Time update of the field states over the distance flown since the last epoch (the
+    /// anomaly is a process in space, model.md §3); none without movement.
+    fn predict_field(&mut self, ep: &Epoch) {
         if let Some(f) = self.field {
             if ep.ds_m > 0.0 && ep.ds_m.is_finite() {
                 let mut phi = [[0.0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
@@ -785,9 +785,19 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 self.filter.time_update(self.n_dyn, &phi, &g, &dq);
             }
         }
-        // Regressors: scaled for the filter, physical for the interference sum.
-        let mut h = [0.0f32; N];
-        let mut phys = [0.0f32; N];
+    }
+
+    /// The epoch's regressors, physical (`phys`, for the interference sums) and scaled by
+    /// the states' prior 1σ (`h`, for the filter; survey mode: the dynamic states only, the
+    /// frozen coefficients are no states). Returns the interference of the present
+    /// coefficients and the sum over every term (what survey mode subtracts).
+    fn regressors(
+        &self,
+        ep: &Epoch,
+        h: &mut [f32; N],
+        phys: &mut [f32; N],
+        flags: &mut Flags,
+    ) -> (f32, f32) {
         if self.n_offset == 1 {
             phys[0] = 1.0;
         }
@@ -831,106 +841,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         {
             *hi = p * sc;
         }
-        let sigma = self.cfg.noise_nt * self.noise_scale;
-        let r = sigma * sigma;
-        let mut innovation_nt = f32::NAN;
-        let mut innovation_var = f32::NAN;
-        // Regressors built from a held fluxgate frame or a derivative across a lost one are
-        // wrong by the field's change over the gap: such a sample predicts, it does not
-        // update (a capture with 1 % of its fluxgate bytes corrupted loses 28 % of the
-        // frames; learning from those samples left the calibration 1.1–1.6 nT off).
-        let on_ground = ep.reported_speed_mps < self.cfg.min_update_speed_mps;
-        if ep.dmag_nt.is_finite() && !ep.regressors_suspect && !on_ground {
-            let z = if self.survey {
-                ep.dmag_nt - frozen
-            } else {
-                ep.dmag_nt
-            };
-            let gate = self.cfg.gate_sigma;
-            let gating =
-                gate > 0.0 && self.updates > 100 && self.reject_run < self.cfg.gate_max_run;
-            // The gate sees ν and its predicted variance from the same pass over U that the
-            // update uses (one Uᵀh instead of three).
-            let warming_up = self.updates <= 100;
-            match self.filter.update_weighted(&h, z, r, |nu, s| {
-                let beyond = gate > 0.0 && nu * nu > gate * gate * s;
-                match (beyond, gating, warming_up) {
-                    (false, ..) => Some(r),
-                    (true, true, _) => None,
-                    (true, false, true) => Some(r + nu * nu / (gate * gate) - s),
-                    // forced in after a run of rejections: taken at face value, so a real
-                    // change cannot lock the filter out
-                    (true, false, false) => Some(r),
-                }
-            }) {
-                Some(Err(rejected)) => {
-                    self.reject_run += 1;
-                    flags.set(Flags::INNOVATION_REJECTED);
-                    innovation_nt = rejected.value;
-                    innovation_var = rejected.variance;
-                }
-                Some(Ok(inn)) => {
-                    self.reject_run = 0;
-                    self.updates = self.updates.saturating_add(1);
-                    innovation_nt = inn.value;
-                    innovation_var = inn.variance;
-                }
-                None => {}
-            }
-            self.innovations.push(
-                innovation_nt,
-                innovation_var,
-                r,
-                self.cfg.consistency_window_epochs,
-            );
-        }
-        flags.set(self.tie_points(ep));
-        self.convergence(ep, &phys, &mut flags);
-        let mut dh_out = ep.dh_m;
-        if self.field.is_some()
-            && self.cfg.h0_reanchor_m > 0.0
-            && ep.dh_m.is_finite()
-            && libm::fabsf(ep.dh_m) > self.cfg.h0_reanchor_m
-        {
-            self.reanchor_h0(ep.dh_m);
-            dh_out = 0.0;
-        }
-        if !self.survey && self.diverged(ep, &phys) {
-            self.reset_to_last_good();
-            flags.set(Flags::FILTER_RESET | Flags::NOT_CONVERGED);
-        }
-        // Outputs from the updated state.
-        let x = self.filter.state();
-        if !self.survey {
-            // Until the flight has determined the interference, the output is the prior's
-            // (zero, or the loaded coefficients'): a half-learnt estimate put ~9 000 nT
-            // excursions into the first 30 s of a real box.
-            // Once it had converged, a filter that is moving again shows what its last
-            // good coefficients give, flagged: not a jump back to the raw field.
-            let source = match (self.not_converged, self.has_last_good) {
-                (false, _) => Coefficients::Current,
-                (true, true) => Coefficients::LastGood,
-                (true, false) => Coefficients::Prior,
-            };
-            interference = self.interference_from(&phys, source);
-        }
-        let anomaly_nt = if self.field.is_some() {
-            let a = self.field_at;
-            x[a] * self.scale[a] + x[a + 3] * self.scale[a + 3] * dh_out
-        } else {
-            x[0] * self.scale[0]
-        };
-        Output {
-            t_s: ep.t_s,
-            mag: ep.mag,
-            interference_nt: interference,
-            compensated: ep.mag.map(|m| m.minus_nt(interference)),
-            anomaly_nt,
-            innovation_nt,
-            innovation_var_nt2: innovation_var,
-            interference_sigma_nt: self.interference_bound_nt(),
-            flags,
-        }
+        (interference, frozen)
     }
 
     /// Moves `h0` by `delta_m` (to the current height): `B_h ← B_h + B_z·Δ`, exactly.

@@ -621,7 +621,10 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         None => (noise_nt > sensor_noise_nt)
             .then(|| (noise_nt * noise_nt - sensor_noise_nt * sensor_noise_nt).sqrt()),
     };
-    let cfg = base_config(flight, opts, sigma1, noise_nt);
+    let mut cfg = base_config(flight, opts, sigma1, noise_nt);
+    // The record's bound and the convergence tolerance count what the widened noise
+    // covers beyond the sensor's own as model error (it stays in the output).
+    cfg.sensor_noise_nt = sensor_noise_nt as f32;
     let mut warnings = Vec::new();
     let held;
     // Post-flight only: which combinations the flight excites is known at its end, and the
