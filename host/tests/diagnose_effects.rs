@@ -8,12 +8,12 @@
 
 use magcomp::cli::diagnose::{run as run_diagnose, DiagnoseArgs};
 use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
+use magcomp::estimate::kf::{run_kf, KfOptions};
 use magcomp::flight::Flight;
-use magcomp::metrics::error_rms_nt;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::figures::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::model::Term;
 
 const DECOYS: [&str; 2] = ["cur_fan", "cur_avionics"];
@@ -170,7 +170,7 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
             .zip(base)
             .map(|(i, b)| i + beta0 * (b - base[0]))
             .collect();
-        opts.sigma1 = magcomp::pipeline::estimate_sigma1_for(&f, &modelled);
+        opts.sigma1 = magcomp::estimate::kf::estimate_sigma1_for(&f, &modelled);
     }
     let run = run_kf(&f, &opts).expect("kf");
     let beta = run
@@ -433,7 +433,8 @@ fn fluxcal_full_bar() {
             ((a[2][1] - a[1][2]) / 2.0).to_degrees(),
             ((a[0][2] - a[2][0]) / 2.0).to_degrees(),
         ];
-        let est = magcomp::fluxgate::ins_misalignment_rad(&f, &fit.calibration).expect("INS");
+        let est =
+            magcomp::estimate::fluxcal::ins_misalignment_rad(&f, &fit.calibration).expect("INS");
         let est_deg = est.map(f64::to_degrees);
         eprintln!(
             "seed {seed}: misalignment roll/pitch axis {est_deg:.3?}° (truth {truth_deg:.3?}°)"
@@ -458,7 +459,7 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("diagnose-cli");
     std::fs::create_dir_all(&dir).expect("dir");
     let csv = dir.join("pump.csv");
-    magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
+    magcomp::io::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
     let mut args = DiagnoseArgs {
         json: true,
         report: Some(dir.join("report")),

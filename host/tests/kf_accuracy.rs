@@ -6,17 +6,17 @@
 //! Targets that the paper's model does not reach on these simulated flights are asserted
 //! at what is achieved, with the gap explained next to the assertion.
 
+use magcomp::estimate::fluxcal::flight_flux;
+use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::tl;
 use magcomp::flight::Flight;
-use magcomp::fluxgate::flight_flux;
-use magcomp::metrics::{
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::figures::{
     error_rms_nt, harmonic_anomaly_fit_interference_nt, interference_of, is_manoeuvre,
     joint_anomaly_fit_interference_nt, oracle_floor_nt, SourceLayer,
 };
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
 use magcomp::sim::anomaly::Geology;
 use magcomp::sim::{simulate, FlightKind, GeologyPreset, SimConfig};
-use magcomp::tl;
 
 const MODEL: &str = "tl16+field";
 
@@ -92,7 +92,7 @@ fn excess_nt(error: f64, oracle: f64) -> f64 {
 /// Measured: excess / predicted 0.40–3.2 over the high and low cases with the filter's
 /// covariance alone (overconfident at 3000 m, where the along-track field takes a part of
 /// the interference that its covariance does not count), 1.7–3.2 on the transfer to
-/// survey lines. With the jackknife added (`crate::jackknife`, issue 17) the low cases
+/// survey lines. With the jackknife added (`crate::estimate::jackknife`, issue 17) the low cases
 /// come out conservative: 0.28 (300 m seed 5: 0.032 nT actual, 0.098 predicted) to 1.0.
 fn assert_predicted_error_consistent(case: &str, excess: f64, predicted: f64) {
     let ratio = excess / predicted;
@@ -531,7 +531,7 @@ fn f32_ud_matches_f64_reference_over_an_hour() {
     o.gate_sigma = 0.0;
     let run = run_kf(&f, &o).expect("f32 run");
     let spec = ModelSpec::parse(MODEL).unwrap();
-    let rf = magcomp::reference_kf::run_reference(
+    let rf = magcomp::estimate::reference_kf::run_reference(
         &f,
         &spec,
         run.sigma1,

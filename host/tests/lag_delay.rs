@@ -3,13 +3,13 @@
 //! error after adding `lag` must be within 1.5× the same flight's error without a lag.
 //! Run in release: `cargo test --release -p magcomp --test lag_delay -- --nocapture`.
 
+use magcomp::estimate::corrections::error_against_truth_nt;
+use magcomp::estimate::kf::{run_kf, KfOptions};
 use magcomp::flight::Flight;
-use magcomp::metrics::error_rms_nt;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::preprocess::error_against_truth_nt;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::figures::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, simulate_detailed, SimConfig};
-use magcomp::trace::Trace;
 
 fn config(seed: u64, rate_hz: f64) -> SimConfig {
     let mut cfg = SimConfig {
@@ -34,7 +34,7 @@ fn flight(seed: u64, rate_hz: f64, lag_s: Option<f64>) -> Trace {
 }
 
 /// Error against truth and the run.
-fn error_nt(trace: &Trace, model: &str) -> (f64, magcomp::pipeline::KfRun) {
+fn error_nt(trace: &Trace, model: &str) -> (f64, magcomp::estimate::kf::KfRun) {
     let spec = ModelSpec::parse(model).expect("spec");
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
     let run = run_kf(&f, &KfOptions::new(spec)).expect("kf");
@@ -127,7 +127,7 @@ fn lag_full_bar() {
 /// scalar by it: the survey-mode run gives the calibration's compensation.
 #[test]
 fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
-    use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
+    use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
     let trace = flight(2, 10.0, Some(0.2));
     let est = EstimatorSettings {
         model: "tl16+field+lag".into(),

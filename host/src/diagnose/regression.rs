@@ -2,13 +2,13 @@
 //! core's own epoch builder and term code, least-squares fits of blocks of them in the
 //! anomaly filter's innovation domain, and the nested F-test on prewhitened residuals.
 
-use super::innovations::Geometry;
-use super::stats::{ar_filter, chi2_sf, fit_ar, gram_lstsq, gram_of, median};
 use super::ExtraTerm;
+use crate::estimate::innovations::Geometry;
+use crate::estimate::kf::HOST_WINDOW;
 use crate::flight::Flight;
-use crate::model_spec::TermSpec;
-use crate::pipeline::HOST_WINDOW;
-use crate::trace::Trace;
+use crate::io::trace::Trace;
+use crate::model::spec::TermSpec;
+use crate::signal::stats::{ar_filter, chi2_sf, fit_ar, gram_lstsq, gram_of, median};
 use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::CompensatorConfig;
 use magcomp_core::epoch::EpochBuilder;

@@ -5,10 +5,10 @@
 //! compensated and interference against time), the FOM table and the coefficients.
 
 use super::{HtmlReport, Plot, Section, Series, PALETTE};
-use crate::compensation::{Compensation, Summary};
+use crate::calibration::fom::FomTable;
+use crate::calibration::{Compensation, Summary};
 use crate::flight::Flight;
-use crate::qc::fom::FomTable;
-use crate::trace::Trace;
+use crate::io::trace::Trace;
 
 /// Most lines drawn, one plot each; the rest are named but not drawn (the page would
 /// weigh megabytes on a whole survey).

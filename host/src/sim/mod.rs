@@ -46,7 +46,7 @@ pub use physics::Physics;
 use plan::build_plan;
 use world::*;
 
-use crate::trace::Trace;
+use crate::io::trace::Trace;
 use anyhow::{ensure, Result};
 use flight::{heading_tag, Builder, Manoeuvre};
 use nalgebra::{Matrix3, Rotation3, Vector3};

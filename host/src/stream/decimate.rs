@@ -26,9 +26,9 @@
 use super::rows::{Cols, RowFilter};
 use super::stats::{Despiker, ExactMedian};
 use super::{Progress, StreamInput};
-use crate::input::Selection;
-use crate::trace::rows::{for_each_row, Kind, RowsHeader};
-use crate::trace::{ColumnMap, ReadOptions, RowOrigin, Trace};
+use crate::flight::input::Selection;
+use crate::io::trace::rows::{for_each_row, Kind, RowsHeader};
+use crate::io::trace::{ColumnMap, ReadOptions, RowOrigin, Trace};
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;

@@ -1,0 +1,6 @@
+//! Signal and statistics tools on plain series: the zero-phase band-pass, scalar despiking,
+//! the statistics kit. They know nothing of flights or models.
+
+pub mod bandpass;
+pub mod despike;
+pub mod stats;
