@@ -3,6 +3,7 @@ use magcomp::estimate::tl;
 use magcomp::flight::Flight;
 use magcomp::model::spec::ModelSpec;
 use magcomp::qc::figures::*;
+use magcomp::qc::truth::*;
 use magcomp::sim::anomaly::Geology;
 use magcomp::sim::{simulate, GeologyPreset, SimConfig};
 

@@ -12,7 +12,7 @@ use magcomp::estimate::kf::{run_kf, KfOptions};
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;
-use magcomp::qc::figures::error_rms_nt;
+use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
 use magcomp_core::model::Term;
 

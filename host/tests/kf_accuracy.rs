@@ -7,14 +7,16 @@
 //! at what is achieved, with the gap explained next to the assertion.
 
 use magcomp::estimate::fluxcal::flight_flux;
+use magcomp::estimate::joint_fit::{
+    harmonic_anomaly_fit_interference_nt, joint_anomaly_fit_interference_nt, SourceLayer,
+};
+use magcomp::estimate::kf::interference_of;
 use magcomp::estimate::kf::{run_kf, KfOptions};
 use magcomp::estimate::tl;
 use magcomp::flight::Flight;
 use magcomp::model::spec::ModelSpec;
-use magcomp::qc::figures::{
-    error_rms_nt, harmonic_anomaly_fit_interference_nt, interference_of, is_manoeuvre,
-    joint_anomaly_fit_interference_nt, oracle_floor_nt, SourceLayer,
-};
+use magcomp::qc::figures::is_manoeuvre;
+use magcomp::qc::truth::{error_rms_nt, oracle_floor_nt};
 use magcomp::sim::anomaly::Geology;
 use magcomp::sim::{simulate, FlightKind, GeologyPreset, SimConfig};
 

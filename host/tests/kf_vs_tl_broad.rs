@@ -17,7 +17,8 @@ use magcomp::estimate::kf::{run_kf, KfOptions};
 use magcomp::estimate::tl;
 use magcomp::flight::Flight;
 use magcomp::model::spec::{ModelSpec, DEFAULT_MODEL};
-use magcomp::qc::figures::{error_rms_nt, manoeuvre_band, oracle_floor_nt};
+use magcomp::qc::figures::manoeuvre_band;
+use magcomp::qc::truth::{error_rms_nt, oracle_floor_nt};
 use magcomp::sim::{simulate, GeologyPreset, SimConfig};
 
 const PAPER_MODEL: &str = "tl16+field";

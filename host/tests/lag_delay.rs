@@ -8,7 +8,7 @@ use magcomp::estimate::kf::{run_kf, KfOptions};
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;
-use magcomp::qc::figures::error_rms_nt;
+use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, simulate_detailed, SimConfig};
 
 fn config(seed: u64, rate_hz: f64) -> SimConfig {

@@ -8,7 +8,8 @@ pub use crate::calibration::coefficients::{
 use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::spec::DEFAULT_MODEL;
-use crate::qc::figures::{error_rms_nt, fom, improvement_ratio, oracle_floor_nt, ManoeuvreFom};
+use crate::qc::figures::{fom, improvement_ratio, ManoeuvreFom};
+use crate::qc::truth::{error_rms_nt, oracle_floor_nt};
 use anyhow::{ensure, Result};
 
 pub mod applied;

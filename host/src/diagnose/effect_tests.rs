@@ -147,7 +147,7 @@ pub(crate) fn fluxcal_test(
         }
     };
     let change_nt =
-        crate::qc::figures::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None);
+        crate::qc::truth::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None);
     let (resid, noise_nt) = calibrated_modulus_noise_nt(&fit);
     let rho = lag1_autocorr(&resid).clamp(-0.99, 0.99);
     let n_eff = (resid.len() as f64 * (1.0 - rho) / (1.0 + rho)).max(20.0);
@@ -278,7 +278,7 @@ pub(crate) fn fluxtemp_test(
     });
     let change_nt = match run_kf(&original, &opts) {
         Ok(rerun) => {
-            crate::qc::figures::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None)
+            crate::qc::truth::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None)
         }
         Err(e) => return Ok(untestable(e.to_string())),
     };

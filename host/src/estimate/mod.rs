@@ -9,6 +9,7 @@ pub mod excitation;
 pub mod fluxcal;
 pub mod innovations;
 pub mod jackknife;
+pub mod joint_fit;
 pub mod kf;
 pub mod reference_kf;
 pub mod tl;

@@ -9,7 +9,8 @@ use crate::diagnose::{
 use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
-use crate::qc::figures::{error_rms_nt, fom, improvement_ratio};
+use crate::qc::figures::{fom, improvement_ratio};
+use crate::qc::truth::error_rms_nt;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 

@@ -106,7 +106,7 @@ pub fn apply_to_trace(trace: &Trace, prep: &Preprocessing, fs_hz: f64) -> Result
 /// truth_diurnal` (δ = τ̂ − `truth_lag_s`). `None` without truth.
 pub fn error_against_truth_nt(trace: &Trace, flight: &Flight, run: &KfRun) -> Option<f64> {
     let truth = flight.truth_interference_nt.as_ref()?;
-    let plain = || crate::qc::figures::error_rms_nt(&run.interference_nt, truth, None);
+    let plain = || crate::qc::truth::error_rms_nt(&run.interference_nt, truth, None);
     let Some(l) = run.preprocessing.as_ref().and_then(|p| p.scalar_lag) else {
         return Some(plain());
     };

@@ -88,7 +88,7 @@ pub(super) fn kf_jackknife(
     let covariance = crate::estimate::jackknife::covariance(&refits);
     let series: Vec<Vec<f64>> = refits
         .iter()
-        .map(|c| crate::qc::figures::interference_of(regs, c))
+        .map(|c| super::interference_of(regs, c))
         .collect();
     let band_sigma_nt = crate::estimate::jackknife::band_sigma_nt(flight, &series);
     Ok(spread.sigma_nt(&covariance).map(|sigma_nt| KfJackknife {

@@ -4,7 +4,6 @@
 use crate::estimate::fluxcal::{self, FluxgateCalibration, FluxgateFit};
 use crate::flight::Flight;
 use crate::model::spec::{with_model, ModelSpec};
-use crate::qc::figures::interference_of;
 use anyhow::{bail, Result};
 use magcomp_core::compensator::{Compensator, CompensatorConfig, Output};
 use magcomp_core::epoch::Epoch;
@@ -828,4 +827,12 @@ fn apply_rate_crossovers(flight: &Flight, opts: &KfOptions, run: &mut KfRun) {
         *i += v;
         *c -= v;
     }
+}
+
+/// The interference of constant coefficients over every sample's regressors (nT).
+pub fn interference_of(regressors: &[Vec<f32>], coefficients: &[f64]) -> Vec<f64> {
+    regressors
+        .iter()
+        .map(|r| r.iter().zip(coefficients).map(|(x, c)| *x as f64 * c).sum())
+        .collect()
 }
