@@ -1,4 +1,5 @@
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::estimate::tl;
 use magcomp::flight::Flight;
 use magcomp::model::spec::ModelSpec;

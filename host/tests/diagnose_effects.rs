@@ -8,7 +8,8 @@
 
 use magcomp::cli::diagnose::{run as run_diagnose, DiagnoseArgs};
 use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;

@@ -7,7 +7,8 @@
 //! Run in release: `cargo test --release -p magcomp --test diagnose_iterate`.
 
 use magcomp::diagnose::{diagnose, iterate, DiagnoseOptions, Iteration};
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;

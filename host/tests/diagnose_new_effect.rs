@@ -14,7 +14,8 @@
 
 use magcomp::diagnose::custom::post_flight_with_terms;
 use magcomp::diagnose::{diagnose, diagnose_with, DiagnoseOptions, ExtraTerm};
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;

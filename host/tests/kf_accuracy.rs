@@ -6,12 +6,13 @@
 //! Targets that the paper's model does not reach on these simulated flights are asserted
 //! at what is achieved, with the gap explained next to the assertion.
 
+use magcomp::estimate::corrections::run_kf;
 use magcomp::estimate::fluxcal::flight_flux;
 use magcomp::estimate::joint_fit::{
     harmonic_anomaly_fit_interference_nt, joint_anomaly_fit_interference_nt, SourceLayer,
 };
 use magcomp::estimate::kf::interference_of;
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::kf::KfOptions;
 use magcomp::estimate::tl;
 use magcomp::flight::Flight;
 use magcomp::model::spec::ModelSpec;

@@ -12,8 +12,9 @@
 //!
 //! What holds today is asserted; the target is a separate test.
 
+use magcomp::estimate::corrections::run_kf;
 use magcomp::estimate::fluxcal::flight_flux;
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::kf::KfOptions;
 use magcomp::estimate::tl;
 use magcomp::flight::Flight;
 use magcomp::model::spec::{ModelSpec, DEFAULT_MODEL};

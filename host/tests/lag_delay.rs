@@ -4,7 +4,8 @@
 //! Run in release: `cargo test --release -p magcomp --test lag_delay -- --nocapture`.
 
 use magcomp::estimate::corrections::error_against_truth_nt;
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;

@@ -2,7 +2,8 @@
 //! the interference is determined for the attitudes a survey flies (the manoeuvre envelope
 //! and the other headings), not only for those of the last minute.
 
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
 use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, FlightKind, SimConfig};

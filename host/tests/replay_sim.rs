@@ -4,7 +4,8 @@
 use magcomp::board::capture::{trace_to_capture, CaptureOptions, FluxFormat};
 use magcomp::board::replay::{csv_row, replay_capture, ReplayOptions, ReplayStats, CSV_HEADER};
 use magcomp::cli::replay::{run as run_replay, ReplayArgs};
-use magcomp::estimate::kf::{run_kf, KfOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;

@@ -256,7 +256,7 @@ pub fn read_flux_temperature(path: &Path) -> Result<Option<FluxTempCal>> {
     let Some(c) = v.get("fluxgate_temperature").filter(|c| !c.is_null()) else {
         return Ok(None);
     };
-    let c: crate::estimate::corrections::FluxgateTemperature = serde_json::from_value(c.clone())
+    let c: crate::model::corrections::FluxgateTemperature = serde_json::from_value(c.clone())
         .with_context(|| format!("fluxgate_temperature in {}", path.display()))?;
     board_flux_temperature(&c)
         .map(Some)
@@ -265,7 +265,7 @@ pub fn read_flux_temperature(path: &Path) -> Result<Option<FluxTempCal>> {
 
 /// The host's temperature correction as the board's 7 values (`SETFTEMP`).
 pub fn board_flux_temperature(
-    c: &crate::estimate::corrections::FluxgateTemperature,
+    c: &crate::model::corrections::FluxgateTemperature,
 ) -> Result<FluxTempCal> {
     let (b, s) = (&c.bias_nt_per_degc, &c.scale_per_degc);
     let v = [c.reference_degc, b[0], b[1], b[2], s[0], s[1], s[2]].map(|x| x as f32);
@@ -284,7 +284,7 @@ pub fn read_scalar_lag(path: &Path) -> Result<Option<f64>> {
     let Some(l) = v.get("scalar_lag").filter(|l| !l.is_null()) else {
         return Ok(None);
     };
-    let l: crate::estimate::corrections::ScalarLag = serde_json::from_value(l.clone())
+    let l: crate::model::corrections::ScalarLag = serde_json::from_value(l.clone())
         .with_context(|| format!("scalar_lag in {}", path.display()))?;
     Ok(Some(l.lag_s))
 }

@@ -263,7 +263,7 @@ mod tests {
     fn a_lag_file_sends_setlag_and_an_impossible_lag_is_refused() {
         let with = |lag_s: Option<f64>| {
             let mut f = file("tl16+field+lag", 16, None);
-            f.scalar_lag = lag_s.map(|lag_s| crate::estimate::corrections::ScalarLag {
+            f.scalar_lag = lag_s.map(|lag_s| crate::model::corrections::ScalarLag {
                 lag_s,
                 sigma_s: 0.0012,
             });
@@ -291,12 +291,12 @@ mod tests {
     /// correction, or with an absurd one, is refused.
     #[test]
     fn a_fluxtemp_file_sends_setftemp() {
-        let with = |c: Option<crate::estimate::corrections::FluxgateTemperature>| {
+        let with = |c: Option<crate::model::corrections::FluxgateTemperature>| {
             let mut f = file("tl16+field+fluxtemp:temp_flux", 16, None);
             f.fluxgate_temperature = c;
             upload_lines(&f, "tl16+field", true)
         };
-        let c = crate::estimate::corrections::FluxgateTemperature {
+        let c = crate::model::corrections::FluxgateTemperature {
             channel: "temp_flux".into(),
             reference_degc: 21.5,
             bias_nt_per_degc: [0.41, -0.2, 0.8],

@@ -71,11 +71,11 @@ pub struct CoefficientFile {
     /// With `lag`: the scalar's estimated delay behind the fluxgate/GPS (s) and its 1σ;
     /// `compensate --coeffs` re-aligns the scalar by it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scalar_lag: Option<crate::estimate::corrections::ScalarLag>,
+    pub scalar_lag: Option<crate::model::corrections::ScalarLag>,
     /// With `fluxtemp:CH`: the fluxgate's temperature coefficients (bias nT/°C, scale 1/°C,
     /// each with its 1σ) and reference temperature; applied before the direction cosines.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fluxgate_temperature: Option<crate::estimate::corrections::FluxgateTemperature>,
+    pub fluxgate_temperature: Option<crate::model::corrections::FluxgateTemperature>,
     /// The anomaly process the calibration used (KF; see `pipeline::FIELD_PROFILES`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,

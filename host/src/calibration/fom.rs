@@ -207,7 +207,7 @@ pub fn field_estimate_nt(flight: &Flight) -> Option<Vec<f64>> {
     if !spec.channels().is_empty() {
         return None;
     }
-    let run = crate::estimate::kf::run_kf(flight, &KfOptions::new(spec)).ok()?;
+    let run = crate::estimate::corrections::run_kf(flight, &KfOptions::new(spec)).ok()?;
     Some(run.anomaly_nt)
 }
 

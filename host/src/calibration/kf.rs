@@ -5,7 +5,8 @@ use super::{
     Coefficient, CoefficientFile, Compensation, EstimatorSettings, Method, RateCrossover,
     COEFF_FORMAT,
 };
-use crate::estimate::kf::{run_kf, KfOptions};
+use crate::estimate::corrections::run_kf;
+use crate::estimate::kf::KfOptions;
 use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
@@ -55,7 +56,7 @@ pub(super) fn run_kf_method(
     };
     let mut opts = KfOptions::new(spec.clone());
     if let Some(l) = detected_lag {
-        opts.preprocessing = Some(crate::estimate::corrections::Preprocessing {
+        opts.preprocessing = Some(crate::model::corrections::Preprocessing {
             scalar_lag: Some(l),
             fluxgate_temperature: None,
         });
@@ -77,7 +78,7 @@ pub(super) fn run_kf_method(
         if spec.terms.iter().any(|t| t.name == "fluxtemp") && c.fluxgate_temperature.is_none() {
             bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
         }
-        opts.preprocessing = Some(crate::estimate::corrections::Preprocessing {
+        opts.preprocessing = Some(crate::model::corrections::Preprocessing {
             scalar_lag: c.scalar_lag,
             fluxgate_temperature: c.fluxgate_temperature.clone(),
         });
@@ -191,7 +192,7 @@ fn detect_lag(
     flight: &Flight,
     spec: &ModelSpec,
     assumed_speed_mps: Option<f64>,
-) -> Result<Option<crate::estimate::corrections::lag::ScalarLag>> {
+) -> Result<Option<crate::model::corrections::ScalarLag>> {
     let window = (LAG_SEARCH_S * flight.sample_rate_hz) as usize;
     if flight.len() <= window {
         return Ok(crate::estimate::corrections::lag::detect(flight, spec));

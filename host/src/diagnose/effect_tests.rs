@@ -2,11 +2,13 @@
 //! tested on the fluxgate's own modulus, and `rate` on a flight with crossovers, tested at
 //! the crossings.
 
-use crate::estimate::corrections::{fluxtemp, Preprocessing};
+use crate::estimate::corrections::fluxtemp;
+use crate::estimate::corrections::run_kf;
 use crate::estimate::fluxcal::{self, FluxgateCalibration};
-use crate::estimate::kf::{run_kf, KfOptions, KfRun};
+use crate::estimate::kf::{KfOptions, KfRun};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
+use crate::model::corrections::Preprocessing;
 use crate::model::spec::ModelSpec;
 use crate::signal::stats::{chi2_sf, lag1_autocorr};
 use anyhow::{Context, Result};

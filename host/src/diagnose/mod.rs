@@ -30,8 +30,9 @@ pub use failures::residual_spectrum;
 pub use iterate::{iterate, Iteration, IterationStep};
 pub use regression::scalar_relative_nt;
 
+use crate::estimate::corrections::run_kf;
 use crate::estimate::innovations::{filter_columns, FieldSettings};
-use crate::estimate::kf::{estimate_sigma1_for, run_kf, KfOptions, KfRun, DEFAULT_SIGMA1};
+use crate::estimate::kf::{estimate_sigma1_for, KfOptions, KfRun, DEFAULT_SIGMA1};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::spec::{ModelSpec, TermSpec};

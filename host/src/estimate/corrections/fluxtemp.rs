@@ -8,38 +8,11 @@
 //! is applied (a static one is `fluxcal`'s job).
 
 use crate::flight::Flight;
+use crate::model::corrections::FluxgateTemperature;
 use anyhow::{bail, Result};
 use nalgebra::{SMatrix, SVector};
-use serde::{Deserialize, Serialize};
-
-/// The temperature correction of the fluxgate.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FluxgateTemperature {
-    /// The temperature channel (trace column).
-    pub channel: String,
-    /// `T_ref`: the flight's mean temperature (channel units, °C).
-    pub reference_degc: f64,
-    /// `b` (nT/°C per axis) and its 1σ.
-    pub bias_nt_per_degc: [f64; 3],
-    pub bias_sigma_nt_per_degc: [f64; 3],
-    /// `s` (1/°C per axis) and its 1σ.
-    pub scale_per_degc: [f64; 3],
-    pub scale_sigma_per_degc: [f64; 3],
-}
 
 impl FluxgateTemperature {
-    /// Corrected fluxgate vector at temperature `t_degc` (NaN if the temperature is missing:
-    /// the sample is then flagged, not silently left uncorrected).
-    pub fn apply(&self, b: [f64; 3], t_degc: f64) -> [f64; 3] {
-        let d = t_degc - self.reference_degc;
-        if !d.is_finite() {
-            return [f64::NAN; 3];
-        }
-        std::array::from_fn(|i| {
-            b[i] + d * (self.bias_nt_per_degc[i] + self.scale_per_degc[i] * b[i])
-        })
-    }
-
     /// The flight with its fluxgate corrected; `channel` is the aux index of the
     /// temperature.
     pub fn apply_to_flight(&self, flight: &Flight, channel: usize) -> Flight {

@@ -37,6 +37,7 @@
 use crate::estimate::innovations::{filter_columns, FieldSettings, Geometry};
 use crate::estimate::kf::HOST_WINDOW;
 use crate::flight::Flight;
+use crate::model::corrections::ScalarLag;
 use crate::model::spec::ModelSpec;
 use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::CompensatorConfig;
@@ -44,7 +45,6 @@ use magcomp_core::epoch::EpochBuilder;
 use magcomp_core::model::Term;
 use magcomp_core::MagCounts;
 use nalgebra::DMatrix;
-use serde::{Deserialize, Serialize};
 
 /// Largest |τ| searched (s).
 pub const MAX_LAG_S: f64 = 1.0;
@@ -61,15 +61,6 @@ const SEARCH_RATE_HZ: f64 = 10.0;
 /// Half-length of the windowed-sinc kernel (samples).
 const HALF_TAPS: usize = 16;
 const KAISER_BETA: f64 = 8.0;
-
-/// The estimated delay of the scalar behind the fluxgate/GPS.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct ScalarLag {
-    /// τ (s): the scalar reports at t what it measured at t − τ.
-    pub lag_s: f64,
-    /// 1σ of τ from the curvature of the objective (s).
-    pub sigma_s: f64,
-}
 
 /// Smallest delay the default calibration re-aligns for (s). The estimator reads 6–9 ms
 /// (2–4σ) on simulated flights without any lag (broad seeds 1, 2, 10), a bias of the

@@ -1,8 +1,10 @@
 //! Pre-processing of a flight before the estimator, for the model terms that change the
 //! filter's *input* rather than adding states: `lag` (the scalar re-aligned by its
 //! estimated delay) and `fluxtemp:CH` (the fluxgate corrected for its temperature drift).
-//! `pipeline::run_kf` calls [`run_kf_preprocessed`] when the model names one of them; the
-//! estimator (`pipeline::run_kf_estimator`) then runs unchanged on the prepared flight.
+//! [`run_kf`], the entry point every caller uses, prepares the flight when the model names
+//! one of them; the estimator (`kf::run_kf_estimator`) then runs unchanged on the prepared
+//! flight. `run_kf` lives here, above the filter, so the filter never calls up into its
+//! own pre-processing.
 //!
 //! Order: the lag first (its estimate uses band-passed data, which a few nT of fluxgate
 //! drift hardly move), then the temperature fit on the re-aligned flight (its reference,
@@ -14,21 +16,9 @@ pub mod lag;
 use crate::estimate::kf::{run_kf_estimator, KfOptions, KfRun};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
+use crate::model::corrections::Preprocessing;
 use crate::model::spec::ModelSpec;
 use anyhow::{bail, Context, Result};
-pub use fluxtemp::FluxgateTemperature;
-pub use lag::ScalarLag;
-use serde::{Deserialize, Serialize};
-
-/// What was done to the flight before the filter (estimated, or given from a coefficient
-/// file).
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct Preprocessing {
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub scalar_lag: Option<ScalarLag>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fluxgate_temperature: Option<FluxgateTemperature>,
-}
 
 /// Whether the model names a term handled here.
 pub fn needed(spec: &ModelSpec) -> bool {
@@ -137,11 +127,21 @@ pub fn error_against_truth_nt(trace: &Trace, flight: &Flight, run: &KfRun) -> Op
     Some(crate::qc::figures::rms_demeaned(&d))
 }
 
+/// Runs the compensator over a flight. With `lag` or `fluxtemp` in the model the flight is
+/// first pre-processed (scalar re-aligned, fluxgate corrected for temperature), then
+/// [`run_kf_estimator`] runs on it.
+pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+    if needed(&opts.model) {
+        return run_kf_preprocessed(flight, opts);
+    }
+    run_kf_estimator(flight, opts)
+}
+
 /// Estimates what the model's pre-processing terms need (or takes `opts.preprocessing`),
 /// prepares the flight and runs the estimator on it. The interference is reported against
 /// the *recorded* scalar (`mag − compensated`), so it includes what the delay did to the
 /// reading, as a compensated output must.
-pub fn run_kf_preprocessed(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+fn run_kf_preprocessed(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     let given = opts.preprocessing.clone().unwrap_or_default();
     let mut prep = Preprocessing::default();
     let mut f = flight.clone();

@@ -84,7 +84,7 @@ pub struct KfOptions {
     pub model_error_nt: Option<f64>,
     /// With `lag`/`fluxtemp`: apply this pre-processing (from a coefficient file) instead of
     /// estimating it ([`crate::estimate::corrections`]).
-    pub preprocessing: Option<crate::estimate::corrections::Preprocessing>,
+    pub preprocessing: Option<crate::model::corrections::Preprocessing>,
     /// Coefficient combinations (prior-σ units, model order) held at the prior: the
     /// flight's manoeuvres do not determine them ([`crate::estimate::excitation`]). Set by the
     /// calibration itself; empty = all free.
@@ -177,7 +177,7 @@ pub struct KfRun {
     /// What the run found the user must know (undetermined coefficients, …).
     pub warnings: Vec<String>,
     /// With `lag`/`fluxtemp`: what was done to the flight before the filter.
-    pub preprocessing: Option<crate::estimate::corrections::Preprocessing>,
+    pub preprocessing: Option<crate::model::corrections::Preprocessing>,
     /// Post-flight calibration: the filter's jackknife (counted in `coefficient_covariance`
     /// and `predicted_error_nt`).
     pub jackknife: Option<KfJackknife>,
@@ -522,16 +522,6 @@ pub(crate) fn first_pass(opts: &KfOptions) -> KfOptions {
         jackknife: false,
         ..opts.clone()
     }
-}
-
-/// Runs the compensator over a flight. With `lag` or `fluxtemp` in the model the flight is
-/// first pre-processed (scalar re-aligned, fluxgate corrected for temperature:
-/// [`crate::estimate::corrections`]), then [`run_kf_estimator`] runs on it.
-pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
-    if crate::estimate::corrections::needed(&opts.model) {
-        return crate::estimate::corrections::run_kf_preprocessed(flight, opts);
-    }
-    run_kf_estimator(flight, opts)
 }
 
 /// The estimator on a flight as given. With `fluxcal` in the model the fluxgate is first
