@@ -179,7 +179,7 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
         .iter()
         .position(|(n, _)| n.starts_with("diurnal"))
         .map_or(0.0, |i| run.coefficients[i]);
-    let map: Vec<f64> = magcomp::diagnose::scalar_relative_nt(&f)
+    let map: Vec<f64> = magcomp::flight::scalar_relative_nt(&f)
         .iter()
         .zip(&run.interference_nt)
         .zip(base)

@@ -28,12 +28,11 @@ mod regression;
 
 pub use failures::residual_spectrum;
 pub use iterate::{iterate, Iteration, IterationStep};
-pub use regression::scalar_relative_nt;
 
 use crate::estimate::corrections::run_kf;
 use crate::estimate::innovations::{filter_columns, FieldSettings};
 use crate::estimate::kf::{estimate_sigma1_for, KfOptions, KfRun, DEFAULT_SIGMA1};
-use crate::flight::Flight;
+use crate::flight::{scalar_relative_nt, Flight};
 use crate::io::trace::Trace;
 use crate::model::spec::{ModelSpec, TermSpec};
 use crate::signal::stats::{chi2_sf, lag1_autocorr, median};

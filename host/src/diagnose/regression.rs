@@ -262,29 +262,3 @@ pub(crate) fn nested_test(
     // dof2 is thousands: q·F is χ²_q to well within what a significance level needs.
     (f, chi2_sf(f * q as f64, q as f64), q)
 }
-
-/// The scalar relative to its first value, with the core-field model's change removed as
-/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
-/// filter's interference + field states model. f64, exact.
-pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
-    let igrf0 = flight
-        .samples
-        .iter()
-        .map(|s| s.igrf_nt)
-        .find(|v| v.is_finite());
-    flight
-        .mag_nt
-        .iter()
-        .zip(&flight.samples)
-        .map(|(v, s)| match igrf0 {
-            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
-            _ => v - m0,
-        })
-        .collect()
-}

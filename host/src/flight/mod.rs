@@ -472,3 +472,29 @@ fn glitch_warning(
     }
     Some(msg)
 }
+
+/// The scalar relative to its first value, with the core-field model's change removed as
+/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
+/// filter's interference + field states model. f64, exact.
+pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
+    let m0 = flight
+        .mag_nt
+        .iter()
+        .copied()
+        .find(|v| v.is_finite())
+        .unwrap_or(0.0);
+    let igrf0 = flight
+        .samples
+        .iter()
+        .map(|s| s.igrf_nt)
+        .find(|v| v.is_finite());
+    flight
+        .mag_nt
+        .iter()
+        .zip(&flight.samples)
+        .map(|(v, s)| match igrf0 {
+            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
+            _ => v - m0,
+        })
+        .collect()
+}

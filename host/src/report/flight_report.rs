@@ -3,10 +3,8 @@
 //! the coefficients with 1σ; for two or more models, the before/after comparison.
 
 use super::{HtmlReport, Plot, Section, Series, PALETTE};
-use crate::diagnose::{
-    diagnose, residual_spectrum, scalar_relative_nt, DiagnoseOptions, Diagnosis,
-};
-use crate::flight::Flight;
+use crate::diagnose::{diagnose, residual_spectrum, DiagnoseOptions, Diagnosis};
+use crate::flight::{scalar_relative_nt, Flight};
 use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
 use crate::qc::figures::{fom, improvement_ratio};

@@ -311,7 +311,7 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
         .find(|v| v.is_finite())
         .unwrap_or(0.0);
     let mag_rel: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
-    let y0 = crate::diagnose::scalar_relative_nt(flight);
+    let y0 = crate::flight::scalar_relative_nt(flight);
     let igrf_rel: Vec<f64> = mag_rel
         .iter()
         .zip(&y0)
