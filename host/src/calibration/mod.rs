@@ -141,7 +141,7 @@ pub struct Summary {
     /// The flight was calibrated on an anti-aliased decimated copy (a long, fast flight:
     /// docs/streaming.md); the figures above are the copy's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub decimated: Option<crate::stream::decimate::Decimation>,
+    pub decimated: Option<crate::flight::input::Decimation>,
 }
 
 /// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace;

@@ -5,9 +5,10 @@ use crate::calibration::coefficients::{
     read_coefficients, refuse_conflicting_settings, CoefficientFile, Method,
 };
 use crate::calibration::{compensate_trace, summarise, Compensation, EstimatorSettings, Summary};
+use crate::flight::input::Decimation;
 use crate::flight::Flight;
 use crate::io::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
-use crate::stream::decimate::{self, Decimation};
+use crate::stream::decimate;
 use anyhow::{Context, Result};
 use clap::builder::PossibleValue;
 use std::path::{Path, PathBuf};

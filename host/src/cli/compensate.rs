@@ -4,10 +4,10 @@
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::{compensate_trace, summarise, write_output_csv, Summary};
+use crate::flight::input::Decimation;
 use crate::io::output::refuse_overwriting;
 use crate::io::progress::quiet_progress;
 use crate::io::trace::Trace;
-use crate::stream::decimate::Decimation;
 use crate::stream::{compensate, unstreamable, StreamSummary, AUTO_STREAM_BYTES};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;

@@ -233,7 +233,7 @@ fn applied_table(d: &Diagnosis) -> String {
 fn json(
     d: &Diagnosis,
     evaluated: Option<&Evaluated>,
-    decimated: Option<&crate::stream::decimate::Decimation>,
+    decimated: Option<&crate::flight::input::Decimation>,
 ) -> Result<String> {
     let mut v = serde_json::to_value(d)?;
     let warnings = match evaluated {

@@ -6,6 +6,7 @@
 use crate::flight::igrf::{decimal_year, parse_date, Igrf, MODEL_NAME};
 use crate::io::trace::{aux_column_candidate, Trace};
 use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
 
 /// Metadata keys `prepare` sets, so every later step (and `--json`) can say where the
 /// core field came from.
@@ -441,6 +442,37 @@ pub fn carried_columns(trace: &Trace, consumed: &[String]) -> Vec<(String, Outpu
         out.push((rename(n), OutputValues::Text(v.clone())));
     }
     out
+}
+
+/// What a decimated calibration did (on stderr, and `decimated` in `--json`). Defined with
+/// the input rather than in `stream::decimate`, which makes the copy, because the
+/// calibration summary reports it and the calibration sits below the streaming layer.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Decimation {
+    pub rows_in: usize,
+    pub rows_out: usize,
+    pub factor: usize,
+    pub sample_rate_in_hz: f64,
+    pub sample_rate_out_hz: f64,
+    pub lowpass_taps: usize,
+    /// Scalar glitches taken as missing before the low-pass.
+    pub glitches_removed: usize,
+}
+
+impl Decimation {
+    pub fn message(&self) -> String {
+        format!(
+            "the flight ({} rows at {:.4} Hz) is calibrated on an anti-aliased copy decimated \
+             by {} to {:.4} Hz ({} rows; {} scalar glitch(es) taken out first) to keep memory \
+             bounded (docs/streaming.md; --full-rate reads it whole)",
+            self.rows_in,
+            self.sample_rate_in_hz,
+            self.factor,
+            self.sample_rate_out_hz,
+            self.rows_out,
+            self.glitches_removed
+        )
+    }
 }
 
 #[cfg(test)]

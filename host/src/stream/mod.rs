@@ -103,7 +103,7 @@ pub struct StreamSummary {
     /// Post-flight on a long, fast flight: the coefficients were calibrated on this
     /// decimated copy, then applied here at the full rate (`decimate`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub decimated: Option<decimate::Decimation>,
+    pub decimated: Option<crate::flight::input::Decimation>,
 }
 
 /// The core field as `input::prepare` decides it.
