@@ -268,7 +268,7 @@ pub fn write_output_csv(
     comp: &Compensation,
     carried: &[(String, crate::flight::input::OutputValues)],
 ) -> Result<()> {
-    crate::io::output::write_table(path, |mut w| {
+    crate::io::trace::write_table(path, |mut w| {
         write_output_rows(&mut w, flight, comp, carried)
     })
 }

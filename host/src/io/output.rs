@@ -93,21 +93,6 @@ pub fn write_with<T>(path: &Path, f: impl FnOnce(&mut AtomicFile) -> Result<T>) 
     Ok(v)
 }
 
-/// Writes a table to `path` atomically: `f` writes CSV, which a `.xyz` path receives
-/// as Geosoft XYZ (`trace::XyzWriter`: same values, `*` for missing, `Line` sections).
-pub fn write_table(path: &Path, f: impl FnOnce(&mut dyn Write) -> Result<()>) -> Result<()> {
-    write_with(path, |w| {
-        if crate::io::trace::is_xyz_path(path) {
-            let mut x = crate::io::trace::XyzWriter::new(w);
-            f(&mut x)?;
-            x.finish()?;
-            Ok(())
-        } else {
-            f(w)
-        }
-    })
-}
-
 /// Writes `bytes` to `path` atomically.
 pub fn write_file(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
     write_with(path, |w| Ok(w.write_all(bytes.as_ref())?))

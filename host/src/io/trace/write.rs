@@ -10,7 +10,7 @@ use std::path::Path;
 /// ([`super::XyzWriter`]), anything else CSV.
 pub fn write_trace(path: &Path, trace: &Trace) -> anyhow::Result<()> {
     let name = path.display().to_string();
-    crate::io::output::write_table(path, |w| {
+    write_table(path, |w| {
         write_trace_to(w, trace).map_err(|e| rename_io(e, &name))?;
         Ok(())
     })
@@ -130,4 +130,22 @@ pub fn write_trace_to<W: Write>(mut w: W, trace: &Trace) -> Result<(), TraceErro
         Ok(())
     })()
     .map_err(io)
+}
+
+/// Writes a table to `path` atomically: `f` writes CSV, which a `.xyz` path receives
+/// as Geosoft XYZ (`XyzWriter`: same values, `*` for missing, `Line` sections).
+pub fn write_table(
+    path: &Path,
+    f: impl FnOnce(&mut dyn Write) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    crate::io::output::write_with(path, |w| {
+        if super::xyz_out::is_xyz_path(path) {
+            let mut x = super::xyz_out::XyzWriter::new(w);
+            f(&mut x)?;
+            x.finish()?;
+            Ok(())
+        } else {
+            f(w)
+        }
+    })
 }
