@@ -3,7 +3,8 @@
 //! compensated (issue 13 item 2), statistics that skip missing samples (issue 10 item 6).
 
 use magcomp::calibration::fom;
-use magcomp::calibration::{compensate_trace, summarise, EstimatorSettings, Method, Summary};
+use magcomp::calibration::summary::{summarise, Summary};
+use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::qc::manoeuvres;
@@ -37,7 +38,7 @@ fn unlabelled(t: &Trace) -> Trace {
     u
 }
 
-fn run(t: &Trace, method: Method) -> (Flight, magcomp::calibration::Compensation, Summary) {
+fn run(t: &Trace, method: Method) -> (Flight, magcomp::calibration::result::Compensation, Summary) {
     let (f, c) = compensate_trace(t, &est(method), None, false).expect("compensate");
     let s = summarise(&f, &c);
     (f, c, s)
@@ -207,7 +208,7 @@ fn foreign_coefficients_warn_matching_ones_do_not() {
     let (_, own) = compensate_trace(&cal(5), &est(Method::Kf), None, false).unwrap();
     let (_, other) = compensate_trace(&cal(3), &est(Method::Kf), None, false).unwrap();
     let (_, other_tl) = compensate_trace(&cal(3), &est(Method::Tl), None, false).unwrap();
-    let apply = |c: &magcomp::calibration::Compensation, m: Method| {
+    let apply = |c: &magcomp::calibration::result::Compensation, m: Method| {
         let file = c.coefficients.clone().unwrap();
         let (f, comp) = compensate_trace(&flight5, &est(m), Some(&file), false).unwrap();
         summarise(&f, &comp)

@@ -56,7 +56,7 @@ fn applied_to_box2(
     flux: &str,
     method: Method,
     model: &str,
-) -> magcomp::calibration::Compensation {
+) -> magcomp::calibration::result::Compensation {
     let e = est(method, model);
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag, flux), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();

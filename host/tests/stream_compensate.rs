@@ -4,9 +4,8 @@
 //! positions, an extra numeric and text column, the core field from the file or computed
 //! from a date, KF and Tolles–Lawson, and a `--time` selection.
 use magcomp::calibration::coefficients::{CoefficientFile, Method};
-use magcomp::calibration::{
-    compensate_trace, summarise, write_output_csv, EstimatorSettings, Summary,
-};
+use magcomp::calibration::summary::{summarise, write_output_csv, Summary};
+use magcomp::calibration::{compensate_trace, EstimatorSettings};
 use magcomp::cli::args::TraceInput;
 use magcomp::flight::input::take_rows;
 use magcomp::io::trace::{write_trace, Trace};

@@ -240,7 +240,8 @@ fn check3_full_pipeline_compensation() {
 /// determined by 100 s and is left out with a warning.
 #[test]
 fn check4_kalman_filter_on_the_positionless_vector() {
-    use magcomp::calibration::{compensate_trace, summarise, EstimatorSettings, Method};
+    use magcomp::calibration::summary::summarise;
+    use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
     use magcomp::flight::Flight;
     let Some(dir) = ref_dir() else { return };
     let r = load(&dir);

@@ -2,8 +2,8 @@
 //! (or another installation) still produce numbers; these checks say loudly when they fit
 //! the flight worse than no compensation at all, or leave far more than they predicted.
 
-use crate::calibration::coefficients::CoefficientFile;
-use crate::calibration::Compensation;
+use super::coefficients::CoefficientFile;
+use super::result::Compensation;
 use crate::flight::Flight;
 use crate::qc::figures::{band_rms_nt, improvement_ratio};
 

@@ -9,7 +9,8 @@
 //! effect or a rougher anomaly lets the anomaly states take interference, least squares has
 //! nothing to be fooled by (`clean_s33`: 0.106 nT filter, 0.032 nT TL18-OLS).
 
-use super::{tl, Compensation, EstimatorSettings};
+use super::result::Compensation;
+use super::{tl, EstimatorSettings};
 use crate::estimate::jackknife::{CrossCheck, Estimator};
 use crate::flight::Flight;
 use crate::io::trace::Trace;

@@ -9,7 +9,7 @@
 //! estimate out first (compensated − anomaly), leaving what the aircraft left; they are
 //! as good as that estimate, and the same estimate should be used to compare methods.
 
-use crate::calibration::Compensation;
+use super::result::Compensation;
 use crate::estimate::kf::KfOptions;
 use crate::flight::Flight;
 use crate::model::spec::ModelSpec;

@@ -1,10 +1,9 @@
 //! The Kalman filter's run as `calibrate` and `compensate` make it: the flight, the filter
-//! (`pipeline`), and the coefficient file.
+//! (`estimate::kf`), and the coefficient file.
 
-use super::{
-    Coefficient, CoefficientFile, Compensation, EstimatorSettings, Method, RateCrossover,
-    COEFF_FORMAT,
-};
+use super::coefficients::{Coefficient, CoefficientFile, Method, RateCrossover, COEFF_FORMAT};
+use super::result::Compensation;
+use super::EstimatorSettings;
 use crate::estimate::corrections::run_kf;
 use crate::estimate::kf::KfOptions;
 use crate::flight::Flight;

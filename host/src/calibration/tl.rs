@@ -1,7 +1,9 @@
 //! Classic Tolles–Lawson as `calibrate` and `compensate` make it (`crate::estimate::tl`), with its
 //! jackknife error figure.
 
-use super::{Coefficient, CoefficientFile, Compensation, EstimatorSettings, Method};
+use super::coefficients::{Coefficient, CoefficientFile, Method};
+use super::result::Compensation;
+use super::EstimatorSettings;
 use crate::estimate::tl;
 use crate::flight::Flight;
 use crate::io::trace::Trace;

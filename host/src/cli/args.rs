@@ -4,7 +4,9 @@
 use crate::calibration::coefficients::{
     read_coefficients, refuse_conflicting_settings, CoefficientFile, Method,
 };
-use crate::calibration::{compensate_trace, summarise, Compensation, EstimatorSettings, Summary};
+use crate::calibration::result::Compensation;
+use crate::calibration::summary::{summarise, Summary};
+use crate::calibration::{compensate_trace, EstimatorSettings};
 use crate::flight::input::Decimation;
 use crate::flight::Flight;
 use crate::io::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
@@ -255,7 +257,7 @@ pub struct Evaluated {
 
 impl EstimatorArgs {
     /// Compensates `trace` as `compensate` would (post-flight): with the coefficient file
-    /// when given (its plausibility checked, `qc::applied`), else calibrating on the trace.
+    /// when given (its plausibility checked, `calibration::applied`), else calibrating on the trace.
     pub fn evaluate(&self, trace: &Trace, coeffs: Option<&Path>) -> Result<Evaluated> {
         let file = self.coefficients(coeffs)?;
         let (flight, comp) = compensate_trace(trace, &self.settings(), file.as_ref(), false)?;

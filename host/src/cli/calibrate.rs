@@ -3,7 +3,8 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
-use crate::calibration::{compensate_trace, summarise, SURVEY_TOLERANCE_NT};
+use crate::calibration::summary::summarise;
+use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
 use crate::io::output::refuse_overwriting;
 use anyhow::{Context, Result};
 use std::path::PathBuf;

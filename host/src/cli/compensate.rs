@@ -3,7 +3,8 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use crate::calibration::coefficients::CoefficientFile;
-use crate::calibration::{compensate_trace, summarise, write_output_csv, Summary};
+use crate::calibration::compensate_trace;
+use crate::calibration::summary::{summarise, write_output_csv, Summary};
 use crate::flight::input::Decimation;
 use crate::io::output::refuse_overwriting;
 use crate::io::progress::quiet_progress;

@@ -1,9 +1,8 @@
 //! `magcomp demo`: the whole job on built-in simulated data — calibration flight, survey
 //! flight, Kalman filter and Tolles–Lawson side by side against the simulator's truth.
 
-use crate::calibration::{
-    compensate_trace, summarise, write_output_csv, EstimatorSettings, Method,
-};
+use crate::calibration::summary::{summarise, write_output_csv};
+use crate::calibration::{compensate_trace, EstimatorSettings, Method};
 use crate::io::trace::write_trace;
 use crate::sim::{simulate, FlightKind, Geology, GeologyPreset, SimConfig};
 use anyhow::{Context, Result};

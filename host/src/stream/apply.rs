@@ -7,10 +7,11 @@ use super::rows::{row_sample, Cols, RowFilter};
 use super::stats::{year_of_date, year_of_doy, DateSource, Despiker, Listed};
 use super::{Plan, Progress};
 use crate::calibration::coefficients::CoefficientFile;
-use crate::calibration::{csv_text, fixed_cell as num, number_cell, EstimatorSettings};
+use crate::calibration::EstimatorSettings;
 use crate::estimate::kf::{HostCompensator, KfOptions};
 use crate::flight::input::Selection;
 use crate::flight::position::PositionChecker;
+use crate::io::csv::{csv_text, fixed_cell as num, number_cell};
 use crate::io::trace::rows::{for_each_row, Kind, Row};
 use crate::io::trace::{aux_column_candidate, ColumnMap, ReadOptions};
 use crate::model::spec::{with_model, ModelSpec};
@@ -172,7 +173,7 @@ impl RunResult {
     }
 }
 
-/// Mean and variance of finite values, one at a time (Welford): `metrics::error_rms_nt`.
+/// Mean and variance of finite values, one at a time (Welford): `truth::error_rms_nt`.
 #[derive(Default)]
 struct Spread {
     n: f64,
@@ -199,7 +200,7 @@ impl Spread {
     }
 }
 
-/// `pipeline::RegressorSpread::sigma_nt` from running sums: the regressors'
+/// `kf::RegressorSpread::sigma_nt` from running sums: the regressors'
 /// covariance over the flight (sums of the deviation from the first row, so no large
 /// mean cancels), against the coefficients' covariance.
 struct RegressorCov {
@@ -280,7 +281,7 @@ fn carried(plan: &Plan) -> Carried {
     Carried { igrf, nums, texts }
 }
 
-/// Output of one row: `compensation::write_output_rows`' layout.
+/// Output of one row: `summary::write_output_rows`' layout.
 fn write_row(
     w: &mut impl Write,
     p: &Pending,
