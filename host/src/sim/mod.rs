@@ -38,7 +38,7 @@ pub mod takeoff;
 mod world;
 
 pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
-pub use config::{FlightKind, SimConfig, B_STAR_NT};
+pub use config::{FlightKind, SimConfig};
 pub use flight::{KinState, Plan};
 pub use geo::{EarthField, LocalFrame};
 pub use hidden::{parse_hidden, HiddenEffect, HiddenKind};

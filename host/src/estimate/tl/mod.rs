@@ -22,8 +22,9 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use std::str::FromStr;
 
-/// MagNav's `Bt_scale`, the field strength (nT) the induced and eddy terms are scaled by.
-pub const BT_SCALE_NT: f64 = 50_000.0;
+/// MagNav's `Bt_scale`, the field strength (nT) the induced and eddy terms are scaled by:
+/// the model's B* under MagNav's name.
+pub const BT_SCALE_NT: f64 = magcomp_core::model::B_STAR_NT;
 
 /// Column names of the full 18-term (MagNav) design matrix, in MagNav's order.
 pub const TL18_NAMES: [&str; 18] = [
