@@ -2,6 +2,7 @@
 //! the fluxgate's scalar calibration (`fluxcal`), the input corrections estimated before
 //! the filter (`corrections`: lag, fluxgate temperature), the `rate` term's crossovers, the
 //! jackknife error figure, what the manoeuvres excite, and the f64 reference filter.
+//! Nothing here knows of coefficient files, reports or commands.
 
 pub mod corrections;
 pub mod crossover;
