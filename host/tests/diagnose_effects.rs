@@ -154,7 +154,7 @@ fn diurnal_anomaly_map_full_bar() {
 /// Error of the anomaly map (scalar − core-field change − interference − β·base) against
 /// truth_anomaly. `env_sigma1`: estimate σ1 from the spectrum of the scalar minus the
 /// interference *and* the model's non-interference terms at their prior mean (β₀·base),
-/// which is what host/src/pipeline.rs should do when the model has such terms.
+/// which is what host/src/estimate/kf/mod.rs should do when the model has such terms.
 fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
     let spec = ModelSpec::parse(spec).expect("spec");
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
@@ -194,7 +194,7 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
     error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None)
 }
 
-/// The change host/src/pipeline.rs needs, shown here: with σ1 taken from the spectrum of
+/// The change host/src/estimate/kf/mod.rs needs, shown here: with σ1 taken from the spectrum of
 /// the scalar minus everything the model explains (interference and β₀·base), the diurnal
 /// term takes the diurnal out of the anomaly map.
 #[test]

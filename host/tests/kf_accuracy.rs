@@ -327,7 +327,7 @@ fn tie_gate_refuses_an_inconsistent_base_channel() {
 /// anomaly is far rougher than the flight's single σ1 allows, elsewhere smoother, and the
 /// coefficients took what the field could not follow. Post-flight the pipeline now also
 /// tries non-stationary processes whose σ1² follows the local roughness of the anomaly
-/// (`pipeline::FIELD_PROFILES`, each at ¼, ½ and 1 × σ1²) and keeps the one with the best
+/// (`kf::FIELD_PROFILES`, each at ¼, ½ and 1 × σ1²) and keeps the one with the best
 /// innovation likelihood.
 /// Measured: 0.025 / 0.080 / 0.059 (300 m, seeds 1–3), 0.022 / 0.042 / 0.062 (400 m) and
 /// 0.073 / 0.032 / 0.118 / 0.041 / 0.034 nT (300 m, seeds 4–8), against 0.04–0.62 nT

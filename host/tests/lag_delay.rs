@@ -115,7 +115,7 @@ fn a_short_lag_is_removed_to_the_clean_floor_at_10_hz_and_1_khz() {
 /// the clean 0.0044 nT; seed 2 → 0.0493/0.2000/0.4995 s, 0.96/1.01/1.01× the clean
 /// 0.0093 nT; 1 kHz seed 1 τ = 0.2/0.5 → 0.1990/0.4990 s, 1.07/1.33× (τ = 0.05 s:
 /// 0.0495 s, 1.01×). ~2 min in release on 2 cores. Before the band-limited search
-/// (preprocess/lag.rs notes) τ = 0.2 s came out at 0.2364 s (4.8× the floor).
+/// (estimate/corrections/lag.rs notes) τ = 0.2 s came out at 0.2364 s (4.8× the floor).
 #[test]
 fn lag_full_bar() {
     for seed in [1, 2] {

@@ -76,7 +76,7 @@ pub struct CoefficientFile {
     /// each with its 1σ) and reference temperature; applied before the direction cosines.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fluxgate_temperature: Option<crate::model::corrections::FluxgateTemperature>,
-    /// The anomaly process the calibration used (KF; see `pipeline::FIELD_PROFILES`).
+    /// The anomaly process the calibration used (KF; see `kf::FIELD_PROFILES`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub field_process: Option<String>,
     /// With `rate`: the coefficients fitted to the flight's crossovers (s, in
@@ -85,7 +85,7 @@ pub struct CoefficientFile {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rate_crossover: Option<RateCrossover>,
     /// KF: how well the calibration flight determined the interference, by the filter's
-    /// own covariance (`pipeline::RegressorSpread::sigma_nt`, nT rms).
+    /// own covariance (`kf::RegressorSpread::sigma_nt`, nT rms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
     /// KF: the coefficients' covariance (rows in the model's coefficient order, as
@@ -105,7 +105,7 @@ pub struct CoefficientFile {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_band_rms_nt: Option<f64>,
     /// KF calibration: the flight's own check of its coefficients (jackknife figures of the
-    /// filter and of band-passed least squares, and which was used: `pipeline::crosscheck`).
+    /// filter and of band-passed least squares, and which was used: `kf::crosscheck`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cross_check: Option<crate::estimate::jackknife::CrossCheck>,
     pub coefficients: Vec<Coefficient>,

@@ -1,5 +1,5 @@
 //! Post-flight compensation with terms that are not in the core catalogue (yet): the
-//! same two passes as `pipeline::run_kf` (calibrate on the flight, then apply the final
+//! same two passes as `corrections::run_kf` (calibrate on the flight, then apply the final
 //! coefficients), with a model built from any `Term` values. Lets a user check a new
 //! effect end to end before it is pasted into `core/src/model` (docs/adding-an-effect.md).
 

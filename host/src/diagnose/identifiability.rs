@@ -4,7 +4,7 @@
 //! on a real straight line, geology (`induced_high` "explained" 83–98 %).
 //!
 //! The measure is the one the filter uses to hold unexcited combinations
-//! (`excitation.rs`): how far a prior-1σ change of the candidate's best-excited coefficient
+//! (`estimate/excitation.rs`): how far a prior-1σ change of the candidate's best-excited coefficient
 //! combination moves the manoeuvre-band (0.1–0.9 Hz) interference, after projecting out
 //! every combination of the model's own terms (nT rms over the flight). Columns are built
 //! from the INS attitude's field direction (`e_ref`), so only the variation attitude drives

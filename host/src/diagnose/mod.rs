@@ -2,7 +2,7 @@
 //! where it fails (time windows, labelled segments, frequency bands), and test every
 //! catalogue term the model lacks against the residual.
 //!
-//! How a candidate is tested (see `innovations.rs`): the anomaly-field filter is run once
+//! How a candidate is tested (see `estimate/innovations.rs`): the anomaly-field filter is run once
 //! over the scalar and over the regressors of the model's terms and of every candidate
 //! term; in that innovation domain adding a constant-coefficient term is ordinary least
 //! squares. Each candidate is a nested-model F-test (model vs model + candidate, with the

@@ -6,7 +6,7 @@
 //! scalar lag hid in them entirely (`lag_s32`: 0.79 nT against 0.026). The jackknife needs
 //! no model: the airborne flight is cut into [`BLOCKS`] stretches, the coefficients are
 //! estimated again without each one, and the spread of the interference those estimates
-//! give is the error figure. Both methods get one (`pipeline` for the filter, `tl` for
+//! give is the error figure. Both methods get one (`estimate::kf` for the filter, `tl` for
 //! Tolles–Lawson), and the default post-flight calibration uses the method whose figure is
 //! lower ([`CrossCheck`]).
 
@@ -99,7 +99,7 @@ pub fn series_sigma_nt(refits: &[Vec<f64>]) -> Option<f64> {
     sigma.is_finite().then_some(sigma)
 }
 
-/// [`series_sigma_nt`] of the refits' manoeuvre-band signals (`metrics::band_passed`):
+/// [`series_sigma_nt`] of the refits' manoeuvre-band signals (`figures::band_passed`):
 /// what a band-passed figure on another flight sees of the error; None when a refit's
 /// series cannot be filtered.
 pub fn band_sigma_nt(flight: &Flight, refits: &[Vec<f64>]) -> Option<f64> {

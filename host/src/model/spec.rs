@@ -35,7 +35,7 @@ pub struct ModelSpec {
 /// milliradians and biases the induced coefficients: on the broad simulator's clean 3000 m
 /// calibrations the paper's model alone was 1.12× TL18-OLS on one seed, with `fluxcal`
 /// 0.41×. A flight whose attitudes do not determine the calibration leaves the fluxgate as
-/// measured, with a warning (`fluxgate::MAX_DIRECTION_SIGMA_SHARE`).
+/// measured, with a warning (`fluxcal::MAX_DIRECTION_SIGMA_SHARE`).
 pub const DEFAULT_MODEL: &str = "tl16+field+fluxcal";
 
 /// The board's model (`boards/`): the paper's 16 terms and the field. The board applies a

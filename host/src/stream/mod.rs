@@ -132,7 +132,7 @@ pub(crate) struct Plan {
     pub igrf: Option<(DateSource, apply::GapFill)>,
     pub channels: Vec<String>,
     /// The coefficient file's fluxgate calibration, applied to every fluxgate vector before
-    /// the compensator (as `pipeline::run_kf_estimator` does in memory).
+    /// the compensator (as `kf::run_kf_estimator` does in memory).
     pub fluxgate_calibration: Option<crate::estimate::fluxcal::FluxgateCalibration>,
 }
 

@@ -1,7 +1,7 @@
 //! The first two streaming passes: the whole-flight figures the in-memory path takes from
 //! its columns (sample rate, main-field direction, tie point, date, core-field gaps, input
 //! checks, scalar noise), each computed exactly as `Flight::from_trace`, `input::prepare`,
-//! `qc::inputs::check` and `pipeline::estimate_noise_nt` compute them, from one row at a
+//! `qc::inputs::check` and `kf::estimate_noise_nt` compute them, from one row at a
 //! time.
 use super::rows::RowSample;
 use crate::flight::position::{PositionChecker, PositionFault};
@@ -344,7 +344,7 @@ impl SecondPass {
         }
     }
 
-    /// `pipeline::estimate_noise_nt` of the despiked scalar.
+    /// `kf::estimate_noise_nt` of the despiked scalar.
     pub fn noise_nt(&self) -> Option<f64> {
         if self.d3.len() < 16 {
             return None;

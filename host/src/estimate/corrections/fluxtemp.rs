@@ -2,7 +2,7 @@
 //! `B = B_F + (T − T_ref)·(b + s∘B_F)`. Like a static miscalibration (`fluxcal`) it bends
 //! the direction cosines, and a TL fit hides most of it from the scalar residual; what
 //! shows it is the fluxgate's modulus against the scalar (minus the interference estimate).
-//! The fit is that of `fluxgate::fit_modulus` with 6 more parameters: the static 9
+//! The fit is that of `fluxcal::fit_modulus` with 6 more parameters: the static 9
 //! (symmetric scale/non-orthogonality and bias) are fitted alongside as nuisance, so a
 //! static miscalibration is not taken for a temperature effect; only the temperature part
 //! is applied (a static one is `fluxcal`'s job).

@@ -91,7 +91,7 @@ pub struct KfOptions {
     pub held_combinations: Vec<Vec<f32>>,
     /// Post-flight calibration: check the coefficients against the flight's own evidence
     /// (the jackknife, [`crate::estimate::jackknife`]: 8 more filter passes). Off by default: the
-    /// calibration a user is given turns it on (`compensation`); the runs made for other
+    /// calibration a user is given turns it on (`calibration`); the runs made for other
     /// ends (a first pass for `fluxcal`/`fluxtemp`, diagnosis, a TL flight's field
     /// estimate) do not report a predicted error.
     pub jackknife: bool,
