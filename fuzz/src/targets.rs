@@ -1,9 +1,9 @@
 //! One function per fuzz target: decode the input and assert what must hold for any
 //! input (a panic here, or in the decoder, is a finding).
 
-use magcomp::model_spec::ModelSpec;
-use magcomp::replay::{replay_capture, ReplayOptions};
-use magcomp::trace::{read_trace_from, ColumnMap};
+use magcomp::board::replay::{replay_capture, ReplayOptions};
+use magcomp::io::trace::{read_trace_from, ColumnMap};
+use magcomp::model::spec::ModelSpec;
 use magcomp_core::protocol::capture::{decode_line, encode_line, MAX_CHUNK, MAX_LINE};
 use magcomp_core::protocol::command::{
     blob_len, decode_blob, encode_blob, encode_command, parse_command, Command, CommandReader,

@@ -3,9 +3,9 @@
 //! throughput.
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion, Throughput};
+use magcomp::estimate::kf::HostCompensator;
 use magcomp::flight::Flight;
-use magcomp::model_spec::{with_model, ModelSpec};
-use magcomp::pipeline::HostCompensator;
+use magcomp::model::spec::{with_model, ModelSpec};
 use magcomp::sim::{simulate, SimConfig};
 use magcomp_core::filter::covariance::CovFilter;
 use magcomp_core::filter::field::FieldProcess;

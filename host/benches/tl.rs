@@ -1,7 +1,7 @@
 //! TL18 fit (band-pass + ridge) on a 20-minute, 10 Hz synthetic flight (12 000 samples).
 
 use criterion::{black_box, criterion_group, criterion_main, Criterion};
-use magcomp::tl::{self, TlConfig, TlTerms};
+use magcomp::estimate::tl::{self, TlConfig, TlTerms};
 use nalgebra::{DVector, Rotation3, Vector3};
 use std::f64::consts::PI;
 use std::time::Duration;

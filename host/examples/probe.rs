@@ -1,10 +1,12 @@
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
+use magcomp::estimate::tl;
 use magcomp::flight::Flight;
-use magcomp::metrics::*;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::figures::*;
+use magcomp::qc::truth::*;
 use magcomp::sim::anomaly::Geology;
 use magcomp::sim::{simulate, GeologyPreset, SimConfig};
-use magcomp::tl;
 
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
@@ -239,7 +241,7 @@ fn main() -> anyhow::Result<()> {
         error_rms_nt(&ti, &truth, None),
         fom(&flight, &comp_tl).map(|f| f.0)
     );
-    let rf = magcomp::reference_kf::run_reference(
+    let rf = magcomp::estimate::reference_kf::run_reference(
         &flight,
         &spec,
         run.sigma1,

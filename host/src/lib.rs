@@ -1,34 +1,33 @@
 //! magcomp host library: everything the `magcomp` command does, reusable from tests and
 //! benches. The estimation itself is `magcomp_core`, the same code that runs on the board.
+//!
+//! Folders, bottom layer first; each imports only the ones above it in this list
+//! (`tests/layout.rs` holds the order):
+//! - `io`: trace files read and written, atomic output files, progress on the terminal;
+//! - `signal`: band-pass, despiking, the statistics and least-squares kit;
+//! - `model`: the model as users name it (terms, input-correction records);
+//! - `flight`: a trace turned into what the core consumes (selection, IGRF, positions);
+//! - `sim`: the independent flight simulator;
+//! - `qc`: checks and figures of a flight (inputs, gaps, manoeuvres, FOM, truth yardsticks);
+//! - `estimate`: the estimators (the core's filter over a flight, Tolles–Lawson, fluxgate
+//!   calibration, input corrections, crossovers, jackknife, excitation);
+//! - `calibration`: calibrating and compensating as the commands do, the coefficient file;
+//! - `board`: the board seen from the host (link, upload, replay, monitor, captures, NMEA);
+//! - `diagnose`: model discovery;
+//! - `stream`: long flights in bounded memory;
+//! - `report`: plots and the HTML report;
+//! - `cli`: one file per subcommand.
 
-pub mod board_link;
-pub mod capture_sim;
+pub mod board;
+pub mod calibration;
 pub mod cli;
-pub mod coefficients;
-pub mod compensation;
-pub mod crossover;
-pub mod despike;
 pub mod diagnose;
-pub mod excitation;
+pub mod estimate;
 pub mod flight;
-pub mod fluxgate;
-pub mod igrf;
-pub mod input;
-pub mod jackknife;
-pub mod metrics;
-pub mod model_spec;
-pub mod monitor;
-pub mod nmea_cmd;
-pub mod output;
-pub mod pipeline;
-pub mod position;
-pub mod preprocess;
+pub mod io;
+pub mod model;
 pub mod qc;
-pub mod reference_kf;
-pub mod replay;
 pub mod report;
+pub mod signal;
 pub mod sim;
 pub mod stream;
-pub mod tl;
-pub mod trace;
-pub mod upload;

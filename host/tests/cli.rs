@@ -53,7 +53,7 @@ fn simulate_calibrate_compensate_json_contract() {
         assert!(j.get("residual_rms_nt").is_none(), "{j}");
         let band_rms = j["compensated_band_rms_nt"].as_f64().unwrap();
         let old = stdout.replace("\"compensated_band_rms_nt\"", "\"residual_rms_nt\"");
-        let s: magcomp::compensation::Summary = serde_json::from_str(old.trim()).unwrap();
+        let s: magcomp::calibration::summary::Summary = serde_json::from_str(old.trim()).unwrap();
         assert_eq!(s.compensated_band_rms_nt, band_rms);
         assert_eq!(s.samples, rows_in);
         for key in [

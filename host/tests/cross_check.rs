@@ -8,10 +8,11 @@
 //! - the independent simulator's `clean_s33` (the filter's anomaly states took per-heading
 //!   interference: 0.106 nT against TL18-OLS's 0.032) and `lag_s32`.
 
-use magcomp::compensation::{compensate_trace, summarise, EstimatorSettings, Method, Summary};
-use magcomp::jackknife::Estimator;
+use magcomp::calibration::summary::{summarise, Summary};
+use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
+use magcomp::estimate::jackknife::Estimator;
+use magcomp::io::trace::{read_trace, ColumnMap, Trace};
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
-use magcomp::trace::{read_trace, ColumnMap, Trace};
 use std::path::PathBuf;
 
 /// What `compensate` runs by default (no `--method`).

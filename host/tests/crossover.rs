@@ -1,8 +1,8 @@
 //! Crossings of a simulated survey: lines × tie lines, found where they are, each once.
 
-use magcomp::crossover::find_crossings;
+use magcomp::estimate::crossover::find_crossings;
 use magcomp::flight::Flight;
-use magcomp::model_spec::ModelSpec;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, FlightKind, SimConfig};
 
 #[test]

@@ -4,8 +4,8 @@
 //! applied streamed to every 1 kHz row (`--decimate-above-rows 0`). The error against
 //! the simulator's truth must stay within the bound below; every input row gets its
 //! output row, in order; the run says on stderr and in `--json` that it decimated.
+use magcomp::io::trace::write_trace;
 use magcomp::sim::{simulate, SimConfig};
-use magcomp::trace::write_trace;
 use std::path::Path;
 use std::process::Command;
 

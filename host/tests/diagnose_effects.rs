@@ -8,12 +8,13 @@
 
 use magcomp::cli::diagnose::{run as run_diagnose, DiagnoseArgs};
 use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
-use magcomp::metrics::error_rms_nt;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::model::Term;
 
 const DECOYS: [&str; 2] = ["cur_fan", "cur_avionics"];
@@ -153,7 +154,7 @@ fn diurnal_anomaly_map_full_bar() {
 /// Error of the anomaly map (scalar − core-field change − interference − β·base) against
 /// truth_anomaly. `env_sigma1`: estimate σ1 from the spectrum of the scalar minus the
 /// interference *and* the model's non-interference terms at their prior mean (β₀·base),
-/// which is what host/src/pipeline.rs should do when the model has such terms.
+/// which is what host/src/estimate/kf/mod.rs should do when the model has such terms.
 fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
     let spec = ModelSpec::parse(spec).expect("spec");
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
@@ -170,7 +171,7 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
             .zip(base)
             .map(|(i, b)| i + beta0 * (b - base[0]))
             .collect();
-        opts.sigma1 = magcomp::pipeline::estimate_sigma1_for(&f, &modelled);
+        opts.sigma1 = magcomp::estimate::kf::estimate_sigma1_for(&f, &modelled);
     }
     let run = run_kf(&f, &opts).expect("kf");
     let beta = run
@@ -178,7 +179,7 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
         .iter()
         .position(|(n, _)| n.starts_with("diurnal"))
         .map_or(0.0, |i| run.coefficients[i]);
-    let map: Vec<f64> = magcomp::diagnose::scalar_relative_nt(&f)
+    let map: Vec<f64> = magcomp::flight::scalar_relative_nt(&f)
         .iter()
         .zip(&run.interference_nt)
         .zip(base)
@@ -193,7 +194,7 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
     error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None)
 }
 
-/// The change host/src/pipeline.rs needs, shown here: with σ1 taken from the spectrum of
+/// The change host/src/estimate/kf/mod.rs needs, shown here: with σ1 taken from the spectrum of
 /// the scalar minus everything the model explains (interference and β₀·base), the diurnal
 /// term takes the diurnal out of the anomaly map.
 #[test]
@@ -433,7 +434,8 @@ fn fluxcal_full_bar() {
             ((a[2][1] - a[1][2]) / 2.0).to_degrees(),
             ((a[0][2] - a[2][0]) / 2.0).to_degrees(),
         ];
-        let est = magcomp::fluxgate::ins_misalignment_rad(&f, &fit.calibration).expect("INS");
+        let est =
+            magcomp::estimate::fluxcal::ins_misalignment_rad(&f, &fit.calibration).expect("INS");
         let est_deg = est.map(f64::to_degrees);
         eprintln!(
             "seed {seed}: misalignment roll/pitch axis {est_deg:.3?}° (truth {truth_deg:.3?}°)"
@@ -458,7 +460,7 @@ fn run_diagnose_reads_a_file_and_rejects_bad_input_clearly() {
     let dir = std::path::PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("diagnose-cli");
     std::fs::create_dir_all(&dir).expect("dir");
     let csv = dir.join("pump.csv");
-    magcomp::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
+    magcomp::io::trace::write_trace(&csv, &flight("current:cur_pump", 6, false)).expect("write");
     let mut args = DiagnoseArgs {
         json: true,
         report: Some(dir.join("report")),

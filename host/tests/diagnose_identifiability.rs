@@ -4,9 +4,9 @@
 //! Run in release: `cargo test --release -p magcomp --test diagnose_identifiability -- --nocapture`.
 
 use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
-use magcomp::model_spec::ModelSpec;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{parse_hidden, simulate, FlightKind, Geology, GeologyPreset, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::model::catalog::{ChannelUse, CATALOG};
 
 const DECOYS: [&str; 2] = ["cur_fan", "cur_avionics"];

@@ -7,11 +7,12 @@
 //! Run in release: `cargo test --release -p magcomp --test diagnose_iterate`.
 
 use magcomp::diagnose::{diagnose, iterate, DiagnoseOptions, Iteration};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
-use magcomp::trace::Trace;
 
 /// Decoys: a current and temperatures drawn like the fluxgate's (ground → cruise over
 /// minutes plus a heater cycle), so they share its kind of trend.
@@ -38,7 +39,7 @@ fn error_nt(trace: &Trace, model: &str) -> f64 {
     let spec = ModelSpec::parse(model).expect("spec");
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
     let run = run_kf(&f, &KfOptions::new(spec)).expect("kf");
-    magcomp::preprocess::error_against_truth_nt(trace, &f, &run).expect("truth")
+    magcomp::estimate::corrections::error_against_truth_nt(trace, &f, &run).expect("truth")
 }
 
 fn clean_floor_nt(seed: u64) -> f64 {

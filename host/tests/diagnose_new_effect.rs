@@ -14,12 +14,13 @@
 
 use magcomp::diagnose::custom::post_flight_with_terms;
 use magcomp::diagnose::{diagnose, diagnose_with, DiagnoseOptions, ExtraTerm};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
-use magcomp::metrics::error_rms_nt;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{simulate, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::epoch::Epoch;
 use magcomp_core::model::{Eddy, Induced, Permanent, Term};
 use rand::{Rng, SeedableRng};

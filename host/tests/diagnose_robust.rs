@@ -1,7 +1,7 @@
 //! The diagnosis on awkward input: more auxiliary channels than an epoch carries, missing
 //! samples, too-short traces, a model that already holds the effect. Errors, not panics.
 use magcomp::diagnose::{diagnose, DiagnoseOptions};
-use magcomp::model_spec::ModelSpec;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
 
 fn opts() -> DiagnoseOptions {

@@ -3,7 +3,7 @@
 //! output reads back to the CSV output's values; bad HDF5 files are clear errors.
 #[cfg(feature = "hdf5")]
 use hdf5_metno as h5;
-use magcomp::trace::{read_trace, ColumnMap, Trace};
+use magcomp::io::trace::{read_trace, ColumnMap, Trace};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Mutex;
@@ -303,7 +303,7 @@ fn xyz_output_reads_back_to_the_csv_output() {
         .collect();
     with_line.set_col("LINE", line.clone());
     let lined = dir.join("lined.csv");
-    magcomp::trace::write_trace(&lined, &with_line).unwrap();
+    magcomp::io::trace::write_trace(&lined, &with_line).unwrap();
 
     let (oc, ox) = (dir.join("out.csv"), dir.join("out.xyz"));
     for o in [&oc, &ox] {

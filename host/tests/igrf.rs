@@ -1,7 +1,7 @@
 //! IGRF-14 synthesis against a reference implementation: `ppigrf` 2.1.0 evaluated at 14
 //! points (equator, poles, both hemispheres, 0–10 km, 1995–2029 including the secular
 //! variation extrapolation past 2025); `tests/data/igrf14_reference.py` regenerates them.
-use magcomp::igrf::{decimal_year, parse_date, Igrf};
+use magcomp::flight::igrf::{decimal_year, parse_date, Igrf};
 
 #[test]
 fn igrf14_matches_ppigrf_within_1nt() {

@@ -6,17 +6,20 @@
 //! Targets that the paper's model does not reach on these simulated flights are asserted
 //! at what is achieved, with the gap explained next to the assertion.
 
-use magcomp::flight::Flight;
-use magcomp::fluxgate::flight_flux;
-use magcomp::metrics::{
-    error_rms_nt, harmonic_anomaly_fit_interference_nt, interference_of, is_manoeuvre,
-    joint_anomaly_fit_interference_nt, oracle_floor_nt, SourceLayer,
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::fluxcal::flight_flux;
+use magcomp::estimate::joint_fit::{
+    harmonic_anomaly_fit_interference_nt, joint_anomaly_fit_interference_nt, SourceLayer,
 };
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::estimate::kf::interference_of;
+use magcomp::estimate::kf::KfOptions;
+use magcomp::estimate::tl;
+use magcomp::flight::Flight;
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::figures::is_manoeuvre;
+use magcomp::qc::truth::{error_rms_nt, oracle_floor_nt};
 use magcomp::sim::anomaly::Geology;
 use magcomp::sim::{simulate, FlightKind, GeologyPreset, SimConfig};
-use magcomp::tl;
 
 const MODEL: &str = "tl16+field";
 
@@ -92,7 +95,7 @@ fn excess_nt(error: f64, oracle: f64) -> f64 {
 /// Measured: excess / predicted 0.40–3.2 over the high and low cases with the filter's
 /// covariance alone (overconfident at 3000 m, where the along-track field takes a part of
 /// the interference that its covariance does not count), 1.7–3.2 on the transfer to
-/// survey lines. With the jackknife added (`crate::jackknife`, issue 17) the low cases
+/// survey lines. With the jackknife added (`crate::estimate::jackknife`, issue 17) the low cases
 /// come out conservative: 0.28 (300 m seed 5: 0.032 nT actual, 0.098 predicted) to 1.0.
 fn assert_predicted_error_consistent(case: &str, excess: f64, predicted: f64) {
     let ratio = excess / predicted;
@@ -324,7 +327,7 @@ fn tie_gate_refuses_an_inconsistent_base_channel() {
 /// anomaly is far rougher than the flight's single σ1 allows, elsewhere smoother, and the
 /// coefficients took what the field could not follow. Post-flight the pipeline now also
 /// tries non-stationary processes whose σ1² follows the local roughness of the anomaly
-/// (`pipeline::FIELD_PROFILES`, each at ¼, ½ and 1 × σ1²) and keeps the one with the best
+/// (`kf::FIELD_PROFILES`, each at ¼, ½ and 1 × σ1²) and keeps the one with the best
 /// innovation likelihood.
 /// Measured: 0.025 / 0.080 / 0.059 (300 m, seeds 1–3), 0.022 / 0.042 / 0.062 (400 m) and
 /// 0.073 / 0.032 / 0.118 / 0.041 / 0.034 nT (300 m, seeds 4–8), against 0.04–0.62 nT
@@ -531,7 +534,7 @@ fn f32_ud_matches_f64_reference_over_an_hour() {
     o.gate_sigma = 0.0;
     let run = run_kf(&f, &o).expect("f32 run");
     let spec = ModelSpec::parse(MODEL).unwrap();
-    let rf = magcomp::reference_kf::run_reference(
+    let rf = magcomp::estimate::reference_kf::run_reference(
         &f,
         &spec,
         run.sigma1,

@@ -12,13 +12,15 @@
 //!
 //! What holds today is asserted; the target is a separate test.
 
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::fluxcal::flight_flux;
+use magcomp::estimate::kf::KfOptions;
+use magcomp::estimate::tl;
 use magcomp::flight::Flight;
-use magcomp::fluxgate::flight_flux;
-use magcomp::metrics::{error_rms_nt, manoeuvre_band, oracle_floor_nt};
-use magcomp::model_spec::{ModelSpec, DEFAULT_MODEL};
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::model::spec::{ModelSpec, DEFAULT_MODEL};
+use magcomp::qc::figures::manoeuvre_band;
+use magcomp::qc::truth::{error_rms_nt, oracle_floor_nt};
 use magcomp::sim::{simulate, GeologyPreset, SimConfig};
-use magcomp::tl;
 
 const PAPER_MODEL: &str = "tl16+field";
 
@@ -41,7 +43,7 @@ struct Row {
     oracle: f64,
 }
 
-fn flight(trace: &magcomp::trace::Trace, model: &str) -> Flight {
+fn flight(trace: &magcomp::io::trace::Trace, model: &str) -> Flight {
     let spec = ModelSpec::parse(model).unwrap();
     Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight")
 }

@@ -3,13 +3,14 @@
 //! error after adding `lag` must be within 1.5× the same flight's error without a lag.
 //! Run in release: `cargo test --release -p magcomp --test lag_delay -- --nocapture`.
 
+use magcomp::estimate::corrections::error_against_truth_nt;
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
-use magcomp::metrics::error_rms_nt;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::preprocess::error_against_truth_nt;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
+use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, simulate_detailed, SimConfig};
-use magcomp::trace::Trace;
 
 fn config(seed: u64, rate_hz: f64) -> SimConfig {
     let mut cfg = SimConfig {
@@ -34,7 +35,7 @@ fn flight(seed: u64, rate_hz: f64, lag_s: Option<f64>) -> Trace {
 }
 
 /// Error against truth and the run.
-fn error_nt(trace: &Trace, model: &str) -> (f64, magcomp::pipeline::KfRun) {
+fn error_nt(trace: &Trace, model: &str) -> (f64, magcomp::estimate::kf::KfRun) {
     let spec = ModelSpec::parse(model).expect("spec");
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
     let run = run_kf(&f, &KfOptions::new(spec)).expect("kf");
@@ -114,7 +115,7 @@ fn a_short_lag_is_removed_to_the_clean_floor_at_10_hz_and_1_khz() {
 /// the clean 0.0044 nT; seed 2 → 0.0493/0.2000/0.4995 s, 0.96/1.01/1.01× the clean
 /// 0.0093 nT; 1 kHz seed 1 τ = 0.2/0.5 → 0.1990/0.4990 s, 1.07/1.33× (τ = 0.05 s:
 /// 0.0495 s, 1.01×). ~2 min in release on 2 cores. Before the band-limited search
-/// (preprocess/lag.rs notes) τ = 0.2 s came out at 0.2364 s (4.8× the floor).
+/// (estimate/corrections/lag.rs notes) τ = 0.2 s came out at 0.2364 s (4.8× the floor).
 #[test]
 fn lag_full_bar() {
     for seed in [1, 2] {
@@ -127,7 +128,7 @@ fn lag_full_bar() {
 /// scalar by it: the survey-mode run gives the calibration's compensation.
 #[test]
 fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
-    use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
+    use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
     let trace = flight(2, 10.0, Some(0.2));
     let est = EstimatorSettings {
         model: "tl16+field+lag".into(),

@@ -2,7 +2,7 @@
 //! `$MCACK,STATUS` counters, `$MCERR,8,STORAGE` — are recognised (not "other lines"),
 //! CRC-checked, and the STATUS counters are shown.
 
-use magcomp::monitor::{
+use magcomp::board::monitor::{
     checked_body, monitor_stream, parse_boot, parse_status, parse_sync, BoardStatus, Display,
     Monitor,
 };

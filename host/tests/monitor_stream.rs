@@ -1,7 +1,7 @@
 //! `monitor`: a generated `$MCREC` stream with gaps, corruption, replies and noise.
 
+use magcomp::board::monitor::{monitor_stream, Display, SAVE_HEADER};
 use magcomp::cli::monitor::{run as run_monitor, MonitorArgs};
-use magcomp::monitor::{monitor_stream, Display, SAVE_HEADER};
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::{Flags, MagCounts};
 

@@ -4,7 +4,7 @@
 //! 0.1 nT), or while a heading sector has not been flown; evaluated every 8th epoch and
 //! held in between.
 
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
 use magcomp::sim::{simulate, SimConfig};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, Acquisition};
 use magcomp_core::epoch::AlignedSample;

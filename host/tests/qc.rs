@@ -2,11 +2,13 @@
 //! (issue 11 item 4), applied coefficients checked (item 5), inputs that cannot be
 //! compensated (issue 13 item 2), statistics that skip missing samples (issue 10 item 6).
 
-use magcomp::compensation::{compensate_trace, summarise, EstimatorSettings, Method, Summary};
+use magcomp::calibration::fom;
+use magcomp::calibration::summary::{summarise, Summary};
+use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::flight::Flight;
-use magcomp::qc::{fom, manoeuvres};
+use magcomp::io::trace::Trace;
+use magcomp::qc::manoeuvres;
 use magcomp::sim::{simulate, SimConfig};
-use magcomp::trace::Trace;
 use std::path::Path;
 
 fn est(method: Method) -> EstimatorSettings {
@@ -36,7 +38,7 @@ fn unlabelled(t: &Trace) -> Trace {
     u
 }
 
-fn run(t: &Trace, method: Method) -> (Flight, magcomp::compensation::Compensation, Summary) {
+fn run(t: &Trace, method: Method) -> (Flight, magcomp::calibration::result::Compensation, Summary) {
     let (f, c) = compensate_trace(t, &est(method), None, false).expect("compensate");
     let s = summarise(&f, &c);
     (f, c, s)
@@ -45,7 +47,7 @@ fn run(t: &Trace, method: Method) -> (Flight, magcomp::compensation::Compensatio
 fn error_msg(
     t: &Trace,
     method: Method,
-    coeffs: Option<&magcomp::compensation::CoefficientFile>,
+    coeffs: Option<&magcomp::calibration::CoefficientFile>,
 ) -> String {
     match compensate_trace(t, &est(method), coeffs, false) {
         Ok(_) => panic!("expected an error"),
@@ -67,7 +69,7 @@ fn detects_the_twelve_manoeuvres_and_ranks_kf_ahead_of_tl_by_the_aircraft_fom() 
     let labels: Vec<_> = truth
         .segment_runs()
         .into_iter()
-        .filter(|(l, _, _)| magcomp::metrics::is_manoeuvre(l))
+        .filter(|(l, _, _)| magcomp::qc::figures::is_manoeuvre(l))
         .collect();
     assert_eq!(labels.len(), 12);
     assert_eq!(found.len(), 12, "{found:#?}");
@@ -159,11 +161,11 @@ fn real_boxes_without_positions_show_two_boxes_of_four_headings() {
     }
     let tmp = std::env::temp_dir().join(format!("qc_boxes_{}.csv", std::process::id()));
     std::fs::write(&tmp, out).unwrap();
-    let map = magcomp::trace::ColumnMap::parse(
+    let map = magcomp::io::trace::ColumnMap::parse(
         "mag=mag_4_uc,flux_x=flux_b_x,flux_y=flux_b_y,flux_z=flux_b_z",
     )
     .unwrap();
-    let trace = magcomp::trace::read_trace(&tmp, &map).unwrap();
+    let trace = magcomp::io::trace::read_trace(&tmp, &map).unwrap();
     std::fs::remove_file(&tmp).ok();
     let flight = Flight::from_trace(&trace, &[], &[]).unwrap();
     let p = manoeuvres::detect(&flight).expect("pattern");
@@ -206,7 +208,7 @@ fn foreign_coefficients_warn_matching_ones_do_not() {
     let (_, own) = compensate_trace(&cal(5), &est(Method::Kf), None, false).unwrap();
     let (_, other) = compensate_trace(&cal(3), &est(Method::Kf), None, false).unwrap();
     let (_, other_tl) = compensate_trace(&cal(3), &est(Method::Tl), None, false).unwrap();
-    let apply = |c: &magcomp::compensation::Compensation, m: Method| {
+    let apply = |c: &magcomp::calibration::result::Compensation, m: Method| {
         let file = c.coefficients.clone().unwrap();
         let (f, comp) = compensate_trace(&flight5, &est(m), Some(&file), false).unwrap();
         summarise(&f, &comp)
@@ -229,15 +231,13 @@ fn foreign_coefficients_warn_matching_ones_do_not() {
     // A conflicting --method / --model beside --coeffs is an error.
     let file = own.coefficients.unwrap();
     assert!(
-        magcomp::compensation::refuse_conflicting_settings(&file, Some(Method::Tl), None).is_err()
+        magcomp::calibration::refuse_conflicting_settings(&file, Some(Method::Tl), None).is_err()
     );
-    assert!(magcomp::compensation::refuse_conflicting_settings(
-        &file,
-        None,
-        Some("tl16+field+lag")
-    )
-    .is_err());
-    assert!(magcomp::compensation::refuse_conflicting_settings(
+    assert!(
+        magcomp::calibration::refuse_conflicting_settings(&file, None, Some("tl16+field+lag"))
+            .is_err()
+    );
+    assert!(magcomp::calibration::refuse_conflicting_settings(
         &file,
         Some(Method::Kf),
         Some("tl16+field")

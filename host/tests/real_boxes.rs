@@ -6,10 +6,10 @@
 //! Tolles–Lawson fitted the same way: MagNav's ridge TL18 and plain least squares (no ridge).
 //! Skips, saying so, where the shared data are absent.
 
-use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
-use magcomp::model_spec::DEFAULT_MODEL;
-use magcomp::tl;
-use magcomp::trace::Trace;
+use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
+use magcomp::estimate::tl;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::DEFAULT_MODEL;
 use magcomp_core::Flags;
 
 #[path = "common/real_boxes.rs"]
@@ -56,7 +56,7 @@ fn applied_to_box2(
     flux: &str,
     method: Method,
     model: &str,
-) -> magcomp::compensation::Compensation {
+) -> magcomp::calibration::result::Compensation {
     let e = est(method, model);
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag, flux), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();

@@ -8,7 +8,7 @@
 
 #[path = "common/real_boxes.rs"]
 mod real_boxes_data;
-use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
+use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use real_boxes_data::{band_std_nt, boxes, Boxes, BOX1_ROWS, SPEED_MPS};
 use std::ops::Range;
 

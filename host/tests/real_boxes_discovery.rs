@@ -5,10 +5,10 @@
 //! Skips, saying so, where the shared data are absent.
 //! Run in release: `cargo test --release -p magcomp --test real_boxes_discovery -- --nocapture`.
 
-use magcomp::compensation::{compensate_trace, EstimatorSettings, Method};
+use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::diagnose::{iterate, DiagnoseOptions};
-use magcomp::model_spec::ModelSpec;
-use magcomp::trace::Trace;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 
 #[path = "common/real_boxes.rs"]
 mod real_boxes_data;

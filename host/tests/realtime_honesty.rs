@@ -2,13 +2,14 @@
 //! the interference is determined for the attitudes a survey flies (the manoeuvre envelope
 //! and the other headings), not only for those of the last minute.
 
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, FlightKind, SimConfig};
 use magcomp_core::Flags;
 
-fn realtime(cfg: &SimConfig) -> (Flight, magcomp::pipeline::KfRun) {
+fn realtime(cfg: &SimConfig) -> (Flight, magcomp::estimate::kf::KfRun) {
     let trace = simulate(cfg).expect("simulate");
     let spec = ModelSpec::parse("tl16+field+fluxcal").unwrap();
     let f = Flight::from_trace(&trace, &spec.channels(), &spec.relative_channels()).unwrap();
@@ -103,7 +104,7 @@ fn shown_as_good(flags: u16) -> bool {
 
 /// Those records' interference against the truth, the level (the anomaly's) removed:
 /// the worst |error| / (3 × its own stated 1σ + 0.1 nT).
-fn worst_against_bound(run: &magcomp::pipeline::KfRun, truth: &[f64]) -> (usize, f64) {
+fn worst_against_bound(run: &magcomp::estimate::kf::KfRun, truth: &[f64]) -> (usize, f64) {
     let good: Vec<usize> = (0..truth.len())
         .filter(|&i| shown_as_good(run.flags[i]))
         .collect();
@@ -150,8 +151,8 @@ fn a_take_off_and_straight_lines_show_nothing_wrong_as_good() {
 /// determined.
 #[test]
 fn the_board_shows_nothing_as_good_through_a_take_off() {
-    use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-    use magcomp::replay::{replay_capture, ReplayOptions};
+    use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+    use magcomp::board::replay::{replay_capture, ReplayOptions};
     for seed in [1, 3] {
         let trace = simulate(&SimConfig::takeoff(seed)).expect("simulate");
         let cap = trace_to_capture(&trace, &CaptureOptions::default()).expect("capture");
@@ -177,8 +178,8 @@ fn the_board_shows_nothing_as_good_through_a_take_off() {
 /// as the filter does (measured: TL18-OLS is 38–74 nT off on these flights).
 #[test]
 fn tl_on_a_take_off_warns_about_unexcited_combinations() {
-    use magcomp::coefficients::Method;
-    use magcomp::compensation::{compensate_trace, EstimatorSettings};
+    use magcomp::calibration::coefficients::Method;
+    use magcomp::calibration::{compensate_trace, EstimatorSettings};
     for seed in [1, 2] {
         let trace = simulate(&SimConfig::takeoff(seed)).expect("simulate");
         let tl = EstimatorSettings {
@@ -202,7 +203,7 @@ fn tl_on_a_take_off_warns_about_unexcited_combinations() {
 /// off by the engine's own field (6.8 / 10.1 nT), an effect no model here holds.
 #[test]
 fn a_take_off_calibrated_after_landing_does_no_harm_in_the_air() {
-    use magcomp::compensation::{compensate_trace, EstimatorSettings};
+    use magcomp::calibration::{compensate_trace, EstimatorSettings};
     for seed in [1, 2] {
         let trace = simulate(&SimConfig::takeoff(seed)).expect("simulate");
         let (f, comp) =

@@ -1,7 +1,7 @@
 //! The clap structs the CLI flattens: flags parse to the documented options.
 
 use clap::Parser;
-use magcomp::capture_sim::FluxFormat;
+use magcomp::board::capture::FluxFormat;
 use magcomp::cli::monitor::MonitorArgs;
 use magcomp::cli::replay::ReplayArgs;
 use magcomp::cli::simulate::CaptureArgs;

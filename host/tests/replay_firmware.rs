@@ -13,9 +13,9 @@
 mod fw_config;
 
 use fw_config::BoardAcquisition;
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-use magcomp::model_spec::ModelSpec;
-use magcomp::replay::{replay_capture, ReplayOptions};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+use magcomp::board::replay::{replay_capture, ReplayOptions};
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, SimConfig};
 use magcomp_core::model::Model;
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};

@@ -10,12 +10,13 @@
 mod board_replay;
 
 use board_replay::{board_flight, coefficient_file, rms_about_mean, survey_replay, write_capture};
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::replay::{board_flux_temperature, replay_capture, ReplayOptions};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+use magcomp::board::replay::{board_flux_temperature, replay_capture, ReplayOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::protocol::capture::{decode_line, Port};
 use magcomp_core::protocol::fluxgate::FluxTempCal;
 use magcomp_core::protocol::record::Record;
@@ -130,8 +131,8 @@ fn board_fluxtemp_on(seed: u64) {
 /// correction, ≠ without); a file without one, or with an absurd one, is refused.
 #[test]
 fn replay_cli_takes_the_correction_from_the_coefficient_file() {
+    use magcomp::board::replay::csv_row;
     use magcomp::cli::replay::{run as run_replay, ReplayArgs};
-    use magcomp::replay::csv_row;
     let cfg = SimConfig {
         seed: 2,
         max_duration_s: Some(60.0),

@@ -3,9 +3,9 @@
 //! records as the clean one (never more records than scalar samples); a UTF-8 BOM on the
 //! header is read through, never a silent fall-back to the board's default rates.
 
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-use magcomp::model_spec::ModelSpec;
-use magcomp::replay::{replay_capture, ReplayOptions, ReplayStats};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+use magcomp::board::replay::{replay_capture, ReplayOptions, ReplayStats};
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, SimConfig};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::Flags;

@@ -10,12 +10,13 @@
 mod board_replay;
 
 use board_replay::{board_flight, coefficient_file, rms_about_mean, survey_replay, write_capture};
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::replay::{replay_capture, ReplayOptions};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+use magcomp::board::replay::{replay_capture, ReplayOptions};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::protocol::record::Record;
 use magcomp_core::Flags;
 
@@ -134,8 +135,8 @@ fn board_lag_brings_the_survey_error_to_the_undelayed_flights() {
 /// are the library replay's with that τ; no τ, or one the board cannot hold, is refused.
 #[test]
 fn replay_cli_takes_the_lag_from_the_coefficient_file() {
+    use magcomp::board::replay::{csv_row, CSV_HEADER};
     use magcomp::cli::replay::{run as run_replay, ReplayArgs};
-    use magcomp::replay::{csv_row, CSV_HEADER};
     let mut cfg = SimConfig {
         seed: SEED,
         max_duration_s: Some(60.0),

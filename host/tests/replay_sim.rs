@@ -1,14 +1,15 @@
 //! Simulated flight → raw capture → `replay` (the board's acquisition code) → records,
 //! held against the host pipeline on the same trace.
 
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions, FluxFormat};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions, FluxFormat};
+use magcomp::board::replay::{csv_row, replay_capture, ReplayOptions, ReplayStats, CSV_HEADER};
 use magcomp::cli::replay::{run as run_replay, ReplayArgs};
+use magcomp::estimate::corrections::run_kf;
+use magcomp::estimate::kf::KfOptions;
 use magcomp::flight::Flight;
-use magcomp::model_spec::ModelSpec;
-use magcomp::pipeline::{run_kf, KfOptions};
-use magcomp::replay::{csv_row, replay_capture, ReplayOptions, ReplayStats, CSV_HEADER};
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, SimConfig};
-use magcomp::trace::Trace;
 use magcomp_core::protocol::record::{decode_record, Record};
 use magcomp_core::Flags;
 
@@ -110,7 +111,7 @@ struct Diffs {
     anomaly: (f64, f64),
 }
 
-fn compare(recs: &[Record], run: &magcomp::pipeline::KfRun) -> Diffs {
+fn compare(recs: &[Record], run: &magcomp::estimate::kf::KfRun) -> Diffs {
     let interf: Vec<f64> = recs.iter().map(|r| r.interference_nt as f64).collect();
     let comp: Vec<f64> = recs
         .iter()
@@ -468,7 +469,7 @@ fn final_error_nt(recs: &[Record], truth: &[f64]) -> f64 {
 /// Replays the capture of `trace` with `fraction` of `port`'s bytes (None: every port's)
 /// corrupted: its records, summary and final calibration error (nT).
 fn corrupted_calibration(
-    trace: &magcomp::trace::Trace,
+    trace: &magcomp::io::trace::Trace,
     truth: &[f64],
     port: Option<magcomp_core::protocol::capture::Port>,
     fraction: f64,

@@ -6,7 +6,7 @@
 mod common;
 
 use common::cli::{bin, run_err, run_ok, run_ok_with_stderr, tmp};
-use magcomp::trace::{read_trace, write_trace, ColumnMap};
+use magcomp::io::trace::{read_trace, write_trace, ColumnMap};
 use std::path::{Path, PathBuf};
 
 const FOREIGN: &str = "DO NOT FIT";

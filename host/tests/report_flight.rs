@@ -2,16 +2,16 @@
 //! self-contained, holds every plot the issue asks for, and renders in headless Chromium
 //! (skipped with a message when Chromium is absent). Run in release.
 use magcomp::cli::report::{run as run_report, ReportArgs};
-use magcomp::model_spec::ModelSpec;
+use magcomp::io::trace::write_trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp::report::flight_report::{build_report, write_report};
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
-use magcomp::trace::write_trace;
 use std::path::{Path, PathBuf};
 
 mod common;
 use common::{chromium, CHROMIUM};
 
-fn trace() -> magcomp::trace::Trace {
+fn trace() -> magcomp::io::trace::Trace {
     let cfg = SimConfig {
         seed: 5,
         hidden: vec![parse_hidden("current:cur_pump").expect("hidden")],
@@ -89,7 +89,7 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
     let default = ReportArgs::new(csv.clone(), dir.join("default"));
     run_report(&default).expect("report, default model");
     let html = std::fs::read_to_string(dir.join("default/index.html")).expect("page");
-    assert!(html.contains(&format!("Model {}", magcomp::model_spec::DEFAULT_MODEL)));
+    assert!(html.contains(&format!("Model {}", magcomp::model::spec::DEFAULT_MODEL)));
     let bad = ReportArgs {
         model: vec!["tl16+wobble".into()],
         ..args.clone()

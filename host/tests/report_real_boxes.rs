@@ -17,7 +17,7 @@ use std::path::{Path, PathBuf};
 fn boxes_csv(dir: &Path) -> Option<PathBuf> {
     let b = real_boxes_data::boxes()?;
     let csv = dir.join("boxes.csv");
-    magcomp::trace::write_trace(&csv, &b.trace(0..b.len(), "mag_4_uc", "flux_d"))
+    magcomp::io::trace::write_trace(&csv, &b.trace(0..b.len(), "mag_4_uc", "flux_d"))
         .expect("write boxes.csv");
     Some(csv)
 }

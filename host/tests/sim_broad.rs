@@ -3,17 +3,17 @@
 //! fluxgate reading), and a fluxgate whose modulus follows the scalar's interference in
 //! the manoeuvre band as a real installation's does.
 
-use magcomp::metrics::manoeuvre_band;
+use magcomp::qc::figures::manoeuvre_band;
+use magcomp::signal::bandpass::bandpass;
 use magcomp::sim::*;
-use magcomp::tl::bandpass;
 use nalgebra::{Matrix3, Vector3};
 
-fn meta_vec(tr: &magcomp::trace::Trace, key: &str) -> Vector3<f64> {
+fn meta_vec(tr: &magcomp::io::trace::Trace, key: &str) -> Vector3<f64> {
     let v: Vec<f64> = serde_json::from_str(tr.meta(key).unwrap()).unwrap();
     Vector3::new(v[0], v[1], v[2])
 }
 
-fn meta_mat(tr: &magcomp::trace::Trace, key: &str) -> Matrix3<f64> {
+fn meta_mat(tr: &magcomp::io::trace::Trace, key: &str) -> Matrix3<f64> {
     let v: Vec<Vec<f64>> = serde_json::from_str(tr.meta(key).unwrap()).unwrap();
     Matrix3::from_fn(|i, j| v[i][j])
 }

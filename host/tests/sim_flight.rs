@@ -4,7 +4,7 @@
 use magcomp::sim::*;
 use std::collections::BTreeSet;
 
-fn local(tr: &magcomp::trace::Trace, fr: &LocalFrame) -> Vec<(f64, f64)> {
+fn local(tr: &magcomp::io::trace::Trace, fr: &LocalFrame) -> Vec<(f64, f64)> {
     let (lat, lon) = (tr.col("lat").unwrap(), tr.col("lon").unwrap());
     lat.iter()
         .zip(lon)

@@ -1,8 +1,8 @@
 //! Hidden effects: each contributes what it says, only inside its window; decoys do nothing;
 //! lag shifts the scalar in time; fluxcal leaves the scalar alone.
 
+use magcomp::io::trace::Trace;
 use magcomp::sim::*;
-use magcomp::trace::Trace;
 
 fn base_cfg() -> SimConfig {
     SimConfig {

@@ -3,21 +3,20 @@
 //! frames out), with a scalar glitch, a bad latitude, a time gap, a run of missing
 //! positions, an extra numeric and text column, the core field from the file or computed
 //! from a date, KF and Tolles–Lawson, and a `--time` selection.
+use magcomp::calibration::coefficients::{CoefficientFile, Method};
+use magcomp::calibration::summary::{summarise, write_output_csv, Summary};
+use magcomp::calibration::{compensate_trace, EstimatorSettings};
 use magcomp::cli::args::TraceInput;
-use magcomp::coefficients::{CoefficientFile, Method};
-use magcomp::compensation::{
-    compensate_trace, summarise, write_output_csv, EstimatorSettings, Summary,
-};
-use magcomp::input::take_rows;
+use magcomp::flight::input::take_rows;
+use magcomp::io::trace::{write_trace, Trace};
 use magcomp::sim::{simulate, FlightKind, SimConfig};
 use magcomp::stream::StreamInput;
-use magcomp::trace::{write_trace, Trace};
 use std::path::{Path, PathBuf};
 
 fn est(method: Method) -> EstimatorSettings {
     EstimatorSettings {
         // The default model: its fluxgate calibration is applied row by row when streamed.
-        model: magcomp::model_spec::DEFAULT_MODEL.into(),
+        model: magcomp::model::spec::DEFAULT_MODEL.into(),
         method,
         // Fixed σ1: the calibration here only has to produce coefficients, quickly.
         sigma1: Some(3e-7),
@@ -117,7 +116,7 @@ fn in_memory(
 ) -> Summary {
     let trace = input.read().unwrap();
     let (flight, comp) = compensate_trace(&trace, est, Some(c), false).unwrap();
-    let carried = magcomp::input::carried_columns(&trace, &flight.channels);
+    let carried = magcomp::flight::input::carried_columns(&trace, &flight.channels);
     write_output_csv(out, &flight, &comp, &carried).unwrap();
     summarise(&flight, &comp)
 }

@@ -1,6 +1,6 @@
 //! Butterworth band-pass design and zero-phase filtering, checked with numbers.
 
-use magcomp::tl::{butterworth_bandpass, filtfilt, filtfilt_with_pad};
+use magcomp::signal::bandpass::{butterworth_bandpass, filtfilt, filtfilt_with_pad};
 use std::f64::consts::PI;
 
 /// Digital centre of the band: where the prewarped analogue centre √(w1·w2) maps to.

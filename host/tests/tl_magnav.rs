@@ -1,7 +1,8 @@
 //! MagNav.jl conformance checks for classic Tolles–Lawson (data/reference/README.md).
 //! Skips, with a printed message, where the reference data is absent.
 
-use magcomp::tl::{self, TlConfig, TlTerms};
+use magcomp::estimate::tl::{self, TlConfig, TlTerms};
+use magcomp::signal::bandpass;
 use std::path::PathBuf;
 
 fn ref_dir() -> Option<PathBuf> {
@@ -177,18 +178,18 @@ fn check3_full_pipeline_compensation() {
     let cfg = TlConfig::default();
 
     // Filter match: our band-pass of A_a and mag_1_uc against MagNav's filtered arrays.
-    let sos = tl::butterworth_bandpass(4, 0.1, 0.9, 10.0).unwrap();
+    let sos = bandpass::butterworth_bandpass(4, 0.1, 0.9, 10.0).unwrap();
     let mut worst_col = 0.0f64;
     for j in 0..18 {
         let col: Vec<f64> = r.a.iter().map(|row| row[j]).collect();
-        let f = tl::filtfilt(&sos, &col).unwrap();
+        let f = bandpass::filtfilt(&sos, &col).unwrap();
         let scale = rms(r.a_f.iter().map(|row| row[j]));
         let d = (0..960)
             .map(|i| (f[i + 20] - r.a_f[i][j]).abs())
             .fold(0.0, f64::max);
         worst_col = worst_col.max(d / scale);
     }
-    let mf = tl::filtfilt(&sos, &r.mag_uc).unwrap();
+    let mf = bandpass::filtfilt(&sos, &r.mag_uc).unwrap();
     let mag_max = (0..960)
         .map(|i| (mf[i + 20] - r.mag_f[i]).abs())
         .fold(0.0, f64::max);
@@ -239,12 +240,13 @@ fn check3_full_pipeline_compensation() {
 /// determined by 100 s and is left out with a warning.
 #[test]
 fn check4_kalman_filter_on_the_positionless_vector() {
-    use magcomp::compensation::{compensate_trace, summarise, EstimatorSettings, Method};
+    use magcomp::calibration::summary::summarise;
+    use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
     use magcomp::flight::Flight;
     let Some(dir) = ref_dir() else { return };
     let r = load(&dir);
     let col = |k: usize| r.flux.iter().map(|f| f[k]).collect::<Vec<f64>>();
-    let trace = magcomp::trace::Trace {
+    let trace = magcomp::io::trace::Trace {
         numeric: vec![
             ("t".into(), (0..1000).map(|i| i as f64 / 10.0).collect()),
             ("mag".into(), r.mag_uc.clone()),

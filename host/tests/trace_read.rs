@@ -1,5 +1,5 @@
 //! Reading, validating and writing traces (trace-format.md).
-use magcomp::trace::*;
+use magcomp::io::trace::*;
 use std::path::{Path, PathBuf};
 
 fn read_str(text: &str, map: &str) -> Result<Trace, TraceError> {

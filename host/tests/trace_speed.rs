@@ -2,7 +2,7 @@
 //! hundred MB); run with
 //! `cargo test --release -p magcomp --test trace_speed -- --ignored --nocapture`
 //! (`MAGCOMP_SPEED_ROWS` sets the row count, default 1 000 000 × 20 columns).
-use magcomp::trace::*;
+use magcomp::io::trace::*;
 use std::path::PathBuf;
 use std::time::Instant;
 

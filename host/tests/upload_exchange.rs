@@ -8,11 +8,11 @@
 mod common;
 
 use common::cli::{bin, tmp};
-use magcomp::board_link::{upload, within_2_ulp, BoardLink, ExchangeOptions, LineSource};
-use magcomp::coefficients::{Coefficient, CoefficientFile, Method};
-use magcomp::fluxgate::FluxgateCalibration;
-use magcomp::model_spec::ModelSpec;
-use magcomp::upload::upload_commands;
+use magcomp::board::link::{upload, within_2_ulp, BoardLink, ExchangeOptions, LineSource};
+use magcomp::board::upload::upload_commands;
+use magcomp::calibration::coefficients::{Coefficient, CoefficientFile, Method};
+use magcomp::estimate::fluxcal::FluxgateCalibration;
+use magcomp::model::spec::ModelSpec;
 use magcomp_core::protocol::command::{
     encode_ack, encode_ack_indexed, encode_error, Command, CommandError, CommandReader,
     FLUX_CAL_LEN, FLUX_TEMP_LEN,
@@ -304,7 +304,7 @@ fn assert_holds_the_file(s: &BoardState) -> usize {
 }
 
 struct Run {
-    result: anyhow::Result<magcomp::board_link::UploadSummary>,
+    result: anyhow::Result<magcomp::board::link::UploadSummary>,
     board: FakeReport,
     elapsed: Duration,
 }

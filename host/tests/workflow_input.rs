@@ -4,8 +4,8 @@
 //! columns carried through to the output, the candidate list of `diagnose`, and one
 //! `-o/--out` spelling on every command.
 
-use magcomp::igrf::{decimal_year, Igrf};
-use magcomp::trace::{read_trace, ColumnMap, Trace};
+use magcomp::flight::igrf::{decimal_year, Igrf};
+use magcomp::io::trace::{read_trace, ColumnMap, Trace};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -252,7 +252,7 @@ fn without_a_date_the_missing_core_field_is_a_warning_with_its_size() {
 fn default_candidates_leave_out_navigation_time_ids_other_magnetometers_and_constants() {
     use magcomp::diagnose::candidate_terms_with;
     use magcomp::diagnose::candidates::AuxSelection;
-    use magcomp::model_spec::{ModelSpec, DEFAULT_MODEL};
+    use magcomp::model::spec::{ModelSpec, DEFAULT_MODEL};
     // The channel names of SGL 2020 flight 1003 (shared/reference-data/Flt1003_sample.xyz),
     // every one varying except V_FAN.
     const HEADER: &str = "LINE FLT YEAR DOY TIME UTM-X UTM-Y UTM-Z MSL-Z LAT LONG BARO RADAR \
@@ -347,7 +347,7 @@ fn out_is_one_spelling_and_report_defaults_to_the_default_model() {
     assert!(stdout.contains("report written"), "{stdout}");
     let html = std::fs::read_to_string(r.join("index.html")).unwrap();
     assert!(
-        html.contains(magcomp::model_spec::DEFAULT_MODEL),
+        html.contains(magcomp::model::spec::DEFAULT_MODEL),
         "no default model in the page"
     );
 }
@@ -359,7 +359,7 @@ fn out_is_one_spelling_and_report_defaults_to_the_default_model() {
 #[test]
 fn diagnose_statistics_agree_on_the_real_boxes() {
     use magcomp::diagnose::{diagnose, DiagnoseOptions};
-    use magcomp::model_spec::{ModelSpec, BOARD_MODEL};
+    use magcomp::model::spec::{ModelSpec, BOARD_MODEL};
     let p = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../data/reference/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
     let Ok(text) = std::fs::read_to_string(&p) else {
@@ -380,7 +380,7 @@ fn diagnose_statistics_agree_on_the_real_boxes() {
     }
     let map =
         ColumnMap::parse("mag=mag_4_uc,flux_x=flux_b_x,flux_y=flux_b_y,flux_z=flux_b_z").unwrap();
-    let trace = magcomp::trace::read_trace_from(csv.as_bytes(), "box1", &map).unwrap();
+    let trace = magcomp::io::trace::read_trace_from(csv.as_bytes(), "box1", &map).unwrap();
     // The paper's model, so that `fluxcal` is a candidate (the default model has it).
     let model = ModelSpec::parse(BOARD_MODEL).unwrap();
     let d = diagnose(&trace, &model, &DiagnoseOptions::default()).unwrap();

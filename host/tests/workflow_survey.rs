@@ -5,10 +5,11 @@
 //! survey's columns carried through, the IGRF column checked against the reference
 //! implementation, and the FOM table ranking KF ahead of TL as the true error does.
 
+use magcomp::calibration::fom;
+use magcomp::flight::input::{prepare, Selection};
 use magcomp::flight::Flight;
-use magcomp::input::{prepare, Selection};
-use magcomp::qc::{fom, manoeuvres};
-use magcomp::trace::{read_trace, ColumnMap, Trace};
+use magcomp::io::trace::{read_trace, ColumnMap, Trace};
+use magcomp::qc::manoeuvres;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

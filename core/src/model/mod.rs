@@ -15,6 +15,10 @@ pub use terms::*;
 /// Most regressors a single term may have.
 pub const MAX_TERM_STATES: usize = 16;
 
+/// B*, the field strength the induced and eddy terms are normalised by (`|B|/B*`, nT;
+/// `docs/model.md` §2), named once for the host's simulator and Tolles–Lawson.
+pub const B_STAR_NT: f64 = 50_000.0;
+
 /// One physical effect with constant coefficients: `contribution = Σ θ_i·φ_i(epoch)`.
 pub trait Term: Sync {
     /// Base name used in a model spec (`"eddy"`, `"current"`...).

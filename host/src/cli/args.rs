@@ -1,13 +1,16 @@
 //! Arguments shared by several subcommands: the trace to read, the estimator settings,
 //! and `--coeffs` (a `calibrate` file that decides the method and the model).
 
-use crate::coefficients::{
+use crate::calibration::coefficients::{
     read_coefficients, refuse_conflicting_settings, CoefficientFile, Method,
 };
-use crate::compensation::{compensate_trace, summarise, Compensation, EstimatorSettings, Summary};
+use crate::calibration::result::Compensation;
+use crate::calibration::summary::{summarise, Summary};
+use crate::calibration::{compensate_trace, EstimatorSettings};
+use crate::flight::input::Decimation;
 use crate::flight::Flight;
-use crate::stream::decimate::{self, Decimation};
-use crate::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
+use crate::io::trace::{progress_bar, read_trace_with, ColumnMap, ReadOptions, Trace};
+use crate::stream::decimate;
 use anyhow::{Context, Result};
 use clap::builder::PossibleValue;
 use std::path::{Path, PathBuf};
@@ -63,7 +66,7 @@ impl TraceInput {
         // The bar draws on a terminal only; with --progress into a log, a line every 5 s.
         let lines = {
             use std::io::IsTerminal;
-            !std::io::stderr().is_terminal() && !crate::stream::quiet_progress(false)
+            !std::io::stderr().is_terminal() && !crate::io::progress::quiet_progress(false)
         };
         let start = std::time::Instant::now();
         let mut last = start;
@@ -89,8 +92,9 @@ impl TraceInput {
         let t = read_trace_with(&self.trace, &map, opts)
             .with_context(|| format!("reading {}", self.trace.display()))?;
         bar.finish_and_clear();
-        let sel = crate::input::Selection::parse(self.lines.as_deref(), self.time.as_deref())?;
-        let (t, core) = crate::input::prepare(t, &sel, self.date.as_deref())
+        let sel =
+            crate::flight::input::Selection::parse(self.lines.as_deref(), self.time.as_deref())?;
+        let (t, core) = crate::flight::input::prepare(t, &sel, self.date.as_deref())
             .with_context(|| format!("preparing {}", self.trace.display()))?;
         if let Some(m) = core.message() {
             eprintln!("{m}");
@@ -110,19 +114,22 @@ impl TraceInput {
         // No trace row is shorter than 10 bytes (t, mag and three fluxgate values): a
         // smaller file cannot hold that many rows, and is read without a counting pass.
         let may_be_long = (size / 10) as usize > long.decimate_above_rows;
-        if long.full_rate || !may_be_long || crate::trace::is_hdf5_path(&self.trace) {
+        if long.full_rate || !may_be_long || crate::io::trace::is_hdf5_path(&self.trace) {
             return Ok((self.read()?, None));
         }
         let input = self.stream_input();
-        let quiet = crate::stream::quiet_progress(long.progress);
+        let quiet = crate::io::progress::quiet_progress(long.progress);
         let (rows, dt, kinds) = decimate::scan(&input, quiet)?;
         let Some(factor) = decimate::factor_for(rows, 1.0 / dt, long.decimate_above_rows) else {
             return Ok((self.read()?, None));
         };
         let (t, d) = decimate::read_decimated(&input, factor, (rows, dt, &kinds), quiet)?;
-        let (t, core) =
-            crate::input::prepare(t, &crate::input::Selection::default(), self.date.as_deref())
-                .with_context(|| format!("preparing {}", self.trace.display()))?;
+        let (t, core) = crate::flight::input::prepare(
+            t,
+            &crate::flight::input::Selection::default(),
+            self.date.as_deref(),
+        )
+        .with_context(|| format!("preparing {}", self.trace.display()))?;
         if let Some(m) = core.message() {
             eprintln!("{m}");
         }
@@ -250,7 +257,7 @@ pub struct Evaluated {
 
 impl EstimatorArgs {
     /// Compensates `trace` as `compensate` would (post-flight): with the coefficient file
-    /// when given (its plausibility checked, `qc::applied`), else calibrating on the trace.
+    /// when given (its plausibility checked, `calibration::applied`), else calibrating on the trace.
     pub fn evaluate(&self, trace: &Trace, coeffs: Option<&Path>) -> Result<Evaluated> {
         let file = self.coefficients(coeffs)?;
         let (flight, comp) = compensate_trace(trace, &self.settings(), file.as_ref(), false)?;

@@ -3,8 +3,9 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
-use crate::compensation::{compensate_trace, summarise, SURVEY_TOLERANCE_NT};
-use crate::output::refuse_overwriting;
+use crate::calibration::summary::summarise;
+use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
+use crate::io::output::refuse_overwriting;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -31,14 +32,14 @@ pub struct CalibrateArgs {
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
     refuse_overwriting(&[&a.input.trace], &[&a.output])?;
-    crate::stream::progress::force_progress(a.long.progress);
+    crate::io::progress::force_progress(a.long.progress);
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
-    let stage = crate::stream::Stage::new("calibration (all filter passes)");
+    let stage = crate::io::progress::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
     drop(stage);
     let file = comp.coefficients.clone().context("no coefficients")?;
-    crate::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
-    let stage = crate::stream::Stage::new("summary figures (FOM, IR, oracle floor)");
+    crate::io::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
+    let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
     let mut s = summarise(&flight, &comp);
     drop(stage);
     s.decimated = decimated;

@@ -2,12 +2,14 @@
 //! or applying a coefficient file), write the output CSV and print the summary.
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
-use crate::coefficients::CoefficientFile;
-use crate::compensation::{compensate_trace, summarise, write_output_csv, Summary};
-use crate::output::refuse_overwriting;
-use crate::stream::decimate::Decimation;
-use crate::stream::{compensate, quiet_progress, unstreamable, StreamSummary, AUTO_STREAM_BYTES};
-use crate::trace::Trace;
+use crate::calibration::coefficients::CoefficientFile;
+use crate::calibration::compensate_trace;
+use crate::calibration::summary::{summarise, write_output_csv, Summary};
+use crate::flight::input::Decimation;
+use crate::io::output::refuse_overwriting;
+use crate::io::progress::quiet_progress;
+use crate::io::trace::Trace;
+use crate::stream::{compensate, unstreamable, StreamSummary, AUTO_STREAM_BYTES};
 use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 
@@ -67,7 +69,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         .chain(a.coeffs.as_deref())
         .collect();
     refuse_overwriting(&inputs, &[&a.out])?;
-    crate::stream::progress::force_progress(a.long.progress);
+    crate::io::progress::force_progress(a.long.progress);
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
     if run_if_streamed(a, coeffs.as_ref())? {
         return Ok(());
@@ -83,23 +85,23 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     } else {
         a.input.read()?
     };
-    let stage = crate::stream::Stage::new("compensation (all filter passes)");
+    let stage = crate::io::progress::Stage::new("compensation (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
     drop(stage);
-    let carried = crate::input::carried_columns(&trace, &flight.channels);
+    let carried = crate::flight::input::carried_columns(&trace, &flight.channels);
     {
-        let _stage = crate::stream::Stage::new("writing the output");
+        let _stage = crate::io::progress::Stage::new("writing the output");
         write_output_csv(&a.out, &flight, &comp, &carried)?;
     }
-    let stage = crate::stream::Stage::new("summary figures (FOM, IR, oracle floor)");
+    let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
     let s = summarise(&flight, &comp);
     drop(stage);
     if a.json {
         let mut v = serde_json::to_value(&s)?;
         // Where the core field came from: the file, or the model and epoch used.
         for key in [
-            crate::input::META_CORE_FIELD,
-            crate::input::META_CORE_FIELD_EPOCH,
+            crate::flight::input::META_CORE_FIELD,
+            crate::flight::input::META_CORE_FIELD_EPOCH,
         ] {
             if let (Some(m), Some(obj)) = (trace.meta(key), v.as_object_mut()) {
                 obj.insert(key.into(), m.parse::<f64>().map_or(m.into(), Into::into));
@@ -137,7 +139,7 @@ pub fn print_summary(s: &Summary) {
         println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
     }
     if let Some(t) = &s.fom_table {
-        println!("{}", crate::qc::fom::format_table(t));
+        println!("{}", crate::calibration::fom::format_table(t));
     }
     if let Some(p) = s.predicted_error_nt {
         println!(
@@ -156,8 +158,8 @@ pub fn print_summary(s: &Summary) {
             c.tolles_lawson_jackknife_nt,
             c.disagreement_nt,
             match c.chosen {
-                crate::jackknife::Estimator::KalmanFilter => "Kalman filter",
-                crate::jackknife::Estimator::TollesLawsonOls => "TL18-OLS",
+                crate::estimate::jackknife::Estimator::KalmanFilter => "Kalman filter",
+                crate::estimate::jackknife::Estimator::TollesLawsonOls => "TL18-OLS",
             }
         );
     }
@@ -197,7 +199,7 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
     let input = a.input.stream_input();
     let why_not = match unstreamable(coeffs, &est, a.realtime) {
         Some(w) => Some(w),
-        None if crate::trace::is_hdf5_path(&a.input.trace) => {
+        None if crate::io::trace::is_hdf5_path(&a.input.trace) => {
             Some("HDF5 files are read into memory".to_string())
         }
         None => None,
@@ -236,9 +238,11 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
 fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Result<()> {
     let est = a.est.settings();
     // Said before the long calibration, not after it.
-    if est.method == crate::coefficients::Method::Kf {
-        let spec = crate::model_spec::ModelSpec::parse(&est.model)?;
-        if crate::preprocess::needed(&spec) || spec.terms.iter().any(|t| t.name == "rate") {
+    if est.method == crate::calibration::coefficients::Method::Kf {
+        let spec = crate::model::spec::ModelSpec::parse(&est.model)?;
+        if crate::estimate::corrections::needed(&spec)
+            || spec.terms.iter().any(|t| t.name == "rate")
+        {
             bail!(
                 "{}; model '{}' cannot be applied streamed to the full-rate file \
                  (`lag`/`fluxtemp` pre-process the whole flight, `rate` needs its crossovers): \
@@ -248,14 +252,14 @@ fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Resu
             );
         }
     }
-    let stage = crate::stream::Stage::new("calibration on the decimated copy");
+    let stage = crate::io::progress::Stage::new("calibration on the decimated copy");
     let (flight, comp) = compensate_trace(&trace, &est, None, false)?;
     drop(stage);
     let file = comp
         .coefficients
         .clone()
         .context("the calibration gave no coefficients")?;
-    let stage = crate::stream::Stage::new("summary figures of the decimated copy");
+    let stage = crate::io::progress::Stage::new("summary figures of the decimated copy");
     let calibration = summarise(&flight, &comp);
     drop(stage);
     // The copy's memory is not needed for the streamed pass.

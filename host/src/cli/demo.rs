@@ -1,11 +1,10 @@
 //! `magcomp demo`: the whole job on built-in simulated data — calibration flight, survey
 //! flight, Kalman filter and Tolles–Lawson side by side against the simulator's truth.
 
-use crate::compensation::{
-    compensate_trace, summarise, write_output_csv, EstimatorSettings, Method,
-};
+use crate::calibration::summary::{summarise, write_output_csv};
+use crate::calibration::{compensate_trace, EstimatorSettings, Method};
+use crate::io::trace::write_trace;
 use crate::sim::{simulate, FlightKind, Geology, GeologyPreset, SimConfig};
-use crate::trace::write_trace;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -94,7 +93,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             &[],
         )?;
         let file = comp.coefficients.clone().context("no coefficients")?;
-        crate::output::write_file(
+        crate::io::output::write_file(
             &args.out.join(format!("coeffs-{name}.json")),
             serde_json::to_string_pretty(&file)?,
         )?;
@@ -143,7 +142,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let raw = flight
             .truth_interference_nt
             .as_ref()
-            .map(|t| crate::metrics::rms_demeaned(t));
+            .map(|t| crate::qc::figures::rms_demeaned(t));
         println!(
             "{:<22} {:>12} {:>14}",
             format!("{name} ({})", s.model),
@@ -160,7 +159,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
 /// (a pump current), diagnosed, the named term added, the error against truth falling.
 fn discovery_loop(args: &DemoArgs) -> Result<()> {
     use crate::diagnose::{diagnose, DiagnoseOptions};
-    use crate::model_spec::ModelSpec;
+    use crate::model::spec::ModelSpec;
     println!("\n== 4. Model discovery: a flight with an effect the model does not know ==");
     let cfg = SimConfig {
         seed: args.seed,

@@ -4,9 +4,9 @@
 //! on this flight (an applied calibration checked, not re-fitted).
 
 use super::args::{EstimatorArgs, Evaluated, LongFlightArgs, TraceInput};
-use crate::compensation::compensated_trace;
+use crate::calibration::compensated_trace;
 use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions, Diagnosis};
-use crate::model_spec::{ModelSpec, DEFAULT_MODEL};
+use crate::model::spec::{ModelSpec, DEFAULT_MODEL};
 use crate::report::calibration::{self, Evaluation};
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
@@ -93,12 +93,12 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         .chain(args.coeffs.as_deref())
         .collect();
     if let Some(dir) = &args.report {
-        crate::output::refuse_overwriting(
+        crate::io::output::refuse_overwriting(
             &inputs,
             &[&dir.join(crate::report::flight_report::REPORT_PAGE)],
         )?;
     }
-    crate::stream::progress::force_progress(args.long.progress);
+    crate::io::progress::force_progress(args.long.progress);
     let (trace, decimated) = args.input.read_for_calibration(&args.long)?;
     // The compensation checked first: a bad --coeffs fails before the long diagnosis.
     let evaluated = if evaluates {
@@ -122,7 +122,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let speed = args.est.tuning.speed_mps;
     let warn = evaluated
         .as_ref()
-        .is_none_or(|ev| ev.comp.method != Some(crate::coefficients::Method::Kf));
+        .is_none_or(|ev| ev.comp.method != Some(crate::calibration::coefficients::Method::Kf));
     let (left, trace) = match left {
         Some(r) => (
             Some(super::args::diagnosis_trace(r, speed, model.field, warn)?),
@@ -149,7 +149,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         ..Default::default()
     };
     if args.iterate {
-        let stage = crate::stream::Stage::new("diagnosis, iterated");
+        let stage = crate::io::progress::Stage::new("diagnosis, iterated");
         let it = iterate::iterate(&trace, &model, &opts, args.max_steps)?;
         drop(stage);
         if let Some(dir) = &args.report {
@@ -170,7 +170,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
         return Ok(());
     }
-    let stage = crate::stream::Stage::new("diagnosis (candidate terms and their tests)");
+    let stage = crate::io::progress::Stage::new("diagnosis (candidate terms and their tests)");
     let d = diagnose(diagnosed, &model, &opts)?;
     drop(stage);
     if let Some(dir) = &args.report {
@@ -233,7 +233,7 @@ fn applied_table(d: &Diagnosis) -> String {
 fn json(
     d: &Diagnosis,
     evaluated: Option<&Evaluated>,
-    decimated: Option<&crate::stream::decimate::Decimation>,
+    decimated: Option<&crate::flight::input::Decimation>,
 ) -> Result<String> {
     let mut v = serde_json::to_value(d)?;
     let warnings = match evaluated {
@@ -258,7 +258,7 @@ fn json(
 
 /// The page of the checked compensation (`report --coeffs`'s).
 pub(super) fn write_evaluation(
-    trace: &crate::trace::Trace,
+    trace: &crate::io::trace::Trace,
     ev: &Evaluated,
     dir: &Path,
 ) -> Result<PathBuf> {

@@ -1,7 +1,7 @@
 //! The command layer: one file per subcommand with its clap arguments and the code that
 //! reads the inputs, calls the processing modules and prints or writes the results.
 //! Nothing outside `cli` imports it (checked by `tests/layout.rs`): processing takes plain
-//! settings (`compensation::EstimatorSettings`, `diagnose::DiagnoseOptions`, …), never clap
+//! settings (`calibration::EstimatorSettings`, `diagnose::DiagnoseOptions`, …), never clap
 //! structs.
 
 pub mod args;

@@ -1,7 +1,7 @@
 //! `magcomp monitor`: decode and show the board's output stream live (a port, a file, or
-//! `-`), optionally saving the records (`crate::monitor`).
+//! `-`), optionally saving the records (`crate::board::monitor`).
 
-use crate::monitor::{monitor_stream, Display, MonitorStats};
+use crate::board::monitor::{monitor_stream, Display, MonitorStats};
 use anyhow::{Context, Result};
 use std::io::{IsTerminal, Write};
 use std::path::PathBuf;
@@ -48,7 +48,7 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
     if let Some(p) = &args.save {
         let input = std::path::Path::new(&args.input);
         let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
-        crate::output::refuse_overwriting(inputs, &[p])?;
+        crate::io::output::refuse_overwriting(inputs, &[p])?;
     }
     let mut save_file = match &args.save {
         Some(p) => Some(std::io::BufWriter::new(

@@ -13,11 +13,11 @@ pub fn run(a: &NmeaArgs) -> Result<()> {
     let stdout = std::io::stdout();
     let out = std::io::BufWriter::new(stdout.lock());
     let stats = if a.file.as_os_str() == "-" {
-        crate::nmea_cmd::decode_log(std::io::stdin().lock(), out)?
+        crate::board::nmea::decode_log(std::io::stdin().lock(), out)?
     } else {
         let f = std::fs::File::open(&a.file)
             .with_context(|| format!("opening {}", a.file.display()))?;
-        crate::nmea_cmd::decode_log(std::io::BufReader::new(f), out)?
+        crate::board::nmea::decode_log(std::io::BufReader::new(f), out)?
     };
     eprintln!("{stats:?}");
     Ok(())

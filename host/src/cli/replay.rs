@@ -1,13 +1,13 @@
 //! `magcomp replay CAPTURE`: run a raw sensor capture through the board's parsers, aligner
-//! and filter (`crate::replay`), writing the records it would send.
+//! and filter (`crate::board::replay`), writing the records it would send.
 
-use crate::capture_sim::FluxFormat;
-use crate::model_spec::{ModelSpec, BOARD_MODEL};
-use crate::output::AtomicFile;
-use crate::replay::{
+use crate::board::capture::FluxFormat;
+use crate::board::replay::{
     csv_row, read_coefficients_for, read_flux_calibration, read_flux_temperature, read_scalar_lag,
     replay_capture, ReplayOptions, ReplayStats, CSV_HEADER,
 };
+use crate::io::output::AtomicFile;
+use crate::model::spec::{ModelSpec, BOARD_MODEL};
 use anyhow::{Context, Result};
 use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
 use std::io::{BufReader, Write};
@@ -78,7 +78,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .into_iter()
         .chain(args.records.as_deref())
         .collect();
-    crate::output::refuse_overwriting(&inputs, &outputs)?;
+    crate::io::output::refuse_overwriting(&inputs, &outputs)?;
     let model = ModelSpec::parse(&args.model)?;
     let coefficients = args
         .coeffs

@@ -5,8 +5,8 @@
 //! or Tolles–Lawson / the Kalman filter fitted on it.
 
 use super::args::{EstimatorArgs, TraceInput, TuningArgs};
-use crate::coefficients::Method;
-use crate::model_spec::ModelSpec;
+use crate::calibration::coefficients::Method;
+use crate::model::spec::ModelSpec;
 use crate::report::flight_report::{write_report, REPORT_PAGE};
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
@@ -66,7 +66,7 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         .chain(args.coeffs.as_deref())
         .collect();
     let page_path = args.out.join(REPORT_PAGE);
-    crate::output::refuse_overwriting(&inputs, &[&page_path])?;
+    crate::io::output::refuse_overwriting(&inputs, &[&page_path])?;
     let trace = args.input.read()?;
     if args.evaluates() {
         if args.model.len() > 1 {
@@ -83,7 +83,7 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         println!("report written to {}", path.display());
         return Ok(());
     }
-    let default = [crate::model_spec::DEFAULT_MODEL.to_string()];
+    let default = [crate::model::spec::DEFAULT_MODEL.to_string()];
     let given: &[String] = if args.model.is_empty() {
         &default
     } else {

@@ -1,13 +1,13 @@
 //! `magcomp simulate`: a calibration and/or survey flight with known truth, and with
 //! `--capture` the raw bytes its sensors would have sent.
 
-use crate::capture_sim::{
+use crate::board::capture::{
     parse_time_of_day, write_capture_file, CaptureOptions, CaptureSummary, FluxFormat,
 };
+use crate::io::trace::Trace;
 use crate::sim::{
     parse_hidden, EarthField, FlightKind, Geology, GeologyPreset, Physics, SimConfig,
 };
-use crate::trace::Trace;
 use anyhow::{bail, Context, Result};
 use clap::builder::PossibleValue;
 use std::path::PathBuf;
@@ -470,10 +470,10 @@ pub fn run(sim: &SimulateArgs, capture: &CaptureArgs) -> Result<()> {
     let outputs: Vec<&std::path::Path> = std::iter::once(out.as_path())
         .chain(capture.capture.as_deref())
         .collect();
-    crate::output::refuse_overwriting(&[], &outputs)?;
+    crate::io::output::refuse_overwriting(&[], &outputs)?;
     let cfg = sim.to_config()?;
     let trace = crate::sim::simulate(&cfg)?;
-    crate::trace::write_trace(&out, &trace)?;
+    crate::io::trace::write_trace(&out, &trace)?;
     eprintln!("wrote {} rows to {}", trace.len(), out.display());
     if let Some(c) = capture.write_if_requested(&trace)? {
         eprintln!("{c:?}");

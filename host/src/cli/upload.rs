@@ -1,10 +1,10 @@
 //! `magcomp upload`: send a `calibrate` coefficient file to the board as command lines
-//! (`crate::upload`), each acknowledged, resent when damaged, and read back
-//! (`crate::board_link`).
+//! (`crate::board::upload`), each acknowledged, resent when damaged, and read back
+//! (`crate::board::link`).
 
-use crate::board_link::{command_line, upload, BoardLink, ExchangeOptions, LineSource};
-use crate::coefficients::read_coefficients;
-use crate::upload::upload_commands;
+use crate::board::link::{command_line, upload, BoardLink, ExchangeOptions, LineSource};
+use crate::board::upload::upload_commands;
+use crate::calibration::coefficients::read_coefficients;
 use anyhow::{bail, Context, Result};
 use std::io::Write;
 use std::os::unix::fs::FileTypeExt;
@@ -29,7 +29,7 @@ pub struct UploadArgs {
     pub to: String,
 
     /// Model compiled into the board (its coefficients must be this model's).
-    #[arg(long, default_value = crate::model_spec::BOARD_MODEL, value_name = "SPEC")]
+    #[arg(long, default_value = crate::model::spec::BOARD_MODEL, value_name = "SPEC")]
     pub board_model: String,
 
     /// Do not end with `SAVE` (the values then last until the board restarts).
@@ -76,7 +76,7 @@ fn open_port(path: &str, read: bool) -> Result<Port> {
 
 pub fn run(args: &UploadArgs) -> Result<()> {
     if args.to != "-" {
-        crate::output::refuse_overwriting(&[&args.coeffs], &[std::path::Path::new(&args.to)])?;
+        crate::io::output::refuse_overwriting(&[&args.coeffs], &[std::path::Path::new(&args.to)])?;
     }
     if !(args.reply_timeout_s.is_finite() && args.reply_timeout_s > 0.0) {
         bail!(

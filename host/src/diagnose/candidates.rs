@@ -8,7 +8,7 @@
 //! date, identifiers, other magnetometers or base stations, fluxgate channels, or
 //! constant are left out; `--aux 'CUR_*,V_*'` names the candidates explicitly instead.
 
-use crate::trace::Trace;
+use crate::io::trace::Trace;
 use anyhow::{bail, Result};
 
 /// Name patterns (case-insensitive globs) that are never candidates by default, by kind.

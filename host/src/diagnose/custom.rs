@@ -1,17 +1,17 @@
 //! Post-flight compensation with terms that are not in the core catalogue (yet): the
-//! same two passes as `pipeline::run_kf` (calibrate on the flight, then apply the final
+//! same two passes as `corrections::run_kf` (calibrate on the flight, then apply the final
 //! coefficients), with a model built from any `Term` values. Lets a user check a new
 //! effect end to end before it is pasted into `core/src/model` (docs/adding-an-effect.md).
 
+use crate::estimate::kf::HostCompensator;
 use crate::flight::Flight;
-use crate::pipeline::HostCompensator;
 use anyhow::{anyhow, bail, Result};
 use magcomp_core::compensator::CompensatorConfig;
 use magcomp_core::model::{Model, Term};
 
 /// Interference estimate per sample (nT) and the final coefficients, post-flight.
-/// `sigma1` as in [`crate::pipeline::KfRun`] (take it from a run of the catalogue model on
-/// the same flight); `noise_nt` the scalar's own noise ([`crate::pipeline::KfRun::sensor_noise_nt`]),
+/// `sigma1` as in [`crate::estimate::kf::KfRun`] (take it from a run of the catalogue model on
+/// the same flight); `noise_nt` the scalar's own noise ([`crate::estimate::kf::KfRun::sensor_noise_nt`]),
 /// not the run's adapted noise: that one counts the very effect being added as model
 /// error (a sensor-temperature drift at 10° N: 0.163 nT left with it, 0.086 without).
 pub fn post_flight_with_terms(
@@ -27,7 +27,7 @@ pub fn post_flight_with_terms(
     cfg.noise_nt = noise_nt as f32;
     cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
     cfg.tie_points[0] = flight.tie_point;
-    crate::pipeline::set_run_mode(&mut cfg, false);
+    crate::estimate::kf::set_run_mode(&mut cfg, false);
     let model = Model { field, terms };
     let k = model.coefficient_count();
     let mut comp =

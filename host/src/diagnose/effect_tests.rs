@@ -2,13 +2,15 @@
 //! tested on the fluxgate's own modulus, and `rate` on a flight with crossovers, tested at
 //! the crossings.
 
-use super::stats::{chi2_sf, lag1_autocorr};
+use crate::estimate::corrections::fluxtemp;
+use crate::estimate::corrections::run_kf;
+use crate::estimate::fluxcal::{self, FluxgateCalibration};
+use crate::estimate::kf::{KfOptions, KfRun};
 use crate::flight::Flight;
-use crate::fluxgate::{self, FluxgateCalibration};
-use crate::model_spec::ModelSpec;
-use crate::pipeline::{run_kf, KfOptions, KfRun};
-use crate::preprocess::{fluxtemp, Preprocessing};
-use crate::trace::Trace;
+use crate::io::trace::Trace;
+use crate::model::corrections::Preprocessing;
+use crate::model::spec::ModelSpec;
+use crate::signal::stats::{chi2_sf, lag1_autocorr};
 use anyhow::{Context, Result};
 
 /// The trace with its fluxgate columns corrected by a scalar calibration.
@@ -43,10 +45,10 @@ pub(crate) fn rate_crossover_test(
     residual_rms: f64,
     effect: &str,
 ) -> Option<(String, f64, f64, usize, f64, f64)> {
-    let regs = crate::crossover::rate_regressors(flight);
-    let crossings = crate::crossover::find_crossings(flight);
-    let fit = crate::crossover::fit_rate(flight, &crossings, &run.compensated_nt, &regs)?;
-    let change = crate::metrics::rms_demeaned(&fit.correction_nt(&regs));
+    let regs = crate::estimate::crossover::rate_regressors(flight);
+    let crossings = crate::estimate::crossover::find_crossings(flight);
+    let fit = crate::estimate::crossover::fit_rate(flight, &crossings, &run.compensated_nt, &regs)?;
+    let change = crate::qc::figures::rms_demeaned(&fit.correction_nt(&regs));
     let share = explained_of(fit.rms_before_nt, fit.rms_after_nt);
     Some((
         format!(
@@ -67,7 +69,7 @@ pub(crate) fn rate_crossover_test(
 /// and the scalar's residual cannot account for — the aircraft's own field at the
 /// fluxgate (`fluxmod`'s premise). `None` where the fit cannot be made.
 pub(crate) fn fluxgate_own_field_ratio(flight: &Flight, run: &KfRun) -> Option<f64> {
-    let fit = fluxgate::fit_flight(flight, &interference_for_fluxgate(flight, run)).ok()?;
+    let fit = fluxcal::fit_flight(flight, &interference_for_fluxgate(flight, run)).ok()?;
     // Against the larger of what the scalar leaves unexplained and the fluxgate's own
     // white noise.
     let rms = run
@@ -94,14 +96,14 @@ fn interference_for_fluxgate(flight: &Flight, run: &KfRun) -> Vec<f64> {
 
 /// The calibrated modulus' finite residuals and their white noise (nT, from third
 /// differences: robust to the smooth misfit the sd includes).
-fn calibrated_modulus_noise_nt(fit: &fluxgate::FluxgateFit) -> (Vec<f64>, f64) {
+fn calibrated_modulus_noise_nt(fit: &fluxcal::FluxgateFit) -> (Vec<f64>, f64) {
     let resid: Vec<f64> = fit
         .residual_nt
         .iter()
         .copied()
         .filter(|v| v.is_finite())
         .collect();
-    let noise = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
+    let noise = crate::estimate::kf::estimate_noise_nt(&resid).unwrap_or(0.0);
     (resid, noise)
 }
 
@@ -122,7 +124,7 @@ pub(crate) fn fluxcal_test(
     model: &ModelSpec,
     run: &KfRun,
 ) -> Result<FluxcalTest> {
-    let fit = match fluxgate::fit_flight(flight, &interference_for_fluxgate(flight, run)) {
+    let fit = match fluxcal::fit_flight(flight, &interference_for_fluxgate(flight, run)) {
         Ok(f) => f,
         Err(e) => {
             return Ok(FluxcalTest {
@@ -136,7 +138,7 @@ pub(crate) fn fluxcal_test(
     };
     let rerun = match &run.preprocessing {
         None => run_kf(
-            &fluxgate::calibrated_flight(flight, &fit.calibration),
+            &fluxcal::calibrated_flight(flight, &fit.calibration),
             &KfOptions::new(model.clone()),
         )?,
         Some(p) => {
@@ -147,7 +149,7 @@ pub(crate) fn fluxcal_test(
         }
     };
     let change_nt =
-        crate::metrics::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None);
+        crate::qc::truth::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None);
     let (resid, noise_nt) = calibrated_modulus_noise_nt(&fit);
     let rho = lag1_autocorr(&resid).clamp(-0.99, 0.99);
     let n_eff = (resid.len() as f64 * (1.0 - rho) / (1.0 + rho)).max(20.0);
@@ -170,7 +172,7 @@ pub(crate) fn fluxcal_test(
     // huge F with p = 1.
     let fits_to_noise = fit.modulus_sd_after_nt <= 2.0 * noise_nt.max(0.05);
     // With INS attitude: the installation check the compensation does not need.
-    let ins = fluxgate::ins_misalignment_rad(flight, &fit.calibration)
+    let ins = fluxcal::ins_misalignment_rad(flight, &fit.calibration)
         .map(|w| {
             format!(
                 "; against the INS, misaligned {:.2}° about the roll axis and {:.2}° about the pitch axis",
@@ -236,7 +238,7 @@ pub(crate) fn fluxtemp_test(
         .col(channel)
         .with_context(|| format!("the trace has no column '{channel}'"))?;
     let fit = match fluxtemp::fit_modulus(
-        &fluxgate::flight_flux(flight),
+        &fluxcal::flight_flux(flight),
         temp,
         &run.compensated_nt,
         channel,
@@ -261,7 +263,7 @@ pub(crate) fn fluxtemp_test(
         0.0
     };
     let p = chi2_sf(f * q, q);
-    let noise_nt = crate::pipeline::estimate_noise_nt(&resid).unwrap_or(0.0);
+    let noise_nt = crate::estimate::kf::estimate_noise_nt(&resid).unwrap_or(0.0);
     let floor = noise_nt.max(0.05).powi(2);
     let left = if v0 > floor {
         ((v1 - floor) / (v0 - floor)).max(0.0)
@@ -278,7 +280,7 @@ pub(crate) fn fluxtemp_test(
     });
     let change_nt = match run_kf(&original, &opts) {
         Ok(rerun) => {
-            crate::metrics::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None)
+            crate::qc::truth::error_rms_nt(&rerun.interference_nt, &run.interference_nt, None)
         }
         Err(e) => return Ok(untestable(e.to_string())),
     };

@@ -1,9 +1,9 @@
 //! Where the model fails: time windows, frequency bands and labelled segments of the
 //! residual against what the model itself predicts.
 
-use super::stats::{chi2_isf, lag1_autocorr, median};
 use super::{BandFailure, Failure, SegmentStat};
 use crate::flight::Flight;
+use crate::signal::stats::{chi2_isf, lag1_autocorr, median};
 
 /// Label of the rows a..b: the segment, or the first and last segment it spans.
 pub(crate) fn span_label(flight: &Flight, t0: f64, t1: f64) -> String {

@@ -14,8 +14,8 @@
 //! five segments per heading made each fold one kind of segment.
 
 use super::regression::{add_penalty, fit_map};
-use super::stats::{gram_lstsq, gram_of};
 use crate::flight::Flight;
+use crate::signal::stats::{gram_lstsq, gram_of};
 /// Longest piece of a unit (s): about one manoeuvre.
 pub const MAX_PIECE_S: f64 = 30.0;
 

@@ -4,16 +4,16 @@
 //! on a real straight line, geology (`induced_high` "explained" 83–98 %).
 //!
 //! The measure is the one the filter uses to hold unexcited combinations
-//! (`excitation.rs`): how far a prior-1σ change of the candidate's best-excited coefficient
+//! (`estimate/excitation.rs`): how far a prior-1σ change of the candidate's best-excited coefficient
 //! combination moves the manoeuvre-band (0.1–0.9 Hz) interference, after projecting out
 //! every combination of the model's own terms (nT rms over the flight). Columns are built
 //! from the INS attitude's field direction (`e_ref`), so only the variation attitude drives
 //! counts, not the field direction's swing over geology. Below
-//! [`crate::excitation::EXCITATION_FLOOR_NT`] the candidate is untestable here. Channel
+//! [`crate::estimate::excitation::EXCITATION_FLOOR_NT`] the candidate is untestable here. Channel
 //! terms (a current, a temperature) vary with their channel, not only with attitude: their
 //! band runs from the manoeuvre band's lower edge up to 0.4·fs.
 
-use crate::metrics::manoeuvre_band;
+use crate::qc::figures::manoeuvre_band;
 use nalgebra::{DMatrix, SymmetricEigen};
 
 /// Columns band-passed (4 poles, zero phase), missing values as 0, every `stride`-th row
@@ -26,7 +26,7 @@ fn banded(cols: &[&[f64]], band: (f64, f64), fs_hz: f64) -> Option<Vec<Vec<f64>>
                 .iter()
                 .map(|v| if v.is_finite() { *v } else { 0.0 })
                 .collect();
-            crate::tl::bandpass(&clean, 4, band.0, band.1, fs_hz)
+            crate::signal::bandpass::bandpass(&clean, 4, band.0, band.1, fs_hz)
                 .ok()
                 .map(|bp| bp.into_iter().step_by(stride).collect())
         })

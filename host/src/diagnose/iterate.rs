@@ -7,8 +7,8 @@
 
 use super::{diagnose, DiagnoseOptions, Diagnosis};
 use crate::flight::Flight;
-use crate::model_spec::ModelSpec;
-use crate::trace::Trace;
+use crate::io::trace::Trace;
+use crate::model::spec::ModelSpec;
 use anyhow::{Context, Result};
 use serde::Serialize;
 
@@ -111,7 +111,7 @@ fn error_of(trace: &Trace, model: &ModelSpec, d: &Diagnosis) -> Result<Option<f6
         return Ok(None);
     }
     let flight = Flight::from_trace(trace, &model.channels(), &model.relative_channels())?;
-    Ok(crate::preprocess::error_against_truth_nt(
+    Ok(crate::estimate::corrections::error_against_truth_nt(
         trace, &flight, &d.run,
     ))
 }

@@ -1,5 +1,5 @@
 //! The `lag` candidate's detector. `lag` itself is a delay applied to the scalar before the
-//! filter (`preprocess::lag`), so it has no regressors; to test whether a flight holds one,
+//! filter (`corrections::lag`), so it has no regressors; to test whether a flight holds one,
 //! the diagnosis uses its first-order form, `B(t−τ) ≈ B(t) − τ·dB/dt`: the time derivatives
 //! of what the scalar sees, `d|B|/dt` and those of the permanent and induced regressors
 //! (`ė_i`, `d(e_i e_j)/dt·|B|/B*`), 9 in all. Enough to detect and rank the effect; the

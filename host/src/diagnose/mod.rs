@@ -2,7 +2,7 @@
 //! where it fails (time windows, labelled segments, frequency bands), and test every
 //! catalogue term the model lacks against the residual.
 //!
-//! How a candidate is tested (see `innovations.rs`): the anomaly-field filter is run once
+//! How a candidate is tested (see `estimate/innovations.rs`): the anomaly-field filter is run once
 //! over the scalar and over the regressors of the model's terms and of every candidate
 //! term; in that innovation domain adding a constant-coefficient term is ordinary least
 //! squares. Each candidate is a nested-model F-test (model vs model + candidate, with the
@@ -22,33 +22,31 @@ mod effect_tests;
 mod failures;
 pub mod holdout;
 mod identifiability;
-pub(crate) mod innovations;
 pub mod iterate;
 mod lag_detector;
 mod regression;
-pub mod stats;
 
 pub use failures::residual_spectrum;
 pub use iterate::{iterate, Iteration, IterationStep};
-pub use regression::scalar_relative_nt;
 
-use crate::flight::Flight;
-use crate::model_spec::{ModelSpec, TermSpec};
-use crate::pipeline::{estimate_sigma1_for, run_kf, KfOptions, KfRun, DEFAULT_SIGMA1};
-use crate::trace::Trace;
+use crate::estimate::corrections::run_kf;
+use crate::estimate::innovations::{filter_columns, FieldSettings};
+use crate::estimate::kf::{estimate_sigma1_for, KfOptions, KfRun, DEFAULT_SIGMA1};
+use crate::flight::{scalar_relative_nt, Flight};
+use crate::io::trace::Trace;
+use crate::model::spec::{ModelSpec, TermSpec};
+use crate::signal::stats::{chi2_sf, lag1_autocorr, median};
 use anyhow::{bail, Context, Result};
 use effect_tests::{
     calibrated_trace, explained_of, fluxcal_test, fluxtemp_test, rate_crossover_test,
 };
 use failures::{band_failures, segment_stats, time_failures};
-use innovations::{filter_columns, FieldSettings};
 use magcomp_core::model::catalog::{info, AnyTerm, ChannelUse, CATALOG};
 use magcomp_core::model::Term;
 use regression::{
     build_columns, build_columns_with, fit_map, nested_test, usable_rows, Block, ColTerm,
 };
 use serde::Serialize;
-use stats::{chi2_sf, lag1_autocorr, median};
 
 /// A term that is not (yet) in the core catalogue, tested alongside it: how a user checks
 /// a new physical effect before pasting it into `core/src/model` (docs/adding-an-effect.md).
@@ -499,7 +497,7 @@ pub fn diagnose_with(
     let prepared;
     let (trace, flight) = match &run.preprocessing {
         Some(p) => {
-            prepared = crate::preprocess::apply_to_trace(trace, p, fs)?;
+            prepared = crate::estimate::corrections::apply_to_trace(trace, p, fs)?;
             let f = Flight::from_trace(&prepared, &model.channels(), &model.relative_channels())?;
             (&prepared, f)
         }
@@ -600,7 +598,7 @@ pub fn diagnose_with(
                     fs,
                     ct.spec.channel.is_some(),
                 );
-                let floor = crate::excitation::EXCITATION_FLOOR_NT;
+                let floor = crate::estimate::excitation::EXCITATION_FLOOR_NT;
                 // Environment terms (`diurnal`) are not driven by manoeuvres: the field
                 // states, not the attitude, separate them.
                 let environment = AnyTerm::make(name, 0).is_some_and(|t| !t.is_interference());

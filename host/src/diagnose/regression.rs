@@ -2,13 +2,13 @@
 //! core's own epoch builder and term code, least-squares fits of blocks of them in the
 //! anomaly filter's innovation domain, and the nested F-test on prewhitened residuals.
 
-use super::innovations::Geometry;
-use super::stats::{ar_filter, chi2_sf, fit_ar, gram_lstsq, gram_of, median};
 use super::ExtraTerm;
+use crate::estimate::innovations::Geometry;
+use crate::estimate::kf::HOST_WINDOW;
 use crate::flight::Flight;
-use crate::model_spec::TermSpec;
-use crate::pipeline::HOST_WINDOW;
-use crate::trace::Trace;
+use crate::io::trace::Trace;
+use crate::model::spec::TermSpec;
+use crate::signal::stats::{ar_filter, chi2_sf, fit_ar, gram_lstsq, gram_of, median};
 use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::CompensatorConfig;
 use magcomp_core::epoch::EpochBuilder;
@@ -261,30 +261,4 @@ pub(crate) fn nested_test(
     let f = ((rss0 - rss1).max(0.0) / q as f64) / (rss1 / dof2);
     // dof2 is thousands: q·F is χ²_q to well within what a significance level needs.
     (f, chi2_sf(f * q as f64, q as f64), q)
-}
-
-/// The scalar relative to its first value, with the core-field model's change removed as
-/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
-/// filter's interference + field states model. f64, exact.
-pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
-    let igrf0 = flight
-        .samples
-        .iter()
-        .map(|s| s.igrf_nt)
-        .find(|v| v.is_finite());
-    flight
-        .mag_nt
-        .iter()
-        .zip(&flight.samples)
-        .map(|(v, s)| match igrf0 {
-            Some(i0) if s.igrf_nt.is_finite() => v - m0 - (s.igrf_nt - i0),
-            _ => v - m0,
-        })
-        .collect()
 }

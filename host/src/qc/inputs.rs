@@ -142,7 +142,7 @@ pub fn excitation(flight: &Flight) -> f64 {
                     b[k] / (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt()
                 })
                 .collect();
-            crate::metrics::band_rms_nt(flight, &e)
+            crate::qc::figures::band_rms_nt(flight, &e)
         })
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max)

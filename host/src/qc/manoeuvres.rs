@@ -300,12 +300,13 @@ pub fn detect(flight: &Flight) -> Option<Pattern> {
         .map(|x| {
             let mut x = x.clone();
             fill_forward(&mut x);
-            let gaps = crate::tl::Gaps {
+            let gaps = crate::signal::bandpass::Gaps {
                 breaks: &breaks,
                 max_fill: crate::qc::gaps::MAX_FILL_SAMPLES,
                 min_len: 64,
             };
-            crate::tl::bandpass_gaps(&x, 4, lo, hi, fs, &gaps).unwrap_or_else(|_| vec![f64::NAN; n])
+            crate::signal::bandpass::bandpass_gaps(&x, 4, lo, hi, fs, &gaps)
+                .unwrap_or_else(|_| vec![f64::NAN; n])
         })
         .collect();
     let env: Vec<Vec<f64>> = band

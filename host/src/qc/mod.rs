@@ -1,10 +1,10 @@
-//! Quality control of a flight and of a compensation: inputs that cannot be compensated
-//! (`inputs`), time gaps (`gaps`), the calibration pattern found without labels
-//! (`manoeuvres`), the AARC-style FOM table (`fom`), and the plausibility of applied
-//! coefficients (`applied`).
+//! Quality control of a flight: inputs that cannot be compensated (`inputs`), time gaps
+//! (`gaps`), the calibration pattern found without labels (`manoeuvres`), the figures of
+//! merit a geophysicist reads (`figures`), and on simulated data the error against truth
+//! (`truth`). The checks of a compensation's own result live with it in `calibration`.
 
-pub mod applied;
-pub mod fom;
+pub mod figures;
 pub mod gaps;
 pub mod inputs;
 pub mod manoeuvres;
+pub mod truth;

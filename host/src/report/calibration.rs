@@ -1,14 +1,15 @@
 //! The report of one compensation as applied to a flight: a coefficient file (`report
 //! --coeffs`), or a method fitted on the flight itself (`--method tl`, or the Kalman filter
-//! at an assumed ground speed). The implausible-coefficients warnings (`qc::applied`) come
+//! at an assumed ground speed). The implausible-coefficients warnings (`calibration::applied`) come
 //! first, then the figures, MagNav's `plot_mag_c` overlay per line (uncompensated,
 //! compensated and interference against time), the FOM table and the coefficients.
 
 use super::{HtmlReport, Plot, Section, Series, PALETTE};
-use crate::compensation::{Compensation, Summary};
+use crate::calibration::fom::FomTable;
+use crate::calibration::result::Compensation;
+use crate::calibration::summary::Summary;
 use crate::flight::Flight;
-use crate::qc::fom::FomTable;
-use crate::trace::Trace;
+use crate::io::trace::Trace;
 
 /// Most lines drawn, one plot each; the rest are named but not drawn (the page would
 /// weigh megabytes on a whole survey).
@@ -254,7 +255,7 @@ pub fn overlay_section(
     s
 }
 
-/// The AARC-style FOM table (`qc::fom`), one row per heading × manoeuvre.
+/// The AARC-style FOM table (`calibration::fom`), one row per heading × manoeuvre.
 pub fn fom_section(t: &FomTable) -> Section {
     let mut rows = Vec::new();
     for r in &t.rows {

@@ -3,13 +3,12 @@
 //! the coefficients with 1σ; for two or more models, the before/after comparison.
 
 use super::{HtmlReport, Plot, Section, Series, PALETTE};
-use crate::diagnose::{
-    diagnose, residual_spectrum, scalar_relative_nt, DiagnoseOptions, Diagnosis,
-};
-use crate::flight::Flight;
-use crate::metrics::{error_rms_nt, fom, improvement_ratio};
-use crate::model_spec::ModelSpec;
-use crate::trace::Trace;
+use crate::diagnose::{diagnose, residual_spectrum, DiagnoseOptions, Diagnosis};
+use crate::flight::{scalar_relative_nt, Flight};
+use crate::io::trace::Trace;
+use crate::model::spec::ModelSpec;
+use crate::qc::figures::{fom, improvement_ratio};
+use crate::qc::truth::error_rms_nt;
 use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
@@ -499,11 +498,11 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
 /// hides from the compensated scalar.
 fn fluxgate_section(
     flight: &Flight,
-    run: &crate::pipeline::KfRun,
+    run: &crate::estimate::kf::KfRun,
     i: usize,
     title: &str,
 ) -> Option<Section> {
-    let fit = crate::fluxgate::fit_flight(flight, &run.interference_nt).ok()?;
+    let fit = crate::estimate::fluxcal::fit_flight(flight, &run.interference_nt).ok()?;
     let demeaned = |v: &[f64]| {
         let fin: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
         let m = fin.iter().sum::<f64>() / fin.len().max(1) as f64;
@@ -546,11 +545,11 @@ fn fluxgate_section(
 /// what a single pass cannot show. Only on flights with enough crossings (survey + ties).
 fn crossover_section(
     flight: &Flight,
-    run: &crate::pipeline::KfRun,
+    run: &crate::estimate::kf::KfRun,
     i: usize,
     title: &str,
 ) -> Option<Section> {
-    use crate::crossover as xo;
+    use crate::estimate::crossover as xo;
     let crossings = xo::find_crossings(flight);
     if crossings.len() < xo::MIN_CROSSINGS {
         return None;
@@ -583,7 +582,7 @@ fn crossover_section(
             " A crossover fit of the `rate` term (eddy currents from flying through gradients) would leave {:.3} nT rms (F-test p = {:.1e}{}).",
             rms(&d2),
             fit.p_value,
-            if fit.p_value < crate::pipeline::RATE_CROSSOVER_ALPHA {
+            if fit.p_value < crate::estimate::kf::RATE_CROSSOVER_ALPHA {
                 "; significant: add `rate` to the model"
             } else {
                 ", not significant"
@@ -600,7 +599,7 @@ fn crossover_section(
 /// The paper's figure: along-track periodogram of the compensated signal against σ1²/k⁶
 /// plus the white-noise floor, on a uniform distance grid (third differences, so the
 /// steep red spectrum does not leak), averaged in log-spaced wavenumber bins.
-fn along_track_plot(flight: &Flight, run: &crate::pipeline::KfRun, i: usize) -> Option<Plot> {
+fn along_track_plot(flight: &Flight, run: &crate::estimate::kf::KfRun, i: usize) -> Option<Plot> {
     use rustfft::{num_complex::Complex, FftPlanner};
     let s = flight.along_track_m();
     let z: Vec<f64> = flight

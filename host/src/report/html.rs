@@ -171,9 +171,9 @@ impl HtmlReport {
         out
     }
 
-    /// Writes the page to a file (atomically, [`crate::output`]).
+    /// Writes the page to a file (atomically, [`crate::io::output`]).
     pub fn write(&self, path: &std::path::Path) -> anyhow::Result<()> {
-        crate::output::write_file(path, self.to_html())
+        crate::io::output::write_file(path, self.to_html())
     }
 }
 

@@ -3,9 +3,6 @@
 
 use super::*;
 
-/// Reference field for the |B|/B* normalisation (model.md §2).
-pub const B_STAR_NT: f64 = 50_000.0;
-
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FlightKind {
     Calibration,

@@ -38,7 +38,7 @@ pub mod takeoff;
 mod world;
 
 pub use anomaly::{Anomaly, Dipole, Geology, GeologyPreset};
-pub use config::{FlightKind, SimConfig, B_STAR_NT};
+pub use config::{FlightKind, SimConfig};
 pub use flight::{KinState, Plan};
 pub use geo::{EarthField, LocalFrame};
 pub use hidden::{parse_hidden, HiddenEffect, HiddenKind};
@@ -46,7 +46,7 @@ pub use physics::Physics;
 use plan::build_plan;
 use world::*;
 
-use crate::trace::Trace;
+use crate::io::trace::Trace;
 use anyhow::{ensure, Result};
 use flight::{heading_tag, Builder, Manoeuvre};
 use nalgebra::{Matrix3, Rotation3, Vector3};

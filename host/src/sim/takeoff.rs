@@ -26,7 +26,7 @@
 //! themselves like the geology, and never scaled by `anomaly_pp_nt` (they are not geology).
 
 use super::anomaly::{Anomaly, Dipole};
-use super::flight::{Builder, KinState, Manoeuvre, Plan, G_MPS2};
+use super::flight::{Builder, Climb, Manoeuvre, Plan, SpeedStep, TakeoffProfile, G_MPS2};
 use super::hidden::{HiddenEffect, HiddenKind};
 use super::signals::{smooth_step, SineSum};
 use super::world::{json_vec, random_dir, FieldTrack, VecEffect, World};
@@ -51,108 +51,6 @@ const ROTATION_S: f64 = 3.0;
 const LEVEL_OFF_S: f64 = 20.0;
 /// Straight climb before each climbing turn (s): the first at ≈ 60–75 m above ground.
 const CLIMB_STRAIGHT_S: [f64; 2] = [15.0, 5.0];
-
-/// A smooth change of the ground speed: `dv · smooth_step(t − t0, dur)`.
-#[derive(Clone, Copy, Debug)]
-pub struct SpeedStep {
-    pub t0_s: f64,
-    pub dur_s: f64,
-    pub dv_mps: f64,
-}
-
-/// Climb rate `rate · (smooth_step(t − t0, ramp_in) − smooth_step(t − t_level, ramp_out))`.
-#[derive(Clone, Copy, Debug)]
-pub struct Climb {
-    pub t0_s: f64,
-    pub ramp_in_s: f64,
-    pub t_level_s: f64,
-    pub ramp_out_s: f64,
-    pub rate_mps: f64,
-}
-
-/// What a take-off adds to a [`Plan`]: speed, height and the wheels as functions of time.
-#[derive(Clone, Debug)]
-pub struct TakeoffProfile {
-    /// The speed is the sum of these steps (0 before the first).
-    pub speed_steps: Vec<SpeedStep>,
-    /// Survey speed (m/s): where the angle of attack is the plan's trim.
-    pub cruise_mps: f64,
-    /// Sensor height above ground on the wheels (m).
-    pub ground_height_m: f64,
-    /// Rotation (start, duration), s: the weight leaves the wheels.
-    pub rotation_s: (f64, f64),
-    pub climb: Climb,
-    /// Roll and pitch of the aircraft standing on its gear (rad).
-    pub ground_att_rad: [f64; 2],
-    /// When the engine (and its generator) starts (s).
-    pub engine_on_s: f64,
-    /// When the taxi passes the hangar and the vehicle (s).
-    pub apron_pass_s: [f64; 2],
-}
-
-/// ∫₀^τ `smooth_step(·, d)`.
-fn step_integral(tau: f64, d: f64) -> f64 {
-    if tau <= 0.0 {
-        0.0
-    } else if tau >= d {
-        tau - d / 2.0
-    } else {
-        tau / 2.0 - d / (2.0 * PI) * (PI * tau / d).sin()
-    }
-}
-
-impl TakeoffProfile {
-    /// Ground speed (m/s).
-    pub fn speed(&self, t: f64) -> f64 {
-        self.speed_steps
-            .iter()
-            .map(|s| s.dv_mps * smooth_step(t - s.t0_s, s.dur_s).0)
-            .sum()
-    }
-
-    /// Height above ground and climb rate.
-    pub fn height(&self, t: f64) -> (f64, f64) {
-        let c = &self.climb;
-        let h =
-            step_integral(t - c.t0_s, c.ramp_in_s) - step_integral(t - c.t_level_s, c.ramp_out_s);
-        let hd =
-            smooth_step(t - c.t0_s, c.ramp_in_s).0 - smooth_step(t - c.t_level_s, c.ramp_out_s).0;
-        (self.ground_height_m + c.rate_mps * h, c.rate_mps * hd)
-    }
-
-    /// 0 while the weight is on the wheels, 1 flying (raised cosine over the rotation).
-    pub fn airborne(&self, t: f64) -> f64 {
-        smooth_step(t - self.rotation_s.0, self.rotation_s.1).0
-    }
-
-    /// Attitude and height at `t` (the plan gives course, turn rate, trim, wind, gusts).
-    pub fn state(&self, plan: &Plan, t: f64) -> KinState {
-        let (course, rate) = plan.course(t);
-        let (h, climb) = self.height(t);
-        let v = self.speed(t);
-        let air = self.airborne(t);
-        let [g_roll, g_pitch] = self.ground_att_rad;
-        // Flying only (weighted by `air`, > 0 from the rotation speed on); the floors keep
-        // every term finite where the aircraft stands still.
-        let bank = (v * rate / G_MPS2).atan();
-        let (w_speed, w_from) = plan.wind;
-        let crab = (w_speed * (w_from - course).sin() / v.max(1.0))
-            .clamp(-0.5, 0.5)
-            .asin();
-        let aoa = plan.trim_pitch_rad * (self.cruise_mps / v.max(0.5 * self.cruise_mps)).powi(2);
-        let fly_pitch = aoa + climb.atan2(v);
-        // Gusts rock a rolling aircraft a little and a parked one not at all.
-        let gust = air + (1.0 - air) * 0.3 * v / (v + 5.0);
-        KinState {
-            course_rad: course,
-            roll_rad: g_roll + air * (bank - g_roll) + gust * plan.turb[0].value(t),
-            pitch_rad: g_pitch + air * (fly_pitch - g_pitch) + gust * plan.turb[1].value(t),
-            yaw_rad: course + air * crab + gust * plan.turb[2].value(t),
-            h_agl_m: h,
-            climb_mps: climb,
-        }
-    }
-}
 
 /// The take-off's flight plan (see the module documentation); `rng` is the plan's stream.
 pub(super) fn build_plan(cfg: &SimConfig, rng: &mut ChaCha8Rng) -> Result<Plan> {

@@ -229,7 +229,7 @@ impl VecEffect {
                     e.x * e.y * e.z,
                 ];
                 let f: f64 = mono.iter().zip(c).map(|(a, b)| a * b).sum();
-                e * (f * b / B_STAR_NT)
+                e * (f * b / magcomp_core::model::B_STAR_NT)
             }
             VecEffect::Periodic {
                 dir,

@@ -6,14 +6,15 @@
 use super::rows::{row_sample, Cols, RowFilter};
 use super::stats::{year_of_date, year_of_doy, DateSource, Despiker, Listed};
 use super::{Plan, Progress};
-use crate::coefficients::CoefficientFile;
-use crate::compensation::{csv_text, fixed_cell as num, number_cell, EstimatorSettings};
-use crate::input::Selection;
-use crate::model_spec::{with_model, ModelSpec};
-use crate::pipeline::{HostCompensator, KfOptions};
-use crate::position::PositionChecker;
-use crate::trace::rows::{for_each_row, Kind, Row};
-use crate::trace::{aux_column_candidate, ColumnMap, ReadOptions};
+use crate::calibration::coefficients::CoefficientFile;
+use crate::calibration::EstimatorSettings;
+use crate::estimate::kf::{HostCompensator, KfOptions};
+use crate::flight::input::Selection;
+use crate::flight::position::PositionChecker;
+use crate::io::csv::{csv_text, fixed_cell as num, number_cell};
+use crate::io::trace::rows::{for_each_row, Kind, Row};
+use crate::io::trace::{aux_column_candidate, ColumnMap, ReadOptions};
+use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::Flags;
 use std::collections::{BTreeSet, VecDeque};
@@ -74,7 +75,7 @@ impl GapFill {
 /// recomputed only when the date changes.
 #[derive(Default)]
 pub struct IgrfScan {
-    cache: Option<(f64, crate::igrf::Coefficients)>,
+    cache: Option<(f64, crate::flight::igrf::Coefficients)>,
     pub fill: GapFill,
     /// Least and greatest decimal year.
     pub years: (f64, f64),
@@ -91,7 +92,10 @@ impl IgrfScan {
             return Ok(f64::NAN);
         }
         if self.cache.as_ref().is_none_or(|(cy, _)| *cy != year) {
-            self.cache = Some((year, crate::igrf::Igrf::igrf14().coefficients_at(year)?));
+            self.cache = Some((
+                year,
+                crate::flight::igrf::Igrf::igrf14().coefficients_at(year)?,
+            ));
         }
         Ok(self
             .cache
@@ -169,7 +173,7 @@ impl RunResult {
     }
 }
 
-/// Mean and variance of finite values, one at a time (Welford): `metrics::error_rms_nt`.
+/// Mean and variance of finite values, one at a time (Welford): `truth::error_rms_nt`.
 #[derive(Default)]
 struct Spread {
     n: f64,
@@ -196,7 +200,7 @@ impl Spread {
     }
 }
 
-/// `pipeline::RegressorSpread::sigma_nt` from running sums: the regressors'
+/// `kf::RegressorSpread::sigma_nt` from running sums: the regressors'
 /// covariance over the flight (sums of the deviation from the first row, so no large
 /// mean cancels), against the coefficients' covariance.
 struct RegressorCov {
@@ -262,7 +266,7 @@ struct Carried {
 }
 
 fn carried(plan: &Plan) -> Carried {
-    let rename = crate::input::carried_name;
+    let rename = crate::flight::input::carried_name;
     let h = &plan.head;
     let igrf = plan.cols.igrf.is_some() || plan.igrf.is_some();
     let nums = (0..h.names.len())
@@ -277,7 +281,7 @@ fn carried(plan: &Plan) -> Carried {
     Carried { igrf, nums, texts }
 }
 
-/// Output of one row: `compensation::write_output_rows`' layout.
+/// Output of one row: `summary::write_output_rows`' layout.
 fn write_row(
     w: &mut impl Write,
     p: &Pending,
@@ -470,7 +474,7 @@ fn run_kf(
         .sigma1
         .or(coeffs.sigma1)
         .context("internal: no sigma1")?;
-    let cfg = crate::pipeline::config_for(
+    let cfg = crate::estimate::kf::config_for(
         (plan.sample_rate_hz, plan.earth_dir_ned, plan.tie_point),
         &opts,
         sigma1,
@@ -499,7 +503,7 @@ fn run_kf(
         let mut regs = RegressorCov::new(k);
         let mut error = Spread::default();
         let truth = plan.cols.truth_interference.is_some();
-        crate::output::write_with(out, |w| {
+        crate::io::output::write_with(out, |w| {
             header(w, &spec.text(), true)?;
             // Rows in the filter (awaiting their output), and outputs waiting for the
             // next row (a time gap after them flags them too).
@@ -509,7 +513,7 @@ fn run_kf(
             let mut newest = 0usize;
             let mut emit = |p: Pending,
                             o: magcomp_core::compensator::Output,
-                            w: &mut crate::output::AtomicFile,
+                            w: &mut crate::io::output::AtomicFile,
                             gap_rows: &mut BTreeSet<usize>|
              -> Result<()> {
                 let i = o.interference_nt as f64;
@@ -623,7 +627,7 @@ fn run_tl(
     let model = format!("{:?}", fit.config.terms).to_lowercase();
     let truth = plan.cols.truth_interference.is_some();
     let mut error = Spread::default();
-    crate::output::write_with(out, |w| {
+    crate::io::output::write_with(out, |w| {
         header(w, &model, false)?;
         let mut block: VecDeque<Pending> = VecDeque::new();
         let mut context: Option<[f64; 3]> = None;
@@ -634,7 +638,7 @@ fn run_tl(
         let mut emit = |count: usize,
                         block: &mut VecDeque<Pending>,
                         context: &mut Option<[f64; 3]>,
-                        w: &mut crate::output::AtomicFile|
+                        w: &mut crate::io::output::AtomicFile|
          -> Result<()> {
             let rows: Vec<[f64; 3]> = context
                 .iter()
@@ -642,7 +646,7 @@ fn run_tl(
                 .chain(block.iter().map(flux))
                 .collect();
             let off = context.is_some() as usize;
-            let inter = crate::tl::interference(&fit, &rows);
+            let inter = crate::estimate::tl::interference(&fit, &rows);
             for j in 0..count {
                 let p = block.pop_front().context("internal: TL block")?;
                 let i = inter[off + j];

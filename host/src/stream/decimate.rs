@@ -25,12 +25,12 @@
 //! row of a stretch is taken as it is).
 use super::rows::{Cols, RowFilter};
 use super::stats::{Despiker, ExactMedian};
-use super::{Progress, StreamInput};
-use crate::input::Selection;
-use crate::trace::rows::{for_each_row, Kind, RowsHeader};
-use crate::trace::{ColumnMap, ReadOptions, RowOrigin, Trace};
+use super::StreamInput;
+use crate::flight::input::{Decimation, Selection};
+use crate::io::progress::Progress;
+use crate::io::trace::rows::{for_each_row, Kind, RowsHeader};
+use crate::io::trace::{ColumnMap, ReadOptions, RowOrigin, Trace};
 use anyhow::{Context, Result};
-use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
 /// A flight with more rows than this (sampled faster than [`DECIMATED_RATE_HZ`]) is
@@ -40,35 +40,6 @@ pub const DECIMATE_ABOVE_ROWS: usize = 2_000_000;
 
 /// The decimated copy's highest sample rate.
 pub const DECIMATED_RATE_HZ: f64 = 100.0;
-
-/// What a decimated calibration did (on stderr, and `decimated` in `--json`).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Decimation {
-    pub rows_in: usize,
-    pub rows_out: usize,
-    pub factor: usize,
-    pub sample_rate_in_hz: f64,
-    pub sample_rate_out_hz: f64,
-    pub lowpass_taps: usize,
-    /// Scalar glitches taken as missing before the low-pass.
-    pub glitches_removed: usize,
-}
-
-impl Decimation {
-    pub fn message(&self) -> String {
-        format!(
-            "the flight ({} rows at {:.4} Hz) is calibrated on an anti-aliased copy decimated \
-             by {} to {:.4} Hz ({} rows; {} scalar glitch(es) taken out first) to keep memory \
-             bounded (docs/streaming.md; --full-rate reads it whole)",
-            self.rows_in,
-            self.sample_rate_in_hz,
-            self.factor,
-            self.sample_rate_out_hz,
-            self.rows_out,
-            self.glitches_removed
-        )
-    }
-}
 
 /// The decimation factor for a flight of `rows` at `sample_rate_hz`: None when it stays
 /// at its own rate.

@@ -18,18 +18,17 @@
 //! streamed run says so.
 mod apply;
 pub mod decimate;
-pub mod progress;
 pub mod rows;
 pub mod stats;
 
-use crate::coefficients::{CoefficientFile, Method};
-use crate::compensation::EstimatorSettings;
-use crate::input::Selection;
-use crate::model_spec::ModelSpec;
-use crate::trace::rows::for_each_row;
-use crate::trace::{ColumnMap, ReadOptions};
+use crate::calibration::coefficients::{CoefficientFile, Method};
+use crate::calibration::EstimatorSettings;
+use crate::flight::input::Selection;
+use crate::io::progress::Progress;
+use crate::io::trace::rows::for_each_row;
+use crate::io::trace::{ColumnMap, ReadOptions};
+use crate::model::spec::ModelSpec;
 use anyhow::{bail, Context, Result};
-pub use progress::{quiet_progress, Progress, Stage};
 use rows::{row_sample, Cols, RowFilter};
 use serde::Serialize;
 use stats::{DateScan, DateSource, FirstPass, SecondPass};
@@ -69,7 +68,7 @@ pub fn unstreamable(
         Ok(s) => s,
         Err(e) => return Some(format!("model '{}': {e}", c.model)),
     };
-    if crate::preprocess::needed(&spec) {
+    if crate::estimate::corrections::needed(&spec) {
         return Some("`lag`/`fluxtemp` pre-process the whole flight".into());
     }
     if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
@@ -104,7 +103,7 @@ pub struct StreamSummary {
     /// Post-flight on a long, fast flight: the coefficients were calibrated on this
     /// decimated copy, then applied here at the full rate (`decimate`).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub decimated: Option<decimate::Decimation>,
+    pub decimated: Option<crate::flight::input::Decimation>,
 }
 
 /// The core field as `input::prepare` decides it.
@@ -120,7 +119,7 @@ enum Core {
 /// Everything the third pass needs from the first two.
 pub(crate) struct Plan {
     pub cols: Cols,
-    pub head: crate::trace::rows::RowsHeader,
+    pub head: crate::io::trace::rows::RowsHeader,
     pub rows: usize,
     pub sample_rate_hz: f64,
     pub gap_limit_s: f64,
@@ -133,8 +132,8 @@ pub(crate) struct Plan {
     pub igrf: Option<(DateSource, apply::GapFill)>,
     pub channels: Vec<String>,
     /// The coefficient file's fluxgate calibration, applied to every fluxgate vector before
-    /// the compensator (as `pipeline::run_kf_estimator` does in memory).
-    pub fluxgate_calibration: Option<crate::fluxgate::FluxgateCalibration>,
+    /// the compensator (as `kf::run_kf_estimator` does in memory).
+    pub fluxgate_calibration: Option<crate::estimate::fluxcal::FluxgateCalibration>,
 }
 
 /// `compensate --coeffs` streamed: writes `out` and returns the summary. `quiet`: no
@@ -173,8 +172,8 @@ pub fn compensate(
     let mut first = FirstPass::new(channels.len());
     let given_year = match input.date {
         Some(d) => {
-            let (y, doy) = crate::igrf::parse_date(d).context("--date")?;
-            Some(crate::igrf::decimal_year(y, doy, 0.0))
+            let (y, doy) = crate::flight::igrf::parse_date(d).context("--date")?;
+            Some(crate::flight::igrf::decimal_year(y, doy, 0.0))
         }
         None => None,
     };
@@ -305,8 +304,8 @@ pub fn compensate(
             let (y0, y1) = igrf_scan.years;
             eprintln!(
                 "{}",
-                crate::input::CoreField::Computed {
-                    model: crate::igrf::MODEL_NAME.into(),
+                crate::flight::input::CoreField::Computed {
+                    model: crate::flight::igrf::MODEL_NAME.into(),
                     epochs: (y0, y1),
                     date_source: label.clone(),
                 }
@@ -318,7 +317,7 @@ pub fn compensate(
         Core::Missing => {
             let (lo, hi) = igrf_scan.range_nt;
             let change_nt = (hi >= lo).then_some(hi - lo);
-            if let Some(m) = (crate::input::CoreField::Missing { change_nt }).message() {
+            if let Some(m) = (crate::flight::input::CoreField::Missing { change_nt }).message() {
                 eprintln!("{m}");
             }
             None
@@ -330,7 +329,7 @@ pub fn compensate(
     if let Some(spec) = &spec {
         if spec.field && !(first.has_position || first.has_speed) {
             let given = est.speed_mps.or(coeffs.assumed_speed_mps);
-            let (v, warning) = crate::input::assumed_ground_speed(given)?;
+            let (v, warning) = crate::flight::input::assumed_ground_speed(given)?;
             assumed_speed_mps = Some(v);
             warnings.push(warning);
         }
@@ -372,10 +371,10 @@ pub fn compensate(
     };
     let result = apply::run(&source, &plan, est, coeffs, spec.as_ref(), out, quiet)?;
     if let Some(w) = stats::glitch_warning(path, &result.glitches) {
-        crate::position::warn_once(&w);
+        crate::flight::position::warn_once(&w);
     }
     if let Some(w) = stats::faults_warning(path, &first.position_faults) {
-        crate::position::warn_once(&w);
+        crate::flight::position::warn_once(&w);
     }
     if let Some(w) = result.gaps_warning() {
         warnings.push(w);

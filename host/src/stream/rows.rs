@@ -1,7 +1,7 @@
 //! One trace row turned into what the core consumes, exactly as `Flight::from_trace`
 //! builds a sample, and the row selection of `--lines`/`--time`.
-use crate::input::Selection;
-use crate::trace::rows::{Kind, Row, RowsHeader};
+use crate::flight::input::Selection;
+use crate::io::trace::rows::{Kind, Row, RowsHeader};
 use anyhow::{bail, Result};
 use magcomp_core::{AlignedSample, MagCounts};
 

@@ -1,11 +1,11 @@
 //! The first two streaming passes: the whole-flight figures the in-memory path takes from
 //! its columns (sample rate, main-field direction, tie point, date, core-field gaps, input
 //! checks, scalar noise), each computed exactly as `Flight::from_trace`, `input::prepare`,
-//! `qc::inputs::check` and `pipeline::estimate_noise_nt` compute them, from one row at a
+//! `qc::inputs::check` and `kf::estimate_noise_nt` compute them, from one row at a
 //! time.
 use super::rows::RowSample;
+use crate::flight::position::{PositionChecker, PositionFault};
 use crate::flight::{FieldDirection, TieDetector};
-use crate::position::{PositionChecker, PositionFault};
 use anyhow::Result;
 use magcomp_core::compensator::TiePoint;
 use std::collections::{HashMap, VecDeque};
@@ -344,7 +344,7 @@ impl SecondPass {
         }
     }
 
-    /// `pipeline::estimate_noise_nt` of the despiked scalar.
+    /// `kf::estimate_noise_nt` of the despiked scalar.
     pub fn noise_nt(&self) -> Option<f64> {
         if self.d3.len() < 16 {
             return None;
@@ -375,9 +375,9 @@ pub fn year_of_date(text: &str, row: usize) -> Result<f64> {
     if text.is_empty() {
         return Ok(f64::NAN);
     }
-    let (y, doy) = crate::igrf::parse_date(text)
+    let (y, doy) = crate::flight::igrf::parse_date(text)
         .with_context(|| format!("column 'date', data row {}", row + 1))?;
-    Ok(crate::igrf::decimal_year(y, doy, 0.0))
+    Ok(crate::flight::igrf::decimal_year(y, doy, 0.0))
 }
 
 /// Decimal year of a year/day-of-year pair (NaN when either is missing).
@@ -392,7 +392,11 @@ pub fn year_of_doy(y: f64, d: f64, names: &str, row: usize) -> Result<f64> {
             row + 1
         );
     }
-    Ok(crate::igrf::decimal_year(y as i32, d.floor() as u32, 0.0))
+    Ok(crate::flight::igrf::decimal_year(
+        y as i32,
+        d.floor() as u32,
+        0.0,
+    ))
 }
 
 /// `Flight::from_trace`'s glitch warning from the listed glitches.

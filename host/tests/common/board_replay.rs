@@ -2,11 +2,11 @@
 //! trace as the board sees it, the board's code run over its capture, and a coefficient
 //! file for the `replay` CLI.
 
-use magcomp::capture_sim::{trace_to_capture, CaptureOptions};
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+use magcomp::board::replay::{replay_capture, ReplayOptions};
 use magcomp::flight::Flight;
-use magcomp::model_spec::ModelSpec;
-use magcomp::replay::{replay_capture, ReplayOptions};
-use magcomp::trace::Trace;
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
 use magcomp_core::protocol::record::Record;
 use magcomp_core::Flags;
 use std::path::{Path, PathBuf};

@@ -3,7 +3,7 @@
 //! rows 0–6499, box 2 the rest. Shared by the tests that fly them.
 #![allow(dead_code)] // each test binary uses the part it needs
 
-use magcomp::trace::Trace;
+use magcomp::io::trace::Trace;
 use std::path::PathBuf;
 
 pub const BOX1_ROWS: usize = 6500;
@@ -73,7 +73,7 @@ impl Boxes {
 
 /// Standard deviation of the 0.1–0.9 Hz band (20 samples trimmed at each end, as MagNav).
 pub fn band_std_nt(x: &[f64]) -> f64 {
-    let bp = magcomp::tl::bandpass(x, 4, 0.1, 0.9, FS_HZ).unwrap();
+    let bp = magcomp::signal::bandpass::bandpass(x, 4, 0.1, 0.9, FS_HZ).unwrap();
     let v = &bp[20..bp.len() - 20];
     let m = v.iter().sum::<f64>() / v.len() as f64;
     (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()

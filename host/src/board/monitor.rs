@@ -1,0 +1,621 @@
+//! `magcomp monitor PORT_OR_FILE`: decodes the board's `$MCREC` stream and shows it live.
+//!
+//! Input: a serial device opened as a file (set it up first, e.g.
+//! `stty -F /dev/ttyUSB0 115200 raw -echo`), a recorded file, or `-` for stdin
+//! (`socat - /dev/ttyUSB0,b115200,raw | magcomp monitor -`).
+//! On a terminal the panel is redrawn in place every `--interval-s` of wall-clock time;
+//! otherwise one summary line is printed per `--interval-s` of record time (deterministic
+//! for files and logs), and a final summary at the end of the stream.
+//! Every line is accounted for: records, CRC failures, malformed records, replies
+//! (`$MCACK`/`$MCERR`), boot banners (`$MCBOOT`), frame acknowledgements (`$MCSYN`, HIL
+//! builds), other lines. Missing sequence numbers are counted and listed; the last `STATUS`
+//! reply's counters are shown (docs/protocols.md §5).
+
+use crate::board::replay::{counts_text, nt_text};
+use anyhow::{Context, Result};
+use magcomp_core::protocol::common::crc16_ccitt;
+use magcomp_core::protocol::record::{decode_record, Record, RecordError};
+use magcomp_core::Flags;
+use std::collections::VecDeque;
+use std::fmt::Write as _;
+use std::io::{Read, Write};
+use std::time::{Duration, Instant};
+
+/// Lines longer than this are not records (`MAX_RECORD_LEN` is 192): counted, skipped.
+pub const MAX_LINE: usize = 512;
+/// Gap list kept for display (the count is exact beyond it).
+pub const MAX_GAPS: usize = 1000;
+/// A jump forward larger than this is a restart or a corrupted-but-valid line, not a gap.
+pub const MAX_GAP: u32 = 1_000_000;
+/// Records used for the rate estimate.
+const RATE_WINDOW: usize = 100;
+
+/// Flag bits as words, in bit order.
+pub const FLAG_NAMES: [&str; 13] = [
+    "FLUX_STALE",
+    "NO_GPS",
+    "PARSE_ERROR",
+    "MAG_MISSING",
+    "INNOVATION_REJECTED",
+    "FILTER_RESET",
+    "TIE_POINT",
+    "AUX_MISSING",
+    "SURVEY_MODE",
+    "NOT_CONVERGED",
+    "DERIVATIVE_DEGRADED",
+    "TIE_REJECTED",
+    "LEVEL_UNDETERMINED",
+];
+
+/// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT13`.
+pub fn flag_words(f: Flags) -> String {
+    let mut s = String::new();
+    for bit in 0..16 {
+        if f.0 & (1 << bit) == 0 {
+            continue;
+        }
+        if !s.is_empty() {
+            s.push('|');
+        }
+        match FLAG_NAMES.get(bit) {
+            Some(n) => s.push_str(n),
+            None => {
+                let _ = write!(s, "BIT{bit}");
+            }
+        }
+    }
+    if s.is_empty() {
+        s.push('-');
+    }
+    s
+}
+
+/// Counters over the whole stream.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MonitorStats {
+    /// Non-empty lines read.
+    pub lines: u64,
+    pub records: u64,
+    /// `$MCREC` lines whose CRC failed.
+    pub crc_errors: u64,
+    /// `$MCREC` lines with a good CRC but bad fields, or without a valid frame.
+    pub parse_errors: u64,
+    /// `$MCACK` / `$MCERR` replies.
+    pub replies: u64,
+    /// Anything else (noise, overlong lines, board lines with a bad CRC).
+    pub other_lines: u64,
+    /// `$MCBOOT` banners (more than one: the board restarted) and the last one.
+    pub boots: u64,
+    pub boot: Option<BootBanner>,
+    /// `$MCSYN` frame acknowledgements (HIL builds) and the last counts (scalar, flux, GPS).
+    pub syncs: u64,
+    pub sync: Option<[u64; 3]>,
+    /// The last `$MCACK,STATUS` reply.
+    pub status: Option<BoardStatus>,
+    /// `$MCERR,8,STORAGE` replies: the board could not write its flash.
+    pub storage_errors: u64,
+    /// Sequence numbers never seen, and the gaps `(first, last)` (first `MAX_GAPS`).
+    pub missing: u64,
+    pub gaps: Vec<(u32, u32)>,
+    /// Sequence going backwards or jumping > `MAX_GAP` (board restart, duplicate).
+    pub restarts: u64,
+    /// Records carrying each flag bit.
+    pub flag_counts: [u64; 16],
+    pub first_t_s: Option<f64>,
+    pub last: Option<Record>,
+}
+
+/// `$MCBOOT,<board>,<version>[,SYNC]*HHHH`.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct BootBanner {
+    pub board: String,
+    pub version: String,
+    /// The firmware acknowledges frames with `$MCSYN` (feature `hil-sync`).
+    pub sync: bool,
+}
+
+/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>*HHHH`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BoardStatus {
+    pub survey: bool,
+    /// Records emitted so far.
+    pub records: u64,
+    /// Lines/frames/sentences the parsers rejected, per sensor port.
+    pub err_scalar: u64,
+    pub err_flux: u64,
+    pub err_gps: u64,
+    /// UART overrun/framing/noise errors (all ports).
+    pub err_uart: u64,
+    /// Commands rejected with `$MCERR`.
+    pub err_cmd: u64,
+}
+
+/// The body of `$<body>*HHHH` (line end optional) when its CRC-16 is right.
+pub fn checked_body(l: &[u8]) -> Option<&[u8]> {
+    let mut l = l.strip_prefix(b"$")?;
+    while let [rest @ .., b'\r' | b'\n'] = l {
+        l = rest;
+    }
+    let star = l.iter().rposition(|&b| b == b'*')?;
+    let (body, crc) = (&l[..star], &l[star + 1..]);
+    let crc = std::str::from_utf8(crc).ok()?;
+    if crc.len() != 4 {
+        return None;
+    }
+    (u16::from_str_radix(crc, 16).ok()? == crc16_ccitt(body)).then_some(body)
+}
+
+/// `$MCBOOT` banner fields (CRC checked).
+pub fn parse_boot(l: &[u8]) -> Option<BootBanner> {
+    let body = std::str::from_utf8(checked_body(l)?).ok()?;
+    let mut f = body.strip_prefix("MCBOOT,")?.split(',');
+    let board = f.next()?.to_string();
+    let version = f.next()?.to_string();
+    let sync = match f.next() {
+        None => false,
+        Some("SYNC") => true,
+        Some(_) => return None,
+    };
+    f.next().is_none().then_some(BootBanner {
+        board,
+        version,
+        sync,
+    })
+}
+
+/// `$MCSYN` frame counts (scalar, fluxgate, GPS), CRC checked.
+pub fn parse_sync(l: &[u8]) -> Option<[u64; 3]> {
+    let body = std::str::from_utf8(checked_body(l)?).ok()?;
+    let mut f = body.strip_prefix("MCSYN,")?.split(',');
+    let mut n = [0u64; 3];
+    for v in &mut n {
+        *v = f.next()?.parse().ok()?;
+    }
+    f.next().is_none().then_some(n)
+}
+
+/// `$MCACK,STATUS` fields (CRC checked).
+pub fn parse_status(l: &[u8]) -> Option<BoardStatus> {
+    let body = std::str::from_utf8(checked_body(l)?).ok()?;
+    let mut f = body.strip_prefix("MCACK,STATUS,")?.split(',');
+    let survey = match f.next()? {
+        "CAL" => false,
+        "SURVEY" => true,
+        _ => return None,
+    };
+    let mut n = [0u64; 6];
+    for v in &mut n {
+        *v = f.next()?.parse().ok()?;
+    }
+    f.next().is_none().then_some(BoardStatus {
+        survey,
+        records: n[0],
+        err_scalar: n[1],
+        err_flux: n[2],
+        err_gps: n[3],
+        err_uart: n[4],
+        err_cmd: n[5],
+    })
+}
+
+/// The decoder state behind the display.
+#[derive(Clone, Debug, Default)]
+pub struct Monitor {
+    stats: MonitorStats,
+    expected: Option<u32>,
+    recent_t_s: VecDeque<f64>,
+}
+
+impl Monitor {
+    pub fn new() -> Self {
+        Self::default()
+    }
+    pub fn stats(&self) -> &MonitorStats {
+        &self.stats
+    }
+
+    /// One line (with or without its terminator); returns the record if it is one.
+    pub fn push_line(&mut self, line: &[u8]) -> Option<Record> {
+        let mut l = line;
+        while let [rest @ .., b'\r' | b'\n' | b' ' | b'\t'] = l {
+            l = rest;
+        }
+        // Idle-line NULs and blanks before a record are not part of it.
+        while let [b' ' | b'\t' | b'\r' | 0, rest @ ..] = l {
+            l = rest;
+        }
+        if l.is_empty() {
+            return None;
+        }
+        let s = &mut self.stats;
+        s.lines += 1;
+        if l.len() > MAX_LINE {
+            s.other_lines += 1;
+            return None;
+        }
+        if l.starts_with(b"$MCACK") || l.starts_with(b"$MCERR") {
+            s.replies += 1;
+            if let Some(st) = parse_status(l) {
+                s.status = Some(st);
+            } else if checked_body(l) == Some(b"MCERR,8,STORAGE") {
+                s.storage_errors += 1;
+            }
+            return None;
+        }
+        if l.starts_with(b"$MCBOOT") {
+            match parse_boot(l) {
+                Some(b) => {
+                    s.boots += 1;
+                    s.boot = Some(b);
+                }
+                None => s.other_lines += 1,
+            }
+            return None;
+        }
+        if l.starts_with(b"$MCSYN") {
+            match parse_sync(l) {
+                Some(n) => {
+                    s.syncs += 1;
+                    s.sync = Some(n);
+                }
+                None => s.other_lines += 1,
+            }
+            return None;
+        }
+        if !l.starts_with(b"$MCREC") {
+            // A record whose `$` or prefix was corrupted: its CRC cannot be checked.
+            if l.windows(6).any(|w| w == b"MCREC,") {
+                s.parse_errors += 1;
+            } else {
+                s.other_lines += 1;
+            }
+            return None;
+        }
+        match decode_record(l) {
+            Ok(r) => {
+                self.record(&r);
+                Some(r)
+            }
+            Err(RecordError::Crc { .. }) => {
+                s.crc_errors += 1;
+                None
+            }
+            Err(_) => {
+                s.parse_errors += 1;
+                None
+            }
+        }
+    }
+
+    fn record(&mut self, r: &Record) {
+        let s = &mut self.stats;
+        s.records += 1;
+        for (bit, c) in s.flag_counts.iter_mut().enumerate() {
+            if r.flags.0 & (1 << bit) != 0 {
+                *c += 1;
+            }
+        }
+        match self.expected {
+            Some(e) if r.seq == e => {}
+            Some(e) if r.seq > e && r.seq - e <= MAX_GAP => {
+                s.missing += u64::from(r.seq - e);
+                if s.gaps.len() < MAX_GAPS {
+                    s.gaps.push((e, r.seq - 1));
+                }
+            }
+            Some(_) => s.restarts += 1,
+            None => {}
+        }
+        self.expected = Some(r.seq.wrapping_add(1));
+        if r.t_s.is_finite() {
+            s.first_t_s.get_or_insert(r.t_s);
+            if self.recent_t_s.len() == RATE_WINDOW {
+                self.recent_t_s.pop_front();
+            }
+            self.recent_t_s.push_back(r.t_s);
+        }
+        s.last = Some(*r);
+    }
+
+    /// Record rate (Hz) from the time stamps of the last records.
+    pub fn rate_hz(&self) -> Option<f64> {
+        let (a, b) = (self.recent_t_s.front()?, self.recent_t_s.back()?);
+        let span = b - a;
+        (span > 0.0).then(|| (self.recent_t_s.len() - 1) as f64 / span)
+    }
+
+    fn gap_text(&self) -> String {
+        let g = &self.stats.gaps;
+        let mut s = String::new();
+        for (a, b) in g.iter().rev().take(5).rev() {
+            if !s.is_empty() {
+                s.push_str(", ");
+            }
+            if a == b {
+                let _ = write!(s, "{a}");
+            } else {
+                let _ = write!(s, "{a}-{b}");
+            }
+        }
+        if g.len() > 5 {
+            s = format!("… {s}");
+        }
+        s
+    }
+
+    /// One line: counts, rate, errors, last values.
+    pub fn summary_line(&self) -> String {
+        let s = &self.stats;
+        let mut o = format!(
+            "records {} rate {} Hz | crc {} bad {} other {} replies {} | missing {}",
+            s.records,
+            self.rate_hz().map_or("-".into(), |r| format!("{r:.2}")),
+            s.crc_errors,
+            s.parse_errors,
+            s.other_lines,
+            s.replies,
+            s.missing
+        );
+        if s.restarts > 0 {
+            let _ = write!(o, " restarts {}", s.restarts);
+        }
+        if s.boots > 1 {
+            let _ = write!(o, " boots {}", s.boots);
+        }
+        if s.storage_errors > 0 {
+            let _ = write!(o, " storage errors {}", s.storage_errors);
+        }
+        if let Some(st) = &s.status {
+            let _ = write!(o, " | status {}", status_text(st));
+        }
+        if let Some(r) = &s.last {
+            let _ = write!(
+                o,
+                " | seq {} t {:.3} comp {} flags {}",
+                r.seq,
+                r.t_s,
+                counts_text(r.compensated),
+                flag_words(r.flags)
+            );
+        }
+        o
+    }
+
+    /// The live panel (one string of lines).
+    pub fn panel(&self, source: &str) -> String {
+        let s = &self.stats;
+        let mut o = String::new();
+        let _ = writeln!(o, "magcomp monitor — {source}");
+        if let Some(b) = &s.boot {
+            let _ = writeln!(
+                o,
+                "  board          {} {}{} (boots {})",
+                b.board,
+                b.version,
+                if b.sync { " SYNC" } else { "" },
+                s.boots
+            );
+        }
+        match &s.last {
+            Some(r) => {
+                let _ = writeln!(o, "  seq            {}", r.seq);
+                let _ = writeln!(o, "  t              {:.6} s", r.t_s);
+                let _ = writeln!(o, "  mag            {} nT", counts_text(r.mag));
+                let _ = writeln!(o, "  interference   {} nT", nt_text(r.interference_nt));
+                let _ = writeln!(o, "  compensated    {} nT", counts_text(r.compensated));
+                let _ = writeln!(o, "  anomaly        {} nT", nt_text(r.anomaly_nt));
+                let _ = writeln!(o, "  innovation     {} nT", nt_text(r.innovation_nt));
+                let _ = writeln!(
+                    o,
+                    "  flags          {:04X} {}",
+                    r.flags.0,
+                    flag_words(r.flags)
+                );
+            }
+            None => {
+                let _ = writeln!(o, "  (no record yet)");
+            }
+        }
+        let _ = writeln!(
+            o,
+            "  rate           {} Hz",
+            self.rate_hz().map_or("-".into(), |r| format!("{r:.2}"))
+        );
+        let _ = writeln!(
+            o,
+            "  records {}  crc errors {}  malformed {}  other lines {}  replies {}",
+            s.records, s.crc_errors, s.parse_errors, s.other_lines, s.replies
+        );
+        let _ = writeln!(
+            o,
+            "  missing seq {} in {} gaps{}{}",
+            s.missing,
+            s.gaps.len(),
+            if s.gaps.is_empty() { "" } else { ": " },
+            self.gap_text()
+        );
+        if s.restarts > 0 {
+            let _ = writeln!(o, "  restarts/out of order {}", s.restarts);
+        }
+        if let Some(st) = &s.status {
+            let _ = writeln!(o, "  board status   {}", status_text(st));
+        }
+        if s.storage_errors > 0 {
+            let _ = writeln!(o, "  flash write failures {}", s.storage_errors);
+        }
+        if let Some(n) = &s.sync {
+            let _ = writeln!(
+                o,
+                "  frames taken   scalar {} flux {} gps {} ($MCSYN {})",
+                n[0], n[1], n[2], s.syncs
+            );
+        }
+        let mut fl = String::new();
+        for (bit, c) in s.flag_counts.iter().enumerate() {
+            if *c > 0 {
+                let name = FLAG_NAMES.get(bit).copied().unwrap_or("?");
+                let _ = write!(fl, " {name} {c}");
+            }
+        }
+        let _ = writeln!(o, "  flagged:{}", if fl.is_empty() { " none" } else { &fl });
+        o
+    }
+}
+
+/// `CAL records 400 | errors scalar 0 flux 0 gps 0 uart 0 cmd 0`.
+pub fn status_text(st: &BoardStatus) -> String {
+    format!(
+        "{} records {} | errors scalar {} flux {} gps {} uart {} cmd {}",
+        if st.survey { "SURVEY" } else { "CAL" },
+        st.records,
+        st.err_scalar,
+        st.err_flux,
+        st.err_gps,
+        st.err_uart,
+        st.err_cmd
+    )
+}
+
+/// Header and rows of the saved CSV (a trace-like file: `t` first, `#` metadata).
+pub const SAVE_HEADER: &str = "t,mag,interference,compensated,anomaly,innovation,flags,seq";
+
+pub fn save_row(r: &Record) -> String {
+    format!(
+        "{:.6},{},{},{},{},{},{},{}",
+        r.t_s,
+        counts_text(r.mag),
+        nt_text(r.interference_nt),
+        counts_text(r.compensated),
+        nt_text(r.anomaly_nt),
+        nt_text(r.innovation_nt),
+        r.flags.0,
+        r.seq
+    )
+}
+
+/// How the stream is shown.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Display {
+    /// Redraw the panel in place (ANSI) every period of wall-clock time.
+    Live(Duration),
+    /// A summary line per this many seconds of record time.
+    Summary(f64),
+    /// Nothing until the end.
+    Quiet,
+}
+
+/// Reads `input` to its end, showing progress on `out` and saving records to `save`.
+/// With `follow`, the end of `input` is waited on (polled every 200 ms), never reached.
+pub fn monitor_stream<R: Read, W: Write>(
+    mut input: R,
+    source: &str,
+    display: Display,
+    follow: bool,
+    out: &mut W,
+    mut save: Option<&mut dyn Write>,
+) -> Result<MonitorStats> {
+    let mut m = Monitor::new();
+    if let Some(w) = save.as_mut() {
+        writeln!(w, "# source: magcomp monitor")?;
+        writeln!(w, "# input: {source}")?;
+        writeln!(w, "{SAVE_HEADER}")?;
+    }
+    if let Display::Live(_) = display {
+        write!(out, "\x1b[2J")?;
+    }
+    let mut buf = [0u8; 4096];
+    let mut line: Vec<u8> = Vec::with_capacity(256);
+    let mut overlong = false;
+    let mut last_draw = Instant::now();
+    let mut next_summary_t: Option<f64> = None;
+    let mut handle =
+        |m: &mut Monitor, l: &[u8], out: &mut W, save: &mut Option<&mut dyn Write>| -> Result<()> {
+            if let Some(r) = m.push_line(l) {
+                if let Some(w) = save.as_mut() {
+                    writeln!(w, "{}", save_row(&r))?;
+                }
+                if let (Display::Summary(p), true) = (display, r.t_s.is_finite()) {
+                    let due = *next_summary_t.get_or_insert(r.t_s + p);
+                    if r.t_s >= due {
+                        writeln!(out, "{}", m.summary_line())?;
+                        // Skip forward over silent stretches instead of printing a burst.
+                        let k = ((r.t_s - due) / p).floor() + 1.0;
+                        next_summary_t = Some(due + k * p);
+                    }
+                }
+            }
+            Ok(())
+        };
+    loop {
+        let n = match input.read(&mut buf) {
+            Ok(0) if follow => {
+                if let Some(w) = save.as_mut() {
+                    w.flush()?;
+                }
+                std::thread::sleep(Duration::from_millis(200));
+                0
+            }
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(e).context(format!("reading {source}")),
+        };
+        for &b in &buf[..n] {
+            if b == b'\n' {
+                if overlong {
+                    m.push_line(&[b'?'; MAX_LINE + 1]);
+                } else {
+                    handle(&mut m, &line, out, &mut save)?;
+                }
+                line.clear();
+                overlong = false;
+            } else if line.len() > MAX_LINE {
+                overlong = true;
+            } else {
+                line.push(b);
+            }
+        }
+        if let Display::Live(period) = display {
+            if last_draw.elapsed() >= period {
+                draw(out, &m, source)?;
+                last_draw = Instant::now();
+            }
+        }
+    }
+    if overlong {
+        m.push_line(&[b'?'; MAX_LINE + 1]);
+    } else if !line.is_empty() {
+        handle(&mut m, &line, out, &mut save)?;
+    }
+    match display {
+        Display::Live(_) => draw(out, &m, source)?,
+        _ => writeln!(out, "end of stream: {}", m.summary_line())?,
+    }
+    out.flush()?;
+    Ok(m.stats().clone())
+}
+
+fn draw<W: Write>(out: &mut W, m: &Monitor, source: &str) -> Result<()> {
+    // Home, each line cleared to its end, then the rest of the screen.
+    let mut s = String::from("\x1b[H");
+    for l in m.panel(source).lines() {
+        s.push_str(l);
+        s.push_str("\x1b[K\n");
+    }
+    s.push_str("\x1b[J");
+    out.write_all(s.as_bytes())?;
+    out.flush()?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn flag_words_decode_bits() {
+        assert_eq!(flag_words(Flags(0)), "-");
+        assert_eq!(flag_words(Flags(0b11)), "FLUX_STALE|NO_GPS");
+        assert_eq!(flag_words(Flags(1 << 8 | 1 << 13)), "SURVEY_MODE|BIT13");
+    }
+}

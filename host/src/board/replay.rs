@@ -1,0 +1,573 @@
+//! `magcomp replay CAPTURE`: a raw sensor capture through `magcomp_core::acquisition`, the
+//! code the firmware runs, in capture-line order; writes the records the board would send.
+//!
+//! Same as the board: readers, time base (virtual clock from the scalar line count, GPS
+//! time of day anchor), staleness limits of 2.5 sensor periods, the derivative window of a
+//! 16-sample ring, `CompensatorConfig::for_rate` defaults. Only the order of the chunks
+//! matters, not their timestamps (the board's records do not depend on UART jitter either).
+//! Rates come from `--rate`/`--flux-rate`/`--gps-rate`, else from the capture's
+//! `# scalar_hz:` / `# flux_hz:` / `# gps_hz:` comments, else the board's 10/10/1 Hz.
+//! The fluxgate's temperature drift (`fluxtemp`, `SETFTEMP`) is corrected per fluxgate line
+//! with the line's 4th field, as on the board.
+//! The scalar's delay τ (`lag`, the board's `SETLAG`) goes through the board's delay line:
+//! each scalar sample is paired with the fluxgate at t − τ.
+
+use crate::board::capture::FluxFormat;
+use crate::model::spec::{with_model, ModelSpec};
+use anyhow::{bail, Context, Result};
+use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
+use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
+use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
+use magcomp_core::protocol::lag_line::{LagLine, LAG_FRAMES, MAX_LAG_S};
+use magcomp_core::protocol::record::Record;
+use magcomp_core::{Compensator, Flags, MagCounts};
+use std::fmt;
+use std::io::BufRead;
+use std::path::Path;
+
+/// State capacity of the host replay (any model the host can build).
+pub const REPLAY_STATES: usize = 64;
+/// Derivative ring of the board (`WINDOW` in the firmware): same half-width clamp.
+pub const REPLAY_WINDOW: usize = 16;
+/// The board's nominal rates when neither the flags nor the capture say otherwise.
+pub const BOARD_RATES_HZ: (f64, f64, f64) = (10.0, 10.0, 1.0);
+
+/// Columns of the records CSV.
+pub const CSV_HEADER: &str = "seq,t,mag,interference,compensated,anomaly,innovation,flags";
+
+/// Everything the replay needs besides the bytes.
+#[derive(Clone, Debug)]
+pub struct ReplayOptions {
+    pub model: ModelSpec,
+    pub coefficients: Option<Vec<f32>>,
+    pub rate_hz: Option<f64>,
+    pub flux_rate_hz: Option<f64>,
+    pub gps_rate_hz: Option<f64>,
+    pub flux: Option<FluxFormat>,
+    /// The fluxgate calibration (`fluxcal`) the board applies (`SETFLUX`).
+    pub flux_calibration: Option<FluxCalibration>,
+    /// The scalar's delay τ (s) the board applies (`SETLAG`): the fluxgate is delayed.
+    pub lag_s: Option<f32>,
+    /// The fluxgate's temperature drift the board corrects (`fluxtemp`, `SETFTEMP`), with
+    /// the temperature of each fluxgate line (4th field).
+    pub flux_temp: Option<FluxTempCal>,
+}
+
+impl ReplayOptions {
+    pub fn new(model: ModelSpec) -> Self {
+        Self {
+            model,
+            coefficients: None,
+            rate_hz: None,
+            flux_rate_hz: None,
+            gps_rate_hz: None,
+            flux: None,
+            flux_calibration: None,
+            lag_s: None,
+            flux_temp: None,
+        }
+    }
+}
+
+/// What a replay read and produced.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReplayStats {
+    pub records: u64,
+    pub counters: AcqCounters,
+    /// Capture data lines read, and those that could not be decoded (skipped).
+    pub capture_lines: u64,
+    pub bad_capture_lines: u64,
+    pub scalar_hz: f64,
+    pub flux_hz: f64,
+    pub gps_hz: f64,
+    pub flux_format: Option<FluxFormat>,
+    pub first_t_s: Option<f64>,
+    pub last_t_s: Option<f64>,
+    /// Capture lines dropped because they repeat the previous line of their port (same
+    /// time stamp, same bytes): a logger never receives one chunk twice.
+    pub duplicate_lines: u64,
+    /// Capture lines dropped because their time stamp is earlier than one already read on
+    /// the same port (bytes of one port arrive in order; e.g. a capture concatenated twice).
+    pub time_reversals: u64,
+    /// File line of the first of each, for the warning.
+    pub first_duplicate_line: Option<u64>,
+    pub first_reversal_line: Option<u64>,
+}
+
+impl ReplayStats {
+    /// What was dropped, for a warning (`None` when nothing was).
+    pub fn dropped_warning(&self) -> Option<String> {
+        let mut parts = Vec::new();
+        if let Some(l) = self.first_duplicate_line {
+            parts.push(format!(
+                "{} duplicated line(s) (first at line {l})",
+                self.duplicate_lines
+            ));
+        }
+        if let Some(l) = self.first_reversal_line {
+            parts.push(format!(
+                "{} line(s) earlier than their port's previous line (first at line {l})",
+                self.time_reversals
+            ));
+        }
+        (!parts.is_empty()).then(|| {
+            format!(
+                "dropped {}; the next record after each is flagged PARSE_ERROR",
+                parts.join(" and ")
+            )
+        })
+    }
+}
+
+impl fmt::Display for ReplayStats {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let c = &self.counters;
+        write!(
+            f,
+            "{} records from {} scalar lines (rates {}/{}/{} Hz, fluxgate {}); errors: scalar {}, flux {}, gps {}; \
+             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines; \
+             dropped: {} duplicated lines, {} lines back in time",
+            self.records,
+            c.scalar_lines,
+            self.scalar_hz,
+            self.flux_hz,
+            self.gps_hz,
+            self.flux_format.map_or("?", |x| x.name()),
+            c.scalar_errors,
+            c.flux_errors,
+            c.gps_errors,
+            c.flux_stale,
+            c.no_gps,
+            c.mag_missing,
+            c.parse_error,
+            self.bad_capture_lines,
+            self.duplicate_lines,
+            self.time_reversals
+        )
+    }
+}
+
+/// Reads coefficients: a `calibrate` JSON file or plain numbers.
+pub fn read_coefficients(path: &Path) -> Result<Vec<f32>> {
+    read_coefficients_for(path, None)
+}
+
+/// As [`read_coefficients`]; a JSON file must also be a Kalman-filter calibration of
+/// `model` (Tolles–Lawson coefficients follow other conventions than the board's filter).
+pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<Vec<f32>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let ctx = || format!("coefficients in {}", path.display());
+    if let (Some(spec), Ok(v)) = (model, serde_json::from_str::<serde_json::Value>(&text)) {
+        if let Some(m) = v.get("method").and_then(|m| m.as_str()) {
+            if m != "kf" {
+                bail!(
+                    "{}: method '{m}' coefficients cannot be loaded into the board's filter; calibrate with the Kalman filter",
+                    path.display()
+                );
+            }
+        }
+        if let Some(m) = v.get("model").and_then(|m| m.as_str()) {
+            let theirs = ModelSpec::parse(m).with_context(ctx)?;
+            if theirs.text() != spec.text() {
+                bail!(
+                    "{} was calibrated for model '{}', the replay runs '{}' (use --model {})",
+                    path.display(),
+                    theirs.text(),
+                    spec.text(),
+                    theirs.text()
+                );
+            }
+        }
+        if let Some(arr) = v.get("coefficients").and_then(|a| a.as_array()) {
+            return named_coefficients(arr, spec).with_context(ctx);
+        }
+    }
+    parse_coefficients(&text).with_context(ctx)
+}
+
+/// A `calibrate` file's coefficients matched to `spec`'s by name, in the model's order.
+fn named_coefficients(arr: &[serde_json::Value], spec: &ModelSpec) -> Result<Vec<f32>> {
+    let entries = arr
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let name = c
+                .get("name")
+                .and_then(|n| n.as_str())
+                .with_context(|| format!("coefficient {} has no \"name\"", i + 1))?;
+            let value = c
+                .get("value")
+                .and_then(|v| v.as_f64())
+                .with_context(|| format!("coefficient '{name}' has no numeric \"value\""))?;
+            Ok((name, value))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let names: Vec<String> = spec
+        .coefficient_names()
+        .into_iter()
+        .map(|(n, _)| n)
+        .collect();
+    let order = crate::calibration::coefficients::order_by_name(
+        entries.iter().map(|e| e.0),
+        &names,
+        "coefficient",
+    )?;
+    board_range(order.iter().map(|&i| entries[i].1).collect())
+}
+
+/// The values as the board holds them (f32), refused when one is not finite or |v| ≥ 1e6.
+fn board_range(vals: Vec<f64>) -> Result<Vec<f32>> {
+    if vals.iter().any(|v| !v.is_finite() || v.abs() >= 1e6) {
+        bail!("a coefficient is not finite or |v| ≥ 1e6");
+    }
+    Ok(vals.iter().map(|v| *v as f32).collect())
+}
+
+/// The fluxgate calibration of a `calibrate --model …+fluxcal` JSON file, if it has one,
+/// as the board holds it (f32, checked plausible like `SETFLUX`).
+pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    let Some(c) = v.get("fluxgate_calibration").filter(|c| !c.is_null()) else {
+        return Ok(None);
+    };
+    let cal: crate::estimate::fluxcal::FluxgateCalibration = serde_json::from_value(c.clone())
+        .with_context(|| format!("fluxgate_calibration in {}", path.display()))?;
+    cal.to_board().map(Some).with_context(|| {
+        format!(
+            "fluxgate_calibration in {} is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
+            path.display()
+        )
+    })
+}
+
+/// The fluxgate temperature correction of a `calibrate --model …+fluxtemp:CH` JSON file,
+/// if it has one, as the board holds it (f32, checked plausible like `SETFTEMP`).
+pub fn read_flux_temperature(path: &Path) -> Result<Option<FluxTempCal>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    let Some(c) = v.get("fluxgate_temperature").filter(|c| !c.is_null()) else {
+        return Ok(None);
+    };
+    let c: crate::model::corrections::FluxgateTemperature = serde_json::from_value(c.clone())
+        .with_context(|| format!("fluxgate_temperature in {}", path.display()))?;
+    board_flux_temperature(&c)
+        .map(Some)
+        .with_context(|| format!("fluxgate_temperature in {}", path.display()))
+}
+
+/// The host's temperature correction as the board's 7 values (`SETFTEMP`).
+pub fn board_flux_temperature(
+    c: &crate::model::corrections::FluxgateTemperature,
+) -> Result<FluxTempCal> {
+    let (b, s) = (&c.bias_nt_per_degc, &c.scale_per_degc);
+    let v = [c.reference_degc, b[0], b[1], b[2], s[0], s[1], s[2]].map(|x| x as f32);
+    FluxTempCal::from_array(&v).with_context(|| {
+        format!("the fluxgate temperature correction {v:?} is not a plausible one (|T_ref| ≤ 200 °C, |b| ≤ 1000 nT/°C, |s| ≤ 0.01/°C)")
+    })
+}
+
+/// The scalar's delay τ (s) of a `calibrate --model …+lag` JSON file, if it has one.
+pub fn read_scalar_lag(path: &Path) -> Result<Option<f64>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    let Some(l) = v.get("scalar_lag").filter(|l| !l.is_null()) else {
+        return Ok(None);
+    };
+    let l: crate::model::corrections::ScalarLag = serde_json::from_value(l.clone())
+        .with_context(|| format!("scalar_lag in {}", path.display()))?;
+    Ok(Some(l.lag_s))
+}
+
+pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
+    let vals: Vec<f64> = if text.trim_start().starts_with('{') || text.trim_start().starts_with('[')
+    {
+        let v: serde_json::Value = serde_json::from_str(text).context("not valid JSON")?;
+        let list = v.get("coefficients").unwrap_or(&v);
+        let Some(arr) = list.as_array() else {
+            bail!("no \"coefficients\" array");
+        };
+        arr.iter()
+            .map(|c| {
+                c.get("value")
+                    .unwrap_or(c)
+                    .as_f64()
+                    .context("a coefficient is not a number")
+            })
+            .collect::<Result<_>>()?
+    } else {
+        text.split(|c: char| c == ',' || c.is_whitespace())
+            .filter(|s| !s.is_empty())
+            .map(|s| {
+                s.parse::<f64>()
+                    .with_context(|| format!("'{s}' is not a number"))
+            })
+            .collect::<Result<_>>()?
+    };
+    board_range(vals)
+}
+
+/// `# key: value` metadata from the capture's leading comments.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CaptureMeta {
+    pub scalar_hz: Option<f64>,
+    pub flux_hz: Option<f64>,
+    pub gps_hz: Option<f64>,
+    pub flux_format: Option<FluxFormat>,
+}
+
+impl CaptureMeta {
+    fn take(&mut self, line: &str) {
+        let Some((k, v)) = line.trim_start_matches('#').split_once(':') else {
+            return;
+        };
+        let num = v.trim().parse::<f64>().ok();
+        match k.trim() {
+            "scalar_hz" => self.scalar_hz = num,
+            "flux_hz" => self.flux_hz = num,
+            "gps_hz" => self.gps_hz = num,
+            "flux_format" => self.flux_format = FluxFormat::parse(v),
+            _ => {}
+        }
+    }
+}
+
+/// Replays a capture from `input`; every record goes to `sink` in order.
+pub fn replay_capture<R: BufRead>(
+    mut input: R,
+    opts: &ReplayOptions,
+    mut sink: impl FnMut(&Record) -> Result<()>,
+) -> Result<ReplayStats> {
+    // Leading comments carry the rates the capture was made with.
+    let mut meta = CaptureMeta::default();
+    let mut first_data: Option<Vec<u8>> = None;
+    let mut line = Vec::new();
+    let mut lineno = 0u64;
+    loop {
+        line.clear();
+        if input.read_until(b'\n', &mut line)? == 0 {
+            break;
+        }
+        lineno += 1;
+        // A UTF-8 byte-order mark (editors on Windows add one) is not part of the header.
+        if lineno == 1 && line.starts_with(b"\xEF\xBB\xBF") {
+            line.drain(..3);
+        }
+        if line.first() == Some(&b'#') {
+            if decode_line(&line, &mut []).is_err() {
+                bail!("line {lineno}: unsupported capture version");
+            }
+            meta.take(&String::from_utf8_lossy(&line));
+            continue;
+        }
+        if line.iter().all(u8::is_ascii_whitespace) {
+            continue;
+        }
+        first_data = Some(std::mem::take(&mut line));
+        break;
+    }
+    let (d_scalar, d_flux, d_gps) = BOARD_RATES_HZ;
+    let scalar_hz = opts.rate_hz.or(meta.scalar_hz).unwrap_or(d_scalar);
+    let flux_hz = opts.flux_rate_hz.or(meta.flux_hz).unwrap_or(d_flux);
+    let gps_hz = opts.gps_rate_hz.or(meta.gps_hz).unwrap_or(d_gps);
+    let flux_format = opts.flux.or(meta.flux_format).unwrap_or(FluxFormat::Ascii);
+    let mut cfg = AcqConfig::new(scalar_hz, flux_hz, gps_hz);
+    if let Some(c) = opts.flux_calibration {
+        cfg.flux_scalar_cal = c;
+    }
+    if let Some(c) = opts.flux_temp {
+        cfg.flux_temp_cal = c;
+    }
+    let spec = &opts.model;
+    with_model(spec, |model| -> Result<ReplayStats> {
+        let comp = Compensator::<REPLAY_STATES, REPLAY_WINDOW>::new(
+            model,
+            compensator_config(scalar_hz as f32, REPLAY_WINDOW),
+        )
+        .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+        // The board's delay line (a static there): 8 KiB, so on the heap here.
+        let mut lag_line = Box::new(LagLine::new());
+        let mut acq = Acquisition::new(cfg, comp)
+            .map_err(|e| anyhow::anyhow!("rates {scalar_hz}/{flux_hz}/{gps_hz} Hz: {e:?}"))?;
+        acq.attach_lag_line(&mut lag_line);
+        if let Some(l) = opts.lag_s {
+            acq.set_lag_s(l).map_err(|e| {
+                anyhow::anyhow!(
+                    "the board cannot delay the fluxgate by τ = {l} s ({e:?}): 0 – {MAX_LAG_S} s, at most {} frames at {flux_hz} Hz",
+                    LAG_FRAMES - 2
+                )
+            })?;
+        }
+        if let Some(c) = &opts.coefficients {
+            acq.set_coefficients(c).map_err(|_| {
+                anyhow::anyhow!(
+                    "{} coefficients do not fit model '{}' ({} coefficients)",
+                    c.len(),
+                    spec.text(),
+                    model.coefficient_count()
+                )
+            })?;
+        }
+        let mut stats = ReplayStats {
+            scalar_hz,
+            flux_hz,
+            gps_hz,
+            flux_format: Some(flux_format),
+            ..Default::default()
+        };
+        // Set when a line was dropped: the next record carries PARSE_ERROR.
+        let mut dropped = false;
+        let mut emit = |r: &Record, stats: &mut ReplayStats, dropped: &mut bool| -> Result<()> {
+            let mut r = *r;
+            if std::mem::take(dropped) {
+                r.flags.set(Flags::PARSE_ERROR);
+            }
+            stats.records += 1;
+            stats.first_t_s.get_or_insert(r.t_s);
+            stats.last_t_s = Some(r.t_s);
+            sink(&r)
+        };
+        let mut data = [0u8; MAX_CHUNK];
+        // Per port: the latest time stamp read and that line's bytes.
+        let mut last: [(Option<u64>, Vec<u8>); Port::ALL.len()] = Default::default();
+        let mut pending = first_data;
+        loop {
+            let l = match pending.take() {
+                Some(l) => l,
+                None => {
+                    line.clear();
+                    if input.read_until(b'\n', &mut line)? == 0 {
+                        break;
+                    }
+                    lineno += 1;
+                    std::mem::take(&mut line)
+                }
+            };
+            let c = match decode_line(&l, &mut data) {
+                Ok(Some(c)) => c,
+                Ok(None) => continue,
+                Err(_) => {
+                    stats.bad_capture_lines += 1;
+                    continue;
+                }
+            };
+            stats.capture_lines += 1;
+            let bytes = &data[..c.len];
+            let (last_t, last_bytes) = &mut last[c.port as usize];
+            match *last_t {
+                Some(t) if c.t_us < t => {
+                    stats.time_reversals += 1;
+                    stats.first_reversal_line.get_or_insert(lineno);
+                    dropped = true;
+                    continue;
+                }
+                Some(t) if c.t_us == t && last_bytes.as_slice() == bytes => {
+                    stats.duplicate_lines += 1;
+                    stats.first_duplicate_line.get_or_insert(lineno);
+                    dropped = true;
+                    continue;
+                }
+                _ => {
+                    *last_t = Some(c.t_us);
+                    last_bytes.clear();
+                    last_bytes.extend_from_slice(bytes);
+                }
+            }
+            if c.port == Port::Flux && flux_format == FluxFormat::Spi {
+                acq.push_flux_frame(bytes);
+                continue;
+            }
+            for &b in bytes {
+                if let Some(r) = acq.push_byte(c.port, b) {
+                    emit(&r, &mut stats, &mut dropped)?;
+                }
+            }
+        }
+        while let Some(r) = acq.flush() {
+            emit(&r, &mut stats, &mut dropped)?;
+        }
+        stats.counters = acq.counters();
+        Ok(stats)
+    })
+}
+
+/// `12.3456` from counts, exactly; empty when missing.
+pub fn counts_text(c: Option<MagCounts>) -> String {
+    match c {
+        Some(c) => {
+            let sign = if c.0 < 0 { "-" } else { "" };
+            let a = c.0.unsigned_abs();
+            format!("{sign}{}.{:04}", a / 10_000, a % 10_000)
+        }
+        None => String::new(),
+    }
+}
+
+/// 4 decimals, empty when not finite.
+pub fn nt_text(v: f32) -> String {
+    if v.is_finite() {
+        format!("{v:.4}")
+    } else {
+        String::new()
+    }
+}
+
+/// One CSV row (flags as a decimal integer, like the HIL harness reads them).
+pub fn csv_row(r: &Record) -> String {
+    format!(
+        "{},{:.6},{},{},{},{},{},{}",
+        r.seq,
+        r.t_s,
+        counts_text(r.mag),
+        nt_text(r.interference_nt),
+        counts_text(r.compensated),
+        nt_text(r.anomaly_nt),
+        nt_text(r.innovation_nt),
+        r.flags.0
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coefficient_files() {
+        assert_eq!(
+            parse_coefficients("1, 2.5\n-3").unwrap(),
+            vec![1.0, 2.5, -3.0]
+        );
+        let j = r#"{"format":"magcomp-coefficients-v1","coefficients":[{"name":"a","value":0.5},{"value":-2}]}"#;
+        assert_eq!(parse_coefficients(j).unwrap(), vec![0.5, -2.0]);
+        assert!(parse_coefficients("1, x").is_err());
+        assert!(parse_coefficients("1e7").is_err());
+        assert!(parse_coefficients("{\"c\": 1}").is_err());
+    }
+
+    #[test]
+    fn meta_comments() {
+        let mut m = CaptureMeta::default();
+        for l in [
+            "# scalar_hz: 20",
+            "# gps_hz: 5",
+            "# flux_format: spi",
+            "# other: x",
+        ] {
+            m.take(l);
+        }
+        assert_eq!(m.scalar_hz, Some(20.0));
+        assert_eq!(m.gps_hz, Some(5.0));
+        assert_eq!(m.flux_hz, None);
+        assert_eq!(m.flux_format, Some(FluxFormat::Spi));
+    }
+}

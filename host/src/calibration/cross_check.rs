@@ -1,0 +1,112 @@
+//! The default post-flight calibration: the Kalman filter, checked against TL18-OLS on the
+//! flight's own evidence (each method's jackknife, [`crate::estimate::jackknife`]); the method whose
+//! coefficients move less between parts of the flight is used, and the summary and the
+//! coefficient file say which and why (`cross_check`).
+//!
+//! Why both: the filter uses what band-passed least squares throws away (the levels between
+//! headings, the anomaly), and wins where its model holds (16 broad simulated calibrations:
+//! 0.12–0.78 × TL18-OLS) and over geology (TL18-OLS fits the anomaly); where an unmodelled
+//! effect or a rougher anomaly lets the anomaly states take interference, least squares has
+//! nothing to be fooled by (`clean_s33`: 0.106 nT filter, 0.032 nT TL18-OLS).
+
+use super::result::Compensation;
+use super::{tl, EstimatorSettings};
+use crate::estimate::jackknife::{CrossCheck, Estimator};
+use crate::flight::Flight;
+use crate::io::trace::Trace;
+use anyhow::Result;
+
+/// The two methods agree when their interference differs by at most this many times their
+/// combined jackknife error: the independent `clean_s33` 0.079 nT against 0.058 (1.4×),
+/// the real boxes' `mag_3` 11–94 nT against 36–81 (0.3–1.2×); the strong-geology 300 m
+/// flights 56–135 nT against 0.3–0.7 (≥ 100×).
+pub const DISAGREEMENT_SIGMAS: f64 = 3.0;
+
+/// `kalman`: the filter's calibration of `trace`. Returns it, or TL18-OLS's, with the
+/// cross-check attached; the filter's as it is when either figure is missing.
+pub(super) fn choose(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    kalman: (Flight, Compensation),
+) -> Result<(Flight, Compensation)> {
+    let Some(kf_nt) = kalman.1.jackknife_nt else {
+        return Ok(kalman);
+    };
+    let tl_est = EstimatorSettings {
+        tl_terms: "tl18".into(),
+        tl_ridge: Some(0.0),
+        ..est.clone()
+    };
+    // A delay the filter's calibration found and re-aligned: TL's coefficient files carry
+    // no delay, so the filter's result stands (its jackknife is the predicted error).
+    let realigned = kalman
+        .1
+        .coefficients
+        .as_ref()
+        .is_some_and(|c| c.scalar_lag.is_some());
+    if realigned {
+        return Ok(kalman);
+    }
+    // A flight TL cannot fit (no fluxgate rows in the air, say) leaves the filter's result.
+    let Ok(least_squares) = tl::run_tl_method(trace, &tl_est, None) else {
+        return Ok(kalman);
+    };
+    let Some(tl_nt) = least_squares.1.jackknife_nt else {
+        return Ok(kalman);
+    };
+    let difference: Vec<f64> = (kalman.1.interference_nt.iter())
+        .zip(&least_squares.1.interference_nt)
+        .map(|(a, b)| a - b)
+        .collect();
+    let disagreement_nt = crate::qc::figures::rms_demeaned(&difference);
+    // Two estimates of one interference that differ beyond their errors: one of them is
+    // wrong, and the jackknife cannot say which (a band-passed fit over strong geology
+    // takes the anomaly into its coefficients the same way in every block: 56–135 nT off
+    // at 300 m with a 0.3–0.7 nT jackknife).
+    let consistent = disagreement_nt <= DISAGREEMENT_SIGMAS * kf_nt.hypot(tl_nt);
+    let chosen = if tl_nt < kf_nt && consistent {
+        Estimator::TollesLawsonOls
+    } else {
+        Estimator::KalmanFilter
+    };
+    let blocked = tl_nt < kf_nt && !consistent;
+    let figures = CrossCheck {
+        blocks: crate::estimate::jackknife::BLOCKS,
+        kalman_filter_jackknife_nt: kf_nt,
+        tolles_lawson_jackknife_nt: tl_nt,
+        kalman_filter_band_jackknife_nt: kalman.1.band_jackknife_nt,
+        tolles_lawson_band_jackknife_nt: least_squares.1.band_jackknife_nt,
+        disagreement_nt,
+        chosen,
+    };
+    let (flight, mut comp) = match chosen {
+        Estimator::KalmanFilter if blocked => {
+            let (flight, mut comp) = kalman;
+            comp.warnings.push(format!(
+                "the Kalman filter and Tolles–Lawson (TL18-OLS) differ by {disagreement_nt:.3} \
+                 nT rms, more than {DISAGREEMENT_SIGMAS} × their jackknife errors ({kf_nt:.3} \
+                 and {tl_nt:.3} nT): one of them is wrong, and the filter's result is kept \
+                 (least squares has no anomaly model; over geology it fits the anomaly). \
+                 Check the calibration's altitude and `magcomp diagnose`"
+            ));
+            (flight, comp)
+        }
+        Estimator::KalmanFilter => kalman,
+        Estimator::TollesLawsonOls => {
+            let (flight, mut comp) = least_squares;
+            comp.warnings.push(format!(
+                "Tolles–Lawson (TL18, band-passed least squares) is used, not the Kalman \
+                 filter: the filter's coefficients moved more between parts of this flight \
+                 (jackknife {kf_nt:.3} nT rms) than least squares' ({tl_nt:.3} nT); the two \
+                 differ by {disagreement_nt:.3} nT rms. The anomaly states probably took part \
+                 of the interference: an effect the model lacks, or an anomaly rougher than \
+                 its process (`magcomp diagnose`). `--method kf` forces the filter"
+            ));
+            (flight, comp)
+        }
+    };
+    if let Some(c) = comp.coefficients.as_mut() {
+        c.cross_check = Some(figures);
+    }
+    Ok((flight, comp))
+}

@@ -1,0 +1,130 @@
+//! Calibrating and compensating a trace with either method (`calibrate`, `compensate`,
+//! `report`, `diagnose` and `demo` call these), the summary figures, and the output CSV.
+
+pub use crate::calibration::coefficients::{
+    read_coefficients, refuse_conflicting_settings, Coefficient, CoefficientFile, Method,
+    RateCrossover, COEFF_FORMAT,
+};
+use crate::flight::Flight;
+use crate::io::trace::Trace;
+use crate::model::spec::DEFAULT_MODEL;
+use anyhow::{ensure, Result};
+use result::Compensation;
+
+pub mod applied;
+pub mod coefficients;
+mod cross_check;
+pub mod fom;
+mod kf;
+pub mod result;
+pub mod summary;
+mod tl;
+
+/// Estimator settings (the command line's `EstimatorArgs`, `cli::args`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct EstimatorSettings {
+    /// Model spec: `+`-joined terms (`model::spec`).
+    pub model: String,
+    pub method: Method,
+    /// Field-model roughness σ1 (nT/m^2.5); None: fitted to the data.
+    pub sigma1: Option<f64>,
+    /// Scalar measurement noise 1σ (nT); None: estimated from the data.
+    pub noise_nt: Option<f64>,
+    /// Tolles–Lawson terms of `Method::Tl` (`tl18`, `tl16`, groups).
+    pub tl_terms: String,
+    /// Ridge λ of `Method::Tl`; None: MagNav's default.
+    pub tl_ridge: Option<f64>,
+    /// Assumed ground speed (m/s) for a trace without positions.
+    pub speed_mps: Option<f64>,
+    /// Post-flight calibration with the Kalman filter as the default, not asked for by
+    /// name: TL18-OLS is used instead when the flight's own evidence trusts it more
+    /// ([`cross_check`]).
+    pub cross_check: bool,
+}
+
+impl Default for EstimatorSettings {
+    fn default() -> Self {
+        Self {
+            model: DEFAULT_MODEL.into(),
+            method: Method::Kf,
+            sigma1: None,
+            noise_nt: None,
+            tl_terms: "tl18".into(),
+            tl_ridge: None,
+            speed_mps: None,
+            cross_check: false,
+        }
+    }
+}
+
+/// The accuracy an aeromagnetic survey asks of compensation (nT rms).
+pub const SURVEY_TOLERANCE_NT: f64 = 0.1;
+
+/// Runs the chosen method. `coeffs`: apply these instead of calibrating on the trace;
+/// their plausibility on this flight is checked (`calibration::applied`) and warned about.
+pub fn compensate_trace(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+) -> Result<(Flight, Compensation)> {
+    let (flight, mut comp) = run_method(trace, est, coeffs, realtime)?;
+    if let (None, Some(band_jackknife)) = (coeffs, comp.band_jackknife_nt) {
+        let own = crate::qc::figures::band_rms_nt(&flight, &comp.compensated_nt);
+        if let Some(file) = comp.coefficients.as_mut().filter(|_| own.is_finite()) {
+            file.predicted_band_rms_nt = Some(own.hypot(band_jackknife));
+        }
+    }
+    if let Some(c) = coeffs {
+        // What the calibration predicted travels with its coefficients.
+        if let Some(file) = comp.coefficients.as_mut() {
+            file.predicted_band_rms_nt = c.predicted_band_rms_nt;
+            file.cross_check.clone_from(&c.cross_check);
+        }
+        let w = crate::calibration::applied::check(&flight, &comp, c);
+        comp.warnings.extend(w);
+    }
+    Ok((flight, comp))
+}
+
+fn run_method(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+) -> Result<(Flight, Compensation)> {
+    let method = coeffs.map(|c| c.method).unwrap_or(est.method);
+    let model_text = coeffs.map(|c| c.model.clone()).unwrap_or(est.model.clone());
+    match method {
+        Method::Kf if est.cross_check && coeffs.is_none() && !realtime => {
+            let kalman = kf::run_kf_method(trace, est, coeffs, realtime, &model_text)?;
+            cross_check::choose(trace, est, kalman)
+        }
+        Method::Kf => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
+        Method::Tl => tl::run_tl_method(trace, est, coeffs),
+    }
+}
+
+/// `trace` with the compensation applied: its scalar replaced by the compensated one (and
+/// the simulator's truth interference by what the compensation left of it), so that a
+/// diagnosis of it under a model without deviation terms studies the calibration as
+/// applied, not re-fitted.
+pub fn compensated_trace(trace: &Trace, flight: &Flight, comp: &Compensation) -> Result<Trace> {
+    let n = trace.len();
+    ensure!(
+        flight.len() == n && comp.compensated_nt.len() == n,
+        "internal: {} compensated samples for {n} rows",
+        comp.compensated_nt.len()
+    );
+    let mut out = trace.clone();
+    out.set_col("mag", comp.compensated_nt.clone());
+    if let Some(t) = trace.col("truth_interference") {
+        let left = t
+            .iter()
+            .zip(&comp.interference_nt)
+            .map(|(t, i)| t - i)
+            .collect();
+        out.set_col("truth_interference", left);
+    }
+    Ok(out)
+}

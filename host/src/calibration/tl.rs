@@ -1,0 +1,156 @@
+//! Classic Tolles–Lawson as `calibrate` and `compensate` make it (`crate::estimate::tl`), with its
+//! jackknife error figure.
+
+use super::coefficients::{Coefficient, CoefficientFile, Method};
+use super::result::Compensation;
+use super::EstimatorSettings;
+use crate::estimate::tl;
+use crate::flight::Flight;
+use crate::io::trace::Trace;
+use anyhow::{bail, ensure, Context, Result};
+
+pub(super) fn tl_config(flight: &Flight, est: &EstimatorSettings) -> Result<tl::TlConfig> {
+    let terms: tl::TlTerms = est.tl_terms.parse()?;
+    let mut cfg = tl::TlConfig::for_rate(flight.sample_rate_hz);
+    cfg.terms = terms;
+    let (lo, hi) = crate::qc::figures::manoeuvre_band(flight.sample_rate_hz);
+    cfg.pass_hz = Some((lo, hi));
+    if let Some(l) = est.tl_ridge {
+        ensure!(
+            l.is_finite() && l >= 0.0,
+            "--tl-ridge must be a finite λ ≥ 0 (0 = plain least squares), not {l}"
+        );
+        cfg.lambda = l;
+    }
+    Ok(cfg)
+}
+
+pub(super) fn run_tl_method(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+) -> Result<(Flight, Compensation)> {
+    let flight = Flight::from_trace(trace, &[], &[])?;
+    let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
+    let flux = crate::estimate::fluxcal::flight_flux(&flight);
+    // Not across a time gap: the rows beside it are left out, which splits the
+    // band-passed fit there.
+    let mut select = vec![true; flight.len()];
+    for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
+        select[i] = false;
+    }
+    // Nor on the ground (parked, taxiing), where the filter does not learn either.
+    let span = crate::estimate::excitation::airborne_span(&flight);
+    for (i, s) in select.iter_mut().enumerate() {
+        *s &= span.contains(&i);
+    }
+    let fit = match coeffs {
+        Some(c) => {
+            let cfg = c
+                .tl_config
+                .clone()
+                .context("the coefficient file has no Tolles–Lawson configuration")?;
+            c.tl_fit(cfg)
+        }
+        None => tl::fit(
+            &flux,
+            &flight.mag_nt,
+            &tl_config(&flight, est)?,
+            Some(&select),
+        )?,
+    };
+    if fit.coefficients.len() != fit.config.terms.columns().len() {
+        bail!(
+            "{} Tolles–Lawson coefficients for {} terms",
+            fit.coefficients.len(),
+            fit.config.terms.columns().len()
+        );
+    }
+    // Per stretch between time gaps: no derivative spans a gap.
+    let stretches = crate::qc::gaps::stretches(flight.len(), &qc.breaks);
+    let interference: Vec<f64> = stretches
+        .iter()
+        .flat_map(|r| tl::interference(&fit, &flux[r.clone()]))
+        .collect();
+    let compensated = flight
+        .mag_nt
+        .iter()
+        .zip(&interference)
+        .map(|(m, i)| m - i)
+        .collect();
+    let regressors = stretches
+        .iter()
+        .flat_map(|r| {
+            let a = tl::design_matrix_scaled(
+                &flux[r.clone()],
+                &fit.config.terms,
+                fit.config.bt_scale_nt,
+                match fit.config.eddy_rate {
+                    tl::EddyRate::PerSample => 1.0,
+                    tl::EddyRate::PerSecond => fit.config.fs_hz,
+                },
+            );
+            (0..a.nrows())
+                .map(|r| {
+                    (0..a.ncols())
+                        .map(|c| a[(r, c)] as f32)
+                        .collect::<Vec<f32>>()
+                })
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    let coefficients = fit
+        .names
+        .iter()
+        .zip(fit.coefficients.iter().zip(&fit.sigma))
+        .map(|(n, (v, s))| Coefficient {
+            name: n.clone(),
+            unit: "nT".into(),
+            value: *v,
+            sigma: *s,
+        })
+        .collect();
+    // The fit's own covariance assumes white residuals; the jackknife does not
+    // (`crate::estimate::jackknife`). A calibration only.
+    let refits = match coeffs {
+        None if qc.withheld.is_none() => {
+            tl::jackknife_refits(&flux, &flight.mag_nt, &fit.config, &select, &span)
+        }
+        _ => None,
+    };
+    let predicted_error_nt = refits
+        .as_ref()
+        .and_then(|r| crate::estimate::jackknife::series_sigma_nt(r));
+    let band_jackknife_nt = refits
+        .as_ref()
+        .and_then(|r| crate::estimate::jackknife::band_sigma_nt(&flight, r));
+    let file = CoefficientFile {
+        tl_config: Some(fit.config.clone()),
+        predicted_error_nt,
+        ..CoefficientFile::new(
+            format!("{:?}", fit.config.terms).to_lowercase(),
+            Method::Tl,
+            flight.sample_rate_hz,
+            coefficients,
+        )
+    };
+    let mut warnings = qc.warnings;
+    // A calibration only: applied coefficients were judged where they were fitted.
+    if coeffs.is_none() {
+        warnings.extend(crate::estimate::excitation::tl_warning(&flight));
+    }
+    let comp = Compensation {
+        model: file.model.clone(),
+        method: Some(Method::Tl),
+        interference_nt: interference,
+        compensated_nt: compensated,
+        coefficients: Some(file),
+        regressors,
+        warnings,
+        jackknife_nt: predicted_error_nt,
+        band_jackknife_nt,
+        withheld: qc.withheld,
+        ..Default::default()
+    };
+    Ok((flight, comp))
+}
