@@ -14,14 +14,17 @@
 //! | SWD + RTT (defmt)        | SWD         | PA13 SWDIO, PA14 SWCLK       | probe-rs                  |
 //! | HSE crystal              | OSC         | PH0, PH1                     | 8 MHz                     |
 //! | coefficients             | FLASH       | sector 11, 0x080E_0000       | 128 KiB, kept out of memory.x |
-//! | watchdog                 | IWDG        | LSI 32 kHz                   | 2 s                       |
+//! | watchdog                 | IWDG        | LSI 32 kHz                   | 4 s, fed on progress      |
 
 use embassy_stm32::rcc::*;
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::usart::{self, BufferedUart};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, flash, peripherals};
 use static_cell::ConstStaticCell;
+
+use crate::board_shape::{Board, StoreError};
+use crate::store;
 
 pub const NAME: &str = "acq-f405";
 
@@ -40,7 +43,17 @@ bind_interrupts!(struct Irqs {
     UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
 });
 
-pub type Watchdog = IndependentWatchdog<'static, peripherals::IWDG>;
+/// The IWDG (LSI), fed by the watchdog task only while every task makes progress.
+pub struct Watchdog(IndependentWatchdog<'static, peripherals::IWDG>);
+
+impl crate::board_shape::Watchdog for Watchdog {
+    fn unleash(&mut self) {
+        self.0.unleash();
+    }
+    fn feed(&mut self) {
+        self.0.pet();
+    }
+}
 
 /// Fluxgate port: the 24-bit SPI ADC with its data-ready line.
 #[cfg(not(feature = "flux-uart"))]
@@ -55,17 +68,7 @@ pub struct FluxPort {
 }
 /// Fluxgate port: the serial ASCII alternative.
 #[cfg(feature = "flux-uart")]
-pub type FluxPort = BufferedUartRx<'static>;
-
-pub struct Board {
-    pub scalar: BufferedUartRx<'static>,
-    pub flux: FluxPort,
-    pub gps: BufferedUartRx<'static>,
-    pub out_tx: BufferedUartTx<'static>,
-    pub out_rx: BufferedUartRx<'static>,
-    pub watchdog: Watchdog,
-    pub store: CoefStore,
-}
+pub type FluxPort = usart::BufferedUartRx<'static>;
 
 fn uart_config(baud: u32) -> usart::Config {
     let mut c = usart::Config::default();
@@ -137,7 +140,7 @@ pub fn init() -> Board {
         defmt::unwrap!(f.map_err(|_| ())).split().1
     };
 
-    let watchdog = IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US);
+    let watchdog = Watchdog(IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US));
     let store = CoefStore {
         flash: flash::Flash::new_blocking(p.FLASH),
     };
@@ -156,32 +159,27 @@ pub fn init() -> Board {
 const COEF_SECTOR_OFFSET: u32 = 0x000E_0000;
 const COEF_SECTOR_SIZE: u32 = 128 * 1024;
 
-/// Coefficient store: flash sector 11 (the blob carries its format version and CRC).
+/// Coefficient store: flash sector 11 (each blob carries its format version and CRC).
 pub struct CoefStore {
     flash: flash::Flash<'static, flash::Blocking>,
 }
 
-#[derive(Debug, defmt::Format)]
-pub struct StoreError;
-
-impl CoefStore {
-    pub fn read(&mut self, buf: &mut [u8]) -> Result<(), StoreError> {
+impl crate::board_shape::CoefStore for CoefStore {
+    fn read(&mut self, raw: &mut [u8; store::LEN]) -> Result<(), StoreError> {
         self.flash
-            .blocking_read(COEF_SECTOR_OFFSET, buf)
+            .blocking_read(COEF_SECTOR_OFFSET, raw)
             .map_err(|_| StoreError)
     }
-    /// Erases the sector (~1–2 s on F405: the watchdog timeout allows it) and writes `data`.
-    pub fn write(&mut self, data: &[u8]) -> Result<(), StoreError> {
+    /// Erases the sector (~1–2 s on F405: the watchdog timeout allows it) and writes `raw`.
+    fn write(&mut self, raw: &[u8; store::LEN]) -> Result<(), StoreError> {
         // flash programming needs a multiple of the 4-byte write size
-        let mut buf = [0xFFu8; crate::COEF_BLOB_MAX];
-        let n = data.len().div_ceil(4) * 4;
-        let dst = buf.get_mut(..data.len()).ok_or(StoreError)?;
-        dst.copy_from_slice(data);
+        let mut buf = [0xFFu8; store::LEN.div_ceil(4) * 4];
+        buf[..store::LEN].copy_from_slice(raw);
         self.flash
             .blocking_erase(COEF_SECTOR_OFFSET, COEF_SECTOR_OFFSET + COEF_SECTOR_SIZE)
             .map_err(|_| StoreError)?;
         self.flash
-            .blocking_write(COEF_SECTOR_OFFSET, &buf[..n])
+            .blocking_write(COEF_SECTOR_OFFSET, &buf)
             .map_err(|_| StoreError)
     }
 }

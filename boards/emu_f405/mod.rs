@@ -7,17 +7,21 @@
 //! - fluxgate on its UART alternative (QEMU has no SPI ADC);
 //! - coefficients in a RAM store with the same blob format (QEMU does not emulate the
 //!   flash controller): they survive a soft restart of the tasks, not a QEMU restart;
-//! - logs over semihosting (QEMU stdout) instead of RTT.
+//! - logs over semihosting (QEMU stdout) instead of RTT;
+//! - the IWDG is a model in the SysTick interrupt (QEMU has none), see [`Watchdog`].
 //!
 //! QEMU `-serial` order: 0 USART1 (unused), 1 USART2 = output/command, 2 USART3 = scalar,
 //! 3 UART4 = fluxgate, 4 UART5 = GPS.
 
 mod systick_driver;
 
-use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
-use embassy_stm32::wdg::IndependentWatchdog;
+use core::sync::atomic::{AtomicU32, Ordering};
+use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx};
 use embassy_stm32::{bind_interrupts, peripherals};
 use static_cell::ConstStaticCell;
+
+use crate::board_shape::{Board, StoreError};
+use crate::store;
 
 pub const NAME: &str = "emu-f405";
 
@@ -31,20 +35,36 @@ bind_interrupts!(struct Irqs {
     UART5 => usart::BufferedInterruptHandler<peripherals::UART5>;
 });
 
-pub type Watchdog = IndependentWatchdog<'static, peripherals::IWDG>;
+/// A model of the IWDG (QEMU emulates none): the SysTick interrupt resets the board when
+/// it has not been fed for `crate::WATCHDOG_TIMEOUT_US`, as the IWDG's own counter would,
+/// even while a task spins. It records the cause in the crash record (QEMU sets no RCC flag).
+pub struct Watchdog;
+
+/// Deadline in ms of SysTick time; 0 = not unleashed.
+static WDG_DEADLINE_MS: AtomicU32 = AtomicU32::new(0);
+
+impl crate::board_shape::Watchdog for Watchdog {
+    fn unleash(&mut self) {
+        self.feed();
+    }
+    fn feed(&mut self) {
+        let now = embassy_time::Instant::now().as_millis() as u32;
+        let d = now.wrapping_add(crate::WATCHDOG_TIMEOUT_US / 1000).max(1);
+        WDG_DEADLINE_MS.store(d, Ordering::Relaxed);
+    }
+}
+
+/// Called from the SysTick interrupt every ms.
+fn watchdog_model_tick(now_ms: u32) {
+    let d = WDG_DEADLINE_MS.load(Ordering::Relaxed);
+    if d != 0 && now_ms.wrapping_sub(d) < u32::MAX / 2 {
+        crate::health::record_emulated_watchdog();
+        cortex_m::peripheral::SCB::sys_reset();
+    }
+}
 
 /// Fluxgate port: the serial ASCII alternative.
 pub type FluxPort = BufferedUartRx<'static>;
-
-pub struct Board {
-    pub scalar: BufferedUartRx<'static>,
-    pub flux: FluxPort,
-    pub gps: BufferedUartRx<'static>,
-    pub out_tx: BufferedUartTx<'static>,
-    pub out_rx: BufferedUartRx<'static>,
-    pub watchdog: Watchdog,
-    pub store: CoefStore,
-}
 
 fn uart_config(baud: u32) -> usart::Config {
     let mut c = usart::Config::default();
@@ -87,7 +107,7 @@ pub fn init() -> Board {
     let (_, flux) = defmt::unwrap!(flux.map_err(|_| ())).split();
     let (_, gps) = defmt::unwrap!(gps.map_err(|_| ())).split();
 
-    let watchdog = IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US);
+    let watchdog = Watchdog;
     Board {
         scalar,
         flux,
@@ -99,29 +119,27 @@ pub fn init() -> Board {
     }
 }
 
-/// Coefficient store: RAM stand-in for the flash sector (same blob, same CRC checks).
+/// Coefficient store: RAM stand-in for the flash sector (same bytes, same checks).
 pub struct CoefStore {
-    mem: [u8; crate::COEF_BLOB_MAX],
+    mem: [u8; store::LEN],
 }
-
-#[derive(Debug, defmt::Format)]
-pub struct StoreError;
 
 impl CoefStore {
     const fn new() -> Self {
         // erased flash reads as 0xFF: start the same way
         Self {
-            mem: [0xFF; crate::COEF_BLOB_MAX],
+            mem: [0xFF; store::LEN],
         }
     }
-    pub fn read(&mut self, buf: &mut [u8]) -> Result<(), StoreError> {
-        let n = buf.len().min(self.mem.len());
-        buf[..n].copy_from_slice(&self.mem[..n]);
+}
+
+impl crate::board_shape::CoefStore for CoefStore {
+    fn read(&mut self, raw: &mut [u8; store::LEN]) -> Result<(), StoreError> {
+        raw.copy_from_slice(&self.mem);
         Ok(())
     }
-    pub fn write(&mut self, data: &[u8]) -> Result<(), StoreError> {
-        let dst = self.mem.get_mut(..data.len()).ok_or(StoreError)?;
-        dst.copy_from_slice(data);
+    fn write(&mut self, raw: &[u8; store::LEN]) -> Result<(), StoreError> {
+        self.mem.copy_from_slice(raw);
         Ok(())
     }
 }
@@ -136,10 +154,4 @@ pub fn exit(ok: bool) -> ! {
     loop {
         cortex_m::asm::wfi();
     }
-}
-
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic: {}", defmt::Display2Format(info));
-    exit(false)
 }

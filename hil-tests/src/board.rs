@@ -444,6 +444,25 @@ impl Board {
         self.wait_line_from(0, pred, timeout)
     }
 
+    /// Waits for the boot banner after `n` earlier ones (a reset).
+    pub fn wait_line_from_banner(&self, n: usize, timeout: Duration) -> Option<String> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(l) = self
+                .output()
+                .into_iter()
+                .filter(|l| l.starts_with("$MCBOOT"))
+                .nth(n)
+            {
+                return Some(l);
+            }
+            if Instant::now() > end {
+                return None;
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
+    }
+
     fn wait_line_from(
         &self,
         from: usize,
@@ -520,6 +539,11 @@ impl Board {
             }
             thread::sleep(Duration::from_micros(300));
         }
+    }
+
+    /// The command port's write side, for another thread to send on while this one streams.
+    pub fn command_writer(&self) -> Arc<Mutex<Box<dyn Write + Send>>> {
+        self.cmd.clone()
     }
 
     /// Sends raw bytes on the command port.

@@ -104,13 +104,17 @@ pub struct MonitorStats {
     pub last: Option<Record>,
 }
 
-/// `$MCBOOT,<board>,<version>[,SYNC]*HHHH`.
+/// `$MCBOOT,<board>,<version>[,RST=<cause>][,PANIC=<file:line>][,SYNC]*HHHH`.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct BootBanner {
     pub board: String,
     pub version: String,
     /// The firmware acknowledges frames with `$MCSYN` (feature `hil-sync`).
     pub sync: bool,
+    /// Why the board last reset (`IWDG`, `SW`, `POR`, `PIN`, …; docs/protocols.md).
+    pub reset_cause: Option<String>,
+    /// Where the panic that caused the reset happened.
+    pub panic: Option<String>,
 }
 
 /// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>*HHHH`.
@@ -150,16 +154,26 @@ pub fn parse_boot(l: &[u8]) -> Option<BootBanner> {
     let mut f = body.strip_prefix("MCBOOT,")?.split(',');
     let board = f.next()?.to_string();
     let version = f.next()?.to_string();
-    let sync = match f.next() {
+    let mut b = BootBanner {
+        board,
+        version,
+        ..BootBanner::default()
+    };
+    let mut next = f.next();
+    if let Some(v) = next.and_then(|x| x.strip_prefix("RST=")) {
+        b.reset_cause = Some(v.to_string());
+        next = f.next();
+    }
+    if let Some(v) = next.and_then(|x| x.strip_prefix("PANIC=")) {
+        b.panic = Some(v.to_string());
+        next = f.next();
+    }
+    b.sync = match next {
         None => false,
         Some("SYNC") => true,
         Some(_) => return None,
     };
-    f.next().is_none().then_some(BootBanner {
-        board,
-        version,
-        sync,
-    })
+    f.next().is_none().then_some(b)
 }
 
 /// `$MCSYN` frame counts (scalar, fluxgate, GPS), CRC checked.
@@ -388,10 +402,18 @@ impl Monitor {
         if let Some(b) = &s.boot {
             let _ = writeln!(
                 o,
-                "  board          {} {}{} (boots {})",
+                "  board          {} {}{}{}{} (boots {})",
                 b.board,
                 b.version,
                 if b.sync { " SYNC" } else { "" },
+                b.reset_cause
+                    .as_deref()
+                    .map(|c| format!(", reset {c}"))
+                    .unwrap_or_default(),
+                b.panic
+                    .as_deref()
+                    .map(|p| format!(", after a panic at {p}"))
+                    .unwrap_or_default(),
                 s.boots
             );
         }

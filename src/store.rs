@@ -1,0 +1,143 @@
+//! The coefficient store's layout, spelled out once: which blobs, in which order, how long.
+//! Both boards' stores hold `LEN` raw bytes (flash sector / RAM); loading and saving go
+//! through [`SLOTS`] only, so adding a blob is one line here.
+//!
+//! Each slot is a core blob (`magcomp_core::protocol::command::{encode,decode}_blob`: magic,
+//! version, count, id, values, CRC-32). A store written before a later slot existed loads
+//! that slot's default (no fluxgate calibration / τ = 0 / no temperature drift).
+
+use magcomp_core::protocol::command::{
+    FLUX_CAL_LEN, FLUX_TEMP_LEN, blob_len, decode_blob, encode_blob, flux_blob_id,
+    flux_temp_blob_id, lag_blob_id,
+};
+use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
+
+use crate::board_config::{BoardAcquisition, N_COEF, model_id};
+
+/// One blob of the store.
+#[derive(Clone, Copy)]
+pub enum Slot {
+    /// The model's coefficients (`SETCOEF`); without it the board calibrates.
+    Model,
+    /// The fluxgate's scalar calibration (`SETFLUX`).
+    FluxCal,
+    /// The scalar's delay τ (`SETLAG`).
+    Lag,
+    /// The fluxgate's temperature drift (`SETFTEMP`).
+    FluxTemp,
+}
+
+/// The store, in order.
+pub const SLOTS: [Slot; 4] = [Slot::Model, Slot::FluxCal, Slot::Lag, Slot::FluxTemp];
+
+/// Bytes of the whole store.
+pub const LEN: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < SLOTS.len() {
+        n += blob_len(SLOTS[i].values());
+        i += 1;
+    }
+    n
+};
+
+/// Largest slot (values): the scratch array `save`/`load` use.
+const MAX_VALUES: usize = {
+    let mut m = 0;
+    let mut i = 0;
+    while i < SLOTS.len() {
+        if SLOTS[i].values() > m {
+            m = SLOTS[i].values();
+        }
+        i += 1;
+    }
+    m
+};
+
+impl Slot {
+    /// Values held.
+    pub const fn values(self) -> usize {
+        match self {
+            Slot::Model => N_COEF,
+            Slot::FluxCal => FLUX_CAL_LEN,
+            Slot::Lag => 1,
+            Slot::FluxTemp => FLUX_TEMP_LEN,
+        }
+    }
+
+    fn id(self) -> u32 {
+        match self {
+            Slot::Model => model_id(),
+            Slot::FluxCal => flux_blob_id(),
+            Slot::Lag => lag_blob_id(),
+            Slot::FluxTemp => flux_temp_blob_id(),
+        }
+    }
+
+    /// The acquisition's current values for this slot.
+    fn read(self, acq: &BoardAcquisition, out: &mut [f32; MAX_VALUES]) -> usize {
+        let n = self.values();
+        match self {
+            Slot::Model => {
+                acq.coefficients(&mut out[..n]);
+            }
+            Slot::FluxCal => out[..n].copy_from_slice(&acq.flux_calibration().to_array()),
+            Slot::Lag => out[0] = acq.lag_s(),
+            Slot::FluxTemp => out[..n].copy_from_slice(&acq.flux_temp_calibration().to_array()),
+        }
+        n
+    }
+
+    /// Applies stored values (`None`: the slot was absent or invalid). `Err` only for the
+    /// model, whose absence means "calibrate".
+    fn apply(self, acq: &mut BoardAcquisition, v: Option<&[f32]>) -> Result<(), ()> {
+        match self {
+            Slot::Model => acq.set_coefficients(v.ok_or(())?).map_err(|_| ()),
+            Slot::FluxCal => {
+                let cal = v
+                    .and_then(|v| v.try_into().ok())
+                    .and_then(FluxCalibration::from_array);
+                acq.set_flux_calibration(cal.unwrap_or(FluxCalibration::IDENTITY));
+                Ok(())
+            }
+            Slot::Lag => {
+                if v.is_none_or(|v| acq.set_lag_s(v[0]).is_err()) {
+                    let _ = acq.set_lag_s(0.0);
+                }
+                Ok(())
+            }
+            Slot::FluxTemp => {
+                let cal = v
+                    .and_then(|v| v.try_into().ok())
+                    .and_then(FluxTempCal::from_array);
+                acq.set_flux_temp_calibration(cal.unwrap_or(FluxTempCal::NONE));
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Loads the stored slots into the acquisition. `Err` when the model's blob is missing or
+/// invalid (the board then calibrates; the later slots are not read).
+pub fn load(raw: &[u8; LEN], acq: &mut BoardAcquisition) -> Result<(), ()> {
+    let mut at = 0;
+    for s in SLOTS {
+        let n = s.values();
+        let mut v = [0f32; MAX_VALUES];
+        let ok = decode_blob(&raw[at..], s.id(), &mut v[..n]).is_ok();
+        s.apply(acq, ok.then_some(&v[..n]))?;
+        at += blob_len(n);
+    }
+    Ok(())
+}
+
+/// Encodes the acquisition's current values as a whole store image.
+pub fn save(acq: &BoardAcquisition, raw: &mut [u8; LEN]) -> Result<(), ()> {
+    let mut at = 0;
+    for s in SLOTS {
+        let mut v = [0f32; MAX_VALUES];
+        let n = s.read(acq, &mut v);
+        at += encode_blob(s.id(), &v[..n], &mut raw[at..]).map_err(|_| ())?;
+    }
+    Ok(())
+}
