@@ -33,3 +33,33 @@ pub trait CoefStore {
     fn read(&mut self, raw: &mut [u8; store::LEN]) -> Result<(), StoreError>;
     fn write(&mut self, raw: &[u8; store::LEN]) -> Result<(), StoreError>;
 }
+
+/// Baud rates per port, chosen at build time (`MAGCOMP_BAUD_OUT`, `MAGCOMP_BAUD_SCALAR`,
+/// `MAGCOMP_BAUD_FLUX`, `MAGCOMP_BAUD_GPS`, decimal); what each sensor rate needs is in
+/// docs/firmware.md. A value the UART cannot make fails the build, never the boot.
+pub const BAUD_OUT: u32 = baud(option_env!("MAGCOMP_BAUD_OUT"), 921_600, 5_250_000);
+pub const BAUD_SCALAR: u32 = baud(option_env!("MAGCOMP_BAUD_SCALAR"), 115_200, 2_625_000);
+pub const BAUD_GPS: u32 = baud(option_env!("MAGCOMP_BAUD_GPS"), 115_200, 2_625_000);
+#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+pub const BAUD_FLUX: u32 = baud(option_env!("MAGCOMP_BAUD_FLUX"), 115_200, 2_625_000);
+
+/// `v` parsed at compile time (`const` items), or `default`. `max`: 16× oversampling of the
+/// USART's bus clock (APB2 84 MHz for the output port's USART1, APB1 42 MHz for the rest).
+const fn baud(v: Option<&str>, default: u32, max: u32) -> u32 {
+    let Some(s) = v else { return default };
+    let b = s.as_bytes();
+    assert!(!b.is_empty(), "MAGCOMP_BAUD_*: empty");
+    let mut n: u32 = 0;
+    let mut i = 0;
+    while i < b.len() {
+        assert!(b[i].is_ascii_digit(), "MAGCOMP_BAUD_*: digits only");
+        assert!(n < 100_000_000, "MAGCOMP_BAUD_*: too large");
+        n = n * 10 + (b[i] - b'0') as u32;
+        i += 1;
+    }
+    assert!(
+        n >= 1_200 && n <= max,
+        "MAGCOMP_BAUD_*: out of the UART's range"
+    );
+    n
+}

@@ -28,6 +28,7 @@ use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF};
 use crate::board_shape::{CoefStore as _, Watchdog as _};
 use crate::health::{self, Task};
 use crate::store;
+use crate::uart_stats;
 use magcomp_core::model::Model;
 use static_cell::ConstStaticCell;
 
@@ -74,7 +75,9 @@ static COMMANDS: Channel<Mutex, Command, 4> = Channel::new();
 static OUT: Channel<Mutex, Line, 6> = Channel::new();
 
 /// Counters shown by `STATUS` besides the acquisition's own (records, parser errors per
-/// port): UART errors (overrun/framing/noise) and rejected commands.
+/// port) and the UART error flags (`uart_stats`): errors the UART driver returns (none in
+/// embassy-stm32 0.6, whose buffered reads never fail; kept for a driver that does) and
+/// rejected commands.
 static UART_ERRORS: AtomicU32 = AtomicU32::new(0);
 static CMD_ERRORS: AtomicU32 = AtomicU32::new(0);
 
@@ -344,10 +347,23 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
                 c.byte(b',')?;
                 c.u64(v.into())?;
             }
-            c.byte(b',')?;
-            c.u64(UART_ERRORS.load(Ordering::Relaxed).into())?;
-            c.byte(b',')?;
-            c.u64(CMD_ERRORS.load(Ordering::Relaxed).into())
+            // err_uart: the flags counted in the interrupts (uart_stats) plus any error the
+            // driver itself returns; then the breakdown by kind and by port
+            let kinds = uart_stats::by_kind();
+            let uart = kinds
+                .iter()
+                .fold(UART_ERRORS.load(Ordering::Relaxed), |a, &k| {
+                    a.wrapping_add(k)
+                });
+            for v in [uart, CMD_ERRORS.load(Ordering::Relaxed)]
+                .into_iter()
+                .chain(kinds)
+                .chain(uart_stats::by_port())
+            {
+                c.byte(b',')?;
+                c.u64(v.into())?;
+            }
+            Ok(())
         }),
         Command::GetCoef(Some(i)) => {
             let v = coefficients(acq)

@@ -45,6 +45,8 @@ mod fw;
 mod health;
 #[cfg(target_os = "none")]
 mod store;
+#[cfg(target_os = "none")]
+mod uart_stats;
 
 /// Watchdog timeout (µs): long enough for a flash sector erase on the real board (1–2 s).
 #[cfg(target_os = "none")]

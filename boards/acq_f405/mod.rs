@@ -23,24 +23,34 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, flash, peripherals};
 use static_cell::ConstStaticCell;
 
-use crate::board_shape::{Board, StoreError};
+#[cfg(feature = "flux-uart")]
+use crate::board_shape::BAUD_FLUX;
+use crate::board_shape::{BAUD_GPS, BAUD_OUT, BAUD_SCALAR, Board, StoreError};
 use crate::store;
 
 pub const NAME: &str = "acq-f405";
 
+use crate::uart_stats::Port;
+crate::uart_error_counter!(OutErrors, USART1, USART1, Port::Out);
+crate::uart_error_counter!(ScalarErrors, USART2, USART2, Port::Scalar);
+crate::uart_error_counter!(GpsErrors, UART4, UART4, Port::Gps);
+#[cfg(feature = "flux-uart")]
+crate::uart_error_counter!(FluxErrors, USART3, USART3, Port::Flux);
+
+// each UART's error counter runs before the HAL's handler (src/uart_stats.rs)
 #[cfg(not(feature = "flux-uart"))]
 bind_interrupts!(struct Irqs {
-    USART1 => usart::BufferedInterruptHandler<peripherals::USART1>;
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
-    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
+    USART1 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART1>;
+    USART2 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
+    UART4 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
     EXTI1 => embassy_stm32::exti::InterruptHandler<embassy_stm32::interrupt::typelevel::EXTI1>;
 });
 #[cfg(feature = "flux-uart")]
 bind_interrupts!(struct Irqs {
-    USART1 => usart::BufferedInterruptHandler<peripherals::USART1>;
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
-    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
-    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
+    USART1 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART1>;
+    USART2 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
+    USART3 => FluxErrors, usart::BufferedInterruptHandler<peripherals::USART3>;
+    UART4 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
 });
 
 /// The IWDG (LSI), fed by the watchdog task only while every task makes progress.
@@ -111,11 +121,19 @@ pub fn init() -> Board {
     let p = embassy_stm32::init(clocks());
 
     let (tx, rx) = buffers!(512, 256);
-    let out = BufferedUart::new(p.USART1, p.PA10, p.PA9, tx, rx, Irqs, uart_config(921_600));
+    let out = BufferedUart::new(p.USART1, p.PA10, p.PA9, tx, rx, Irqs, uart_config(BAUD_OUT));
     let (tx, rx) = buffers!(8, 512);
-    let scalar = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(115_200));
+    let scalar = BufferedUart::new(
+        p.USART2,
+        p.PA3,
+        p.PA2,
+        tx,
+        rx,
+        Irqs,
+        uart_config(BAUD_SCALAR),
+    );
     let (tx, rx) = buffers!(8, 1024);
-    let gps = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(115_200));
+    let gps = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(BAUD_GPS));
     // a UART that cannot be configured is a firmware bug, not an input condition
     let (out_tx, out_rx) = defmt::unwrap!(out.map_err(|_| ())).split();
     let (_, scalar) = defmt::unwrap!(scalar.map_err(|_| ())).split();
@@ -136,7 +154,8 @@ pub fn init() -> Board {
     #[cfg(feature = "flux-uart")]
     let flux = {
         let (tx, rx) = buffers!(8, 512);
-        let f = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, uart_config(115_200));
+        let cfg = uart_config(BAUD_FLUX);
+        let f = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, cfg);
         defmt::unwrap!(f.map_err(|_| ())).split().1
     };
 

@@ -20,7 +20,7 @@ use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx};
 use embassy_stm32::{bind_interrupts, peripherals};
 use static_cell::ConstStaticCell;
 
-use crate::board_shape::{Board, StoreError};
+use crate::board_shape::{BAUD_FLUX, BAUD_GPS, BAUD_OUT, BAUD_SCALAR, Board, StoreError};
 use crate::store;
 
 pub const NAME: &str = "emu-f405";
@@ -28,11 +28,19 @@ pub const NAME: &str = "emu-f405";
 /// SysTick counts at QEMU's netduinoplus2 system clock.
 const QEMU_SYSCLK_HZ: u32 = 168_000_000;
 
+use crate::uart_stats::Port;
+crate::uart_error_counter!(OutErrors, USART2, USART2, Port::Out);
+crate::uart_error_counter!(ScalarErrors, USART3, USART3, Port::Scalar);
+crate::uart_error_counter!(FluxErrors, UART4, UART4, Port::Flux);
+crate::uart_error_counter!(GpsErrors, UART5, UART5, Port::Gps);
+
+// each UART's error counter runs before the HAL's handler (src/uart_stats.rs); QEMU's
+// model never sets the error flags, so here they stay 0
 bind_interrupts!(struct Irqs {
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
-    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
-    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
-    UART5 => usart::BufferedInterruptHandler<peripherals::UART5>;
+    USART2 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
+    USART3 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART3>;
+    UART4 => FluxErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
+    UART5 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART5>;
 });
 
 /// A model of the IWDG (QEMU emulates none): the SysTick interrupt resets the board when
@@ -94,13 +102,14 @@ pub fn init() -> Board {
     }
 
     let (tx, rx) = buffers!(512, 256);
-    let out = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(921_600));
+    let out = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(BAUD_OUT));
     let (tx, rx) = buffers!(8, 512);
-    let scalar = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, uart_config(115_200));
+    let cfg = uart_config(BAUD_SCALAR);
+    let scalar = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, cfg);
     let (tx, rx) = buffers!(8, 512);
-    let flux = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(115_200));
+    let flux = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(BAUD_FLUX));
     let (tx, rx) = buffers!(8, 1024);
-    let gps = BufferedUart::new(p.UART5, p.PD2, p.PC12, tx, rx, Irqs, uart_config(115_200));
+    let gps = BufferedUart::new(p.UART5, p.PD2, p.PC12, tx, rx, Irqs, uart_config(BAUD_GPS));
     // a UART that cannot be configured is a firmware bug, not an input condition
     let (out_tx, out_rx) = defmt::unwrap!(out.map_err(|_| ())).split();
     let (_, scalar) = defmt::unwrap!(scalar.map_err(|_| ())).split();

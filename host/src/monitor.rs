@@ -117,7 +117,7 @@ pub struct BootBanner {
     pub panic: Option<String>,
 }
 
-/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>*HHHH`.
+/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>[,<7 UART counts>]*HHHH`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BoardStatus {
     pub survey: bool,
@@ -200,7 +200,11 @@ pub fn parse_status(l: &[u8]) -> Option<BoardStatus> {
     for v in &mut n {
         *v = f.next()?.parse().ok()?;
     }
-    f.next().is_none().then_some(BoardStatus {
+    // firmware from 2026-11-25 appends the UART errors by kind (3) and by port (4):
+    // accepted, not shown
+    let rest: Vec<&str> = f.collect();
+    let extra_ok = matches!(rest.len(), 0 | 7) && rest.iter().all(|v| v.parse::<u64>().is_ok());
+    extra_ok.then_some(BoardStatus {
         survey,
         records: n[0],
         err_scalar: n[1],

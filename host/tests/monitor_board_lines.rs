@@ -67,6 +67,10 @@ fn board_lines_parse_with_their_crc() {
     );
     assert!(parse_status(&sentence("MCACK,STATUS,FOO,1,2,3,4,5,6")).is_none());
     assert!(parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5")).is_none());
+    // the UART breakdown a newer firmware appends (by kind, by port) is accepted
+    let s = parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2,0,1,0,4,0")).unwrap();
+    assert_eq!((s.err_uart, s.err_cmd), (5, 6));
+    assert!(parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2")).is_none());
     // a wrong CRC is not a board line
     let mut bad = sentence("MCSYN,1,2,3");
     bad[3] = b'X';
