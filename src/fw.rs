@@ -330,7 +330,7 @@ fn refused(e: CommandError) -> Line {
     Line::fill(|out| encode_error(e, out))
 }
 
-async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut board::CoefStore) {
+async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board::CoefStore) {
     let reply = match cmd {
         Command::Mode(m) => {
             acq.set_survey_mode(m == Mode::Survey);
@@ -424,37 +424,48 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
             Err(_) => refused(CommandError::ValueOutOfBounds),
         },
         Command::Save => {
-            if save_coefficients(store, acq) {
+            if save_coefficients(st, acq) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
             } else {
                 // flash failure is not a command error: say so in the ACK's place
                 Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
             }
         }
-        Command::Reset | Command::Flush => {
+        Command::Reset | Command::Flush | Command::FactoryReset => {
             // every sample keeps its record: emit the held ones before anything else
             while let Some(r) = acq.flush() {
                 send_record(&r).await;
             }
-            if cmd == Command::Reset {
+            let name: &[u8] = match cmd {
+                Command::Reset => b"RESET",
+                Command::FactoryReset => b"FACTORY",
+                _ => b"FLUSH",
+            };
+            let mut failed = false;
+            if cmd != Command::Flush {
                 // in place: no second filter on the stack
                 if bc::restart_filter(acq).is_err() {
                     defmt::error!("compensator re-init failed");
                     board::exit(false)
                 }
-                let _ = load_coefficients(store, acq);
+                if cmd == Command::FactoryReset {
+                    // an erased store (as flash reads after an erase) and the boot defaults
+                    failed = st.write(&[0xFF; store::LEN]).is_err();
+                    store::defaults(acq);
+                } else {
+                    let _ = load_coefficients(st, acq);
+                }
             }
-            let name: &[u8] = if cmd == Command::Reset {
-                b"RESET"
+            if failed {
+                Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
             } else {
-                b"FLUSH"
-            };
-            Line::sentence(|c| {
-                c.bytes(b"MCACK,")?;
-                c.bytes(name)?;
-                c.byte(b',')?;
-                c.u64(acq.next_seq().into())
-            })
+                Line::sentence(|c| {
+                    c.bytes(b"MCACK,")?;
+                    c.bytes(name)?;
+                    c.byte(b',')?;
+                    c.u64(acq.next_seq().into())
+                })
+            }
         }
     };
     OUT.send(reply).await;

@@ -131,6 +131,16 @@ pub fn load(raw: &[u8; LEN], acq: &mut BoardAcquisition) -> Result<(), ()> {
     Ok(())
 }
 
+/// Every slot back to its default (what an erased store loads as): no coefficients (the
+/// filter, restarted by the caller, calibrates), identity fluxgate calibration, τ = 0, no
+/// temperature drift.
+pub fn defaults(acq: &mut BoardAcquisition) {
+    for s in SLOTS {
+        // the model has no default to apply: its `Err` means "calibrate", as after boot
+        let _ = s.apply(acq, None);
+    }
+}
+
 /// Encodes the acquisition's current values as a whole store image.
 pub fn save(acq: &BoardAcquisition, raw: &mut [u8; LEN]) -> Result<(), ()> {
     let mut at = 0;
