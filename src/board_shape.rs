@@ -28,10 +28,11 @@ pub trait Watchdog {
 #[derive(Debug, defmt::Format)]
 pub struct StoreError;
 
-/// The coefficient store's bytes ([`store::LEN`], layout in `store.rs`).
+/// The coefficient store: [`store::N_IMAGES`] images of [`store::IMAGE_LEN`] bytes, each
+/// erased and written on its own (layout in `store.rs`).
 pub trait CoefStore {
-    fn read(&mut self, raw: &mut [u8; store::LEN]) -> Result<(), StoreError>;
-    fn write(&mut self, raw: &[u8; store::LEN]) -> Result<(), StoreError>;
+    fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError>;
+    fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError>;
 }
 
 /// Baud rates per port, chosen at build time (`MAGCOMP_BAUD_OUT`, `MAGCOMP_BAUD_SCALAR`,

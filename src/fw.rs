@@ -277,16 +277,40 @@ async fn send_record(r: &Record) {
     OUT.send(line).await;
 }
 
-/// Loads the store (layout: `store.rs`); `Err` when it holds no valid model blob.
-fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
-    let mut raw = [0u8; store::LEN];
-    st.read(&mut raw).map_err(|_| ())?;
-    store::load(&raw, acq)
+/// The sequence numbers of the store's images, read one at a time into `buf` (an
+/// unreadable image counts as invalid): one image buffer on the stack, not two.
+fn image_seqs(st: &mut board::CoefStore, buf: &mut store::Image) -> [Option<u32>; store::N_IMAGES] {
+    let mut seqs = [None; store::N_IMAGES];
+    for (i, seq) in seqs.iter_mut().enumerate() {
+        if st.read(i, buf).is_ok() {
+            *seq = store::sequence(buf);
+        }
+    }
+    seqs
 }
 
+/// Loads the newest valid image (layout: `store.rs`); `Err` when it holds no valid model
+/// blob or there is none.
+fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    let mut img = store::ERASED;
+    let newest = store::newest(image_seqs(st, &mut img));
+    // no valid image: perhaps a store written before the two images, in image 1's sector
+    st.read(newest.unwrap_or(1), &mut img).map_err(|_| ())?;
+    match newest {
+        Some(_) => store::load_image(&img, acq),
+        None => store::load_legacy(&img, acq),
+    }
+}
+
+/// Writes the other image than the newest, then reads it back from the store itself.
 fn save_coefficients(st: &mut board::CoefStore, acq: &BoardAcquisition) -> bool {
-    let mut raw = [0u8; store::LEN];
-    store::save(acq, &mut raw).is_ok() && st.write(&raw).is_ok()
+    let mut back = store::ERASED;
+    let (i, seq) = store::next(image_seqs(st, &mut back));
+    let mut img = store::ERASED;
+    if store::seal(seq, acq, &mut img).is_err() || st.write(i, &img).is_err() {
+        return false;
+    }
+    st.read(i, &mut back).is_ok() && back == img
 }
 
 fn mode(acq: &BoardAcquisition) -> Mode {
@@ -450,7 +474,7 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board
                 }
                 if cmd == Command::FactoryReset {
                     // an erased store (as flash reads after an erase) and the boot defaults
-                    failed = st.write(&[0xFF; store::LEN]).is_err();
+                    failed = (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
                     store::defaults(acq);
                 } else {
                     let _ = load_coefficients(st, acq);
@@ -565,10 +589,10 @@ async fn watchdog_task(mut wdg: board::Watchdog) {
 /// command-port line starting with `!` goes here, not to the command parser.
 /// `!STALL`: the output task stops, busy, on an await that never completes (as a lost
 /// wake-up would), so the watchdog must reset the board. `!PANIC`: a panic, whose record the
-/// next boot must report.
+/// next boot must report. `!CUT<n>`: the next `SAVE` is cut after `n` bytes.
 #[cfg(feature = "board-emu")]
-mod test_hook {
-    use core::sync::atomic::{AtomicBool, Ordering};
+pub mod test_hook {
+    use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
     static STALL: AtomicBool = AtomicBool::new(false);
 
@@ -594,6 +618,7 @@ mod test_hook {
                     match line.as_slice() {
                         b"STALL" => STALL.store(true, Ordering::Relaxed),
                         b"PANIC" => panic!("test hook !PANIC"),
+                        [b'C', b'U', b'T', n @ ..] => cut_next_save(n),
                         _ => {}
                     }
                     self.line = None;
@@ -608,6 +633,26 @@ mod test_hook {
             }
             false
         }
+    }
+
+    /// `!CUT<n>`: the next store write stops after `n` bytes, as a power cut would
+    /// (boards/emu_f405's store asks [`take_cut`]).
+    static CUT_AT: AtomicU32 = AtomicU32::new(u32::MAX);
+
+    fn cut_next_save(digits: &[u8]) {
+        let n = digits.iter().try_fold(0u32, |n, &d| {
+            d.is_ascii_digit()
+                .then(|| n.saturating_mul(10).saturating_add(u32::from(d - b'0')))
+        });
+        if let Some(n) = n {
+            CUT_AT.store(n, Ordering::Relaxed);
+        }
+    }
+
+    /// Bytes the next store write may write before its cut, if one was asked for.
+    pub fn take_cut() -> Option<usize> {
+        let n = CUT_AT.swap(u32::MAX, Ordering::Relaxed);
+        (n != u32::MAX).then_some(n as usize)
     }
 
     pub async fn maybe_stall() {

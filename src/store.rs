@@ -1,6 +1,13 @@
-//! The coefficient store's layout, spelled out once: which blobs, in which order, how long.
-//! Both boards' stores hold `LEN` raw bytes (flash sector / RAM); loading and saving go
-//! through [`SLOTS`] only, so adding a blob is one line here.
+//! The coefficient store's layout, spelled out once: which blobs, in which order, how long,
+//! and the two images they are written to alternately. Loading and saving go through
+//! [`SLOTS`] only, so adding a blob is one line here.
+//!
+//! Power-cut safety: the store holds two images (`N_IMAGES`, one flash sector each on the
+//! real board), each `IMAGE_MAGIC`, a sequence number, the blobs, and a CRC-32 over all of
+//! it. `SAVE` writes the image that is *not* the newest valid one, with the next sequence
+//! number, and reads it back; a cut at any point of it leaves the other image intact, and
+//! boot loads the valid image with the highest sequence number: the old set or the new,
+//! never a mix.
 //!
 //! Each slot is a core blob (`magcomp_core::protocol::command::{encode,decode}_blob`: magic,
 //! version, count, id, values, CRC-32). A store written before a later slot existed loads
@@ -11,6 +18,8 @@ use magcomp_core::protocol::command::{
     flux_temp_blob_id, lag_blob_id,
 };
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
+
+use magcomp_core::protocol::common::crc32;
 
 use crate::board_config::{BoardAcquisition, N_COEF, model_id};
 
@@ -149,5 +158,74 @@ pub fn save(acq: &BoardAcquisition, raw: &mut [u8; LEN]) -> Result<(), ()> {
         let n = s.read(acq, &mut v);
         at += encode_blob(s.id(), &v[..n], &mut raw[at..]).map_err(|_| ())?;
     }
+    Ok(())
+}
+
+/// Images in the store, written alternately.
+pub const N_IMAGES: usize = 2;
+/// Bytes of one image: magic, sequence number (u32 LE), the blobs, CRC-32 (u32 LE).
+pub const IMAGE_LEN: usize = 8 + LEN + 4;
+const IMAGE_MAGIC: [u8; 4] = *b"MCS2";
+
+/// One image's bytes.
+pub type Image = [u8; IMAGE_LEN];
+
+/// An image that reads as erased flash.
+pub const ERASED: Image = [0xFF; IMAGE_LEN];
+
+/// The sequence number of a valid image (magic and CRC check).
+pub fn sequence(img: &Image) -> Option<u32> {
+    let body = &img[..8 + LEN];
+    let crc = img[8 + LEN..].try_into().ok().map(u32::from_le_bytes)?;
+    let seq = img[4..8].try_into().ok().map(u32::from_le_bytes)?;
+    (img[..4] == IMAGE_MAGIC && crc32(body) == crc).then_some(seq)
+}
+
+/// Which image to load: the valid one with the newest sequence number (compared modulo
+/// 2^32, so the counter may wrap), if any.
+pub fn newest(seqs: [Option<u32>; N_IMAGES]) -> Option<usize> {
+    match seqs {
+        [Some(a), Some(b)] => Some(usize::from(b.wrapping_sub(a) as i32 > 0)),
+        [Some(_), None] => Some(0),
+        [None, Some(_)] => Some(1),
+        [None, None] => None,
+    }
+}
+
+/// Where the next `SAVE` goes and with which sequence number: the image that is not the
+/// newest, one past it.
+pub fn next(seqs: [Option<u32>; N_IMAGES]) -> (usize, u32) {
+    match newest(seqs) {
+        Some(i) => (1 - i, seqs[i].unwrap_or(0).wrapping_add(1)),
+        None => (0, 1),
+    }
+}
+
+/// Loads a valid image's blobs (`Err`: no valid model blob: calibrate).
+pub fn load_image(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    load(part(img, 8), acq)
+}
+
+/// Loads a store written before the two images existed: the blobs alone at the start of
+/// what is now the second image's sector (the real board's sector 11).
+pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    load(part(img, 0), acq)
+}
+
+/// `LEN` bytes of an image from `at` (always in range: `at` ≤ 8).
+fn part(img: &Image, at: usize) -> &[u8; LEN] {
+    img.get(at..at + LEN)
+        .and_then(|b| b.try_into().ok())
+        .unwrap_or(&[0xFF; LEN])
+}
+
+/// Seals the acquisition's current values as image `seq`.
+pub fn seal(seq: u32, acq: &BoardAcquisition, img: &mut Image) -> Result<(), ()> {
+    img[..4].copy_from_slice(&IMAGE_MAGIC);
+    img[4..8].copy_from_slice(&seq.to_le_bytes());
+    let body: &mut [u8; LEN] = (&mut img[8..8 + LEN]).try_into().map_err(|_| ())?;
+    save(acq, body)?;
+    let crc = crc32(&img[..8 + LEN]);
+    img[8 + LEN..].copy_from_slice(&crc.to_le_bytes());
     Ok(())
 }

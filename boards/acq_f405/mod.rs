@@ -13,7 +13,7 @@
 //! | GPS PPS (optional)       | EXTI0       | PB0                          | reserved, not used yet    |
 //! | SWD + RTT (defmt)        | SWD         | PA13 SWDIO, PA14 SWCLK       | probe-rs                  |
 //! | HSE crystal              | OSC         | PH0, PH1                     | 8 MHz                     |
-//! | coefficients             | FLASH       | sector 11, 0x080E_0000       | 128 KiB, kept out of memory.x |
+//! | coefficients             | FLASH       | sectors 10–11, 0x080C_0000   | 2 × 128 KiB, two images, outside memory.x |
 //! | watchdog                 | IWDG        | LSI 32 kHz                   | 4 s, fed on progress      |
 
 use embassy_stm32::rcc::*;
@@ -174,32 +174,40 @@ pub fn init() -> Board {
     }
 }
 
-/// Offset of the coefficient sector (sector 11) from the start of flash.
-const COEF_SECTOR_OFFSET: u32 = 0x000E_0000;
-const COEF_SECTOR_SIZE: u32 = 128 * 1024;
+/// The store's two images: flash sectors 10 and 11 (128 KiB each, outside memory.x's
+/// program area). Image 1 is sector 11, where the single-image store of earlier firmware
+/// kept its blobs (`store::load_legacy`).
+const IMAGE_SECTORS: [u32; store::N_IMAGES] = [0x000C_0000, 0x000E_0000];
+const SECTOR_SIZE: u32 = 128 * 1024;
 
-/// Coefficient store: flash sector 11 (each blob carries its format version and CRC).
+/// Coefficient store: two flash sectors, one image each.
 pub struct CoefStore {
     flash: flash::Flash<'static, flash::Blocking>,
 }
 
+impl CoefStore {
+    fn sector(image: usize) -> Result<u32, StoreError> {
+        IMAGE_SECTORS.get(image).copied().ok_or(StoreError)
+    }
+}
+
 impl crate::board_shape::CoefStore for CoefStore {
-    fn read(&mut self, raw: &mut [u8; store::LEN]) -> Result<(), StoreError> {
+    fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
         self.flash
-            .blocking_read(COEF_SECTOR_OFFSET, raw)
+            .blocking_read(Self::sector(image)?, img)
             .map_err(|_| StoreError)
     }
-    /// Erases the sector (~1–2 s on F405: the watchdog timeout allows it) and writes `raw`.
-    fn write(&mut self, raw: &[u8; store::LEN]) -> Result<(), StoreError> {
+    /// Erases the image's sector (~1–2 s on F405: the watchdog timeout allows it) and
+    /// writes it; the other image is not touched.
+    fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError> {
+        let at = Self::sector(image)?;
         // flash programming needs a multiple of the 4-byte write size
-        let mut buf = [0xFFu8; store::LEN.div_ceil(4) * 4];
-        buf[..store::LEN].copy_from_slice(raw);
+        let mut buf = [0xFFu8; store::IMAGE_LEN.div_ceil(4) * 4];
+        buf[..store::IMAGE_LEN].copy_from_slice(img);
         self.flash
-            .blocking_erase(COEF_SECTOR_OFFSET, COEF_SECTOR_OFFSET + COEF_SECTOR_SIZE)
+            .blocking_erase(at, at + SECTOR_SIZE)
             .map_err(|_| StoreError)?;
-        self.flash
-            .blocking_write(COEF_SECTOR_OFFSET, &buf)
-            .map_err(|_| StoreError)
+        self.flash.blocking_write(at, &buf).map_err(|_| StoreError)
     }
 }
 

@@ -128,27 +128,33 @@ pub fn init() -> Board {
     }
 }
 
-/// Coefficient store: RAM stand-in for the flash sector (same bytes, same checks).
+/// Coefficient store: RAM stand-in for the two flash sectors (same images, same checks).
+/// `!CUT<n>` (fw::test_hook) makes the next write stop after `n` bytes of the erased image,
+/// as a power cut during `SAVE` would leave it.
 pub struct CoefStore {
-    mem: [u8; store::LEN],
+    mem: [store::Image; store::N_IMAGES],
 }
 
 impl CoefStore {
     const fn new() -> Self {
         // erased flash reads as 0xFF: start the same way
         Self {
-            mem: [0xFF; store::LEN],
+            mem: [store::ERASED; store::N_IMAGES],
         }
     }
 }
 
 impl crate::board_shape::CoefStore for CoefStore {
-    fn read(&mut self, raw: &mut [u8; store::LEN]) -> Result<(), StoreError> {
-        raw.copy_from_slice(&self.mem);
+    fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
+        img.copy_from_slice(self.mem.get(image).ok_or(StoreError)?);
         Ok(())
     }
-    fn write(&mut self, raw: &[u8; store::LEN]) -> Result<(), StoreError> {
-        self.mem.copy_from_slice(raw);
+    fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError> {
+        let dst = self.mem.get_mut(image).ok_or(StoreError)?;
+        let n = crate::fw::test_hook::take_cut().unwrap_or(store::IMAGE_LEN);
+        *dst = store::ERASED;
+        let n = n.min(store::IMAGE_LEN);
+        dst[..n].copy_from_slice(&img[..n]);
         Ok(())
     }
 }

@@ -813,6 +813,20 @@ fn send_hook(b: &mut Board, line: &[u8]) {
     b.send_command_bytes(line).unwrap();
 }
 
+/// Starts the emulated board for a test that uses its hidden hooks (`!STALL`, `!PANIC`,
+/// `!CUT<n>`); `None` (SKIP) without QEMU or on a real board, whose image has no hooks.
+fn start_with_hooks(name: &str) -> Option<Board> {
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return None;
+    }
+    if !board::emulated() {
+        eprintln!("SKIP: {name} uses the emulated build's hidden test hooks");
+        return None;
+    }
+    Some(Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}")))
+}
+
 /// Boot banners so far.
 fn banners(b: &Board) -> Vec<String> {
     b.output()
@@ -924,15 +938,9 @@ fn command_burst_keeps_records_flowing() {
 #[test]
 fn stalled_task_resets_the_board_and_the_next_boot_says_why() {
     let name = "stall";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start_with_hooks(name) else {
         return;
-    }
-    if !board::emulated() {
-        eprintln!("SKIP: {name} uses the emulated build's hidden test hooks");
-        return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let first = banners(&b).remove(0);
     assert!(first.contains(",RST="), "{name}: no reset cause: {first}");
     assert!(!first.contains("PANIC="), "{name}: {first}");
@@ -967,15 +975,9 @@ fn stalled_task_resets_the_board_and_the_next_boot_says_why() {
 #[test]
 fn panic_leaves_a_record_the_next_boot_reports() {
     let name = "panic";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start_with_hooks(name) else {
         return;
-    }
-    if !board::emulated() {
-        eprintln!("SKIP: {name} uses the emulated build's hidden test hooks");
-        return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     reply(&mut b, "MCCMD,STATUS");
     send_hook(&mut b, b"!PANIC\r\n");
     let second = b
@@ -1072,4 +1074,59 @@ fn factory_reset_erases_the_store() {
     ok(&reply(&mut b, "MCCMD,RESET"), "$MCACK,RESET,");
     check_defaults(&mut b, "after FACTORY + RESET");
     eprintln!("{name}: store erased, defaults back, also after RESET");
+}
+
+/// A `SAVE` cut at any point (the emulated build's hidden `!CUT<n>`: the image being
+/// written stops after `n` bytes, as a power cut leaves flash) keeps the previous set: the
+/// store writes the other of its two images, with the next sequence number, and reads it
+/// back (`$MCERR,8,STORAGE` when it does not read back), and a reload takes the newest
+/// valid image, never a mix. Completed saves alternate images and the newest wins.
+#[test]
+fn save_cut_at_any_point_keeps_the_old_set() {
+    let name = "cut";
+    let Some(mut b) = start_with_hooks(name) else {
+        return;
+    };
+    let lag = |b: &mut Board| reply_values(&reply(b, "MCCMD,GETLAG"))[0];
+    let set_and_save = |b: &mut Board, tau: f32| {
+        let r = reply(b, &format!("MCCMD,SETLAG,{tau}"));
+        assert!(r.starts_with("$MCACK,SETLAG,"), "{r}");
+        reply(b, "MCCMD,SAVE")
+    };
+    let reload = |b: &mut Board| {
+        let r = reply(b, "MCCMD,RESET");
+        assert!(r.starts_with("$MCACK,RESET,"), "{r}");
+    };
+    reply(&mut b, "MCCMD,SETCOEF,3,1.5");
+    assert!(set_and_save(&mut b, 0.1).starts_with("$MCACK,SAVE"));
+    reload(&mut b);
+    assert_eq!(lag(&mut b), 0.1);
+    // image: 8-byte header, the four blobs (208 bytes), CRC-32: cut before, inside, at the end
+    for (round, cut) in [0usize, 1, 7, 8, 100, 215, 216, 219]
+        .into_iter()
+        .enumerate()
+    {
+        send_hook(&mut b, format!("!CUT{cut}\r\n").as_bytes());
+        let r = set_and_save(&mut b, 0.2);
+        assert!(r.starts_with("$MCERR,8,STORAGE"), "{name}: cut {cut}: {r}");
+        reload(&mut b);
+        assert_eq!(
+            lag(&mut b),
+            0.1,
+            "{name}: cut at {cut} (round {round}): old set lost"
+        );
+        let s = reply(&mut b, "MCCMD,STATUS");
+        assert!(s.starts_with("$MCACK,STATUS,SURVEY,"), "{name}: {s}");
+    }
+    // complete saves alternate the images; the newest is loaded, and a cut now spares it
+    for tau in [0.2f32, 0.3, 0.4] {
+        assert!(set_and_save(&mut b, tau).starts_with("$MCACK,SAVE"));
+        reload(&mut b);
+        assert_eq!(lag(&mut b), tau);
+    }
+    send_hook(&mut b, b"!CUT100\r\n");
+    assert!(set_and_save(&mut b, 0.5).starts_with("$MCERR,8,STORAGE"));
+    reload(&mut b);
+    assert_eq!(lag(&mut b), 0.4, "{name}: the newest complete set");
+    eprintln!("{name}: 9 cut saves kept the previous set; complete saves alternate images");
 }
