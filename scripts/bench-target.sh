@@ -54,3 +54,8 @@ cargo build -q --profile fw --target thumbv7em-none-eabihf -p magcomp-firmware -
 echo
 echo "release firmware (acquisition board):"
 arm-none-eabi-size "$FW" | awk 'NR==2{printf "  flash %d B (%.1f KiB), static RAM %d B (%.1f KiB)\n", $1+$2, ($1+$2)/1024, $2+$3, ($2+$3)/1024}'
+if command -v cargo-bloat >/dev/null; then
+  echo
+  echo "code by crate (cargo bloat; cargo install cargo-bloat):"
+  cargo bloat -q --profile fw --target thumbv7em-none-eabihf -p magcomp-firmware --bin magcomp-firmware --crates -n 12 2>/dev/null | sed 's/^/  /'
+fi

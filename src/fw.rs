@@ -7,25 +7,28 @@ use embassy_futures::select::{Either, select};
 use embassy_stm32::usart::{BufferedUartRx, BufferedUartTx};
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
-use embassy_time::Timer;
+use embassy_time::{Duration, Timer, with_timeout};
 use embedded_io_async::{Read, Write};
 use magcomp_core::protocol::command::{
-    Command, CommandError, CommandReader, FLUX_CAL_LEN, FLUX_TEMP_LEN, Mode, blob_len, decode_blob,
-    encode_ack_coef, encode_ack_indexed, encode_blob, encode_error, flux_blob_id,
-    flux_temp_blob_id, lag_blob_id,
+    Command, CommandError, CommandReader, FLUX_CAL_LEN, FLUX_TEMP_LEN, Mode, encode_ack_coef,
+    encode_ack_indexed, encode_error,
 };
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::record::{Record, encode_record};
 
+#[cfg(feature = "board-acq")]
+use defmt_rtt as _;
 #[cfg(feature = "board-emu")]
 use defmt_semihosting as _;
-#[cfg(feature = "board-acq")]
-use {defmt_rtt as _, panic_probe as _};
 
 use crate::board;
-use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF, model_id};
+use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF};
+use crate::board_shape::{CoefStore as _, Watchdog as _};
+use crate::health::{self, Task};
+use crate::store;
+use crate::uart_stats;
 use magcomp_core::model::Model;
 use static_cell::ConstStaticCell;
 
@@ -72,12 +75,16 @@ static COMMANDS: Channel<Mutex, Command, 4> = Channel::new();
 static OUT: Channel<Mutex, Line, 6> = Channel::new();
 
 /// Counters shown by `STATUS` besides the acquisition's own (records, parser errors per
-/// port): UART errors (overrun/framing/noise) and rejected commands.
+/// port) and the UART error flags (`uart_stats`): errors the UART driver returns (none in
+/// embassy-stm32 0.6, whose buffered reads never fail; kept for a driver that does) and
+/// rejected commands.
 static UART_ERRORS: AtomicU32 = AtomicU32::new(0);
 static CMD_ERRORS: AtomicU32 = AtomicU32::new(0);
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
+    // before anything can reset again: why the last run ended
+    let boot = health::take_boot_info();
     let b = board::init();
     defmt::info!(
         "magcomp firmware on {}, scalar rate {} Hz",
@@ -89,6 +96,12 @@ async fn main(spawner: Spawner) {
         c.bytes(board::NAME.as_bytes())?;
         c.byte(b',')?;
         c.bytes(env!("CARGO_PKG_VERSION").as_bytes())?;
+        c.bytes(b",RST=")?;
+        c.bytes(boot.cause.word())?;
+        if let Some(p) = &boot.panic {
+            c.bytes(b",PANIC=")?;
+            c.bytes(p.as_bytes())?;
+        }
         // tells the harness that frames are acknowledged (`$MCSYN`)
         if cfg!(feature = "hil-sync") {
             c.bytes(b",SYNC")?;
@@ -96,6 +109,14 @@ async fn main(spawner: Spawner) {
         Ok(())
     }))
     .await;
+    match &boot.panic {
+        Some(p) => defmt::warn!(
+            "reset cause {}, after a panic at {}",
+            boot.cause,
+            p.as_str()
+        ),
+        None => defmt::info!("reset cause {}", boot.cause),
+    }
 
     spawner.spawn(watchdog_task(b.watchdog).unwrap());
     spawner.spawn(output_task(b.out_tx).unwrap());
@@ -139,10 +160,14 @@ async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
 }
 
 /// A sensor UART's bytes through its port parser into the event channel, forever.
-async fn forward(mut rx: BufferedUartRx<'static>, mut parse: impl FnMut(u8) -> Option<Event>) -> ! {
+async fn forward(
+    task: Task,
+    mut rx: BufferedUartRx<'static>,
+    mut parse: impl FnMut(u8) -> Option<Event>,
+) -> ! {
     let mut buf = [0u8; 64];
     loop {
-        let n = read_some(&mut rx, &mut buf).await;
+        let n = health::idle(task, read_some(&mut rx, &mut buf)).await;
         for &b in &buf[..n] {
             if let Some(ev) = parse(b) {
                 EVENTS.send(ev).await;
@@ -153,22 +178,25 @@ async fn forward(mut rx: BufferedUartRx<'static>, mut parse: impl FnMut(u8) -> O
 
 #[embassy_executor::task]
 async fn scalar_task(rx: BufferedUartRx<'static>) {
+    const TASK: Task = Task::Scalar;
     let mut port = bc::ScalarPort::new();
-    forward(rx, |b| port.push(b)).await
+    forward(TASK, rx, |b| port.push(b)).await
 }
 
 #[embassy_executor::task]
 async fn gps_task(rx: BufferedUartRx<'static>) {
+    const TASK: Task = Task::Gps;
     let mut port = bc::GpsPort::new();
-    forward(rx, |b| port.push(b)).await
+    forward(TASK, rx, |b| port.push(b)).await
 }
 
 /// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the board's axes).
 #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
 #[embassy_executor::task]
 async fn flux_uart_task(rx: BufferedUartRx<'static>) {
+    const TASK: Task = Task::Flux;
     let mut port = bc::FluxAsciiPort::new();
-    forward(rx, |b| port.push(b)).await
+    forward(TASK, rx, |b| port.push(b)).await
 }
 
 /// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame
@@ -182,7 +210,7 @@ async fn flux_spi_task(mut f: board::FluxPort) {
     };
     let cal = FluxgateCal::full_scale(FLUX_FULL_SCALE_NT);
     loop {
-        f.drdy.wait_for_falling_edge().await;
+        health::idle(Task::Flux, f.drdy.wait_for_falling_edge()).await;
         let mut frame = [0u8; SPI_FRAME_LEN];
         f.cs.set_low();
         let r = f.spi.blocking_transfer_in_place(&mut frame);
@@ -208,7 +236,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
     #[cfg(feature = "hil-sync")]
     let mut taken = [0u64; 3];
     loop {
-        let ev = match select(EVENTS.receive(), COMMANDS.receive()).await {
+        let ev = match health::idle(Task::Acq, select(EVENTS.receive(), COMMANDS.receive())).await {
             Either::First(ev) => ev,
             Either::Second(cmd) => {
                 handle_command(cmd, acq, &mut store).await;
@@ -249,52 +277,40 @@ async fn send_record(r: &Record) {
     OUT.send(line).await;
 }
 
-/// The store holds the model's blob, then the fluxgate calibration's, then the scalar
-/// delay's, then the fluxgate temperature drift's; a store written before `fluxcal` /
-/// `SETLAG` / `SETFTEMP` existed loads as "no fluxgate calibration" / τ = 0 / no drift.
-fn load_coefficients(store: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
-    let mut blob = [0u8; crate::COEF_BLOB_MAX];
-    store.read(&mut blob).map_err(|_| ())?;
-    let mut c = [0f32; N_COEF];
-    decode_blob(&blob, model_id(), &mut c).map_err(|_| ())?;
-    acq.set_coefficients(&c).map_err(|_| ())?;
-    let mut f = [0f32; FLUX_CAL_LEN];
-    let flux = decode_blob(&blob[blob_len(N_COEF)..], flux_blob_id(), &mut f)
-        .ok()
-        .and_then(|()| FluxCalibration::from_array(&f));
-    acq.set_flux_calibration(flux.unwrap_or(FluxCalibration::IDENTITY));
-    let mut lag = [0f32; 1];
-    let at = blob_len(N_COEF) + blob_len(FLUX_CAL_LEN);
-    let stored = decode_blob(&blob[at..], lag_blob_id(), &mut lag).is_ok();
-    if !(stored && acq.set_lag_s(lag[0]).is_ok()) {
-        let _ = acq.set_lag_s(0.0);
+/// The sequence numbers of the store's images, read one at a time into `buf` (an
+/// unreadable image counts as invalid): one image buffer on the stack, not two.
+fn image_seqs(st: &mut board::CoefStore, buf: &mut store::Image) -> [Option<u32>; store::N_IMAGES] {
+    let mut seqs = [None; store::N_IMAGES];
+    for (i, seq) in seqs.iter_mut().enumerate() {
+        if st.read(i, buf).is_ok() {
+            *seq = store::sequence(buf);
+        }
     }
-    let mut ft = [0f32; FLUX_TEMP_LEN];
-    let at = at + blob_len(1);
-    let temp = decode_blob(&blob[at..], flux_temp_blob_id(), &mut ft)
-        .ok()
-        .and_then(|()| FluxTempCal::from_array(&ft));
-    acq.set_flux_temp_calibration(temp.unwrap_or(FluxTempCal::NONE));
-    Ok(())
+    seqs
 }
 
-fn save_coefficients(store: &mut board::CoefStore, acq: &BoardAcquisition) -> bool {
-    let mut blob = [0u8; crate::COEF_BLOB_MAX];
-    let Ok(n) = encode_blob(model_id(), &coefficients(acq), &mut blob) else {
+/// Loads the newest valid image (layout: `store.rs`); `Err` when it holds no valid model
+/// blob or there is none.
+fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    let mut img = store::ERASED;
+    let newest = store::newest(image_seqs(st, &mut img));
+    // no valid image: perhaps a store written before the two images, in image 1's sector
+    st.read(newest.unwrap_or(1), &mut img).map_err(|_| ())?;
+    match newest {
+        Some(_) => store::load_image(&img, acq),
+        None => store::load_legacy(&img, acq),
+    }
+}
+
+/// Writes the other image than the newest, then reads it back from the store itself.
+fn save_coefficients(st: &mut board::CoefStore, acq: &BoardAcquisition) -> bool {
+    let mut back = store::ERASED;
+    let (i, seq) = store::next(image_seqs(st, &mut back));
+    let mut img = store::ERASED;
+    if store::seal(seq, acq, &mut img).is_err() || st.write(i, &img).is_err() {
         return false;
-    };
-    let flux = acq.flux_calibration().to_array();
-    let Ok(m) = encode_blob(flux_blob_id(), &flux, &mut blob[n..]) else {
-        return false;
-    };
-    let Ok(l) = encode_blob(lag_blob_id(), &[acq.lag_s()], &mut blob[n + m..]) else {
-        return false;
-    };
-    let ft = acq.flux_temp_calibration().to_array();
-    let Ok(t) = encode_blob(flux_temp_blob_id(), &ft, &mut blob[n + m + l..]) else {
-        return false;
-    };
-    store.write(&blob[..n + m + l + t]).is_ok()
+    }
+    st.read(i, &mut back).is_ok() && back == img
 }
 
 fn mode(acq: &BoardAcquisition) -> Mode {
@@ -338,7 +354,7 @@ fn refused(e: CommandError) -> Line {
     Line::fill(|out| encode_error(e, out))
 }
 
-async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut board::CoefStore) {
+async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board::CoefStore) {
     let reply = match cmd {
         Command::Mode(m) => {
             acq.set_survey_mode(m == Mode::Survey);
@@ -355,10 +371,23 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
                 c.byte(b',')?;
                 c.u64(v.into())?;
             }
-            c.byte(b',')?;
-            c.u64(UART_ERRORS.load(Ordering::Relaxed).into())?;
-            c.byte(b',')?;
-            c.u64(CMD_ERRORS.load(Ordering::Relaxed).into())
+            // err_uart: the flags counted in the interrupts (uart_stats) plus any error the
+            // driver itself returns; then the breakdown by kind and by port
+            let kinds = uart_stats::by_kind();
+            let uart = kinds
+                .iter()
+                .fold(UART_ERRORS.load(Ordering::Relaxed), |a, &k| {
+                    a.wrapping_add(k)
+                });
+            for v in [uart, CMD_ERRORS.load(Ordering::Relaxed)]
+                .into_iter()
+                .chain(kinds)
+                .chain(uart_stats::by_port())
+            {
+                c.byte(b',')?;
+                c.u64(v.into())?;
+            }
+            Ok(())
         }),
         Command::GetCoef(Some(i)) => {
             let v = coefficients(acq)
@@ -419,37 +448,48 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
             Err(_) => refused(CommandError::ValueOutOfBounds),
         },
         Command::Save => {
-            if save_coefficients(store, acq) {
+            if save_coefficients(st, acq) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
             } else {
                 // flash failure is not a command error: say so in the ACK's place
                 Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
             }
         }
-        Command::Reset | Command::Flush => {
+        Command::Reset | Command::Flush | Command::FactoryReset => {
             // every sample keeps its record: emit the held ones before anything else
             while let Some(r) = acq.flush() {
                 send_record(&r).await;
             }
-            if cmd == Command::Reset {
+            let name: &[u8] = match cmd {
+                Command::Reset => b"RESET",
+                Command::FactoryReset => b"FACTORY",
+                _ => b"FLUSH",
+            };
+            let mut failed = false;
+            if cmd != Command::Flush {
                 // in place: no second filter on the stack
                 if bc::restart_filter(acq).is_err() {
                     defmt::error!("compensator re-init failed");
                     board::exit(false)
                 }
-                let _ = load_coefficients(store, acq);
+                if cmd == Command::FactoryReset {
+                    // an erased store (as flash reads after an erase) and the boot defaults
+                    failed = (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
+                    store::defaults(acq);
+                } else {
+                    let _ = load_coefficients(st, acq);
+                }
             }
-            let name: &[u8] = if cmd == Command::Reset {
-                b"RESET"
+            if failed {
+                Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
             } else {
-                b"FLUSH"
-            };
-            Line::sentence(|c| {
-                c.bytes(b"MCACK,")?;
-                c.bytes(name)?;
-                c.byte(b',')?;
-                c.u64(acq.next_seq().into())
-            })
+                Line::sentence(|c| {
+                    c.bytes(b"MCACK,")?;
+                    c.bytes(name)?;
+                    c.byte(b',')?;
+                    c.u64(acq.next_seq().into())
+                })
+            }
         }
     };
     OUT.send(reply).await;
@@ -459,10 +499,16 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, store: &mut bo
 #[embassy_executor::task]
 async fn command_task(mut rx: BufferedUartRx<'static>) {
     let mut reader = CommandReader::new(N_COEF);
+    #[cfg(feature = "board-emu")]
+    let mut hook = test_hook::Hook::new();
     let mut buf = [0u8; 32];
     loop {
-        let n = read_some(&mut rx, &mut buf).await;
+        let n = health::idle(Task::Command, read_some(&mut rx, &mut buf)).await;
         for &b in &buf[..n] {
+            #[cfg(feature = "board-emu")]
+            if hook.push(b) {
+                continue;
+            }
             match reader.push(b) {
                 None => {}
                 Some(Ok(cmd)) => COMMANDS.send(cmd).await,
@@ -475,24 +521,143 @@ async fn command_task(mut rx: BufferedUartRx<'static>) {
     }
 }
 
-/// The single writer of the output port: records and replies, in channel order.
-#[embassy_executor::task]
-async fn output_task(mut tx: BufferedUartTx<'static>) {
-    loop {
-        let line = OUT.receive().await;
-        if tx.write_all(line.bytes()).await.is_err() {
-            UART_ERRORS.fetch_add(1, Ordering::Relaxed);
+/// Longest the output task waits on one `write` before polling it again. embassy-stm32
+/// 0.6.0's `BufferedUartTx::write` (usart/buffered.rs) returns `Pending` *without
+/// registering a waker* when the TX ring has less free room than the whole slice, so an
+/// await on it alone can sleep forever once the ring is busy (a command burst, `FLUSH`
+/// at a high record rate). A write takes all of the slice or none of it, so polling it
+/// again is safe; 1 ms is less than the ≥ 192 bytes still queued in that case take to go
+/// out at 921 600 Bd (2 ms), so the line never idles for it.
+const TX_REPOLL: Duration = Duration::from_millis(1);
+
+/// Writes one line to the output port (the ring takes it whole: lines < 320 B < 512 B).
+async fn write_line(tx: &mut BufferedUartTx<'static>, mut bytes: &[u8]) {
+    while !bytes.is_empty() {
+        match with_timeout(TX_REPOLL, tx.write(bytes)).await {
+            Ok(Ok(n)) => bytes = &bytes[n..],
+            Ok(Err(_)) => {
+                // cannot happen for a line shorter than the ring; counted, line dropped
+                UART_ERRORS.fetch_add(1, Ordering::Relaxed);
+                return;
+            }
+            Err(_) => {
+                TX_REPOLLS.fetch_add(1, Ordering::Relaxed);
+            }
         }
     }
 }
 
-/// Pets the IWDG while the executor keeps running: a task stuck in a loop (or a hard
-/// fault) stops the petting and the board resets.
+/// Times [`write_line`] had to poll again (the driver's missing wake-up; logged, not an error).
+static TX_REPOLLS: AtomicU32 = AtomicU32::new(0);
+
+/// The single writer of the output port: records and replies, in channel order.
+#[embassy_executor::task]
+async fn output_task(mut tx: BufferedUartTx<'static>) {
+    loop {
+        let line = health::idle(Task::Output, OUT.receive()).await;
+        #[cfg(feature = "board-emu")]
+        test_hook::maybe_stall().await;
+        write_line(&mut tx, line.bytes()).await;
+    }
+}
+
+/// Feeds the IWDG every 500 ms, but only when every task is idle or has finished work since
+/// the previous check (`health::Progress`). A task stuck on an await that never completes
+/// (the TX wake-up above, a full channel whose consumer died) or spinning, or a hard fault,
+/// stops the feeding and the IWDG resets the board within its 4 s; `$MCBOOT` then says
+/// `RST=IWDG`.
 #[embassy_executor::task]
 async fn watchdog_task(mut wdg: board::Watchdog) {
     wdg.unleash();
+    let mut progress = health::Progress::new();
+    let mut reported = 0;
     loop {
-        wdg.pet();
         Timer::after_millis(500).await;
+        match progress.check() {
+            Ok(()) => wdg.feed(),
+            Err(t) => defmt::warn!("task {} made no progress: watchdog not fed", t),
+        }
+        let r = TX_REPOLLS.load(Ordering::Relaxed);
+        if r != reported {
+            defmt::debug!("output write polled again {} times", r);
+            reported = r;
+        }
+    }
+}
+
+/// Emulated-board test hooks (compiled only with `board-emu`, never in the flight image): a
+/// command-port line starting with `!` goes here, not to the command parser.
+/// `!STALL`: the output task stops, busy, on an await that never completes (as a lost
+/// wake-up would), so the watchdog must reset the board. `!PANIC`: a panic, whose record the
+/// next boot must report. `!CUT<n>`: the next `SAVE` is cut after `n` bytes.
+#[cfg(feature = "board-emu")]
+pub mod test_hook {
+    use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+
+    static STALL: AtomicBool = AtomicBool::new(false);
+
+    pub struct Hook {
+        at_line_start: bool,
+        line: Option<heapless::Vec<u8, 16>>,
+    }
+
+    impl Hook {
+        pub const fn new() -> Self {
+            Self {
+                at_line_start: true,
+                line: None,
+            }
+        }
+
+        /// `true` if the byte belongs to a hook line (not for the command parser).
+        pub fn push(&mut self, b: u8) -> bool {
+            let start = self.at_line_start;
+            self.at_line_start = b == b'\n' || b == b'\r';
+            if let Some(line) = &mut self.line {
+                if self.at_line_start {
+                    match line.as_slice() {
+                        b"STALL" => STALL.store(true, Ordering::Relaxed),
+                        b"PANIC" => panic!("test hook !PANIC"),
+                        [b'C', b'U', b'T', n @ ..] => cut_next_save(n),
+                        _ => {}
+                    }
+                    self.line = None;
+                } else {
+                    let _ = line.push(b);
+                }
+                return true;
+            }
+            if start && b == b'!' {
+                self.line = Some(heapless::Vec::new());
+                return true;
+            }
+            false
+        }
+    }
+
+    /// `!CUT<n>`: the next store write stops after `n` bytes, as a power cut would
+    /// (boards/emu_f405's store asks [`take_cut`]).
+    static CUT_AT: AtomicU32 = AtomicU32::new(u32::MAX);
+
+    fn cut_next_save(digits: &[u8]) {
+        let n = digits.iter().try_fold(0u32, |n, &d| {
+            d.is_ascii_digit()
+                .then(|| n.saturating_mul(10).saturating_add(u32::from(d - b'0')))
+        });
+        if let Some(n) = n {
+            CUT_AT.store(n, Ordering::Relaxed);
+        }
+    }
+
+    /// Bytes the next store write may write before its cut, if one was asked for.
+    pub fn take_cut() -> Option<usize> {
+        let n = CUT_AT.swap(u32::MAX, Ordering::Relaxed);
+        (n != u32::MAX).then_some(n as usize)
+    }
+
+    pub async fn maybe_stall() {
+        if STALL.load(Ordering::Relaxed) {
+            core::future::pending::<()>().await;
+        }
     }
 }

@@ -7,7 +7,7 @@
 //! flux SPI/UART ► flux task ────────┼─► EVENTS ─► aligner_task ─► SAMPLES ─► filter_task ─► OUT ─► output_task ─► output UART
 //! GPS UART ───► line_task(Gps) ─────┘   (arrival order)                         ▲   │
 //! output UART RX ─► command_task ──────────────────────────► COMMANDS ──────────┘   └ replies, records
-//! watchdog_task: pets the IWDG while the executor runs
+//! watchdog_task: feeds the IWDG only while every task makes progress (health.rs)
 //! ```
 //!
 //! Every scalar line becomes exactly one record; the channels apply back-pressure instead of
@@ -38,17 +38,16 @@ mod board;
 mod board;
 
 #[cfg(target_os = "none")]
+mod board_shape;
+#[cfg(target_os = "none")]
 mod fw;
+#[cfg(target_os = "none")]
+mod health;
+#[cfg(target_os = "none")]
+mod store;
+#[cfg(target_os = "none")]
+mod uart_stats;
 
-/// Watchdog timeout (µs): long enough for a flash sector erase on the real board.
+/// Watchdog timeout (µs): long enough for a flash sector erase on the real board (1–2 s).
 #[cfg(target_os = "none")]
 pub const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
-/// Size of the coefficient store: the model's blob (header, coefficients, CRC-32), then the
-/// fluxgate calibration's, the scalar delay's (`SETLAG`, one value) and the fluxgate
-/// temperature drift's (`SETFTEMP`, 7 values) blobs of the same format. A store written
-/// before one existed loads it as identity / τ = 0 / no drift.
-#[cfg(target_os = "none")]
-pub const COEF_BLOB_MAX: usize = magcomp_core::protocol::command::blob_len(board_config::N_COEF)
-    + magcomp_core::protocol::command::blob_len(magcomp_core::protocol::command::FLUX_CAL_LEN)
-    + magcomp_core::protocol::command::blob_len(1)
-    + magcomp_core::protocol::command::blob_len(magcomp_core::protocol::command::FLUX_TEMP_LEN);

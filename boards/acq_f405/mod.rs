@@ -13,34 +13,57 @@
 //! | GPS PPS (optional)       | EXTI0       | PB0                          | reserved, not used yet    |
 //! | SWD + RTT (defmt)        | SWD         | PA13 SWDIO, PA14 SWCLK       | probe-rs                  |
 //! | HSE crystal              | OSC         | PH0, PH1                     | 8 MHz                     |
-//! | coefficients             | FLASH       | sector 11, 0x080E_0000       | 128 KiB, kept out of memory.x |
-//! | watchdog                 | IWDG        | LSI 32 kHz                   | 2 s                       |
+//! | coefficients             | FLASH       | sectors 10–11, 0x080C_0000   | 2 × 128 KiB, two images, outside memory.x |
+//! | watchdog                 | IWDG        | LSI 32 kHz                   | 4 s, fed on progress      |
 
 use embassy_stm32::rcc::*;
 use embassy_stm32::time::Hertz;
-use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
+use embassy_stm32::usart::{self, BufferedUart};
 use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, flash, peripherals};
 use static_cell::ConstStaticCell;
 
+#[cfg(feature = "flux-uart")]
+use crate::board_shape::BAUD_FLUX;
+use crate::board_shape::{BAUD_GPS, BAUD_OUT, BAUD_SCALAR, Board, StoreError};
+use crate::store;
+
 pub const NAME: &str = "acq-f405";
 
+use crate::uart_stats::Port;
+crate::uart_error_counter!(OutErrors, USART1, USART1, Port::Out);
+crate::uart_error_counter!(ScalarErrors, USART2, USART2, Port::Scalar);
+crate::uart_error_counter!(GpsErrors, UART4, UART4, Port::Gps);
+#[cfg(feature = "flux-uart")]
+crate::uart_error_counter!(FluxErrors, USART3, USART3, Port::Flux);
+
+// each UART's error counter runs before the HAL's handler (src/uart_stats.rs)
 #[cfg(not(feature = "flux-uart"))]
 bind_interrupts!(struct Irqs {
-    USART1 => usart::BufferedInterruptHandler<peripherals::USART1>;
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
-    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
+    USART1 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART1>;
+    USART2 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
+    UART4 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
     EXTI1 => embassy_stm32::exti::InterruptHandler<embassy_stm32::interrupt::typelevel::EXTI1>;
 });
 #[cfg(feature = "flux-uart")]
 bind_interrupts!(struct Irqs {
-    USART1 => usart::BufferedInterruptHandler<peripherals::USART1>;
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
-    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
-    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
+    USART1 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART1>;
+    USART2 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
+    USART3 => FluxErrors, usart::BufferedInterruptHandler<peripherals::USART3>;
+    UART4 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
 });
 
-pub type Watchdog = IndependentWatchdog<'static, peripherals::IWDG>;
+/// The IWDG (LSI), fed by the watchdog task only while every task makes progress.
+pub struct Watchdog(IndependentWatchdog<'static, peripherals::IWDG>);
+
+impl crate::board_shape::Watchdog for Watchdog {
+    fn unleash(&mut self) {
+        self.0.unleash();
+    }
+    fn feed(&mut self) {
+        self.0.pet();
+    }
+}
 
 /// Fluxgate port: the 24-bit SPI ADC with its data-ready line.
 #[cfg(not(feature = "flux-uart"))]
@@ -55,17 +78,7 @@ pub struct FluxPort {
 }
 /// Fluxgate port: the serial ASCII alternative.
 #[cfg(feature = "flux-uart")]
-pub type FluxPort = BufferedUartRx<'static>;
-
-pub struct Board {
-    pub scalar: BufferedUartRx<'static>,
-    pub flux: FluxPort,
-    pub gps: BufferedUartRx<'static>,
-    pub out_tx: BufferedUartTx<'static>,
-    pub out_rx: BufferedUartRx<'static>,
-    pub watchdog: Watchdog,
-    pub store: CoefStore,
-}
+pub type FluxPort = usart::BufferedUartRx<'static>;
 
 fn uart_config(baud: u32) -> usart::Config {
     let mut c = usart::Config::default();
@@ -108,11 +121,19 @@ pub fn init() -> Board {
     let p = embassy_stm32::init(clocks());
 
     let (tx, rx) = buffers!(512, 256);
-    let out = BufferedUart::new(p.USART1, p.PA10, p.PA9, tx, rx, Irqs, uart_config(921_600));
+    let out = BufferedUart::new(p.USART1, p.PA10, p.PA9, tx, rx, Irqs, uart_config(BAUD_OUT));
     let (tx, rx) = buffers!(8, 512);
-    let scalar = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(115_200));
+    let scalar = BufferedUart::new(
+        p.USART2,
+        p.PA3,
+        p.PA2,
+        tx,
+        rx,
+        Irqs,
+        uart_config(BAUD_SCALAR),
+    );
     let (tx, rx) = buffers!(8, 1024);
-    let gps = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(115_200));
+    let gps = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(BAUD_GPS));
     // a UART that cannot be configured is a firmware bug, not an input condition
     let (out_tx, out_rx) = defmt::unwrap!(out.map_err(|_| ())).split();
     let (_, scalar) = defmt::unwrap!(scalar.map_err(|_| ())).split();
@@ -133,11 +154,12 @@ pub fn init() -> Board {
     #[cfg(feature = "flux-uart")]
     let flux = {
         let (tx, rx) = buffers!(8, 512);
-        let f = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, uart_config(115_200));
+        let cfg = uart_config(BAUD_FLUX);
+        let f = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, cfg);
         defmt::unwrap!(f.map_err(|_| ())).split().1
     };
 
-    let watchdog = IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US);
+    let watchdog = Watchdog(IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US));
     let store = CoefStore {
         flash: flash::Flash::new_blocking(p.FLASH),
     };
@@ -152,37 +174,40 @@ pub fn init() -> Board {
     }
 }
 
-/// Offset of the coefficient sector (sector 11) from the start of flash.
-const COEF_SECTOR_OFFSET: u32 = 0x000E_0000;
-const COEF_SECTOR_SIZE: u32 = 128 * 1024;
+/// The store's two images: flash sectors 10 and 11 (128 KiB each, outside memory.x's
+/// program area). Image 1 is sector 11, where the single-image store of earlier firmware
+/// kept its blobs (`store::load_legacy`).
+const IMAGE_SECTORS: [u32; store::N_IMAGES] = [0x000C_0000, 0x000E_0000];
+const SECTOR_SIZE: u32 = 128 * 1024;
 
-/// Coefficient store: flash sector 11 (the blob carries its format version and CRC).
+/// Coefficient store: two flash sectors, one image each.
 pub struct CoefStore {
     flash: flash::Flash<'static, flash::Blocking>,
 }
 
-#[derive(Debug, defmt::Format)]
-pub struct StoreError;
-
 impl CoefStore {
-    pub fn read(&mut self, buf: &mut [u8]) -> Result<(), StoreError> {
+    fn sector(image: usize) -> Result<u32, StoreError> {
+        IMAGE_SECTORS.get(image).copied().ok_or(StoreError)
+    }
+}
+
+impl crate::board_shape::CoefStore for CoefStore {
+    fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
         self.flash
-            .blocking_read(COEF_SECTOR_OFFSET, buf)
+            .blocking_read(Self::sector(image)?, img)
             .map_err(|_| StoreError)
     }
-    /// Erases the sector (~1–2 s on F405: the watchdog timeout allows it) and writes `data`.
-    pub fn write(&mut self, data: &[u8]) -> Result<(), StoreError> {
+    /// Erases the image's sector (~1–2 s on F405: the watchdog timeout allows it) and
+    /// writes it; the other image is not touched.
+    fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError> {
+        let at = Self::sector(image)?;
         // flash programming needs a multiple of the 4-byte write size
-        let mut buf = [0xFFu8; crate::COEF_BLOB_MAX];
-        let n = data.len().div_ceil(4) * 4;
-        let dst = buf.get_mut(..data.len()).ok_or(StoreError)?;
-        dst.copy_from_slice(data);
+        let mut buf = [0xFFu8; store::IMAGE_LEN.div_ceil(4) * 4];
+        buf[..store::IMAGE_LEN].copy_from_slice(img);
         self.flash
-            .blocking_erase(COEF_SECTOR_OFFSET, COEF_SECTOR_OFFSET + COEF_SECTOR_SIZE)
+            .blocking_erase(at, at + SECTOR_SIZE)
             .map_err(|_| StoreError)?;
-        self.flash
-            .blocking_write(COEF_SECTOR_OFFSET, &buf[..n])
-            .map_err(|_| StoreError)
+        self.flash.blocking_write(at, &buf).map_err(|_| StoreError)
     }
 }
 

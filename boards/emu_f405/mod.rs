@@ -7,44 +7,72 @@
 //! - fluxgate on its UART alternative (QEMU has no SPI ADC);
 //! - coefficients in a RAM store with the same blob format (QEMU does not emulate the
 //!   flash controller): they survive a soft restart of the tasks, not a QEMU restart;
-//! - logs over semihosting (QEMU stdout) instead of RTT.
+//! - logs over semihosting (QEMU stdout) instead of RTT;
+//! - the IWDG is a model in the SysTick interrupt (QEMU has none), see [`Watchdog`].
 //!
 //! QEMU `-serial` order: 0 USART1 (unused), 1 USART2 = output/command, 2 USART3 = scalar,
 //! 3 UART4 = fluxgate, 4 UART5 = GPS.
 
 mod systick_driver;
 
-use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx, BufferedUartTx};
-use embassy_stm32::wdg::IndependentWatchdog;
+use core::sync::atomic::{AtomicU32, Ordering};
+use embassy_stm32::usart::{self, BufferedUart, BufferedUartRx};
 use embassy_stm32::{bind_interrupts, peripherals};
 use static_cell::ConstStaticCell;
+
+use crate::board_shape::{BAUD_FLUX, BAUD_GPS, BAUD_OUT, BAUD_SCALAR, Board, StoreError};
+use crate::store;
 
 pub const NAME: &str = "emu-f405";
 
 /// SysTick counts at QEMU's netduinoplus2 system clock.
 const QEMU_SYSCLK_HZ: u32 = 168_000_000;
 
+use crate::uart_stats::Port;
+crate::uart_error_counter!(OutErrors, USART2, USART2, Port::Out);
+crate::uart_error_counter!(ScalarErrors, USART3, USART3, Port::Scalar);
+crate::uart_error_counter!(FluxErrors, UART4, UART4, Port::Flux);
+crate::uart_error_counter!(GpsErrors, UART5, UART5, Port::Gps);
+
+// each UART's error counter runs before the HAL's handler (src/uart_stats.rs); QEMU's
+// model never sets the error flags, so here they stay 0
 bind_interrupts!(struct Irqs {
-    USART2 => usart::BufferedInterruptHandler<peripherals::USART2>;
-    USART3 => usart::BufferedInterruptHandler<peripherals::USART3>;
-    UART4 => usart::BufferedInterruptHandler<peripherals::UART4>;
-    UART5 => usart::BufferedInterruptHandler<peripherals::UART5>;
+    USART2 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
+    USART3 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART3>;
+    UART4 => FluxErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
+    UART5 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART5>;
 });
 
-pub type Watchdog = IndependentWatchdog<'static, peripherals::IWDG>;
+/// A model of the IWDG (QEMU emulates none): the SysTick interrupt resets the board when
+/// it has not been fed for `crate::WATCHDOG_TIMEOUT_US`, as the IWDG's own counter would,
+/// even while a task spins. It records the cause in the crash record (QEMU sets no RCC flag).
+pub struct Watchdog;
+
+/// Deadline in ms of SysTick time; 0 = not unleashed.
+static WDG_DEADLINE_MS: AtomicU32 = AtomicU32::new(0);
+
+impl crate::board_shape::Watchdog for Watchdog {
+    fn unleash(&mut self) {
+        self.feed();
+    }
+    fn feed(&mut self) {
+        let now = embassy_time::Instant::now().as_millis() as u32;
+        let d = now.wrapping_add(crate::WATCHDOG_TIMEOUT_US / 1000).max(1);
+        WDG_DEADLINE_MS.store(d, Ordering::Relaxed);
+    }
+}
+
+/// Called from the SysTick interrupt every ms.
+fn watchdog_model_tick(now_ms: u32) {
+    let d = WDG_DEADLINE_MS.load(Ordering::Relaxed);
+    if d != 0 && now_ms.wrapping_sub(d) < u32::MAX / 2 {
+        crate::health::record_emulated_watchdog();
+        cortex_m::peripheral::SCB::sys_reset();
+    }
+}
 
 /// Fluxgate port: the serial ASCII alternative.
 pub type FluxPort = BufferedUartRx<'static>;
-
-pub struct Board {
-    pub scalar: BufferedUartRx<'static>,
-    pub flux: FluxPort,
-    pub gps: BufferedUartRx<'static>,
-    pub out_tx: BufferedUartTx<'static>,
-    pub out_rx: BufferedUartRx<'static>,
-    pub watchdog: Watchdog,
-    pub store: CoefStore,
-}
 
 fn uart_config(baud: u32) -> usart::Config {
     let mut c = usart::Config::default();
@@ -74,20 +102,21 @@ pub fn init() -> Board {
     }
 
     let (tx, rx) = buffers!(512, 256);
-    let out = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(921_600));
+    let out = BufferedUart::new(p.USART2, p.PA3, p.PA2, tx, rx, Irqs, uart_config(BAUD_OUT));
     let (tx, rx) = buffers!(8, 512);
-    let scalar = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, uart_config(115_200));
+    let cfg = uart_config(BAUD_SCALAR);
+    let scalar = BufferedUart::new(p.USART3, p.PB11, p.PB10, tx, rx, Irqs, cfg);
     let (tx, rx) = buffers!(8, 512);
-    let flux = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(115_200));
+    let flux = BufferedUart::new(p.UART4, p.PA1, p.PA0, tx, rx, Irqs, uart_config(BAUD_FLUX));
     let (tx, rx) = buffers!(8, 1024);
-    let gps = BufferedUart::new(p.UART5, p.PD2, p.PC12, tx, rx, Irqs, uart_config(115_200));
+    let gps = BufferedUart::new(p.UART5, p.PD2, p.PC12, tx, rx, Irqs, uart_config(BAUD_GPS));
     // a UART that cannot be configured is a firmware bug, not an input condition
     let (out_tx, out_rx) = defmt::unwrap!(out.map_err(|_| ())).split();
     let (_, scalar) = defmt::unwrap!(scalar.map_err(|_| ())).split();
     let (_, flux) = defmt::unwrap!(flux.map_err(|_| ())).split();
     let (_, gps) = defmt::unwrap!(gps.map_err(|_| ())).split();
 
-    let watchdog = IndependentWatchdog::new(p.IWDG, crate::WATCHDOG_TIMEOUT_US);
+    let watchdog = Watchdog;
     Board {
         scalar,
         flux,
@@ -99,29 +128,33 @@ pub fn init() -> Board {
     }
 }
 
-/// Coefficient store: RAM stand-in for the flash sector (same blob, same CRC checks).
+/// Coefficient store: RAM stand-in for the two flash sectors (same images, same checks).
+/// `!CUT<n>` (fw::test_hook) makes the next write stop after `n` bytes of the erased image,
+/// as a power cut during `SAVE` would leave it.
 pub struct CoefStore {
-    mem: [u8; crate::COEF_BLOB_MAX],
+    mem: [store::Image; store::N_IMAGES],
 }
-
-#[derive(Debug, defmt::Format)]
-pub struct StoreError;
 
 impl CoefStore {
     const fn new() -> Self {
         // erased flash reads as 0xFF: start the same way
         Self {
-            mem: [0xFF; crate::COEF_BLOB_MAX],
+            mem: [store::ERASED; store::N_IMAGES],
         }
     }
-    pub fn read(&mut self, buf: &mut [u8]) -> Result<(), StoreError> {
-        let n = buf.len().min(self.mem.len());
-        buf[..n].copy_from_slice(&self.mem[..n]);
+}
+
+impl crate::board_shape::CoefStore for CoefStore {
+    fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
+        img.copy_from_slice(self.mem.get(image).ok_or(StoreError)?);
         Ok(())
     }
-    pub fn write(&mut self, data: &[u8]) -> Result<(), StoreError> {
-        let dst = self.mem.get_mut(..data.len()).ok_or(StoreError)?;
-        dst.copy_from_slice(data);
+    fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError> {
+        let dst = self.mem.get_mut(image).ok_or(StoreError)?;
+        let n = crate::fw::test_hook::take_cut().unwrap_or(store::IMAGE_LEN);
+        *dst = store::ERASED;
+        let n = n.min(store::IMAGE_LEN);
+        dst[..n].copy_from_slice(&img[..n]);
         Ok(())
     }
 }
@@ -136,10 +169,4 @@ pub fn exit(ok: bool) -> ! {
     loop {
         cortex_m::asm::wfi();
     }
-}
-
-#[panic_handler]
-fn panic(info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic: {}", defmt::Display2Format(info));
-    exit(false)
 }

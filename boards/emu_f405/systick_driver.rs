@@ -80,5 +80,6 @@ fn SysTick() {
         let now = b.get();
         let mut q = DRIVER.queue.borrow(cs).borrow_mut();
         let _next = q.next_expiration(now);
+        super::watchdog_model_tick((now / 1000) as u32);
     });
 }

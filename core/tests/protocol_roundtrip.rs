@@ -26,6 +26,7 @@ fn command() -> impl Strategy<Value = Command> {
         Just(Command::Save),
         Just(Command::Reset),
         Just(Command::Flush),
+        Just(Command::FactoryReset),
         proptest::option::of(0u16..21).prop_map(Command::GetCoef),
         proptest::option::of(0u16..12).prop_map(Command::GetFlux),
         (0u16..21, coef()).prop_map(|(index, value)| Command::SetCoef { index, value }),

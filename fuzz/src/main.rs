@@ -79,6 +79,7 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                 Command::Save,
                 Command::Reset,
                 Command::Flush,
+                Command::FactoryReset,
                 Command::GetFlux(Some(11)),
                 Command::SetFlux {
                     index: 0,

@@ -6,7 +6,7 @@
 //! `MAGCOMP_FW_ELF` or built by `scripts/build-emu.sh`.
 //!
 //! Real board (`MAGCOMP_HIL_TARGET=serial`): the firmware built with `--features flux-uart,hil-sync`,
-//! flashed and reset with probe-rs before every test, and four serial devices:
+//! flashed on an erased chip and reset with probe-rs before every test, and four serial devices:
 //! `MAGCOMP_HIL_OUT` (output/command, 921600 Bd), `MAGCOMP_HIL_SCALAR`, `MAGCOMP_HIL_FLUX`,
 //! `MAGCOMP_HIL_GPS` (115200 Bd), set raw with `stty`. `MAGCOMP_FW_ELF` names the ELF.
 
@@ -37,7 +37,8 @@ pub fn repo_root() -> PathBuf {
         .unwrap_or_default()
 }
 
-fn emulated() -> bool {
+/// The board is the emulated one (QEMU), not a real board on serial ports.
+pub fn emulated() -> bool {
     std::env::var("MAGCOMP_HIL_TARGET")
         .map(|v| v != "serial")
         .unwrap_or(true)
@@ -382,14 +383,19 @@ impl Board {
                 .open(path)
                 .map_err(|e| format!("{path}: {e}"))
         };
-        let out = open(&dev("MAGCOMP_HIL_OUT")?, "921600")?;
+        // the rates the firmware was built with (`MAGCOMP_BAUD_*`, docs/firmware.md)
+        let baud = |v: &str, default: &str| std::env::var(v).unwrap_or_else(|_| default.into());
+        let out = open(
+            &dev("MAGCOMP_HIL_OUT")?,
+            &baud("MAGCOMP_BAUD_OUT", "921600"),
+        )?;
         let mut inputs = HashMap::new();
-        for (p, var) in [
-            (Port::Scalar, "MAGCOMP_HIL_SCALAR"),
-            (Port::Flux, "MAGCOMP_HIL_FLUX"),
-            (Port::Gps, "MAGCOMP_HIL_GPS"),
+        for (p, var, rate) in [
+            (Port::Scalar, "MAGCOMP_HIL_SCALAR", "MAGCOMP_BAUD_SCALAR"),
+            (Port::Flux, "MAGCOMP_HIL_FLUX", "MAGCOMP_BAUD_FLUX"),
+            (Port::Gps, "MAGCOMP_HIL_GPS", "MAGCOMP_BAUD_GPS"),
         ] {
-            let file = open(&dev(var)?, "115200")?;
+            let file = open(&dev(var)?, &baud(rate, "115200"))?;
             inputs.insert(p, Input { file, fifo: false });
         }
         let lines = Arc::new(Mutex::new(Vec::new()));
@@ -397,8 +403,15 @@ impl Board {
             Box::new(out.try_clone().map_err(|e| e.to_string())?),
             lines.clone(),
         );
-        // a fresh firmware state for every test: flash (idempotent) and reset over SWD
+        // a fresh firmware state for every test: erase the whole chip (the coefficient
+        // store another test saved goes too), flash and reset over SWD
         let chip = std::env::var("MAGCOMP_HIL_CHIP").unwrap_or_else(|_| "STM32F405RGTx".into());
+        let st = Command::new("probe-rs")
+            .args(["erase", "--chip", &chip])
+            .status();
+        if !st.is_ok_and(|s| s.success()) {
+            return Err("probe-rs erase failed".into());
+        }
         let st = Command::new("probe-rs")
             .args(["download", "--chip", &chip])
             .arg(elf)
@@ -442,6 +455,25 @@ impl Board {
     /// Waits for an output line matching `pred` (searching from the start).
     pub fn wait_line(&self, pred: impl Fn(&str) -> bool, timeout: Duration) -> Option<String> {
         self.wait_line_from(0, pred, timeout)
+    }
+
+    /// Waits for the boot banner after `n` earlier ones (a reset).
+    pub fn wait_line_from_banner(&self, n: usize, timeout: Duration) -> Option<String> {
+        let end = Instant::now() + timeout;
+        loop {
+            if let Some(l) = self
+                .output()
+                .into_iter()
+                .filter(|l| l.starts_with("$MCBOOT"))
+                .nth(n)
+            {
+                return Some(l);
+            }
+            if Instant::now() > end {
+                return None;
+            }
+            thread::sleep(Duration::from_millis(10));
+        }
     }
 
     fn wait_line_from(
@@ -520,6 +552,11 @@ impl Board {
             }
             thread::sleep(Duration::from_micros(300));
         }
+    }
+
+    /// The command port's write side, for another thread to send on while this one streams.
+    pub fn command_writer(&self) -> Arc<Mutex<Box<dyn Write + Send>>> {
+        self.cmd.clone()
     }
 
     /// Sends raw bytes on the command port.

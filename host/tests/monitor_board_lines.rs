@@ -42,6 +42,15 @@ fn board_lines_parse_with_their_crc() {
     assert!(!parse_boot(&sentence("MCBOOT,acq-f405,0.1.0")).unwrap().sync);
     assert!(parse_boot(&sentence("MCBOOT,acq-f405,0.1.0,XYZ")).is_none());
     assert!(parse_boot(&sentence("MCBOOT,acq-f405")).is_none());
+    let b = parse_boot(&sentence(
+        "MCBOOT,acq-f405,0.1.0,RST=SW,PANIC=src/fw.rs:565",
+    ))
+    .unwrap();
+    assert_eq!(b.reset_cause.as_deref(), Some("SW"));
+    assert_eq!(b.panic.as_deref(), Some("src/fw.rs:565"));
+    assert!(!b.sync);
+    let b = parse_boot(&sentence("MCBOOT,emu-f405,0.1.0,RST=IWDG,SYNC")).unwrap();
+    assert_eq!((b.reset_cause.as_deref(), b.sync), (Some("IWDG"), true));
     assert_eq!(parse_sync(&sentence("MCSYN,12,11,3")), Some([12, 11, 3]));
     assert!(parse_sync(&sentence("MCSYN,12,11")).is_none());
     assert_eq!(
@@ -58,6 +67,10 @@ fn board_lines_parse_with_their_crc() {
     );
     assert!(parse_status(&sentence("MCACK,STATUS,FOO,1,2,3,4,5,6")).is_none());
     assert!(parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5")).is_none());
+    // the UART breakdown a newer firmware appends (by kind, by port) is accepted
+    let s = parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2,0,1,0,4,0")).unwrap();
+    assert_eq!((s.err_uart, s.err_cmd), (5, 6));
+    assert!(parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2")).is_none());
     // a wrong CRC is not a board line
     let mut bad = sentence("MCSYN,1,2,3");
     bad[3] = b'X';

@@ -9,6 +9,7 @@
 //! $MCCMD,GETFLUX*HH        $MCCMD,GETFLUX,9*HH     $MCCMD,SETFLUX,9,312.5*HH
 //! $MCCMD,GETLAG*HH         $MCCMD,SETLAG,2.05E-1*HH
 //! $MCCMD,GETFTEMP*HH       $MCCMD,GETFTEMP,4*HH    $MCCMD,SETFTEMP,1,4.0E-1*HH
+//! $MCCMD,FACTORY,ERASE*HH
 //! ```
 //! `GETFLUX`/`SETFLUX` address the fluxgate's scalar calibration (`fluxcal`), 12 values:
 //! the matrix row by row (0–8), then the bias in nT (9–11). `GETLAG`/`SETLAG` the scalar's
@@ -67,6 +68,9 @@ pub enum Command {
         index: u16,
         value: f32,
     },
+    /// `FACTORY,ERASE`: erase the store and return to the boot defaults (the argument makes
+    /// it hard to send by accident).
+    FactoryReset,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -248,6 +252,10 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         b"SAVE" => none(Command::Save),
         b"RESET" => none(Command::Reset),
         b"FLUSH" => none(Command::Flush),
+        b"FACTORY" => match (a1, a2) {
+            (Some(b"ERASE"), None) => Ok(Command::FactoryReset),
+            _ => Err(CommandError::BadArgument),
+        },
         b"GETCOEF" => get(n_coef, Command::GetCoef),
         b"SETCOEF" => set(n_coef, |index, value| Command::SetCoef { index, value }),
         b"GETFLUX" => get(FLUX_CAL_LEN, Command::GetFlux),
@@ -306,6 +314,7 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::Save => c.bytes(b"SAVE")?,
             Command::Reset => c.bytes(b"RESET")?,
             Command::Flush => c.bytes(b"FLUSH")?,
+            Command::FactoryReset => c.bytes(b"FACTORY,ERASE")?,
             Command::GetFlux(i) => get(&mut c, b"GETFLUX", i)?,
             Command::SetFlux { index, value } => set(&mut c, b"SETFLUX", index, value)?,
             Command::GetLag => c.bytes(b"GETLAG")?,

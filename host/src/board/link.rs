@@ -141,6 +141,7 @@ fn ack_key(cmd: &Command) -> (&'static str, Option<u16>) {
         Command::Save => ("SAVE", None),
         Command::Reset => ("RESET", None),
         Command::Flush => ("FLUSH", None),
+        Command::FactoryReset => ("FACTORY", None),
         Command::Status => ("STATUS", None),
         Command::Mode(_) => ("MODE", None),
     }

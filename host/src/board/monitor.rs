@@ -105,16 +105,20 @@ pub struct MonitorStats {
     pub last: Option<Record>,
 }
 
-/// `$MCBOOT,<board>,<version>[,SYNC]*HHHH`.
+/// `$MCBOOT,<board>,<version>[,RST=<cause>][,PANIC=<file:line>][,SYNC]*HHHH`.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct BootBanner {
     pub board: String,
     pub version: String,
     /// The firmware acknowledges frames with `$MCSYN` (feature `hil-sync`).
     pub sync: bool,
+    /// Why the board last reset (`IWDG`, `SW`, `POR`, `PIN`, …; docs/protocols.md).
+    pub reset_cause: Option<String>,
+    /// Where the panic that caused the reset happened.
+    pub panic: Option<String>,
 }
 
-/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>*HHHH`.
+/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>[,<7 UART counts>]*HHHH`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BoardStatus {
     pub survey: bool,
@@ -151,16 +155,26 @@ pub fn parse_boot(l: &[u8]) -> Option<BootBanner> {
     let mut f = body.strip_prefix("MCBOOT,")?.split(',');
     let board = f.next()?.to_string();
     let version = f.next()?.to_string();
-    let sync = match f.next() {
+    let mut b = BootBanner {
+        board,
+        version,
+        ..BootBanner::default()
+    };
+    let mut next = f.next();
+    if let Some(v) = next.and_then(|x| x.strip_prefix("RST=")) {
+        b.reset_cause = Some(v.to_string());
+        next = f.next();
+    }
+    if let Some(v) = next.and_then(|x| x.strip_prefix("PANIC=")) {
+        b.panic = Some(v.to_string());
+        next = f.next();
+    }
+    b.sync = match next {
         None => false,
         Some("SYNC") => true,
         Some(_) => return None,
     };
-    f.next().is_none().then_some(BootBanner {
-        board,
-        version,
-        sync,
-    })
+    f.next().is_none().then_some(b)
 }
 
 /// `$MCSYN` frame counts (scalar, fluxgate, GPS), CRC checked.
@@ -187,7 +201,11 @@ pub fn parse_status(l: &[u8]) -> Option<BoardStatus> {
     for v in &mut n {
         *v = f.next()?.parse().ok()?;
     }
-    f.next().is_none().then_some(BoardStatus {
+    // firmware from 2026-11-25 appends the UART errors by kind (3) and by port (4):
+    // accepted, not shown
+    let rest: Vec<&str> = f.collect();
+    let extra_ok = matches!(rest.len(), 0 | 7) && rest.iter().all(|v| v.parse::<u64>().is_ok());
+    extra_ok.then_some(BoardStatus {
         survey,
         records: n[0],
         err_scalar: n[1],
@@ -389,10 +407,18 @@ impl Monitor {
         if let Some(b) = &s.boot {
             let _ = writeln!(
                 o,
-                "  board          {} {}{} (boots {})",
+                "  board          {} {}{}{}{} (boots {})",
                 b.board,
                 b.version,
                 if b.sync { " SYNC" } else { "" },
+                b.reset_cause
+                    .as_deref()
+                    .map(|c| format!(", reset {c}"))
+                    .unwrap_or_default(),
+                b.panic
+                    .as_deref()
+                    .map(|p| format!(", after a panic at {p}"))
+                    .unwrap_or_default(),
                 s.boots
             );
         }

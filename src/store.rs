@@ -1,0 +1,231 @@
+//! The coefficient store's layout, spelled out once: which blobs, in which order, how long,
+//! and the two images they are written to alternately. Loading and saving go through
+//! [`SLOTS`] only, so adding a blob is one line here.
+//!
+//! Power-cut safety: the store holds two images (`N_IMAGES`, one flash sector each on the
+//! real board), each `IMAGE_MAGIC`, a sequence number, the blobs, and a CRC-32 over all of
+//! it. `SAVE` writes the image that is *not* the newest valid one, with the next sequence
+//! number, and reads it back; a cut at any point of it leaves the other image intact, and
+//! boot loads the valid image with the highest sequence number: the old set or the new,
+//! never a mix.
+//!
+//! Each slot is a core blob (`magcomp_core::protocol::command::{encode,decode}_blob`: magic,
+//! version, count, id, values, CRC-32). A store written before a later slot existed loads
+//! that slot's default (no fluxgate calibration / τ = 0 / no temperature drift).
+
+use magcomp_core::protocol::command::{
+    FLUX_CAL_LEN, FLUX_TEMP_LEN, blob_len, decode_blob, encode_blob, flux_blob_id,
+    flux_temp_blob_id, lag_blob_id,
+};
+use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
+
+use magcomp_core::protocol::common::crc32;
+
+use crate::board_config::{BoardAcquisition, N_COEF, model_id};
+
+/// One blob of the store.
+#[derive(Clone, Copy)]
+pub enum Slot {
+    /// The model's coefficients (`SETCOEF`); without it the board calibrates.
+    Model,
+    /// The fluxgate's scalar calibration (`SETFLUX`).
+    FluxCal,
+    /// The scalar's delay τ (`SETLAG`).
+    Lag,
+    /// The fluxgate's temperature drift (`SETFTEMP`).
+    FluxTemp,
+}
+
+/// The store, in order.
+pub const SLOTS: [Slot; 4] = [Slot::Model, Slot::FluxCal, Slot::Lag, Slot::FluxTemp];
+
+/// Bytes of the whole store.
+pub const LEN: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < SLOTS.len() {
+        n += blob_len(SLOTS[i].values());
+        i += 1;
+    }
+    n
+};
+
+/// Largest slot (values): the scratch array `save`/`load` use.
+const MAX_VALUES: usize = {
+    let mut m = 0;
+    let mut i = 0;
+    while i < SLOTS.len() {
+        if SLOTS[i].values() > m {
+            m = SLOTS[i].values();
+        }
+        i += 1;
+    }
+    m
+};
+
+impl Slot {
+    /// Values held.
+    pub const fn values(self) -> usize {
+        match self {
+            Slot::Model => N_COEF,
+            Slot::FluxCal => FLUX_CAL_LEN,
+            Slot::Lag => 1,
+            Slot::FluxTemp => FLUX_TEMP_LEN,
+        }
+    }
+
+    fn id(self) -> u32 {
+        match self {
+            Slot::Model => model_id(),
+            Slot::FluxCal => flux_blob_id(),
+            Slot::Lag => lag_blob_id(),
+            Slot::FluxTemp => flux_temp_blob_id(),
+        }
+    }
+
+    /// The acquisition's current values for this slot.
+    fn read(self, acq: &BoardAcquisition, out: &mut [f32; MAX_VALUES]) -> usize {
+        let n = self.values();
+        match self {
+            Slot::Model => {
+                acq.coefficients(&mut out[..n]);
+            }
+            Slot::FluxCal => out[..n].copy_from_slice(&acq.flux_calibration().to_array()),
+            Slot::Lag => out[0] = acq.lag_s(),
+            Slot::FluxTemp => out[..n].copy_from_slice(&acq.flux_temp_calibration().to_array()),
+        }
+        n
+    }
+
+    /// Applies stored values (`None`: the slot was absent or invalid). `Err` only for the
+    /// model, whose absence means "calibrate".
+    fn apply(self, acq: &mut BoardAcquisition, v: Option<&[f32]>) -> Result<(), ()> {
+        match self {
+            Slot::Model => acq.set_coefficients(v.ok_or(())?).map_err(|_| ()),
+            Slot::FluxCal => {
+                let cal = v
+                    .and_then(|v| v.try_into().ok())
+                    .and_then(FluxCalibration::from_array);
+                acq.set_flux_calibration(cal.unwrap_or(FluxCalibration::IDENTITY));
+                Ok(())
+            }
+            Slot::Lag => {
+                if v.is_none_or(|v| acq.set_lag_s(v[0]).is_err()) {
+                    let _ = acq.set_lag_s(0.0);
+                }
+                Ok(())
+            }
+            Slot::FluxTemp => {
+                let cal = v
+                    .and_then(|v| v.try_into().ok())
+                    .and_then(FluxTempCal::from_array);
+                acq.set_flux_temp_calibration(cal.unwrap_or(FluxTempCal::NONE));
+                Ok(())
+            }
+        }
+    }
+}
+
+/// Loads the stored slots into the acquisition. `Err` when the model's blob is missing or
+/// invalid (the board then calibrates; the later slots are not read).
+pub fn load(raw: &[u8; LEN], acq: &mut BoardAcquisition) -> Result<(), ()> {
+    let mut at = 0;
+    for s in SLOTS {
+        let n = s.values();
+        let mut v = [0f32; MAX_VALUES];
+        let ok = decode_blob(&raw[at..], s.id(), &mut v[..n]).is_ok();
+        s.apply(acq, ok.then_some(&v[..n]))?;
+        at += blob_len(n);
+    }
+    Ok(())
+}
+
+/// Every slot back to its default (what an erased store loads as): no coefficients (the
+/// filter, restarted by the caller, calibrates), identity fluxgate calibration, τ = 0, no
+/// temperature drift.
+pub fn defaults(acq: &mut BoardAcquisition) {
+    for s in SLOTS {
+        // the model has no default to apply: its `Err` means "calibrate", as after boot
+        let _ = s.apply(acq, None);
+    }
+}
+
+/// Encodes the acquisition's current values as a whole store image.
+pub fn save(acq: &BoardAcquisition, raw: &mut [u8; LEN]) -> Result<(), ()> {
+    let mut at = 0;
+    for s in SLOTS {
+        let mut v = [0f32; MAX_VALUES];
+        let n = s.read(acq, &mut v);
+        at += encode_blob(s.id(), &v[..n], &mut raw[at..]).map_err(|_| ())?;
+    }
+    Ok(())
+}
+
+/// Images in the store, written alternately.
+pub const N_IMAGES: usize = 2;
+/// Bytes of one image: magic, sequence number (u32 LE), the blobs, CRC-32 (u32 LE).
+pub const IMAGE_LEN: usize = 8 + LEN + 4;
+const IMAGE_MAGIC: [u8; 4] = *b"MCS2";
+
+/// One image's bytes.
+pub type Image = [u8; IMAGE_LEN];
+
+/// An image that reads as erased flash.
+pub const ERASED: Image = [0xFF; IMAGE_LEN];
+
+/// The sequence number of a valid image (magic and CRC check).
+pub fn sequence(img: &Image) -> Option<u32> {
+    let body = &img[..8 + LEN];
+    let crc = img[8 + LEN..].try_into().ok().map(u32::from_le_bytes)?;
+    let seq = img[4..8].try_into().ok().map(u32::from_le_bytes)?;
+    (img[..4] == IMAGE_MAGIC && crc32(body) == crc).then_some(seq)
+}
+
+/// Which image to load: the valid one with the newest sequence number (compared modulo
+/// 2^32, so the counter may wrap), if any.
+pub fn newest(seqs: [Option<u32>; N_IMAGES]) -> Option<usize> {
+    match seqs {
+        [Some(a), Some(b)] => Some(usize::from(b.wrapping_sub(a) as i32 > 0)),
+        [Some(_), None] => Some(0),
+        [None, Some(_)] => Some(1),
+        [None, None] => None,
+    }
+}
+
+/// Where the next `SAVE` goes and with which sequence number: the image that is not the
+/// newest, one past it.
+pub fn next(seqs: [Option<u32>; N_IMAGES]) -> (usize, u32) {
+    match newest(seqs) {
+        Some(i) => (1 - i, seqs[i].unwrap_or(0).wrapping_add(1)),
+        None => (0, 1),
+    }
+}
+
+/// Loads a valid image's blobs (`Err`: no valid model blob: calibrate).
+pub fn load_image(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    load(part(img, 8), acq)
+}
+
+/// Loads a store written before the two images existed: the blobs alone at the start of
+/// what is now the second image's sector (the real board's sector 11).
+pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    load(part(img, 0), acq)
+}
+
+/// `LEN` bytes of an image from `at` (always in range: `at` ≤ 8).
+fn part(img: &Image, at: usize) -> &[u8; LEN] {
+    img.get(at..at + LEN)
+        .and_then(|b| b.try_into().ok())
+        .unwrap_or(&[0xFF; LEN])
+}
+
+/// Seals the acquisition's current values as image `seq`.
+pub fn seal(seq: u32, acq: &BoardAcquisition, img: &mut Image) -> Result<(), ()> {
+    img[..4].copy_from_slice(&IMAGE_MAGIC);
+    img[4..8].copy_from_slice(&seq.to_le_bytes());
+    let body: &mut [u8; LEN] = (&mut img[8..8 + LEN]).try_into().map_err(|_| ())?;
+    save(acq, body)?;
+    let crc = crc32(&img[..8 + LEN]);
+    img[8 + LEN..].copy_from_slice(&crc.to_le_bytes());
+    Ok(())
+}
