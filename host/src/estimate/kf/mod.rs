@@ -57,6 +57,11 @@ pub struct KfOptions {
     /// pattern. Without it the filter keeps calibrating on the lines, where the along-track
     /// field and the interference of a single heading cannot be told apart.
     pub freeze_on_survey: bool,
+    /// Real time: switch to survey mode at this sample, as the operator's `MODE,SURVEY`
+    /// would (before the labels of `freeze_on_survey`). Only the pass whose records are
+    /// output freezes; the tuning passes before it see the flight as the board would
+    /// without the command, so the estimate up to the switch is the unfrozen run's.
+    pub survey_from: Option<usize>,
     /// Innovation gate in σ (0 = off; the core's default is 8).
     pub gate_sigma: f64,
     /// Measurement-noise multiplier on samples labelled as turns (1 = none).
@@ -117,6 +122,7 @@ impl KfOptions {
             sigma1_candidates: SIGMA1_CANDIDATES.to_vec(),
             turn_noise_scale: 1.0,
             freeze_on_survey: true,
+            survey_from: None,
             gate_sigma: 8.0,
             fluxgate_calibration: None,
             field_profiles: true,
@@ -280,7 +286,9 @@ fn pass(
                 .as_ref()
                 .is_some_and(|s| s[i].contains("turn"))
     };
-    let freeze_at = if opts.realtime && opts.freeze_on_survey && coefficients.is_none() {
+    let freeze_at = if opts.realtime && opts.survey_from.is_some() && coefficients.is_none() {
+        opts.survey_from
+    } else if opts.realtime && opts.freeze_on_survey && coefficients.is_none() {
         flight.segments.as_ref().and_then(|s| {
             let last = s
                 .iter()
@@ -570,6 +578,17 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
 }
 
 fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+    let survey_from = opts.survey_from;
+    let unfrozen;
+    let opts = if survey_from.is_some() {
+        unfrozen = KfOptions {
+            survey_from: None,
+            ..opts.clone()
+        };
+        &unfrozen
+    } else {
+        opts
+    };
     if flight.is_empty() {
         bail!("no samples");
     }
@@ -671,7 +690,13 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     };
     let (cal_outs, regs, coeffs, covariance, cal_healthy) = match &opts.coefficients {
         Some(c) => pass(flight, opts, cfg, Some(c), true)?,
-        None => pass(flight, opts, cfg, None, true)?,
+        None => {
+            let output = KfOptions {
+                survey_from,
+                ..opts.clone()
+            };
+            pass(flight, &output, cfg, None, true)?
+        }
     };
     let spread = RegressorSpread::of(&regs);
     // Post-flight: what the flight's own parts say of the coefficients, beside what the
