@@ -139,11 +139,26 @@ pub(super) fn run_tl_method(
     if coeffs.is_none() {
         warnings.extend(crate::estimate::excitation::tl_warning(&flight));
     }
+    // A sample without a usable scalar value (missing, or a glitch the despiker took
+    // out) is flagged as the filter's output flags it, so either method's file says which
+    // rows were refused.
+    let flags = flight
+        .samples
+        .iter()
+        .map(|s| {
+            if s.mag.is_none() {
+                magcomp_core::Flags::MAG_MISSING
+            } else {
+                0
+            }
+        })
+        .collect();
     let comp = Compensation {
         model: file.model.clone(),
         method: Some(Method::Tl),
         interference_nt: interference,
         compensated_nt: compensated,
+        flags: Some(flags),
         coefficients: Some(file),
         regressors,
         warnings,

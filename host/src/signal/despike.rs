@@ -3,63 +3,100 @@
 //! The board's filter gates such samples itself, but post-flight a single +1e5 nT value
 //! also enters the along-track spectrum (σ1), the local-roughness profile and Tolles–
 //! Lawson's band-passed least squares, and one of them took a clean calibration's error
-//! from 0.007 to 0.21 nT.
+//! from 0.007 to 0.21 nT. One rule, for the whole flight in memory ([`glitches`]) and for
+//! the stream (`stream::stats::Despiker`): [`judge`].
 
-/// A sample is a glitch when it leaves the median of its neighbours by more than
-/// `FLOOR_NT` plus `SPREAD_FACTOR` × their spread (max − min). A real signal, however
-/// strong its manoeuvres, stays within its neighbours' spread; the floor keeps a quiet
-/// stretch's noise from counting.
-const FLOOR_NT: f64 = 50.0;
-const SPREAD_FACTOR: f64 = 10.0;
+/// Below this a departure from the neighbours' line is never a glitch (nT): no real field
+/// moves a sample this far from quiet neighbours.
+const FLOOR_NT: f64 = 20.0;
+/// A departure beyond this many times the neighbours' own median departure from their line
+/// is a glitch: a manoeuvre's curvature shows in the neighbours as much as in the sample
+/// (a 300 nT, 0.5 Hz swing departs 124 nT at its peak where its neighbours depart ~75).
+const SCATTER_FACTOR: f64 = 6.0;
 
-/// Rows of `mag_nt` that are glitches. The neighbourhood is ±0.3 s (3–15 samples a side).
-pub fn glitches(mag_nt: &[f64], sample_rate_hz: f64) -> Vec<usize> {
-    let half = ((0.3 * sample_rate_hz).round() as usize).clamp(3, 15);
-    let n = mag_nt.len();
-    let mut out = Vec::new();
-    let mut neighbours = Vec::with_capacity(2 * half);
-    for i in 0..n {
-        let v = mag_nt[i];
-        if !v.is_finite() {
-            continue;
-        }
-        neighbours.clear();
-        neighbours.extend(
-            (i.saturating_sub(half)..(i + half + 1).min(n))
-                .filter(|&j| j != i)
-                .map(|j| mag_nt[j])
-                .filter(|x| x.is_finite()),
-        );
-        if neighbours.len() < 3 {
-            continue;
-        }
-        neighbours.sort_by(|a, b| a.total_cmp(b));
-        let median = neighbours[neighbours.len() / 2];
-        let spread = neighbours[neighbours.len() - 1] - neighbours[0];
-        if (v - median).abs() > FLOOR_NT + SPREAD_FACTOR * spread {
-            out.push(i);
+/// Neighbours a side: ±0.5 s, 5–15 samples. Wide enough that a 5-sample step or a cluster
+/// of glitches is outnumbered by good neighbours at 10 Hz.
+pub fn half_window(sample_rate_hz: f64) -> usize {
+    ((0.5 * sample_rate_hz).round() as usize).clamp(5, 15)
+}
+
+/// Is `window[centre]` a glitch? `window` is consecutive samples around it (NaN = none).
+/// It is judged against a robust line through its neighbours (Theil–Sen: the median of
+/// the pairwise slopes, then the median intercept) and their median departure from it:
+/// glitches among the neighbours (a pair, a triple, a short step) move neither while good
+/// neighbours are the majority. The former rule (50 nT + 10 × the neighbours' max − min)
+/// let each of two +1e5 nT samples two rows apart widen the other's limit past it: a
+/// calibration 6× worse, TL 156 nT off, no warning.
+pub fn judge(window: &[f64], centre: usize, scratch: &mut Vec<f64>) -> bool {
+    let v = window[centre];
+    if !v.is_finite() {
+        return false;
+    }
+    let good = |j: usize| j != centre && window[j].is_finite();
+    let n = window.len();
+    scratch.clear();
+    for j in (0..n).filter(|&j| good(j)) {
+        for k in (j + 1..n).filter(|&k| good(k)) {
+            scratch.push((window[k] - window[j]) / (k - j) as f64);
         }
     }
-    out
+    if scratch.len() < 3 {
+        return false;
+    }
+    let slope = median_of(scratch);
+    let at = |j: usize| window[j] - slope * (j as f64 - centre as f64);
+    scratch.clear();
+    scratch.extend((0..n).filter(|&j| good(j)).map(at));
+    let predicted = median_of(scratch);
+    scratch.clear();
+    scratch.extend(
+        (0..n)
+            .filter(|&j| good(j))
+            .map(|j| (at(j) - predicted).abs()),
+    );
+    let scatter = median_of(scratch);
+    (v - predicted).abs() > FLOOR_NT + SCATTER_FACTOR * scatter
+}
+
+fn median_of(values: &mut [f64]) -> f64 {
+    let mid = values.len() / 2;
+    *values.select_nth_unstable_by(mid, |a, b| a.total_cmp(b)).1
+}
+
+/// Rows of `mag_nt` that are glitches.
+pub fn glitches(mag_nt: &[f64], sample_rate_hz: f64) -> Vec<usize> {
+    let half = half_window(sample_rate_hz);
+    let n = mag_nt.len();
+    let mut scratch = Vec::with_capacity(2 * half + 1);
+    (0..n)
+        .filter(|&i| {
+            let (lo, hi) = (i.saturating_sub(half), (i + half + 1).min(n));
+            judge(&mag_nt[lo..hi], i - lo, &mut scratch)
+        })
+        .collect()
 }
 
 #[cfg(test)]
 mod tests {
     use super::glitches;
 
-    #[test]
-    fn finds_spikes_and_leaves_strong_manoeuvres_alone() {
-        let fs = 10.0;
+    fn manoeuvring(n: usize, fs: f64) -> Vec<f64> {
         // a 300 nT, 0.5 Hz manoeuvre (stronger than any real aircraft's) plus noise
-        let mut mag: Vec<f64> = (0..2000)
+        (0..n)
             .map(|i| {
                 let t = i as f64 / fs;
                 52_000.0
                     + 300.0 * (std::f64::consts::PI * t).sin()
                     + 0.01 * ((i * 7919) % 13) as f64
             })
-            .collect();
-        assert!(glitches(&mag, fs).is_empty());
+            .collect()
+    }
+
+    #[test]
+    fn finds_spikes_and_leaves_strong_manoeuvres_alone() {
+        let fs = 10.0;
+        let mut mag = manoeuvring(2000, fs);
+        assert_eq!(glitches(&mag, fs), Vec::<usize>::new());
         mag[65] += 4000.0;
         mag[900] += 100.0;
         mag[1500] -= 1e5;
@@ -68,5 +105,37 @@ mod tests {
         let mut quiet = vec![52_000.0; 200];
         quiet[100] += 100.0;
         assert_eq!(glitches(&quiet, fs), vec![100]);
+    }
+
+    /// Pairs, triples and 5-sample steps, at every spacing inside the window, both signs,
+    /// from the floor to 1e5 nT, on a quiet stretch and in a strong manoeuvre: every bad
+    /// sample is found, no good one is.
+    #[test]
+    fn clusters_of_glitches_do_not_hide_each_other() {
+        let fs = 10.0;
+        for amplitude in [30.0, 500.0, 1e5, -4000.0] {
+            for (count, spacing) in [(2, 1), (2, 2), (2, 4), (3, 1), (3, 2), (5, 1)] {
+                let at: Vec<usize> = (0..count).map(|k| 400 + k * spacing).collect();
+                let mut quiet: Vec<f64> = (0..800)
+                    .map(|i| 52_000.0 + 0.02 * ((i * 7919) % 13) as f64)
+                    .collect();
+                for &i in &at {
+                    quiet[i] += amplitude;
+                }
+                assert_eq!(
+                    glitches(&quiet, fs),
+                    at,
+                    "{count} × {amplitude} nT, {spacing} apart"
+                );
+                // in a manoeuvre only what a real signal cannot do is required
+                if amplitude.abs() >= 4000.0 {
+                    let mut m = manoeuvring(800, fs);
+                    for &i in &at {
+                        m[i] += amplitude;
+                    }
+                    assert_eq!(glitches(&m, fs), at, "manoeuvre {count} × {amplitude}");
+                }
+            }
+        }
     }
 }

@@ -62,17 +62,19 @@ pub struct Despiker {
     /// Next row to judge.
     next: usize,
     neighbours: Vec<f64>,
+    /// The rows around the one judged, in order (NaN where none).
+    rows: Vec<f64>,
 }
 
 impl Despiker {
     pub fn new(sample_rate_hz: f64) -> Self {
-        // The same neighbourhood as despike::glitches: ±0.3 s, 3–15 samples a side.
-        let half = ((0.3 * sample_rate_hz).round() as usize).clamp(3, 15);
+        let half = crate::signal::despike::half_window(sample_rate_hz);
         Self {
             half,
             window: VecDeque::with_capacity(2 * half + 2),
             next: 0,
-            neighbours: Vec::with_capacity(2 * half),
+            neighbours: Vec::with_capacity(2 * half + 1),
+            rows: Vec::with_capacity(2 * half + 1),
         }
     }
 
@@ -117,31 +119,19 @@ impl Despiker {
     }
 
     fn judge(&mut self, i: usize) -> (usize, bool) {
-        const FLOOR_NT: f64 = 50.0;
-        const SPREAD_FACTOR: f64 = 10.0;
-        let v = self
-            .window
-            .iter()
-            .find(|(r, _)| *r == i)
-            .map_or(f64::NAN, |(_, m)| *m);
-        if !v.is_finite() {
-            return (i, false);
+        // The rows around `i` in order, a missing row as NaN (the window holds each row
+        // once, oldest first).
+        let lo = i.saturating_sub(self.half);
+        let last = self.window.back().map_or(i, |(r, _)| *r);
+        self.rows.clear();
+        self.rows.resize(last.min(i + self.half) + 1 - lo, f64::NAN);
+        for &(r, m) in &self.window {
+            if let Some(slot) = r.checked_sub(lo).and_then(|k| self.rows.get_mut(k)) {
+                *slot = m;
+            }
         }
-        self.neighbours.clear();
-        self.neighbours.extend(
-            self.window
-                .iter()
-                .filter(|(r, _)| *r != i && r + self.half >= i && *r <= i + self.half)
-                .map(|(_, m)| *m)
-                .filter(|x| x.is_finite()),
-        );
-        if self.neighbours.len() < 3 {
-            return (i, false);
-        }
-        self.neighbours.sort_by(|a, b| a.total_cmp(b));
-        let median = self.neighbours[self.neighbours.len() / 2];
-        let spread = self.neighbours[self.neighbours.len() - 1] - self.neighbours[0];
-        (i, (v - median).abs() > FLOOR_NT + SPREAD_FACTOR * spread)
+        let glitch = crate::signal::despike::judge(&self.rows, i - lo, &mut self.neighbours);
+        (i, glitch)
     }
 }
 
