@@ -1,7 +1,7 @@
 //! `magcomp nmea FILE`: decode an NMEA log with the board's own reader
 //! (`magcomp_core::protocol::nmea`) and print one JSON object per decoded or rejected line.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use magcomp_core::protocol::nmea::{parse_sentence, NmeaError, Sentence};
 use serde_json::{Map, Value};
 use std::io::{BufRead, Write};
@@ -42,6 +42,12 @@ fn put(m: &mut Map<String, Value>, k: &str, v: Option<f64>) {
     }
 }
 
+/// An f32 as the f64 of its shortest decimal: HDOP 0.8 is printed `0.8`, not the f32's
+/// exact binary value `0.800000011920929`.
+fn f32_decimal(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(f64::from(v))
+}
+
 /// JSON object for a decoded sentence (`None` for unsupported types).
 pub fn sentence_json(line: u64, s: &Sentence) -> Option<Value> {
     let mut m = Map::new();
@@ -60,7 +66,7 @@ pub fn sentence_json(line: u64, s: &Sentence) -> Option<Value> {
             if let Some(n) = g.satellites {
                 m.insert("sats".into(), n.into());
             }
-            put(&mut m, "hdop", g.hdop.map(|h| h as f64));
+            put(&mut m, "hdop", g.hdop.map(f32_decimal));
         }
         Sentence::Rmc(r) => {
             put(&mut m, "time_s", r.time.map(|t| t.seconds_of_day_s));
@@ -103,7 +109,7 @@ pub fn sentence_json(line: u64, s: &Sentence) -> Option<Value> {
             if let Some(n) = g.satellites {
                 m.insert("sats".into(), n.into());
             }
-            put(&mut m, "hdop", g.hdop.map(|h| h as f64));
+            put(&mut m, "hdop", g.hdop.map(f32_decimal));
             if let Some(c) = g.nav_status {
                 m.insert("nav_status".into(), (c as char).to_string().into());
             }
@@ -138,7 +144,11 @@ pub fn decode_log(mut input: impl BufRead, mut out: impl Write) -> Result<NmeaLo
     let mut buf = Vec::new();
     loop {
         buf.clear();
-        if input.read_until(b'\n', &mut buf)? == 0 {
+        // NMEA sentences are ≤ 82 characters: a longer "line" (`/dev/zero`) is not a log.
+        if crate::io::bounded::read_line_bounded(&mut input, &mut buf, 4096)
+            .with_context(|| format!("line {}", st.lines + 1))?
+            == 0
+        {
             break;
         }
         st.lines += 1;

@@ -13,6 +13,7 @@
 //! each scalar sample is paired with the fluxgate at t − τ.
 
 use crate::board::capture::FluxFormat;
+use crate::io::bounded::read_line_bounded;
 use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
@@ -147,6 +148,19 @@ impl fmt::Display for ReplayStats {
     }
 }
 
+/// The longest capture line read: a chunk of `MAX_CHUNK` bytes in hex, its time and port
+/// fit in well under this.
+pub const MAX_CAPTURE_LINE: usize = 4096;
+
+/// A coefficient file's text, refused past `MAX_COEFFICIENT_FILE_BYTES`.
+fn read_coefficient_text(path: &Path) -> Result<String> {
+    crate::io::bounded::read_to_string_bounded(
+        path,
+        crate::io::bounded::MAX_COEFFICIENT_FILE_BYTES,
+        "coefficient file",
+    )
+}
+
 /// Reads coefficients: a `calibrate` JSON file or plain numbers.
 pub fn read_coefficients(path: &Path) -> Result<Vec<f32>> {
     read_coefficients_for(path, None)
@@ -155,8 +169,7 @@ pub fn read_coefficients(path: &Path) -> Result<Vec<f32>> {
 /// As [`read_coefficients`]; a JSON file must also be a Kalman-filter calibration of
 /// `model` (Tolles–Lawson coefficients follow other conventions than the board's filter).
 pub fn read_coefficients_for(path: &Path, model: Option<&ModelSpec>) -> Result<Vec<f32>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_coefficient_text(path)?;
     let ctx = || format!("coefficients in {}", path.display());
     if let (Some(spec), Ok(v)) = (model, serde_json::from_str::<serde_json::Value>(&text)) {
         if let Some(m) = v.get("method").and_then(|m| m.as_str()) {
@@ -227,8 +240,7 @@ fn board_range(vals: Vec<f64>) -> Result<Vec<f32>> {
 /// The fluxgate calibration of a `calibrate --model …+fluxcal` JSON file, if it has one,
 /// as the board holds it (f32, checked plausible like `SETFLUX`).
 pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_coefficient_text(path)?;
     let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
         return Ok(None);
     };
@@ -248,8 +260,7 @@ pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
 /// The fluxgate temperature correction of a `calibrate --model …+fluxtemp:CH` JSON file,
 /// if it has one, as the board holds it (f32, checked plausible like `SETFTEMP`).
 pub fn read_flux_temperature(path: &Path) -> Result<Option<FluxTempCal>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_coefficient_text(path)?;
     let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
         return Ok(None);
     };
@@ -276,8 +287,7 @@ pub fn board_flux_temperature(
 
 /// The scalar's delay τ (s) of a `calibrate --model …+lag` JSON file, if it has one.
 pub fn read_scalar_lag(path: &Path) -> Result<Option<f64>> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = read_coefficient_text(path)?;
     let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
         return Ok(None);
     };
@@ -309,8 +319,9 @@ pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {
         text.split(|c: char| c == ',' || c.is_whitespace())
             .filter(|s| !s.is_empty())
             .map(|s| {
-                s.parse::<f64>()
-                    .with_context(|| format!("'{s}' is not a number"))
+                s.parse::<f64>().with_context(|| {
+                    format!("'{}' is not a number", crate::io::bounded::excerpt(s))
+                })
             })
             .collect::<Result<_>>()?
     };
@@ -353,9 +364,13 @@ pub fn replay_capture<R: BufRead>(
     let mut first_data: Option<Vec<u8>> = None;
     let mut line = Vec::new();
     let mut lineno = 0u64;
+    let mut header = false;
     loop {
         line.clear();
-        if input.read_until(b'\n', &mut line)? == 0 {
+        if read_line_bounded(&mut input, &mut line, MAX_CAPTURE_LINE)
+            .with_context(|| format!("line {}", lineno + 1))?
+            == 0
+        {
             break;
         }
         lineno += 1;
@@ -367,6 +382,7 @@ pub fn replay_capture<R: BufRead>(
             if decode_line(&line, &mut []).is_err() {
                 bail!("line {lineno}: unsupported capture version");
             }
+            header |= line.starts_with(b"# magcomp-capture ");
             meta.take(&String::from_utf8_lossy(&line));
             continue;
         }
@@ -375,6 +391,19 @@ pub fn replay_capture<R: BufRead>(
         }
         first_data = Some(std::mem::take(&mut line));
         break;
+    }
+    // Without its header a file is taken for a capture only when its first line is one:
+    // random bytes, a program or a CSV replayed to an empty output with exit 0 before.
+    if !header {
+        let mut scratch = [0u8; MAX_CHUNK];
+        match &first_data {
+            None => bail!("not a magcomp capture: no `# magcomp-capture v1` header and no capture line (the file is empty)"),
+            Some(l) if !matches!(decode_line(l, &mut scratch), Ok(Some(_))) => bail!(
+                "not a magcomp capture: no `# magcomp-capture v1` header, and line {lineno} is not a capture line (`T_US PORT HEX`): \"{}\"",
+                crate::io::bounded::excerpt(&String::from_utf8_lossy(l))
+            ),
+            Some(_) => {}
+        }
     }
     let (d_scalar, d_flux, d_gps) = BOARD_RATES_HZ;
     let scalar_hz = opts.rate_hz.or(meta.scalar_hz).unwrap_or(d_scalar);
@@ -394,16 +423,20 @@ pub fn replay_capture<R: BufRead>(
             model,
             compensator_config(scalar_hz as f32, REPLAY_WINDOW),
         )
-        .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+        .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
         // The board's delay line (a static there): 8 KiB, so on the heap here.
         let mut lag_line = Box::new(LagLine::new());
-        let mut acq = Acquisition::new(cfg, comp)
-            .map_err(|e| anyhow::anyhow!("rates {scalar_hz}/{flux_hz}/{gps_hz} Hz: {e:?}"))?;
+        let mut acq = Acquisition::new(cfg, comp).map_err(|e| {
+            anyhow::anyhow!(
+                "rates {scalar_hz}/{flux_hz}/{gps_hz} Hz: {}",
+                crate::model::errors::acquisition_error(&e)
+            )
+        })?;
         acq.attach_lag_line(&mut lag_line);
         if let Some(l) = opts.lag_s {
-            acq.set_lag_s(l).map_err(|e| {
+            acq.set_lag_s(l).map_err(|_| {
                 anyhow::anyhow!(
-                    "the board cannot delay the fluxgate by τ = {l} s ({e:?}): 0 – {MAX_LAG_S} s, at most {} frames at {flux_hz} Hz",
+                    "the board cannot delay the fluxgate by τ = {l} s: 0 – {MAX_LAG_S} s, at most {} frames at {flux_hz} Hz",
                     LAG_FRAMES - 2
                 )
             })?;
@@ -446,7 +479,10 @@ pub fn replay_capture<R: BufRead>(
                 Some(l) => l,
                 None => {
                     line.clear();
-                    if input.read_until(b'\n', &mut line)? == 0 {
+                    if read_line_bounded(&mut input, &mut line, MAX_CAPTURE_LINE)
+                        .with_context(|| format!("line {}", lineno + 1))?
+                        == 0
+                    {
                         break;
                     }
                     lineno += 1;

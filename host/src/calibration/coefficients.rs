@@ -157,8 +157,11 @@ pub fn refuse_conflicting_settings(
 /// it needs that is
 /// missing, or one given twice is an error naming it.
 pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = crate::io::bounded::read_to_string_bounded(
+        path,
+        crate::io::bounded::MAX_COEFFICIENT_FILE_BYTES,
+        "magcomp coefficient file",
+    )?;
     let c: CoefficientFile = serde_json::from_str(&text)
         .with_context(|| format!("{} is not a magcomp coefficient file", path.display()))?;
     if c.format != COEFF_FORMAT {

@@ -54,6 +54,11 @@ pub struct TraceInput {
     /// `date` or YEAR/DOY columns.
     #[arg(long, value_name = "YYYY-MM-DD")]
     pub date: Option<String>,
+    /// Sample rate (Hz) of a trace without a time column: its rows are then taken as
+    /// evenly spaced, `t` = row / rate from 0 (docs/trace-format.md). Refused when the
+    /// trace has its own `t`.
+    #[arg(long, value_name = "HZ")]
+    pub rate_hz: Option<f64>,
 }
 
 impl TraceInput {
@@ -89,9 +94,13 @@ impl TraceInput {
             progress: Some(&mut cb),
             ..Default::default()
         };
-        let t = read_trace_with(&self.trace, &map, opts)
+        let mut t = read_trace_with(&self.trace, &map, opts)
             .with_context(|| format!("reading {}", self.trace.display()))?;
         bar.finish_and_clear();
+        if let Some(rate) = self.rate_hz {
+            add_time_column(&mut t, rate)
+                .with_context(|| format!("reading {}", self.trace.display()))?;
+        }
         let sel =
             crate::flight::input::Selection::parse(self.lines.as_deref(), self.time.as_deref())?;
         let (t, core) = crate::flight::input::prepare(t, &sel, self.date.as_deref())
@@ -114,7 +123,12 @@ impl TraceInput {
         // No trace row is shorter than 10 bytes (t, mag and three fluxgate values): a
         // smaller file cannot hold that many rows, and is read without a counting pass.
         let may_be_long = (size / 10) as usize > long.decimate_above_rows;
-        if long.full_rate || !may_be_long || crate::io::trace::is_hdf5_path(&self.trace) {
+        // A trace without time (`--rate-hz`) is read whole: the streaming readers need `t`.
+        if long.full_rate
+            || !may_be_long
+            || crate::io::trace::is_hdf5_path(&self.trace)
+            || self.rate_hz.is_some()
+        {
             return Ok((self.read()?, None));
         }
         let input = self.stream_input();
@@ -156,8 +170,25 @@ impl TraceInput {
             lines: None,
             time: None,
             date: None,
+            rate_hz: None,
         }
     }
+}
+
+/// Gives a trace without a time column `t` = row / `rate_hz` (`--rate-hz`), so a
+/// positionless, timeless export needs no awk to be read.
+fn add_time_column(t: &mut Trace, rate_hz: f64) -> Result<()> {
+    if !(rate_hz.is_finite() && rate_hz > 0.0) {
+        anyhow::bail!("--rate-hz must be a positive number of samples per second, not {rate_hz}");
+    }
+    if t.col("t").is_some() {
+        anyhow::bail!(
+            "--rate-hz is for a trace without a time column, and this one has `t`: leave --rate-hz out"
+        );
+    }
+    let n = t.len();
+    t.set_col("t", (0..n).map(|i| i as f64 / rate_hz).collect());
+    Ok(())
 }
 
 /// How `calibrate`, post-flight `compensate` and `diagnose` keep a long flight's memory
@@ -195,11 +226,11 @@ pub struct EstimatorArgs {
     /// Terms: tl16 (= permanent+induced+eddy), field, current:CH, current_rate:CH, lag, rate,
     /// diurnal[:base], induced_high, fluxcal, fluxtemp:CH, periodic:CH.
     /// Default: `tl16+field+fluxcal` (the paper's, with the fluxgate calibrated against the
-    /// scalar first); with --coeffs, the file's.
+    /// scalar first); where a coefficient file is applied, the file's.
     #[arg(long, value_name = "SPEC")]
     pub model: Option<String>,
     /// kf: the paper's Kalman filter; tl: classic Tolles–Lawson (18 terms, band-passed).
-    /// Default: kf; with --coeffs, the file's.
+    /// Default: kf; where a coefficient file is applied, the file's.
     #[arg(long, value_enum)]
     pub method: Option<Method>,
     #[command(flatten)]
@@ -253,6 +284,9 @@ pub struct Evaluated {
     pub summary: Summary,
     /// Where the coefficients came from, for the reader.
     pub source: String,
+    /// The coefficient file's ground speed for a trace without positions (`--speed-mps`
+    /// it was calibrated with), for the diagnosis that follows.
+    pub assumed_speed_mps: Option<f64>,
 }
 
 impl EstimatorArgs {
@@ -271,6 +305,7 @@ impl EstimatorArgs {
             comp,
             summary,
             source,
+            assumed_speed_mps: file.as_ref().and_then(|f| f.assumed_speed_mps),
         })
     }
 

@@ -5,7 +5,7 @@ use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
 use crate::calibration::summary::summarise;
 use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
-use crate::io::output::refuse_overwriting;
+use crate::io::output::check_outputs;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
@@ -31,7 +31,7 @@ pub struct CalibrateArgs {
 }
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
-    refuse_overwriting(&[&a.input.trace], &[&a.output])?;
+    check_outputs(&[&a.input.trace], &[&a.output])?;
     crate::io::progress::force_progress(a.long.progress);
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
     let stage = crate::io::progress::Stage::new("calibration (all filter passes)");
@@ -59,7 +59,10 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         ));
     }
     if a.json {
-        println!("{}", serde_json::to_string(&s)?);
+        println!(
+            "{}",
+            super::compensate::with_printed_warnings(serde_json::to_value(&s)?)
+        );
     } else {
         println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
         for c in &file.coefficients {

@@ -6,7 +6,7 @@ use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::compensate_trace;
 use crate::calibration::summary::{summarise, write_output_csv, Summary};
 use crate::flight::input::Decimation;
-use crate::io::output::refuse_overwriting;
+use crate::io::output::check_outputs;
 use crate::io::progress::quiet_progress;
 use crate::io::trace::Trace;
 use crate::stream::{compensate, unstreamable, StreamSummary, AUTO_STREAM_BYTES};
@@ -68,7 +68,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     let inputs: Vec<&std::path::Path> = std::iter::once(a.input.trace.as_path())
         .chain(a.coeffs.as_deref())
         .collect();
-    refuse_overwriting(&inputs, &[&a.out])?;
+    check_outputs(&inputs, &[&a.out])?;
     crate::io::progress::force_progress(a.long.progress);
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
     if run_if_streamed(a, coeffs.as_ref())? {
@@ -107,13 +107,30 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
                 obj.insert(key.into(), m.parse::<f64>().map_or(m.into(), Into::into));
             }
         }
-        println!("{v}");
+        println!("{}", with_printed_warnings(v));
     } else {
         print_summary(&s);
         eprintln!("wrote {}", a.out.display());
     }
     print_warnings(&s);
     Ok(())
+}
+
+/// `v`'s `warnings` with, first, those printed on stderr as they were found (glitches,
+/// impossible positions: `flight::position::warn_once`), so `--json` tells what stderr
+/// tells.
+pub fn with_printed_warnings(mut v: serde_json::Value) -> serde_json::Value {
+    let printed = crate::flight::position::printed_warnings();
+    if let Some(w) = v.get_mut("warnings").and_then(|w| w.as_array_mut()) {
+        let mut all: Vec<serde_json::Value> = printed
+            .into_iter()
+            .map(serde_json::Value::from)
+            .filter(|p| !w.contains(p))
+            .collect();
+        all.append(w);
+        *w = all;
+    }
+    v
 }
 
 /// Warnings go to stderr always, whatever else is printed.
@@ -124,7 +141,12 @@ pub fn print_warnings(s: &Summary) {
 }
 
 pub fn print_summary(s: &Summary) {
-    println!("model {} ({:?}), {} samples", s.model, s.method, s.samples);
+    println!(
+        "model {} ({}), {} samples",
+        s.model,
+        s.method.name(),
+        s.samples
+    );
     println!(
         "  compensated rms in the manoeuvre band: {:.4} nT",
         s.compensated_band_rms_nt
@@ -201,6 +223,9 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
         Some(w) => Some(w),
         None if crate::io::trace::is_hdf5_path(&a.input.trace) => {
             Some("HDF5 files are read into memory".to_string())
+        }
+        None if a.input.rate_hz.is_some() => {
+            Some("a trace without time (--rate-hz) is read into memory".to_string())
         }
         None => None,
     };
@@ -285,11 +310,13 @@ fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Resu
 
 fn print_stream_summary(s: &StreamSummary, json: bool, out: &std::path::Path) -> Result<()> {
     if json {
-        println!("{}", serde_json::to_string(&s)?);
+        println!("{}", with_printed_warnings(serde_json::to_value(s)?));
     } else {
         println!(
-            "model {} ({:?}), {} samples (streamed)",
-            s.model, s.method, s.samples
+            "model {} ({}), {} samples (streamed)",
+            s.model,
+            s.method.name(),
+            s.samples
         );
         if let Some(p) = s.predicted_error_nt {
             println!(

@@ -117,9 +117,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         Some(_) => ModelSpec::parse("field")?,
         None => ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?,
     };
-    // Without position, the diagnosis models the anomaly at --speed-mps (an evaluated
-    // Kalman filter has said so already).
-    let speed = args.est.tuning.speed_mps;
+    // Without position, the diagnosis models the anomaly at --speed-mps, else at the
+    // coefficient file's assumed speed, as its compensation did (an evaluated Kalman
+    // filter has said so already).
+    let speed = args
+        .est
+        .tuning
+        .speed_mps
+        .or(evaluated.as_ref().and_then(|ev| ev.assumed_speed_mps));
     let warn = evaluated
         .as_ref()
         .is_none_or(|ev| ev.comp.method != Some(crate::calibration::coefficients::Method::Kf));

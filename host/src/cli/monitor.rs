@@ -48,15 +48,31 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
     if let Some(p) = &args.save {
         let input = std::path::Path::new(&args.input);
         let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
-        crate::io::output::refuse_overwriting(inputs, &[p])?;
+        crate::io::output::check_outputs(inputs, &[p])?;
     }
     let mut save_file = match &args.save {
+        // Appended, as documented: a restarted monitor must not empty the log it adds to.
         Some(p) => Some(std::io::BufWriter::new(
-            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
+            std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(p)
+                .with_context(|| format!("opening {}", p.display()))?,
         )),
         None => None,
     };
-    let save: Option<&mut dyn Write> = save_file.as_mut().map(|w| w as &mut dyn Write);
+    // A file that has rows already keeps its one header: the new session's three header
+    // lines (two comments and the column names) are not repeated in the middle of it.
+    let has_rows = args
+        .save
+        .as_deref()
+        .and_then(|p| std::fs::metadata(p).ok())
+        .is_some_and(|m| m.is_file() && m.len() > 0);
+    let mut skipping = save_file.as_mut().map(|w| SkipLines {
+        inner: w,
+        skip: if has_rows { 3 } else { 0 },
+    });
+    let save: Option<&mut dyn Write> = skipping.as_mut().map(|w| w as &mut dyn Write);
     let mut out = stdout.lock();
     let stats = if args.input == "-" {
         monitor_stream(
@@ -77,4 +93,30 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
             .with_context(|| format!("writing {}", p.display()))?;
     }
     Ok(stats)
+}
+
+/// Passes writes through after dropping the first `skip` lines.
+struct SkipLines<'a, W: Write> {
+    inner: &'a mut W,
+    skip: usize,
+}
+
+impl<W: Write> Write for SkipLines<'_, W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let mut rest = buf;
+        while self.skip > 0 {
+            match rest.iter().position(|&b| b == b'\n') {
+                Some(i) => {
+                    self.skip -= 1;
+                    rest = &rest[i + 1..];
+                }
+                None => return Ok(buf.len()),
+            }
+        }
+        self.inner.write_all(rest)?;
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
 }

@@ -22,9 +22,11 @@ pub struct ReplayArgs {
     pub capture: PathBuf,
 
     /// Model spec (terms joined by `+`). Channel terms see no channels in a capture and
-    /// are flagged AUX_MISSING.
-    #[arg(long, default_value = BOARD_MODEL, value_name = "SPEC")]
-    pub model: String,
+    /// are flagged AUX_MISSING. Default: a `calibrate` coefficient file's model (as
+    /// `compensate --coeffs` takes it), else the board's; a model named here that is not
+    /// the file's is an error.
+    #[arg(long, default_value = DEFAULT_MODEL_CHOICE, value_name = "SPEC", value_parser = parse_model_choice)]
+    pub model: ModelChoice,
 
     /// Apply these coefficients (survey mode): a `calibrate` JSON file (entries matched
     /// to the model by `name`) or plain numbers in the model's order, separated by
@@ -78,8 +80,14 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .into_iter()
         .chain(args.records.as_deref())
         .collect();
-    crate::io::output::refuse_overwriting(&inputs, &outputs)?;
-    let model = ModelSpec::parse(&args.model)?;
+    crate::io::output::check_outputs(&inputs, &outputs)?;
+    let model_text = match args.coeffs.as_deref() {
+        Some(p) if !args.model.explicit => {
+            file_model(p)?.unwrap_or_else(|| args.model.text.clone())
+        }
+        _ => args.model.text.clone(),
+    };
+    let model = ModelSpec::parse(&model_text)?;
     let coefficients = args
         .coeffs
         .as_deref()
@@ -103,7 +111,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     if model_has_lag && opts.lag_s.is_none() {
         anyhow::bail!(
             "model '{}' has `lag` but no τ is given: pass --lag-s or a coefficient file with scalar_lag",
-            args.model
+            model_text
         );
     }
     // Like the fluxgate calibration: applied whenever the file holds one (upload sends it).
@@ -116,7 +124,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     if model_has_fluxtemp && opts.flux_temp.is_none() {
         anyhow::bail!(
             "model '{}' has `fluxtemp` but no correction is given: pass a coefficient file with fluxgate_temperature",
-            args.model
+            model_text
         );
     }
     opts.rate_hz = args.rate;
@@ -141,7 +149,9 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
                 .with_context(|| format!("writing {}", w.path().display()))?;
         }
         if let Some(w) = txt.as_mut() {
-            let n = encode_record(r, &mut buf).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+            let n = encode_record(r, &mut buf).map_err(|_| {
+                anyhow::anyhow!("record {} does not fit a board record line", r.seq)
+            })?;
             w.write_all(&buf[..n])
                 .with_context(|| format!("writing {}", w.path().display()))?;
         }
@@ -156,4 +166,67 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         eprintln!("warning: {}: {w}", args.capture.display());
     }
     Ok(stats)
+}
+
+/// `--model`: the spec, and whether it was named (by the user or a caller) rather than
+/// left to the default, which gives way to a coefficient file's model.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ModelChoice {
+    pub text: String,
+    pub explicit: bool,
+}
+
+/// The default as clap shows it in `--help`; parsed to the board's model, not explicit.
+const DEFAULT_MODEL_CHOICE: &str = "tl16+field (or the coefficient file's)";
+
+fn parse_model_choice(s: &str) -> Result<ModelChoice, String> {
+    Ok(if s == DEFAULT_MODEL_CHOICE {
+        ModelChoice {
+            text: BOARD_MODEL.into(),
+            explicit: false,
+        }
+    } else {
+        ModelChoice::from(s)
+    })
+}
+
+impl From<&str> for ModelChoice {
+    fn from(s: &str) -> Self {
+        ModelChoice {
+            text: s.into(),
+            explicit: true,
+        }
+    }
+}
+
+impl PartialEq<&str> for ModelChoice {
+    fn eq(&self, other: &&str) -> bool {
+        self.text == *other
+    }
+}
+
+/// The `model` of a `calibrate` JSON coefficient file; none for plain numbers.
+fn file_model(path: &Path) -> Result<Option<String>> {
+    let text = crate::io::bounded::read_to_string_bounded(
+        path,
+        crate::io::bounded::MAX_COEFFICIENT_FILE_BYTES,
+        "coefficient file",
+    )?;
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+        return Ok(None);
+    };
+    Ok(v.get("model").and_then(|m| m.as_str()).map(String::from))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_model_choice_is_the_boards() {
+        let d = parse_model_choice(DEFAULT_MODEL_CHOICE).unwrap();
+        assert!(DEFAULT_MODEL_CHOICE.starts_with(BOARD_MODEL));
+        assert_eq!((d.text.as_str(), d.explicit), (BOARD_MODEL, false));
+        assert!(parse_model_choice(BOARD_MODEL).unwrap().explicit);
+    }
 }

@@ -470,13 +470,24 @@ pub fn run(sim: &SimulateArgs, capture: &CaptureArgs) -> Result<()> {
     let outputs: Vec<&std::path::Path> = std::iter::once(out.as_path())
         .chain(capture.capture.as_deref())
         .collect();
-    crate::io::output::refuse_overwriting(&[], &outputs)?;
+    crate::io::output::check_outputs(&[], &outputs)?;
     let cfg = sim.to_config()?;
     let trace = crate::sim::simulate(&cfg)?;
     crate::io::trace::write_trace(&out, &trace)?;
     eprintln!("wrote {} rows to {}", trace.len(), out.display());
-    if let Some(c) = capture.write_if_requested(&trace)? {
-        eprintln!("{c:?}");
+    if let (Some(c), Some(p)) = (capture.write_if_requested(&trace)?, &capture.capture) {
+        eprintln!(
+            "wrote the capture {}: {} scalar lines ({} Hz), {} fluxgate frames ({} Hz), {} GPS sentences ({} Hz), {} bytes ({} corrupted)",
+            p.display(),
+            c.scalar_lines,
+            c.scalar_hz,
+            c.flux_frames,
+            c.flux_hz,
+            c.gps_sentences,
+            c.gps_hz,
+            c.total_bytes,
+            c.corrupted_bytes
+        );
     }
     Ok(())
 }

@@ -28,9 +28,10 @@ pub struct UploadArgs {
     #[arg(long, default_value = "-", value_name = "PORT")]
     pub to: String,
 
-    /// Model compiled into the board (its coefficients must be this model's).
-    #[arg(long, default_value = crate::model::spec::BOARD_MODEL, value_name = "SPEC")]
-    pub board_model: String,
+    /// Model compiled into the board (its coefficients must be this model's). Default:
+    /// the coefficient file's model, its input corrections (fluxcal, lag, fluxtemp) aside.
+    #[arg(long, value_name = "SPEC")]
+    pub board_model: Option<String>,
 
     /// Do not end with `SAVE` (the values then last until the board restarts).
     #[arg(long)]
@@ -40,6 +41,11 @@ pub struct UploadArgs {
     /// read-back): only for a port whose replies cannot be read.
     #[arg(long)]
     pub no_verify: bool,
+
+    /// `--to` is a regular file: write the lines into it (replacing its content), for a
+    /// board loaded from a file. Without this a regular file is refused: it is not a port.
+    #[arg(long)]
+    pub to_file: bool,
 
     /// How long to wait for the board's reply to a line before ending it with a bare
     /// line break and resending it (SAVE: 5× this).
@@ -60,10 +66,8 @@ fn open_port(path: &str, read: bool) -> Result<Port> {
             UnixStream::connect(path).with_context(|| format!("connecting to {path}"))?,
         ));
     }
-    if meta.is_file() && !read {
-        // --no-verify into a file: the lines, as before
-    } else if meta.is_file() {
-        bail!("{path} is a regular file, not the board's port: nothing can answer there (write the lines with --to - or --no-verify)");
+    if meta.is_file() {
+        bail!("{path} is a regular file, not the board's port: nothing can answer there (to write the lines into it, replacing its content, add --to-file)");
     }
     Ok(Port::Tty(
         std::fs::OpenOptions::new()
@@ -84,8 +88,15 @@ pub fn run(args: &UploadArgs) -> Result<()> {
             args.reply_timeout_s
         );
     }
+    if args.to_file {
+        crate::io::output::check_writable(std::path::Path::new(&args.to))?;
+    }
     let file = read_coefficients(&args.coeffs)?;
-    let cmds = upload_commands(&file, &args.board_model, !args.no_save)?;
+    let board_model = match &args.board_model {
+        Some(m) => m.clone(),
+        None => filter_model(&file.model)?,
+    };
+    let cmds = upload_commands(&file, &board_model, !args.no_save)?;
     if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
         eprintln!(
             "note: the crossover rate fit's isotropic part ({:.4} s · d|B|/dt, the anomaly read {:.4} s late) has no board coefficient; the board compensates the rest",
@@ -99,6 +110,13 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         .concat();
     if args.to == "-" {
         std::io::stdout().write_all(text.as_bytes())?;
+        return Ok(());
+    }
+    if args.to_file {
+        // Written whole and renamed (or through a device): never the start of an old file
+        // left behind its end, as an open without truncation did to a flight trace.
+        crate::io::output::write_file(std::path::Path::new(&args.to), &text)?;
+        eprintln!("wrote {} command lines to {}", cmds.len(), args.to);
         return Ok(());
     }
     if args.no_verify {
@@ -152,4 +170,17 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         s.read_back.resends
     );
     Ok(())
+}
+
+/// A model's filter terms: what the board's compiled model must be for its coefficients
+/// (`fluxcal`, `lag`, `fluxtemp` correct the inputs and add no filter state).
+fn filter_model(model: &str) -> Result<String> {
+    let spec = crate::model::spec::ModelSpec::parse(model)?;
+    let terms = spec
+        .terms
+        .iter()
+        .filter(|t| !matches!(t.name.as_str(), "fluxcal" | "lag" | "fluxtemp"))
+        .cloned()
+        .collect();
+    Ok(crate::model::spec::ModelSpec { terms, ..spec }.text())
 }

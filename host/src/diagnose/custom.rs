@@ -30,19 +30,30 @@ pub fn post_flight_with_terms(
     crate::estimate::kf::set_run_mode(&mut cfg, false);
     let model = Model { field, terms };
     let k = model.coefficient_count();
-    let mut comp =
-        HostCompensator::new(model, cfg).map_err(|e| anyhow!("cannot build the filter: {e:?}"))?;
+    let mut comp = HostCompensator::new(model, cfg).map_err(|e| {
+        anyhow!(
+            "cannot build the filter: {}",
+            crate::model::errors::compensator_error(&e)
+        )
+    })?;
     for s in &flight.samples {
         comp.push(s);
     }
     while comp.flush().is_some() {}
     let mut c = vec![0.0f32; k];
     comp.coefficients(&mut c);
-    let mut apply =
-        HostCompensator::new(model, cfg).map_err(|e| anyhow!("cannot build the filter: {e:?}"))?;
-    apply
-        .set_coefficients(&c)
-        .map_err(|e| anyhow!("coefficients rejected: {e:?}"))?;
+    let mut apply = HostCompensator::new(model, cfg).map_err(|e| {
+        anyhow!(
+            "cannot build the filter: {}",
+            crate::model::errors::compensator_error(&e)
+        )
+    })?;
+    apply.set_coefficients(&c).map_err(|e| {
+        anyhow!(
+            "coefficients rejected: {}",
+            crate::model::errors::compensator_error(&e)
+        )
+    })?;
     let mut out = Vec::with_capacity(flight.len());
     for s in &flight.samples {
         if let Some(o) = apply.push(s) {

@@ -184,7 +184,20 @@ pub fn warn_once(msg: &str) {
         .insert(msg.to_string())
     {
         eprintln!("warning: {msg}");
+        PRINTED
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(msg.to_string());
     }
+}
+
+/// Every warning [`warn_once`] printed, in order.
+static PRINTED: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
+
+/// The warnings printed so far by [`warn_once`] (glitches, positions): `--json` carries
+/// them with the summary's own, as stderr shows them.
+pub fn printed_warnings() -> Vec<String> {
+    PRINTED.lock().unwrap_or_else(|e| e.into_inner()).clone()
 }
 
 #[cfg(test)]

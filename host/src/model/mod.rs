@@ -2,4 +2,5 @@
 //! corrections (scalar lag, fluxgate temperature) a calibration applies before the filter.
 
 pub mod corrections;
+pub mod errors;
 pub mod spec;

@@ -283,7 +283,7 @@ fn carried(plan: &Plan) -> Carried {
 
 /// Output of one row: `summary::write_output_rows`' layout.
 fn write_row(
-    w: &mut impl Write,
+    w: &mut (impl Write + ?Sized),
     p: &Pending,
     interference: f64,
     compensated: f64,
@@ -484,14 +484,9 @@ fn run_kf(
     let covariance = coeffs.covariance.as_ref().map(|rows| rows.concat());
     with_model(spec, |model| {
         let mut comp = HostCompensator::new(model, cfg)
-            .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+            .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
         comp.set_coefficients(&c32).map_err(|e| {
-            anyhow::anyhow!(
-                "the coefficients do not fit model '{}' ({} values for {} coefficients): {e:?}",
-                spec.text(),
-                c32.len(),
-                model.coefficient_count()
-            )
+            crate::model::errors::do_not_fit(&spec.text(), c32.len(), model.coefficient_count(), &e)
         })?;
         let interference_terms: Vec<bool> = model
             .terms
@@ -503,7 +498,7 @@ fn run_kf(
         let mut regs = RegressorCov::new(k);
         let mut error = Spread::default();
         let truth = plan.cols.truth_interference.is_some();
-        crate::io::output::write_with(out, |w| {
+        crate::io::trace::write_table_with(out, |w| {
             header(w, &spec.text(), true)?;
             // Rows in the filter (awaiting their output), and outputs waiting for the
             // next row (a time gap after them flags them too).
@@ -513,7 +508,7 @@ fn run_kf(
             let mut newest = 0usize;
             let mut emit = |p: Pending,
                             o: magcomp_core::compensator::Output,
-                            w: &mut crate::io::output::AtomicFile,
+                            w: &mut dyn Write,
                             gap_rows: &mut BTreeSet<usize>|
              -> Result<()> {
                 let i = o.interference_nt as f64;
@@ -627,7 +622,7 @@ fn run_tl(
     let model = format!("{:?}", fit.config.terms).to_lowercase();
     let truth = plan.cols.truth_interference.is_some();
     let mut error = Spread::default();
-    crate::io::output::write_with(out, |w| {
+    crate::io::trace::write_table_with(out, |w| {
         header(w, &model, false)?;
         let mut block: VecDeque<Pending> = VecDeque::new();
         let mut context: Option<[f64; 3]> = None;
@@ -638,7 +633,7 @@ fn run_tl(
         let mut emit = |count: usize,
                         block: &mut VecDeque<Pending>,
                         context: &mut Option<[f64; 3]>,
-                        w: &mut crate::io::output::AtomicFile|
+                        w: &mut dyn Write|
          -> Result<()> {
             let rows: Vec<[f64; 3]> = context
                 .iter()

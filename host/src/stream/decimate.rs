@@ -24,7 +24,7 @@
 //! out by `--lines`/`--time`: near such an edge its taps are cut symmetrically (the first
 //! row of a stretch is taken as it is).
 use super::rows::{Cols, RowFilter};
-use super::stats::{Despiker, ExactMedian};
+use super::stats::{Despiker, StreamMedian};
 use super::StreamInput;
 use crate::flight::input::{Decimation, Selection};
 use crate::io::progress::Progress;
@@ -76,12 +76,12 @@ pub fn lowpass_taps(factor: usize) -> Vec<f64> {
     w
 }
 
-/// Pass 1: the selected rows, the exact median time step and the columns' final kinds.
+/// Pass 1: the selected rows, the median time step (`StreamMedian`) and the columns' final kinds.
 pub fn scan(input: &StreamInput<'_>, quiet: bool) -> Result<(usize, f64, Vec<Kind>)> {
     let map = column_map(input)?;
     let mut filter = RowFilter::new(Selection::parse(input.lines, input.time)?);
     let mut cols: Option<Cols> = None;
-    let mut dt = ExactMedian::default();
+    let mut dt = StreamMedian::default();
     let mut prev_t = f64::NAN;
     let mut progress = Progress::new("decimation pass 1/2 (rows, time step)", quiet);
     let head = for_each_row(input.trace, &map, ReadOptions::default(), |row| {

@@ -2,10 +2,11 @@
 //! memory bounded by a window, not by the flight.
 //!
 //! Three passes over the file, one row at a time (`trace::rows`):
-//! 1. the figures that need no sample rate: row selection, sample rate (exact median time
-//!    step), main-field direction, tie point, position checks, date source, input checks;
-//! 2. (only when needed) the scalar's noise (exact median of the despiked third
-//!    difference) and the core field's gaps (IGRF-14 from positions and date);
+//! 1. the figures that need no sample rate: row selection, sample rate (median time
+//!    step, `stats::StreamMedian`: exact up to 65 536 distinct values, then within
+//!    0.1 %), main-field direction, tie point, position checks, date source, input checks;
+//! 2. (only when needed) the scalar's noise (median of the despiked third
+//!    difference, as in pass 1) and the core field's gaps (IGRF-14 from positions and date);
 //! 3. the core compensator (KF, survey mode) or Tolles–Lawson, sample by sample, each
 //!    output row written as it comes to a temporary file renamed at the end.
 //!

@@ -8,23 +8,73 @@ use crate::flight::position::{PositionChecker, PositionFault};
 use crate::flight::{FieldDirection, TieDetector};
 use anyhow::Result;
 use magcomp_core::compensator::TiePoint;
-use std::collections::{HashMap, VecDeque};
+use std::collections::{BTreeMap, HashMap, VecDeque};
 
-/// An exact median (the element at index `len / 2` of the sorted values, as the in-memory
-/// code takes it) from counts of distinct values: memory grows with the number of distinct
-/// values, not with the rows (a 1 kHz flight's time steps take a handful of values; its
-/// scalar's third differences, written to 1e-4 nT, a few thousand).
+/// A median in bounded memory: the element at index `len / 2` of the sorted values, as the
+/// in-memory code takes it.
+///
+/// Exact (counts of distinct values) while there are at most [`EXACT_DISTINCT`] distinct
+/// values — a 1 kHz flight's time steps take a handful, a scalar written to 1e-4 nT a few
+/// thousand third differences — so such runs equal the in-memory path bit for bit. Past
+/// that (full-precision input: ~46 B per row before, ~1 GB for a 6 h 1 kHz flight) the
+/// counts move into a log-bucketed histogram (DDSketch's buckets): the median is then
+/// within a relative error of [`MEDIAN_RELATIVE_ERROR`] (0.1 %) of the exact one, in at
+/// most ~30 000 buckets (values 1e-15 … 1e15; smaller ones count in the lowest bucket).
 #[derive(Clone, Debug, Default)]
-pub struct ExactMedian {
+pub struct StreamMedian {
     counts: HashMap<u64, u64>,
+    /// Bucket index → count, once the exact counts are given up.
+    buckets: Option<BTreeMap<i32, u64>>,
+    zeros: u64,
     n: u64,
 }
 
-impl ExactMedian {
+/// Distinct values counted exactly (~2 MB of counts) before the histogram takes over.
+pub const EXACT_DISTINCT: usize = 1 << 16;
+
+/// The histogram's bound on the median's relative error.
+pub const MEDIAN_RELATIVE_ERROR: f64 = 1e-3;
+
+/// γ = (1 + α)/(1 − α): a bucket (γ^(i−1), γ^i] holds values within α of 2γ^i/(γ + 1).
+fn gamma() -> f64 {
+    (1.0 + MEDIAN_RELATIVE_ERROR) / (1.0 - MEDIAN_RELATIVE_ERROR)
+}
+
+fn bucket_of(v: f64) -> i32 {
+    (v.clamp(1e-15, 1e15).ln() / gamma().ln()).ceil() as i32
+}
+
+fn bucket_value(i: i32) -> f64 {
+    let g = gamma();
+    2.0 * g.powi(i) / (g + 1.0)
+}
+
+impl StreamMedian {
     /// `v` must be ≥ 0 (its bit pattern then sorts as the value).
     pub fn push(&mut self, v: f64) {
-        *self.counts.entry(v.to_bits()).or_default() += 1;
         self.n += 1;
+        if let Some(b) = self.buckets.as_mut() {
+            if v > 0.0 {
+                *b.entry(bucket_of(v)).or_default() += 1;
+            } else {
+                self.zeros += 1;
+            }
+            return;
+        }
+        *self.counts.entry(v.to_bits()).or_default() += 1;
+        if self.counts.len() > EXACT_DISTINCT {
+            let mut b = BTreeMap::new();
+            for (k, c) in self.counts.drain() {
+                let v = f64::from_bits(k);
+                if v > 0.0 {
+                    *b.entry(bucket_of(v)).or_default() += c;
+                } else {
+                    self.zeros += c;
+                }
+            }
+            self.counts.shrink_to_fit();
+            self.buckets = Some(b);
+        }
     }
     pub fn len(&self) -> u64 {
         self.n
@@ -32,16 +82,36 @@ impl ExactMedian {
     pub fn is_empty(&self) -> bool {
         self.n == 0
     }
+    /// Distinct values (exact counting) or buckets (the histogram) held.
     pub fn distinct(&self) -> usize {
-        self.counts.len()
+        self.buckets
+            .as_ref()
+            .map_or(self.counts.len(), BTreeMap::len)
+    }
+    /// Whether the median is exact (no histogram yet).
+    pub fn is_exact(&self) -> bool {
+        self.buckets.is_none()
     }
     pub fn median(&self) -> Option<f64> {
         if self.n == 0 {
             return None;
         }
+        let mid = self.n / 2;
+        if let Some(b) = &self.buckets {
+            if self.zeros > mid {
+                return Some(0.0);
+            }
+            let mut seen = self.zeros;
+            for (&i, &c) in b {
+                seen += c;
+                if seen > mid {
+                    return Some(bucket_value(i));
+                }
+            }
+            return None;
+        }
         let mut keys: Vec<(u64, u64)> = self.counts.iter().map(|(k, c)| (*k, *c)).collect();
         keys.sort_unstable();
-        let mid = self.n / 2;
         let mut seen = 0;
         for (k, c) in keys {
             seen += c;
@@ -165,7 +235,7 @@ impl<T> Listed<T> {
 #[derive(Default)]
 pub struct FirstPass {
     pub rows: usize,
-    pub dt: ExactMedian,
+    pub dt: StreamMedian,
     pub mag_finite: usize,
     pub mag_range: (f64, f64),
     pub first_mag: Option<f64>,
@@ -269,7 +339,7 @@ pub struct SecondPass {
     pub glitches: Listed<f64>,
     /// Despiked scalar of the last 4 judged rows, for the third difference.
     last4: VecDeque<f64>,
-    pub d3: ExactMedian,
+    pub d3: StreamMedian,
     pending: VecDeque<(usize, u64, f64)>,
 }
 
@@ -283,7 +353,7 @@ impl SecondPass {
             gap_count: 0,
             glitches: Listed::default(),
             last4: VecDeque::with_capacity(4),
-            d3: ExactMedian::default(),
+            d3: StreamMedian::default(),
             pending: VecDeque::new(),
         }
     }

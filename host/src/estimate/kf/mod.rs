@@ -300,15 +300,15 @@ fn pass(
     };
     with_model(spec, |model| {
         let mut comp = HostCompensator::new(model, cfg)
-            .map_err(|e| anyhow::anyhow!("cannot build the filter for '{}': {e:?}", spec.text()))?;
+            .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
         if let Some(c) = coefficients {
             let c32: Vec<f32> = c.iter().map(|v| *v as f32).collect();
             comp.set_coefficients(&c32).map_err(|e| {
-                anyhow::anyhow!(
-                    "the coefficients do not fit model '{}' ({} values for {} coefficients): {e:?}",
-                    spec.text(),
+                crate::model::errors::do_not_fit(
+                    &spec.text(),
                     c.len(),
-                    model.coefficient_count()
+                    model.coefficient_count(),
+                    &e,
                 )
             })?;
         } else {

@@ -451,6 +451,9 @@ fn read_impl<R: Read>(
     Ok(trace)
 }
 
+/// The longest trace line read: a survey row of a few hundred columns is tens of KB.
+pub const MAX_LINE_BYTES: usize = 1 << 20;
+
 /// Reads every line of `reader` into `sink` (header, fields, row ends) and returns the
 /// `# key: value` metadata. Layout detection, BOM, comments, quoting and the XYZ line
 /// separators are handled here, once for every sink.
@@ -489,9 +492,24 @@ pub(super) fn scan<R: Read>(
 
     loop {
         buf.clear();
-        let n = r.read_until(b'\n', &mut buf).map_err(io)?;
+        // Bounded: a file without line breaks (`/dev/zero`) must end in an error, not in
+        // one line growing until the allocation aborts.
+        let n = (&mut r)
+            .take(MAX_LINE_BYTES as u64 + 1)
+            .read_until(b'\n', &mut buf)
+            .map_err(io)?;
         if n == 0 {
             break;
+        }
+        if n > MAX_LINE_BYTES && buf.last() != Some(&b'\n') {
+            return Err(io(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!(
+                    "line {} is longer than {} MiB: not a trace (CSV or XYZ) file",
+                    line_no + 1,
+                    MAX_LINE_BYTES >> 20
+                ),
+            )));
         }
         bytes += n as u64;
         line_no += 1;

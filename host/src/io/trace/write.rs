@@ -138,12 +138,21 @@ pub fn write_table(
     path: &Path,
     f: impl FnOnce(&mut dyn Write) -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
+    write_table_with(path, f)
+}
+
+/// As [`write_table`], for a writer that returns a value (the streamed compensation's
+/// figures).
+pub fn write_table_with<T>(
+    path: &Path,
+    f: impl FnOnce(&mut dyn Write) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
     crate::io::output::write_with(path, |w| {
         if super::xyz_out::is_xyz_path(path) {
             let mut x = super::xyz_out::XyzWriter::new(w);
-            f(&mut x)?;
+            let v = f(&mut x)?;
             x.finish()?;
-            Ok(())
+            Ok(v)
         } else {
             f(w)
         }
