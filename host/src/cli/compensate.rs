@@ -29,8 +29,8 @@ pub struct CompensateArgs {
     #[arg(long)]
     pub realtime: bool,
     /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
-    /// and the input columns the model does not use (LINE, X, Y, …); `OUT.xyz` writes
-    /// Geosoft XYZ; docs/trace-format.md.
+    /// and every other input column (lat, lon, LINE, X, Y, …; the input `mag` as
+    /// `in_mag`), row for row; `OUT.xyz` writes Geosoft XYZ; docs/trace-format.md.
     #[arg(
         short = 'o',
         long = "out",
@@ -88,7 +88,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     let stage = crate::io::progress::Stage::new("compensation (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
     drop(stage);
-    let carried = crate::flight::input::carried_columns(&trace, &flight.channels);
+    let carried = crate::flight::input::carried_columns(&trace);
     {
         let _stage = crate::io::progress::Stage::new("writing the output");
         write_output_csv(&a.out, &flight, &comp, &carried)?;
