@@ -94,8 +94,12 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         write_output_csv(&a.out, &flight, &comp, &carried)?;
     }
     let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
-    let s = summarise(&flight, &comp);
+    let mut s = summarise(&flight, &comp);
     drop(stage);
+    if let Some(c) = &coeffs {
+        s.warnings
+            .extend(a.input.provenance_warnings(Some(&trace), c));
+    }
     if a.json {
         let mut v = serde_json::to_value(&s)?;
         // Where the core field came from: the file, or the model and epoch used.
@@ -228,7 +232,8 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
     let Some(coeffs) = coeffs.filter(|_| stream) else {
         return Ok(false);
     };
-    let s = compensate(&input, &est, coeffs, out, quiet_progress(a.long.progress))?;
+    let mut s = compensate(&input, &est, coeffs, out, quiet_progress(a.long.progress))?;
+    s.warnings.extend(a.input.provenance_warnings(None, coeffs));
     print_stream_summary(&s, json, out)?;
     Ok(true)
 }
