@@ -111,6 +111,10 @@ fn long_after_the_calibration_warns() {
     assert!(warned(&s, &e, STALE), "{s}\n{e}");
     assert!(warned(&s, &e, "(2021-06-20) is 365 days"), "{e}");
     assert!(!warned(&s, &e, OTHER_SENSOR));
+    // Streamed too (the date from --date: a streamed run reads no columns ahead).
+    let args = ["--date", "2021-06-20", "--stream", "always"];
+    let (s, e) = compensate(&trace, &coeffs, &args, &d.join("s.csv"));
+    assert!(warned(&s, &e, STALE), "{s}\n{e}");
     std::fs::remove_dir_all(&d).ok();
 }
 
