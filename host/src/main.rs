@@ -13,6 +13,7 @@ fn main() -> Result<()> {
         Command::Nmea(a) => cli::nmea::run(&a),
         Command::Diagnose(a) => cli::diagnose::run(&a),
         Command::Report(a) => cli::report::run(&a),
+        Command::Capture(a) => cli::capture::run(&a),
         Command::Replay(a) => cli::replay::run(&a).map(drop),
         Command::Monitor(a) => cli::monitor::run(&a).map(drop),
         Command::Upload(a) => cli::upload::run(&a),

@@ -95,6 +95,7 @@ fn every_subcommand_has_its_file_in_cli() {
         "nmea",
         "diagnose",
         "report",
+        "capture",
         "replay",
         "monitor",
         "upload",

@@ -116,7 +116,7 @@ fn in_memory(
 ) -> Summary {
     let trace = input.read().unwrap();
     let (flight, comp) = compensate_trace(&trace, est, Some(c), false).unwrap();
-    let carried = magcomp::flight::input::carried_columns(&trace, &flight.channels);
+    let carried = magcomp::flight::input::carried_columns(&trace);
     write_output_csv(out, &flight, &comp, &carried).unwrap();
     summarise(&flight, &comp)
 }

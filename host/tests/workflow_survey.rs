@@ -204,7 +204,7 @@ fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
     let b = read_trace(&box_kf, &ColumnMap::new()).unwrap();
     let box_rows = rows_of(&[BOX]);
     assert_eq!(b.len(), box_rows.len());
-    // (position columns are consumed, not carried: take them from the simulation)
+    // (positions from the simulation; the output carries them too since issue 22 item 4)
     let (lat, lon, alt) = (
         pick(&col(&sim, "lat"), &box_rows),
         pick(&col(&sim, "lon"), &box_rows),

@@ -1,5 +1,6 @@
-//! A simulated flight written as a raw capture: the bytes the sensors would have sent,
-//! timestamped per port (`docs/protocols.md` §7), for `magcomp replay` and the HIL harness.
+//! A flight (simulated, or any trace the host reads: `magcomp capture`) written as a raw
+//! capture: the bytes the sensors would have sent, timestamped per port
+//! (`docs/protocols.md` §7), for `magcomp replay` and the HIL harness.
 //!
 //! Per scalar sample `k` at trace time `t_k` (board clock `T = start + t_k`):
 //! - fluxgate at `T`: an ASCII line `X,Y,Z*hh` (nT, 3 decimals, XOR checksum) or a 15-byte
@@ -7,6 +8,7 @@
 //! - GPS at its own epochs (5 or 10 Hz from `t = 0`, positions interpolated between
 //!   samples), starting 100 µs after the epoch: `$GNGGA`, `$GNRMC`, `$GNVTG`, each chunk
 //!   timed at the receiver's baud rate;
+//!   none when the trace has no `lat`/`lon`/`alt` (a real calibration box);
 //! - scalar at `T + P/2`: the field with 4 decimals, exactly the trace's value rounded to
 //!   1e-4 nT (the same rounding `Flight` applies), `53620.4401\r\n`.
 //!
@@ -92,6 +94,8 @@ pub struct CaptureOptions {
     /// the trace has one (`truth_hidden_fluxtemp_CH`), else 3 fields. ASCII only.
     pub flux_temp_channel: Option<String>,
     pub seed: u64,
+    /// What made the capture, for its `# source:` comment.
+    pub source: String,
 }
 
 impl Default for CaptureOptions {
@@ -109,6 +113,7 @@ impl Default for CaptureOptions {
             corrupt_port: None,
             flux_temp_channel: None,
             seed: 1,
+            source: "magcomp simulate".into(),
         }
     }
 }
@@ -286,9 +291,12 @@ pub fn write_capture<W: Write>(
         })
     });
     let temp = temp_channel.as_deref().map(|c| col(trace, c)).transpose()?;
-    let lat = col(trace, "lat")?;
-    let lon = col(trace, "lon")?;
-    let alt = col(trace, "alt")?;
+    // A trace without positions (a real calibration box) gets no GPS port at all rather
+    // than invented fixes: the board flags NO_GPS, which survey mode does not need.
+    let pos = match (trace.col("lat"), trace.col("lon"), trace.col("alt")) {
+        (Some(a), Some(b), Some(c)) => Some((a, b, c)),
+        _ => None,
+    };
     let n = t.len();
     ensure!(n >= 2, "the trace has {n} rows; a capture needs at least 2");
     let t0 = t[0];
@@ -304,9 +312,10 @@ pub fn write_capture<W: Write>(
     // Rounded to µHz: 1/0.1 in f64 is 10.000000000000036.
     let scalar_hz = (1e6 / period_s).round() / 1e6;
     // Velocity: the trace's, else from position differences.
-    let (vn, ve): (Vec<f64>, Vec<f64>) = match (trace.col("vn"), trace.col("ve")) {
-        (Some(a), Some(b)) => (a.to_vec(), b.to_vec()),
-        _ => {
+    let (vn, ve): (Vec<f64>, Vec<f64>) = match (trace.col("vn"), trace.col("ve"), pos) {
+        (Some(a), Some(b), _) => (a.to_vec(), b.to_vec()),
+        (_, _, None) => (Vec::new(), Vec::new()),
+        (_, _, Some((lat, lon, _))) => {
             let mut vn = vec![0.0; n];
             let mut ve = vec![0.0; n];
             for i in 0..n {
@@ -325,7 +334,7 @@ pub fn write_capture<W: Write>(
     let mut summary = CaptureSummary {
         scalar_hz,
         flux_hz: scalar_hz,
-        gps_hz: opts.gps_rate_hz,
+        gps_hz: if pos.is_some() { opts.gps_rate_hz } else { 0.0 },
         ..Default::default()
     };
     let lsb_nt = FLUX_FULL_SCALE_NT as f64 / ADC_FULL_SCALE as f64;
@@ -371,7 +380,7 @@ pub fn write_capture<W: Write>(
     let span_s = t[n - 1] - t0;
     let byte_us = 10.0e6 / opts.gps_baud as f64;
     let mut j = 0u64;
-    loop {
+    while let Some((lat, lon, alt)) = pos {
         let tg = j as f64 / opts.gps_rate_hz;
         if tg > span_s + 1e-9 {
             break;
@@ -429,10 +438,14 @@ pub fn write_capture<W: Write>(
     let mut line = vec![0u8; MAX_LINE];
     let hl = encode_header(&mut line).context("capture header")?;
     w.write_all(&line[..hl])?;
-    writeln!(w, "# source: magcomp simulate")?;
+    writeln!(w, "# source: {}", opts.source)?;
     writeln!(w, "# scalar_hz: {scalar_hz}")?;
     writeln!(w, "# flux_hz: {scalar_hz}")?;
+    // Kept without positions too: replay takes its staleness limit from it.
     writeln!(w, "# gps_hz: {}", opts.gps_rate_hz)?;
+    if pos.is_none() {
+        writeln!(w, "# gps: none (the trace has no lat/lon/alt)")?;
+    }
     writeln!(w, "# flux_format: {}", opts.flux_format.name())?;
     writeln!(w, "# start_tod_s: {}", opts.start_tod_s)?;
     if let Some((a, b)) = opts.flux_dropout_s {

@@ -108,6 +108,10 @@ pub struct CoefficientFile {
     /// filter and of band-passed least squares, and which was used: `kf::crosscheck`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub cross_check: Option<crate::estimate::jackknife::CrossCheck>,
+    /// Where the coefficients came from (`calibrate` fills it; files written before it
+    /// existed have none and still load).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub provenance: Option<super::provenance::Provenance>,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -209,6 +213,7 @@ impl CoefficientFile {
             assumed_speed_mps: None,
             cross_check: None,
             predicted_band_rms_nt: None,
+            provenance: None,
             coefficients,
         }
     }

@@ -131,6 +131,7 @@ pub(super) fn run_kf_method(
         assumed_speed_mps,
         cross_check: None,
         predicted_band_rms_nt: None,
+        provenance: None,
         covariance: {
             let k = run.coefficients.len();
             (run.coefficient_covariance.len() == k * k && k > 0).then(|| {

@@ -16,6 +16,7 @@ pub mod coefficients;
 mod cross_check;
 pub mod fom;
 mod kf;
+pub mod provenance;
 pub mod result;
 pub mod summary;
 mod tl;

@@ -113,7 +113,7 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
 }
 
 /// Writes `t,mag,interference,compensated[,anomaly,innovation,flags]`, then `carried`
-/// (`input::carried_columns`: `igrf` and the input's unconsumed columns); CSV, or
+/// (`input::carried_columns`: `igrf` and the other input columns); CSV, or
 /// Geosoft XYZ for a `.xyz` path.
 pub fn write_output_csv(
     path: &Path,

@@ -4,6 +4,7 @@
 use crate::calibration::coefficients::{
     read_coefficients, refuse_conflicting_settings, CoefficientFile, Method,
 };
+use crate::calibration::provenance::Provenance;
 use crate::calibration::result::Compensation;
 use crate::calibration::summary::{summarise, Summary};
 use crate::calibration::{compensate_trace, EstimatorSettings};
@@ -109,6 +110,63 @@ impl TraceInput {
             eprintln!("{m}");
         }
         Ok(t)
+    }
+
+    /// The file column read as the scalar (`mag`, or the one `--map` names for it): the
+    /// sensor, and with it the installation, coefficients belong to.
+    pub fn sensor(&self) -> String {
+        self.map
+            .as_deref()
+            .and_then(|m| ColumnMap::parse(m).ok())
+            .and_then(|m| m.file_column("mag").map(String::from))
+            .unwrap_or_else(|| "mag".into())
+    }
+
+    /// `YYYY-MM-DD` of the flight (its first dated row, or `--date`), when known.
+    pub fn flight_date(&self, trace: Option<&Trace>) -> Option<String> {
+        let Some(trace) = trace else {
+            return self.date.clone();
+        };
+        let (years, _) = crate::flight::input::row_years(trace, self.date.as_deref())
+            .ok()
+            .flatten()?;
+        let y = years.into_iter().find(|y| y.is_finite())?;
+        crate::calibration::provenance::date_of_decimal_year(y)
+    }
+
+    /// What a coefficient file calibrated on `trace` (read from this input) records of it.
+    pub fn provenance(&self, trace: &Trace, model: &str) -> Result<Provenance> {
+        let t = trace.col("t").unwrap_or(&[]);
+        Ok(Provenance {
+            source_file: self.trace.display().to_string(),
+            source_sha256: crate::calibration::provenance::sha256_file(&self.trace)?,
+            column_map: self.map.clone(),
+            sensor: self.sensor(),
+            lines: self.lines.clone(),
+            time_window: self.time.clone(),
+            t_first_s: t.first().copied().unwrap_or(f64::NAN),
+            t_last_s: t.last().copied().unwrap_or(f64::NAN),
+            flight_date: self.flight_date(Some(trace)),
+            model: model.to_string(),
+            magcomp_version: crate::calibration::provenance::magcomp_version(),
+        })
+    }
+
+    /// The warnings for applying `coeffs` to this input (`trace`: when read; a streamed
+    /// run knows the date from `--date` only). None for a file without provenance.
+    pub fn provenance_warnings(
+        &self,
+        trace: Option<&Trace>,
+        coeffs: &CoefficientFile,
+    ) -> Vec<String> {
+        match &coeffs.provenance {
+            Some(p) => crate::calibration::provenance::warnings(
+                p,
+                &self.sensor(),
+                self.flight_date(trace).as_deref(),
+            ),
+            None => Vec::new(),
+        }
     }
 
     /// The trace for a calibration or a diagnosis: a long flight sampled faster than

@@ -37,7 +37,8 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let stage = crate::io::progress::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
     drop(stage);
-    let file = comp.coefficients.clone().context("no coefficients")?;
+    let mut file = comp.coefficients.clone().context("no coefficients")?;
+    file.provenance = Some(a.input.provenance(&trace, &file.model)?);
     crate::io::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
     let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
     let mut s = summarise(&flight, &comp);

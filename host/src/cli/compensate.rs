@@ -29,8 +29,8 @@ pub struct CompensateArgs {
     #[arg(long)]
     pub realtime: bool,
     /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
-    /// and the input columns the model does not use (LINE, X, Y, …); `OUT.xyz` writes
-    /// Geosoft XYZ; docs/trace-format.md.
+    /// and every other input column (lat, lon, LINE, X, Y, …; the input `mag` as
+    /// `in_mag`), row for row; `OUT.xyz` writes Geosoft XYZ; docs/trace-format.md.
     #[arg(
         short = 'o',
         long = "out",
@@ -88,14 +88,18 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     let stage = crate::io::progress::Stage::new("compensation (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
     drop(stage);
-    let carried = crate::flight::input::carried_columns(&trace, &flight.channels);
+    let carried = crate::flight::input::carried_columns(&trace);
     {
         let _stage = crate::io::progress::Stage::new("writing the output");
         write_output_csv(&a.out, &flight, &comp, &carried)?;
     }
     let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
-    let s = summarise(&flight, &comp);
+    let mut s = summarise(&flight, &comp);
     drop(stage);
+    if let Some(c) = &coeffs {
+        s.warnings
+            .extend(a.input.provenance_warnings(Some(&trace), c));
+    }
     if a.json {
         let mut v = serde_json::to_value(&s)?;
         // Where the core field came from: the file, or the model and epoch used.
@@ -253,7 +257,8 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
     let Some(coeffs) = coeffs.filter(|_| stream) else {
         return Ok(false);
     };
-    let s = compensate(&input, &est, coeffs, out, quiet_progress(a.long.progress))?;
+    let mut s = compensate(&input, &est, coeffs, out, quiet_progress(a.long.progress))?;
+    s.warnings.extend(a.input.provenance_warnings(None, coeffs));
     print_stream_summary(&s, json, out)?;
     Ok(true)
 }

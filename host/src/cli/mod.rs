@@ -6,6 +6,7 @@
 
 pub mod args;
 pub mod calibrate;
+pub mod capture;
 pub mod compensate;
 pub mod demo;
 pub mod diagnose;
@@ -50,6 +51,9 @@ pub enum Command {
     Diagnose(Box<diagnose::DiagnoseArgs>),
     /// Write a self-contained HTML report with plots for one or more models.
     Report(Box<report::ReportArgs>),
+    /// Write a trace (a recorded real flight, CSV/XYZ/HDF5) as a raw board capture for
+    /// `replay` and the HIL rig.
+    Capture(Box<capture::CaptureCmdArgs>),
     /// Run a raw sensor capture through the board's parsers, aligner and filter.
     Replay(replay::ReplayArgs),
     /// Decode and show the board's output stream live (a port, a file, or `-`).

@@ -77,7 +77,14 @@ pub fn run(args: &ReportArgs) -> Result<()> {
             method: args.method,
             tuning: args.tuning.clone(),
         };
-        let ev = est.evaluate(&trace, args.coeffs.as_deref())?;
+        let mut ev = est.evaluate(&trace, args.coeffs.as_deref())?;
+        // The page shows the summary's warnings: provenance ones included.
+        if let Some(p) = args.coeffs.as_deref() {
+            let c = crate::calibration::coefficients::read_coefficients(p)?;
+            ev.summary
+                .warnings
+                .extend(args.input.provenance_warnings(Some(&trace), &c));
+        }
         let path = super::diagnose::write_evaluation(&trace, &ev, &args.out)?;
         super::compensate::print_warnings(&ev.summary);
         println!("report written to {}", path.display());

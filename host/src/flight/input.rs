@@ -4,7 +4,7 @@
 //! carried through to `compensate`'s output.
 
 use crate::flight::igrf::{decimal_year, parse_date, Igrf, MODEL_NAME};
-use crate::io::trace::{aux_column_candidate, Trace};
+use crate::io::trace::Trace;
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 
@@ -423,18 +423,25 @@ pub fn carried_name(name: &str) -> String {
     }
 }
 
-/// The input columns the estimation does not consume (line, UTM X/Y, other channels,
-/// text labels), carried to the output row for row so nobody has to join by time; and
-/// `igrf`, the core field used. `consumed`: the aux channels the model reads. Names that
-/// would collide with an output column get an `in_` prefix.
-pub fn carried_columns(trace: &Trace, consumed: &[String]) -> Vec<(String, OutputValues)> {
+/// Whether input column `name` goes to `compensate`'s output: every one but `t` (the
+/// output's own, the same values) and `igrf` (written once, as the core field used), so
+/// the output is gridding-ready (t, lat, lon, compensated) without a join.
+pub fn is_carried(name: &str) -> bool {
+    name != "t" && name != "igrf"
+}
+
+/// The input columns carried to the output row for row, mapped (`lat`, `lon`, the
+/// fluxgate, …) and unmapped (line, UTM X/Y, other channels, text labels), so nobody has
+/// to join by time; first `igrf`, the core field used. Names that would collide with an
+/// output column get an `in_` prefix (the input `mag` is `in_mag`).
+pub fn carried_columns(trace: &Trace) -> Vec<(String, OutputValues)> {
     let rename = carried_name;
     let mut out = Vec::new();
     if let Some(g) = trace.col("igrf") {
         out.push(("igrf".to_string(), OutputValues::Num(g.to_vec())));
     }
     for (n, v) in &trace.numeric {
-        if aux_column_candidate(n) && !consumed.contains(n) {
+        if is_carried(n) {
             out.push((rename(n), OutputValues::Num(v.clone())));
         }
     }

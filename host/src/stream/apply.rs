@@ -13,7 +13,7 @@ use crate::flight::input::Selection;
 use crate::flight::position::PositionChecker;
 use crate::io::csv::{csv_text, fixed_cell as num, number_cell};
 use crate::io::trace::rows::{for_each_row, Kind, Row};
-use crate::io::trace::{aux_column_candidate, ColumnMap, ReadOptions};
+use crate::io::trace::{ColumnMap, ReadOptions};
 use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::Flags;
@@ -271,7 +271,7 @@ fn carried(plan: &Plan) -> Carried {
     let igrf = plan.cols.igrf.is_some() || plan.igrf.is_some();
     let nums = (0..h.names.len())
         .filter(|&i| h.kinds[i] != Kind::Text)
-        .filter(|&i| aux_column_candidate(&h.names[i]) && !plan.channels.contains(&h.names[i]))
+        .filter(|&i| crate::flight::input::is_carried(&h.names[i]))
         .map(|i| (rename(&h.names[i]), i))
         .collect();
     let texts = (0..h.names.len())

@@ -131,7 +131,6 @@ pub(crate) struct Plan {
     pub assumed_speed_mps: Option<f64>,
     pub noise_nt: f64,
     pub igrf: Option<(DateSource, apply::GapFill)>,
-    pub channels: Vec<String>,
     /// The coefficient file's fluxgate calibration, applied to every fluxgate vector before
     /// the compensator (as `kf::run_kf_estimator` does in memory).
     pub fluxgate_calibration: Option<crate::estimate::fluxcal::FluxgateCalibration>,
@@ -359,7 +358,6 @@ pub fn compensate(
         assumed_speed_mps,
         noise_nt,
         igrf,
-        channels,
         fluxgate_calibration: match coeffs.method {
             Method::Kf => coeffs.fluxgate_calibration,
             Method::Tl => None,

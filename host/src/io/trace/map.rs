@@ -118,6 +118,16 @@ impl ColumnMap {
         &self.pairs
     }
 
+    /// The file column named for `canonical`: an explicit entry, else a preset's (which
+    /// applies where the file has it). None: the file's own `canonical` column.
+    pub fn file_column(&self, canonical: &str) -> Option<&str> {
+        self.pairs
+            .iter()
+            .chain(&self.optional)
+            .find(|(c, _)| c == canonical)
+            .map(|(_, f)| f.as_str())
+    }
+
     pub fn is_empty(&self) -> bool {
         self.pairs.is_empty() && self.optional.is_empty()
     }
