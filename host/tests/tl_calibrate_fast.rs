@@ -65,7 +65,10 @@ fn assert_unchanged(file: &serde_json::Value) {
     let p = file["predicted_error_nt"].as_f64().unwrap();
     assert!(close(p, BEFORE_PREDICTED_ERROR_NT), "predicted error {p}");
     let b = file["predicted_band_rms_nt"].as_f64().unwrap();
-    assert!(close(b, BEFORE_PREDICTED_BAND_RMS_NT), "predicted band rms {b}");
+    assert!(
+        close(b, BEFORE_PREDICTED_BAND_RMS_NT),
+        "predicted band rms {b}"
+    );
 }
 
 #[test]
@@ -83,7 +86,9 @@ fn aircraft_fom_is_absent_by_default_and_coefficients_unchanged() {
 #[test]
 fn aircraft_fom_on_request() {
     let (summary, file) = calibrate(&["--aircraft-fom"]);
-    let a = summary["aircraft_fom_nt"].as_f64().expect("aircraft-only FOM");
+    let a = summary["aircraft_fom_nt"]
+        .as_f64()
+        .expect("aircraft-only FOM");
     assert!(close(a, BEFORE_AIRCRAFT_FOM_NT), "aircraft-only FOM {a}");
     assert_unchanged(&file);
 }
