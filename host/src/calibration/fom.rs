@@ -178,15 +178,24 @@ pub const FIELD_ESTIMATE_MODEL: &str = crate::model::spec::DEFAULT_MODEL;
 /// figures separate the field the same way (without it TL could only be ranked by the plain
 /// FOM, which favours the method that fits the band, not the aircraft). The filter runs only
 /// when there is a pattern to tabulate and the flight has a track (its anomaly model needs the
-/// along-track distance); otherwise the aircraft columns are absent.
-pub fn compensation_fom_table(flight: &Flight, comp: &Compensation) -> Option<FomTable> {
+/// along-track distance) and `fit_field_estimate` allows the extra filter pass (`calibrate
+/// --method tl` asks for it only with `--aircraft-fom`: it costs more than the TL fit);
+/// otherwise the aircraft columns are absent.
+pub fn compensation_fom_table(
+    flight: &Flight,
+    comp: &Compensation,
+    fit_field_estimate: bool,
+) -> Option<FomTable> {
     let (pattern, source) = pattern_of(flight)?;
     let own = comp
         .anomaly_nt
         .as_deref()
         .map(|a| (a.to_vec(), "kf anomaly"));
     let field = own.or_else(|| {
-        field_estimate_nt(flight).map(|a| (a, "kf anomaly (default model fitted on this flight)"))
+        fit_field_estimate
+            .then(|| field_estimate_nt(flight))
+            .flatten()
+            .map(|a| (a, "kf anomaly (default model fitted on this flight)"))
     });
     fom_table(
         flight,

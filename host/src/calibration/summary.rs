@@ -68,13 +68,19 @@ pub struct Summary {
 
 /// FOM, IR, compensated band rms, and error/oracle against truth when the trace has it.
 pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
+    summarise_with(flight, comp, true)
+}
+
+/// [`summarise`]; `fit_field_estimate` false leaves out the aircraft-only figures of a
+/// compensation without its own anomaly estimate (TL), which need a whole Kalman pass.
+pub fn summarise_with(flight: &Flight, comp: &Compensation, fit_field_estimate: bool) -> Summary {
     let band_rms = crate::qc::figures::band_rms_nt(flight, &comp.compensated_nt);
     let withheld = comp.withheld.is_some();
     let f = fom(flight, &comp.compensated_nt).filter(|_| !withheld);
     let table = if withheld {
         None
     } else {
-        crate::calibration::fom::compensation_fom_table(flight, comp)
+        crate::calibration::fom::compensation_fom_table(flight, comp, fit_field_estimate)
     };
     let (error, oracle) = match &flight.truth_interference_nt {
         Some(t) => (

@@ -3,7 +3,8 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
-use crate::calibration::summary::summarise;
+use crate::calibration::coefficients::Method;
+use crate::calibration::summary::summarise_with;
 use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
 use crate::io::output::check_outputs;
 use anyhow::{Context, Result};
@@ -28,6 +29,11 @@ pub struct CalibrateArgs {
     /// Print one JSON object with the summary on stdout (as `compensate --json`).
     #[arg(long)]
     pub json: bool,
+    /// With `--method tl`: also report the aircraft-only FOM (compensated − the anomaly of
+    /// the default model's Kalman filter fitted on this flight). Off by default: that
+    /// filter pass costs several times the TL fit. The Kalman method always reports it.
+    #[arg(long)]
+    pub aircraft_fom: bool,
 }
 
 pub fn run(a: &CalibrateArgs) -> Result<()> {
@@ -41,7 +47,11 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     file.provenance = Some(a.input.provenance(&trace, &file.model)?);
     crate::io::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
     let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
-    let mut s = summarise(&flight, &comp);
+    let mut s = summarise_with(
+        &flight,
+        &comp,
+        comp.method != Some(Method::Tl) || a.aircraft_fom,
+    );
     drop(stage);
     s.decimated = decimated;
     if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
@@ -73,6 +83,12 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
             );
         }
         print_summary(&s);
+        if comp.method == Some(Method::Tl) && !a.aircraft_fom && flight.has_track() {
+            // Say what was left out, and how to get it.
+            println!(
+                "  aircraft-only FOM:          not computed (add --aircraft-fom: one Kalman pass)"
+            );
+        }
     }
     print_warnings(&s);
     eprintln!("wrote {}", a.output.display());

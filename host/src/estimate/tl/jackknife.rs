@@ -15,16 +15,31 @@ pub fn jackknife_refits(
     span: &Range<usize>,
 ) -> Option<Vec<Vec<f64>>> {
     let blocks = crate::estimate::jackknife::blocks(span, cfg.fs_hz)?;
-    let refits = blocks
-        .iter()
-        .map(|block| {
-            let mut rows = select.to_vec();
-            for r in &mut rows[block.clone()] {
-                *r = false;
-            }
-            let refit = fit(flux_nt, mag_nt, cfg, Some(&rows)).ok()?;
-            Some(interference(&refit, flux_nt))
-        })
-        .collect::<Option<Vec<_>>>()?;
-    Some(refits)
+    let refit = |block: &Range<usize>| {
+        let mut rows = select.to_vec();
+        for r in &mut rows[block.clone()] {
+            *r = false;
+        }
+        let refit = fit(flux_nt, mag_nt, cfg, Some(&rows)).ok()?;
+        Some(interference(&refit, flux_nt))
+    };
+    // The refits are independent and each re-filters the whole flight: they were most of
+    // `calibrate --method tl`'s time, so they share the cores. Each refit is computed
+    // exactly as before, so the result does not depend on the thread count.
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(blocks.len())
+        .max(1);
+    let chunk = blocks.len().div_ceil(threads);
+    let refits: Vec<Option<Vec<f64>>> = std::thread::scope(|s| {
+        let handles: Vec<_> = blocks
+            .chunks(chunk)
+            .map(|part| s.spawn(move || part.iter().map(refit).collect::<Vec<_>>()))
+            .collect();
+        handles
+            .into_iter()
+            .flat_map(|h| h.join().expect("a jackknife refit panicked"))
+            .collect()
+    });
+    refits.into_iter().collect()
 }
