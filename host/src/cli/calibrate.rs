@@ -50,7 +50,10 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let frame_warning = crate::calibration::fluxgate_check::frame_warning(&record);
     provenance.fluxgate = Some(record);
     file.provenance = Some(provenance);
-    crate::io::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
+    crate::io::output::write_file(
+        &a.output,
+        crate::calibration::coefficients::to_sealed_json(&file)?,
+    )?;
     let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
     let mut s = summarise(&flight, &comp);
     drop(stage);
