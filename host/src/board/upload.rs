@@ -126,6 +126,11 @@ pub fn upload_commands(
         });
     }
     if let Some(cal) = &file.fluxgate_calibration {
+        // The board's own bounds are only those of a working sensor; a fit from bad data
+        // (−38,736 nT bias, z scale 1.75) passed them.
+        if let Some(problem) = cal.physical_problem() {
+            anyhow::bail!("{problem}: not uploaded (recalibrate on clean data)");
+        }
         let board = cal.to_board().context(
             "the fluxgate calibration is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
         )?;

@@ -126,6 +126,126 @@ pub struct RateCrossover {
 
 pub const COEFF_FORMAT: &str = "magcomp-coefficients-v1";
 
+/// SHA-256 (hex) of a coefficient file's JSON without its `checksum` and `provenance`
+/// members, re-serialised compactly with sorted keys and the coefficients sorted by name:
+/// layout, indentation, member order and the order of the entries do not change it (files
+/// are read by name), any value does. `provenance` says where the file came from, not what
+/// is applied, and may be stripped from a file that is passed on. Computed from the parsed
+/// text on both sides, so that writer and reader hash the same numbers whatever the float
+/// parser's last digit.
+pub fn canonical_sha256(json: &str) -> Result<String> {
+    use sha2::{Digest, Sha256};
+    let mut v: serde_json::Value = serde_json::from_str(json)?;
+    if let Some(o) = v.as_object_mut() {
+        o.remove("checksum");
+        o.remove("provenance");
+        if let Some(c) = o.get_mut("coefficients").and_then(|c| c.as_array_mut()) {
+            c.sort_by(|a, b| {
+                let name = |v: &serde_json::Value| v["name"].as_str().unwrap_or("").to_string();
+                name(a).cmp(&name(b))
+            });
+        }
+    }
+    let text = serde_json::to_string(&sorted(v))?;
+    Ok(Sha256::digest(text.as_bytes())
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
+}
+
+/// `v` with every object's keys in sorted order (independent of serde_json's features).
+fn sorted(v: serde_json::Value) -> serde_json::Value {
+    use serde_json::Value;
+    match v {
+        Value::Object(o) => {
+            let mut pairs: Vec<(String, Value)> = o.into_iter().collect();
+            pairs.sort_by(|a, b| a.0.cmp(&b.0));
+            Value::Object(pairs.into_iter().map(|(k, v)| (k, sorted(v))).collect())
+        }
+        Value::Array(a) => Value::Array(a.into_iter().map(sorted).collect()),
+        other => other,
+    }
+}
+
+/// The file as `calibrate` writes it: pretty JSON with its [`canonical_sha256`].
+/// The member is kept out of [`CoefficientFile`] (read beside it, in [`read_coefficients`])
+/// so that the files' builders need not know of it.
+pub fn to_sealed_json(file: &CoefficientFile) -> Result<String> {
+    let text = serde_json::to_string_pretty(file)?;
+    let sum = canonical_sha256(&text)?;
+    // Appended as the last member, the rest of the layout as before.
+    let body = text
+        .trim_end()
+        .strip_suffix('}')
+        .context("a coefficient file serialises to a JSON object")?
+        .trim_end();
+    Ok(format!("{body},\n  \"checksum\": \"{sum}\"\n}}"))
+}
+
+/// Values no calibration can produce, in words: a sample rate, noise or σ1 that is not a
+/// positive number, a covariance that is not symmetric positive semi-definite. Such files
+/// used to be applied and to print a predicted error of 0.0.
+pub fn plausibility_problem(c: &CoefficientFile) -> Option<String> {
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    if !positive(c.sample_rate_hz) {
+        return Some(format!(
+            "the sample rate is {} Hz: it must be a positive number",
+            c.sample_rate_hz
+        ));
+    }
+    if let Some(n) = c.noise_nt.filter(|n| !positive(*n)) {
+        return Some(format!(
+            "the scalar noise is {n} nT: it must be a positive number"
+        ));
+    }
+    if let Some(s) = c.sigma1.filter(|s| !positive(*s)) {
+        return Some(format!(
+            "σ1 (the anomaly's along-track roughness, sigma1) is {s}: it must be a positive number"
+        ));
+    }
+    if let Some(bad) = c
+        .coefficients
+        .iter()
+        .find(|c| c.sigma.is_nan() || c.sigma < 0.0)
+    {
+        return Some(format!(
+            "coefficient '{}' has a 1σ of {}: it must be zero or positive",
+            bad.name, bad.sigma
+        ));
+    }
+    let cov = c.covariance.as_ref()?;
+    let k = cov.len();
+    if cov.iter().any(|r| r.len() != k) || cov.iter().flatten().any(|v| !v.is_finite()) {
+        return Some("the covariance is not a square matrix of numbers".into());
+    }
+    let m = nalgebra::DMatrix::from_fn(k, k, |i, j| cov[i][j]);
+    let scale = (0..k).map(|i| m[(i, i)].abs()).fold(0.0, f64::max);
+    // Relative tolerances: the file holds decimal renderings of f64 values.
+    for i in 0..k {
+        for j in 0..i {
+            if (m[(i, j)] - m[(j, i)]).abs() > 1e-9 * scale + 1e-300 {
+                return Some(format!(
+                    "the covariance is not symmetric: entry ({}, {}) is {} but ({}, {}) is {}",
+                    i + 1,
+                    j + 1,
+                    m[(i, j)],
+                    j + 1,
+                    i + 1,
+                    m[(j, i)]
+                ));
+            }
+        }
+    }
+    let min_eig = m.symmetric_eigen().eigenvalues.min();
+    if min_eig < -1e-9 * scale {
+        return Some(format!(
+            "the covariance is not positive semi-definite (smallest eigenvalue {min_eig:.3e}, \
+             largest variance {scale:.3e}): it cannot be a coefficient covariance"
+        ));
+    }
+    None
+}
+
 /// `--coeffs` decides the method and the model: a `--method` or `--model` given beside
 /// it that says otherwise is an error, not silently overridden.
 pub fn refuse_conflicting_settings(
@@ -181,8 +301,37 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
     let names = c
         .model_coefficient_names()
         .with_context(|| path.display().to_string())?;
-    c.in_order_of(&names)
-        .with_context(|| format!("{} (model '{}')", path.display(), c.model))
+    let ordered = c
+        .in_order_of(&names)
+        .with_context(|| format!("{} (model '{}')", path.display(), c.model))?;
+    // After the names: a renamed, missing or extra coefficient is said as such.
+    // A value changed after `calibrate` (two coefficients swapped: 2.43 nT; the sign of
+    // `permanent.e3` flipped: 2.24 nT) was applied with exit 0 before the checksum.
+    let checksum = serde_json::from_str::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|v| v.get("checksum").map(|s| s.as_str().map(str::to_string)));
+    match checksum {
+        Some(None) => bail!("{}: the checksum is not a string", path.display()),
+        Some(Some(sum)) => {
+            if canonical_sha256(&text)? != sum.to_ascii_lowercase() {
+                bail!(
+                    "{}: the content does not match its checksum: a value was changed after \
+                     `calibrate` wrote the file (or it is damaged); recalibrate, or restore \
+                     the original file",
+                    path.display()
+                );
+            }
+        }
+        None => eprintln!(
+            "note: {}: no checksum (written before magcomp recorded one): a change to its \
+             values after calibration cannot be detected",
+            path.display()
+        ),
+    }
+    if let Some(p) = plausibility_problem(&c) {
+        bail!("{}: {p}", path.display());
+    }
+    Ok(ordered)
 }
 
 impl CoefficientFile {

@@ -14,6 +14,7 @@ use result::Compensation;
 pub mod applied;
 pub mod coefficients;
 mod cross_check;
+pub mod fluxgate_check;
 pub mod fom;
 mod kf;
 pub mod provenance;
@@ -84,6 +85,15 @@ pub fn compensate_trace(
         }
         let w = crate::calibration::applied::check(&flight, &comp, c);
         comp.warnings.extend(w);
+        // The fluxgate against the one the coefficients were calibrated with.
+        if let Some(rec) = c.provenance.as_ref().and_then(|p| p.fluxgate.as_ref()) {
+            let cal = c
+                .fluxgate_calibration
+                .unwrap_or(crate::estimate::fluxcal::FluxgateCalibration::IDENTITY);
+            let now = fluxgate_check::record(&flight, &cal, &comp.interference_nt);
+            comp.warnings
+                .extend(fluxgate_check::applied_warnings(rec, &now));
+        }
     }
     Ok((flight, comp))
 }

@@ -40,6 +40,10 @@ pub struct Provenance {
     pub model: String,
     /// The `magcomp` that wrote the file.
     pub magcomp_version: String,
+    /// The calibration flight's fluxgate through its calibration, to check an applied
+    /// flight's fluxgate against (`fluxgate_check`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fluxgate: Option<super::fluxgate_check::FluxgateRecord>,
 }
 
 /// The running magcomp's version, as files record it.

@@ -149,6 +149,7 @@ impl TraceInput {
             flight_date: self.flight_date(Some(trace)),
             model: model.to_string(),
             magcomp_version: crate::calibration::provenance::magcomp_version(),
+            fluxgate: None,
         })
     }
 

@@ -44,8 +44,22 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
     drop(stage);
     let mut file = comp.coefficients.clone().context("no coefficients")?;
-    file.provenance = Some(a.input.provenance(&trace, &file.model)?);
-    crate::io::output::write_file(&a.output, serde_json::to_string_pretty(&file)?)?;
+    let mut provenance = a.input.provenance(&trace, &file.model)?;
+    // What this flight's fluxgate looked like, for `compensate --coeffs` to check against.
+    let record = crate::calibration::fluxgate_check::record(
+        &flight,
+        &file
+            .fluxgate_calibration
+            .unwrap_or(crate::estimate::fluxcal::FluxgateCalibration::IDENTITY),
+        &comp.interference_nt,
+    );
+    let frame_warning = crate::calibration::fluxgate_check::frame_warning(&record);
+    provenance.fluxgate = Some(record);
+    file.provenance = Some(provenance);
+    crate::io::output::write_file(
+        &a.output,
+        crate::calibration::coefficients::to_sealed_json(&file)?,
+    )?;
     let stage = crate::io::progress::Stage::new("summary figures (FOM, IR, oracle floor)");
     let mut s = summarise_with(
         &flight,
@@ -54,6 +68,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     );
     drop(stage);
     s.decimated = decimated;
+    s.warnings.extend(frame_warning);
     if let Some(p) = file.predicted_error_nt.filter(|p| *p > SURVEY_TOLERANCE_NT) {
         // The predicted error is the coefficients' uncertainty and the model error together;
         // the advice depends on which dominates.

@@ -49,6 +49,66 @@ impl FluxgateCalibration {
         magcomp_core::protocol::fluxgate::FluxCalibration::from_array(&v)
     }
 
+    /// Determinant of the matrix: negative for a left-handed frame.
+    pub fn determinant(&self) -> f64 {
+        let m = &self.matrix;
+        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+            - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
+    }
+
+    /// `None` if the calibration is one a working fluxgate can need, else what is wrong, in
+    /// words ([`MAX_BIAS_NT`], [`MAX_SCALE_ERROR`], [`MAX_NON_ORTHOGONALITY`], a
+    /// right-handed frame). A fit outside them was made from bad data (one row with
+    /// `flux_z` = 0 gave a −38,736 nT bias and a z scale of 1.75), or the axes are
+    /// swapped or negated; either way it must not reach the survey or the board.
+    pub fn physical_problem(&self) -> Option<String> {
+        let m = &self.matrix;
+        if m.iter()
+            .flatten()
+            .chain(&self.bias_nt)
+            .any(|v| !v.is_finite())
+        {
+            return Some("the fluxgate calibration has a value that is not a number".into());
+        }
+        let det = self.determinant();
+        if det <= 0.0 {
+            return Some(format!(
+                "the fluxgate calibration's matrix has determinant {det:.3}: it maps the \
+                 fluxgate to a left-handed frame (an axis negated or two axes swapped)"
+            ));
+        }
+        for (i, axis) in ["x", "y", "z"].iter().enumerate() {
+            if self.bias_nt[i].abs() > MAX_BIAS_NT {
+                return Some(format!(
+                    "the fluxgate calibration's {axis} bias is {:.0} nT, beyond the ±{MAX_BIAS_NT:.0} nT \
+                     a fluxgate and its installation can have",
+                    self.bias_nt[i]
+                ));
+            }
+            if (m[i][i] - 1.0).abs() > MAX_SCALE_ERROR {
+                return Some(format!(
+                    "the fluxgate calibration's {axis} scale is {:.4}, beyond 1 ± {MAX_SCALE_ERROR}",
+                    m[i][i]
+                ));
+            }
+            for j in (0..3).filter(|&j| j != i) {
+                if m[i][j].abs() > MAX_NON_ORTHOGONALITY {
+                    return Some(format!(
+                        "the fluxgate calibration's non-orthogonality term ({}, {}) is {:.4} \
+                         ({:.1}°), beyond {MAX_NON_ORTHOGONALITY} ({:.1}°)",
+                        i + 1,
+                        j + 1,
+                        m[i][j],
+                        m[i][j].asin().to_degrees(),
+                        MAX_NON_ORTHOGONALITY.asin().to_degrees()
+                    ));
+                }
+            }
+        }
+        None
+    }
+
     /// Largest angle (rad) between the raw and the calibrated direction over `flux`.
     pub fn max_direction_change_rad(&self, flux: &[[f64; 3]]) -> f64 {
         flux.iter()
@@ -89,6 +149,20 @@ pub struct FluxgateFit {
     pub residual_nt: Vec<f64>,
 }
 
+/// Largest fluxgate calibration bias (nT per axis) accepted. Sensor offsets are tens of nT
+/// (Bartington Mag-03: ±5 nT; aerial three-axis units: ≤ 100 nT); the rest is the
+/// aircraft's permanent field at the fluxgate, which an installation keeps to hundreds of
+/// nT and a poor one to ~1,000–2,000 nT. 5,000 nT leaves room for a bad one and still
+/// refuses what only bad data gives (−38,736 nT from one zero row).
+pub const MAX_BIAS_NT: f64 = 5_000.0;
+/// Largest |scale − 1| accepted: sensors are within ~0.5 % and soft iron in the aircraft
+/// adds ~1 %; 5 % is several times either (a zero row gave 1.75).
+pub const MAX_SCALE_ERROR: f64 = 0.05;
+/// Largest off-diagonal term accepted (≈ half the sine of the angle between two axes'
+/// departure from 90°, symmetric form): sensors are orthogonal to ≤ 0.5°; 0.05 (≈ 2.9°)
+/// is several times that plus soft iron.
+pub const MAX_NON_ORTHOGONALITY: f64 = 0.05;
+
 /// A fitted calibration is applied when the direction uncertainty it leaves is below this
 /// share of the direction correction it makes. On calibration patterns the fluxgate in the
 /// aircraft's field is turned by 2–12 mrad with 0.1 mrad uncertainty (1–2 %); on a straight
@@ -97,6 +171,14 @@ pub struct FluxgateFit {
 pub const MAX_DIRECTION_SIGMA_SHARE: f64 = 0.25;
 
 impl FluxgateFit {
+    /// The fit, if within physical bounds ([`FluxgateCalibration::physical_problem`]).
+    pub fn physical(self) -> Result<Self> {
+        match self.calibration.physical_problem() {
+            None => Ok(self),
+            Some(p) => bail!("{p}: refused (bad fluxgate data, or swapped or negated axes)"),
+        }
+    }
+
     /// The fit, if the flight's attitudes determine it ([`MAX_DIRECTION_SIGMA_SHARE`]);
     /// otherwise an error saying why.
     pub fn determined(self) -> Result<Self> {

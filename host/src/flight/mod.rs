@@ -146,7 +146,6 @@ impl Flight {
             (Some(lat_deg), Some(lon_deg)) => Some(TiePoint { lat_deg, lon_deg }),
             _ => detect_tie_point(t, &lat, &lon),
         };
-        let earth_dir_ned = att.and_then(|(r, p, y)| main_field_direction(fx, fy, fz, r, p, y));
         let mut mag_nt = mag.to_vec();
         let glitches = crate::signal::despike::glitches(&mag_nt, sample_rate_hz);
         for &i in &glitches {
@@ -156,6 +155,42 @@ impl Flight {
         if let Some(w) = glitch_warning(&glitches, mag, trace.origin.as_ref()) {
             crate::flight::position::warn_once(&w);
         }
+        // Fluxgate glitches: the row's scalar is taken as missing (nothing is learnt from
+        // it) and its vector is bridged from the neighbours, so that no regressor, rate or
+        // direction estimate sees the bad value.
+        let flux: Vec<[f64; 3]> = (0..n).map(|i| [fx[i], fy[i], fz[i]]).collect();
+        let flux_bad = crate::signal::despike::flux_glitches(&flux, &mag_nt, sample_rate_hz);
+        let (mut cfx, mut cfy, mut cfz) = (fx.to_vec(), fy.to_vec(), fz.to_vec());
+        if !flux_bad.is_empty() {
+            let usable = |i: usize| {
+                flux_bad.binary_search(&i).is_err() && flux[i].iter().all(|v| v.is_finite())
+            };
+            for &i in &flux_bad {
+                mag_nt[i] = f64::NAN;
+                samples[i].mag = None;
+                let before = (0..i).rev().find(|&j| usable(j));
+                let after = (i + 1..n).find(|&j| usable(j));
+                let v = match (before, after) {
+                    (Some(a), Some(b)) => {
+                        let w = (t[i] - t[a]) / (t[b] - t[a]);
+                        std::array::from_fn(|k| flux[a][k] + w * (flux[b][k] - flux[a][k]))
+                    }
+                    (Some(a), None) => flux[a],
+                    (None, Some(b)) => flux[b],
+                    (None, None) => [f64::NAN; 3],
+                };
+                samples[i].flux_nt = v.map(|x| x as f32);
+                (cfx[i], cfy[i], cfz[i]) = (v[0], v[1], v[2]);
+            }
+            crate::flight::position::warn_once(&flux_glitch_warning(
+                &flux_bad,
+                &flux,
+                mag,
+                trace.origin.as_ref(),
+            ));
+        }
+        let earth_dir_ned =
+            att.and_then(|(r, p, y)| main_field_direction(&cfx, &cfy, &cfz, r, p, y));
         Ok(Self {
             t_s: t.to_vec(),
             mag_nt,
@@ -417,6 +452,15 @@ impl FieldDirection {
         self.count += 1;
     }
 
+    /// Length of the mean of the per-sample directions (1 = all agree): a fluxgate that
+    /// does not turn with the INS (swapped or negated axes) gives less.
+    pub fn coherence(&self) -> Option<f64> {
+        (self.count > 0).then(|| {
+            let a = self.acc;
+            (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt() / self.count as f64
+        })
+    }
+
     pub fn finish(&self) -> Option<[f32; 3]> {
         if self.count == 0 {
             return None;
@@ -471,6 +515,42 @@ fn glitch_warning(
         msg.push_str(&format!("\n  … and {} more", rows.len() - MAX_LISTED));
     }
     Some(msg)
+}
+
+/// "trace.csv: 1 fluxgate sample(s) inconsistent …" naming the lines.
+fn flux_glitch_warning(
+    rows: &[usize],
+    flux: &[[f64; 3]],
+    mag: &[f64],
+    origin: Option<&crate::io::trace::RowOrigin>,
+) -> String {
+    const MAX_LISTED: usize = 5;
+    let file = origin.map_or("trace".to_string(), |o| o.file.clone());
+    let mut msg = format!(
+        "{file}: {} fluxgate sample(s) inconsistent with their neighbours or with the scalar \
+         (|B_F| − mag), taken as missing (samples flagged MAG_MISSING, vector bridged from \
+         the neighbours):",
+        rows.len()
+    );
+    for &r in rows.iter().take(MAX_LISTED) {
+        let at = match origin.and_then(|o| o.line(r)) {
+            Some(l) => format!("line {l}"),
+            None => format!("data row {}", r + 1),
+        };
+        let b = flux[r];
+        msg.push_str(&format!(
+            "\n  {at}: flux = ({}, {}, {}), |B_F| = {:.1}, mag = {}",
+            b[0],
+            b[1],
+            b[2],
+            (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt(),
+            mag[r]
+        ));
+    }
+    if rows.len() > MAX_LISTED {
+        msg.push_str(&format!("\n  … and {} more", rows.len() - MAX_LISTED));
+    }
+    msg
 }
 
 /// The scalar relative to its first value, with the core-field model's change removed as

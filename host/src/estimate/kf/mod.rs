@@ -550,7 +550,8 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             // `fluxcal` adds no filter state, so the first pass is the model without it.
             let mut first = run_kf_on(flight, &first_pass(opts))?;
             let fitted = fluxcal::fit_flight(flight, &first.interference_nt)
-                .and_then(fluxcal::FluxgateFit::determined);
+                .and_then(fluxcal::FluxgateFit::determined)
+                .and_then(fluxcal::FluxgateFit::physical);
             match fitted {
                 Ok(fit) => (fit.calibration, Some(fit)),
                 Err(reason) => {
