@@ -5,7 +5,9 @@
 //! the simulator's truth must stay within the bound below; every input row gets its
 //! output row, in order; the run says on stderr and in `--json` that it decimated.
 use magcomp::io::trace::write_trace;
-use magcomp::sim::{simulate, SimConfig};
+use magcomp::sim::simulate;
+
+mod common;
 use std::path::Path;
 use std::process::Command;
 
@@ -37,16 +39,7 @@ fn times(path: &Path) -> Vec<String> {
 fn decimated_calibration_costs_less_than_the_bound_and_keeps_every_row() {
     let dir = std::env::temp_dir().join(format!("magcomp-decimate-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut trace = simulate(&SimConfig {
-        seed: 3,
-        sample_rate_hz: 1000.0,
-        manoeuvre_cycles: 1,
-        level_s: 2.0,
-        manoeuvre_period_s: 4.0,
-        turn_rate_deg_s: 10.0,
-        ..SimConfig::default()
-    })
-    .unwrap();
+    let mut trace = simulate(&common::short_1khz_calibration()).unwrap();
     let n = trace.len();
     // One corrupted scalar value: the despiker takes it out before the low-pass.
     let mut mag = trace.col("mag").unwrap().to_vec();

@@ -9,6 +9,8 @@ use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{simulate, SimConfig};
+
+mod common;
 use magcomp_core::Flags;
 
 fn settings(method: Option<Method>) -> EstimatorSettings {
@@ -130,15 +132,6 @@ fn glitches_anywhere_cost_a_10_hz_calibration_little() {
 
 #[test]
 fn glitches_anywhere_cost_a_1_khz_calibration_little() {
-    let trace = simulate(&SimConfig {
-        seed: 3,
-        sample_rate_hz: 1000.0,
-        manoeuvre_cycles: 1,
-        level_s: 2.0,
-        manoeuvre_period_s: 4.0,
-        turn_rate_deg_s: 10.0,
-        ..SimConfig::default()
-    })
-    .unwrap();
+    let trace = simulate(&common::short_1khz_calibration()).unwrap();
     sweep(&trace, "1 kHz");
 }

@@ -604,11 +604,6 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
                 || self.regressor_mean_count < self.cfg.converged_window_epochs / 4
                 || self.coverage.epochs_complete() < self.cfg.converged_window_epochs;
             let level_var = (self.heading_var * inflation).max(self.level_movement_var);
-            self.level_sigma_nt = if level_var > 0.0 {
-                libm::sqrtf(level_var)
-            } else {
-                level_var.max(0.0)
-            };
             self.level_undetermined = !(level_var <= limit * limit);
             if !self.not_converged && inflation < 3.0 {
                 self.last_good[self.terms_at..self.n]

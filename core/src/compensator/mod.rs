@@ -148,9 +148,6 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// `LEVEL_UNDETERMINED` as last evaluated (held in survey mode after an in-flight
     /// calibration: the frozen coefficients keep what was not determined).
     level_undetermined: bool,
-    /// 1σ of the interference's change between headings and of its level's movement
-    /// over the last window (nT; NaN before the first evaluation).
-    level_sigma_nt: f32,
     /// Headings manoeuvred on (`NOT_CONVERGED` until all four sectors are).
     coverage: HeadingCoverage,
 }
@@ -237,7 +234,6 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             heading_var: f32::INFINITY,
             level_movement_var: f32::INFINITY,
             level_undetermined: false,
-            level_sigma_nt: f32::NAN,
             coverage: HeadingCoverage::new(),
         }
     }
@@ -355,7 +351,6 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.heading_var = f32::INFINITY;
         self.level_movement_var = f32::INFINITY;
         self.level_undetermined = false;
-        self.level_sigma_nt = f32::NAN;
         self.coverage = HeadingCoverage::new();
         Ok(())
     }
@@ -518,13 +513,6 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// evaluation (calibrate mode, every `cfg.converged_every` epochs; NaN before the first).
     pub fn interference_sigma_nt(&self) -> f32 {
         self.interference_sigma_nt
-    }
-
-    /// 1σ of what `LEVEL_UNDETERMINED` judges (nT, at the last evaluation; NaN before):
-    /// the interference's change to the other headings and its level's movement over the
-    /// last window.
-    pub fn level_sigma_nt(&self) -> f32 {
-        self.level_sigma_nt
     }
 
     /// What the last scalar fusion did (innovation, test ratio, fused or refused).

@@ -240,15 +240,11 @@ fn board_range(vals: Vec<f64>) -> Result<Vec<f32>> {
 /// The fluxgate calibration of a `calibrate --model …+fluxcal` JSON file, if it has one,
 /// as the board holds it (f32, checked plausible like `SETFLUX`).
 pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
-    let text = read_coefficient_text(path)?;
-    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+    let Some(cal) =
+        read_member::<crate::estimate::fluxcal::FluxgateCalibration>(path, "fluxgate_calibration")?
+    else {
         return Ok(None);
     };
-    let Some(c) = v.get("fluxgate_calibration").filter(|c| !c.is_null()) else {
-        return Ok(None);
-    };
-    let cal: crate::estimate::fluxcal::FluxgateCalibration = serde_json::from_value(c.clone())
-        .with_context(|| format!("fluxgate_calibration in {}", path.display()))?;
     cal.to_board().map(Some).with_context(|| {
         format!(
             "fluxgate_calibration in {} is not a plausible one (diagonal 0.5–2, off-diagonal ±0.5, bias ±100 000 nT)",
@@ -260,15 +256,13 @@ pub fn read_flux_calibration(path: &Path) -> Result<Option<FluxCalibration>> {
 /// The fluxgate temperature correction of a `calibrate --model …+fluxtemp:CH` JSON file,
 /// if it has one, as the board holds it (f32, checked plausible like `SETFTEMP`).
 pub fn read_flux_temperature(path: &Path) -> Result<Option<FluxTempCal>> {
-    let text = read_coefficient_text(path)?;
-    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
+    let Some(c) = read_member::<crate::model::corrections::FluxgateTemperature>(
+        path,
+        "fluxgate_temperature",
+    )?
+    else {
         return Ok(None);
     };
-    let Some(c) = v.get("fluxgate_temperature").filter(|c| !c.is_null()) else {
-        return Ok(None);
-    };
-    let c: crate::model::corrections::FluxgateTemperature = serde_json::from_value(c.clone())
-        .with_context(|| format!("fluxgate_temperature in {}", path.display()))?;
     board_flux_temperature(&c)
         .map(Some)
         .with_context(|| format!("fluxgate_temperature in {}", path.display()))
@@ -287,16 +281,23 @@ pub fn board_flux_temperature(
 
 /// The scalar's delay τ (s) of a `calibrate --model …+lag` JSON file, if it has one.
 pub fn read_scalar_lag(path: &Path) -> Result<Option<f64>> {
+    let lag = read_member::<crate::model::corrections::ScalarLag>(path, "scalar_lag")?;
+    Ok(lag.map(|l| l.lag_s))
+}
+
+/// Member `key` of a `calibrate` JSON file, if the file is JSON and has it (not null);
+/// a member that is there but malformed is an error naming it.
+fn read_member<T: serde::de::DeserializeOwned>(path: &Path, key: &str) -> Result<Option<T>> {
     let text = read_coefficient_text(path)?;
     let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else {
         return Ok(None);
     };
-    let Some(l) = v.get("scalar_lag").filter(|l| !l.is_null()) else {
+    let Some(m) = v.get(key).filter(|m| !m.is_null()) else {
         return Ok(None);
     };
-    let l: crate::model::corrections::ScalarLag = serde_json::from_value(l.clone())
-        .with_context(|| format!("scalar_lag in {}", path.display()))?;
-    Ok(Some(l.lag_s))
+    serde_json::from_value(m.clone())
+        .map(Some)
+        .with_context(|| format!("{key} in {}", path.display()))
 }
 
 pub fn parse_coefficients(text: &str) -> Result<Vec<f32>> {

@@ -81,3 +81,17 @@ fn run_chromium(args: &[String], profile: &Path, log: bool) -> Option<Output> {
         }
     }
 }
+
+/// A simulated 1 kHz calibration (seed 3) short enough to calibrate whole in memory: one
+/// cycle per manoeuvre, 4 s periods, 2 s levels, brisk turns.
+pub fn short_1khz_calibration() -> magcomp::sim::SimConfig {
+    magcomp::sim::SimConfig {
+        seed: 3,
+        sample_rate_hz: 1000.0,
+        manoeuvre_cycles: 1,
+        level_s: 2.0,
+        manoeuvre_period_s: 4.0,
+        turn_rate_deg_s: 10.0,
+        ..magcomp::sim::SimConfig::default()
+    }
+}
