@@ -11,9 +11,12 @@
 use magcomp::calibration::summary::{summarise, Summary};
 use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::estimate::jackknife::Estimator;
-use magcomp::io::trace::{read_trace, ColumnMap, Trace};
+use magcomp::io::trace::Trace;
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
-use std::path::PathBuf;
+
+#[path = "common/independent.rs"]
+mod independent_sim;
+use independent_sim::independent;
 
 /// What `compensate` runs by default (no `--method`).
 fn default_settings() -> EstimatorSettings {
@@ -88,35 +91,6 @@ fn an_unmodelled_scalar_lag_is_found_and_taken_out() {
     assert!(forced.error_rms_nt.unwrap() > 1.0);
     assert!(d.error_rms_nt.unwrap() < 0.05);
     assert!((0.5..=2.0).contains(&ratio(&d)), "{:.2}", ratio(&d));
-}
-
-/// An independent simulator's flight with its truth columns appended (shared data).
-fn independent(name: &str) -> Option<Trace> {
-    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/reference-data/independent-sim");
-    let lines = |f: &str| -> Option<Vec<String>> {
-        let text = std::fs::read_to_string(dir.join(f)).ok()?;
-        Some(
-            text.lines()
-                .filter(|l| !l.starts_with('#'))
-                .map(str::to_owned)
-                .collect(),
-        )
-    };
-    let (data, truth) = (
-        lines(&format!("{name}.csv"))?,
-        lines(&format!("{name}.truth.csv"))?,
-    );
-    let merged: Vec<String> = data
-        .iter()
-        .zip(&truth)
-        .map(|(d, t)| format!("{d},{}", t.split_once(',').map_or("", |x| x.1)))
-        .collect();
-    let path = std::env::temp_dir().join(format!("magcomp-cross-check-{name}.csv"));
-    std::fs::write(&path, merged.join("\n")).ok()?;
-    let trace = read_trace(&path, &ColumnMap::new()).expect("read");
-    let _ = std::fs::remove_file(&path);
-    Some(trace)
 }
 
 #[test]

@@ -48,6 +48,9 @@ fn page_has_every_plot_and_the_comparison() {
         "spectrum-1",
         "fom-1",
         "coefficients-1",
+        // Issue 20: the band-passed measurement with the direct fit over it.
+        "direct-0",
+        "direct-1",
     ] {
         assert!(
             ids.iter().any(|i| i == want),
@@ -66,6 +69,12 @@ fn page_has_every_plot_and_the_comparison() {
         "each model's section states the calibration's predicted error"
     );
     assert!(html.contains("current:cur_pump"));
+    // Each candidate's witnesses, and the verdict they rest on.
+    assert!(html.contains("evidence for each candidate") && html.contains("rests on"));
+    assert!(
+        html.contains("Verdict: suggestion: --model"),
+        "the named term's verdict"
+    );
     // The failure window is shaded on the residual plot (a window label with nT).
     assert!(html.contains("class=\"window\""), "no failure window drawn");
     assert!(html.len() < 2_000_000, "page is {} bytes", html.len());

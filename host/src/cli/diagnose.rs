@@ -39,6 +39,11 @@ pub struct DiagnoseArgs {
     /// (UNCOMPMAG*, COMPMAG*, mag_*), base stations, fluxgates and constant columns.
     #[arg(long, value_name = "GLOB,...")]
     pub aux: Option<String>,
+    /// A channel holding the field without this sensor's interference, e.g. `mag_1_c` (a
+    /// compensated stinger): the measurement minus it, where the anomaly cancels, is one
+    /// more witness for each candidate (the `ref` column).
+    #[arg(long, value_name = "COLUMN")]
+    pub reference: Option<String>,
     /// Family-wise false-positive rate over all candidates.
     #[arg(long, default_value_t = 0.01)]
     pub alpha: f64,
@@ -67,6 +72,7 @@ impl DiagnoseArgs {
             json: false,
             report: None,
             aux: None,
+            reference: None,
             alpha: 0.01,
             min_explained: 0.15,
             iterate: false,
@@ -151,6 +157,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         alpha: args.alpha,
         min_explained: args.min_explained,
         aux,
+        reference: args.reference.clone(),
         ..Default::default()
     };
     if args.iterate {

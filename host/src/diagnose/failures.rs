@@ -126,6 +126,7 @@ pub fn residual_spectrum(e: &[f64], fs: f64) -> (Vec<f64>, Vec<f64>) {
     (f, p)
 }
 
+/// Every octave band's residual power over the model's predicted power (from 0.01 Hz).
 pub(crate) fn band_failures(e: &[f64], sd: &[f64], fs: f64) -> Vec<BandFailure> {
     let (f, p) = residual_spectrum(e, fs);
     if f.len() < 8 {
@@ -146,13 +147,11 @@ pub(crate) fn band_failures(e: &[f64], sd: &[f64], fs: f64) -> Vec<BandFailure> 
             .collect();
         if !sel.is_empty() {
             let excess = sel.iter().sum::<f64>() / sel.len() as f64 / level;
-            if excess > 3.0 {
-                out.push(BandFailure {
-                    f_lo_hz: lo,
-                    f_hi_hz: hi,
-                    excess,
-                });
-            }
+            out.push(BandFailure {
+                f_lo_hz: lo,
+                f_hi_hz: hi,
+                excess,
+            });
         }
         lo = hi;
     }

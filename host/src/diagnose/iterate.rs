@@ -135,6 +135,7 @@ pub fn iterate(
             .iter()
             .find(|c| c.significant)
             .map(|c| c.term.clone());
+        let d_verdict = d.verdict();
         let push = |added: Option<String>| {
             steps.push(IterationStep {
                 step,
@@ -145,7 +146,7 @@ pub fn iterate(
         };
         let Some(term) = next else {
             push(None);
-            break "no candidate is significant: the model explains the data".to_string();
+            break d_verdict;
         };
         if step >= max_steps {
             push(None);

@@ -15,38 +15,46 @@
 //! simulated flights its residual holds a genuine ~0.005 nT misfit that behaves like a
 //! scalar lag (−τ·dB/dt; `rate` explains up to 10.7 % of the residual over 40 seeds) and is
 //! "significant" by any test that counts 7000 samples.
+//!
+//! The innovations are not the only witness (`evidence.rs`): what the anomaly states can
+//! absorb leaves them almost untouched, so a candidate is material when any of the
+//! innovations (held out), the band-passed measurement regressed directly, the measurement
+//! minus a reference channel (`--reference`) or a refit of the whole model (its parts come
+//! to agree, the output moves) carries it. The table says which. "The model explains the
+//! data" is said only when the mean NIS and every band's power are within
+//! [`EXPLAINED_FACTOR`] of what the model expects (`Diagnosis::verdict`).
 
 pub mod candidates;
 pub mod custom;
 mod effect_tests;
+pub mod evidence;
 mod failures;
 pub mod holdout;
 mod identifiability;
 pub mod iterate;
 mod lag_detector;
+mod ranking;
 mod regression;
+mod table;
+mod workspace;
 
+pub use evidence::Refit;
 pub use failures::residual_spectrum;
 pub use iterate::{iterate, Iteration, IterationStep};
 
-use crate::estimate::corrections::run_kf;
-use crate::estimate::innovations::{filter_columns, FieldSettings};
-use crate::estimate::kf::{estimate_sigma1_for, KfOptions, KfRun, DEFAULT_SIGMA1};
-use crate::flight::{scalar_relative_nt, Flight};
+use crate::estimate::kf::KfRun;
+use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::spec::{ModelSpec, TermSpec};
-use crate::signal::stats::{chi2_sf, lag1_autocorr, median};
-use anyhow::{bail, Context, Result};
-use effect_tests::{
-    calibrated_trace, explained_of, fluxcal_test, fluxtemp_test, rate_crossover_test,
-};
+use crate::signal::stats::median;
+use anyhow::{Context, Result};
 use failures::{band_failures, segment_stats, time_failures};
-use magcomp_core::model::catalog::{info, AnyTerm, ChannelUse, CATALOG};
+use magcomp_core::model::catalog::{AnyTerm, ChannelUse, CATALOG};
 use magcomp_core::model::Term;
-use regression::{
-    build_columns, build_columns_with, fit_map, nested_test, usable_rows, Block, ColTerm,
-};
+use regression::ColTerm;
 use serde::Serialize;
+use std::collections::HashMap;
+use workspace::{CandidateSpec, Tested, Workspace};
 
 /// A term that is not (yet) in the core catalogue, tested alongside it: how a user checks
 /// a new physical effect before pasting it into `core/src/model` (docs/adding-an-effect.md).
@@ -82,6 +90,9 @@ pub struct DiagnoseOptions {
     /// Which auxiliary columns are candidates (`--aux`); None: all but navigation, time,
     /// identifiers, other magnetometers, fluxgates and constants (`candidates`).
     pub aux: Option<candidates::AuxSelection>,
+    /// A channel holding the field without this sensor's interference (`--reference
+    /// mag_1_c`, a compensated stinger): the measurement minus it is a further witness.
+    pub reference: Option<String>,
 }
 
 impl Default for DiagnoseOptions {
@@ -93,6 +104,7 @@ impl Default for DiagnoseOptions {
             ar_order: 10,
             min_fluxcal_change_nt: 0.01,
             aux: None,
+            reference: None,
         }
     }
 }
@@ -158,6 +170,46 @@ pub struct Candidate {
     pub heldout_explained_fraction: Option<f64>,
     /// Held-out residual rms after adding it (nT): the predicted error fall.
     pub heldout_rms_after_nt: Option<f64>,
+    /// Held-out share of the band-passed (0.1–0.9 Hz) measurement it removes beyond the
+    /// model's columns, regressed directly with no anomaly states (`evidence.rs`).
+    pub band_heldout_fraction: Option<f64>,
+    /// The same on the measurement minus the `--reference` channel.
+    pub reference_heldout_fraction: Option<f64>,
+    /// The whole model refitted with it: predicted error before/after, output change.
+    pub refit: Option<Refit>,
+    /// With `fluxcal`/`fluxtemp`: the change correcting the fluxgate makes (nT rms).
+    pub fluxgate_change_nt: Option<f64>,
+    /// The witnesses it was tested by (`innovations`, `band`, `reference`, `refit`,
+    /// `fluxgate`, `crossovers`).
+    pub evidence_tested: Vec<String>,
+    /// The witnesses that found it material: what the verdict rests on.
+    pub evidence: Vec<String>,
+}
+
+impl Candidate {
+    /// A candidate not yet tested: nothing explained, not significant.
+    fn new(term: &str, effect: &str, residual_rms_nt: f64) -> Self {
+        Self {
+            term: term.to_string(),
+            effect: effect.to_string(),
+            explained_fraction: 0.0,
+            residual_rms_after_nt: residual_rms_nt,
+            significant: false,
+            material: false,
+            added_parameters: 0,
+            f_statistic: 0.0,
+            p_value: 1.0,
+            excitation_nt: None,
+            heldout_explained_fraction: None,
+            heldout_rms_after_nt: None,
+            band_heldout_fraction: None,
+            reference_heldout_fraction: None,
+            refit: None,
+            fluxgate_change_nt: None,
+            evidence_tested: Vec::new(),
+            evidence: Vec::new(),
+        }
+    }
 }
 
 /// A candidate this flight cannot determine: listed, not tested or ranked.
@@ -178,6 +230,19 @@ pub struct DiagnosisSeries {
     pub residual_nt: Vec<f64>,
     /// Its predicted standard deviation √S, nT.
     pub predicted_sd_nt: Vec<f64>,
+    /// The band-passed measurement and its direct fit by the model's columns and the
+    /// named candidate's (`evidence.rs`), for the report's plot.
+    pub direct_fit: Option<DirectFit>,
+}
+
+/// The band-passed measurement regressed directly: the target and its fit (nT, NaN
+/// outside the regression's rows).
+#[derive(Clone, Debug, Default)]
+pub struct DirectFit {
+    /// The candidate fitted beside the model's columns (None: the model's alone).
+    pub term: Option<String>,
+    pub target_nt: Vec<f64>,
+    pub fitted_nt: Vec<f64>,
 }
 
 /// Everything `diagnose` finds.
@@ -189,10 +254,20 @@ pub struct Diagnosis {
     pub candidates: Vec<Candidate>,
     /// Candidates the flight cannot determine (not ranked).
     pub untestable: Vec<Untestable>,
+    /// Bands whose residual power exceeds [`EXPLAINED_FACTOR`] × the model's.
     pub bands: Vec<BandFailure>,
+    /// The largest band power ratio (residual / model), every band counted.
+    pub band_excess_max: f64,
     pub segments: Vec<SegmentStat>,
     /// Mean normalised innovation squared over the flight.
     pub nis: f64,
+    /// No pattern (neither labelled segments nor detected manoeuvres): a survey line,
+    /// where slow interference can hide in the anomaly.
+    pub straight_line: bool,
+    /// The band-passed measurement's rms and what the model's columns leave of it (nT).
+    pub band_rms_nt: Option<(f64, f64)>,
+    /// The `--reference` channel, when one was given.
+    pub reference: Option<String>,
     #[serde(skip)]
     pub series: DiagnosisSeries,
     #[serde(skip)]
@@ -203,89 +278,6 @@ impl Diagnosis {
     /// The JSON object of `magcomp diagnose --json`.
     pub fn to_json(&self) -> String {
         serde_json::to_string_pretty(self).unwrap_or_else(|e| format!("{{\"error\":\"{e}\"}}"))
-    }
-
-    /// The ranked table a person reads.
-    pub fn table(&self) -> String {
-        use std::fmt::Write;
-        let mut s = String::new();
-        let _ = writeln!(
-            s,
-            "model {}: residual rms {:.4} nT, mean NIS {:.2} (1 = as the model expects)",
-            self.model, self.residual_rms_nt, self.nis
-        );
-        if self.failures.is_empty() {
-            let _ = writeln!(s, "no time window stands out");
-        } else {
-            let _ = writeln!(s, "where it fails:");
-            for f in &self.failures {
-                let _ = writeln!(
-                    s,
-                    "  {:>8.1}–{:<8.1} s  rms {:>8.4} nT  {}",
-                    f.t_start, f.t_end, f.rms_nt, f.label
-                );
-            }
-        }
-        for b in &self.bands {
-            let _ = writeln!(
-                s,
-                "  band {:.3}–{:.3} Hz: {:.1}× the model's predicted power",
-                b.f_lo_hz, b.f_hi_hz, b.excess
-            );
-        }
-        let _ = writeln!(s, "candidate terms (best first):");
-        let _ = writeln!(
-            s,
-            "  {:<4} {:<24} {:>9} {:>9} {:>12} {:>4} {:>9} {:>9} {:>7}  effect",
-            "rank", "term", "explained", "held-out", "rms after nT", "dof", "F", "p", "signif."
-        );
-        for (i, c) in self.candidates.iter().enumerate() {
-            let _ = writeln!(
-                s,
-                "  {:<4} {:<24} {:>8.1}% {:>9} {:>12.4} {:>4} {:>9.1} {:>9.1e} {:>7}  {}",
-                i + 1,
-                c.term,
-                100.0 * c.explained_fraction,
-                c.heldout_explained_fraction
-                    .map_or("—".to_string(), |h| format!("{:.1}%", 100.0 * h)),
-                c.heldout_rms_after_nt.unwrap_or(c.residual_rms_after_nt),
-                c.added_parameters,
-                c.f_statistic,
-                c.p_value,
-                if c.significant {
-                    "YES"
-                } else if !c.material {
-                    "small"
-                } else {
-                    "no"
-                },
-                c.effect
-            );
-        }
-        if self.candidates.iter().any(|c| !c.material) {
-            let _ = writeln!(
-                s,
-                "  (small: explains less than the materiality bar, whatever its p; judged on held-out manoeuvres where shown)"
-            );
-        }
-        if !self.untestable.is_empty() {
-            let _ = writeln!(s, "not testable on this flight (not ranked):");
-            for u in &self.untestable {
-                let _ = writeln!(s, "  {:<29} {}", u.term, u.reason);
-            }
-        }
-        match self.candidates.iter().find(|c| c.significant) {
-            Some(c) => {
-                let _ = writeln!(s, "suggestion: --model \"{}+{}\"", self.model, c.term);
-            }
-            None => {
-                let _ = writeln!(
-                    s,
-                    "no candidate is significant: the model explains the data"
-                );
-            }
-        }
-        s
     }
 }
 
@@ -390,6 +382,10 @@ fn prior_sigma_of(c: &ColTerm) -> Vec<f64> {
 /// rms before `fluxmod` is a candidate ([`effect_tests::fluxgate_own_field_ratio`]).
 pub const FLUXMOD_MIN_OWN_FIELD_RATIO: f64 = 5.0;
 
+/// A model "explains the data" only when its mean NIS and every band's residual power are
+/// within this factor of what it expects.
+pub const EXPLAINED_FACTOR: f64 = 2.0;
+
 /// Diagnoses `trace` under `model`.
 pub fn diagnose(trace: &Trace, model: &ModelSpec, opts: &DiagnoseOptions) -> Result<Diagnosis> {
     diagnose_with(trace, model, opts, &[])
@@ -403,9 +399,51 @@ pub fn diagnose_with(
     extra: &[ExtraTerm],
 ) -> Result<Diagnosis> {
     let flight = Flight::from_trace(trace, &model.channels(), &model.relative_channels())?;
-    let run = run_kf(&flight, &KfOptions::new(model.clone()))?;
-    let n = flight.len();
-    let fs = flight.sample_rate_hz;
+    let run = evidence::calibrated(&flight, model)?;
+    let cand_specs = candidate_specs(trace, model, opts, extra, &flight, &run)?;
+    let ws = Workspace::build(trace, flight, model, opts, run, &cand_specs)?;
+    let mut candidates = Vec::new();
+    let mut untestable = Vec::new();
+    let mut cand_cols: HashMap<String, Vec<usize>> = HashMap::new();
+    let mut bi = model.terms.len();
+    for (text, spec) in &cand_specs {
+        let tested = match spec {
+            Some(ct) => {
+                bi += 1;
+                let t = ws.test_regressor(text, ct, bi - 1);
+                if matches!(t, Tested::Ranked(_)) {
+                    cand_cols.insert(text.clone(), ws.blocks[bi - 1].idx.clone());
+                }
+                t
+            }
+            None if text == "field" => ws.test_field(),
+            None => ws.test_fluxgate(text)?,
+        };
+        match tested {
+            Tested::Ranked(c) => candidates.push(*c),
+            Tested::Untestable(u) => untestable.push(u),
+        }
+    }
+    if let Some(c) = recalibration_candidate(&ws, &cand_cols) {
+        candidates.push(c);
+    }
+    for c in &mut candidates {
+        ranking::judge(c, opts, ws.m);
+    }
+    ranking::refit_candidates(&ws, &mut candidates);
+    ranking::rank(&ws, &mut candidates, &cand_cols);
+    Ok(conclude(ws, candidates, untestable, &cand_cols))
+}
+
+/// The candidates of a diagnosis, each with how it is tested (`workspace::CandidateSpec`).
+fn candidate_specs<'a>(
+    trace: &Trace,
+    model: &ModelSpec,
+    opts: &DiagnoseOptions,
+    extra: &'a [ExtraTerm],
+    flight: &Flight,
+    run: &KfRun,
+) -> Result<Vec<CandidateSpec<'a>>> {
     let mut cand_texts = candidate_terms_with(trace, model, opts.aux.as_ref());
     // `fluxmod` (|B_F| − |B|) holds the scalar itself, so against any residual it soaks up
     // part of a missing effect (23 % of a hidden pump current): it is offered only where
@@ -413,16 +451,16 @@ pub fn diagnose_with(
     // unexplained (a real survey aircraft's fluxgate: 31 nT after calibration against a
     // 3.7 nT residual; our simulator's: its 0.5 nT noise).
     if !model.terms.iter().any(|t| t.name == "fluxmod")
-        && effect_tests::fluxgate_own_field_ratio(&flight, &run)
+        && effect_tests::fluxgate_own_field_ratio(flight, run)
             .is_some_and(|r| r >= FLUXMOD_MIN_OWN_FIELD_RATIO)
     {
         cand_texts.push("fluxmod".into());
     }
-    let mut cand_specs: Vec<(String, Option<ColTerm>)> = Vec::new();
+    let mut specs: Vec<CandidateSpec> = Vec::new();
     for c in &cand_texts {
         if c == "field" || c == "fluxcal" || c.starts_with("fluxtemp:") {
-            // Not regressors: each changes the filter's input or its states (below).
-            cand_specs.push((c.clone(), None));
+            // Not regressors: each changes the filter's input or its states.
+            specs.push((c.clone(), None));
         } else {
             let spec = ModelSpec::parse(c)?;
             let t = spec
@@ -432,7 +470,7 @@ pub fn diagnose_with(
                 .context("internal: empty candidate")?;
             // `lag` is a delay (no regressors): it is detected by its first-order form.
             let extra = (t.name == "lag").then_some(&lag_detector::LAG_DETECTOR);
-            cand_specs.push((c.clone(), Some(ColTerm { spec: t, extra })));
+            specs.push((c.clone(), Some(ColTerm { spec: t, extra })));
         }
     }
     for x in extra {
@@ -449,7 +487,7 @@ pub fn diagnose_with(
                 name: x.name.to_string(),
                 channel: ch,
             };
-            cand_specs.push((
+            specs.push((
                 spec.text(),
                 Some(ColTerm {
                     spec,
@@ -458,383 +496,121 @@ pub fn diagnose_with(
             ));
         }
     }
-    let mut all_terms: Vec<ColTerm> = model
-        .terms
-        .iter()
-        .map(|t| ColTerm {
-            spec: t.clone(),
-            extra: None,
-        })
-        .collect();
-    for (_, c) in &cand_specs {
-        if let Some(c) = c {
-            all_terms.push(ColTerm {
-                spec: c.spec.clone(),
-                extra: c.extra,
-            });
-        }
-    }
-    // Every regressor column and its innovations are held in memory (f64): refuse what
-    // would not fit rather than thrash (1 h at 1 kHz with 20 candidates ≈ 40 GB).
-    let total_cols: usize = all_terms
-        .iter()
-        .map(|c| match c.extra {
-            Some(x) => (x.make)(0).len(),
-            None => AnyTerm::make(&c.spec.name, 0).map_or(0, |t| t.len()),
-        })
-        .sum::<usize>()
-        + 1;
-    let values = 2 * n * total_cols;
-    if values > MAX_VALUES {
-        bail!(
-            "the trace is too large to diagnose at once ({n} rows × {total_cols} columns): \
-             split it into flights or resample it to ≤ 20 Hz"
-        );
-    }
-    // With `lag`/`fluxtemp` in the model the scalar and the regressors are those of the
-    // prepared flight (re-aligned scalar, temperature-corrected fluxgate).
-    let (original_trace, original_flight) = (trace, flight.clone());
-    let prepared;
-    let (trace, flight) = match &run.preprocessing {
-        Some(p) => {
-            prepared = crate::estimate::corrections::apply_to_trace(trace, p, fs)?;
-            let f = Flight::from_trace(&prepared, &model.channels(), &model.relative_channels())?;
-            (&prepared, f)
-        }
-        None => (trace, flight),
-    };
-    // With `fluxcal` in the model every regressor is built from the calibrated fluxgate.
-    let calibrated;
-    let trace = match &run.fluxgate_calibration {
-        Some(cal) => {
-            calibrated = calibrated_trace(trace, cal)?;
-            &calibrated
-        }
-        None => trace,
-    };
-    let tc = build_columns(trace, &all_terms, fs)?;
-    // The same columns from the INS attitude's field direction: what attitude drives.
-    let tc_att = build_columns_with(trace, &all_terms, fs, true)?;
-    let base_att: Vec<&[f64]> = tc_att.cols[..model.terms.len()]
-        .iter()
-        .flatten()
-        .map(|c| c.as_slice())
-        .collect();
-    // Column 0: the scalar relative to its first value, core-field change removed.
-    let y = scalar_relative_nt(&flight);
-    let mut columns: Vec<&[f64]> = vec![&y];
-    let mut blocks: Vec<Block> = Vec::new();
-    for (ti, t) in all_terms.iter().map(|c| &c.spec).enumerate() {
-        let start = columns.len();
-        for c in &tc.cols[ti] {
-            columns.push(c);
-        }
-        let _ = t;
-        blocks.push(Block {
-            idx: (start..columns.len()).collect(),
-        });
-    }
-    let n_model = model.terms.len();
-    let base_idx: Vec<usize> = blocks[..n_model]
-        .iter()
-        .flat_map(|b| b.idx.clone())
-        .collect();
-    let settings = FieldSettings {
-        sigma1: model.field.then_some(run.sigma1),
-        noise_nt: run.noise_nt,
-    };
-    let inn = filter_columns(&tc.geometry, &columns, settings);
-    let rows = usable_rows(&inn.cols, &inn.var_nt2);
-    if rows.len() < 100 {
-        bail!("only {} usable samples: too few to diagnose", rows.len());
-    }
-    let sd: Vec<f64> = rows.iter().map(|&k| inn.var_nt2[k].sqrt()).collect();
-    let (e0w, rss0w, _, _) = fit_map(&inn.cols, &rows, &base_idx, &[]);
-    // A candidate's coefficients are fitted against their prior, as the filter fits them
-    // (penalty = noise / σ², the maximum a posteriori fit): on real aircraft an unpenalised
-    // fit explained 68 % of a calibration box's residual with the cubic induced term at
-    // ~22,000 nT (prior 1σ 50) against the permanent coefficients moved ~57,000 nT, a fit no
-    // run of the model reaches, and the next box came out worse. The model's own
-    // coefficients stay as the data put them (the filter is not judged here).
-    let noise_w2 = rss0w / rows.len() as f64;
-    let mut penalty = vec![0.0; inn.cols.len()];
-    for (ct, b) in all_terms.iter().zip(&blocks).skip(n_model) {
-        for (&c, sigma) in b.idx.iter().zip(prior_sigma_of(ct)) {
-            if sigma.is_finite() && sigma > 0.0 {
-                penalty[c] = noise_w2 / (sigma * sigma);
-            }
-        }
-    }
-    let e0: Vec<f64> = e0w.iter().zip(&sd).map(|(a, s)| a * s).collect();
-    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let residual_rms = rms(&e0);
-    let folds = holdout::folds(&flight, &rows);
+    Ok(specs)
+}
 
-    // Candidates.
-    let m = cand_specs.len().max(1) as f64;
-    let mut candidates = Vec::new();
-    let mut untestable = Vec::new();
-    let mut bi = n_model;
-    let mut cand_cols: std::collections::HashMap<String, Vec<usize>> = Default::default();
-    for (text, spec) in &cand_specs {
-        // For candidates tested on the fluxgate: the change they make to the compensation.
-        let mut fluxgate_change: Option<f64> = None;
-        let mut excitation_nt: Option<f64> = None;
-        let mut heldout: Option<f64> = None;
-        let (effect, explained, after, q, f, p) = match spec {
-            Some(ct) => {
-                let b = &blocks[bi];
-                let cand_att: Vec<&[f64]> = tc_att.cols[bi].iter().map(|c| c.as_slice()).collect();
-                bi += 1;
-                let name = text.split(':').next().unwrap_or(text);
-                let effect = match ct.extra {
-                    Some(x) => x.effect,
-                    None => info(name).map(|i| i.effect).unwrap_or(""),
-                };
-                excitation_nt = identifiability::candidate_excitation_nt(
-                    &base_att,
-                    &cand_att,
-                    &prior_sigma_of(ct),
-                    fs,
-                    ct.spec.channel.is_some(),
-                );
-                let floor = crate::estimate::excitation::EXCITATION_FLOOR_NT;
-                // Environment terms (`diurnal`) are not driven by manoeuvres: the field
-                // states, not the attitude, separate them.
-                let environment = AnyTerm::make(name, 0).is_some_and(|t| !t.is_interference());
-                if let Some(x) = excitation_nt.filter(|x| *x < floor && !environment) {
-                    untestable.push(Untestable {
-                        term: text.clone(),
-                        effect: effect.to_string(),
-                        reason: format!(
-                            "not excited: a prior-1σ change moves the manoeuvre-band interference by {x:.4} nT beyond the model's own terms (< {floor} nT); fly roll, pitch and yaw manoeuvres on four headings"
-                        ),
-                        excitation_nt,
-                    });
-                    continue;
-                }
-                cand_cols.insert(text.clone(), b.idx.clone());
-                let mut full = base_idx.clone();
-                full.extend_from_slice(&b.idx);
-                // Explained share in the whitened domain (what the test sees: samples
-                // weighted by the model's own predicted variance).
-                let (_, rss1w, _, _) = fit_map(&inn.cols, &rows, &full, &penalty);
-                let explained = if rss0w > 0.0 {
-                    (1.0 - rss1w / rss0w).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let after = residual_rms * (1.0 - explained).sqrt();
-                let (f, p, q) = nested_test(&inn.cols, &rows, &base_idx, &b.idx, opts.ar_order);
-                heldout = Some(holdout::heldout_explained(
-                    &inn.cols, &rows, &folds, &base_idx, &b.idx, &penalty,
-                ));
-                if name == "rate" {
-                    // On one pass `rate` is a shift of the anomaly along the track, which the
-                    // residual cannot show (issue 4): only crossovers test it.
-                    match rate_crossover_test(&flight, &run, residual_rms, effect) {
-                        Some(t) => t,
-                        None => {
-                            untestable.push(Untestable {
-                                term: text.clone(),
-                                effect: effect.to_string(),
-                                reason: "no crossovers: on single passes the term is a shift of the anomaly along the track; it is tested only where lines cross".into(),
-                                excitation_nt,
-                            });
-                            continue;
-                        }
-                    }
-                } else {
-                    (effect.to_string(), explained, after, q, f, p)
-                }
-            }
-            None if text == "fluxcal" || text.starts_with("fluxtemp:") => {
-                let t = match text.strip_prefix("fluxtemp:") {
-                    Some(ch) => fluxtemp_test(original_trace, &flight, model, &run, ch)?,
-                    None => fluxcal_test(&flight, &original_flight, model, &run)?,
-                };
-                fluxgate_change = Some(t.change_nt);
-                // The scalar residual hardly moves (a TL fit hides a bent fluxgate), so the
-                // share reported and ranked is the compensation change's variance relative
-                // to the residual's: comparable with the other candidates' shares, and
-                // small when another, larger misfit is what moves the compensation.
-                // When the calibration does not fit the fluxgate down to its noise, another
-                // effect drives the change: no share is claimed.
-                let share = if residual_rms > 0.0 && t.fits_to_noise {
-                    (t.change_nt / residual_rms).powi(2).min(1.0)
-                } else {
-                    0.0
-                };
-                let q = if text == "fluxcal" { 9 } else { 6 };
-                (t.effect, share, residual_rms, q, t.f, t.p)
-            }
-            None => {
-                // `field` changes the filter itself, not the regressors: rerun it with
-                // field states (σ1 from the along-track spectrum) and compare residuals.
-                let s1 =
-                    estimate_sigma1_for(&flight, &run.interference_nt).unwrap_or(DEFAULT_SIGMA1);
-                let inn_f = filter_columns(
-                    &tc.geometry,
-                    &columns,
-                    FieldSettings {
-                        sigma1: Some(s1),
-                        noise_nt: run.noise_nt,
-                    },
-                );
-                let rows_f: Vec<usize> = {
-                    let r = usable_rows(&inn_f.cols, &inn_f.var_nt2);
-                    r.into_iter()
-                        .filter(|k| rows.binary_search(k).is_ok())
-                        .collect()
-                };
-                let (e1w, _, _, _) = fit_map(&inn_f.cols, &rows_f, &base_idx, &penalty);
-                let e1: Vec<f64> = e1w
-                    .iter()
-                    .zip(&rows_f)
-                    .map(|(a, &k)| a * inn_f.var_nt2[k].sqrt())
-                    .collect();
-                let after = rms(&e1);
-                let e0_sub: Vec<f64> = rows_f
-                    .iter()
-                    .filter_map(|k| rows.binary_search(k).ok().map(|i| e0[i]))
-                    .collect();
-                let before = rms(&e0_sub);
-                // Not nested in the linear sense: an approximate F with the 5 field states
-                // as parameters and the effective sample count from the lag-1 correlation.
-                let rho = lag1_autocorr(&e1).clamp(-0.99, 0.99);
-                let n_eff = (e1.len() as f64 * (1.0 - rho) / (1.0 + rho)).max(10.0);
-                let q = 5usize;
-                let rss0 = before * before;
-                let rss1 = after * after;
-                let f = if rss1 > 0.0 {
-                    ((rss0 - rss1).max(0.0) / q as f64) / (rss1 / n_eff)
-                } else {
-                    0.0
-                };
-                let p = chi2_sf(f * q as f64, q as f64);
-                (
-                    "geological anomaly and its vertical gradient (the paper's 5 field states): slowly varying field along the track".to_string(),
-                    explained_of(before, after),
-                    after,
-                    q,
-                    f,
-                    p,
-                )
-            }
-        };
-        // Judged held out where it can be: a term that fits geology or noise in-sample
-        // does not keep its share on manoeuvres it was not fitted on. (`rate` tested at
-        // crossovers keeps the crossover fit's share.)
-        let heldout = heldout.filter(|_| !text.starts_with("rate"));
-        let material = heldout.unwrap_or(explained) >= opts.min_explained
-            && fluxgate_change.is_none_or(|c| c >= opts.min_fluxcal_change_nt);
-        candidates.push(Candidate {
-            term: text.clone(),
-            effect,
-            explained_fraction: explained,
-            residual_rms_after_nt: after,
-            significant: p < opts.alpha / m && material,
-            material,
-            added_parameters: q,
-            f_statistic: f,
-            p_value: p,
-            excitation_nt,
-            heldout_explained_fraction: heldout,
-            heldout_rms_after_nt: heldout.map(|h| residual_rms * (1.0 - h).max(0.0).sqrt()),
-        });
-    }
-    // Significant first; then by explained share penalised for the parameters added
-    // (BIC): a 6-parameter term that explains 0.1 % more than a 1-parameter one nested in
-    // it is not the better explanation.
-    let n_rows = rows.len() as f64;
-    // In-sample shares rank (the closest explanation first, even when it is not
-    // recommended): what is recommended was already judged held out.
-    // What a term adds to the model, not to the test: `lag` is detected through 9
-    // first-order columns but added as one delay τ. Counted as its test's rank, a lagged
-    // pump current's first-order form (`current_rate`, 3) won the parsimony rule below
-    // against the delay that explains the current's part and the attitude's (seed 4).
-    let parameters = |c: &Candidate| {
-        if c.term == "lag" {
-            1
-        } else {
-            c.added_parameters
-        }
-    };
-    let bic = |c: &Candidate| {
-        n_rows * (1.0 / (1.0 - c.explained_fraction).max(1e-12)).ln()
-            - parameters(c) as f64 * n_rows.ln()
-    };
-    candidates.sort_by(|a, b| {
-        b.significant
-            .cmp(&a.significant)
-            .then(bic(b).total_cmp(&bic(a)))
-    });
-    // Parsimony: if a significant candidate with fewer parameters leaves the leader nothing
-    // material to add (< min_explained of what remains), the smaller one is the better
-    // explanation (e.g. a 1-regressor lag inside the 6-regressor rate term's span).
-    for _ in 0..3 {
-        let Some(top) = candidates.first() else { break };
-        let Some(top_idx) = cand_cols.get(&top.term) else {
-            break;
-        };
-        let mut best: Option<usize> = None;
-        for (j, c) in candidates.iter().enumerate().skip(1) {
-            if !c.significant || parameters(c) >= parameters(top) {
-                continue;
-            }
-            let Some(ci) = cand_cols.get(&c.term) else {
-                continue;
-            };
-            let mut with_c = base_idx.clone();
-            with_c.extend_from_slice(ci);
-            let (_, rss_c, _, _) = fit_map(&inn.cols, &rows, &with_c, &penalty);
-            with_c.extend_from_slice(top_idx);
-            let (_, rss_ct, _, _) = fit_map(&inn.cols, &rows, &with_c, &penalty);
-            let inc = if rss_c > 0.0 {
-                1.0 - rss_ct / rss_c
-            } else {
-                0.0
-            };
-            if inc < opts.min_explained && best.is_none_or(|b| bic(c) > bic(&candidates[b])) {
-                best = Some(j);
-            }
-        }
-        match best {
-            Some(j) => {
-                let c = candidates.remove(j);
-                candidates.insert(0, c);
-            }
-            None => break,
-        }
-    }
+/// The deviation groups a fresh calibration fits.
+const DEVIATION_GROUPS: [&str; 3] = ["permanent", "induced", "eddy"];
 
-    // Where it fails.
-    let t_rows: Vec<f64> = rows.iter().map(|&k| flight.t_s[k]).collect();
-    let nis_k: Vec<f64> = e0.iter().zip(&sd).map(|(e, s)| (e / s).powi(2)).collect();
+/// With an applied calibration checked (the model diagnosed holds none of the deviation
+/// terms), the whole deviation model refitted on the flight is one more candidate: how
+/// much a fresh calibration would remove, which no single group shows when the
+/// coefficients are off in several at once.
+fn recalibration_candidate(
+    ws: &Workspace,
+    cand_cols: &HashMap<String, Vec<usize>>,
+) -> Option<Candidate> {
+    let groups: Option<Vec<&Vec<usize>>> =
+        DEVIATION_GROUPS.iter().map(|g| cand_cols.get(*g)).collect();
+    let idx: Vec<usize> = groups?.into_iter().flatten().copied().collect();
+    let mut c = ws.regressor_candidate(
+        RECALIBRATE,
+        "the whole deviation model (permanent + induced + eddy) refitted on this flight: \
+         what a fresh calibration would remove that the applied coefficients leave",
+        &idx,
+    );
+    c.excitation_nt = None;
+    Some(c)
+}
+
+/// The candidate that stands for a fresh calibration.
+pub const RECALIBRATE: &str = "recalibrate";
+
+/// Where the model fails, and the diagnosis.
+fn conclude(
+    ws: Workspace,
+    candidates: Vec<Candidate>,
+    untestable: Vec<Untestable>,
+    cand_cols: &HashMap<String, Vec<usize>>,
+) -> Diagnosis {
+    let flight = &ws.flight;
+    let n = flight.len();
+    let t_rows: Vec<f64> = ws.rows.iter().map(|&k| flight.t_s[k]).collect();
+    let nis_k: Vec<f64> = ws
+        .e0
+        .iter()
+        .zip(&ws.sd)
+        .map(|(e, s)| (e / s).powi(2))
+        .collect();
     let nis = nis_k.iter().sum::<f64>() / nis_k.len() as f64;
-    let failures = time_failures(&flight, &t_rows, &e0, opts.window_s);
-    let bands = band_failures(&e0, &sd, fs);
-    let segments = segment_stats(&flight, &rows, &e0, &nis_k);
+    let failures = time_failures(flight, &t_rows, &ws.e0, ws.opts.window_s);
+    let all_bands = band_failures(&ws.e0, &ws.sd, flight.sample_rate_hz);
+    let band_excess_max = all_bands.iter().map(|b| b.excess).fold(0.0, f64::max);
+    let bands = all_bands
+        .into_iter()
+        .filter(|b| b.excess > EXPLAINED_FACTOR)
+        .collect();
+    let segments = segment_stats(flight, &ws.rows, &ws.e0, &nis_k);
     let mut residual_full = vec![f64::NAN; n];
     let mut sd_full = vec![f64::NAN; n];
-    for (i, &k) in rows.iter().enumerate() {
-        residual_full[k] = e0[i];
-        sd_full[k] = sd[i];
+    for (i, &k) in ws.rows.iter().enumerate() {
+        residual_full[k] = ws.e0[i];
+        sd_full[k] = ws.sd[i];
     }
-    Ok(Diagnosis {
-        model: model.text(),
-        residual_rms_nt: residual_rms,
+    let top = candidates.iter().find(|c| c.significant);
+    let direct_fit = ws.band.as_ref().map(|band| {
+        let idx: Vec<usize> = Vec::new();
+        let (target_nt, fitted_nt) = band.fit_series(&idx);
+        DirectFit {
+            term: None,
+            target_nt,
+            fitted_nt,
+        }
+    });
+    let direct_fit = match (top, &ws.band) {
+        (Some(c), Some(band)) => match band_columns_of(cand_cols, &c.term) {
+            Some(idx) => {
+                let (target_nt, fitted_nt) = band.fit_series(&idx);
+                Some(DirectFit {
+                    term: Some(c.term.clone()),
+                    target_nt,
+                    fitted_nt,
+                })
+            }
+            None => direct_fit,
+        },
+        _ => direct_fit,
+    };
+    let band_rms_nt = ws.band.as_ref().map(|b| b.rms_nt());
+    Diagnosis {
+        model: ws.model.text(),
+        residual_rms_nt: ws.residual_rms,
         failures,
         candidates,
         untestable,
         bands,
+        band_excess_max,
         segments,
         nis,
+        straight_line: holdout::folds(flight, &ws.rows).source == "time",
+        band_rms_nt,
+        reference: ws.opts.reference.clone(),
         series: DiagnosisSeries {
             t_s: flight.t_s.clone(),
             residual_nt: residual_full,
             predicted_sd_nt: sd_full,
+            direct_fit,
         },
-        run,
-    })
+        run: ws.run,
+    }
+}
+
+/// The columns of a regressor candidate by its text (None for the others).
+fn band_columns_of(cand_cols: &HashMap<String, Vec<usize>>, term: &str) -> Option<Vec<usize>> {
+    if term == RECALIBRATE {
+        let groups: Option<Vec<&Vec<usize>>> =
+            DEVIATION_GROUPS.iter().map(|g| cand_cols.get(*g)).collect();
+        return Some(groups?.into_iter().flatten().copied().collect());
+    }
+    cand_cols.get(term).cloned()
 }

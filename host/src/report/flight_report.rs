@@ -100,15 +100,14 @@ pub fn build_report(
     // One line per model: what the diagnosis says, so the page answers the question first.
     for r in &results {
         let verdict = match r.diag.candidates.iter().find(|c| c.significant) {
-            Some(c) => format!(
-                "missing effect: {} explains {:.0} % of the residual ({}); try --model \"{}+{}\"",
+            Some(c) if c.term != crate::diagnose::RECALIBRATE => format!(
+                "missing effect: {} explains {:.0} % of the residual ({}); {}",
                 c.term,
                 100.0 * c.explained_fraction,
                 c.effect,
-                r.spec.text(),
-                c.term
+                r.diag.verdict()
             ),
-            None => "no candidate term is significant: the model explains the data".into(),
+            _ => r.diag.verdict(),
         };
         let err = r
             .error_nt
@@ -357,6 +356,7 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
     if let Some(c) = crossover_section(flight, run, i, &title) {
         sections.push(c);
     }
+    sections.push(super::evidence::evidence_section(flight, d, i, &title));
 
     // Spectra.
     let mut spec = Section::new(&format!("Model {title}: spectra"));

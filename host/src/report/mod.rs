@@ -17,6 +17,7 @@
 //! min and max sample per pixel column, so a 1 h 10 Hz line is a few tens of kB.
 
 pub mod calibration;
+mod evidence;
 pub mod flight_report;
 mod html;
 mod plot;
