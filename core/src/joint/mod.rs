@@ -226,6 +226,26 @@ impl<const N: usize> JointFilter<N> {
             })
     }
 
+    /// Holds a combination of sensor `j`'s coefficients at its present value (as
+    /// [`crate::compensator::Compensator::hold_coefficient_combination`]: `w` in prior-σ
+    /// units, measured unchanged with a variance of 1e-6 of the prior). False if `w` does
+    /// not fit the block or is not finite.
+    pub fn hold_combination(&mut self, j: usize, w: &[f32]) -> bool {
+        if j >= self.sensors || w.len() != self.coef_len[j] || w.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+        let mut h = [0.0f32; N];
+        let at = self.coef_at[j];
+        h[at..at + w.len()].copy_from_slice(w);
+        let z = self.filter.predict(&h[..self.n]);
+        let norm2: f32 = w.iter().map(|v| v * v).sum();
+        matches!(
+            self.filter
+                .update_gated(&h[..self.n], z, 1e-6 * norm2.max(1e-12), |_, _| false),
+            Some(Ok(_))
+        )
+    }
+
     /// The prediction of sensor `j`'s sample (anomaly + level difference + interference).
     pub fn predict_measurement(&self, j: usize, dh_m: f32, phys: &[f32]) -> f32 {
         let mut h = [0.0f32; N];
