@@ -3,32 +3,34 @@
 //! The anomaly is common to every sensor (to first order in their separation); the
 //! aircraft's interference is each sensor's own. The state is
 //!
-//! `[5 shared field states | S−1 level differences | sensor 0's coefficients | … | sensor S−1's]`
+//! `[5 field states, the cross-track gradient g_y (with a lateral sensor) | c_1, sensor 1's
+//! coefficients | … | sensor S−1's]` (sensor 0's block has no c)
 //!
 //! and each sensor's scalar sample is one scalar measurement update whose `h` holds the
 //! field part and that sensor's regressors (zeros elsewhere). With independent sensor
 //! noises, S sequential scalar updates are exactly the joint S-vector update, so the
 //! existing Bierman update serves unchanged.
 //!
-//! The anomaly at sensor j (offset `x_j` forward, `z_j` down from sensor 0, body frame):
-//! `B_h + x_j·∂B_h/∂s + x_j²/2·∂²B_h/∂s² + B_z·(dh − z_j) + δ_j`. The along-track and
-//! vertical parts are the field states themselves; what they leave (the cross-track
-//! gradient × the lateral offset, and each sensor's own unobservable constant, model.md §2)
-//! is the level difference `δ_j`: a random walk along the track whose intensity the caller
-//! sets from the separation (a lateral gradient that varies over the field's correlation
-//! length). Sensor 0 carries no `δ`: the common level is the anomaly's.
+//! The anomaly at sensor j, whose offset from sensor 0 is `a` along the track, `c` across
+//! it (starboard) and `d` down at this instant (the body offset turned by the attitude:
+//! a wingtip 8 m out rises and falls 1.4 m in a 10° roll):
+//! `B_h + a·∂B_h/∂s + a²/2·∂²B_h/∂s² + B_z·(dh − d) + c·g_y + c_j`.
+//! The along-track and vertical parts are the paper's field states themselves; the
+//! cross-track gradient `g_y`, shared by every sensor, is a random walk along the track
+//! (its intensity set by the caller from the anomaly's roughness); `c_j` is sensor j's own
+//! constant, unobservable alone (model.md §2), a static state. Sensor 0 has no `c`: the
+//! common level is the anomaly's.
 //!
-//! The difference states move, so they sit in the dynamic block after the field states:
-//! 5 + (S − 1) ≤ [`MAX_DYNAMIC`] allows [`MAX_SENSORS`] = 4. Their process noise is a
-//! second time update with Φ = I (two successive updates (Φ, Q₁) then (I, Q₂) are the one
-//! update (Φ, Q₁ + Q₂)), so [`MAX_NOISE`] stays 5 and the board's single-sensor cost does
-//! not change. Fixed size, no heap, f32.
+//! `g_y` moves, so it sits in the dynamic block after the field states (6 ≤
+//! [`MAX_DYNAMIC`]); its process noise is a second time update with Φ = I (two successive
+//! updates (Φ, Q₁) then (I, Q₂) are the one update (Φ, Q₁ + Q₂)), so [`MAX_NOISE`] stays 5
+//! and the board's single-sensor path does not change. Fixed size, no heap, f32.
 
 use crate::filter::field::{FieldProcess, FIELD_STATES};
 use crate::filter::ud::{Innovation, UdFilter, MAX_DYNAMIC, MAX_NOISE};
 
-/// Most sensors one joint filter holds (5 field + 3 difference states = [`MAX_DYNAMIC`]).
-pub const MAX_SENSORS: usize = MAX_DYNAMIC - FIELD_STATES + 1;
+/// Most sensors one joint filter holds (`mag_1` … `mag_8`).
+pub const MAX_SENSORS: usize = 8;
 
 /// Why a joint filter could not be built.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,33 +39,45 @@ pub enum JointError {
     Sensors(usize),
     /// The states do not fit the capacity `N`.
     TooManyStates { needed: usize, capacity: usize },
-    /// A prior, offset or noise that is not finite (or a 1σ that is not positive).
+    /// A prior or noise that is not finite (or a 1σ that is not positive).
     BadConfig,
 }
 
 /// One sensor's part of the joint filter.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct JointSensor<'a> {
-    /// Offset from sensor 0 in the body frame (x forward, y starboard, z down), metres.
-    pub offset_m: [f32; 3],
     /// Prior mean and 1σ of each coefficient (physical units, the model's order).
     pub prior_mean: &'a [f32],
     pub prior_sigma: &'a [f32],
-    /// Prior 1σ of the level difference to sensor 0 (nT; unused for sensor 0): each
-    /// sensor's constant is unobservable on its own, so this is wide.
+    /// Prior 1σ of its constant against sensor 0 (nT; unused for sensor 0): each sensor's
+    /// constant is unobservable on its own, so this is wide.
     pub level_prior_nt: f32,
-    /// Random-walk intensity of the level difference (nT²/m of track; unused for sensor 0).
-    pub difference_q_nt2_per_m: f32,
 }
 
-/// The joint filter: shared field states, per-sensor level differences and coefficients.
+/// Where a sensor is at one instant, relative to sensor 0 (metres): along the track,
+/// across it (starboard) and down.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Placement {
+    pub along_m: f32,
+    pub across_m: f32,
+    pub down_m: f32,
+}
+
+/// The cross-track gradient's random walk: prior 1σ (nT/m) and intensity (nT²/m³).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LateralGradient {
+    pub prior_nt_per_m: f32,
+    pub q_nt2_per_m3: f32,
+}
+
+/// The joint filter: shared field states (and cross-track gradient), per-sensor constants
+/// and coefficients.
 #[derive(Clone, Debug)]
 pub struct JointFilter<const N: usize> {
     filter: UdFilter<N>,
     field: FieldProcess,
+    lateral: Option<LateralGradient>,
     sensors: usize,
-    offset_m: [[f32; 3]; MAX_SENSORS],
-    difference_q: [f32; MAX_SENSORS],
     coef_at: [usize; MAX_SENSORS],
     coef_len: [usize; MAX_SENSORS],
     scale: [f32; N],
@@ -72,19 +86,28 @@ pub struct JointFilter<const N: usize> {
 }
 
 impl<const N: usize> JointFilter<N> {
-    /// A filter for `sensors` (sensor 0 first) over the anomaly process `field`.
-    pub fn new(field: FieldProcess, sensors: &[JointSensor]) -> Result<Self, JointError> {
+    /// A filter for `sensors` (sensor 0 first) over the anomaly process `field`; with
+    /// `lateral`, the cross-track gradient is a state.
+    pub fn new(
+        field: FieldProcess,
+        lateral: Option<LateralGradient>,
+        sensors: &[JointSensor],
+    ) -> Result<Self, JointError> {
         let s = sensors.len();
         if s == 0 || s > MAX_SENSORS {
             return Err(JointError::Sensors(s));
         }
-        let n_dyn = FIELD_STATES + s - 1;
+        let n_dyn = FIELD_STATES + usize::from(lateral.is_some());
+        debug_assert!(n_dyn <= MAX_DYNAMIC);
         let mut coef_at = [0usize; MAX_SENSORS];
         let mut coef_len = [0usize; MAX_SENSORS];
         let mut at = n_dyn;
         for (j, sensor) in sensors.iter().enumerate() {
             if sensor.prior_mean.len() != sensor.prior_sigma.len() {
                 return Err(JointError::BadConfig);
+            }
+            if j > 0 {
+                at += 1; // c_j
             }
             coef_at[j] = at;
             coef_len[j] = sensor.prior_mean.len();
@@ -100,24 +123,23 @@ impl<const N: usize> JointFilter<N> {
         let mut scale = [1.0f32; N];
         let mut x0 = [0.0f32; N];
         scale[..FIELD_STATES].copy_from_slice(&field.scale);
-        let mut offset_m = [[0.0f32; 3]; MAX_SENSORS];
-        let mut difference_q = [0.0f32; MAX_SENSORS];
+        if let Some(l) = lateral {
+            scale[FIELD_STATES] = l.prior_nt_per_m;
+            if !(l.q_nt2_per_m3.is_finite() && l.q_nt2_per_m3 >= 0.0) {
+                return Err(JointError::BadConfig);
+            }
+        }
         for (j, sensor) in sensors.iter().enumerate() {
-            offset_m[j] = sensor.offset_m;
             if j > 0 {
-                scale[FIELD_STATES + j - 1] = sensor.level_prior_nt;
-                difference_q[j] = sensor.difference_q_nt2_per_m;
+                scale[coef_at[j] - 1] = sensor.level_prior_nt;
             }
             for i in 0..coef_len[j] {
                 scale[coef_at[j] + i] = sensor.prior_sigma[i];
                 x0[coef_at[j] + i] = sensor.prior_mean[i] / sensor.prior_sigma[i];
             }
         }
-        let finite = |v: &f32| v.is_finite();
         if scale[..n].iter().any(|v| !(v.is_finite() && *v > 0.0))
-            || !x0[..n].iter().all(finite)
-            || !offset_m.iter().flatten().all(finite)
-            || difference_q.iter().any(|q| !(q.is_finite() && *q >= 0.0))
+            || !x0[..n].iter().all(|v| v.is_finite())
         {
             return Err(JointError::BadConfig);
         }
@@ -125,9 +147,8 @@ impl<const N: usize> JointFilter<N> {
         Ok(Self {
             filter,
             field,
+            lateral,
             sensors: s,
-            offset_m,
-            difference_q,
             coef_at,
             coef_len,
             scale,
@@ -151,7 +172,7 @@ impl<const N: usize> JointFilter<N> {
     }
 
     /// Time update over `ds_m` metres of track: the field's dynamics (model.md §3) and the
-    /// level differences' random walks. None without movement.
+    /// cross-track gradient's random walk. None without movement.
     pub fn predict(&mut self, ds_m: f32, field_noise_scale: f32) {
         if !(ds_m > 0.0 && ds_m.is_finite()) {
             return;
@@ -164,8 +185,8 @@ impl<const N: usize> JointFilter<N> {
             *v *= field_noise_scale;
         }
         self.filter.time_update(self.n_dyn, &phi, &g, &dq);
-        if self.sensors > 1 {
-            // Φ = I: only the differences' noise (the field's was added above).
+        if let Some(l) = self.lateral {
+            // Φ = I: only the gradient's noise (the field's was added above).
             for (i, row) in phi.iter_mut().enumerate() {
                 for (k, v) in row.iter_mut().enumerate() {
                     *v = if i == k { 1.0 } else { 0.0 };
@@ -174,30 +195,30 @@ impl<const N: usize> JointFilter<N> {
             for col in g.iter_mut() {
                 *col = [0.0; MAX_DYNAMIC];
             }
-            let q = self.sensors - 1;
-            for k in 0..q {
-                let at = FIELD_STATES + k;
-                g[k][at] = 1.0;
-                dq[k] = self.difference_q[k + 1] * ds_m / (self.scale[at] * self.scale[at]);
-            }
-            self.filter.time_update(self.n_dyn, &phi, &g, &dq[..q]);
+            let at = FIELD_STATES;
+            g[0][at] = 1.0;
+            let q = [l.q_nt2_per_m3 * ds_m / (self.scale[at] * self.scale[at])];
+            self.filter.time_update(self.n_dyn, &phi, &g, &q);
         }
     }
 
-    /// The scaled measurement row of sensor `j` at height `dh_m` above `h0` with the
-    /// physical regressors `phys` of its terms.
-    fn row(&self, j: usize, dh_m: f32, phys: &[f32], h: &mut [f32; N]) {
+    /// The scaled measurement row of sensor `j` at `place`, height `dh_m` above `h0`, with
+    /// the physical regressors `phys` of its terms.
+    fn row(&self, j: usize, place: Placement, dh_m: f32, phys: &[f32], h: &mut [f32; N]) {
         *h = [0.0; N];
-        let [x, _, z] = self.offset_m[j];
-        let dh = if dh_m.is_finite() { dh_m - z } else { 0.0 };
-        let field_h = [1.0, x, 0.5 * x * x, dh, 0.0];
+        let a = place.along_m;
+        let dh = if dh_m.is_finite() { dh_m } else { 0.0 } - place.down_m;
+        let field_h = [1.0, a, 0.5 * a * a, dh, 0.0];
         for k in 0..FIELD_STATES {
             h[k] = field_h[k] * self.scale[k];
         }
-        if j > 0 {
-            h[FIELD_STATES + j - 1] = self.scale[FIELD_STATES + j - 1];
+        if self.lateral.is_some() {
+            h[FIELD_STATES] = place.across_m * self.scale[FIELD_STATES];
         }
         let at = self.coef_at[j];
+        if j > 0 {
+            h[at - 1] = self.scale[at - 1];
+        }
         for i in 0..self.coef_len[j].min(phys.len()) {
             h[at + i] = phys[i] * self.scale[at + i];
         }
@@ -206,9 +227,11 @@ impl<const N: usize> JointFilter<N> {
     /// One sensor's scalar sample `z_nt` (relative to its own first value) with noise
     /// variance `r_nt2`; rejected (filter untouched, `Err`) when the innovation is beyond
     /// `gate_sigma` of its predicted 1σ (0 = no gate). `None`: bad input.
+    #[allow(clippy::too_many_arguments)]
     pub fn update(
         &mut self,
         j: usize,
+        place: Placement,
         dh_m: f32,
         phys: &[f32],
         z_nt: f32,
@@ -219,7 +242,7 @@ impl<const N: usize> JointFilter<N> {
             return None;
         }
         let mut h = [0.0f32; N];
-        self.row(j, dh_m, phys, &mut h);
+        self.row(j, place, dh_m, phys, &mut h);
         self.filter
             .update_gated(&h[..self.n], z_nt, r_nt2, |nu, s| {
                 gate_sigma > 0.0 && nu * nu > gate_sigma * gate_sigma * s
@@ -246,13 +269,6 @@ impl<const N: usize> JointFilter<N> {
         )
     }
 
-    /// The prediction of sensor `j`'s sample (anomaly + level difference + interference).
-    pub fn predict_measurement(&self, j: usize, dh_m: f32, phys: &[f32]) -> f32 {
-        let mut h = [0.0f32; N];
-        self.row(j, dh_m, phys, &mut h);
-        self.filter.predict(&h[..self.n])
-    }
-
     /// Sensor `j`'s coefficients (physical units) into `out`; returns how many.
     pub fn coefficients(&self, j: usize, out: &mut [f32]) -> usize {
         let (at, len) = (self.coef_at[j], self.coef_len[j]);
@@ -270,27 +286,30 @@ impl<const N: usize> JointFilter<N> {
         self.filter.covariance(ia, ib) * self.scale[ia] * self.scale[ib]
     }
 
-    /// The anomaly at sensor `j` as the filter has it (nT, relative to sensor 0's first
-    /// value), with its level difference.
-    pub fn anomaly_nt(&self, j: usize, dh_m: f32) -> f32 {
-        let x = self.filter.state();
-        let [ox, _, oz] = self.offset_m[j];
-        let dh = if dh_m.is_finite() { dh_m - oz } else { 0.0 };
-        let s = &self.scale;
-        let mut a = x[0] * s[0] + ox * x[1] * s[1] + 0.5 * ox * ox * x[2] * s[2] + dh * x[3] * s[3];
-        if j > 0 {
-            let d = FIELD_STATES + j - 1;
-            a += x[d] * s[d];
-        }
-        a
+    /// The anomaly at sensor `j` at `place` as the filter has it (nT, relative to sensor
+    /// 0's first value), with the sensor's constant.
+    pub fn anomaly_nt(&self, j: usize, place: Placement, dh_m: f32) -> f32 {
+        let mut h = [0.0f32; N];
+        self.row(j, place, dh_m, &[], &mut h);
+        self.filter.predict(&h[..self.n])
     }
 
-    /// Sensor `j`'s level difference to sensor 0 and its 1σ (nT); (0, 0) for sensor 0.
-    pub fn difference_nt(&self, j: usize) -> (f32, f32) {
+    /// The cross-track gradient and its 1σ (nT/m), when it is a state.
+    pub fn lateral_gradient(&self) -> Option<(f32, f32)> {
+        self.lateral?;
+        let i = FIELD_STATES;
+        Some((
+            self.filter.state()[i] * self.scale[i],
+            libm::sqrtf(self.filter.variance(i).max(0.0)) * self.scale[i],
+        ))
+    }
+
+    /// Sensor `j`'s constant against sensor 0 and its 1σ (nT); (0, 0) for sensor 0.
+    pub fn level_nt(&self, j: usize) -> (f32, f32) {
         if j == 0 || j >= self.sensors {
             return (0.0, 0.0);
         }
-        let d = FIELD_STATES + j - 1;
+        let d = self.coef_at[j] - 1;
         (
             self.filter.state()[d] * self.scale[d],
             libm::sqrtf(self.filter.variance(d).max(0.0)) * self.scale[d],
@@ -323,29 +342,37 @@ mod tests {
         let (m0, s0) = ([1.0f32, -2.0, 0.5], [10.0f32, 10.0, 10.0]);
         let sensors = [
             JointSensor {
-                offset_m: [0.0; 3],
                 prior_mean: &m0,
                 prior_sigma: &s0,
                 level_prior_nt: 1.0,
-                difference_q_nt2_per_m: 0.0,
             },
             JointSensor {
-                offset_m: [-3.0, 8.0, 0.5],
                 prior_mean: &m0,
                 prior_sigma: &s0,
                 level_prior_nt: 50.0,
-                difference_q_nt2_per_m: 1e-4,
             },
         ];
-        let mut f = JointFilter::<16>::new(field(), &sensors).unwrap();
+        let lat = Some(LateralGradient {
+            prior_nt_per_m: 0.5,
+            q_nt2_per_m3: 1e-4,
+        });
+        let mut f = JointFilter::<16>::new(field(), lat, &sensors).unwrap();
         f.predict(60.0, 1.0);
+        let (p0, p1) = (
+            Placement::default(),
+            Placement {
+                along_m: -3.0,
+                across_m: 8.0,
+                down_m: 0.5,
+            },
+        );
         let p = dense(f.filter());
         let x: Vec<f64> = f.filter().state().iter().map(|v| *v as f64).collect();
         let n = f.state_count();
         let (phys_a, phys_b) = ([0.3f32, -0.7, 0.6], [0.5f32, 0.2, -0.8]);
         let mut h = [[0.0f32; 16]; 2];
-        f.row(0, 12.0, &phys_a, &mut h[0]);
-        f.row(1, 12.0, &phys_b, &mut h[1]);
+        f.row(0, p0, 12.0, &phys_a, &mut h[0]);
+        f.row(1, p1, 12.0, &phys_b, &mut h[1]);
         let (z, r) = ([5.0f64, -3.0], [0.04f64, 0.09]);
         // Batch: K = P Hᵀ (H P Hᵀ + R)⁻¹.
         let hp: Vec<Vec<f64>> = (0..2)
@@ -383,10 +410,10 @@ mod tests {
                     .map(|a| (0..2).map(|b| hp[a][i] * si[a][b] * hp[b][j]).sum::<f64>())
                     .sum::<f64>()
         };
-        f.update(0, 12.0, &phys_a, z[0] as f32, r[0] as f32, 0.0)
+        f.update(0, p0, 12.0, &phys_a, z[0] as f32, r[0] as f32, 0.0)
             .unwrap()
             .unwrap();
-        f.update(1, 12.0, &phys_b, z[1] as f32, r[1] as f32, 0.0)
+        f.update(1, p1, 12.0, &phys_b, z[1] as f32, r[1] as f32, 0.0)
             .unwrap()
             .unwrap();
         let ps = dense(f.filter());
@@ -404,40 +431,54 @@ mod tests {
         }
     }
 
-    /// A shared anomaly with no interference: both sensors see it, sensor 1 offset by a
-    /// constant; the difference state finds the offset, the field states the anomaly.
+    /// A shared anomaly with no interference: sensor 1, 10 m to starboard, sees it with a
+    /// constant offset and a cross-track gradient; the filter finds both.
     #[test]
-    fn the_difference_state_takes_the_offset_between_sensors() {
+    fn the_constant_and_the_lateral_gradient_are_found() {
         let m = [0.0f32; 1];
         let s = [1.0f32; 1];
         let sensors = [
             JointSensor {
-                offset_m: [0.0; 3],
                 prior_mean: &m,
                 prior_sigma: &s,
                 level_prior_nt: 1.0,
-                difference_q_nt2_per_m: 0.0,
             },
             JointSensor {
-                offset_m: [0.0, 10.0, 0.0],
                 prior_mean: &m,
                 prior_sigma: &s,
                 level_prior_nt: 1000.0,
-                difference_q_nt2_per_m: 1e-6,
             },
         ];
-        let mut f = JointFilter::<16>::new(field(), &sensors).unwrap();
+        let lat = Some(LateralGradient {
+            prior_nt_per_m: 1.0,
+            q_nt2_per_m3: 1e-8,
+        });
+        let mut f = JointFilter::<16>::new(field(), lat, &sensors).unwrap();
+        let p1 = |k: usize| Placement {
+            along_m: 0.0,
+            across_m: 10.0 + 2.0 * libm::sinf(k as f32 * 0.3),
+            down_m: 0.0,
+        };
         for k in 0..2000 {
             let a = 5.0 * libm::sinf(k as f32 * 0.01);
             f.predict(6.0, 1.0);
-            f.update(0, 0.0, &[0.0], a, 1e-4, 0.0);
-            f.update(1, 0.0, &[0.0], a + 250.0, 1e-4, 0.0);
+            f.update(0, Placement::default(), 0.0, &[0.0], a, 1e-4, 0.0);
+            f.update(
+                1,
+                p1(k),
+                0.0,
+                &[0.0],
+                a + 250.0 + 0.3 * p1(k).across_m,
+                1e-4,
+                0.0,
+            );
         }
-        let (d, sd) = f.difference_nt(1);
-        assert!((d - 250.0).abs() < 0.05 && sd < 0.1, "{d} ± {sd}");
+        let (c, sc) = f.level_nt(1);
+        let (g, sg) = f.lateral_gradient().unwrap();
+        assert!((c - 250.0).abs() < 0.1 && sc < 0.5, "{c} ± {sc}");
+        assert!((g - 0.3).abs() < 0.01 && sg < 0.05, "{g} ± {sg}");
         let a = 5.0 * libm::sinf(1999.0 * 0.01);
-        assert!((f.anomaly_nt(0, 0.0) - a).abs() < 0.05);
-        assert!((f.anomaly_nt(1, 0.0) - a - 250.0).abs() < 0.05);
+        assert!((f.anomaly_nt(0, Placement::default(), 0.0) - a).abs() < 0.05);
         assert!(f.filter().is_healthy());
     }
 
@@ -446,25 +487,27 @@ mod tests {
         let m = [0.0f32; 16];
         let s = [1.0f32; 16];
         let one = JointSensor {
-            offset_m: [0.0; 3],
             prior_mean: &m,
             prior_sigma: &s,
             level_prior_nt: 1.0,
-            difference_q_nt2_per_m: 0.0,
         };
         assert_eq!(
-            JointFilter::<64>::new(field(), &[one; 5]).unwrap_err(),
-            JointError::Sensors(5)
+            JointFilter::<64>::new(field(), None, &[one; 9]).unwrap_err(),
+            JointError::Sensors(9)
         );
         assert!(matches!(
-            JointFilter::<32>::new(field(), &[one; 2]).unwrap_err(),
+            JointFilter::<32>::new(field(), None, &[one; 2]).unwrap_err(),
             JointError::TooManyStates { needed: 38, .. }
         ));
+        let lat = Some(LateralGradient {
+            prior_nt_per_m: 1.0,
+            q_nt2_per_m3: 0.0,
+        });
         assert_eq!(
-            JointFilter::<80>::new(field(), &[one; 4])
+            JointFilter::<80>::new(field(), lat, &[one; 4])
                 .unwrap()
                 .state_count(),
-            72
+            6 + 3 + 64
         );
     }
 }

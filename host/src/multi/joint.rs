@@ -14,14 +14,14 @@ use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::{CompensatorConfig, GROUND_SPEED_MPS};
 use magcomp_core::epoch::{EpochBuilder, EpochConfig};
 use magcomp_core::filter::FieldProcess;
-use magcomp_core::joint::{JointFilter, JointSensor, MAX_SENSORS};
+use magcomp_core::joint::{JointFilter, JointSensor, LateralGradient, Placement, MAX_SENSORS};
 
-/// Host capacity: 5 field + 3 differences + 4 × (16 + up to 14 model-term) coefficients.
-pub const JOINT_STATES: usize = 128;
+/// Host capacity: 6 field + 4 × (1 + 16 + up to 14 model-term) coefficients.
+pub const JOINT_STATES: usize = 136;
 type HostJoint = JointFilter<JOINT_STATES>;
 
-/// A sensor whose position is not known is taken this far (m) across the track from the
-/// first: the cabin sensors of the SGL Caravan are 1–3 m apart, the wingtips ~10 m.
+/// A sensor whose position is not known is taken this far (m) to starboard of the first:
+/// the cabin sensors of the SGL Caravan are 1–3 m apart, a wingtip ~10 m.
 pub const UNKNOWN_SEPARATION_M: f64 = 5.0;
 
 /// Innovation gate (σ), as the single-sensor filter's default.
@@ -41,9 +41,43 @@ pub struct SensorResult {
     /// coefficients, covariance and predicted error) and per-sample output.
     pub joint: Compensation,
     pub predicted_error_nt: Option<f64>,
+    /// The joint estimate is this sensor's result: its predicted error (covariance,
+    /// jackknife, model error; no truth) is at most the alone calibration's. Otherwise the
+    /// alone calibration is kept, with a warning ([`SensorResult::chosen`]).
+    pub joint_chosen: bool,
     /// Error against the simulator's truth (nT rms, mean removed), alone and joint.
     pub truth_error_alone_nt: Option<f64>,
     pub truth_error_joint_nt: Option<f64>,
+}
+
+impl SensorResult {
+    /// The result kept for this sensor: the joint one, or the alone one where the flight's
+    /// own evidence says the joint one is worse.
+    pub fn chosen(&self) -> &Compensation {
+        if self.joint_chosen {
+            &self.joint
+        } else {
+            &self.alone
+        }
+    }
+
+    /// Its predicted error (nT).
+    pub fn chosen_predicted_nt(&self) -> Option<f64> {
+        if self.joint_chosen {
+            self.predicted_error_nt
+        } else {
+            self.alone.coefficients.as_ref()?.predicted_error_nt
+        }
+    }
+
+    /// Its error against the simulator's truth (nT).
+    pub fn chosen_truth_error_nt(&self) -> Option<f64> {
+        if self.joint_chosen {
+            self.truth_error_joint_nt
+        } else {
+            self.truth_error_alone_nt
+        }
+    }
 }
 
 /// The joint run over all sensors.
@@ -73,10 +107,14 @@ struct Prepared {
     ds_m: Vec<f32>,
     dh_m: Vec<f32>,
     noise_nt: Vec<f64>,
-    offsets_m: Vec<[f32; 3]>,
-    difference_q: Vec<f32>,
+    /// Per sensor, per sample: where it is relative to sensor 0.
+    places: Vec<Vec<Placement>>,
+    lateral: Option<LateralGradient>,
     held: Vec<Vec<Vec<f32>>>,
     field: FieldProcess,
+    /// Per-sample multiplier of the field's process noise (the anomaly process chosen by
+    /// the joint innovation likelihood; 1 = stationary).
+    field_profile: Vec<f64>,
 }
 
 /// One forward pass: final coefficients and their covariance per sensor, per-sample anomaly
@@ -87,6 +125,8 @@ struct Pass {
     anomaly: Vec<Vec<f64>>,
     innovation: Vec<Vec<f64>>,
     healthy: bool,
+    /// Innovation negative log-likelihood of the pass (Σ ν²/s + ln s over the updates).
+    nll: f64,
 }
 
 fn alone_settings(est: &EstimatorSettings) -> EstimatorSettings {
@@ -123,6 +163,10 @@ pub fn calibrate_joint(
         .collect::<Result<_>>()?;
     let flights = prepare_flights(&alone, &files, est)?;
     let prepared = prepare(&flights, &files, sensors)?;
+    let mut prepared = prepared;
+    adapt_noise(&mut prepared)?;
+    let label = choose_field_process(&mut prepared, &flights[0], &alone[0].1)?;
+    adapt_noise(&mut prepared)?;
     let full = pass(&prepared, None)?;
     // The flight's own evidence, as the single-sensor calibration (model.md §5b).
     let span = crate::estimate::excitation::airborne_span(&flights[0]);
@@ -195,7 +239,7 @@ pub fn calibrate_joint(
         file.predicted_error_nt = predicted;
         file.cross_check = None;
         file.rate_crossover = None;
-        file.field_process = Some("stationary (joint)".into());
+        file.field_process = Some(label.clone());
         let own_band = crate::qc::figures::band_rms_nt(flight, &compensated_nt);
         file.predicted_band_rms_nt = band_jk
             .filter(|_| own_band.is_finite())
@@ -228,7 +272,25 @@ pub fn calibrate_joint(
             band_jackknife_nt: band_jk,
             withheld: None,
         };
+        let alone_predicted = files[j].predicted_error_nt;
+        let joint_chosen = match (predicted, alone_predicted) {
+            (Some(p), Some(a)) => p <= a,
+            (Some(_), None) => true,
+            _ => false,
+        };
+        let mut alone_j = alone_j;
+        if !joint_chosen {
+            alone_j.warnings.push(format!(
+                "{}: the joint calibration predicts {} nT against {} nT alone: the sensor's \
+                 own calibration is kept (the anomaly differences between the sensors hold \
+                 more than the joint model describes)",
+                s.name,
+                predicted.map_or("?".into(), |p| format!("{p:.4}")),
+                alone_predicted.map_or("?".into(), |p| format!("{p:.4}")),
+            ));
+        }
         results.push(SensorResult {
+            joint_chosen,
             spec: s.clone(),
             alone: alone_j,
             joint,
@@ -401,32 +463,27 @@ fn prepare(
         prior_sigma.push(ps);
         z.push(zj);
     }
-    // Offsets from sensor 0; an unknown position is UNKNOWN_SEPARATION_M across the track.
+    // Body offsets from sensor 0; an unknown position is UNKNOWN_SEPARATION_M to starboard.
     let p0 = sensors[0].position_m;
-    let offsets_m: Vec<[f32; 3]> = sensors
+    let offsets_m: Vec<[f64; 3]> = sensors
         .iter()
         .enumerate()
         .map(|(j, s)| match (p0, s.position_m) {
             _ if j == 0 => [0.0; 3],
-            (Some(a), Some(b)) => [
-                (b[0] - a[0]) as f32,
-                (b[1] - a[1]) as f32,
-                (b[2] - a[2]) as f32,
-            ],
-            _ => [0.0, UNKNOWN_SEPARATION_M as f32, 0.0],
+            (Some(a), Some(b)) => [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
+            _ => [0.0, UNKNOWN_SEPARATION_M, 0.0],
         })
         .collect();
-    // The lateral gradient wanders over the field's correlation length L by about the
-    // along-track gradient's scale g: δ_j = y_j·g_y, a random walk of y_j²·g²/L per metre.
-    let g = field.scale[1] as f64;
-    let l = cfg.field_length_m as f64;
-    let difference_q = offsets_m
-        .iter()
-        .map(|o| {
-            let y = (o[1] as f64).abs().max(0.1);
-            (y * y * g * g / l) as f32
-        })
-        .collect();
+    let places = placements(&flights[0], &offsets_m);
+    // The cross-track gradient: as large as the along-track one's scale g, wandering by
+    // about g over the field's correlation length L (a random walk of g²/L per metre).
+    let lateral = offsets_m.iter().any(|o| o[1].abs() > 0.1).then(|| {
+        let g = field.scale[1];
+        LateralGradient {
+            prior_nt_per_m: g,
+            q_nt2_per_m3: g * g / cfg.field_length_m,
+        }
+    });
     Ok(Prepared {
         specs,
         regs,
@@ -437,11 +494,124 @@ fn prepare(
         ds_m,
         dh_m,
         noise_nt: files.iter().map(|f| f.noise_nt.unwrap_or(0.02)).collect(),
-        offsets_m,
-        difference_q,
+        places,
+        lateral,
         held,
         field,
+        field_profile: vec![1.0; flights[0].len()],
     })
+}
+
+/// Each sensor's measurement noise from its joint innovations, as the single-sensor run
+/// adapts its own (`tuning::adapted_noise_nt`): what the sensors' anomaly differences hold
+/// beyond the model (the 3-D field between sensors metres apart over strong geology) is
+/// model error in the joint filter, and with the sensor's 0.01 nT the filter put it into
+/// the coefficients (100 nT errors on a wingtip at 300 m). Robust (median absolute
+/// innovation), never below the alone run's noise; twice, as the noise changes the pass.
+fn adapt_noise(p: &mut Prepared) -> Result<()> {
+    for _ in 0..2 {
+        let run = pass(p, None)?;
+        for (j, nu) in run.innovation.iter().enumerate() {
+            let mut a: Vec<f64> = nu
+                .iter()
+                .filter(|v| v.is_finite())
+                .map(|v| v.abs())
+                .collect();
+            if a.len() < 16 {
+                continue;
+            }
+            let mid = a.len() / 2;
+            a.select_nth_unstable_by(mid, f64::total_cmp);
+            let robust = 1.4826 * a[mid];
+            p.noise_nt[j] = p.noise_nt[j].max(robust);
+        }
+    }
+    Ok(())
+}
+
+/// The anomaly process of the joint filter: the stationary one and the local-roughness
+/// profiles of the single-sensor calibration ([`crate::estimate::kf::FIELD_PROFILES`],
+/// from sensor 0's alone interference), each at the σ1² scales it tries; the one under
+/// which the sensors' samples are most likely (joint innovation likelihood) wins. Over
+/// strong shallow geology the anomaly is far rougher in places than one σ1 says, and a
+/// stationary process let the coefficients take what the field could not follow.
+fn choose_field_process(
+    p: &mut Prepared,
+    flight0: &Flight,
+    alone0: &Compensation,
+) -> Result<String> {
+    use crate::estimate::kf::{field_profile, FIELD_PROFILES, FIELD_PROFILE_SCALES};
+    let base = p.field;
+    let cfg = CompensatorConfig::for_rate(flight0.sample_rate_hz as f32);
+    let noise0 = p.noise_nt[0];
+    let mut candidates: Vec<(String, Vec<f64>)> =
+        vec![("stationary".into(), vec![1.0; flight0.len()])];
+    for (k, prof) in FIELD_PROFILES.iter().enumerate() {
+        candidates.push((
+            format!("local roughness profile {}", k + 1),
+            field_profile(flight0, &alone0.interference_nt, noise0, *prof),
+        ));
+    }
+    let mut best: Option<(f64, String, FieldProcess, Vec<f64>)> = None;
+    for (label, profile) in candidates {
+        for scale in FIELD_PROFILE_SCALES {
+            let s1 = base.sigma1 as f64 * scale.sqrt();
+            p.field = FieldProcess::new(
+                s1 as f32,
+                (0.1 * s1) as f32,
+                cfg.field_length_m,
+                cfg.bh_prior_nt,
+            );
+            p.field_profile.clone_from(&profile);
+            let nll = pass(p, None)?.nll;
+            if nll.is_finite() && best.as_ref().is_none_or(|b| nll < b.0) {
+                best = Some((
+                    nll,
+                    format!("{label}, {scale} × σ1² (joint)"),
+                    p.field,
+                    profile.clone(),
+                ));
+            }
+        }
+    }
+    let (_, label, field, profile) = best.context("no anomaly process gave a finite likelihood")?;
+    p.field = field;
+    p.field_profile = profile;
+    Ok(label)
+}
+
+/// Each sensor's place relative to sensor 0 at each sample: its body offset turned by the
+/// INS attitude (a wingtip rises and falls in a roll), along and across the heading
+/// (the track's direction up to the crab angle); without attitude, the offset as it is in
+/// level flight.
+fn placements(flight: &Flight, offsets_m: &[[f64; 3]]) -> Vec<Vec<Placement>> {
+    offsets_m
+        .iter()
+        .map(|o| {
+            let r = nalgebra::Vector3::new(o[0], o[1], o[2]);
+            flight
+                .samples
+                .iter()
+                .map(|s| {
+                    let [roll, pitch, yaw] = s.attitude_deg.map(|a| (a as f64).to_radians());
+                    if !(roll.is_finite() && pitch.is_finite() && yaw.is_finite()) {
+                        return Placement {
+                            along_m: o[0] as f32,
+                            across_m: o[1] as f32,
+                            down_m: o[2] as f32,
+                        };
+                    }
+                    let ned = crate::sim::dcm_ned_to_body(roll, pitch, yaw).transpose() * r;
+                    let (sy, cy) = yaw.sin_cos();
+                    Placement {
+                        along_m: (ned[0] * cy + ned[1] * sy) as f32,
+                        across_m: (-ned[0] * sy + ned[1] * cy) as f32,
+                        down_m: ned[2] as f32,
+                    }
+                })
+                .collect()
+        })
+        .collect()
 }
 
 /// One forward pass of the joint filter; `skip`: samples that predict and do not update
@@ -450,15 +620,13 @@ fn pass(p: &Prepared, skip: Option<std::ops::Range<usize>>) -> Result<Pass> {
     let s = p.specs.len();
     let sensors: Vec<JointSensor> = (0..s)
         .map(|j| JointSensor {
-            offset_m: p.offsets_m[j],
             prior_mean: &p.prior_mean[j],
             prior_sigma: &p.prior_sigma[j],
             level_prior_nt: LEVEL_PRIOR_NT,
-            difference_q_nt2_per_m: p.difference_q[j],
         })
         .collect();
     let mut f: Box<HostJoint> = Box::new(
-        HostJoint::new(p.field, &sensors)
+        HostJoint::new(p.field, p.lateral, &sensors)
             .map_err(|e| anyhow::anyhow!("cannot build the joint filter: {e:?}"))?,
     );
     for (j, ws) in p.held.iter().enumerate() {
@@ -472,21 +640,28 @@ fn pass(p: &Prepared, skip: Option<std::ops::Range<usize>>) -> Result<Pass> {
     let mut anomaly = vec![vec![f64::NAN; n]; s];
     let mut innovation = vec![vec![f64::NAN; n]; s];
     let mut healthy = true;
+    let mut nll = 0.0;
     for i in 0..n {
-        f.predict(p.ds_m[i], 1.0);
+        f.predict(p.ds_m[i], p.field_profile[i] as f32);
         let skipped = skip.as_ref().is_some_and(|r| r.contains(&i));
         for j in 0..s {
             let z = p.z[j][i];
             let phys = &p.regs[j][i];
             if z.is_finite() && !skipped {
                 let r = (p.noise_nt[j] * p.noise_nt[j]) as f32;
-                if let Some(u) = f.update(j, p.dh_m[i], phys, z as f32, r, GATE_SIGMA) {
+                let place = p.places[j][i];
+                if let Some(u) = f.update(j, place, p.dh_m[i], phys, z as f32, r, GATE_SIGMA) {
                     innovation[j][i] = match u {
-                        Ok(v) | Err(v) => v.value as f64,
+                        Ok(v) => {
+                            let (nu, sv) = (v.value as f64, v.variance as f64);
+                            nll += nu * nu / sv + sv.ln();
+                            nu
+                        }
+                        Err(v) => v.value as f64,
                     };
                 }
             }
-            anomaly[j][i] = f.anomaly_nt(j, p.dh_m[i]) as f64;
+            anomaly[j][i] = f.anomaly_nt(j, p.places[j][i], p.dh_m[i]) as f64;
         }
         healthy &= f.filter().is_healthy();
     }
@@ -509,6 +684,7 @@ fn pass(p: &Prepared, skip: Option<std::ops::Range<usize>>) -> Result<Pass> {
         anomaly,
         innovation,
         healthy,
+        nll,
     })
 }
 

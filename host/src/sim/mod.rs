@@ -35,6 +35,7 @@ mod environment;
 pub mod flight;
 pub mod geo;
 pub mod hidden;
+pub mod multi;
 pub mod physics;
 mod plan;
 mod sensors;
