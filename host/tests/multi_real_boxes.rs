@@ -16,9 +16,9 @@ use real_boxes_data::{band_std_nt, boxes, Boxes, BOX1_ROWS, FS_HZ, SPEED_MPS};
 
 const SENSORS: &str = "mag_3:flux_b,mag_4:flux_c,mag_5:flux_d";
 
-fn est() -> EstimatorSettings {
+fn est(model: &str) -> EstimatorSettings {
     EstimatorSettings {
-        model: DEFAULT_MODEL.into(),
+        model: model.into(),
         method: Method::Kf,
         speed_mps: Some(SPEED_MPS),
         ..Default::default()
@@ -62,28 +62,38 @@ fn tl18_ols(
     band_std_nt(&tl::compensate(&fit, &flux_of(app.clone()), &b.column(mag, app)).unwrap())
 }
 
-/// (sensor, joint, alone, TL18-OLS) band std on the other box.
+struct Row {
+    name: String,
+    joint: f64,
+    kept: f64,
+    joint_kept: bool,
+    alone: f64,
+    ols: f64,
+}
+
+/// Per sensor the band std on the other box: joint, the kept result, alone, TL18-OLS.
 fn transfer(
     b: &Boxes,
+    model: &str,
     cal: std::ops::Range<usize>,
     app: std::ops::Range<usize>,
-) -> Vec<(String, f64, f64, f64)> {
+) -> Vec<Row> {
     let t_cal = box_trace(b, cal.clone());
     let t_app = box_trace(b, app.clone());
     let sensors = parse_sensors(SENSORS, &t_cal).unwrap();
-    let joint = calibrate_joint(&t_cal, &est(), &sensors).unwrap();
-    let joint_files: Vec<_> = joint
-        .sensors
-        .iter()
-        .map(|s| s.joint.coefficients.clone().unwrap())
-        .collect();
-    let alone_files: Vec<_> = joint
-        .sensors
-        .iter()
-        .map(|s| s.alone.coefficients.clone().unwrap())
-        .collect();
-    let j = apply_each(&t_app, &est(), &sensors, &joint_files).unwrap();
-    let a = apply_each(&t_app, &est(), &sensors, &alone_files).unwrap();
+    let joint = calibrate_joint(&t_cal, &est(model), &sensors).unwrap();
+    let files = |f: &dyn Fn(
+        &magcomp::multi::SensorResult,
+    ) -> magcomp::calibration::result::Compensation|
+     -> Vec<_> {
+        joint
+            .sensors
+            .iter()
+            .map(|s| f(s).coefficients.unwrap())
+            .collect()
+    };
+    let j = apply_each(&t_app, &est(model), &sensors, &files(&|s| s.joint.clone())).unwrap();
+    let a = apply_each(&t_app, &est(model), &sensors, &files(&|s| s.alone.clone())).unwrap();
     sensors
         .iter()
         .enumerate()
@@ -95,33 +105,72 @@ fn transfer(
                 .split(':')
                 .nth(1)
                 .unwrap();
-            (
-                s.name.clone(),
+            let (jn, al) = (
                 band_std_nt(&j[k].1.compensated_nt),
                 band_std_nt(&a[k].1.compensated_nt),
-                tl18_ols(b, cal.clone(), app.clone(), &s.scalar_column, flux),
-            )
+            );
+            let kept = joint.sensors[k].joint_chosen;
+            Row {
+                name: s.name.clone(),
+                joint: jn,
+                kept: if kept { jn } else { al },
+                joint_kept: kept,
+                alone: al,
+                ols: tl18_ols(b, cal.clone(), app.clone(), &s.scalar_column, flux),
+            }
         })
         .collect()
 }
 
-/// Measured (this commit), band std nT, joint / alone / TL18-OLS: see the table printed and
-/// the README. The issue's aim was joint ≤ 0.7 × TL18-OLS on each sensor.
+/// Measured (this commit), band std nT on the other box (README table): the joint
+/// estimate does not gain on these boxes. Default model, box 1 → 2 / 2 → 1, joint against
+/// alone: mag_3 5.05 / 4.83 against 4.05 / 4.80, mag_4 6.13 / 6.32 against 3.31 / 3.10,
+/// mag_5 0.63 / 0.76 against 0.77 / 0.71 (TL18-OLS 4.41 / 4.87, 1.40 / 1.68, 0.66 / 0.73).
+/// The per-sensor choice by predicted error keeps alone except mag_3 (wrongly, 1 → 2).
+/// With `tl16+fluxmod+field` the kept results are 0.36–0.66 × TL18-OLS on mag_3 and mag_4
+/// (the issue's aim of ≤ 0.7 ×) and 1.06–1.15 × on mag_5, where the aim is not met.
+/// Asserted (fluxmod model): kept ≤ 0.7 × TL18-OLS on mag_3 and mag_4, ≤ 1.2 × on mag_5,
+/// both ways; every model: kept ≤ 1.3 × alone.
 #[test]
 fn joint_calibration_on_the_real_boxes_against_alone_and_tl18_ols() {
     let Some(b) = boxes() else { return };
     let n = b.len();
-    for (label, cal, app) in [
-        ("box 1 → box 2", 0..BOX1_ROWS, BOX1_ROWS..n),
-        ("box 2 → box 1", BOX1_ROWS..n, 0..BOX1_ROWS),
-    ] {
-        for (name, joint, alone, ols) in transfer(&b, cal, app) {
-            eprintln!(
-                "{label} {name}: joint {joint:.3}, alone {alone:.3}, TL18-OLS {ols:.3} nT \
-                 (joint/OLS {:.2}, joint/alone {:.2})",
-                joint / ols,
-                joint / alone
-            );
+    let mut failures = Vec::new();
+    for model in [DEFAULT_MODEL, "tl16+fluxmod+field"] {
+        for (label, cal, app) in [
+            ("box 1 → box 2", 0..BOX1_ROWS, BOX1_ROWS..n),
+            ("box 2 → box 1", BOX1_ROWS..n, 0..BOX1_ROWS),
+        ] {
+            for r in transfer(&b, model, cal, app) {
+                eprintln!(
+                    "{model} {label} {}: joint {:.3}, alone {:.3}, kept {} {:.3}, TL18-OLS {:.3} nT \
+                     (kept/OLS {:.2}, joint/alone {:.2})",
+                    r.name,
+                    r.joint,
+                    r.alone,
+                    if r.joint_kept { "joint" } else { "alone" },
+                    r.kept,
+                    r.ols,
+                    r.kept / r.ols,
+                    r.joint / r.alone
+                );
+                if model != DEFAULT_MODEL {
+                    let ratio = if r.name == "mag_5" { 1.2 } else { 0.7 };
+                    if r.kept > ratio * r.ols {
+                        failures.push(format!(
+                            "{label} {}: kept {:.3} vs TL18-OLS {:.3}",
+                            r.name, r.kept, r.ols
+                        ));
+                    }
+                }
+                if r.kept > 1.3 * r.alone {
+                    failures.push(format!(
+                        "{model} {label} {}: kept {:.3} vs alone {:.3}",
+                        r.name, r.kept, r.alone
+                    ));
+                }
+            }
         }
     }
+    assert!(failures.is_empty(), "{failures:#?}");
 }
