@@ -124,9 +124,9 @@ fn transfer(
 
 /// Measured (this commit), band std nT on the other box (README table): the joint
 /// estimate does not gain on these boxes. Default model, box 1 → 2 / 2 → 1, joint against
-/// alone: mag_3 5.05 / 4.83 against 4.05 / 4.80, mag_4 6.13 / 6.32 against 3.31 / 3.10,
-/// mag_5 0.63 / 0.76 against 0.77 / 0.71 (TL18-OLS 4.41 / 4.87, 1.40 / 1.68, 0.66 / 0.73).
-/// The per-sensor choice by predicted error keeps alone except mag_3 (wrongly, 1 → 2).
+/// alone: mag_3 4.33 / 4.79 against 4.05 / 4.80, mag_4 5.82 / 16.6 against 3.31 / 3.10,
+/// mag_5 0.93 / 0.80 against 0.77 / 0.71 (TL18-OLS 4.41 / 4.87, 1.40 / 1.68, 0.66 / 0.73).
+/// The per-sensor choice by predicted error keeps alone except on mag_3.
 /// With `tl16+fluxmod+field` the kept results are 0.36–0.66 × TL18-OLS on mag_3 and mag_4
 /// (the aim of ≤ 0.7 ×) and 1.06–1.15 × on mag_5, where the aim is not met.
 /// Asserted (fluxmod model): kept ≤ 0.7 × TL18-OLS on mag_3 and mag_4, ≤ 1.2 × on mag_5,

@@ -164,9 +164,10 @@ pub fn calibrate_joint(
     let flights = prepare_flights(&alone, &files, est)?;
     let prepared = prepare(&flights, &files, sensors)?;
     let mut prepared = prepared;
-    adapt_noise(&mut prepared)?;
+    // Each sensor's noise stays its alone calibration's: raising it to the robust joint
+    // innovation rms (as the single-sensor run adapts its own) took a 300 m flight with
+    // sensors 1 m apart from 0.02 to 19 nT.
     let label = choose_field_process(&mut prepared, &flights[0], &alone[0].1)?;
-    adapt_noise(&mut prepared)?;
     let full = pass(&prepared, None)?;
     // The flight's own evidence, as the single-sensor calibration (model.md §5b).
     let span = crate::estimate::excitation::airborne_span(&flights[0]);
@@ -500,33 +501,6 @@ fn prepare(
         field,
         field_profile: vec![1.0; flights[0].len()],
     })
-}
-
-/// Each sensor's measurement noise from its joint innovations, as the single-sensor run
-/// adapts its own (`tuning::adapted_noise_nt`): what the sensors' anomaly differences hold
-/// beyond the model (the 3-D field between sensors metres apart over strong geology) is
-/// model error in the joint filter, and with the sensor's 0.01 nT the filter put it into
-/// the coefficients (100 nT errors on a wingtip at 300 m). Robust (median absolute
-/// innovation), never below the alone run's noise; twice, as the noise changes the pass.
-fn adapt_noise(p: &mut Prepared) -> Result<()> {
-    for _ in 0..2 {
-        let run = pass(p, None)?;
-        for (j, nu) in run.innovation.iter().enumerate() {
-            let mut a: Vec<f64> = nu
-                .iter()
-                .filter(|v| v.is_finite())
-                .map(|v| v.abs())
-                .collect();
-            if a.len() < 16 {
-                continue;
-            }
-            let mid = a.len() / 2;
-            a.select_nth_unstable_by(mid, f64::total_cmp);
-            let robust = 1.4826 * a[mid];
-            p.noise_nt[j] = p.noise_nt[j].max(robust);
-        }
-    }
-    Ok(())
 }
 
 /// The anomaly process of the joint filter: the stationary one and the local-roughness
