@@ -254,7 +254,11 @@ pub fn compensate(
     crate::io::trace::write_trace(out, &table)?;
     for (s, c) in sensors.iter().zip(&results) {
         for w in &c.warnings {
-            eprintln!("warning: {}: {w}", s.name);
+            if w.starts_with(&format!("{}:", s.name)) {
+                eprintln!("warning: {w}");
+            } else {
+                eprintln!("warning: {}: {w}", s.name);
+            }
         }
     }
     eprintln!("wrote {}", out.display());
