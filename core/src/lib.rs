@@ -17,6 +17,7 @@ pub mod compensator;
 pub mod epoch;
 pub mod filter;
 pub mod flags;
+pub mod joint;
 pub mod model;
 pub mod protocol;
 pub mod spectrum;

@@ -26,6 +26,7 @@ pub mod estimate;
 pub mod flight;
 pub mod io;
 pub mod model;
+pub mod multi;
 pub mod qc;
 pub mod report;
 pub mod signal;

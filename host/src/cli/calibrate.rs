@@ -18,6 +18,8 @@ pub struct CalibrateArgs {
     pub est: EstimatorArgs,
     #[command(flatten)]
     pub long: LongFlightArgs,
+    #[command(flatten)]
+    pub multi: crate::multi::cli::MultiArgs,
     /// Where to write the coefficients (JSON).
     #[arg(
         short = 'o',
@@ -40,6 +42,16 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     check_outputs(&[&a.input.trace], &[&a.output])?;
     crate::io::progress::force_progress(a.long.progress);
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
+    if let Some(map) = a.multi.single_map(&trace, a.input.map.as_deref())? {
+        // One sensor: today's command on its columns.
+        let mut one = a.clone();
+        one.input.map = Some(map);
+        one.multi = Default::default();
+        return run(&one);
+    }
+    if let Some(sensors) = a.multi.several(&trace)? {
+        return crate::multi::cli::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
+    }
     let stage = crate::io::progress::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;
     drop(stage);

@@ -21,6 +21,8 @@ pub struct CompensateArgs {
     pub est: EstimatorArgs,
     #[command(flatten)]
     pub long: LongFlightArgs,
+    #[command(flatten)]
+    pub multi: crate::multi::cli::MultiArgs,
     /// Apply these coefficients (from `calibrate`) instead of calibrating on this trace.
     #[arg(long, value_name = "COEFFS.json")]
     pub coeffs: Option<PathBuf>,
@@ -70,6 +72,26 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         .collect();
     check_outputs(&inputs, &[&a.out])?;
     crate::io::progress::force_progress(a.long.progress);
+    if a.multi.sensors.is_some() {
+        let trace = a.input.read()?;
+        if let Some(map) = a.multi.single_map(&trace, a.input.map.as_deref())? {
+            // One sensor: today's command on its columns.
+            let mut one = a.clone();
+            one.input.map = Some(map);
+            one.multi = Default::default();
+            return run(&one);
+        }
+        if let Some(sensors) = a.multi.several(&trace)? {
+            return crate::multi::cli::compensate(
+                &trace,
+                &a.est.settings(),
+                &sensors,
+                a.multi.gradients.as_deref(),
+                a.coeffs.as_deref(),
+                &a.out,
+            );
+        }
+    }
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;
     if run_if_streamed(a, coeffs.as_ref())? {
         return Ok(());

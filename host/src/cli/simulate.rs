@@ -26,6 +26,14 @@ pub struct SimulateArgs {
     )]
     pub output: Option<PathBuf>,
 
+    /// Scalar magnetometers on the aircraft (1–4): 1 = `mag` as always; 2–4 add `mag_1` (the
+    /// stinger, = `mag`), `mag_2`/`mag_3` (wingtips 8 m out, 6 m ahead), `mag_4` (cabin, 9 m
+    /// ahead), each its own interference, the geology evaluated at each
+    /// (`truth_*_mag_K`, metadata `mag_K_position_m`; docs/trace-format.md "Several
+    /// magnetometers").
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub sensors: usize,
+
     /// What to fly: `calibration` (cloverleaf, 4 headings × roll/pitch/yaw), `survey`
     /// (parallel lines), `calibration+survey`, or `takeoff`: from power-up on the apron
     /// (60 s `ground`, engine off; 30 s `engine_start`: a 5–20 nT body field the model does
@@ -472,7 +480,14 @@ pub fn run(sim: &SimulateArgs, capture: &CaptureArgs) -> Result<()> {
         .collect();
     crate::io::output::check_outputs(&[], &outputs)?;
     let cfg = sim.to_config()?;
-    let trace = crate::sim::simulate(&cfg)?;
+    let trace = match sim.sensors {
+        0 | 1 => crate::sim::simulate(&cfg)?,
+        n @ 2..=4 => crate::sim::multi::simulate_multi(
+            &cfg,
+            &crate::sim::multi::STINGER_WINGTIPS_CABIN_M[..n],
+        )?,
+        n => bail!("--sensors {n}: 1 to 4"),
+    };
     crate::io::trace::write_trace(&out, &trace)?;
     eprintln!("wrote {} rows to {}", trace.len(), out.display());
     if let (Some(c), Some(p)) = (capture.write_if_requested(&trace)?, &capture.capture) {

@@ -266,6 +266,15 @@ pub(super) fn decoy_channels(cfg: &SimConfig, dur: f64, times: &[f64]) -> Vec<(S
     out
 }
 
+/// +1 or −1 with equal odds.
+pub(super) fn random_sign(r: &mut ChaCha8Rng) -> f64 {
+    if r.gen_bool(0.5) {
+        1.0
+    } else {
+        -1.0
+    }
+}
+
 pub(super) fn random_dir(rng: &mut ChaCha8Rng) -> Vector3<f64> {
     let v: [f64; 3] = UnitSphere.sample(rng);
     Vector3::from(v)

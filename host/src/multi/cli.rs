@@ -1,0 +1,322 @@
+//! `calibrate --sensors` and `compensate --sensors`: several magnetometers at once
+//! (docs/trace-format.md "Several magnetometers"). With one sensor (or none) the commands
+//! are today's, unchanged.
+
+use super::joint::{apply_each, calibrate_joint};
+use super::sensors::{parse_pairs, parse_sensors, separation_m, SensorSpec};
+use crate::calibration::coefficients::{canonical_sha256, to_sealed_json, CoefficientFile};
+use crate::calibration::result::Compensation;
+use crate::calibration::EstimatorSettings;
+use crate::io::trace::Trace;
+use anyhow::{bail, Context, Result};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// The format tag of a several-sensor coefficient file.
+pub const MULTI_FORMAT: &str = "magcomp-multi-coefficients-1";
+
+/// The options both commands take.
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct MultiArgs {
+    /// Several scalar magnetometers at once (2–8): `mag_K[:FLUX][@X/Y/Z]`, comma
+    /// separated, e.g. `mag_3:flux_b,mag_4:flux_c,mag_5:flux_d` or
+    /// `mag_1@0/0/0,mag_2@6/-8/-0.5`. Scalars are the columns `mag_K` (or MagNav's
+    /// `mag_K_uc`, SGL's `UNCOMPMAGK`); FLUX names a fluxgate (`flux_b`: columns
+    /// `flux_b_x/y/z` or `FLUXB_X/Y/Z`; default the sensor's own `flux_K_*`, else the
+    /// shared `flux_x/y/z`); X/Y/Z is the position on the aircraft (m, x forward, y
+    /// starboard, z down; default the metadata `mag_K_position_m`). One anomaly, each
+    /// sensor its own interference (docs/model.md §7). One sensor: today's command.
+    #[arg(long, value_name = "mag_K[:FLUX][@X/Y/Z],...")]
+    pub sensors: Option<String>,
+    /// With `--sensors`: the gradient of each named pair in the output,
+    /// `gradient_mag_A_mag_B` = (compensated B − compensated A) / separation (nT/m; both
+    /// positions must be known).
+    #[arg(long, value_name = "mag_A-mag_B,...")]
+    pub gradients: Option<String>,
+}
+
+impl MultiArgs {
+    /// The sensors when there are several (None: today's single-sensor command).
+    pub fn several(&self, trace: &Trace) -> Result<Option<Vec<SensorSpec>>> {
+        let Some(text) = &self.sensors else {
+            if self.gradients.is_some() {
+                bail!("--gradients needs --sensors");
+            }
+            return Ok(None);
+        };
+        let s = parse_sensors(text, trace)?;
+        if s.len() < 2 {
+            return Ok(None);
+        }
+        Ok(Some(s))
+    }
+
+    /// With one sensor: the `--map` that makes today's command read it (`mag=` its scalar,
+    /// `flux_x/y/z=` its fluxgate, after the map given), so one sensor is exactly today's
+    /// run. None otherwise.
+    pub fn single_map(&self, trace: &Trace, map: Option<&str>) -> Result<Option<String>> {
+        let Some(text) = &self.sensors else {
+            return Ok(None);
+        };
+        let s = parse_sensors(text, trace)?;
+        if s.len() != 1 {
+            return Ok(None);
+        }
+        if self.gradients.is_some() {
+            bail!("--gradients needs two sensors or more");
+        }
+        let s = &s[0];
+        let mut entries: Vec<String> = map
+            .into_iter()
+            .flat_map(|m| m.split(','))
+            .filter(|e| {
+                let c = e.split('=').next().unwrap_or("").trim();
+                !["mag", "flux_x", "flux_y", "flux_z"].contains(&c)
+            })
+            .map(String::from)
+            .collect();
+        let pairs = [
+            ("mag", s.scalar_column.as_str()),
+            ("flux_x", s.flux_columns[0].as_str()),
+            ("flux_y", s.flux_columns[1].as_str()),
+            ("flux_z", s.flux_columns[2].as_str()),
+        ];
+        for (c, f) in pairs {
+            if c != f {
+                entries.push(format!("{c}={f}"));
+            }
+        }
+        Ok(Some(entries.join(",")))
+    }
+}
+
+/// One sensor in a several-sensor coefficient file.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SensorEntry {
+    pub name: String,
+    pub scalar_column: String,
+    pub flux_columns: [String; 3],
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub position_m: Option<[f64; 3]>,
+    /// Whether these are the joint estimate's coefficients (else the sensor's own
+    /// calibration's: the joint one predicted a larger error).
+    pub joint: bool,
+    /// The joint and the alone calibration's predicted errors (nT).
+    pub joint_predicted_error_nt: Option<f64>,
+    pub alone_predicted_error_nt: Option<f64>,
+    /// The sensor's coefficient file, as `calibrate` writes it for one sensor (sealed).
+    pub coefficients: serde_json::Value,
+}
+
+/// A several-sensor coefficient file.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MultiFile {
+    pub format: String,
+    pub sigma1: f64,
+    pub sensors: Vec<SensorEntry>,
+}
+
+/// Whether `path` holds a several-sensor coefficient file.
+pub fn is_multi_file(path: &Path) -> bool {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v.get("format")?.as_str().map(|f| f == MULTI_FORMAT))
+        .unwrap_or(false)
+}
+
+/// Reads a several-sensor file; each sensor's coefficients are checked as a single file is
+/// (checksum, plausibility: `read_coefficients`).
+pub fn read_multi(path: &Path) -> Result<(MultiFile, Vec<CoefficientFile>)> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
+    let m: MultiFile = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a magcomp several-sensor file", path.display()))?;
+    let dir = tempdir_for(path)?;
+    let mut files = Vec::new();
+    for s in &m.sensors {
+        let p = dir.join(format!("{}.json", s.name));
+        std::fs::write(&p, serde_json::to_string(&s.coefficients)?)?;
+        let f = crate::calibration::read_coefficients(&p)
+            .with_context(|| format!("{}: sensor {}", path.display(), s.name));
+        let _ = std::fs::remove_file(&p);
+        files.push(f?);
+    }
+    let _ = std::fs::remove_dir(&dir);
+    Ok((m, files))
+}
+
+fn tempdir_for(path: &Path) -> Result<std::path::PathBuf> {
+    let stem = canonical_sha256(&format!("{{\"p\":\"{}\"}}", path.display()))?;
+    let dir = std::env::temp_dir().join(format!(
+        "magcomp-multi-{}-{}",
+        std::process::id(),
+        &stem[..12]
+    ));
+    std::fs::create_dir_all(&dir)?;
+    Ok(dir)
+}
+
+/// `calibrate --sensors`: the joint calibration, one file holding every sensor.
+pub fn calibrate(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+    out: &Path,
+) -> Result<()> {
+    let r = calibrate_joint(trace, est, sensors)?;
+    let mut entries = Vec::new();
+    eprintln!("several magnetometers, one anomaly (docs/model.md §7):");
+    for s in &r.sensors {
+        let file = s.chosen().coefficients.clone().context("no coefficients")?;
+        let alone_p = s
+            .alone
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.predicted_error_nt);
+        eprintln!(
+            "  {} ({}, fluxgate {}): predicted error joint {}, alone {} nT: {} kept",
+            s.spec.name,
+            s.spec.scalar_column,
+            s.spec.flux_columns[0]
+                .trim_end_matches("_x")
+                .trim_end_matches("_X"),
+            fmt(s.predicted_error_nt),
+            fmt(alone_p),
+            if s.joint_chosen { "joint" } else { "alone" }
+        );
+        for w in s.joint.warnings.iter().chain(&s.chosen().warnings) {
+            eprintln!("warning: {w}");
+        }
+        entries.push(SensorEntry {
+            name: s.spec.name.clone(),
+            scalar_column: s.spec.scalar_column.clone(),
+            flux_columns: s.spec.flux_columns.clone(),
+            position_m: s.spec.position_m,
+            joint: s.joint_chosen,
+            joint_predicted_error_nt: s.predicted_error_nt,
+            alone_predicted_error_nt: alone_p,
+            coefficients: serde_json::from_str(&to_sealed_json(&file)?)?,
+        });
+    }
+    let m = MultiFile {
+        format: MULTI_FORMAT.into(),
+        sigma1: r.sigma1,
+        sensors: entries,
+    };
+    crate::io::output::write_file(out, serde_json::to_string_pretty(&m)?)?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+fn fmt(v: Option<f64>) -> String {
+    v.map_or("–".into(), |v| format!("{v:.4}"))
+}
+
+/// `compensate --sensors`: calibrates jointly (or applies a several-sensor file) and
+/// writes each sensor's compensated field and interference and the named gradients.
+pub fn compensate(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+    gradients: Option<&str>,
+    coeffs: Option<&Path>,
+    out: &Path,
+) -> Result<()> {
+    let results: Vec<Compensation> = match coeffs {
+        Some(path) => {
+            let (m, files) = read_multi(path)?;
+            let ordered: Vec<CoefficientFile> = sensors
+                .iter()
+                .map(|s| {
+                    m.sensors
+                        .iter()
+                        .position(|e| e.name == s.name)
+                        .map(|i| files[i].clone())
+                        .with_context(|| format!("{} has no sensor {}", path.display(), s.name))
+                })
+                .collect::<Result<_>>()?;
+            apply_each(trace, est, sensors, &ordered)?
+                .into_iter()
+                .map(|(_, c)| c)
+                .collect()
+        }
+        None => calibrate_joint(trace, est, sensors)?
+            .sensors
+            .iter()
+            .map(|s| s.chosen().clone())
+            .collect(),
+    };
+    let pairs = match gradients {
+        Some(g) => parse_pairs(g, sensors)?,
+        None => Vec::new(),
+    };
+    let table = output_table(trace, sensors, &results, &pairs)?;
+    crate::io::trace::write_trace(out, &table)?;
+    for (s, c) in sensors.iter().zip(&results) {
+        for w in &c.warnings {
+            if w.starts_with(&format!("{}:", s.name)) {
+                eprintln!("warning: {w}");
+            } else {
+                eprintln!("warning: {}: {w}", s.name);
+            }
+        }
+    }
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+/// The output: `t`, per sensor `mag_K`, `interference_mag_K`, `compensated_mag_K`,
+/// `anomaly_mag_K` (KF), then `gradient_mag_A_mag_B` per pair, then the trace's position
+/// and line columns when it has them.
+pub fn output_table(
+    trace: &Trace,
+    sensors: &[SensorSpec],
+    results: &[Compensation],
+    pairs: &[(usize, usize)],
+) -> Result<Trace> {
+    let mut out = Trace {
+        meta: trace.meta.clone(),
+        ..Default::default()
+    };
+    if let Some(t) = trace.col("t") {
+        out.set_col("t", t.to_vec());
+    }
+    for (s, c) in sensors.iter().zip(results) {
+        let mag = trace.col(&s.scalar_column).context("sensor column")?;
+        out.set_col(&s.name, mag.to_vec());
+        out.set_col(
+            &format!("interference_{}", s.name),
+            c.interference_nt.clone(),
+        );
+        out.set_col(&format!("compensated_{}", s.name), c.compensated_nt.clone());
+        if let Some(a) = &c.anomaly_nt {
+            out.set_col(&format!("anomaly_{}", s.name), a.clone());
+        }
+    }
+    for &(a, b) in pairs {
+        let sep = separation_m(&sensors[a], &sensors[b]).with_context(|| {
+            format!(
+                "--gradients {}-{}: both positions must be known (`@X/Y/Z` or metadata)",
+                sensors[a].name, sensors[b].name
+            )
+        })?;
+        if sep <= 0.0 {
+            bail!(
+                "--gradients {}-{}: the sensors are at one place",
+                sensors[a].name,
+                sensors[b].name
+            );
+        }
+        let (ca, cb) = (&results[a].compensated_nt, &results[b].compensated_nt);
+        out.set_col(
+            &format!("gradient_{}_{}", sensors[a].name, sensors[b].name),
+            ca.iter().zip(cb).map(|(x, y)| (y - x) / sep).collect(),
+        );
+    }
+    for c in ["lat", "lon", "alt", "line", "LINE"] {
+        if let Some(v) = trace.col(c) {
+            out.set_col(c, v.to_vec());
+        }
+    }
+    Ok(out)
+}
