@@ -19,7 +19,7 @@ pub struct CalibrateArgs {
     #[command(flatten)]
     pub long: LongFlightArgs,
     #[command(flatten)]
-    pub multi: crate::multi::cli::MultiArgs,
+    pub multi: super::multi::MultiArgs,
     /// Where to write the coefficients (JSON).
     #[arg(
         short = 'o',
@@ -50,7 +50,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         return run(&one);
     }
     if let Some(sensors) = a.multi.several(&trace)? {
-        return crate::multi::cli::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
+        return super::multi::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
     }
     let stage = crate::io::progress::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;

@@ -22,7 +22,7 @@ pub struct CompensateArgs {
     #[command(flatten)]
     pub long: LongFlightArgs,
     #[command(flatten)]
-    pub multi: crate::multi::cli::MultiArgs,
+    pub multi: super::multi::MultiArgs,
     /// Apply these coefficients (from `calibrate`) instead of calibrating on this trace.
     #[arg(long, value_name = "COEFFS.json")]
     pub coeffs: Option<PathBuf>,
@@ -82,7 +82,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
             return run(&one);
         }
         if let Some(sensors) = a.multi.several(&trace)? {
-            return crate::multi::cli::compensate(
+            return super::multi::compensate(
                 &trace,
                 &a.est.settings(),
                 &sensors,

@@ -11,6 +11,7 @@ pub mod compensate;
 pub mod demo;
 pub mod diagnose;
 pub mod monitor;
+pub mod multi;
 pub mod nmea;
 pub mod replay;
 pub mod report;

@@ -7,4 +7,3 @@ pub mod sensors;
 
 pub use joint::{apply_each, calibrate_joint, JointResult, SensorResult};
 pub use sensors::{parse_pairs, parse_sensors, sensor_trace, separation_m, SensorSpec};
-pub mod cli;

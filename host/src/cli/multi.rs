@@ -2,12 +2,12 @@
 //! (docs/trace-format.md "Several magnetometers"). With one sensor (or none) the commands
 //! are today's, unchanged.
 
-use super::joint::{apply_each, calibrate_joint};
-use super::sensors::{parse_pairs, parse_sensors, separation_m, SensorSpec};
 use crate::calibration::coefficients::{canonical_sha256, to_sealed_json, CoefficientFile};
 use crate::calibration::result::Compensation;
 use crate::calibration::EstimatorSettings;
 use crate::io::trace::Trace;
+use crate::multi::joint::{apply_each, calibrate_joint};
+use crate::multi::sensors::{parse_pairs, parse_sensors, separation_m, SensorSpec};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
