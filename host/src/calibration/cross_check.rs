@@ -59,11 +59,25 @@ pub(super) fn choose(
         .map(|(a, b)| a - b)
         .collect();
     let disagreement_nt = crate::qc::figures::rms_demeaned(&difference);
+    let band_disagreement_nt =
+        Some(crate::qc::figures::band_rms_nt(&kalman.0, &difference)).filter(|d| d.is_finite());
     // Two estimates of one interference that differ beyond their errors: one of them is
     // wrong, and the jackknife cannot say which (a band-passed fit over strong geology
     // takes the anomaly into its coefficients the same way in every block: 56–135 nT off
-    // at 300 m with a 0.3–0.7 nT jackknife).
-    let consistent = disagreement_nt <= DISAGREEMENT_SIGMAS * kf_nt.hypot(tl_nt);
+    // at 300 m with a 0.3–0.7 nT jackknife). Judged in the manoeuvre band where both are
+    // determined: least squares fits band-passed data, so its slow part and level are
+    // whatever its coefficients make of them, and a full-band difference counts that as
+    // disagreement (real box 1, `mag_4` with `flux_c`: 66 nT full band against jackknives
+    // of 12.4 and 7.9 nT kept the filter, which transfers to box 2 at 3.31 nT against
+    // TL18-OLS's 1.43).
+    let band_jackknives = kalman
+        .1
+        .band_jackknife_nt
+        .zip(least_squares.1.band_jackknife_nt);
+    let consistent = match (band_disagreement_nt, band_jackknives) {
+        (Some(d), Some((kf_band, tl_band))) => d <= DISAGREEMENT_SIGMAS * kf_band.hypot(tl_band),
+        _ => disagreement_nt <= DISAGREEMENT_SIGMAS * kf_nt.hypot(tl_nt),
+    };
     let chosen = if tl_nt < kf_nt && consistent {
         Estimator::TollesLawsonOls
     } else {
@@ -77,6 +91,7 @@ pub(super) fn choose(
         kalman_filter_band_jackknife_nt: kalman.1.band_jackknife_nt,
         tolles_lawson_band_jackknife_nt: least_squares.1.band_jackknife_nt,
         disagreement_nt,
+        band_disagreement_nt,
         chosen,
     };
     let (flight, mut comp) = match chosen {

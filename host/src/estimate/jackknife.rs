@@ -135,6 +135,10 @@ pub struct CrossCheck {
     pub tolles_lawson_band_jackknife_nt: Option<f64>,
     /// RMS difference between the two methods' interference over the flight.
     pub disagreement_nt: f64,
+    /// The same in the manoeuvre band, where both methods' coefficients are determined:
+    /// what decides whether they agree.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub band_disagreement_nt: Option<f64>,
     pub chosen: Estimator,
 }
 
