@@ -30,6 +30,7 @@ use crate::io::trace::rows::for_each_row;
 use crate::io::trace::{ColumnMap, ReadOptions};
 use crate::model::spec::ModelSpec;
 use anyhow::{bail, Context, Result};
+use magcomp_core::model::TermKind;
 use rows::{row_sample, Cols, RowFilter};
 use serde::Serialize;
 use stats::{DateScan, DateSource, FirstPass, SecondPass};
@@ -75,7 +76,7 @@ pub fn unstreamable(
     if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
         return Some("the model has `fluxcal` but the file has no fluxgate_calibration".into());
     }
-    if spec.terms.iter().any(|t| t.name == "rate") {
+    if spec.has(TermKind::Rate) {
         return Some("`rate` needs the flight's crossovers".into());
     }
     if spec.field && est.sigma1.or(c.sigma1).is_none() {
