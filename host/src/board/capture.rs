@@ -26,6 +26,7 @@ use crate::flight::col;
 use crate::io::trace::Trace;
 use anyhow::{bail, ensure, Context, Result};
 use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
+use magcomp_core::epoch::EARTH_RADIUS_M;
 use magcomp_core::protocol::capture::{encode_header, encode_line, Port, MAX_CHUNK, MAX_LINE};
 use magcomp_core::protocol::common::xor_checksum;
 use magcomp_core::protocol::fluxgate::{encode_spi_frame, ADC_FULL_SCALE};
@@ -321,9 +322,9 @@ pub fn write_capture<W: Write>(
             for i in 0..n {
                 let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
                 let dt = t[b] - t[a];
-                vn[i] = (lat[b] - lat[a]).to_radians() * 6_371_000.0 / dt;
-                ve[i] =
-                    (lon[b] - lon[a]).to_radians() * 6_371_000.0 * lat[i].to_radians().cos() / dt;
+                vn[i] = (lat[b] - lat[a]).to_radians() * EARTH_RADIUS_M / dt;
+                ve[i] = (lon[b] - lon[a]).to_radians() * EARTH_RADIUS_M * lat[i].to_radians().cos()
+                    / dt;
             }
             (vn, ve)
         }

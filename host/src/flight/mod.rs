@@ -9,6 +9,7 @@ pub mod position;
 use crate::io::trace::Trace;
 use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::TiePoint;
+use magcomp_core::epoch::EARTH_RADIUS_M;
 use magcomp_core::{AlignedSample, MagCounts, MAX_AUX};
 use std::collections::HashMap;
 
@@ -285,8 +286,8 @@ impl Flight {
             .iter()
             .map(|s| {
                 [
-                    (s.lat_deg - lat0).to_radians() * 6_371_000.0,
-                    (s.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
+                    (s.lat_deg - lat0).to_radians() * EARTH_RADIUS_M,
+                    (s.lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat,
                 ]
             })
             .collect()
@@ -389,8 +390,8 @@ impl TieDetector {
             return;
         }
         let coslat = *self.coslat.get_or_insert(lat.to_radians().cos());
-        let n = lat.to_radians() * 6_371_000.0;
-        let e = lon.to_radians() * 6_371_000.0 * coslat;
+        let n = lat.to_radians() * EARTH_RADIUS_M;
+        let e = lon.to_radians() * EARTH_RADIUS_M * coslat;
         let key = ((n / CELL_M).floor() as i64, (e / CELL_M).floor() as i64);
         let c = self.cells.entry(key).or_default();
         if c.0.last().is_none_or(|&last| t - last > 30.0) {
