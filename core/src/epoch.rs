@@ -74,8 +74,9 @@ fn diff_nt(a: MagCounts, b: MagCounts) -> f32 {
     }
 }
 
-/// Mean Earth radius for the local flat-Earth conversion of position steps (m).
-const EARTH_RADIUS_M: f64 = 6_371_000.0;
+/// Mean Earth radius for the local flat-Earth conversion of position steps (m): the one
+/// the host's flight positions and captures use too.
+pub const EARTH_RADIUS_M: f64 = 6_371_000.0;
 /// Re-reference when the field drifts this far from the reference, keeping f32 resolution
 /// below 1e-4 nT at any value the filter sees (f32 ULP at 4096 nT is ~0.0005 nT).
 const REREFERENCE_LIMIT_NT: f32 = 2000.0;

@@ -8,7 +8,7 @@ use crate::epoch::{AlignedSample, Epoch, EpochBuilder, EpochConfig};
 use crate::filter::field::{FieldProcess, FIELD_STATES};
 use crate::filter::ud::{UdFilter, MAX_DYNAMIC, MAX_NOISE};
 use crate::flags::Flags;
-use crate::model::{Model, MAX_TERM_STATES};
+use crate::model::{Model, TermKind, MAX_TERM_STATES};
 use crate::units::MagCounts;
 
 mod config;
@@ -329,7 +329,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.models_diurnal = model
             .terms
             .iter()
-            .any(|t| !t.is_interference() && t.name() == "diurnal");
+            .any(|t| !t.is_interference() && t.kind() == Some(TermKind::Diurnal));
         self.h0_shift_m = 0.0;
         self.noise_scale = 1.0;
         self.field_noise_scale = 1.0;

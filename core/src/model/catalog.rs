@@ -6,6 +6,69 @@ use super::terms::*;
 use super::Term;
 use crate::epoch::Epoch;
 
+/// Which catalogue term a term is: its typed identity. Code recognises a term by its kind;
+/// the name ([`TermKind::name`]) is only for parsing and printing model specs, and is
+/// defined here once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum TermKind {
+    Permanent,
+    Induced,
+    Eddy,
+    Current,
+    CurrentRate,
+    Lag,
+    Rate,
+    Diurnal,
+    InducedHigh,
+    FluxCal,
+    FluxTemp,
+    FluxMod,
+    Periodic,
+}
+
+impl TermKind {
+    /// Every kind, in catalogue order.
+    pub const ALL: [TermKind; 13] = [
+        TermKind::Permanent,
+        TermKind::Induced,
+        TermKind::Eddy,
+        TermKind::Current,
+        TermKind::CurrentRate,
+        TermKind::Lag,
+        TermKind::Rate,
+        TermKind::Diurnal,
+        TermKind::InducedHigh,
+        TermKind::FluxCal,
+        TermKind::FluxTemp,
+        TermKind::FluxMod,
+        TermKind::Periodic,
+    ];
+
+    /// The name a model spec uses for it (`"eddy"`, `"current"`…).
+    pub const fn name(self) -> &'static str {
+        match self {
+            TermKind::Permanent => "permanent",
+            TermKind::Induced => "induced",
+            TermKind::Eddy => "eddy",
+            TermKind::Current => "current",
+            TermKind::CurrentRate => "current_rate",
+            TermKind::Lag => "lag",
+            TermKind::Rate => "rate",
+            TermKind::Diurnal => "diurnal",
+            TermKind::InducedHigh => "induced_high",
+            TermKind::FluxCal => "fluxcal",
+            TermKind::FluxTemp => "fluxtemp",
+            TermKind::FluxMod => "fluxmod",
+            TermKind::Periodic => "periodic",
+        }
+    }
+
+    /// The kind a model-spec name stands for.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
 /// How a term uses an auxiliary channel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ChannelUse {
@@ -20,6 +83,8 @@ pub enum ChannelUse {
 /// A catalogue entry.
 #[derive(Clone, Copy, Debug)]
 pub struct TermInfo {
+    pub kind: TermKind,
+    /// `kind.name()`, kept as a field for readers of the catalogue.
     pub name: &'static str,
     pub channel: ChannelUse,
     /// One line a geophysicist understands.
@@ -30,24 +95,32 @@ pub struct TermInfo {
 }
 
 pub const CATALOG: &[TermInfo] = &[
-    TermInfo { name: "permanent", channel: ChannelUse::None, effect: "permanent (hard-iron) magnetisation of the aircraft: K·e", relative_channel: false },
-    TermInfo { name: "induced", channel: ChannelUse::None, effect: "magnetisation induced in soft iron by the Earth's field: e_i·e_j·|B|", relative_channel: false },
-    TermInfo { name: "eddy", channel: ChannelUse::None, effect: "eddy currents in the airframe driven by manoeuvres: e_i·de_j/dt·|B|", relative_channel: false },
-    TermInfo { name: "current", channel: ChannelUse::Required, effect: "field of a current-carrying circuit, proportional to the current channel: I·e", relative_channel: false },
-    TermInfo { name: "current_rate", channel: ChannelUse::Required, effect: "inductive coupling of a switching current: dI/dt·e", relative_channel: false },
-    TermInfo { name: "lag", channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: the scalar reads B(t−τ); τ is estimated (sub-sample) and the scalar re-aligned by fractional-delay interpolation before the filter (no filter state)", relative_channel: false },
-    TermInfo { name: "rate", channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (docs/model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
-    TermInfo { name: "diurnal", channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
-    TermInfo { name: "induced_high", channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
-    TermInfo { name: "fluxcal", channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },
-    TermInfo { name: "fluxtemp", channel: ChannelUse::Required, effect: "fluxgate bias/scale drifting with a temperature channel: |B_fluxgate| − B follows (T − T_ref)·(b + s∘B_F); fitted on the fluxgate modulus and corrected before the direction cosines (no filter state)", relative_channel: false },
-    TermInfo { name: "fluxmod", channel: ChannelUse::None, effect: "the aircraft's field seen by the fluxgate itself: its modulus minus the scalar's, a second view of the same sources (TL18 spans it through the fluxgate's B_j)", relative_channel: false },
-    TermInfo { name: "periodic", channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
+    TermInfo { kind: TermKind::Permanent, name: TermKind::Permanent.name(), channel: ChannelUse::None, effect: "permanent (hard-iron) magnetisation of the aircraft: K·e", relative_channel: false },
+    TermInfo { kind: TermKind::Induced, name: TermKind::Induced.name(), channel: ChannelUse::None, effect: "magnetisation induced in soft iron by the Earth's field: e_i·e_j·|B|", relative_channel: false },
+    TermInfo { kind: TermKind::Eddy, name: TermKind::Eddy.name(), channel: ChannelUse::None, effect: "eddy currents in the airframe driven by manoeuvres: e_i·de_j/dt·|B|", relative_channel: false },
+    TermInfo { kind: TermKind::Current, name: TermKind::Current.name(), channel: ChannelUse::Required, effect: "field of a current-carrying circuit, proportional to the current channel: I·e", relative_channel: false },
+    TermInfo { kind: TermKind::CurrentRate, name: TermKind::CurrentRate.name(), channel: ChannelUse::Required, effect: "inductive coupling of a switching current: dI/dt·e", relative_channel: false },
+    TermInfo { kind: TermKind::Lag, name: TermKind::Lag.name(), channel: ChannelUse::None, effect: "time lag between the scalar sensor and the fluxgate/GPS: the scalar reads B(t−τ); τ is estimated (sub-sample) and the scalar re-aligned by fractional-delay interpolation before the filter (no filter state)", relative_channel: false },
+    TermInfo { kind: TermKind::Rate, name: TermKind::Rate.name(), channel: ChannelUse::None, effect: "eddy currents from flying through field gradients (docs/model.md §4): e_i·e_j·d|B|/dt", relative_channel: false },
+    TermInfo { kind: TermKind::Diurnal, name: TermKind::Diurnal.name(), channel: ChannelUse::Default("base"), effect: "external (diurnal) field variation recorded by the base station", relative_channel: true },
+    TermInfo { kind: TermKind::InducedHigh, name: TermKind::InducedHigh.name(), channel: ChannelUse::None, effect: "higher-order (cubic) induced magnetisation: e_i·e_j·e_k·|B|", relative_channel: false },
+    TermInfo { kind: TermKind::FluxCal, name: TermKind::FluxCal.name(), channel: ChannelUse::None, effect: "fluxgate calibration error (bias, scale, non-orthogonality) bending the direction cosines: |B_fluxgate| disagrees with the scalar; fixed by a 9-parameter scalar calibration of the fluxgate (no filter state)", relative_channel: false },
+    TermInfo { kind: TermKind::FluxTemp, name: TermKind::FluxTemp.name(), channel: ChannelUse::Required, effect: "fluxgate bias/scale drifting with a temperature channel: |B_fluxgate| − B follows (T − T_ref)·(b + s∘B_F); fitted on the fluxgate modulus and corrected before the direction cosines (no filter state)", relative_channel: false },
+    TermInfo { kind: TermKind::FluxMod, name: TermKind::FluxMod.name(), channel: ChannelUse::None, effect: "the aircraft's field seen by the fluxgate itself: its modulus minus the scalar's, a second view of the same sources (TL18 spans it through the fluxgate's B_j)", relative_channel: false },
+    TermInfo { kind: TermKind::Periodic, name: TermKind::Periodic.name(), channel: ChannelUse::Required, effect: "periodic field of a rotating machine (rpm channel), a vector in the body frame: e_i·cos/sin of its phase", relative_channel: false },
 ];
 
 /// Looks up an entry by name.
 pub fn info(name: &str) -> Option<&'static TermInfo> {
-    CATALOG.iter().find(|t| t.name == name)
+    TermKind::from_name(name).map(info_of)
+}
+
+/// The entry of a kind.
+pub fn info_of(kind: TermKind) -> &'static TermInfo {
+    CATALOG
+        .iter()
+        .find(|t| t.kind == kind)
+        .expect("every kind has a catalogue entry")
 }
 
 /// Any catalogue term by value: lets the board keep its model in a static array and the
@@ -70,24 +143,28 @@ pub enum AnyTerm {
 }
 
 impl AnyTerm {
-    /// Builds a catalogue term; `channel` is the aux index for terms that use one.
+    /// Builds a catalogue term by name; `channel` is the aux index for terms that use one.
     pub fn make(name: &str, channel: usize) -> Option<Self> {
-        Some(match name {
-            "permanent" => Self::Permanent(Permanent),
-            "induced" => Self::Induced(Induced),
-            "eddy" => Self::Eddy(Eddy),
-            "current" => Self::Current(Current { channel }),
-            "current_rate" => Self::CurrentRate(CurrentRate { channel }),
-            "lag" => Self::Lag(Lag),
-            "rate" => Self::Rate(Rate),
-            "diurnal" => Self::Diurnal(Diurnal { channel }),
-            "induced_high" => Self::InducedHigh(InducedHigh),
-            "fluxcal" => Self::FluxCal(FluxCal),
-            "fluxmod" => Self::FluxMod(FluxMod),
-            "periodic" => Self::Periodic(Periodic { channel }),
-            "fluxtemp" => Self::FluxTemp(FluxTemp { channel }),
-            _ => return None,
-        })
+        TermKind::from_name(name).map(|k| Self::of(k, channel))
+    }
+
+    /// Builds a catalogue term; `channel` is the aux index for terms that use one.
+    pub fn of(kind: TermKind, channel: usize) -> Self {
+        match kind {
+            TermKind::Permanent => Self::Permanent(Permanent),
+            TermKind::Induced => Self::Induced(Induced),
+            TermKind::Eddy => Self::Eddy(Eddy),
+            TermKind::Current => Self::Current(Current { channel }),
+            TermKind::CurrentRate => Self::CurrentRate(CurrentRate { channel }),
+            TermKind::Lag => Self::Lag(Lag),
+            TermKind::Rate => Self::Rate(Rate),
+            TermKind::Diurnal => Self::Diurnal(Diurnal { channel }),
+            TermKind::InducedHigh => Self::InducedHigh(InducedHigh),
+            TermKind::FluxCal => Self::FluxCal(FluxCal),
+            TermKind::FluxMod => Self::FluxMod(FluxMod),
+            TermKind::Periodic => Self::Periodic(Periodic { channel }),
+            TermKind::FluxTemp => Self::FluxTemp(FluxTemp { channel }),
+        }
     }
 
     fn inner(&self) -> &dyn Term {
@@ -113,6 +190,9 @@ impl Term for AnyTerm {
     fn name(&self) -> &'static str {
         self.inner().name()
     }
+    fn kind(&self) -> Option<TermKind> {
+        self.inner().kind()
+    }
     fn len(&self) -> usize {
         self.inner().len()
     }
@@ -136,5 +216,25 @@ impl Term for AnyTerm {
     }
     fn channel(&self) -> Option<usize> {
         self.inner().channel()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_kind_has_its_entry_in_order_and_builds_a_term_of_that_kind() {
+        assert_eq!(CATALOG.len(), TermKind::ALL.len());
+        for (ti, k) in CATALOG.iter().zip(TermKind::ALL) {
+            assert_eq!(ti.kind, k);
+            assert_eq!(ti.name, k.name());
+            assert_eq!(TermKind::from_name(k.name()), Some(k));
+            let t = AnyTerm::of(k, 0);
+            assert_eq!(t.kind(), Some(k));
+            assert_eq!(t.name(), k.name());
+        }
+        assert_eq!(TermKind::from_name("tl16"), None);
+        assert_eq!(Offset.kind(), None);
     }
 }

@@ -9,7 +9,7 @@ pub mod catalog;
 pub mod terms;
 
 use crate::epoch::Epoch;
-pub use catalog::{AnyTerm, ChannelUse, TermInfo, CATALOG};
+pub use catalog::{AnyTerm, ChannelUse, TermInfo, TermKind, CATALOG};
 pub use terms::*;
 
 /// Most regressors a single term may have.
@@ -21,8 +21,13 @@ pub const B_STAR_NT: f64 = 50_000.0;
 
 /// One physical effect with constant coefficients: `contribution = Σ θ_i·φ_i(epoch)`.
 pub trait Term: Sync {
-    /// Base name used in a model spec (`"eddy"`, `"current"`...).
+    /// Base name used in a model spec (`"eddy"`, `"current"`...), for parsing and printing.
     fn name(&self) -> &'static str;
+    /// The catalogue term this is, if it is one: what code recognises a term by. A term
+    /// outside the catalogue (a diagnostic's, a test's) has none.
+    fn kind(&self) -> Option<TermKind> {
+        None
+    }
     /// Number of coefficients (states) it adds.
     fn len(&self) -> usize;
     fn is_empty(&self) -> bool {

@@ -1,6 +1,7 @@
 //! The catalogue of physical effects. Regressors follow model.md §2 (eq. 10 of the paper);
 //! the extra effects follow model.md §4 and the diagnosis catalogue.
 
+use super::catalog::TermKind;
 use super::{Term, MAX_TERM_STATES};
 use crate::epoch::Epoch;
 
@@ -81,7 +82,10 @@ pub struct Offset;
 
 impl Term for Permanent {
     fn name(&self) -> &'static str {
-        "permanent"
+        TermKind::Permanent.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Permanent)
     }
     fn len(&self) -> usize {
         3
@@ -113,7 +117,10 @@ fn induced_monomials(e: &[f32; 3]) -> [f32; 5] {
 
 impl Term for Induced {
     fn name(&self) -> &'static str {
-        "induced"
+        TermKind::Induced.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Induced)
     }
     fn len(&self) -> usize {
         5
@@ -150,7 +157,10 @@ const EDDY_PAIRS: [(usize, usize); 8] = [
 
 impl Term for Eddy {
     fn name(&self) -> &'static str {
-        "eddy"
+        TermKind::Eddy.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Eddy)
     }
     fn len(&self) -> usize {
         8
@@ -199,7 +209,10 @@ fn fill_scaled_e(out: &mut [f32], e: &[f32; 3], k: Option<f32>) -> bool {
 
 impl Term for Current {
     fn name(&self) -> &'static str {
-        "current"
+        TermKind::Current.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Current)
     }
     fn len(&self) -> usize {
         3
@@ -223,7 +236,10 @@ impl Term for Current {
 
 impl Term for CurrentRate {
     fn name(&self) -> &'static str {
-        "current_rate"
+        TermKind::CurrentRate.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::CurrentRate)
     }
     fn len(&self) -> usize {
         3
@@ -247,7 +263,10 @@ impl Term for CurrentRate {
 
 impl Term for Lag {
     fn name(&self) -> &'static str {
-        "lag"
+        TermKind::Lag.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Lag)
     }
     fn len(&self) -> usize {
         0
@@ -268,7 +287,10 @@ impl Term for Lag {
 
 impl Term for FluxTemp {
     fn name(&self) -> &'static str {
-        "fluxtemp"
+        TermKind::FluxTemp.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::FluxTemp)
     }
     fn len(&self) -> usize {
         0
@@ -292,7 +314,10 @@ impl Term for FluxTemp {
 
 impl Term for Rate {
     fn name(&self) -> &'static str {
-        "rate"
+        TermKind::Rate.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Rate)
     }
     fn len(&self) -> usize {
         5
@@ -320,7 +345,10 @@ impl Term for Rate {
 
 impl Term for Diurnal {
     fn name(&self) -> &'static str {
-        "diurnal"
+        TermKind::Diurnal.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Diurnal)
     }
     fn len(&self) -> usize {
         1
@@ -362,7 +390,10 @@ impl Term for Diurnal {
 
 impl Term for InducedHigh {
     fn name(&self) -> &'static str {
-        "induced_high"
+        TermKind::InducedHigh.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::InducedHigh)
     }
     fn len(&self) -> usize {
         7
@@ -399,7 +430,10 @@ impl Term for InducedHigh {
 
 impl Term for FluxMod {
     fn name(&self) -> &'static str {
-        "fluxmod"
+        TermKind::FluxMod.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::FluxMod)
     }
     fn len(&self) -> usize {
         1
@@ -422,7 +456,10 @@ impl Term for FluxMod {
 
 impl Term for FluxCal {
     fn name(&self) -> &'static str {
-        "fluxcal"
+        TermKind::FluxCal.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::FluxCal)
     }
     fn len(&self) -> usize {
         0
@@ -443,7 +480,10 @@ impl Term for FluxCal {
 
 impl Term for Periodic {
     fn name(&self) -> &'static str {
-        "periodic"
+        TermKind::Periodic.name()
+    }
+    fn kind(&self) -> Option<TermKind> {
+        Some(TermKind::Periodic)
     }
     fn len(&self) -> usize {
         12

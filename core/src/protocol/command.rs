@@ -25,6 +25,7 @@ use super::common::{
 };
 pub use super::fluxgate::FLUX_TEMP_LEN;
 use super::lag_line::MAX_LAG_S;
+use crate::model::TermKind;
 
 /// Longest command line.
 pub const MAX_COMMAND_LEN: usize = 96;
@@ -483,19 +484,19 @@ pub enum BlobError {
 /// (`FLUX_CAL_LEN` values), written right after the model's blob. A store without it (an
 /// older firmware's) loads as "no calibration".
 pub fn flux_blob_id() -> u32 {
-    model_hash(b"fluxcal")
+    model_hash(TermKind::FluxCal.name().as_bytes())
 }
 
 /// Id of the third blob: the scalar's delay τ (s, one value), after the fluxgate
 /// calibration's. A store without it (an older firmware's) loads as τ = 0.
 pub fn lag_blob_id() -> u32 {
-    model_hash(b"lag")
+    model_hash(TermKind::Lag.name().as_bytes())
 }
 
 /// Id of the fourth blob: the fluxgate's temperature drift ([`FLUX_TEMP_LEN`] values),
 /// after the delay's. A store without it (an older firmware's) loads as no correction.
 pub fn flux_temp_blob_id() -> u32 {
-    model_hash(b"fluxtemp")
+    model_hash(TermKind::FluxTemp.name().as_bytes())
 }
 
 /// FNV-1a 32-bit: a stable model id from the model's spec string.

@@ -26,6 +26,7 @@ use crate::flight::col;
 use crate::io::trace::Trace;
 use anyhow::{bail, ensure, Context, Result};
 use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
+use magcomp_core::epoch::EARTH_RADIUS_M;
 use magcomp_core::protocol::capture::{encode_header, encode_line, Port, MAX_CHUNK, MAX_LINE};
 use magcomp_core::protocol::common::xor_checksum;
 use magcomp_core::protocol::fluxgate::{encode_spi_frame, ADC_FULL_SCALE};
@@ -272,47 +273,134 @@ pub fn write_capture_file(
     crate::io::output::write_with(path, |w| write_capture(trace, opts, w))
 }
 
-/// Writes the capture of `trace` to `w`.
+/// Writes the capture of `trace` to `w`: the trace's columns are read and checked, the
+/// sensors' chunks (fluxgate, scalar, GPS epochs) made and time-ordered, corrupted when
+/// asked, then written after the header.
 pub fn write_capture<W: Write>(
     trace: &Trace,
     opts: &CaptureOptions,
     w: &mut W,
 ) -> Result<CaptureSummary> {
     opts.validate()?;
-    let t = col(trace, "t")?;
-    let mag = col(trace, "mag")?;
-    let fx = col(trace, "flux_x")?;
-    let fy = col(trace, "flux_y")?;
-    let fz = col(trace, "flux_z")?;
-    let temp_channel = opts.flux_temp_channel.clone().or_else(|| {
-        trace.numeric.iter().find_map(|(name, _)| {
-            let ch = name.strip_prefix("truth_hidden_fluxtemp_")?;
-            trace.col(ch).map(|_| ch.to_string())
-        })
-    });
-    let temp = temp_channel.as_deref().map(|c| col(trace, c)).transpose()?;
-    // A trace without positions (a real calibration box) gets no GPS port at all rather
-    // than invented fixes: the board flags NO_GPS, which survey mode does not need.
-    let pos = match (trace.col("lat"), trace.col("lon"), trace.col("alt")) {
-        (Some(a), Some(b), Some(c)) => Some((a, b, c)),
-        _ => None,
+    let inp = CaptureInput::read(trace, opts)?;
+    let mut summary = CaptureSummary {
+        scalar_hz: inp.scalar_hz,
+        flux_hz: inp.scalar_hz,
+        gps_hz: if inp.pos.is_some() {
+            opts.gps_rate_hz
+        } else {
+            0.0
+        },
+        ..Default::default()
     };
-    let n = t.len();
-    ensure!(n >= 2, "the trace has {n} rows; a capture needs at least 2");
-    let t0 = t[0];
-    for i in 1..n {
-        // Also rejects NaN times.
-        if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
-            bail!("time is not strictly increasing at data row {}", i + 1);
+    let mut chunks: Vec<Chunk> = Vec::with_capacity(3 * inp.t.len());
+    sensor_chunks(&inp, opts, &mut chunks, &mut summary);
+    gps_chunks(&inp, opts, &mut chunks, &mut summary);
+    chunks.sort_by_key(|c| (c.0, c.1));
+    if opts.corrupt_fraction > 0.0 {
+        corrupt(&mut chunks, opts, &mut summary);
+    }
+
+    let mut line = vec![0u8; MAX_LINE];
+    let hl = encode_header(&mut line).context("capture header")?;
+    w.write_all(&line[..hl])?;
+    write_header_comments(w, opts, inp.scalar_hz, inp.pos.is_some())?;
+    for (t_us, _, port, bytes) in &chunks {
+        summary.total_bytes += bytes.len();
+        for part in bytes.chunks(MAX_CHUNK) {
+            let l = encode_line(*t_us, *port, part, &mut line).context("capture line")?;
+            w.write_all(&line[..l])?;
         }
     }
-    let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-    dts.sort_by(|a, b| a.total_cmp(b));
-    let period_s = dts[dts.len() / 2];
-    // Rounded to µHz: 1/0.1 in f64 is 10.000000000000036.
-    let scalar_hz = (1e6 / period_s).round() / 1e6;
-    // Velocity: the trace's, else from position differences.
-    let (vn, ve): (Vec<f64>, Vec<f64>) = match (trace.col("vn"), trace.col("ve"), pos) {
+    Ok(summary)
+}
+
+/// One chunk of a capture: (t_us, order within equal times, port, bytes).
+type Chunk = (u64, u8, Port, Vec<u8>);
+
+/// The trace's columns a capture is made from, checked, with the rate and velocity.
+struct CaptureInput<'a> {
+    t: &'a [f64],
+    mag: &'a [f64],
+    flux: [&'a [f64]; 3],
+    /// The fluxgate temperature channel, if any.
+    temp: Option<&'a [f64]>,
+    /// lat, lon, alt; `None` for a trace without positions (a real calibration box), which
+    /// gets no GPS port at all rather than invented fixes: the board flags NO_GPS, which
+    /// survey mode does not need.
+    pos: Option<(&'a [f64], &'a [f64], &'a [f64])>,
+    /// North and east velocity: the trace's, else from position differences.
+    vn: Vec<f64>,
+    ve: Vec<f64>,
+    /// Median sample period (s) and the scalar rate it gives (Hz, rounded to µHz).
+    period_s: f64,
+    scalar_hz: f64,
+    start_us: u64,
+}
+
+impl<'a> CaptureInput<'a> {
+    fn read(trace: &'a Trace, opts: &CaptureOptions) -> Result<Self> {
+        let t = col(trace, "t")?;
+        let mag = col(trace, "mag")?;
+        let flux = [
+            col(trace, "flux_x")?,
+            col(trace, "flux_y")?,
+            col(trace, "flux_z")?,
+        ];
+        let temp_channel = opts.flux_temp_channel.clone().or_else(|| {
+            trace.numeric.iter().find_map(|(name, _)| {
+                let ch = name.strip_prefix("truth_hidden_fluxtemp_")?;
+                trace.col(ch).map(|_| ch.to_string())
+            })
+        });
+        let temp = temp_channel.as_deref().map(|c| col(trace, c)).transpose()?;
+        let pos = match (trace.col("lat"), trace.col("lon"), trace.col("alt")) {
+            (Some(a), Some(b), Some(c)) => Some((a, b, c)),
+            _ => None,
+        };
+        let n = t.len();
+        ensure!(n >= 2, "the trace has {n} rows; a capture needs at least 2");
+        for i in 1..n {
+            // Also rejects NaN times.
+            if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
+                bail!("time is not strictly increasing at data row {}", i + 1);
+            }
+        }
+        let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+        dts.sort_by(|a, b| a.total_cmp(b));
+        let period_s = dts[dts.len() / 2];
+        // Rounded to µHz: 1/0.1 in f64 is 10.000000000000036.
+        let scalar_hz = (1e6 / period_s).round() / 1e6;
+        let (vn, ve) = velocity_ne(trace, t, pos);
+        Ok(CaptureInput {
+            t,
+            mag,
+            flux,
+            temp,
+            pos,
+            vn,
+            ve,
+            period_s,
+            scalar_hz,
+            start_us: opts.start_us,
+        })
+    }
+
+    /// The capture time (µs) of trace time `ts`.
+    fn us(&self, ts: f64) -> u64 {
+        self.start_us + ((ts - self.t[0]) * 1e6).round().max(0.0) as u64
+    }
+}
+
+/// North and east velocity: the trace's `vn`/`ve`, else central differences of the
+/// positions, else none.
+fn velocity_ne(
+    trace: &Trace,
+    t: &[f64],
+    pos: Option<(&[f64], &[f64], &[f64])>,
+) -> (Vec<f64>, Vec<f64>) {
+    let n = t.len();
+    match (trace.col("vn"), trace.col("ve"), pos) {
         (Some(a), Some(b), _) => (a.to_vec(), b.to_vec()),
         (_, _, None) => (Vec::new(), Vec::new()),
         (_, _, Some((lat, lon, _))) => {
@@ -321,54 +409,44 @@ pub fn write_capture<W: Write>(
             for i in 0..n {
                 let (a, b) = (i.saturating_sub(1), (i + 1).min(n - 1));
                 let dt = t[b] - t[a];
-                vn[i] = (lat[b] - lat[a]).to_radians() * 6_371_000.0 / dt;
-                ve[i] =
-                    (lon[b] - lon[a]).to_radians() * 6_371_000.0 * lat[i].to_radians().cos() / dt;
+                vn[i] = (lat[b] - lat[a]).to_radians() * EARTH_RADIUS_M / dt;
+                ve[i] = (lon[b] - lon[a]).to_radians() * EARTH_RADIUS_M * lat[i].to_radians().cos()
+                    / dt;
             }
             (vn, ve)
         }
-    };
-    let us = |ts: f64| opts.start_us + ((ts - t0) * 1e6).round().max(0.0) as u64;
-    // (t_us, order within equal times, port, bytes)
-    let mut chunks: Vec<(u64, u8, Port, Vec<u8>)> = Vec::with_capacity(3 * n);
-    let mut summary = CaptureSummary {
-        scalar_hz,
-        flux_hz: scalar_hz,
-        gps_hz: if pos.is_some() { opts.gps_rate_hz } else { 0.0 },
-        ..Default::default()
-    };
-    let lsb_nt = FLUX_FULL_SCALE_NT as f64 / ADC_FULL_SCALE as f64;
-    let half_period_us = (period_s * 0.5e6).round() as u64;
-    for k in 0..n {
+    }
+}
+
+/// Per sample: the fluxgate frame (outside a dropout, when all three axes are there) and,
+/// half a period later, the scalar's line (none for a missing value: the sensor sent
+/// nothing).
+fn sensor_chunks(
+    inp: &CaptureInput<'_>,
+    opts: &CaptureOptions,
+    chunks: &mut Vec<Chunk>,
+    summary: &mut CaptureSummary,
+) {
+    let t = inp.t;
+    let t0 = t[0];
+    let [fx, fy, fz] = inp.flux;
+    let half_period_us = (inp.period_s * 0.5e6).round() as u64;
+    for k in 0..t.len() {
         let tk = t[k] - t0;
         if !within(opts.flux_dropout_s, tk) {
             let f = [fx[k], fy[k], fz[k]];
             if f.iter().all(|v| v.is_finite()) {
-                let bytes = match opts.flux_format {
-                    FluxFormat::Ascii => {
-                        let mut body = format!("{:.3},{:.3},{:.3}", f[0], f[1], f[2]);
-                        // A missing temperature is a 3-field line (T = NaN on the board).
-                        if let Some(t) = temp.map(|c| c[k]).filter(|t| t.is_finite()) {
-                            body.push_str(&format!(",{t:.4}"));
-                        }
-                        format!("{body}*{:02X}\r\n", xor_checksum(body.as_bytes())).into_bytes()
-                    }
-                    FluxFormat::Spi => {
-                        encode_spi_frame(SPI_STATUS, f.map(|v| (v / lsb_nt).round() as i32))
-                            .to_vec()
-                    }
-                };
-                chunks.push((us(t[k]), 0, Port::Flux, bytes));
+                let temp = inp.temp.map(|c| c[k]);
+                chunks.push((inp.us(t[k]), 0, Port::Flux, flux_bytes(f, temp, opts)));
                 summary.flux_frames += 1;
             }
         }
-        // A missing scalar value has no line: the sensor sent nothing for it.
-        if let Some(m) = MagCounts::from_nt_f64(mag[k]) {
+        if let Some(m) = MagCounts::from_nt_f64(inp.mag[k]) {
             let a = m.0.unsigned_abs();
             let sign = if m.0 < 0 { "-" } else { "" };
             let line = format!("{sign}{}.{:04}\r\n", a / 10_000, a % 10_000);
             chunks.push((
-                us(t[k]) + half_period_us,
+                inp.us(t[k]) + half_period_us,
                 2,
                 Port::Scalar,
                 line.into_bytes(),
@@ -376,11 +454,45 @@ pub fn write_capture<W: Write>(
             summary.scalar_lines += 1;
         }
     }
-    // GPS epochs on the receiver's own grid.
+}
+
+/// One fluxgate frame in the capture's format: an ASCII line `X,Y,Z[,T]*hh` or an SPI
+/// frame.
+fn flux_bytes(f: [f64; 3], temp: Option<f64>, opts: &CaptureOptions) -> Vec<u8> {
+    match opts.flux_format {
+        FluxFormat::Ascii => {
+            let mut body = format!("{:.3},{:.3},{:.3}", f[0], f[1], f[2]);
+            // A missing temperature is a 3-field line (T = NaN on the board).
+            if let Some(t) = temp.filter(|t| t.is_finite()) {
+                body.push_str(&format!(",{t:.4}"));
+            }
+            format!("{body}*{:02X}\r\n", xor_checksum(body.as_bytes())).into_bytes()
+        }
+        FluxFormat::Spi => {
+            let lsb_nt = FLUX_FULL_SCALE_NT as f64 / ADC_FULL_SCALE as f64;
+            encode_spi_frame(SPI_STATUS, f.map(|v| (v / lsb_nt).round() as i32)).to_vec()
+        }
+    }
+}
+
+/// GPS epochs on the receiver's own grid, interpolated from the samples, each epoch's
+/// sentences spaced by their transmission time.
+fn gps_chunks(
+    inp: &CaptureInput<'_>,
+    opts: &CaptureOptions,
+    chunks: &mut Vec<Chunk>,
+    summary: &mut CaptureSummary,
+) {
+    let Some((lat, lon, alt)) = inp.pos else {
+        return;
+    };
+    let t = inp.t;
+    let n = t.len();
+    let t0 = t[0];
     let span_s = t[n - 1] - t0;
     let byte_us = 10.0e6 / opts.gps_baud as f64;
     let mut j = 0u64;
-    while let Some((lat, lon, alt)) = pos {
+    loop {
         let tg = j as f64 / opts.gps_rate_hz;
         if tg > span_s + 1e-9 {
             break;
@@ -394,15 +506,15 @@ pub fn write_capture<W: Write>(
             lat: lerp(lat, x),
             lon: lerp(lon, x),
             alt: lerp(alt, x),
-            vn: lerp(&vn, x),
-            ve: lerp(&ve, x),
+            vn: lerp(&inp.vn, x),
+            ve: lerp(&inp.ve, x),
         };
         let ok = !within(opts.gps_outage_s, tg)
             && [g.lat, g.lon, g.alt, g.vn, g.ve]
                 .iter()
                 .all(|v| v.is_finite());
         let tod = (opts.start_tod_s + tg).rem_euclid(86_400.0);
-        let mut at = us(t0 + tg) as f64 + GPS_DELAY_US as f64;
+        let mut at = inp.us(t0 + tg) as f64 + GPS_DELAY_US as f64;
         for s in gps_sentences(tod, ok.then_some(&g), opts.date) {
             let len = s.len();
             chunks.push((at.round() as u64, 1, Port::Gps, s));
@@ -410,40 +522,46 @@ pub fn write_capture<W: Write>(
             summary.gps_sentences += 1;
         }
     }
-    chunks.sort_by_key(|c| (c.0, c.1));
+}
 
-    if opts.corrupt_fraction > 0.0 {
-        let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
-        for (_, _, port, bytes) in chunks.iter_mut() {
-            if opts.corrupt_port.is_some_and(|p| p != *port) {
+/// Corrupts `opts.corrupt_fraction` of the bytes (of one port, or all), line ends kept.
+fn corrupt(chunks: &mut [Chunk], opts: &CaptureOptions, summary: &mut CaptureSummary) {
+    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
+    for (_, _, port, bytes) in chunks.iter_mut() {
+        if opts.corrupt_port.is_some_and(|p| p != *port) {
+            continue;
+        }
+        for b in bytes.iter_mut() {
+            if *b == b'\r' || *b == b'\n' || !rng.gen_bool(opts.corrupt_fraction) {
                 continue;
             }
-            for b in bytes.iter_mut() {
-                if *b == b'\r' || *b == b'\n' || !rng.gen_bool(opts.corrupt_fraction) {
-                    continue;
+            // A different byte that is not a line end.
+            let v = loop {
+                let v: u8 = rng.gen();
+                if v != *b && v != b'\r' && v != b'\n' {
+                    break v;
                 }
-                // A different byte that is not a line end.
-                let v = loop {
-                    let v: u8 = rng.gen();
-                    if v != *b && v != b'\r' && v != b'\n' {
-                        break v;
-                    }
-                };
-                *b = v;
-                summary.corrupted_bytes += 1;
-            }
+            };
+            *b = v;
+            summary.corrupted_bytes += 1;
         }
     }
+}
 
-    let mut line = vec![0u8; MAX_LINE];
-    let hl = encode_header(&mut line).context("capture header")?;
-    w.write_all(&line[..hl])?;
+/// The `# key: value` comments after the header line: source, rates, format, and the
+/// faults the capture was made with.
+fn write_header_comments<W: Write>(
+    w: &mut W,
+    opts: &CaptureOptions,
+    scalar_hz: f64,
+    has_gps: bool,
+) -> Result<()> {
     writeln!(w, "# source: {}", opts.source)?;
     writeln!(w, "# scalar_hz: {scalar_hz}")?;
     writeln!(w, "# flux_hz: {scalar_hz}")?;
     // Kept without positions too: replay takes its staleness limit from it.
     writeln!(w, "# gps_hz: {}", opts.gps_rate_hz)?;
-    if pos.is_none() {
+    if !has_gps {
         writeln!(w, "# gps: none (the trace has no lat/lon/alt)")?;
     }
     writeln!(w, "# flux_format: {}", opts.flux_format.name())?;
@@ -461,14 +579,7 @@ pub fn write_capture<W: Write>(
             opts.corrupt_fraction, opts.seed
         )?;
     }
-    for (t_us, _, port, bytes) in &chunks {
-        summary.total_bytes += bytes.len();
-        for part in bytes.chunks(MAX_CHUNK) {
-            let l = encode_line(*t_us, *port, part, &mut line).context("capture line")?;
-            w.write_all(&line[..l])?;
-        }
-    }
-    Ok(summary)
+    Ok(())
 }
 
 /// `HH:MM:SS[.s]` → seconds of day.

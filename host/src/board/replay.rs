@@ -354,34 +354,110 @@ impl CaptureMeta {
     }
 }
 
-/// Replays a capture from `input`; every record goes to `sink` in order.
+/// The acquisition chain a replay runs: the board's, with the host's state budget.
+type ReplayAcquisition<'a> = Acquisition<'a, REPLAY_STATES, REPLAY_WINDOW>;
+
+/// Replays a capture from `input`; every record goes to `sink` in order: the header (rates,
+/// format) is read, the board's acquisition chain built and loaded (delay, coefficients),
+/// then every capture line fed to it.
 pub fn replay_capture<R: BufRead>(
-    mut input: R,
+    input: R,
     opts: &ReplayOptions,
-    mut sink: impl FnMut(&Record) -> Result<()>,
+    sink: impl FnMut(&Record) -> Result<()>,
 ) -> Result<ReplayStats> {
-    // Leading comments carry the rates the capture was made with.
-    let mut meta = CaptureMeta::default();
-    let mut first_data: Option<Vec<u8>> = None;
-    let mut line = Vec::new();
-    let mut lineno = 0u64;
-    let mut header = false;
-    loop {
-        line.clear();
-        if read_line_bounded(&mut input, &mut line, MAX_CAPTURE_LINE)
-            .with_context(|| format!("line {}", lineno + 1))?
+    let mut lines = CaptureLines {
+        input,
+        line: Vec::new(),
+        lineno: 0,
+    };
+    let (meta, first_data) = read_header(&mut lines)?;
+    let setup = ReplaySetup::of(opts, &meta);
+    let spec = &opts.model;
+    with_model(spec, |model| -> Result<ReplayStats> {
+        let comp = Compensator::<REPLAY_STATES, REPLAY_WINDOW>::new(
+            model,
+            compensator_config(setup.scalar_hz as f32, REPLAY_WINDOW),
+        )
+        .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
+        // The board's delay line (a static there): 8 KiB, so on the heap here.
+        let mut lag_line = Box::new(LagLine::new());
+        let mut acq = Acquisition::new(setup.acq_config(opts), comp).map_err(|e| {
+            anyhow::anyhow!(
+                "rates {}/{}/{} Hz: {}",
+                setup.scalar_hz,
+                setup.flux_hz,
+                setup.gps_hz,
+                crate::model::errors::acquisition_error(&e)
+            )
+        })?;
+        acq.attach_lag_line(&mut lag_line);
+        load_board_state(&mut acq, opts, &setup, model.coefficient_count())?;
+        let mut stats = ReplayStats {
+            scalar_hz: setup.scalar_hz,
+            flux_hz: setup.flux_hz,
+            gps_hz: setup.gps_hz,
+            flux_format: Some(setup.flux_format),
+            ..Default::default()
+        };
+        let mut out = Emitter {
+            sink,
+            dropped: false,
+        };
+        feed(
+            &mut acq,
+            &mut lines,
+            first_data,
+            setup.flux_format,
+            &mut stats,
+            &mut out,
+        )?;
+        while let Some(r) = acq.flush() {
+            out.emit(&r, &mut stats)?;
+        }
+        stats.counters = acq.counters();
+        Ok(stats)
+    })
+}
+
+/// A capture's lines, numbered from 1, each read with the board's line bound.
+struct CaptureLines<R> {
+    input: R,
+    line: Vec<u8>,
+    lineno: u64,
+}
+
+impl<R: BufRead> CaptureLines<R> {
+    /// The next line, `None` at the end.
+    fn next_line(&mut self) -> Result<Option<Vec<u8>>> {
+        self.line.clear();
+        if read_line_bounded(&mut self.input, &mut self.line, MAX_CAPTURE_LINE)
+            .with_context(|| format!("line {}", self.lineno + 1))?
             == 0
         {
-            break;
+            return Ok(None);
         }
-        lineno += 1;
+        self.lineno += 1;
+        Ok(Some(std::mem::take(&mut self.line)))
+    }
+}
+
+/// The leading comments (they carry the rates the capture was made with) up to the first
+/// data line, which is returned. A file without the `# magcomp-capture` header is taken for
+/// a capture only when its first data line is one.
+fn read_header<R: BufRead>(lines: &mut CaptureLines<R>) -> Result<(CaptureMeta, Option<Vec<u8>>)> {
+    let mut meta = CaptureMeta::default();
+    let mut header = false;
+    let first_data = loop {
+        let Some(mut line) = lines.next_line()? else {
+            break None;
+        };
         // A UTF-8 byte-order mark (editors on Windows add one) is not part of the header.
-        if lineno == 1 && line.starts_with(b"\xEF\xBB\xBF") {
+        if lines.lineno == 1 && line.starts_with(b"\xEF\xBB\xBF") {
             line.drain(..3);
         }
         if line.first() == Some(&b'#') {
             if decode_line(&line, &mut []).is_err() {
-                bail!("line {lineno}: unsupported capture version");
+                bail!("line {}: unsupported capture version", lines.lineno);
             }
             header |= line.starts_with(b"# magcomp-capture ");
             meta.take(&String::from_utf8_lossy(&line));
@@ -390,12 +466,11 @@ pub fn replay_capture<R: BufRead>(
         if line.iter().all(u8::is_ascii_whitespace) {
             continue;
         }
-        first_data = Some(std::mem::take(&mut line));
-        break;
-    }
-    // Without its header a file is taken for a capture only when its first line is one:
-    // random bytes, a program or a CSV replayed to an empty output with exit 0 before.
+        break Some(line);
+    };
+    // Random bytes, a program or a CSV replayed to an empty output with exit 0 before.
     if !header {
+        let lineno = lines.lineno;
         let mut scratch = [0u8; MAX_CHUNK];
         match &first_data {
             None => bail!("not a magcomp capture: no `# magcomp-capture v1` header and no capture line (the file is empty)"),
@@ -406,136 +481,177 @@ pub fn replay_capture<R: BufRead>(
             Some(_) => {}
         }
     }
-    let (d_scalar, d_flux, d_gps) = BOARD_RATES_HZ;
-    let scalar_hz = opts.rate_hz.or(meta.scalar_hz).unwrap_or(d_scalar);
-    let flux_hz = opts.flux_rate_hz.or(meta.flux_hz).unwrap_or(d_flux);
-    let gps_hz = opts.gps_rate_hz.or(meta.gps_hz).unwrap_or(d_gps);
-    let flux_format = opts.flux.or(meta.flux_format).unwrap_or(FluxFormat::Ascii);
-    let mut cfg = AcqConfig::new(scalar_hz, flux_hz, gps_hz);
-    if let Some(c) = opts.flux_calibration {
-        cfg.flux_scalar_cal = c;
+    Ok((meta, first_data))
+}
+
+/// The rates and fluxgate format a replay runs at: the options', else the capture
+/// header's, else the board's.
+struct ReplaySetup {
+    scalar_hz: f64,
+    flux_hz: f64,
+    gps_hz: f64,
+    flux_format: FluxFormat,
+}
+
+impl ReplaySetup {
+    fn of(opts: &ReplayOptions, meta: &CaptureMeta) -> Self {
+        let (d_scalar, d_flux, d_gps) = BOARD_RATES_HZ;
+        ReplaySetup {
+            scalar_hz: opts.rate_hz.or(meta.scalar_hz).unwrap_or(d_scalar),
+            flux_hz: opts.flux_rate_hz.or(meta.flux_hz).unwrap_or(d_flux),
+            gps_hz: opts.gps_rate_hz.or(meta.gps_hz).unwrap_or(d_gps),
+            flux_format: opts.flux.or(meta.flux_format).unwrap_or(FluxFormat::Ascii),
+        }
     }
-    if let Some(c) = opts.flux_temp {
-        cfg.flux_temp_cal = c;
+
+    /// The acquisition's configuration, with the fluxgate corrections the options load.
+    fn acq_config(&self, opts: &ReplayOptions) -> AcqConfig {
+        let mut cfg = AcqConfig::new(self.scalar_hz, self.flux_hz, self.gps_hz);
+        if let Some(c) = opts.flux_calibration {
+            cfg.flux_scalar_cal = c;
+        }
+        if let Some(c) = opts.flux_temp {
+            cfg.flux_temp_cal = c;
+        }
+        cfg
     }
-    let spec = &opts.model;
-    with_model(spec, |model| -> Result<ReplayStats> {
-        let comp = Compensator::<REPLAY_STATES, REPLAY_WINDOW>::new(
-            model,
-            compensator_config(scalar_hz as f32, REPLAY_WINDOW),
-        )
-        .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
-        // The board's delay line (a static there): 8 KiB, so on the heap here.
-        let mut lag_line = Box::new(LagLine::new());
-        let mut acq = Acquisition::new(cfg, comp).map_err(|e| {
+}
+
+/// Loads what an upload would: the scalar's delay τ and the coefficients (`n_coefficients`
+/// is what the model has).
+fn load_board_state(
+    acq: &mut ReplayAcquisition<'_>,
+    opts: &ReplayOptions,
+    setup: &ReplaySetup,
+    n_coefficients: usize,
+) -> Result<()> {
+    if let Some(l) = opts.lag_s {
+        acq.set_lag_s(l).map_err(|_| {
             anyhow::anyhow!(
-                "rates {scalar_hz}/{flux_hz}/{gps_hz} Hz: {}",
-                crate::model::errors::acquisition_error(&e)
+                "the board cannot delay the fluxgate by τ = {l} s: 0 – {MAX_LAG_S} s, at most {} frames at {} Hz",
+                LAG_FRAMES - 2,
+                setup.flux_hz
             )
         })?;
-        acq.attach_lag_line(&mut lag_line);
-        if let Some(l) = opts.lag_s {
-            acq.set_lag_s(l).map_err(|_| {
-                anyhow::anyhow!(
-                    "the board cannot delay the fluxgate by τ = {l} s: 0 – {MAX_LAG_S} s, at most {} frames at {flux_hz} Hz",
-                    LAG_FRAMES - 2
-                )
-            })?;
+    }
+    if let Some(c) = &opts.coefficients {
+        acq.set_coefficients(c).map_err(|_| {
+            anyhow::anyhow!(
+                "{} coefficients do not fit model '{}' ({} coefficients)",
+                c.len(),
+                opts.model.text(),
+                n_coefficients
+            )
+        })?;
+    }
+    Ok(())
+}
+
+/// Where records go: counted, the one after a dropped line flagged PARSE_ERROR, then to
+/// the sink.
+struct Emitter<F> {
+    sink: F,
+    /// Set when a line was dropped: the next record carries PARSE_ERROR.
+    dropped: bool,
+}
+
+impl<F: FnMut(&Record) -> Result<()>> Emitter<F> {
+    fn emit(&mut self, r: &Record, stats: &mut ReplayStats) -> Result<()> {
+        let mut r = *r;
+        if std::mem::take(&mut self.dropped) {
+            r.flags.set(Flags::PARSE_ERROR);
         }
-        if let Some(c) = &opts.coefficients {
-            acq.set_coefficients(c).map_err(|_| {
-                anyhow::anyhow!(
-                    "{} coefficients do not fit model '{}' ({} coefficients)",
-                    c.len(),
-                    spec.text(),
-                    model.coefficient_count()
-                )
-            })?;
-        }
-        let mut stats = ReplayStats {
-            scalar_hz,
-            flux_hz,
-            gps_hz,
-            flux_format: Some(flux_format),
-            ..Default::default()
-        };
-        // Set when a line was dropped: the next record carries PARSE_ERROR.
-        let mut dropped = false;
-        let mut emit = |r: &Record, stats: &mut ReplayStats, dropped: &mut bool| -> Result<()> {
-            let mut r = *r;
-            if std::mem::take(dropped) {
-                r.flags.set(Flags::PARSE_ERROR);
+        stats.records += 1;
+        stats.first_t_s.get_or_insert(r.t_s);
+        stats.last_t_s = Some(r.t_s);
+        (self.sink)(&r)
+    }
+}
+
+/// Per port: the latest time stamp read and that line's bytes.
+#[derive(Default)]
+struct PortHistory {
+    last: [(Option<u64>, Vec<u8>); Port::ALL.len()],
+}
+
+impl PortHistory {
+    /// Whether a line is new on its port: one back in time, or a repeat of the port's
+    /// previous line (same time stamp, same bytes), is counted in `stats` and refused.
+    fn admit(
+        &mut self,
+        port: Port,
+        t_us: u64,
+        bytes: &[u8],
+        lineno: u64,
+        stats: &mut ReplayStats,
+    ) -> bool {
+        let (last_t, last_bytes) = &mut self.last[port as usize];
+        match *last_t {
+            Some(t) if t_us < t => {
+                stats.time_reversals += 1;
+                stats.first_reversal_line.get_or_insert(lineno);
+                false
             }
-            stats.records += 1;
-            stats.first_t_s.get_or_insert(r.t_s);
-            stats.last_t_s = Some(r.t_s);
-            sink(&r)
-        };
-        let mut data = [0u8; MAX_CHUNK];
-        // Per port: the latest time stamp read and that line's bytes.
-        let mut last: [(Option<u64>, Vec<u8>); Port::ALL.len()] = Default::default();
-        let mut pending = first_data;
-        loop {
-            let l = match pending.take() {
+            Some(t) if t_us == t && last_bytes.as_slice() == bytes => {
+                stats.duplicate_lines += 1;
+                stats.first_duplicate_line.get_or_insert(lineno);
+                false
+            }
+            _ => {
+                *last_t = Some(t_us);
+                last_bytes.clear();
+                last_bytes.extend_from_slice(bytes);
+                true
+            }
+        }
+    }
+}
+
+/// Feeds every capture line from `first` on to the acquisition chain, emitting its records.
+fn feed<R: BufRead, F: FnMut(&Record) -> Result<()>>(
+    acq: &mut ReplayAcquisition<'_>,
+    lines: &mut CaptureLines<R>,
+    first: Option<Vec<u8>>,
+    flux_format: FluxFormat,
+    stats: &mut ReplayStats,
+    out: &mut Emitter<F>,
+) -> Result<()> {
+    let mut data = [0u8; MAX_CHUNK];
+    let mut history = PortHistory::default();
+    let mut pending = first;
+    loop {
+        let l = match pending.take() {
+            Some(l) => l,
+            None => match lines.next_line()? {
                 Some(l) => l,
-                None => {
-                    line.clear();
-                    if read_line_bounded(&mut input, &mut line, MAX_CAPTURE_LINE)
-                        .with_context(|| format!("line {}", lineno + 1))?
-                        == 0
-                    {
-                        break;
-                    }
-                    lineno += 1;
-                    std::mem::take(&mut line)
-                }
-            };
-            let c = match decode_line(&l, &mut data) {
-                Ok(Some(c)) => c,
-                Ok(None) => continue,
-                Err(_) => {
-                    stats.bad_capture_lines += 1;
-                    continue;
-                }
-            };
-            stats.capture_lines += 1;
-            let bytes = &data[..c.len];
-            let (last_t, last_bytes) = &mut last[c.port as usize];
-            match *last_t {
-                Some(t) if c.t_us < t => {
-                    stats.time_reversals += 1;
-                    stats.first_reversal_line.get_or_insert(lineno);
-                    dropped = true;
-                    continue;
-                }
-                Some(t) if c.t_us == t && last_bytes.as_slice() == bytes => {
-                    stats.duplicate_lines += 1;
-                    stats.first_duplicate_line.get_or_insert(lineno);
-                    dropped = true;
-                    continue;
-                }
-                _ => {
-                    *last_t = Some(c.t_us);
-                    last_bytes.clear();
-                    last_bytes.extend_from_slice(bytes);
-                }
-            }
-            if c.port == Port::Flux && flux_format == FluxFormat::Spi {
-                acq.push_flux_frame(bytes);
+                None => break,
+            },
+        };
+        let c = match decode_line(&l, &mut data) {
+            Ok(Some(c)) => c,
+            Ok(None) => continue,
+            Err(_) => {
+                stats.bad_capture_lines += 1;
                 continue;
             }
-            for &b in bytes {
-                if let Some(r) = acq.push_byte(c.port, b) {
-                    emit(&r, &mut stats, &mut dropped)?;
-                }
+        };
+        stats.capture_lines += 1;
+        let bytes = &data[..c.len];
+        if !history.admit(c.port, c.t_us, bytes, lines.lineno, stats) {
+            out.dropped = true;
+            continue;
+        }
+        if c.port == Port::Flux && flux_format == FluxFormat::Spi {
+            acq.push_flux_frame(bytes);
+            continue;
+        }
+        for &b in bytes {
+            if let Some(r) = acq.push_byte(c.port, b) {
+                out.emit(&r, stats)?;
             }
         }
-        while let Some(r) = acq.flush() {
-            emit(&r, &mut stats, &mut dropped)?;
-        }
-        stats.counters = acq.counters();
-        Ok(stats)
-    })
+    }
+    Ok(())
 }
 
 /// `12.3456` from counts, exactly; empty when missing.

@@ -6,8 +6,9 @@
 //! without a rebuild.
 
 use crate::calibration::coefficients::{CoefficientFile, Method};
-use crate::model::spec::ModelSpec;
+use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Context, Result};
+use magcomp_core::model::TermKind;
 use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS};
 use magcomp_core::protocol::fluxgate::FluxTempCal;
 use magcomp_core::protocol::lag_line::MAX_LAG_S;
@@ -37,7 +38,7 @@ pub fn upload_commands(
     let theirs = ModelSpec::parse(&file.model)?;
     // `fluxtemp`: the board corrects each fluxgate frame with the temperature on its line
     // (4th field) before `fluxcal`, as the host does before calibrating.
-    let flux_temp = if theirs.terms.iter().any(|t| t.name == "fluxtemp") {
+    let flux_temp = if theirs.corrects(InputCorrection::FluxTemp) {
         let c = file.fluxgate_temperature.as_ref().with_context(|| {
             format!(
                 "the coefficients are for model '{}' but the file holds no fluxgate_temperature",
@@ -49,7 +50,7 @@ pub fn upload_commands(
         FluxTempCal::NONE
     };
     // `lag`: the board delays the fluxgate by τ (SETLAG) instead of re-aligning the scalar.
-    let lag_s = if theirs.terms.iter().any(|t| t.name == "lag") {
+    let lag_s = if theirs.corrects(InputCorrection::Lag) {
         let l = file.scalar_lag.with_context(|| {
             format!(
                 "the coefficients are for model '{}' but the file holds no scalar_lag (τ)",
@@ -67,15 +68,7 @@ pub fn upload_commands(
         0.0
     };
     // `fluxcal`, `lag` and `fluxtemp` add no filter state: their coefficients are the board model's.
-    let without_fluxcal = ModelSpec {
-        terms: theirs
-            .terms
-            .iter()
-            .filter(|t| !matches!(t.name.as_str(), "fluxcal" | "lag" | "fluxtemp"))
-            .cloned()
-            .collect(),
-        ..theirs.clone()
-    };
+    let without_fluxcal = theirs.without_input_corrections();
     if without_fluxcal.text() != board.text() {
         bail!(
             "the coefficients are for model '{}', the board runs '{}'",
@@ -105,7 +98,11 @@ pub fn upload_commands(
     for (i, c) in file.coefficients.iter().enumerate() {
         let extra = crossover
             .and_then(|r| {
-                let label = c.name.strip_prefix("rate.")?;
+                // A coefficient file names a coefficient `term.label`.
+                let label = c
+                    .name
+                    .strip_prefix(TermKind::Rate.name())?
+                    .strip_prefix('.')?;
                 let k = crate::estimate::crossover::RATE_LABELS[..5]
                     .iter()
                     .position(|l| *l == label)?;

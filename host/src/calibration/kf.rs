@@ -8,7 +8,7 @@ use crate::estimate::corrections::run_kf;
 use crate::estimate::kf::KfOptions;
 use crate::flight::Flight;
 use crate::io::trace::Trace;
-use crate::model::spec::ModelSpec;
+use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Result};
 
 pub(super) fn run_kf_method(
@@ -71,10 +71,10 @@ pub(super) fn run_kf_method(
             bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
         }
         opts.fluxgate_calibration = c.fluxgate_calibration;
-        if spec.terms.iter().any(|t| t.name == "lag") && c.scalar_lag.is_none() {
+        if spec.corrects(InputCorrection::Lag) && c.scalar_lag.is_none() {
             bail!("the model has `lag` but the coefficient file has no scalar_lag");
         }
-        if spec.terms.iter().any(|t| t.name == "fluxtemp") && c.fluxgate_temperature.is_none() {
+        if spec.corrects(InputCorrection::FluxTemp) && c.fluxgate_temperature.is_none() {
             bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
         }
         opts.preprocessing = Some(crate::model::corrections::Preprocessing {

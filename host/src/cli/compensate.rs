@@ -293,7 +293,7 @@ fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Resu
     if est.method == crate::calibration::coefficients::Method::Kf {
         let spec = crate::model::spec::ModelSpec::parse(&est.model)?;
         if crate::estimate::corrections::needed(&spec)
-            || spec.terms.iter().any(|t| t.name == "rate")
+            || spec.has(magcomp_core::model::TermKind::Rate)
         {
             bail!(
                 "{}; model '{}' cannot be applied streamed to the full-rate file \

@@ -7,7 +7,7 @@ use crate::board::replay::{
     replay_capture, ReplayOptions, ReplayStats, CSV_HEADER,
 };
 use crate::io::output::AtomicFile;
-use crate::model::spec::{ModelSpec, BOARD_MODEL};
+use crate::model::spec::{InputCorrection, ModelSpec, BOARD_MODEL};
 use anyhow::{Context, Result};
 use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
 use std::io::{BufReader, Write};
@@ -93,8 +93,8 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .as_deref()
         .map(|p| read_coefficients_for(p, Some(&model)))
         .transpose()?;
-    let model_has_lag = model.terms.iter().any(|t| t.name == "lag");
-    let model_has_fluxtemp = model.terms.iter().any(|t| t.name == "fluxtemp");
+    let model_has_lag = model.corrects(InputCorrection::Lag);
+    let model_has_fluxtemp = model.corrects(InputCorrection::FluxTemp);
     let mut opts = ReplayOptions::new(model);
     opts.coefficients = coefficients;
     opts.flux_calibration = args

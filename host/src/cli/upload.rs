@@ -176,11 +176,5 @@ pub fn run(args: &UploadArgs) -> Result<()> {
 /// (`fluxcal`, `lag`, `fluxtemp` correct the inputs and add no filter state).
 fn filter_model(model: &str) -> Result<String> {
     let spec = crate::model::spec::ModelSpec::parse(model)?;
-    let terms = spec
-        .terms
-        .iter()
-        .filter(|t| !matches!(t.name.as_str(), "fluxcal" | "lag" | "fluxtemp"))
-        .cloned()
-        .collect();
-    Ok(crate::model::spec::ModelSpec { terms, ..spec }.text())
+    Ok(spec.without_input_corrections().text())
 }

@@ -45,16 +45,16 @@ pub use iterate::{iterate, Iteration, IterationStep};
 use crate::estimate::kf::KfRun;
 use crate::flight::Flight;
 use crate::io::trace::Trace;
-use crate::model::spec::{ModelSpec, TermSpec};
+use crate::model::spec::{InputCorrection, ModelSpec, TermSpec};
 use crate::signal::stats::median;
 use anyhow::{Context, Result};
 use failures::{band_failures, segment_stats, time_failures};
-use magcomp_core::model::catalog::{AnyTerm, ChannelUse, CATALOG};
+use magcomp_core::model::catalog::{AnyTerm, ChannelUse, TermKind, CATALOG};
 use magcomp_core::model::Term;
 use regression::ColTerm;
 use serde::Serialize;
 use std::collections::HashMap;
-use workspace::{CandidateSpec, Tested, Workspace};
+use workspace::{CandidateSpec, CandidateTest, Tested, Workspace};
 
 /// A term that is not (yet) in the core catalogue, tested alongside it: how a user checks
 /// a new physical effect before pasting it into `core/src/model` (docs/adding-an-effect.md).
@@ -298,11 +298,11 @@ pub fn candidate_terms_with(
     aux: Option<&candidates::AuxSelection>,
 ) -> Vec<String> {
     let aux: Vec<&str> = candidates::channels(trace, aux);
-    let present = |name: &str, ch: Option<&str>| {
+    let present = |kind: TermKind, ch: Option<&str>| {
         model
             .terms
             .iter()
-            .any(|t| t.name == name && (ch.is_none() || t.channel.as_deref() == ch))
+            .any(|t| t.kind() == Some(kind) && (ch.is_none() || t.channel.as_deref() == ch))
     };
     let mut out = Vec::new();
     if !model.field {
@@ -313,31 +313,32 @@ pub fn candidate_terms_with(
             ChannelUse::None => {
                 // `fluxmod` is offered by `diagnose_with` only where the fluxgate sees a
                 // field of its own (its regressor holds the scalar itself).
-                if present(ti.name, None) || ti.name == "fluxmod" {
+                if present(ti.kind, None) || ti.kind == TermKind::FluxMod {
                     continue;
                 }
                 out.push(ti.name.to_string());
             }
             ChannelUse::Default(d) => {
-                if trace.col(d).is_some() && !present(ti.name, Some(d)) {
+                if trace.col(d).is_some() && !present(ti.kind, Some(d)) {
                     out.push(format!("{}:{d}", ti.name));
                 }
             }
             // `fluxtemp` only for temperature channels: it is tested on the fluxgate modulus
             // with a model run each, and a current is not a temperature.
-            ChannelUse::Required if ti.name == "fluxtemp" => {
+            ChannelUse::Required if ti.kind == TermKind::FluxTemp => {
                 for ch in aux.iter().filter(|c| temp_like(c)) {
-                    if !present(ti.name, Some(ch)) {
+                    if !present(ti.kind, Some(ch)) {
                         out.push(format!("{}:{ch}", ti.name));
                     }
                 }
             }
             ChannelUse::Required => {
                 for ch in &aux {
-                    if ti.name == "periodic" && !rpm_like(ch, trace.col(ch).unwrap_or(&[])) {
+                    if ti.kind == TermKind::Periodic && !rpm_like(ch, trace.col(ch).unwrap_or(&[]))
+                    {
                         continue;
                     }
-                    if !present(ti.name, Some(ch)) {
+                    if !present(ti.kind, Some(ch)) {
                         out.push(format!("{}:{ch}", ti.name));
                     }
                 }
@@ -408,7 +409,7 @@ pub fn diagnose_with(
     let mut bi = model.terms.len();
     for (text, spec) in &cand_specs {
         let tested = match spec {
-            Some(ct) => {
+            CandidateTest::Regressor(ct) => {
                 bi += 1;
                 let t = ws.test_regressor(text, ct, bi - 1);
                 if matches!(t, Tested::Ranked(_)) {
@@ -416,8 +417,8 @@ pub fn diagnose_with(
                 }
                 t
             }
-            None if text == "field" => ws.test_field(),
-            None => ws.test_fluxgate(text)?,
+            CandidateTest::Field => ws.test_field(),
+            CandidateTest::Fluxgate(fix, ch) => ws.test_fluxgate(text, *fix, ch.as_deref())?,
         };
         match tested {
             Tested::Ranked(c) => candidates.push(*c),
@@ -450,28 +451,40 @@ fn candidate_specs<'a>(
     // the fluxgate sees a field of its own, several times what the scalar leaves
     // unexplained (a real survey aircraft's fluxgate: 31 nT after calibration against a
     // 3.7 nT residual; our simulator's: its 0.5 nT noise).
-    if !model.terms.iter().any(|t| t.name == "fluxmod")
+    if !model.has(TermKind::FluxMod)
         && effect_tests::fluxgate_own_field_ratio(flight, run)
             .is_some_and(|r| r >= FLUXMOD_MIN_OWN_FIELD_RATIO)
     {
-        cand_texts.push("fluxmod".into());
+        cand_texts.push(TermKind::FluxMod.name().into());
     }
     let mut specs: Vec<CandidateSpec> = Vec::new();
     for c in &cand_texts {
-        if c == "field" || c == "fluxcal" || c.starts_with("fluxtemp:") {
-            // Not regressors: each changes the filter's input or its states.
-            specs.push((c.clone(), None));
-        } else {
-            let spec = ModelSpec::parse(c)?;
-            let t = spec
-                .terms
-                .into_iter()
-                .next()
-                .context("internal: empty candidate")?;
-            // `lag` is a delay (no regressors): it is detected by its first-order form.
-            let extra = (t.name == "lag").then_some(&lag_detector::LAG_DETECTOR);
-            specs.push((c.clone(), Some(ColTerm { spec: t, extra })));
+        if c == "field" {
+            specs.push((c.clone(), CandidateTest::Field));
+            continue;
         }
+        let spec = ModelSpec::parse(c)?;
+        let t = spec
+            .terms
+            .into_iter()
+            .next()
+            .context("internal: empty candidate")?;
+        let test = match t.input_correction() {
+            // Not regressors: each changes the filter's input.
+            Some(fix @ (InputCorrection::FluxCal | InputCorrection::FluxTemp)) => {
+                CandidateTest::Fluxgate(fix, t.channel.clone())
+            }
+            // `lag` is a delay (no regressors): it is detected by its first-order form.
+            Some(InputCorrection::Lag) => CandidateTest::Regressor(ColTerm {
+                spec: t,
+                extra: Some(&lag_detector::LAG_DETECTOR),
+            }),
+            None => CandidateTest::Regressor(ColTerm {
+                spec: t,
+                extra: None,
+            }),
+        };
+        specs.push((c.clone(), test));
     }
     for x in extra {
         let chans: Vec<Option<String>> = if x.needs_channel {
@@ -489,7 +502,7 @@ fn candidate_specs<'a>(
             };
             specs.push((
                 spec.text(),
-                Some(ColTerm {
+                CandidateTest::Regressor(ColTerm {
                     spec,
                     extra: Some(x),
                 }),

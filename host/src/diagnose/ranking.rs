@@ -4,6 +4,7 @@
 use super::regression::fit_map;
 use super::workspace::Workspace;
 use super::{evidence, Candidate, DiagnoseOptions, RECALIBRATE};
+use magcomp_core::model::catalog::TermKind;
 use std::collections::HashMap;
 
 /// Sets `material`, `significant` and the evidence the verdict rests on: statistically
@@ -82,7 +83,7 @@ pub(super) fn refit_candidates(ws: &Workspace, candidates: &mut [Candidate]) {
 /// current's first-order form (`current_rate`, 3) won the parsimony rule against the
 /// delay that explains the current's part and the attitude's (seed 4).
 fn parameters(c: &Candidate) -> usize {
-    if c.term == "lag" {
+    if TermKind::from_name(&c.term) == Some(TermKind::Lag) {
         1
     } else {
         c.added_parameters

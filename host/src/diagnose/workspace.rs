@@ -18,15 +18,24 @@ use crate::estimate::innovations::{filter_columns, FieldSettings, Innovations};
 use crate::estimate::kf::{estimate_sigma1_for, KfRun, DEFAULT_SIGMA1};
 use crate::flight::{scalar_relative_nt, Flight};
 use crate::io::trace::Trace;
-use crate::model::spec::ModelSpec;
+use crate::model::spec::{InputCorrection, ModelSpec};
 use crate::signal::stats::{chi2_sf, lag1_autocorr};
 use anyhow::{bail, Context, Result};
-use magcomp_core::model::catalog::{info, AnyTerm};
+use magcomp_core::model::catalog::{info, AnyTerm, TermKind};
 use magcomp_core::model::Term;
 
-/// A candidate and how it is tested: `None` for those that change the filter's input or
-/// states (`field`, `fluxcal`, `fluxtemp:CH`) rather than add regressors.
-pub(super) type CandidateSpec<'a> = (String, Option<ColTerm<'a>>);
+/// How a candidate is tested.
+pub(super) enum CandidateTest<'a> {
+    /// A term that adds regressors (`lag` by its first-order form).
+    Regressor(ColTerm<'a>),
+    /// The anomaly states: the filter itself changes.
+    Field,
+    /// A fluxgate correction (`fluxcal`, `fluxtemp:CH`): tested on the fluxgate modulus.
+    Fluxgate(InputCorrection, Option<String>),
+}
+
+/// A candidate: the text a user appends to the model, and its test.
+pub(super) type CandidateSpec<'a> = (String, CandidateTest<'a>);
 
 /// The outcome of one candidate's test.
 pub(super) enum Tested {
@@ -91,11 +100,12 @@ impl<'a> Workspace<'a> {
                 extra: None,
             })
             .collect();
-        all_terms.extend(cand_specs.iter().filter_map(|(_, c)| {
-            c.as_ref().map(|c| ColTerm {
+        all_terms.extend(cand_specs.iter().filter_map(|(_, c)| match c {
+            CandidateTest::Regressor(c) => Some(ColTerm {
                 spec: c.spec.clone(),
                 extra: c.extra,
-            })
+            }),
+            _ => None,
         }));
         refuse_too_large(&all_terms, n)?;
         // With `lag`/`fluxtemp` in the model the scalar and the regressors are those of the
@@ -245,7 +255,7 @@ impl<'a> Workspace<'a> {
         }
         let mut c = self.regressor_candidate(text, effect, &b.idx);
         c.excitation_nt = excitation_nt;
-        if name == "rate" {
+        if ct.spec.kind() == Some(TermKind::Rate) {
             // On one pass `rate` is a shift of the anomaly along the track, which the
             // residual cannot show (issue 4): only crossovers test it.
             match rate_crossover_test(&self.flight, &self.run, self.residual_rms, effect) {
@@ -323,12 +333,17 @@ impl<'a> Workspace<'a> {
     }
 
     /// `fluxcal` or `fluxtemp:CH`, tested on the fluxgate.
-    pub(super) fn test_fluxgate(&self, text: &str) -> Result<Tested> {
-        let t = match text.strip_prefix("fluxtemp:") {
-            Some(ch) => {
+    pub(super) fn test_fluxgate(
+        &self,
+        text: &str,
+        correction: InputCorrection,
+        channel: Option<&str>,
+    ) -> Result<Tested> {
+        let t = match (correction, channel) {
+            (InputCorrection::FluxTemp, Some(ch)) => {
                 fluxtemp_test(self.original_trace, &self.flight, self.model, &self.run, ch)?
             }
-            None => fluxcal_test(&self.flight, &self.original_flight, self.model, &self.run)?,
+            _ => fluxcal_test(&self.flight, &self.original_flight, self.model, &self.run)?,
         };
         // The scalar residual hardly moves (a TL fit hides a bent fluxgate), so the share
         // reported and ranked is the compensation change's variance relative to the
@@ -343,7 +358,12 @@ impl<'a> Workspace<'a> {
         };
         let mut c = Candidate::new(text, &t.effect, self.residual_rms);
         c.explained_fraction = share;
-        c.added_parameters = if text == "fluxcal" { 9 } else { 6 };
+        // The static calibration's 9 parameters; a temperature drift adds 6 to them.
+        c.added_parameters = if correction == InputCorrection::FluxCal {
+            9
+        } else {
+            6
+        };
         c.f_statistic = t.f;
         c.p_value = t.p;
         c.fluxgate_change_nt = Some(t.change_nt);

@@ -9,6 +9,7 @@ pub mod position;
 use crate::io::trace::Trace;
 use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::TiePoint;
+use magcomp_core::epoch::EARTH_RADIUS_M;
 use magcomp_core::{AlignedSample, MagCounts, MAX_AUX};
 use std::collections::HashMap;
 
@@ -49,103 +50,22 @@ impl Flight {
     /// `channels`: aux columns the model reads; `relative`: those whose first value is
     /// subtracted (e.g. a base-station field).
     pub fn from_trace(trace: &Trace, channels: &[String], relative: &[String]) -> Result<Self> {
-        for c in REQUIRED {
-            col(trace, c)?;
-        }
-        if channels.len() > MAX_AUX {
-            bail!("at most {MAX_AUX} auxiliary channels can be used at once");
-        }
-        let n = trace.len();
-        if n < 3 {
-            bail!("the trace has {n} rows; at least 3 are needed");
-        }
-        let t = col(trace, "t")?;
-        for i in 1..n {
-            if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
-                bail!(
-                    "time is not strictly increasing at data row {} (t = {} after {})",
-                    i + 1,
-                    t[i],
-                    t[i - 1]
-                );
-            }
-        }
+        let t = checked_time(trace, channels)?;
+        let n = t.len();
         let mag = col(trace, "mag")?;
         let fx = col(trace, "flux_x")?;
         let fy = col(trace, "flux_y")?;
         let fz = col(trace, "flux_z")?;
-        let nan = vec![f64::NAN; n];
-        let lat = trace.col("lat").unwrap_or(&nan);
-        let lon = trace.col("lon").unwrap_or(&nan);
-        let alt = trace.col("alt").unwrap_or(&nan);
-        let igrf = trace.col("igrf");
-        let base = trace.col("base");
-        let base0 = base.and_then(|b| b.iter().copied().find(|v| v.is_finite()));
-        let vn = trace.col("vn");
-        let ve = trace.col("ve");
-        let ground_speed = trace.col("ground_speed");
-        let att = match (trace.col("roll"), trace.col("pitch"), trace.col("yaw")) {
-            (Some(r), Some(p), Some(y)) => Some((r, p, y)),
-            _ => None,
-        };
-        let mut aux_cols: Vec<(&[f64], f64)> = Vec::new();
-        for c in channels {
-            let v = col(trace, c).with_context(|| format!("the model reads channel '{c}'"))?;
-            let offset = if relative.contains(c) {
-                v.iter().copied().find(|x| x.is_finite()).unwrap_or(0.0)
-            } else {
-                0.0
-            };
-            aux_cols.push((v, offset));
-        }
-        let mut samples = Vec::with_capacity(n);
-        for i in 0..n {
-            let mut s = AlignedSample::empty(t[i]);
-            s.mag = MagCounts::from_nt_f64(mag[i]);
-            s.flux_nt = [fx[i] as f32, fy[i] as f32, fz[i] as f32];
-            s.lat_deg = lat[i];
-            s.lon_deg = lon[i];
-            s.alt_m = alt[i] as f32;
-            if let (Some(b), Some(b0)) = (base, base0) {
-                s.base_nt = (b[i] - b0) as f32;
-            }
-            if let Some(g) = igrf {
-                s.igrf_nt = g[i];
-            }
-            if let (Some(vn), Some(ve)) = (vn, ve) {
-                s.ground_speed_mps = vn[i].hypot(ve[i]) as f32;
-            } else if let Some(gs) = ground_speed {
-                s.ground_speed_mps = gs[i] as f32;
-            }
-            if let Some((r, p, y)) = att {
-                s.attitude_deg = [r[i] as f32, p[i] as f32, y[i] as f32];
-            }
-            for (k, (v, off)) in aux_cols.iter().enumerate() {
-                s.aux[k] = (v[i] - off) as f32;
-            }
-            samples.push(s);
-        }
+        let mut samples = aligned_samples(trace, t, channels, relative)?;
         // Out-of-range, non-finite or jumping positions: missing, flagged, warned about.
         let faults = crate::flight::position::check_positions(&mut samples);
         if let Some(w) = crate::flight::position::faults_warning(&faults, trace.origin.as_ref()) {
             crate::flight::position::warn_once(&w);
         }
-        let lat: Vec<f64> = samples.iter().map(|s| s.lat_deg).collect();
-        let lon: Vec<f64> = samples.iter().map(|s| s.lon_deg).collect();
         let mut dts: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
         dts.sort_by(|a, b| a.total_cmp(b));
         let sample_rate_hz = 1.0 / dts[dts.len() / 2];
-        let tie_point = match (
-            trace
-                .meta("cal_centre_lat")
-                .and_then(|v| v.trim().parse().ok()),
-            trace
-                .meta("cal_centre_lon")
-                .and_then(|v| v.trim().parse().ok()),
-        ) {
-            (Some(lat_deg), Some(lon_deg)) => Some(TiePoint { lat_deg, lon_deg }),
-            _ => detect_tie_point(t, &lat, &lon),
-        };
+        let tie_point = tie_point_of(trace, t, &samples);
         let mut mag_nt = mag.to_vec();
         let glitches = crate::signal::despike::glitches(&mag_nt, sample_rate_hz);
         for &i in &glitches {
@@ -155,42 +75,18 @@ impl Flight {
         if let Some(w) = glitch_warning(&glitches, mag, trace.origin.as_ref()) {
             crate::flight::position::warn_once(&w);
         }
-        // Fluxgate glitches: the row's scalar is taken as missing (nothing is learnt from
-        // it) and its vector is bridged from the neighbours, so that no regressor, rate or
-        // direction estimate sees the bad value.
         let flux: Vec<[f64; 3]> = (0..n).map(|i| [fx[i], fy[i], fz[i]]).collect();
-        let flux_bad = crate::signal::despike::flux_glitches(&flux, &mag_nt, sample_rate_hz);
-        let (mut cfx, mut cfy, mut cfz) = (fx.to_vec(), fy.to_vec(), fz.to_vec());
-        if !flux_bad.is_empty() {
-            let usable = |i: usize| {
-                flux_bad.binary_search(&i).is_err() && flux[i].iter().all(|v| v.is_finite())
-            };
-            for &i in &flux_bad {
-                mag_nt[i] = f64::NAN;
-                samples[i].mag = None;
-                let before = (0..i).rev().find(|&j| usable(j));
-                let after = (i + 1..n).find(|&j| usable(j));
-                let v = match (before, after) {
-                    (Some(a), Some(b)) => {
-                        let w = (t[i] - t[a]) / (t[b] - t[a]);
-                        std::array::from_fn(|k| flux[a][k] + w * (flux[b][k] - flux[a][k]))
-                    }
-                    (Some(a), None) => flux[a],
-                    (None, Some(b)) => flux[b],
-                    (None, None) => [f64::NAN; 3],
-                };
-                samples[i].flux_nt = v.map(|x| x as f32);
-                (cfx[i], cfy[i], cfz[i]) = (v[0], v[1], v[2]);
-            }
-            crate::flight::position::warn_once(&flux_glitch_warning(
-                &flux_bad,
-                &flux,
-                mag,
-                trace.origin.as_ref(),
-            ));
-        }
-        let earth_dir_ned =
-            att.and_then(|(r, p, y)| main_field_direction(&cfx, &cfy, &cfz, r, p, y));
+        let [cfx, cfy, cfz] = bridge_flux_glitches(
+            trace,
+            t,
+            &flux,
+            mag,
+            &mut mag_nt,
+            &mut samples,
+            sample_rate_hz,
+        );
+        let earth_dir_ned = attitude_cols(trace)
+            .and_then(|(r, p, y)| main_field_direction(&cfx, &cfy, &cfz, r, p, y));
         Ok(Self {
             t_s: t.to_vec(),
             mag_nt,
@@ -285,8 +181,8 @@ impl Flight {
             .iter()
             .map(|s| {
                 [
-                    (s.lat_deg - lat0).to_radians() * 6_371_000.0,
-                    (s.lon_deg - lon0).to_radians() * 6_371_000.0 * coslat,
+                    (s.lat_deg - lat0).to_radians() * EARTH_RADIUS_M,
+                    (s.lon_deg - lon0).to_radians() * EARTH_RADIUS_M * coslat,
                 ]
             })
             .collect()
@@ -389,8 +285,8 @@ impl TieDetector {
             return;
         }
         let coslat = *self.coslat.get_or_insert(lat.to_radians().cos());
-        let n = lat.to_radians() * 6_371_000.0;
-        let e = lon.to_radians() * 6_371_000.0 * coslat;
+        let n = lat.to_radians() * EARTH_RADIUS_M;
+        let e = lon.to_radians() * EARTH_RADIUS_M * coslat;
         let key = ((n / CELL_M).floor() as i64, (e / CELL_M).floor() as i64);
         let c = self.cells.entry(key).or_default();
         if c.0.last().is_none_or(|&last| t - last > 30.0) {
@@ -577,4 +473,167 @@ pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
             _ => v - m0,
         })
         .collect()
+}
+
+/// The trace's time column, after checking the required columns, the number of channels
+/// and rows, and that time strictly increases.
+fn checked_time<'a>(trace: &'a Trace, channels: &[String]) -> Result<&'a [f64]> {
+    for c in REQUIRED {
+        col(trace, c)?;
+    }
+    if channels.len() > MAX_AUX {
+        bail!("at most {MAX_AUX} auxiliary channels can be used at once");
+    }
+    let n = trace.len();
+    if n < 3 {
+        bail!("the trace has {n} rows; at least 3 are needed");
+    }
+    let t = col(trace, "t")?;
+    for i in 1..n {
+        if t[i].partial_cmp(&t[i - 1]) != Some(std::cmp::Ordering::Greater) {
+            bail!(
+                "time is not strictly increasing at data row {} (t = {} after {})",
+                i + 1,
+                t[i],
+                t[i - 1]
+            );
+        }
+    }
+    Ok(t)
+}
+
+/// Roll, pitch and yaw columns, when the trace has all three.
+fn attitude_cols(trace: &Trace) -> Option<(&[f64], &[f64], &[f64])> {
+    match (trace.col("roll"), trace.col("pitch"), trace.col("yaw")) {
+        (Some(r), Some(p), Some(y)) => Some((r, p, y)),
+        _ => None,
+    }
+}
+
+/// The trace's rows as the compensator's samples: scalar, fluxgate, position, base
+/// station (from its first value), core field, ground speed, attitude, and the model's
+/// channels (`relative` ones from their first value).
+fn aligned_samples(
+    trace: &Trace,
+    t: &[f64],
+    channels: &[String],
+    relative: &[String],
+) -> Result<Vec<AlignedSample>> {
+    let n = t.len();
+    let mag = col(trace, "mag")?;
+    let fx = col(trace, "flux_x")?;
+    let fy = col(trace, "flux_y")?;
+    let fz = col(trace, "flux_z")?;
+    let nan = vec![f64::NAN; n];
+    let lat = trace.col("lat").unwrap_or(&nan);
+    let lon = trace.col("lon").unwrap_or(&nan);
+    let alt = trace.col("alt").unwrap_or(&nan);
+    let igrf = trace.col("igrf");
+    let base = trace.col("base");
+    let base0 = base.and_then(|b| b.iter().copied().find(|v| v.is_finite()));
+    let vn = trace.col("vn");
+    let ve = trace.col("ve");
+    let ground_speed = trace.col("ground_speed");
+    let att = attitude_cols(trace);
+    let mut aux_cols: Vec<(&[f64], f64)> = Vec::new();
+    for c in channels {
+        let v = col(trace, c).with_context(|| format!("the model reads channel '{c}'"))?;
+        let offset = if relative.contains(c) {
+            v.iter().copied().find(|x| x.is_finite()).unwrap_or(0.0)
+        } else {
+            0.0
+        };
+        aux_cols.push((v, offset));
+    }
+    let mut samples = Vec::with_capacity(n);
+    for i in 0..n {
+        let mut s = AlignedSample::empty(t[i]);
+        s.mag = MagCounts::from_nt_f64(mag[i]);
+        s.flux_nt = [fx[i] as f32, fy[i] as f32, fz[i] as f32];
+        s.lat_deg = lat[i];
+        s.lon_deg = lon[i];
+        s.alt_m = alt[i] as f32;
+        if let (Some(b), Some(b0)) = (base, base0) {
+            s.base_nt = (b[i] - b0) as f32;
+        }
+        if let Some(g) = igrf {
+            s.igrf_nt = g[i];
+        }
+        if let (Some(vn), Some(ve)) = (vn, ve) {
+            s.ground_speed_mps = vn[i].hypot(ve[i]) as f32;
+        } else if let Some(gs) = ground_speed {
+            s.ground_speed_mps = gs[i] as f32;
+        }
+        if let Some((r, p, y)) = att {
+            s.attitude_deg = [r[i] as f32, p[i] as f32, y[i] as f32];
+        }
+        for (k, (v, off)) in aux_cols.iter().enumerate() {
+            s.aux[k] = (v[i] - off) as f32;
+        }
+        samples.push(s);
+    }
+    Ok(samples)
+}
+
+/// The calibration's tie point: the trace's `cal_centre_lat`/`lon`, else detected from the
+/// (checked) positions.
+fn tie_point_of(trace: &Trace, t: &[f64], samples: &[AlignedSample]) -> Option<TiePoint> {
+    let lat: Vec<f64> = samples.iter().map(|s| s.lat_deg).collect();
+    let lon: Vec<f64> = samples.iter().map(|s| s.lon_deg).collect();
+    match (
+        trace
+            .meta("cal_centre_lat")
+            .and_then(|v| v.trim().parse().ok()),
+        trace
+            .meta("cal_centre_lon")
+            .and_then(|v| v.trim().parse().ok()),
+    ) {
+        (Some(lat_deg), Some(lon_deg)) => Some(TiePoint { lat_deg, lon_deg }),
+        _ => detect_tie_point(t, &lat, &lon),
+    }
+}
+
+/// Fluxgate glitches: the row's scalar is taken as missing (nothing is learnt from it) and
+/// its vector is bridged from the neighbours, so that no regressor, rate or direction
+/// estimate sees the bad value. Returns the bridged axes.
+fn bridge_flux_glitches(
+    trace: &Trace,
+    t: &[f64],
+    flux: &[[f64; 3]],
+    mag: &[f64],
+    mag_nt: &mut [f64],
+    samples: &mut [AlignedSample],
+    sample_rate_hz: f64,
+) -> [Vec<f64>; 3] {
+    let n = flux.len();
+    let flux_bad = crate::signal::despike::flux_glitches(flux, mag_nt, sample_rate_hz);
+    let mut cf: [Vec<f64>; 3] = std::array::from_fn(|k| flux.iter().map(|f| f[k]).collect());
+    if !flux_bad.is_empty() {
+        let usable =
+            |i: usize| flux_bad.binary_search(&i).is_err() && flux[i].iter().all(|v| v.is_finite());
+        for &i in &flux_bad {
+            mag_nt[i] = f64::NAN;
+            samples[i].mag = None;
+            let before = (0..i).rev().find(|&j| usable(j));
+            let after = (i + 1..n).find(|&j| usable(j));
+            let v = match (before, after) {
+                (Some(a), Some(b)) => {
+                    let w = (t[i] - t[a]) / (t[b] - t[a]);
+                    std::array::from_fn(|k| flux[a][k] + w * (flux[b][k] - flux[a][k]))
+                }
+                (Some(a), None) => flux[a],
+                (None, Some(b)) => flux[b],
+                (None, None) => [f64::NAN; 3],
+            };
+            samples[i].flux_nt = v.map(|x| x as f32);
+            (cf[0][i], cf[1][i], cf[2][i]) = (v[0], v[1], v[2]);
+        }
+        crate::flight::position::warn_once(&flux_glitch_warning(
+            &flux_bad,
+            flux,
+            mag,
+            trace.origin.as_ref(),
+        ));
+    }
+    cf
 }

@@ -6,6 +6,7 @@
 //! input row).
 
 use crate::io::trace::RowOrigin;
+use magcomp_core::epoch::EARTH_RADIUS_M;
 use magcomp_core::{AlignedSample, Flags};
 
 /// Fastest ground speed accepted between consecutive fixes (m/s): above any survey or
@@ -20,8 +21,6 @@ pub const ALT_RANGE_M: (f64, f64) = (-1000.0, 100_000.0);
 /// have really moved (e.g. a receiver that re-acquired with a new datum) and they are
 /// accepted again: a bad value is one or a few samples, a real step is permanent.
 const REANCHOR_FIXES: usize = 5;
-/// Mean Earth radius (m), as the flight's local north/east use.
-const EARTH_RADIUS_M: f64 = 6_371_000.0;
 
 /// Why a sample's position was not used.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,11 +1,55 @@
 //! Model specs as users type them: `+`-joined term names, e.g. `tl16+field+current:cur_pump`.
 
 use anyhow::{bail, Result};
-use magcomp_core::model::catalog::{info, AnyTerm, ChannelUse, CATALOG};
+use magcomp_core::model::catalog::{info, info_of, AnyTerm, ChannelUse, TermKind, CATALOG};
 use magcomp_core::model::{Model, Term};
 use magcomp_core::MAX_AUX;
 
-/// One term of a spec: catalogue name and, for channel terms, the trace column.
+/// The input corrections a model can ask for: applied to the inputs before the filter, with
+/// no filter state (the catalogue's zero-length entries). A spec writes them like terms
+/// (`tl16+field+lag+fluxcal`), but they are a distinct kind from the deviation terms the
+/// filter estimates, and the code recognises them by this type, not by name.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum InputCorrection {
+    /// `lag`: the scalar's delay τ, estimated and re-aligned by fractional-delay
+    /// interpolation.
+    Lag,
+    /// `fluxcal`: the fluxgate's 9-parameter scalar calibration (bias, scale,
+    /// non-orthogonality).
+    FluxCal,
+    /// `fluxtemp:CH`: the fluxgate's bias/scale drift with a temperature channel.
+    FluxTemp,
+}
+
+impl InputCorrection {
+    pub const ALL: [InputCorrection; 3] = [Self::Lag, Self::FluxCal, Self::FluxTemp];
+
+    /// Its catalogue entry (for the name a spec writes and the catalogue's description).
+    pub const fn kind(self) -> TermKind {
+        match self {
+            Self::Lag => TermKind::Lag,
+            Self::FluxCal => TermKind::FluxCal,
+            Self::FluxTemp => TermKind::FluxTemp,
+        }
+    }
+
+    /// The input correction a catalogue kind is, if it is one.
+    pub fn of(kind: TermKind) -> Option<Self> {
+        Self::ALL.into_iter().find(|c| c.kind() == kind)
+    }
+
+    /// The name a spec writes (`lag`, `fluxcal`, `fluxtemp`).
+    pub const fn name(self) -> &'static str {
+        self.kind().name()
+    }
+}
+
+/// The paper's 16 deviation terms, written `tl16` in a spec.
+pub const TL16: [TermKind; 3] = [TermKind::Permanent, TermKind::Induced, TermKind::Eddy];
+
+/// One term of a spec: catalogue name and, for channel terms, the trace column. The name is
+/// the spec's text (checked against the catalogue by [`ModelSpec::parse`]); code asks for
+/// the typed [`kind`](Self::kind) or [`input_correction`](Self::input_correction).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TermSpec {
     pub name: String,
@@ -13,6 +57,25 @@ pub struct TermSpec {
 }
 
 impl TermSpec {
+    /// A term of `kind` reading `channel`.
+    pub fn of(kind: TermKind, channel: Option<String>) -> Self {
+        Self {
+            name: kind.name().to_string(),
+            channel,
+        }
+    }
+
+    /// The catalogue term this is (`None` only for a name outside the catalogue, which
+    /// [`ModelSpec::parse`] refuses).
+    pub fn kind(&self) -> Option<TermKind> {
+        TermKind::from_name(&self.name)
+    }
+
+    /// The input correction this is, if it is one rather than a deviation term.
+    pub fn input_correction(&self) -> Option<InputCorrection> {
+        self.kind().and_then(InputCorrection::of)
+    }
+
     /// The text a user writes for this term (`current:cur_pump`).
     pub fn text(&self) -> String {
         match &self.channel {
@@ -45,7 +108,36 @@ pub const BOARD_MODEL: &str = "tl16+field";
 impl ModelSpec {
     /// Whether the model asks for the fluxgate's scalar calibration (`fluxcal`).
     pub fn calibrates_fluxgate(&self) -> bool {
-        self.terms.iter().any(|t| t.name == "fluxcal")
+        self.corrects(InputCorrection::FluxCal)
+    }
+
+    /// Whether the model has a term of `kind`.
+    pub fn has(&self, kind: TermKind) -> bool {
+        self.terms.iter().any(|t| t.kind() == Some(kind))
+    }
+
+    /// Whether the model asks for input correction `c`.
+    pub fn corrects(&self, c: InputCorrection) -> bool {
+        self.has(c.kind())
+    }
+
+    /// The spec entry of input correction `c` (its channel, for `fluxtemp`).
+    pub fn correction(&self, c: InputCorrection) -> Option<&TermSpec> {
+        self.terms.iter().find(|t| t.input_correction() == Some(c))
+    }
+
+    /// The deviation terms: every term but the input corrections.
+    pub fn deviation_terms(&self) -> impl Iterator<Item = &TermSpec> {
+        self.terms.iter().filter(|t| t.input_correction().is_none())
+    }
+
+    /// The same model without its input corrections: what the filter itself runs (the
+    /// board's compiled model for a coefficient file).
+    pub fn without_input_corrections(&self) -> ModelSpec {
+        ModelSpec {
+            field: self.field,
+            terms: self.deviation_terms().cloned().collect(),
+        }
     }
 
     pub fn parse(spec: &str) -> Result<Self> {
@@ -68,14 +160,8 @@ impl ModelSpec {
             match name {
                 "field" => field = true,
                 "tl16" => {
-                    for n in ["permanent", "induced", "eddy"] {
-                        push(
-                            TermSpec {
-                                name: n.into(),
-                                channel: None,
-                            },
-                            &mut terms,
-                        );
+                    for k in TL16 {
+                        push(TermSpec::of(k, None), &mut terms);
                     }
                 }
                 _ => {
@@ -100,13 +186,7 @@ impl ModelSpec {
                         }
                         (_, Some(c)) => Some(c),
                     };
-                    push(
-                        TermSpec {
-                            name: name.into(),
-                            channel,
-                        },
-                        &mut terms,
-                    );
+                    push(TermSpec::of(ti.kind, channel), &mut terms);
                 }
             }
         }
@@ -123,18 +203,17 @@ impl ModelSpec {
     /// Canonical text (`permanent+induced+eddy` is written `tl16`).
     pub fn text(&self) -> String {
         let mut parts: Vec<String> = Vec::new();
-        let names: Vec<String> = self.terms.iter().map(|t| t.text()).collect();
-        let tl = ["permanent", "induced", "eddy"];
-        let has_tl16 = tl.iter().all(|n| names.iter().any(|m| m == n));
+        // (TL16's terms take no channel: one of them in the list is that term.)
+        let has_tl16 = TL16.iter().all(|&k| self.has(k));
         if has_tl16 {
             parts.push("tl16".into());
         }
         if self.field {
             parts.push("field".into());
         }
-        for n in names {
-            if !(has_tl16 && tl.contains(&n.as_str())) {
-                parts.push(n);
+        for t in &self.terms {
+            if !(has_tl16 && t.kind().is_some_and(|k| TL16.contains(&k))) {
+                parts.push(t.text());
             }
         }
         parts.join("+")
@@ -157,7 +236,7 @@ impl ModelSpec {
     pub fn relative_channels(&self) -> Vec<String> {
         self.terms
             .iter()
-            .filter(|t| info(&t.name).is_some_and(|i| i.relative_channel))
+            .filter(|t| t.kind().is_some_and(|k| info_of(k).relative_channel))
             .filter_map(|t| t.channel.clone())
             .collect()
     }
@@ -178,7 +257,10 @@ impl ModelSpec {
                     .as_ref()
                     .and_then(|c| chans.iter().position(|x| x == c))
                     .unwrap_or(0);
-                AnyTerm::make(&t.name, idx).expect("spec names were checked against the catalogue")
+                let kind = t
+                    .kind()
+                    .expect("spec names were checked against the catalogue");
+                AnyTerm::of(kind, idx)
             })
             .collect()
     }
@@ -228,6 +310,27 @@ mod tests {
         let names = s.coefficient_names();
         assert_eq!(names.len(), 3 + 5 + 8 + 3 + 1);
         assert_eq!(names[0].0, "permanent.e1");
+    }
+
+    #[test]
+    fn input_corrections_are_told_from_deviation_terms_by_type() {
+        let s = ModelSpec::parse("tl16+field+lag+fluxcal+fluxtemp:temp1+rate").unwrap();
+        for c in InputCorrection::ALL {
+            assert!(s.corrects(c), "{c:?}");
+            assert_eq!(InputCorrection::of(c.kind()), Some(c));
+        }
+        assert!(s.calibrates_fluxgate());
+        assert!(s.has(TermKind::Rate));
+        assert_eq!(
+            s.correction(InputCorrection::FluxTemp)
+                .and_then(|t| t.channel.as_deref()),
+            Some("temp1")
+        );
+        assert_eq!(s.without_input_corrections().text(), "tl16+field+rate");
+        assert_eq!(s.text(), "tl16+field+lag+fluxcal+fluxtemp:temp1+rate");
+        let b = ModelSpec::parse(BOARD_MODEL).unwrap();
+        assert!(InputCorrection::ALL.iter().all(|&c| !b.corrects(c)));
+        assert_eq!(InputCorrection::of(TermKind::Rate), None);
     }
 
     #[test]

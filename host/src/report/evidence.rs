@@ -49,6 +49,7 @@ pub(super) fn evidence_section(flight: &Flight, d: &Diagnosis, i: usize, title: 
                     c.evidence.join(" + ")
                 },
                 if c.significant { "yes" } else { "no" }.into(),
+                c.effect.clone(),
             ]
         })
         .collect();
@@ -64,6 +65,7 @@ pub(super) fn evidence_section(flight: &Flight, d: &Diagnosis, i: usize, title: 
             "p",
             "rests on",
             "named",
+            "physical effect",
         ],
         &rows,
     );

@@ -239,77 +239,33 @@ fn short_label(label: &str) -> String {
         .unwrap_or_else(|| label.to_string())
 }
 
+/// A model's sections: compare and locate, the fluxgate and crossover checks when they
+/// apply, spectra, figure of merit and coefficients.
 fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
+    let run = &r.diag.run;
+    let title = r.spec.text();
+    let mut sections = vec![compare_section(flight, r, i, &title)];
+    if let Some(f) = fluxgate_section(flight, run, i, &title) {
+        sections.push(f);
+    }
+    if let Some(c) = crossover_section(flight, run, i, &title) {
+        sections.push(c);
+    }
+    sections.push(super::evidence::evidence_section(
+        flight, &r.diag, i, &title,
+    ));
+    sections.push(spectra_section(flight, r, i, &title));
+    sections.push(fom_section(flight, r, i, &title));
+    sections
+}
+
+/// Measured against modelled, the residual with the model's ±2σ and the windows where it
+/// fails, and their table.
+fn compare_section(flight: &Flight, r: &ModelResult, i: usize, title: &str) -> Section {
     let d = &r.diag;
     let run = &d.run;
-    let t = &flight.t_s;
-    let measured = scalar_relative_nt(flight);
-    let modelled: Vec<f64> = run
-        .interference_nt
-        .iter()
-        .zip(&run.anomaly_nt)
-        .map(|(a, b)| a + b)
-        .collect();
-    let title = r.spec.text();
-    let mut sections = Vec::new();
-
-    // Compare.
-    let sig = Plot::new(
-        &format!("signal-{i}"),
-        &format!("Measured vs modelled — {title}"),
-    )
-    .x_label("time (s)")
-    .y_label("scalar − first sample − IGRF change (nT)")
-    .series(
-        Series::line("measured", t, &measured)
-            .color(PALETTE[7])
-            .width_px(2.0),
-    )
-    .series(
-        Series::line("modelled (interference + field)", t, &modelled)
-            .color(PALETTE[0])
-            .dash("5 3")
-            .width_px(1.2),
-    )
-    .series(
-        Series::line("modelled interference", t, &run.interference_nt)
-            .color(PALETTE[3])
-            .width_px(1.0),
-    );
-    let mut res = Plot::new(
-        &format!("residual-{i}"),
-        &format!("Residual and where the model fails — {title}"),
-    )
-    .x_label("time (s)")
-    .y_label("residual (nT)")
-    .series(
-        Series::line("residual", &d.series.t_s, &d.series.residual_nt)
-            .color(PALETTE[0])
-            .width_px(1.0),
-    );
-    let two_sd_hi: Vec<f64> = d.series.predicted_sd_nt.iter().map(|s| 2.0 * s).collect();
-    let two_sd_lo: Vec<f64> = two_sd_hi.iter().map(|s| -s).collect();
-    res = res
-        .series(
-            Series::line("model ±2σ", &d.series.t_s, &two_sd_hi)
-                .color("#111")
-                .dash("4 3")
-                .width_px(1.0),
-        )
-        .series(
-            Series::line("", &d.series.t_s, &two_sd_lo)
-                .color("#111")
-                .dash("4 3")
-                .width_px(1.0),
-        );
-    for f in &d.failures {
-        res = res.window(f.t_start, f.t_end, &format!("{:.3} nT", f.rms_nt));
-    }
-    for (label, a, b) in flight.segment_runs() {
-        if label.starts_with("cal_") || label.starts_with("line_") {
-            res = res.segment(t[a], t[b - 1], &short_label(&label));
-        }
-    }
+    let sig = signal_plot(flight, r, i, title);
+    let res = residual_plot(flight, r, i, title);
     let mut s = Section::new(&format!("Model {title}: compare and locate"))
         .paragraph(&format!(
             "Residual rms {:.4} nT; mean normalised innovation squared {:.2} (1 when the \
@@ -349,16 +305,90 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
             &rows,
         );
     }
-    sections.push(s);
-    if let Some(f) = fluxgate_section(flight, run, i, &title) {
-        sections.push(f);
-    }
-    if let Some(c) = crossover_section(flight, run, i, &title) {
-        sections.push(c);
-    }
-    sections.push(super::evidence::evidence_section(flight, d, i, &title));
+    s
+}
 
-    // Spectra.
+/// The scalar as measured and as modelled (interference + field), and the interference.
+fn signal_plot(flight: &Flight, r: &ModelResult, i: usize, title: &str) -> Plot {
+    let run = &r.diag.run;
+    let t = &flight.t_s;
+    let measured = scalar_relative_nt(flight);
+    let modelled: Vec<f64> = run
+        .interference_nt
+        .iter()
+        .zip(&run.anomaly_nt)
+        .map(|(a, b)| a + b)
+        .collect();
+    Plot::new(
+        &format!("signal-{i}"),
+        &format!("Measured vs modelled — {title}"),
+    )
+    .x_label("time (s)")
+    .y_label("scalar − first sample − IGRF change (nT)")
+    .series(
+        Series::line("measured", t, &measured)
+            .color(PALETTE[7])
+            .width_px(2.0),
+    )
+    .series(
+        Series::line("modelled (interference + field)", t, &modelled)
+            .color(PALETTE[0])
+            .dash("5 3")
+            .width_px(1.2),
+    )
+    .series(
+        Series::line("modelled interference", t, &run.interference_nt)
+            .color(PALETTE[3])
+            .width_px(1.0),
+    )
+}
+
+/// The residual with the model's ±2σ, the failure windows and the flight's segments.
+fn residual_plot(flight: &Flight, r: &ModelResult, i: usize, title: &str) -> Plot {
+    let d = &r.diag;
+    let t = &flight.t_s;
+    let mut res = Plot::new(
+        &format!("residual-{i}"),
+        &format!("Residual and where the model fails — {title}"),
+    )
+    .x_label("time (s)")
+    .y_label("residual (nT)")
+    .series(
+        Series::line("residual", &d.series.t_s, &d.series.residual_nt)
+            .color(PALETTE[0])
+            .width_px(1.0),
+    );
+    let two_sd_hi: Vec<f64> = d.series.predicted_sd_nt.iter().map(|s| 2.0 * s).collect();
+    let two_sd_lo: Vec<f64> = two_sd_hi.iter().map(|s| -s).collect();
+    res = res
+        .series(
+            Series::line("model ±2σ", &d.series.t_s, &two_sd_hi)
+                .color("#111")
+                .dash("4 3")
+                .width_px(1.0),
+        )
+        .series(
+            Series::line("", &d.series.t_s, &two_sd_lo)
+                .color("#111")
+                .dash("4 3")
+                .width_px(1.0),
+        );
+    for f in &d.failures {
+        res = res.window(f.t_start, f.t_end, &format!("{:.3} nT", f.rms_nt));
+    }
+    for (label, a, b) in flight.segment_runs() {
+        if label.starts_with("cal_") || label.starts_with("line_") {
+            res = res.segment(t[a], t[b - 1], &short_label(&label));
+        }
+    }
+    res
+}
+
+/// The along-track spectrum against σ1²/k⁶, and the residual's spectrum against the
+/// model's white innovations, with the bands in excess.
+fn spectra_section(flight: &Flight, r: &ModelResult, i: usize, title: &str) -> Section {
+    let d = &r.diag;
+    let run = &d.run;
     let mut spec = Section::new(&format!("Model {title}: spectra"));
     if let Some(p) = along_track_plot(flight, run, i) {
         spec = spec
@@ -412,9 +442,13 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
             ));
         }
     }
-    sections.push(spec);
+    spec
+}
 
-    // FOM and coefficients.
+/// FOM per manoeuvre, the coefficients ±1σ, and the candidate terms.
+fn fom_section(flight: &Flight, r: &ModelResult, i: usize, title: &str) -> Section {
+    let d = &r.diag;
+    let run = &d.run;
     let mut q = Section::new(&format!("Model {title}: figure of merit and coefficients"));
     if let Some((total, parts)) = fom(flight, &run.compensated_nt) {
         let labels: Vec<String> = parts.iter().map(|p| short_label(&p.label)).collect();
@@ -460,37 +494,7 @@ fn model_sections(flight: &Flight, r: &ModelResult, i: usize) -> Vec<Section> {
             .collect();
         q = q.table(&["coefficient", "value ± 1σ", "unit"], &rows);
     }
-    let rows: Vec<Vec<String>> = d
-        .candidates
-        .iter()
-        .take(12)
-        .map(|c| {
-            vec![
-                c.term.clone(),
-                format!("{:.1}%", 100.0 * c.explained_fraction),
-                format!("{:.4}", c.residual_rms_after_nt),
-                if c.significant {
-                    "yes".into()
-                } else {
-                    "no".into()
-                },
-                c.effect.clone(),
-            ]
-        })
-        .collect();
-    q = q.table_with_caption(
-        "Candidate terms, best first (append a significant one to the model)",
-        &[
-            "term",
-            "explained",
-            "rms after (nT)",
-            "significant",
-            "physical effect",
-        ],
-        &rows,
-    );
-    sections.push(q);
-    sections
+    q
 }
 
 /// The fluxgate against the scalar: `|B_F| − (scalar − interference)` before and after the

@@ -30,6 +30,7 @@ use crate::io::trace::rows::for_each_row;
 use crate::io::trace::{ColumnMap, ReadOptions};
 use crate::model::spec::ModelSpec;
 use anyhow::{bail, Context, Result};
+use magcomp_core::model::TermKind;
 use rows::{row_sample, Cols, RowFilter};
 use serde::Serialize;
 use stats::{DateScan, DateSource, FirstPass, SecondPass};
@@ -75,7 +76,7 @@ pub fn unstreamable(
     if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
         return Some("the model has `fluxcal` but the file has no fluxgate_calibration".into());
     }
-    if spec.terms.iter().any(|t| t.name == "rate") {
+    if spec.has(TermKind::Rate) {
         return Some("`rate` needs the flight's crossovers".into());
     }
     if spec.field && est.sigma1.or(c.sigma1).is_none() {
@@ -137,7 +138,9 @@ pub(crate) struct Plan {
 }
 
 /// `compensate --coeffs` streamed: writes `out` and returns the summary. `quiet`: no
-/// progress lines.
+/// progress lines. Three passes over the file: flight figures (pass 1, [`first_pass`]),
+/// the scalar's noise and the core field's gaps (pass 2, [`second_pass`]), then the
+/// compensation itself ([`apply::run`]).
 pub fn compensate(
     input: &StreamInput<'_>,
     est: &EstimatorSettings,
@@ -163,13 +166,13 @@ pub fn compensate(
         .map(|s| s.relative_channels())
         .unwrap_or_default();
     let path = input.trace;
-    let ctx = || format!("reading {}", path.display());
+    let source = apply::Source {
+        path,
+        map: &map,
+        sel: &sel,
+    };
     let mut warnings = Vec::new();
 
-    // Pass 1.
-    let mut cols: Option<Cols> = None;
-    let mut filter = RowFilter::new(sel.clone());
-    let mut first = FirstPass::new(channels.len());
     let given_year = match input.date {
         Some(d) => {
             let (y, doy) = crate::flight::igrf::parse_date(d).context("--date")?;
@@ -177,14 +180,142 @@ pub fn compensate(
         }
         None => None,
     };
+    let p1 = first_pass(&source, &channels, quiet)?;
+    let first = &p1.first;
+    let n = first.rows;
+    if channels.len() > magcomp_core::MAX_AUX {
+        bail!(
+            "at most {} auxiliary channels can be used at once",
+            magcomp_core::MAX_AUX
+        );
+    }
+    if n < 3 {
+        bail!("the trace has {n} rows; at least 3 are needed");
+    }
+    let median_dt = first.dt.median().context("no time step")?;
+    let sample_rate_hz = 1.0 / median_dt;
+    let withheld = input_checks(first, n, sample_rate_hz, &mut warnings)?;
+    let core = choose_core(&p1, given_year)?;
+
+    let need_noise = spec.is_some() && est.noise_nt.is_none();
+    let (second, igrf_scan) = second_pass(&source, &p1.cols, &core, need_noise, median_dt, quiet)?;
+    let noise_nt = match est.noise_nt {
+        Some(v) => v,
+        None => {
+            let sensor = second.noise_nt().unwrap_or(0.02);
+            (sensor * sensor + 0.005f64.powi(2)).sqrt()
+        }
+    };
+    let igrf = core_field(&core, &igrf_scan);
+
+    let mut assumed_speed_mps = None;
+    if let Some(spec) = &spec {
+        if spec.field && !(first.has_position || first.has_speed) {
+            let given = est.speed_mps.or(coeffs.assumed_speed_mps);
+            let (v, warning) = crate::flight::input::assumed_ground_speed(given)?;
+            assumed_speed_mps = Some(v);
+            warnings.push(warning);
+        }
+    }
+    let offsets = channels
+        .iter()
+        .zip(&first.channel_offsets)
+        .map(|(c, o)| {
+            if relative.contains(c) {
+                o.unwrap_or(0.0)
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let FirstPassOut {
+        cols, head, first, ..
+    } = p1;
+    let plan = Plan {
+        tie_point: first.tie_point(&head.meta),
+        earth_dir_ned: first.field_dir.finish(),
+        base0: first.base0,
+        cols,
+        head,
+        rows: n,
+        sample_rate_hz,
+        gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt,
+        offsets,
+        assumed_speed_mps,
+        noise_nt,
+        igrf,
+        fluxgate_calibration: match coeffs.method {
+            Method::Kf => coeffs.fluxgate_calibration,
+            Method::Tl => None,
+        },
+    };
+    let result = apply::run(&source, &plan, est, coeffs, spec.as_ref(), out, quiet)?;
+    if let Some(w) = stats::glitch_warning(path, &result.glitches) {
+        crate::flight::position::warn_once(&w);
+    }
+    if let Some(w) = stats::faults_warning(path, &first.position_faults) {
+        crate::flight::position::warn_once(&w);
+    }
+    if let Some(w) = result.gaps_warning() {
+        warnings.push(w);
+    }
+    warnings.extend(withheld.iter().map(|why| {
+        format!("{why}: improvement ratio, FOM and predicted error are withheld (null)")
+    }));
+    Ok(StreamSummary {
+        model: result.model,
+        method: coeffs.method,
+        samples: n,
+        streamed: true,
+        error_rms_nt: result.error_rms_nt,
+        predicted_error_nt: result.predicted_error_nt.filter(|_| withheld.is_none()),
+        sample_rate_hz,
+        noise_nt: spec.as_ref().map(|_| noise_nt),
+        not_computed: NOT_COMPUTED_STREAMED.map(String::from).to_vec(),
+        warnings,
+        decimated: None,
+    })
+}
+
+/// Figures the in-memory path gives that a streamed run does not compute.
+const NOT_COMPUTED_STREAMED: [&str; 6] = [
+    "compensated_band_rms_nt",
+    "improvement_ratio",
+    "fom_nt",
+    "fom_table",
+    "oracle_floor_nt",
+    "applied-coefficient checks",
+];
+
+/// What pass 1 learns: the columns, the file's header, the flight figures, and the dates
+/// its date columns give.
+struct FirstPassOut {
+    cols: Cols,
+    head: crate::io::trace::rows::RowsHeader,
+    first: FirstPass,
+    date_col: DateScan,
+    doy_scans: Vec<DateScan>,
+}
+
+/// Pass 1: resolves the columns on the first row, then gathers the flight figures
+/// ([`FirstPass`]) and scans the date columns over the selected rows.
+fn first_pass(
+    source: &apply::Source<'_>,
+    channels: &[String],
+    quiet: bool,
+) -> Result<FirstPassOut> {
+    let path = source.path;
+    let mut cols: Option<Cols> = None;
+    let mut filter = RowFilter::new(source.sel.clone());
+    let mut first = FirstPass::new(channels.len());
     let mut date_col = DateScan::default();
     let mut doy_scans: Vec<DateScan> = Vec::new();
     let mut progress = Progress::new("pass 1/3 (flight figures)", quiet);
-    let head = for_each_row(path, &map, ReadOptions::default(), |row| {
+    let head = for_each_row(path, source.map, ReadOptions::default(), |row| {
         let c = match &mut cols {
             Some(c) => c,
             None => {
-                let c = Cols::resolve(row.names, &channels)?;
+                let c = Cols::resolve(row.names, channels)?;
                 doy_scans = vec![DateScan::default(); c.year_doy.len()];
                 cols.insert(c)
             }
@@ -204,74 +335,78 @@ pub fn compensate(
         }
         Ok(())
     })
-    .with_context(ctx)?;
+    .with_context(|| format!("reading {}", path.display()))?;
     progress.done();
     let mut cols = cols.with_context(|| format!("{}: no data rows", path.display()))?;
     filter.finish(&head, &cols)?;
-    cols.check_kinds(&head, &channels)?;
-    let n = first.rows;
-    if channels.len() > magcomp_core::MAX_AUX {
-        bail!(
-            "at most {} auxiliary channels can be used at once",
-            magcomp_core::MAX_AUX
-        );
-    }
-    if n < 3 {
-        bail!("the trace has {n} rows; at least 3 are needed");
-    }
-    let median_dt = first.dt.median().context("no time step")?;
-    let sample_rate_hz = 1.0 / median_dt;
-    let withheld = input_checks(&first, n, sample_rate_hz, &mut warnings)?;
+    cols.check_kinds(&head, channels)?;
+    Ok(FirstPassOut {
+        cols,
+        head,
+        first,
+        date_col,
+        doy_scans,
+    })
+}
 
-    // The core field, as input::prepare decides it.
-    let core = if cols.igrf.is_some() {
-        Core::FromFile
-    } else if cols.lat.is_none() || cols.lon.is_none() || cols.alt.is_none() {
-        Core::NoPosition
-    } else if let Some(y) = given_year {
-        Core::Computed(DateSource::Given(y), "--date".into())
-    } else {
-        let mut chosen = None;
-        if let Some(d) = cols.date {
-            if let Some(e) = &date_col.error {
-                bail!("{e}");
-            }
-            if date_col.any {
-                chosen = Some(Core::Computed(DateSource::Column(d), "column date".into()));
-            }
+/// The core field, as `input::prepare` decides it: the file's `igrf`, else computed for
+/// `--date`, else for the file's date or year/day columns, else missing.
+fn choose_core(p1: &FirstPassOut, given_year: Option<f64>) -> Result<Core> {
+    let cols = &p1.cols;
+    if cols.igrf.is_some() {
+        return Ok(Core::FromFile);
+    }
+    if cols.lat.is_none() || cols.lon.is_none() || cols.alt.is_none() {
+        return Ok(Core::NoPosition);
+    }
+    if let Some(y) = given_year {
+        return Ok(Core::Computed(DateSource::Given(y), "--date".into()));
+    }
+    if let Some(d) = cols.date {
+        if let Some(e) = &p1.date_col.error {
+            bail!("{e}");
         }
-        if chosen.is_none() {
-            for ((y, d, names), scan) in cols.year_doy.iter().zip(&doy_scans) {
-                if let Some(e) = &scan.error {
-                    bail!("{e}");
-                }
-                if scan.any {
-                    chosen = Some(Core::Computed(
-                        DateSource::YearDoy(*y, *d, names.clone()),
-                        format!("columns {names}"),
-                    ));
-                    break;
-                }
-            }
+        if p1.date_col.any {
+            return Ok(Core::Computed(DateSource::Column(d), "column date".into()));
         }
-        chosen.unwrap_or(Core::Missing)
-    };
+    }
+    for ((y, d, names), scan) in cols.year_doy.iter().zip(&p1.doy_scans) {
+        if let Some(e) = &scan.error {
+            bail!("{e}");
+        }
+        if scan.any {
+            return Ok(Core::Computed(
+                DateSource::YearDoy(*y, *d, names.clone()),
+                format!("columns {names}"),
+            ));
+        }
+    }
+    Ok(Core::Missing)
+}
 
-    // Pass 2: the scalar's noise (KF without --noise-nt) and the core field's gaps.
-    let need_noise = spec.is_some() && est.noise_nt.is_none();
+/// Pass 2 (only when needed): the scalar's noise (KF without --noise-nt) and the core
+/// field's gaps and range.
+fn second_pass(
+    source: &apply::Source<'_>,
+    cols: &Cols,
+    core: &Core,
+    need_noise: bool,
+    median_dt: f64,
+    quiet: bool,
+) -> Result<(SecondPass, apply::IgrfScan)> {
     let need_igrf = matches!(core, Core::Computed(..) | Core::Missing);
-    let mut second = SecondPass::new(sample_rate_hz, median_dt);
+    let mut second = SecondPass::new(1.0 / median_dt, median_dt);
     let mut igrf_scan = apply::IgrfScan::default();
     if need_noise || need_igrf {
-        let mut filter = RowFilter::new(sel.clone());
+        let mut filter = RowFilter::new(source.sel.clone());
         let mut progress = Progress::new("pass 2/3 (noise, core field)", quiet);
         let mut k = 0usize;
-        let source = match &core {
+        let date = match core {
             Core::Computed(s, _) => Some(s.clone()),
             _ => None,
         };
-        for_each_row(path, &map, ReadOptions::default(), |row| {
-            if !filter.keep(row, &cols)? {
+        for_each_row(source.path, source.map, ReadOptions::default(), |row| {
+            if !filter.keep(row, cols)? {
                 return Ok(());
             }
             progress.tick();
@@ -279,27 +414,26 @@ pub fn compensate(
                 second.push(k, row.line, row.num(cols.t), row.num(cols.mag));
             }
             if need_igrf {
-                let year = match &source {
+                let year = match &date {
                     Some(s) => apply::row_year(s, row, k)?,
                     None => 2025.0,
                 };
-                igrf_scan.push(k, year, &cols, row)?;
+                igrf_scan.push(k, year, cols, row)?;
             }
             k += 1;
             Ok(())
         })
-        .with_context(ctx)?;
+        .with_context(|| format!("reading {}", source.path.display()))?;
         second.finish();
         progress.done();
     }
-    let noise_nt = match est.noise_nt {
-        Some(v) => v,
-        None => {
-            let sensor = second.noise_nt().unwrap_or(0.02);
-            (sensor * sensor + 0.005f64.powi(2)).sqrt()
-        }
-    };
-    let igrf = match &core {
+    Ok((second, igrf_scan))
+}
+
+/// What the compensation pass computes the core field from (`None`: the file's, or none),
+/// with the note `input::prepare` prints.
+fn core_field(core: &Core, igrf_scan: &apply::IgrfScan) -> Option<(DateSource, apply::GapFill)> {
+    match core {
         Core::Computed(source, label) => {
             let (y0, y1) = igrf_scan.years;
             eprintln!(
@@ -323,87 +457,7 @@ pub fn compensate(
             None
         }
         Core::NoPosition | Core::FromFile => None,
-    };
-
-    let mut assumed_speed_mps = None;
-    if let Some(spec) = &spec {
-        if spec.field && !(first.has_position || first.has_speed) {
-            let given = est.speed_mps.or(coeffs.assumed_speed_mps);
-            let (v, warning) = crate::flight::input::assumed_ground_speed(given)?;
-            assumed_speed_mps = Some(v);
-            warnings.push(warning);
-        }
     }
-    let offsets = channels
-        .iter()
-        .zip(&first.channel_offsets)
-        .map(|(c, o)| {
-            if relative.contains(c) {
-                o.unwrap_or(0.0)
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let plan = Plan {
-        tie_point: first.tie_point(&head.meta),
-        earth_dir_ned: first.field_dir.finish(),
-        base0: first.base0,
-        cols,
-        head,
-        rows: n,
-        sample_rate_hz,
-        gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt,
-        offsets,
-        assumed_speed_mps,
-        noise_nt,
-        igrf,
-        fluxgate_calibration: match coeffs.method {
-            Method::Kf => coeffs.fluxgate_calibration,
-            Method::Tl => None,
-        },
-    };
-    let source = apply::Source {
-        path,
-        map: &map,
-        sel: &sel,
-    };
-    let result = apply::run(&source, &plan, est, coeffs, spec.as_ref(), out, quiet)?;
-    if let Some(w) = stats::glitch_warning(path, &result.glitches) {
-        crate::flight::position::warn_once(&w);
-    }
-    if let Some(w) = stats::faults_warning(path, &first.position_faults) {
-        crate::flight::position::warn_once(&w);
-    }
-    if let Some(w) = result.gaps_warning() {
-        warnings.push(w);
-    }
-    warnings.extend(withheld.iter().map(|why| {
-        format!("{why}: improvement ratio, FOM and predicted error are withheld (null)")
-    }));
-    let not_computed: Vec<String> = [
-        "compensated_band_rms_nt",
-        "improvement_ratio",
-        "fom_nt",
-        "fom_table",
-        "oracle_floor_nt",
-        "applied-coefficient checks",
-    ]
-    .map(String::from)
-    .to_vec();
-    Ok(StreamSummary {
-        model: result.model,
-        method: coeffs.method,
-        samples: n,
-        streamed: true,
-        error_rms_nt: result.error_rms_nt,
-        predicted_error_nt: result.predicted_error_nt.filter(|_| withheld.is_none()),
-        sample_rate_hz,
-        noise_nt: spec.as_ref().map(|_| noise_nt),
-        not_computed,
-        warnings,
-        decimated: None,
-    })
 }
 
 fn scan_year(scan: &mut DateScan, year: Result<f64>) {

@@ -17,20 +17,16 @@ use crate::estimate::kf::{run_kf_estimator, KfOptions, KfRun};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::corrections::Preprocessing;
-use crate::model::spec::ModelSpec;
+use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Context, Result};
 
 /// Whether the model names a term handled here.
 pub fn needed(spec: &ModelSpec) -> bool {
-    spec.terms
-        .iter()
-        .any(|t| t.name == "lag" || t.name == "fluxtemp")
+    spec.corrects(InputCorrection::Lag) || spec.corrects(InputCorrection::FluxTemp)
 }
 
 fn fluxtemp_channel(spec: &ModelSpec) -> Option<String> {
-    spec.terms
-        .iter()
-        .find(|t| t.name == "fluxtemp")
+    spec.correction(InputCorrection::FluxTemp)
         .and_then(|t| t.channel.clone())
 }
 
@@ -145,7 +141,7 @@ fn run_kf_preprocessed(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     let given = opts.preprocessing.clone().unwrap_or_default();
     let mut prep = Preprocessing::default();
     let mut f = flight.clone();
-    if opts.model.terms.iter().any(|t| t.name == "lag") {
+    if opts.model.corrects(InputCorrection::Lag) {
         let l = match given.scalar_lag {
             Some(l) => l,
             None => lag::estimate(flight, &opts.model)?,

@@ -7,7 +7,7 @@ use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Result};
 use magcomp_core::compensator::{Compensator, CompensatorConfig, Output};
 use magcomp_core::epoch::Epoch;
-use magcomp_core::model::Term;
+use magcomp_core::model::{Term, TermKind};
 use magcomp_core::AlignedSample;
 
 mod jackknife;
@@ -798,7 +798,7 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             .push(o.interference_sigma_nt as f64);
         run.flags.push(o.flags.0);
     }
-    if spec.terms.iter().any(|t| t.name == "rate") {
+    if spec.has(TermKind::Rate) {
         apply_rate_crossovers(flight, opts, &mut run);
     }
     Ok(run)
