@@ -20,8 +20,14 @@ pub struct LineSource {
     rx: Receiver<Vec<u8>>,
 }
 
+/// Longest board line kept (bytes). The board's replies and records are under 200 bytes;
+/// a longer run without a line end is noise (a babbling port, the wrong baud rate) and is
+/// dropped up to its end, so it can neither grow memory without bound nor end the link.
+pub const MAX_BOARD_LINE_BYTES: usize = 4096;
+
 impl LineSource {
-    /// Reads `r` on a thread until end of stream or an error; lines without `\r\n`.
+    /// Reads `r` on a thread until end of stream or an error; lines without `\r\n`, lines
+    /// longer than [`MAX_BOARD_LINE_BYTES`] dropped.
     pub fn spawn<R: Read + Send + 'static>(r: R) -> Self {
         let (tx, rx) = mpsc::channel();
         std::thread::spawn(move || {
@@ -29,8 +35,17 @@ impl LineSource {
             let mut line = Vec::new();
             loop {
                 line.clear();
-                match r.read_until(b'\n', &mut line) {
+                match (&mut r)
+                    .take(MAX_BOARD_LINE_BYTES as u64 + 1)
+                    .read_until(b'\n', &mut line)
+                {
                     Ok(0) | Err(_) => break,
+                    Ok(_) if line.len() > MAX_BOARD_LINE_BYTES && line.last() != Some(&b'\n') => {
+                        // The rest of the overlong run, up to its line end.
+                        if r.skip_until(b'\n').is_err() {
+                            break;
+                        }
+                    }
                     Ok(_) => {
                         while let [rest @ .., b'\r' | b'\n'] = line.as_slice() {
                             line.truncate(rest.len());
@@ -378,6 +393,24 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A megabyte without a line end is dropped, and the reply after it still arrives.
+    #[test]
+    fn an_overlong_run_is_dropped_and_the_next_line_kept() {
+        let mut bytes = vec![b'x'; 1 << 20];
+        bytes.extend_from_slice(b"\r\n$MCACK,1*00\r\nnext\n");
+        let src = LineSource::spawn(std::io::Cursor::new(bytes));
+        let deadline = Instant::now() + Duration::from_secs(5);
+        assert_eq!(
+            src.next_before(deadline).unwrap().as_deref(),
+            Some(&b"$MCACK,1*00"[..])
+        );
+        assert_eq!(
+            src.next_before(deadline).unwrap().as_deref(),
+            Some(&b"next"[..])
+        );
+        assert!(src.next_before(deadline).is_err(), "end of stream");
+    }
 
     #[test]
     fn two_ulp_of_f32_and_no_more() {
