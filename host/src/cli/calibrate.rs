@@ -3,6 +3,7 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
+use super::multi::SensorPlan;
 use crate::calibration::coefficients::Method;
 use crate::calibration::summary::summarise_with;
 use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
@@ -42,15 +43,17 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     check_outputs(&[&a.input.trace], &[&a.output])?;
     crate::io::progress::force_progress(a.long.progress);
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
-    if let Some(map) = a.multi.single_map(&trace, a.input.map.as_deref())? {
-        // One sensor: today's command on its columns.
-        let mut one = a.clone();
-        one.input.map = Some(map);
-        one.multi = Default::default();
-        return run(&one);
-    }
-    if let Some(sensors) = a.multi.several(&trace)? {
-        return super::multi::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
+    match a.multi.plan(&trace, a.input.map.as_deref())? {
+        SensorPlan::Today => {}
+        SensorPlan::One(map) => {
+            let mut one = a.clone();
+            one.input.map = Some(map);
+            one.multi = Default::default();
+            return run(&one);
+        }
+        SensorPlan::Several(sensors) => {
+            return super::multi::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
+        }
     }
     let stage = crate::io::progress::Stage::new("calibration (all filter passes)");
     let (flight, comp) = compensate_trace(&trace, &a.est.settings(), None, false)?;

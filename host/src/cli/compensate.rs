@@ -2,6 +2,7 @@
 //! or applying a coefficient file), write the output CSV and print the summary.
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
+use super::multi::SensorPlan;
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::compensate_trace;
 use crate::calibration::summary::{summarise, write_output_csv, Summary};
@@ -74,22 +75,24 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     crate::io::progress::force_progress(a.long.progress);
     if a.multi.sensors.is_some() {
         let trace = a.input.read()?;
-        if let Some(map) = a.multi.single_map(&trace, a.input.map.as_deref())? {
-            // One sensor: today's command on its columns.
-            let mut one = a.clone();
-            one.input.map = Some(map);
-            one.multi = Default::default();
-            return run(&one);
-        }
-        if let Some(sensors) = a.multi.several(&trace)? {
-            return super::multi::compensate(
-                &trace,
-                &a.est.settings(),
-                &sensors,
-                a.multi.gradients.as_deref(),
-                a.coeffs.as_deref(),
-                &a.out,
-            );
+        match a.multi.plan(&trace, a.input.map.as_deref())? {
+            SensorPlan::Today => {}
+            SensorPlan::One(map) => {
+                let mut one = a.clone();
+                one.input.map = Some(map);
+                one.multi = Default::default();
+                return run(&one);
+            }
+            SensorPlan::Several(sensors) => {
+                return super::multi::compensate(
+                    &trace,
+                    &a.est.settings(),
+                    &sensors,
+                    a.multi.gradients.as_deref(),
+                    a.coeffs.as_deref(),
+                    &a.out,
+                );
+            }
         }
     }
     let coeffs = a.est.coefficients(a.coeffs.as_deref())?;

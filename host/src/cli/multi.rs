@@ -35,59 +35,59 @@ pub struct MultiArgs {
     pub gradients: Option<String>,
 }
 
+/// What `--sensors` asks of a command.
+pub enum SensorPlan {
+    /// No sensors named (or none found): today's command as given.
+    Today,
+    /// One sensor: today's command with this `--map` (`mag=` its scalar, `flux_x/y/z=` its
+    /// fluxgate, after the map given), so one sensor is exactly today's run.
+    One(String),
+    /// Several: one anomaly, each sensor its own interference.
+    Several(Vec<SensorSpec>),
+}
+
 impl MultiArgs {
-    /// The sensors when there are several (None: today's single-sensor command).
-    pub fn several(&self, trace: &Trace) -> Result<Option<Vec<SensorSpec>>> {
+    /// The plan for `trace`, whose own `--map` is `map`; the sensors are parsed once.
+    pub fn plan(&self, trace: &Trace, map: Option<&str>) -> Result<SensorPlan> {
         let Some(text) = &self.sensors else {
             if self.gradients.is_some() {
                 bail!("--gradients needs --sensors");
             }
-            return Ok(None);
+            return Ok(SensorPlan::Today);
         };
-        let s = parse_sensors(text, trace)?;
-        if s.len() < 2 {
-            return Ok(None);
+        let mut s = parse_sensors(text, trace)?;
+        match s.len() {
+            0 => Ok(SensorPlan::Today),
+            1 if self.gradients.is_some() => bail!("--gradients needs two sensors or more"),
+            1 => Ok(SensorPlan::One(single_map(&s.remove(0), map))),
+            _ => Ok(SensorPlan::Several(s)),
         }
-        Ok(Some(s))
     }
+}
 
-    /// With one sensor: the `--map` that makes today's command read it (`mag=` its scalar,
-    /// `flux_x/y/z=` its fluxgate, after the map given), so one sensor is exactly today's
-    /// run. None otherwise.
-    pub fn single_map(&self, trace: &Trace, map: Option<&str>) -> Result<Option<String>> {
-        let Some(text) = &self.sensors else {
-            return Ok(None);
-        };
-        let s = parse_sensors(text, trace)?;
-        if s.len() != 1 {
-            return Ok(None);
+/// The `--map` that makes today's command read sensor `s`, after the map given.
+fn single_map(s: &SensorSpec, map: Option<&str>) -> String {
+    let mut entries: Vec<String> = map
+        .into_iter()
+        .flat_map(|m| m.split(','))
+        .filter(|e| {
+            let c = e.split('=').next().unwrap_or("").trim();
+            !["mag", "flux_x", "flux_y", "flux_z"].contains(&c)
+        })
+        .map(String::from)
+        .collect();
+    let pairs = [
+        ("mag", s.scalar_column.as_str()),
+        ("flux_x", s.flux_columns[0].as_str()),
+        ("flux_y", s.flux_columns[1].as_str()),
+        ("flux_z", s.flux_columns[2].as_str()),
+    ];
+    for (c, f) in pairs {
+        if c != f {
+            entries.push(format!("{c}={f}"));
         }
-        if self.gradients.is_some() {
-            bail!("--gradients needs two sensors or more");
-        }
-        let s = &s[0];
-        let mut entries: Vec<String> = map
-            .into_iter()
-            .flat_map(|m| m.split(','))
-            .filter(|e| {
-                let c = e.split('=').next().unwrap_or("").trim();
-                !["mag", "flux_x", "flux_y", "flux_z"].contains(&c)
-            })
-            .map(String::from)
-            .collect();
-        let pairs = [
-            ("mag", s.scalar_column.as_str()),
-            ("flux_x", s.flux_columns[0].as_str()),
-            ("flux_y", s.flux_columns[1].as_str()),
-            ("flux_z", s.flux_columns[2].as_str()),
-        ];
-        for (c, f) in pairs {
-            if c != f {
-                entries.push(format!("{c}={f}"));
-            }
-        }
-        Ok(Some(entries.join(",")))
     }
+    entries.join(",")
 }
 
 /// One sensor in a several-sensor coefficient file.
