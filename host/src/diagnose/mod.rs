@@ -571,29 +571,17 @@ fn conclude(
         sd_full[k] = ws.sd[i];
     }
     let top = candidates.iter().find(|c| c.significant);
+    // The model's columns, with the named candidate's when it is a regressor.
+    let named = top.and_then(|c| Some((c.term.clone(), band_columns_of(cand_cols, &c.term)?)));
     let direct_fit = ws.band.as_ref().map(|band| {
-        let idx: Vec<usize> = Vec::new();
+        let (term, idx) = named.map_or((None, Vec::new()), |(t, idx)| (Some(t), idx));
         let (target_nt, fitted_nt) = band.fit_series(&idx);
         DirectFit {
-            term: None,
+            term,
             target_nt,
             fitted_nt,
         }
     });
-    let direct_fit = match (top, &ws.band) {
-        (Some(c), Some(band)) => match band_columns_of(cand_cols, &c.term) {
-            Some(idx) => {
-                let (target_nt, fitted_nt) = band.fit_series(&idx);
-                Some(DirectFit {
-                    term: Some(c.term.clone()),
-                    target_nt,
-                    fitted_nt,
-                })
-            }
-            None => direct_fit,
-        },
-        _ => direct_fit,
-    };
     let band_rms_nt = ws.band.as_ref().map(|b| b.rms_nt());
     Diagnosis {
         model: ws.model.text(),
@@ -605,7 +593,7 @@ fn conclude(
         band_excess_max,
         segments,
         nis,
-        straight_line: holdout::folds(flight, &ws.rows).source == "time",
+        straight_line: ws.folds.source == "time",
         band_rms_nt,
         reference: ws.opts.reference.clone(),
         series: DiagnosisSeries {

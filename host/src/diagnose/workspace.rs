@@ -68,7 +68,7 @@ pub(super) struct Workspace<'a> {
     rss0w: f64,
     pub(super) penalty: Vec<f64>,
     pub(super) residual_rms: f64,
-    folds: Folds,
+    pub(super) folds: Folds,
     /// The band-passed measurement regressed directly (`evidence.rs`).
     pub(super) band: Option<DirectRegression>,
     /// The band-passed measurement minus the user's reference channel, regressed directly.
