@@ -37,6 +37,13 @@ impl Flags {
     /// heading-dependent level for tie-line levelling to remove. Held in survey mode after
     /// an in-flight calibration. Informative: not part of [`Flags::degraded`].
     pub const LEVEL_UNDETERMINED: u16 = 1 << 12;
+    /// The scalar reading is suspect: its innovation lies beyond `suspect_sigma` of the
+    /// filter's prediction, or, where the filter cannot judge it (no level yet, on the
+    /// ground, suspect regressors), it departs from the recent readings (or is the first
+    /// one, which nothing can check). A scalar line has no checksum: a corrupted digit is a
+    /// different number. Set whether or not the sample was fused (`INNOVATION_REJECTED`
+    /// says it was not).
+    pub const MAG_SUSPECT: u16 = 1 << 13;
 
     pub const fn empty() -> Self {
         Flags(0)
@@ -60,6 +67,7 @@ impl Flags {
             & (Self::FLUX_STALE
                 | Self::NO_GPS
                 | Self::MAG_MISSING
+                | Self::MAG_SUSPECT
                 | Self::AUX_MISSING
                 | Self::DERIVATIVE_DEGRADED)
             != 0

@@ -41,6 +41,14 @@ fn assert_same_records(got: &[Record], want: &[Record]) {
     for (g, w) in got.iter().zip(want) {
         let mut g = *g;
         g.flags.0 &= !Flags::PARSE_ERROR | (w.flags.0 & Flags::PARSE_ERROR);
+        // No innovation (NaN: the first reading, judged by continuity alone) equals none.
+        if g.innovation_nt.is_nan() && w.innovation_nt.is_nan() {
+            let mut w = *w;
+            w.innovation_nt = 0.0;
+            g.innovation_nt = 0.0;
+            assert_eq!(g, w);
+            continue;
+        }
         assert_eq!(g, *w);
     }
 }
@@ -127,5 +135,5 @@ fn a_bom_on_the_header_keeps_the_capture_rates() {
     bom.extend_from_slice(&clean);
     let (got, stats) = replay(&bom);
     assert_eq!(stats, clean_stats);
-    assert_eq!(got, want);
+    assert_same_records(&got, &want);
 }

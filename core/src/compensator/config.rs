@@ -38,6 +38,11 @@ pub struct CompensatorConfig {
     /// `gate_max_run` rejections it kept a filter that was wrong from re-syncing (a clean
     /// survey then showed a false `rate` at its crossovers).
     pub gate_max_run: u32,
+    /// A scalar innovation beyond this many σ of its prediction flags the record
+    /// `MAG_SUSPECT` (0 = never), in every phase: warm-up, gated, forced in. Below
+    /// `gate_sigma`, so a value the gate still fuses (a corrupted tenths digit, 0.1–0.9 nT)
+    /// is not shown as good.
+    pub suspect_sigma: f32,
     /// Tie points and the radius within which a pass counts as a revisit (m).
     pub tie_points: [Option<TiePoint>; MAX_TIE_POINTS],
     pub tie_radius_m: f32,
@@ -105,6 +110,7 @@ impl CompensatorConfig {
             prior_scale: 1.0,
             gate_sigma: 8.0,
             gate_max_run: 5,
+            suspect_sigma: 5.0,
             tie_points: [None; MAX_TIE_POINTS],
             tie_radius_m: 60.0,
             tie_gradient_floor_nt_per_m: 0.001,

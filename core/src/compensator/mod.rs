@@ -12,10 +12,12 @@ use crate::model::{Model, TermKind, MAX_TERM_STATES};
 use crate::units::MagCounts;
 
 mod config;
+mod continuity;
 pub mod health;
 mod scalar;
 mod ties;
 pub use config::CompensatorConfig;
+use continuity::ScalarContinuity;
 use health::{CoefficientHistory, Divergence, HeadingCoverage, InnovationMonitor};
 pub use scalar::ScalarFusion;
 use ties::{TieState, TIE_STATE_INIT};
@@ -101,6 +103,8 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     survey: bool,
     last_reference: Option<MagCounts>,
     reject_run: u32,
+    /// The scalar against its own recent past, where the filter cannot judge it.
+    continuity: ScalarContinuity,
     /// What the last scalar fusion did.
     scalar: ScalarFusion,
     ties: [TieState; MAX_TIE_POINTS],
@@ -183,6 +187,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 prior_scale: 1.0,
                 gate_sigma: 0.0,
                 gate_max_run: 0,
+                suspect_sigma: 0.0,
                 tie_points: [None; MAX_TIE_POINTS],
                 tie_radius_m: 0.0,
                 tie_gradient_floor_nt_per_m: 0.0,
@@ -209,6 +214,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             survey: false,
             last_reference: None,
             reject_run: 0,
+            continuity: ScalarContinuity::new(),
             scalar: ScalarFusion::NONE,
             ties: [TIE_STATE_INIT; MAX_TIE_POINTS],
             updates: 0,
@@ -323,6 +329,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.survey = false;
         self.last_reference = None;
         self.reject_run = 0;
+        self.continuity = ScalarContinuity::new();
         self.scalar = ScalarFusion::NONE;
         self.ties = [TIE_STATE_INIT; MAX_TIE_POINTS];
         self.updates = 0;

@@ -1,6 +1,7 @@
 //! The scalar magnetometer as an aid source (as PX4's EKF2 keeps one fusion per file): its
 //! innovation, gate and update, and a status record of what the last fusion did.
 
+use super::continuity::Continuity;
 use super::Compensator;
 use crate::epoch::Epoch;
 use crate::flags::Flags;
@@ -48,9 +49,52 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         flags: &mut Flags,
     ) -> ScalarFusion {
         let on_ground = ep.reported_speed_mps < self.cfg.min_update_speed_mps;
-        if !ep.dmag_nt.is_finite() || ep.regressors_suspect || on_ground {
-            return ScalarFusion::NONE;
+        let offered = ep.dmag_nt.is_finite() && !ep.regressors_suspect && !on_ground;
+        // Until it has fused a sample the filter has no level to predict from (its prior
+        // spans thousands of nT), and where it does not update it does not look: there the
+        // scalar is judged against its own recent readings.
+        let judged_here = !offered || self.updates == 0;
+        if judged_here {
+            let suspect = match ep.mag {
+                Some(m) if ep.dmag_nt.is_finite() => {
+                    self.continuity.judge(ep.t_s, m) == Continuity::Suspect
+                }
+                _ => false,
+            };
+            if suspect {
+                flags.set(Flags::MAG_SUSPECT);
+            }
+            if !offered || suspect {
+                return ScalarFusion::NONE;
+            }
         }
+        // The spread a reading is judged against includes the model error the recent
+        // innovations show beyond the configured noise: on a real installation it is
+        // 0.2–2 nT where the board assumes 0.02, and judged by the prediction alone 99 % of
+        // the real SGL boxes' readings were "suspect". Taken before this sample joins it.
+        let sigma = self.cfg.noise_nt * self.noise_scale;
+        let model_error_var = (self.innovations.observed_r() - sigma * sigma).max(0.0);
+        let status = self.fuse_offered(ep, h, frozen_nt, flags);
+        let suspect_sigma = self.cfg.suspect_sigma;
+        let beyond = suspect_sigma > 0.0
+            && status.innovation_nt * status.innovation_nt
+                > suspect_sigma * suspect_sigma * (status.innovation_var_nt2 + model_error_var);
+        if beyond {
+            flags.set(Flags::MAG_SUSPECT);
+        } else if let (Some(m), true, false) = (ep.mag, status.fused, judged_here) {
+            self.continuity.accept_judged(ep.t_s, m);
+        }
+        status
+    }
+
+    /// The gated update of an offered sample (warm-up: Huber-weighted beyond the gate).
+    fn fuse_offered(
+        &mut self,
+        ep: &Epoch,
+        h: &[f32; N],
+        frozen_nt: f32,
+        flags: &mut Flags,
+    ) -> ScalarFusion {
         let sigma = self.cfg.noise_nt * self.noise_scale;
         let r = sigma * sigma;
         let z = if self.survey {

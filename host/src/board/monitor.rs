@@ -31,7 +31,7 @@ pub const MAX_GAP: u32 = 1_000_000;
 const RATE_WINDOW: usize = 100;
 
 /// Flag bits as words, in bit order.
-pub const FLAG_NAMES: [&str; 13] = [
+pub const FLAG_NAMES: [&str; 14] = [
     "FLUX_STALE",
     "NO_GPS",
     "PARSE_ERROR",
@@ -45,9 +45,10 @@ pub const FLAG_NAMES: [&str; 13] = [
     "DERIVATIVE_DEGRADED",
     "TIE_REJECTED",
     "LEVEL_UNDETERMINED",
+    "MAG_SUSPECT",
 ];
 
-/// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT13`.
+/// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT14`.
 pub fn flag_words(f: Flags) -> String {
     let mut s = String::new();
     for bit in 0..16 {
@@ -642,6 +643,6 @@ mod tests {
     fn flag_words_decode_bits() {
         assert_eq!(flag_words(Flags(0)), "-");
         assert_eq!(flag_words(Flags(0b11)), "FLUX_STALE|NO_GPS");
-        assert_eq!(flag_words(Flags(1 << 8 | 1 << 13)), "SURVEY_MODE|BIT13");
+        assert_eq!(flag_words(Flags(1 << 8 | 1 << 14)), "SURVEY_MODE|BIT14");
     }
 }

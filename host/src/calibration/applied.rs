@@ -65,7 +65,7 @@ pub fn flag_shares(flags: &[u16], model_error_nt: Option<f64>) -> Vec<String> {
     if n == 0 {
         return Vec::new();
     }
-    let groups: [(u16, &str); 5] = [
+    let groups: [(u16, &str); 6] = [
         (
             Flags::INNOVATION_REJECTED,
             "refused by the innovation gate: the scalar departs from what the coefficients and \
@@ -81,6 +81,10 @@ pub fn flag_shares(flags: &[u16], model_error_nt: Option<f64>) -> Vec<String> {
         (
             Flags::MAG_MISSING,
             "without a scalar value (missing or glitch)",
+        ),
+        (
+            Flags::MAG_SUSPECT,
+            "flagged MAG_SUSPECT: the scalar lies beyond 5σ of the prediction, or jumps              against its recent readings where the filter cannot judge it",
         ),
         (
             Flags::NO_GPS,
