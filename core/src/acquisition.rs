@@ -105,6 +105,9 @@ impl AcqConfig {
 /// than ±0.05 s rather than the filter refusing to start. Board and replay both use this.
 pub fn compensator_config(scalar_hz: f32, window: usize) -> CompensatorConfig {
     let mut cfg = CompensatorConfig::for_rate(scalar_hz);
+    // The board cannot tune its noise on the whole flight as the host does: it follows
+    // what its innovations show.
+    cfg.adaptive_noise = true;
     cfg.epoch.half_width = cfg
         .epoch
         .half_width

@@ -57,13 +57,18 @@ fn speed() -> f64 {
 /// Also writes the capture (raw format) and the decoded records (CSV) to the run directory,
 /// and compares with the host replay when `MAGCOMP_BIN` names a `magcomp` with `replay`.
 fn run_flight(name: &str, cap: &Capture) -> Option<(Board, Vec<Record>)> {
+    run_flight_at(name, cap, speed())
+}
+
+/// As [`run_flight`], streamed `speed` times faster than the capture's own timing.
+fn run_flight_at(name: &str, cap: &Capture, speed: f64) -> Option<(Board, Vec<Record>)> {
     if let Some(why) = board::skip_reason() {
         eprintln!("{why}");
         return None;
     }
     let t0 = Instant::now();
     let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: board start: {e}"));
-    b.stream(cap, speed())
+    b.stream(cap, speed)
         .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
     let n = cap.scalar_t_s.len();
     // all but the few samples the centred derivative holds should be out promptly
@@ -568,6 +573,84 @@ fn simulated_flight_from_magcomp_simulate() {
     );
     let _ = std::fs::remove_file(&path);
     let _ = std::fs::remove_file(path.with_extension("csv"));
+}
+
+/// Issue 17 item 1 on the board: a real calibration flight (SGL 2020 flight 1002, box 1,
+/// cabin scalar `mag_5` with fluxgate D; `data/reference/sgl2020-flt1002-cal/`, MIT) turned
+/// into a capture by `magcomp capture` (its 60 m/s ground speed dead-reckoned into NMEA, as
+/// the host's `--speed-mps` assumes; the file has no positions) and flown cold: one
+/// record per sample, each equal to `magcomp replay`'s, and `NOT_CONVERGED` clears once the
+/// pattern is flown. Streamed 20× faster than flown (the records carry the sample count,
+/// not the wall clock, so they do not change): 650 s of flight in ~35 s. Needs `MAGCOMP_BIN`.
+#[test]
+fn real_calibration_box_flown_cold() {
+    let name = "real-box1";
+    let Ok(bin) = std::env::var("MAGCOMP_BIN") else {
+        eprintln!("SKIP: {name}: set MAGCOMP_BIN=path/to/magcomp to capture the real box");
+        return;
+    };
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../data/reference/sgl2020-flt1002-cal/flt1002_line1002.02.csv");
+    let path = std::env::temp_dir().join(format!("magcomp-hil-{}-box1.cap", std::process::id()));
+    let out = std::process::Command::new(&bin)
+        .arg("capture")
+        .arg(&src)
+        .args([
+            "--rate-hz",
+            "10",
+            "--time",
+            ":649.9",
+            "--speed-mps",
+            "60",
+            "--map",
+            "mag=mag_5_uc,flux_x=flux_d_x,flux_y=flux_d_y,flux_z=flux_d_z",
+            "-o",
+        ])
+        .arg(&path)
+        .output()
+        .expect("run magcomp capture");
+    assert!(
+        out.status.success(),
+        "magcomp capture: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let cap =
+        Capture::read_raw(std::io::BufReader::new(std::fs::File::open(&path).unwrap())).unwrap();
+    assert_eq!(cap.scalar_t_s.len(), 6500, "box 1: 650 s at 10 Hz");
+    let Some((b, recs)) = run_flight_at(name, &cap, 20.0 * speed()) else {
+        return;
+    };
+    assert_one_record_per_sample(name, &b, &cap, &recs);
+    let cleared = recs
+        .iter()
+        .position(|r| !r.flags.contains(Flags::NOT_CONVERGED))
+        .map(|i| i as f64 / 10.0);
+    let after = cleared.map_or(0, |t| (t * 10.0) as usize);
+    let shown = &recs[after..];
+    let held_clear = shown
+        .iter()
+        .filter(|r| !r.flags.contains(Flags::NOT_CONVERGED))
+        .count() as f64
+        / shown.len().max(1) as f64;
+    let suspect_shown = shown
+        .iter()
+        .filter(|r| r.flags.contains(Flags::MAG_SUSPECT) && !r.flags.contains(Flags::NOT_CONVERGED))
+        .count();
+    eprintln!(
+        "{name}: NOT_CONVERGED clears at {cleared:?} s, held clear on {:.0} % after; \
+         {suspect_shown} converged records MAG_SUSPECT",
+        100.0 * held_clear
+    );
+    // The pattern's last manoeuvre ends at ~571 s (host/tests/real_boxes_realtime.rs).
+    let t = cleared.expect("NOT_CONVERGED never clears on the real box");
+    assert!((540.0..=640.0).contains(&t), "clears at {t} s");
+    assert!(held_clear >= 0.9, "{held_clear}");
+    assert!(suspect_shown * 100 <= shown.len(), "{suspect_shown}");
+    let _ = std::fs::remove_file(&path);
 }
 
 /// The ground-to-board path: `magcomp calibrate --model tl16+field+fluxcal` on a flight with a

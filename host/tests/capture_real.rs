@@ -138,3 +138,59 @@ fn real_flight_capture_replays_one_record_per_sample_as_realtime_compensate() {
 /// core compensator: what may differ is the last digit of the 4-decimal `compensated`
 /// both print. Measured: identical on all 6,500 samples (max 0).
 const TOLERANCE_NT: f64 = 1e-4;
+
+/// A box without positions given `--speed-mps`: NMEA at that ground speed (dead-reckoned,
+/// and said so), so the board's anomaly model moves with the distance flown as the host's
+/// `--speed-mps` assumes; every record has its fix.
+#[test]
+fn a_positionless_box_gets_a_dead_reckoned_track_at_the_given_speed() {
+    let d = tmp("capture-speed");
+    let Some(trace) = box1(&d) else { return };
+    let cap = d.join("box1.cap");
+    let (_, err) = run_ok_with_stderr(
+        bin()
+            .arg("capture")
+            .arg(&trace)
+            .args(["--map", MAP, "--speed-mps", "60", "-o"])
+            .arg(&cap),
+    );
+    assert!(err.contains("dead-reckoned"), "{err}");
+    let text = std::fs::read_to_string(&cap).unwrap();
+    // 5 Hz × 3 sentences over 650 s.
+    let gps = text.lines().filter(|l| l.contains(" gps ")).count();
+    assert_eq!(gps, 9750);
+    // The RMC sentences carry 60 m/s = 116.63 kn.
+    let rmc_speed_kn: Vec<f64> = text
+        .lines()
+        .filter(|l| l.contains(" gps "))
+        .filter_map(|l| {
+            let hex = l.rsplit(' ').next()?;
+            let bytes: Vec<u8> = (0..hex.len() / 2)
+                .map(|i| u8::from_str_radix(&hex[2 * i..2 * i + 2], 16).unwrap())
+                .collect();
+            let s = String::from_utf8(bytes).ok()?;
+            s.starts_with("$GNRMC")
+                .then(|| s.split(',').nth(7)?.parse().ok())
+                .flatten()
+        })
+        .collect();
+    assert!(rmc_speed_kn.len() > 3000);
+    let mid = rmc_speed_kn[rmc_speed_kn.len() / 2];
+    assert!((mid - 116.63).abs() < 0.05, "{mid} kn");
+    let rec = d.join("replay.csv");
+    run_ok(bin().arg("replay").arg(&cap).arg("-o").arg(&rec));
+    let flags = std::fs::read_to_string(&rec).unwrap();
+    let no_gps = flags
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .skip(1)
+        .filter(|l| {
+            let f = l.rsplit(',').next().unwrap_or("0");
+            let bits: u16 = f.trim().parse().unwrap_or(0);
+            bits & magcomp_core::Flags::NO_GPS != 0
+        })
+        .count();
+    // The receiver's first fix arrives with its first epoch.
+    assert!(no_gps <= 2, "{no_gps} records without a fix");
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -43,6 +43,15 @@ pub struct CompensatorConfig {
     /// `gate_sigma`, so a value the gate still fuses (a corrupted tenths digit, 0.1–0.9 nT)
     /// is not shown as good.
     pub suspect_sigma: f32,
+    /// Real time: the scalar's variance `r` is raised to what the last
+    /// `consistency_window_epochs` of innovations show (`E[ν²] − E[H·P·Hᵀ]`) when that is
+    /// larger. A real installation's model error (0.2–2 nT) is 10–100× the sensor's 0.02
+    /// nT: with `r` at the sensor's, the board refused 45–82 % of the real SGL boxes'
+    /// samples at its gate, took one in six at face value, and flew box 2 at 21 / 48 nT
+    /// band rms (mag_5 / mag_3, raw 11 / 144) flagged converged. On for the board and
+    /// `replay` ([`crate::acquisition::compensator_config`]); the host tunes `noise_nt` on
+    /// the whole flight instead, `--realtime` included (off there).
+    pub adaptive_noise: bool,
     /// Tie points and the radius within which a pass counts as a revisit (m).
     pub tie_points: [Option<TiePoint>; MAX_TIE_POINTS],
     pub tie_radius_m: f32,
@@ -111,6 +120,7 @@ impl CompensatorConfig {
             gate_sigma: 8.0,
             gate_max_run: 5,
             suspect_sigma: 5.0,
+            adaptive_noise: false,
             tie_points: [None; MAX_TIE_POINTS],
             tie_radius_m: 60.0,
             tie_gradient_floor_nt_per_m: 0.001,

@@ -126,6 +126,9 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     regressor_mean_count: u32,
     /// Innovation statistics over `consistency_window_epochs`.
     innovations: InnovationMonitor,
+    /// Real time: the scalar variance the innovations have shown, held with a long
+    /// memory (nT²; 0 before any): rises within seconds, decays over minutes.
+    adapted_r: f32,
     /// The survey envelope's variance at its last evaluation (nT²), and evaluations until
     /// the next one.
     envelope_var: f32,
@@ -188,6 +191,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 gate_sigma: 0.0,
                 gate_max_run: 0,
                 suspect_sigma: 0.0,
+                adaptive_noise: false,
                 tie_points: [None; MAX_TIE_POINTS],
                 tie_radius_m: 0.0,
                 tie_gradient_floor_nt_per_m: 0.0,
@@ -228,6 +232,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             regressor_mean: [0.0; N],
             regressor_mean_count: 0,
             innovations: InnovationMonitor::new(),
+            adapted_r: 0.0,
             envelope_var: f32::INFINITY,
             envelope_countdown: 0,
             coefficient_sigma_nt: f32::NAN,
@@ -346,6 +351,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.regressor_mean = [0.0; N];
         self.regressor_mean_count = 0;
         self.innovations = InnovationMonitor::new();
+        self.adapted_r = 0.0;
         self.envelope_var = f32::INFINITY;
         self.envelope_countdown = 0;
         self.coefficient_sigma_nt = f32::NAN;

@@ -596,6 +596,40 @@ pub fn parse_time_of_day(s: &str) -> Result<f64> {
     Ok(f64::from(h * 3600 + m * 60) + sec)
 }
 
+/// A trace without positions (a real calibration box) given a dead-reckoned track: due north
+/// from `start_deg` (lat, lon) at `speed_mps` and `alt_m`, as the host's `--speed-mps`
+/// assumes for it. The board then sees that ground speed in the NMEA; the positions are
+/// invented, which `magcomp capture` says. No change to a trace that has positions.
+pub fn with_dead_reckoned_track(
+    trace: &mut Trace,
+    speed_mps: f64,
+    start_deg: (f64, f64),
+    alt_m: f64,
+) -> Result<bool> {
+    if trace.col("lat").is_some() && trace.col("lon").is_some() {
+        return Ok(false);
+    }
+    ensure!(
+        speed_mps.is_finite() && speed_mps > 0.0 && speed_mps < 400.0,
+        "--speed-mps {speed_mps} is not an aircraft's ground speed (0–400 m/s)"
+    );
+    let t = trace
+        .col("t")
+        .context("a dead-reckoned track needs the trace's time (`t`, or --rate-hz)")?
+        .to_vec();
+    let t0 = t.first().copied().unwrap_or(0.0);
+    let lat: Vec<f64> = t
+        .iter()
+        .map(|ti| start_deg.0 + ((ti - t0) * speed_mps / EARTH_RADIUS_M).to_degrees())
+        .collect();
+    trace.set_col("lat", lat);
+    trace.set_col("lon", vec![start_deg.1; t.len()]);
+    if trace.col("alt").is_none() {
+        trace.set_col("alt", vec![alt_m; t.len()]);
+    }
+    Ok(true)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -3,7 +3,9 @@
 //! uses), so it replays through the firmware's acquisition path (`replay`, the HIL rig).
 
 use super::args::TraceInput;
-use crate::board::capture::{parse_time_of_day, write_capture_file, CaptureOptions, FluxFormat};
+use crate::board::capture::{
+    parse_time_of_day, with_dead_reckoned_track, write_capture_file, CaptureOptions, FluxFormat,
+};
 use crate::io::output::refuse_overwriting;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
@@ -32,11 +34,21 @@ pub struct CaptureCmdArgs {
     /// UTC time of day at the trace's first sample, `HH:MM:SS` (the NMEA time).
     #[arg(long, default_value = "12:00:00", value_name = "HH:MM:SS")]
     pub start: String,
+    /// For a trace without positions: give it a dead-reckoned track at this ground speed
+    /// (due north from 45°N 75°W at 1000 m), so the board sees the speed the host's own
+    /// `--speed-mps` assumes (the anomaly model moves with distance flown; without a speed
+    /// the board holds it still). The positions are invented, and the command says so.
+    #[arg(long, value_name = "M_PER_S")]
+    pub speed_mps: Option<f64>,
 }
 
 pub fn run(a: &CaptureCmdArgs) -> Result<()> {
     refuse_overwriting(&[&a.input.trace], &[&a.out])?;
-    let trace = a.input.read()?;
+    let mut trace = a.input.read()?;
+    let dead_reckoned = match a.speed_mps {
+        Some(v) => with_dead_reckoned_track(&mut trace, v, (45.0, -75.0), 1000.0)?,
+        None => false,
+    };
     let mut o = CaptureOptions {
         flux_format: a.flux,
         gps_rate_hz: a.gps_hz,
@@ -55,10 +67,10 @@ pub fn run(a: &CaptureCmdArgs) -> Result<()> {
         s.scalar_hz,
         s.flux_frames,
         s.gps_sentences,
-        if s.gps_sentences == 0 {
-            " (no positions in the trace)"
-        } else {
-            ""
+        match (s.gps_sentences, dead_reckoned) {
+            (0, _) => " (no positions in the trace)",
+            (_, true) => " (positions dead-reckoned at --speed-mps: the trace has none)",
+            _ => "",
         },
         s.total_bytes
     );
