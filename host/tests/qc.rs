@@ -191,6 +191,16 @@ fn real_boxes_without_positions_show_two_boxes_of_four_headings() {
             "consecutive legs {w:?} are not ~90° apart"
         );
     }
+    // Without INS each heading's window splits into the sets as flown: pitch, roll, yaw
+    // (`qc::sets`), 12 manoeuvres per box as an AARC table has them.
+    for l in &p.legs {
+        let kinds: Vec<&str> = l.manoeuvres.iter().map(|m| m.kind.as_str()).collect();
+        assert_eq!(kinds, ["pitch", "roll", "yaw"], "leg {}", l.tag);
+        for m in &l.manoeuvres {
+            let len_s = m.t_end - m.t_start;
+            assert!((6.0..45.0).contains(&len_s), "{} lasts {len_s:.1} s", m.label);
+        }
+    }
     // The KF runs there with an assumed speed and gives the aircraft-only FOM.
     let mut e = est(Method::Kf);
     e.speed_mps = Some(60.0);
