@@ -12,6 +12,7 @@
 //! roll while flying along the field's horizontal direction moves it exactly as a yaw.
 
 use crate::flight::Flight;
+use crate::signal::stats::moving_mean;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
@@ -106,22 +107,6 @@ fn fill_forward(v: &mut [f64]) {
             *x = last;
         }
     }
-}
-
-/// Centred moving mean over `w` samples (shorter at the ends).
-pub(super) fn moving_mean(v: &[f64], w: usize) -> Vec<f64> {
-    let n = v.len();
-    let h = w / 2;
-    let mut cum = vec![0.0; n + 1];
-    for i in 0..n {
-        cum[i + 1] = cum[i] + v[i];
-    }
-    (0..n)
-        .map(|i| {
-            let (a, b) = (i.saturating_sub(h), (i + h + 1).min(n));
-            (cum[b] - cum[a]) / (b - a) as f64
-        })
-        .collect()
 }
 
 /// The fluxgate-frame axis the field turns about (the aircraft's vertical, pointing along

@@ -10,10 +10,12 @@
 //! latitude) and on some headings looks like a roll, so yaw is taken from the order in which
 //! AARC sets are flown on each heading: pitch, roll, then yaw.
 
-use super::manoeuvres::MIN_AMPLITUDE_DEG;
 use crate::flight::Flight;
 use nalgebra::{Matrix2, Vector3};
 
+/// A roll or pitch set is active above this rate envelope (deg/s): a ±5° pitch at a
+/// 4–8 s period turns at 4–8 deg/s, level flight between sets below 1.
+const MIN_RATE_DEG_S: f64 = 1.5;
 /// Envelope window (s), largest pause inside one part (s), shortest part (s).
 const ENVELOPE_S: f64 = 5.0;
 const MAX_PAUSE_S: f64 = 3.0;
@@ -100,7 +102,7 @@ pub fn fluxgate_rates(flight: &Flight, frame: &[Vector3<f64>; 3], band_hz: (f64,
         .collect();
     let k = ((ENVELOPE_S * fs).round() as usize).max(1);
     let env = |sq: &[f64]| -> Vec<f64> {
-        super::manoeuvres::moving_mean(sq, k)
+        crate::signal::stats::moving_mean(sq, k)
             .into_iter()
             .map(|m| (2.0 * m).sqrt().to_degrees())
             .collect()
@@ -116,7 +118,7 @@ pub fn fluxgate_rates(flight: &Flight, frame: &[Vector3<f64>; 3], band_hz: (f64,
 /// The horizontal direction carrying most of the horizontal rate over the active samples.
 fn roll_axis(wf: &[Vector3<f64>], h1: &Vector3<f64>, h2: &Vector3<f64>) -> Vector3<f64> {
     let mut c = Matrix2::zeros();
-    let threshold = MIN_AMPLITUDE_DEG.to_radians();
+    let threshold = MIN_RATE_DEG_S.to_radians();
     for v in wf.iter().filter(|v| v.norm() > threshold) {
         let h = nalgebra::Vector2::new(v.dot(h1), v.dot(h2));
         c += h * h.transpose();
@@ -136,7 +138,7 @@ fn roll_axis(wf: &[Vector3<f64>], h1: &Vector3<f64>, h2: &Vector3<f64>) -> Vecto
 /// set (the caller keeps the numbered manoeuvres then).
 pub fn split_leg(r: &Rates, a: usize, b: usize) -> Option<Vec<(&'static str, usize, usize)>> {
     let samples_of = |s: f64| ((s * r.fs_hz).round() as usize).max(1);
-    let active = |i: usize| r.total[i] > MIN_AMPLITUDE_DEG;
+    let active = |i: usize| r.total[i] > MIN_RATE_DEG_S;
     let pitchy = |i: usize| active(i) && r.pitch[i] > r.roll[i];
     let rolly = |i: usize| active(i) && r.roll[i] > r.pitch[i];
     let pause = samples_of(MAX_PAUSE_S);
