@@ -169,6 +169,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
                 &trace,
                 &it.models()?,
                 it.steps.first().map(|s| &s.diagnosis),
+                args.input.provenance(&trace, &model.text()).ok().as_ref(),
                 dir,
             )?;
             if !args.json {
@@ -186,12 +187,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let d = diagnose(diagnosed, &model, &opts)?;
     drop(stage);
     if let Some(dir) = &args.report {
+        let meta = args.input.provenance(&trace, &model.text()).ok();
         let path = match &evaluated {
-            Some(ev) => write_evaluation(&trace, ev, dir)?,
+            Some(ev) => write_evaluation(&trace, ev, meta.as_ref(), dir)?,
             None => crate::report::flight_report::write_report(
                 &trace,
                 std::slice::from_ref(&model),
                 Some(&d),
+                meta.as_ref(),
                 dir,
             )?,
         };
@@ -272,6 +275,7 @@ fn json(
 pub(super) fn write_evaluation(
     trace: &crate::io::trace::Trace,
     ev: &Evaluated,
+    this_flight: Option<&crate::calibration::provenance::Provenance>,
     dir: &Path,
 ) -> Result<PathBuf> {
     let page = calibration::build(
@@ -281,6 +285,8 @@ pub(super) fn write_evaluation(
             comp: &ev.comp,
             summary: &ev.summary,
             source: ev.source.clone(),
+            this_flight,
+            coefficient_provenance: ev.coefficient_provenance.as_ref(),
         },
     );
     std::fs::create_dir_all(dir)

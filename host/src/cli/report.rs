@@ -85,7 +85,8 @@ pub fn run(args: &ReportArgs) -> Result<()> {
                 .warnings
                 .extend(args.input.provenance_warnings(Some(&trace), &c));
         }
-        let path = super::diagnose::write_evaluation(&trace, &ev, &args.out)?;
+        let meta = args.input.provenance(&trace, &ev.summary.model)?;
+        let path = super::diagnose::write_evaluation(&trace, &ev, Some(&meta), &args.out)?;
         super::compensate::print_warnings(&ev.summary);
         println!("report written to {}", path.display());
         return Ok(());
@@ -101,8 +102,9 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         .map(|m| ModelSpec::parse(m))
         .collect::<Result<Vec<_>>>()?;
     let field = models.iter().any(|m| m.field);
+    let meta = args.input.provenance(&trace, &models[0].text())?;
     let trace = super::args::diagnosis_trace(trace, args.tuning.speed_mps, field, true)?;
-    let path = write_report(&trace, &models, None, &args.out)?;
+    let path = write_report(&trace, &models, None, Some(&meta), &args.out)?;
     println!("report written to {}", path.display());
     Ok(())
 }
