@@ -121,7 +121,7 @@ pub fn pattern_rows(flight: &Flight) -> Vec<usize> {
 /// The improvement ratio, IR: the standard deviation of the 0.1–0.9 Hz band-passed
 /// uncompensated scalar over that of the band-passed compensated one, over the calibration
 /// pattern ([`pattern_rows`]), on the samples where both are known. The one definition
-/// every figure called IR uses (docs/model.md §5c).
+/// every figure called IR uses (docs/model.md §6a).
 pub fn improvement_ratio(flight: &Flight, compensated_nt: &[f64]) -> Option<f64> {
     let before = band_passed(flight, &flight.mag_nt)?;
     let after = band_passed(flight, compensated_nt)?;

@@ -161,7 +161,7 @@ pub fn figures_section(s: &Summary) -> Section {
              uncompensated scalar over that of the band-passed compensated one, over the \
              calibration pattern (labelled or detected manoeuvres; the whole flight when none \
              is found); > 1: compensation removed interference. The one IR magcomp prints \
-             (docs/model.md §5c). The error against truth is shown only for simulated flights.",
+             (docs/model.md §6a). The error against truth is shown only for simulated flights.",
         )
         .table(&["figure", "value"], &rows)
 }

@@ -375,7 +375,7 @@ fn noise_section(s: &Sheet) -> Section {
             "d4[i] = (x[i−2] − 4x[i−1] + 6x[i] − 4x[i+1] + x[i+2]) / 16 (normalised by 16, \
              the aeromagnetic convention: white noise of σ gives √70/16 ≈ 0.52σ). The \
              acceptance band ±{limit} nT is a common survey-contract figure for the noise \
-             envelope; the contract's own figure applies (docs/model.md §5c)."
+             envelope; the contract's own figure applies (docs/model.md §6a)."
         ))
         .table(
             &[
