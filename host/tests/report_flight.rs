@@ -78,6 +78,26 @@ fn page_has_every_plot_and_the_comparison() {
     // The failure window is shaded on the residual plot (a window label with nT).
     assert!(html.contains("class=\"window\""), "no failure window drawn");
     assert!(html.len() < 2_000_000, "page is {} bytes", html.len());
+    // The QC sheet on simulation: the simulator's 12 labelled manoeuvres, the compensated
+    // FOM below the uncompensated, and the sheet's own panels.
+    assert!(
+        html.contains("12 manoeuvres (labels;"),
+        "labelled FOM table"
+    );
+    let after = |key: &str| -> f64 {
+        let at = html.find(key).expect(key) + key.len();
+        let s: String = html[at..]
+            .chars()
+            .take_while(|c| c.is_ascii_digit() || *c == '.')
+            .collect();
+        s.parse().expect(key)
+    };
+    let (raw_nt, fom_nt) = (after("Uncompensated "), after("nT, FOM "));
+    println!("simulated cloverleaf: FOM {fom_nt} nT of {raw_nt} uncompensated");
+    assert!(fom_nt < raw_nt, "FOM {fom_nt} vs {raw_nt}");
+    for id in ["qc-detrended", "qc-bandpassed", "qc-fourth-difference"] {
+        assert!(ids.iter().any(|i| i == id), "{id} missing");
+    }
 }
 
 #[test]
