@@ -98,6 +98,8 @@ fn page_has_every_plot_and_the_comparison() {
     for id in ["qc-detrended", "qc-bandpassed", "qc-fourth-difference"] {
         assert!(ids.iter().any(|i| i == id), "{id} missing");
     }
+    // The cloverleaf's legs all cross its centre: both reciprocal pairs share ground.
+    assert_eq!(html.matches("<td>same (").count(), 2, "reciprocal passes");
 }
 
 #[test]

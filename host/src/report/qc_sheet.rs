@@ -10,7 +10,7 @@ use crate::flight::Flight;
 use crate::qc::figures::{
     band_passed, fourth_difference_nt, noise_figure, FOURTH_DIFFERENCE_LIMIT_NT,
 };
-use crate::qc::manoeuvres::Pattern;
+use crate::qc::manoeuvres::{Leg, Pattern};
 
 /// What the sheet is drawn from.
 pub struct Sheet<'a> {
@@ -192,11 +192,12 @@ fn heading_section(s: &Sheet) -> Section {
         for j in i + 1..p.legs.len() {
             let d = (p.legs[j].heading_deg - p.legs[i].heading_deg).rem_euclid(360.0);
             if (d - 180.0).abs() < 20.0 {
+                let (ground, raw_nt, comp_nt) = reciprocal(s, &p.legs[i], &p.legs[j]);
                 pairs.push(vec![
                     format!("{} − {}", p.legs[i].tag, p.legs[j].tag),
-                    ground(f, &p.legs[i], &p.legs[j]),
-                    format!("{:.2}", means[i].0 - means[j].0),
-                    format!("{:.2}", means[i].1 - means[j].1),
+                    ground,
+                    format!("{raw_nt:.2}"),
+                    format!("{comp_nt:.2}"),
                 ]);
             }
         }
@@ -205,7 +206,9 @@ fn heading_section(s: &Sheet) -> Section {
         return sec.paragraph("Reciprocal passes: not flown.");
     }
     sec = sec.table_with_caption(
-        "Reciprocal passes (headings 180 ± 20° apart)",
+        "Reciprocal passes (headings 180 ± 20° apart): over the same ground, the means \
+         over the part each pass has within 200 m of the other (the anomaly cancels); \
+         else the legs' means",
         &[
             "pair",
             "ground",
@@ -217,25 +220,56 @@ fn heading_section(s: &Sheet) -> Section {
     sec
 }
 
-/// Whether two legs were flown over the same ground (their mean positions within 1 km).
-fn ground(f: &Flight, a: &crate::qc::manoeuvres::Leg, b: &crate::qc::manoeuvres::Leg) -> String {
+/// Within this distance (m) two passes are over the same ground.
+const SAME_GROUND_M: f64 = 200.0;
+
+/// A reciprocal pair: where the ground is the same (positions), the difference of the two
+/// passes' means over the samples each has within SAME_GROUND_M of the other's track, so
+/// the anomaly cancels and what is left is heading error; else the legs' mean difference.
+/// Returns (ground, uncompensated difference, compensated difference).
+fn reciprocal(s: &Sheet, a: &Leg, b: &Leg) -> (String, f64, f64) {
+    let f = s.flight;
+    // The core field's change and the recorded diurnal differ between the passes too.
+    let raw = f.environment_corrected_nt(&f.mag_nt);
+    let comp = f.environment_corrected_nt(s.compensated_nt);
+    let whole = |x: &[f64]| mean_over(x, a.start, a.end) - mean_over(x, b.start, b.end);
+    let legs_mean = (whole(&raw), whole(&comp));
     if !f.has_position() {
-        return "unknown (no positions)".into();
+        return ("unknown (no positions)".into(), legs_mean.0, legs_mean.1);
     }
     let ne = f.local_ne_m();
-    let centre = |l: &crate::qc::manoeuvres::Leg| {
-        let k = (l.end - l.start) as f64;
-        ne[l.start..l.end]
-            .iter()
-            .fold([0.0, 0.0], |c, p| [c[0] + p[0] / k, c[1] + p[1] / k])
+    // Rows of `p` within SAME_GROUND_M of `q`'s track (q thinned to ≤ 2000 points).
+    let near = |p: &Leg, q: &Leg| -> Vec<usize> {
+        let step = ((q.end - q.start) / 2000).max(1);
+        let track: Vec<[f64; 2]> = (q.start..q.end).step_by(step).map(|i| ne[i]).collect();
+        (p.start..p.end)
+            .filter(|&i| {
+                track
+                    .iter()
+                    .any(|t| (t[0] - ne[i][0]).hypot(t[1] - ne[i][1]) < SAME_GROUND_M)
+            })
+            .collect()
     };
-    let (ca, cb) = (centre(a), centre(b));
-    let d_km = (ca[0] - cb[0]).hypot(ca[1] - cb[1]) / 1000.0;
-    if d_km < 1.0 {
-        "same".into()
-    } else {
-        format!("different ({d_km:.1} km apart)")
+    let (on_a, on_b) = (near(a, b), near(b, a));
+    let min_rows = (10.0 * f.sample_rate_hz) as usize;
+    if on_a.len() < min_rows || on_b.len() < min_rows {
+        return ("different".into(), legs_mean.0, legs_mean.1);
     }
+    let mean_at = |x: &[f64], rows: &[usize]| {
+        let v: Vec<f64> = rows
+            .iter()
+            .map(|&i| x[i])
+            .filter(|v| v.is_finite())
+            .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    let diff = |x: &[f64]| mean_at(x, &on_a) - mean_at(x, &on_b);
+    let overlap_s = on_a.len().min(on_b.len()) as f64 / f.sample_rate_hz;
+    (
+        format!("same ({overlap_s:.0} s within {SAME_GROUND_M:.0} m)"),
+        diff(&raw),
+        diff(&comp),
+    )
 }
 
 /// `x` minus its least-squares line over the finite samples.
