@@ -30,7 +30,7 @@ fn models() -> Vec<ModelSpec> {
 
 #[test]
 fn page_has_every_plot_and_the_comparison() {
-    let page = build_report(&trace(), &models(), None, None).expect("report");
+    let page = build_report(&trace(), &models(), None, &Default::default()).expect("report");
     let ids = page.plot_ids();
     for want in [
         "compare-residual-rms",
@@ -139,8 +139,8 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
 fn report_renders_in_headless_chromium() {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report-flight");
     let t = trace();
-    let page = build_report(&t, &models(), None, None).expect("report");
-    let path = write_report(&t, &models(), None, None, &dir).expect("write");
+    let page = build_report(&t, &models(), None, &Default::default()).expect("report");
+    let path = write_report(&t, &models(), None, &Default::default(), &dir).expect("write");
     if !Path::new(CHROMIUM).exists() {
         println!("SKIP report_renders_in_headless_chromium: {CHROMIUM} not installed (apt-get install chromium)");
         return;
@@ -192,7 +192,7 @@ fn a_survey_with_ties_gets_the_crossover_plot() {
         .iter()
         .map(|m| ModelSpec::parse(m).expect("spec"))
         .collect();
-    let page = build_report(&trace, &models, None, None).expect("report");
+    let page = build_report(&trace, &models, None, &Default::default()).expect("report");
     let ids = page.plot_ids();
     for want in ["crossovers-0", "crossovers-1"] {
         assert!(
@@ -265,9 +265,14 @@ fn a_trace_without_position_gets_the_diagnosis_page_at_the_assumed_speed() {
         "hidden effect not found without positions"
     );
     let e_time = verdict_error_nt(&html, &model);
-    let pos_page = build_report(&with_pos, &[ModelSpec::parse(&model).unwrap()], None, None)
-        .expect("report with positions")
-        .to_html();
+    let pos_page = build_report(
+        &with_pos,
+        &[ModelSpec::parse(&model).unwrap()],
+        None,
+        &Default::default(),
+    )
+    .expect("report with positions")
+    .to_html();
     let e_pos = verdict_error_nt(&pos_page, &model);
     println!("error vs truth: positions {e_pos:.4} nT, assumed 60 m/s {e_time:.4} nT");
     // (the anomaly held in place instead — no speed — gave 2.60 nT against 2.03)

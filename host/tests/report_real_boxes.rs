@@ -180,7 +180,12 @@ fn real_box_qc_sheets_carry_twelve_manoeuvres_and_the_clis_ir() {
         (
             "box 2",
             dir.join("r2"),
-            vec!["--coeffs", coeffs.to_str().unwrap()],
+            vec![
+                "--coeffs",
+                coeffs.to_str().unwrap(),
+                "--d4-limit-nt",
+                "0.02",
+            ],
             &box2,
             &applied,
             "t 650.0–1290.0 s",
@@ -244,6 +249,10 @@ fn real_box_qc_sheets_carry_twelve_manoeuvres_and_the_clis_ir() {
     assert!(
         r2.contains("coefficients: file"),
         "box 2: no coefficient provenance"
+    );
+    assert!(
+        r2.contains("within ±0.02 nT (%)"),
+        "box 2: --d4-limit-nt not applied"
     );
     if Path::new(CHROMIUM).exists() {
         let profile = dir.join("profile");

@@ -210,7 +210,7 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
         &trace,
         &[model, better],
         Some(&d),
-        None,
+        &Default::default(),
         &report_dir,
     )?;
     println!("report with plots (before/after): {}", page.display());

@@ -169,7 +169,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
                 &trace,
                 &it.models()?,
                 it.steps.first().map(|s| &s.diagnosis),
-                args.input.provenance(&trace, &model.text()).ok().as_ref(),
+                &sheet_info(&args.input, &trace, &model.text()),
                 dir,
             )?;
             if !args.json {
@@ -187,14 +187,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let d = diagnose(diagnosed, &model, &opts)?;
     drop(stage);
     if let Some(dir) = &args.report {
-        let meta = args.input.provenance(&trace, &model.text()).ok();
+        let info = sheet_info(&args.input, &trace, &model.text());
         let path = match &evaluated {
-            Some(ev) => write_evaluation(&trace, ev, meta.as_ref(), dir)?,
+            Some(ev) => write_evaluation(&trace, ev, &info, dir)?,
             None => crate::report::flight_report::write_report(
                 &trace,
                 std::slice::from_ref(&model),
                 Some(&d),
-                meta.as_ref(),
+                &info,
                 dir,
             )?,
         };
@@ -271,11 +271,24 @@ fn json(
     Ok(serde_json::to_string_pretty(&v)?)
 }
 
+/// The QC sheet's knowledge of the input (its provenance when it can be hashed) with the
+/// default noise band.
+fn sheet_info(
+    input: &super::args::TraceInput,
+    trace: &crate::io::trace::Trace,
+    model: &str,
+) -> crate::report::qc_sheet::SheetInfo {
+    crate::report::qc_sheet::SheetInfo {
+        this_flight: input.provenance(trace, model).ok(),
+        ..Default::default()
+    }
+}
+
 /// The page of the checked compensation (`report --coeffs`'s).
 pub(super) fn write_evaluation(
     trace: &crate::io::trace::Trace,
     ev: &Evaluated,
-    this_flight: Option<&crate::calibration::provenance::Provenance>,
+    info: &crate::report::qc_sheet::SheetInfo,
     dir: &Path,
 ) -> Result<PathBuf> {
     let page = calibration::build(
@@ -285,7 +298,7 @@ pub(super) fn write_evaluation(
             comp: &ev.comp,
             summary: &ev.summary,
             source: ev.source.clone(),
-            this_flight,
+            info,
             coefficient_provenance: ev.coefficient_provenance.as_ref(),
         },
     );

@@ -25,7 +25,7 @@ pub struct Evaluation<'a> {
     /// E.g. "coefficients from cal.json" or "fitted on this flight".
     pub source: String,
     /// This flight as a coefficient file would record it (the QC sheet's metadata).
-    pub this_flight: Option<&'a crate::calibration::provenance::Provenance>,
+    pub info: &'a super::qc_sheet::SheetInfo,
     /// The applied coefficient file's provenance; None when fitted on this flight.
     pub coefficient_provenance: Option<&'a crate::calibration::provenance::Provenance>,
 }
@@ -52,7 +52,7 @@ pub fn page_title(
 pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
     let s = ev.summary;
     let flight = ev.flight;
-    let mut page = HtmlReport::new(&page_title(trace, ev.this_flight));
+    let mut page = HtmlReport::new(&page_title(trace, ev.info.this_flight.as_ref()));
     for w in &s.warnings {
         page = page.warning(w);
     }
@@ -76,7 +76,7 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
     let sheet = super::qc_sheet::Sheet {
         flight,
         compensated_nt: &ev.comp.compensated_nt,
-        this_flight: ev.this_flight,
+        info: ev.info,
         coefficients: ev.coefficient_provenance,
         compensation,
         pattern: pattern.as_ref(),

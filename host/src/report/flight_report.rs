@@ -2,9 +2,9 @@
 //! with failure windows and segments, the paper's spectrum figure, per-manoeuvre FOM and
 //! the coefficients with 1σ; for two or more models, the before/after comparison.
 
+use super::qc_sheet::SheetInfo;
 use super::{fmt_opt, HtmlReport, Plot, Section, Series, PALETTE};
 use crate::calibration::fom::{fom_table, pattern_of, FomTable};
-use crate::calibration::provenance::Provenance;
 use crate::diagnose::{diagnose, residual_spectrum, DiagnoseOptions, Diagnosis};
 use crate::flight::{scalar_relative_nt, Flight};
 use crate::io::trace::Trace;
@@ -41,10 +41,10 @@ pub fn write_report(
     trace: &Trace,
     models: &[ModelSpec],
     first: Option<&Diagnosis>,
-    this_flight: Option<&Provenance>,
+    info: &SheetInfo,
     dir: &Path,
 ) -> Result<PathBuf> {
-    let page = build_report(trace, models, first, this_flight)?;
+    let page = build_report(trace, models, first, info)?;
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create report directory {}", dir.display()))?;
     let path = dir.join(REPORT_PAGE);
@@ -53,12 +53,12 @@ pub fn write_report(
 }
 
 /// The page: the QC sheet of the first model's compensation (`qc_sheet`), then each
-/// model's diagnosis. `this_flight` is the input as a coefficient file would record it.
+/// model's diagnosis. `info`: the input as a coefficient file would record it, the noise band.
 pub fn build_report(
     trace: &Trace,
     models: &[ModelSpec],
     first: Option<&Diagnosis>,
-    this_flight: Option<&Provenance>,
+    info: &SheetInfo,
 ) -> Result<HtmlReport> {
     if models.is_empty() {
         bail!("give at least one --model");
@@ -94,20 +94,23 @@ pub fn build_report(
         });
     }
     let flight = Flight::from_trace(trace, &[], &[])?;
-    let mut page =
-        HtmlReport::new(&super::calibration::page_title(trace, this_flight)).paragraph(&format!(
-            "{} samples at {:.0} Hz, {:.0} s. Models: {}. The residual is what the model could \
+    let mut page = HtmlReport::new(&super::calibration::page_title(
+        trace,
+        info.this_flight.as_ref(),
+    ))
+    .paragraph(&format!(
+        "{} samples at {:.0} Hz, {:.0} s. Models: {}. The residual is what the model could \
          not predict (its one-step innovation); the model expects it to be white noise of the \
          shown ±2σ size. Red bands mark time windows where it is not.",
-            flight.len(),
-            flight.sample_rate_hz,
-            flight.t_s.last().copied().unwrap_or(0.0) - flight.t_s[0],
-            models
-                .iter()
-                .map(|m| m.text())
-                .collect::<Vec<_>>()
-                .join(" | ")
-        ));
+        flight.len(),
+        flight.sample_rate_hz,
+        flight.t_s.last().copied().unwrap_or(0.0) - flight.t_s[0],
+        models
+            .iter()
+            .map(|m| m.text())
+            .collect::<Vec<_>>()
+            .join(" | ")
+    ));
     if !flight.has_position() && flight.has_track() {
         page = page.paragraph(
             "The trace has no position: the anomaly is modelled in time, at the ground speed \
@@ -142,7 +145,7 @@ pub fn build_report(
     let sheet = super::qc_sheet::Sheet {
         flight: &flight,
         compensated_nt: &r0.diag.run.compensated_nt,
-        this_flight,
+        info,
         coefficients: None,
         compensation: format!(
             "kf, model {}, calibrated on this flight (the diagnosis's filter run)",

@@ -12,13 +12,30 @@ use crate::qc::figures::{
 };
 use crate::qc::manoeuvres::{Leg, Pattern};
 
+/// What the page knows beyond the trace.
+#[derive(Clone, Debug)]
+pub struct SheetInfo {
+    /// This flight as a coefficient file would record it (file, SHA-256, map, sensor,
+    /// lines, window, date); None when the page is built without its input (a library call).
+    pub this_flight: Option<Provenance>,
+    /// The 4th-difference acceptance band (±nT; `report --d4-limit-nt`).
+    pub d4_limit_nt: f64,
+}
+
+impl Default for SheetInfo {
+    fn default() -> Self {
+        SheetInfo {
+            this_flight: None,
+            d4_limit_nt: FOURTH_DIFFERENCE_LIMIT_NT,
+        }
+    }
+}
+
 /// What the sheet is drawn from.
 pub struct Sheet<'a> {
     pub flight: &'a Flight,
     pub compensated_nt: &'a [f64],
-    /// This flight as a coefficient file would record it (file, SHA-256, map, sensor,
-    /// lines, window, date); None when the page is built without its input (a library call).
-    pub this_flight: Option<&'a Provenance>,
+    pub info: &'a SheetInfo,
     /// The applied coefficient file's provenance; None when fitted on this flight.
     pub coefficients: Option<&'a Provenance>,
     /// Method and model, and where the coefficients came from.
@@ -108,7 +125,7 @@ fn provenance_rows(prefix: &str, p: &Provenance) -> Vec<Vec<String>> {
 
 fn metadata_section(s: &Sheet) -> Section {
     let f = s.flight;
-    let mut rows = match s.this_flight {
+    let mut rows = match &s.info.this_flight {
         Some(p) => provenance_rows("", p),
         None => vec![vec![
             "magcomp version".into(),
@@ -361,8 +378,12 @@ fn overlay_section(s: &Sheet) -> Section {
 /// The 4th-difference panel and figures, uncompensated beside compensated.
 fn noise_section(s: &Sheet) -> Section {
     let f = s.flight;
-    let limit = FOURTH_DIFFERENCE_LIMIT_NT;
-    let sensor = s.this_flight.map_or("mag", |p| p.sensor.as_str());
+    let limit = s.info.d4_limit_nt;
+    let sensor = s
+        .info
+        .this_flight
+        .as_ref()
+        .map_or("mag", |p| p.sensor.as_str());
     let d4_raw = fourth_difference_nt(f, &f.mag_nt);
     let d4_comp = fourth_difference_nt(f, s.compensated_nt);
     let mut rows = Vec::new();
@@ -408,8 +429,9 @@ fn noise_section(s: &Sheet) -> Section {
         .paragraph(&format!(
             "d4[i] = (x[i−2] − 4x[i−1] + 6x[i] − 4x[i+1] + x[i+2]) / 16 (normalised by 16, \
              the aeromagnetic convention: white noise of σ gives √70/16 ≈ 0.52σ). The \
-             acceptance band ±{limit} nT is a common survey-contract figure for the noise \
-             envelope; the contract's own figure applies (docs/model.md §6a)."
+             acceptance band ±{limit} nT (`--d4-limit-nt`; 0.05 nT by default, a common \
+             survey-contract figure for the noise envelope: the contract's own applies; \
+             docs/model.md §6a)."
         ))
         .table(
             &[
