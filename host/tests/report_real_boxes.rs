@@ -60,11 +60,11 @@ fn real_boxes_report_renders_in_headless_chromium() {
         for want in ["overlay-0", "fom", "coefficients"] {
             assert!(ids.contains(&want), "{method}: no plot '{want}'");
         }
-        // Two boxes of four headings (`qc` finds these 8 legs), each with its manoeuvres:
-        // one Σ row per heading.
+        // Two boxes of four headings (`qc` finds these 8 legs), one Σ row per heading.
         let headings = html.matches("<td>Σ</td>").count();
         assert_eq!(headings, 8, "{method}: headings in the FOM table");
-        assert!(n >= headings, "{method}: {n} manoeuvres");
+        // Each heading's pitch, roll and yaw sets (`qc::sets`): 24 on the two boxes.
+        assert_eq!(n, 3 * headings, "{method}: {n} manoeuvres");
         assert!(html.contains("FOM table"), "{method}: no FOM table");
         assert!(
             !html.contains("<script"),
