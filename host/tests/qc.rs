@@ -191,6 +191,20 @@ fn real_boxes_without_positions_show_two_boxes_of_four_headings() {
             "consecutive legs {w:?} are not ~90° apart"
         );
     }
+    // Without INS each heading's window splits into the sets as flown: pitch, roll, yaw
+    // (`qc::sets`), 12 manoeuvres per box as an AARC table has them.
+    for l in &p.legs {
+        let kinds: Vec<&str> = l.manoeuvres.iter().map(|m| m.kind.as_str()).collect();
+        assert_eq!(kinds, ["pitch", "roll", "yaw"], "leg {}", l.tag);
+        for m in &l.manoeuvres {
+            let len_s = m.t_end - m.t_start;
+            assert!(
+                (6.0..45.0).contains(&len_s),
+                "{} lasts {len_s:.1} s",
+                m.label
+            );
+        }
+    }
     // The KF runs there with an assumed speed and gives the aircraft-only FOM.
     let mut e = est(Method::Kf);
     e.speed_mps = Some(60.0);
@@ -433,4 +447,48 @@ fn statistics_skip_missing_samples() {
             );
         }
     }
+}
+
+/// The 4th-difference noise figure by hand: a cubic trend has no 4th difference, and an
+/// alternating ±a gives (1 + 4 + 6 + 4 + 1) / 16 · a = a at every sample, so d4 = ±a exactly
+/// (rms a, peak a); the two samples at each end and those whose five span a time gap are NaN.
+#[test]
+fn fourth_difference_matches_a_hand_calculation() {
+    use magcomp::qc::figures::{fourth_difference_nt, noise_figure};
+    let n = 200;
+    let a_nt = 0.03;
+    // A 5 s gap after row 100 (10 Hz otherwise).
+    let t: Vec<f64> = (0..n)
+        .map(|i| i as f64 * 0.1 + if i > 100 { 5.0 } else { 0.0 })
+        .collect();
+    let mag: Vec<f64> = (0..n)
+        .map(|i| {
+            let s = i as f64 * 0.1;
+            50_000.0 + 2.0 * s - 0.3 * s * s
+                + 0.01 * s * s * s
+                + if i % 2 == 0 { a_nt } else { -a_nt }
+        })
+        .collect();
+    let trace = Trace {
+        numeric: vec![
+            ("t".into(), t),
+            ("mag".into(), mag.clone()),
+            ("flux_x".into(), vec![20_000.0; n]),
+            ("flux_y".into(), vec![1_000.0; n]),
+            ("flux_z".into(), vec![45_000.0; n]),
+        ],
+        ..Default::default()
+    };
+    let flight = Flight::from_trace(&trace, &[], &[]).unwrap();
+    let d4 = fourth_difference_nt(&flight, &mag);
+    let nan: Vec<usize> = (0..n).filter(|&i| d4[i].is_nan()).collect();
+    assert_eq!(nan, [0, 1, 99, 100, 101, 102, 198, 199]);
+    for (i, v) in d4.iter().enumerate().filter(|(_, v)| v.is_finite()) {
+        let want = if i % 2 == 0 { a_nt } else { -a_nt };
+        assert!((v - want).abs() < 1e-9, "d4[{i}] = {v}, want {want}");
+    }
+    let f = noise_figure(&d4, 0.05).unwrap();
+    assert!((f.rms_nt - a_nt).abs() < 1e-9 && (f.peak_nt - a_nt).abs() < 1e-9);
+    assert_eq!(f.within_limit, 1.0);
+    assert_eq!(noise_figure(&d4, 0.02).unwrap().within_limit, 0.0);
 }

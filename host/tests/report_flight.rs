@@ -30,7 +30,7 @@ fn models() -> Vec<ModelSpec> {
 
 #[test]
 fn page_has_every_plot_and_the_comparison() {
-    let page = build_report(&trace(), &models(), None).expect("report");
+    let page = build_report(&trace(), &models(), None, &Default::default()).expect("report");
     let ids = page.plot_ids();
     for want in [
         "compare-residual-rms",
@@ -78,6 +78,28 @@ fn page_has_every_plot_and_the_comparison() {
     // The failure window is shaded on the residual plot (a window label with nT).
     assert!(html.contains("class=\"window\""), "no failure window drawn");
     assert!(html.len() < 2_000_000, "page is {} bytes", html.len());
+    // The QC sheet on simulation: the simulator's 12 labelled manoeuvres, the compensated
+    // FOM below the uncompensated, and the sheet's own panels.
+    assert!(
+        html.contains("12 manoeuvres (labels;"),
+        "labelled FOM table"
+    );
+    let after = |key: &str| -> f64 {
+        let at = html.find(key).expect(key) + key.len();
+        let s: String = html[at..]
+            .chars()
+            .take_while(|c| c.is_ascii_digit() || *c == '.')
+            .collect();
+        s.parse().expect(key)
+    };
+    let (raw_nt, fom_nt) = (after("Uncompensated "), after("nT, FOM "));
+    println!("simulated cloverleaf: FOM {fom_nt} nT of {raw_nt} uncompensated");
+    assert!(fom_nt < raw_nt, "FOM {fom_nt} vs {raw_nt}");
+    for id in ["qc-detrended", "qc-bandpassed", "qc-fourth-difference"] {
+        assert!(ids.iter().any(|i| i == id), "{id} missing");
+    }
+    // The cloverleaf's legs all cross its centre: both reciprocal pairs share ground.
+    assert_eq!(html.matches("<td>same (").count(), 2, "reciprocal passes");
 }
 
 #[test]
@@ -117,8 +139,8 @@ fn run_report_writes_index_html_and_rejects_bad_input() {
 fn report_renders_in_headless_chromium() {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report-flight");
     let t = trace();
-    let page = build_report(&t, &models(), None).expect("report");
-    let path = write_report(&t, &models(), None, &dir).expect("write");
+    let page = build_report(&t, &models(), None, &Default::default()).expect("report");
+    let path = write_report(&t, &models(), None, &Default::default(), &dir).expect("write");
     if !Path::new(CHROMIUM).exists() {
         println!("SKIP report_renders_in_headless_chromium: {CHROMIUM} not installed (apt-get install chromium)");
         return;
@@ -170,7 +192,7 @@ fn a_survey_with_ties_gets_the_crossover_plot() {
         .iter()
         .map(|m| ModelSpec::parse(m).expect("spec"))
         .collect();
-    let page = build_report(&trace, &models, None).expect("report");
+    let page = build_report(&trace, &models, None, &Default::default()).expect("report");
     let ids = page.plot_ids();
     for want in ["crossovers-0", "crossovers-1"] {
         assert!(
@@ -243,9 +265,14 @@ fn a_trace_without_position_gets_the_diagnosis_page_at_the_assumed_speed() {
         "hidden effect not found without positions"
     );
     let e_time = verdict_error_nt(&html, &model);
-    let pos_page = build_report(&with_pos, &[ModelSpec::parse(&model).unwrap()], None)
-        .expect("report with positions")
-        .to_html();
+    let pos_page = build_report(
+        &with_pos,
+        &[ModelSpec::parse(&model).unwrap()],
+        None,
+        &Default::default(),
+    )
+    .expect("report with positions")
+    .to_html();
     let e_pos = verdict_error_nt(&pos_page, &model);
     println!("error vs truth: positions {e_pos:.4} nT, assumed 60 m/s {e_time:.4} nT");
     // (the anomaly held in place instead — no speed — gave 2.60 nT against 2.03)

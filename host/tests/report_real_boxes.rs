@@ -60,11 +60,11 @@ fn real_boxes_report_renders_in_headless_chromium() {
         for want in ["overlay-0", "fom", "coefficients"] {
             assert!(ids.contains(&want), "{method}: no plot '{want}'");
         }
-        // Two boxes of four headings (`qc` finds these 8 legs), each with its manoeuvres:
-        // one Σ row per heading.
+        // Two boxes of four headings (`qc` finds these 8 legs), one Σ row per heading.
         let headings = html.matches("<td>Σ</td>").count();
         assert_eq!(headings, 8, "{method}: headings in the FOM table");
-        assert!(n >= headings, "{method}: {n} manoeuvres");
+        // Each heading's pitch, roll and yaw sets (`qc::sets`): 24 on the two boxes.
+        assert_eq!(n, 3 * headings, "{method}: {n} manoeuvres");
         assert!(html.contains("FOM table"), "{method}: no FOM table");
         assert!(
             !html.contains("<script"),
@@ -106,6 +106,164 @@ fn real_boxes_report_renders_in_headless_chromium() {
         if !stderr.is_empty() {
             println!("{method} stderr: {stderr}");
         }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The number after `key` on the page (e.g. `; IR ` → 18.48).
+fn number_after(html: &str, key: &str) -> f64 {
+    let at = html
+        .find(key)
+        .unwrap_or_else(|| panic!("no '{key}' on the page"))
+        + key.len();
+    let s: String = html[at..]
+        .chars()
+        .take_while(|c| c.is_ascii_digit() || *c == '.' || *c == '-')
+        .collect();
+    s.parse()
+        .unwrap_or_else(|_| panic!("'{key}' is followed by '{s}'"))
+}
+
+/// The QC sheet on each real box, as a survey company would sign it: box 1 calibrated (the
+/// page without --coeffs), box 2 with box 1's coefficients (`--coeffs`). Each page carries
+/// the file, sensor and window; a FOM table of 12 manoeuvres (4 headings × pitch, roll, yaw)
+/// detected without labels, the compensated FOM below the uncompensated; the IR the CLI
+/// prints (`calibrate`/`compensate --json`, one definition); the coefficients' calibrated σ
+/// (the file's, not the filter's prior); the heading error, the scaled overlays and the
+/// 4th-difference panel. Box 2's page is opened in headless Chromium.
+#[test]
+fn real_box_qc_sheets_carry_twelve_manoeuvres_and_the_clis_ir() {
+    let dir = tmp("report-qc-sheet");
+    let Some(b) = real_boxes_data::boxes() else {
+        return;
+    };
+    let (box1, box2) = (dir.join("box1.csv"), dir.join("box2.csv"));
+    let split = real_boxes_data::BOX1_ROWS;
+    for (path, rows) in [(&box1, 0..split), (&box2, split..b.len())] {
+        magcomp::io::trace::write_trace(path, &b.trace(rows, "mag_4_uc", "flux_d")).unwrap();
+    }
+    let coeffs = dir.join("kf.json");
+    let json = |args: &[&std::ffi::OsStr]| -> serde_json::Value {
+        serde_json::from_str(&common::cli::run_ok(bin().args(args))).expect("--json")
+    };
+    let cal = json(&[
+        "calibrate".as_ref(),
+        box1.as_os_str(),
+        "--method".as_ref(),
+        "kf".as_ref(),
+        "--speed-mps".as_ref(),
+        "60".as_ref(),
+        "--json".as_ref(),
+        "-o".as_ref(),
+        coeffs.as_os_str(),
+    ]);
+    let applied = json(&[
+        "compensate".as_ref(),
+        box2.as_os_str(),
+        "--coeffs".as_ref(),
+        coeffs.as_os_str(),
+        "--json".as_ref(),
+        "-o".as_ref(),
+        dir.join("box2-comp.csv").as_os_str(),
+    ]);
+    let file: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&coeffs).unwrap()).unwrap();
+    let pages = [
+        (
+            "box 1",
+            dir.join("r1"),
+            vec!["--speed-mps", "60"],
+            &box1,
+            &cal,
+            "t 0.0–649.9 s",
+        ),
+        (
+            "box 2",
+            dir.join("r2"),
+            vec![
+                "--coeffs",
+                coeffs.to_str().unwrap(),
+                "--d4-limit-nt",
+                "0.02",
+            ],
+            &box2,
+            &applied,
+            "t 650.0–1290.0 s",
+        ),
+    ];
+    for (what, out, extra, csv, cli, window) in &pages {
+        run_ok_with_stderr(bin().arg("report").arg(csv).args(extra).arg("-o").arg(out));
+        let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+        let name = csv.file_name().unwrap().to_str().unwrap();
+        let title = &html[html.find("<h1>").unwrap()..html.find("</h1>").unwrap()];
+        assert!(
+            title.contains(name) && title.contains("mag") && title.contains(window),
+            "{what}: title {title}"
+        );
+        assert_eq!(manoeuvres_in(&html), 12, "{what}");
+        let (headings, kinds) = (
+            html.matches("<td>Σ</td>").count(),
+            ["pitch", "roll", "yaw"].map(|k| html.matches(&format!("<td>{k}</td>")).count()),
+        );
+        assert_eq!((headings, kinds), (4, [4, 4, 4]), "{what}: FOM rows");
+        let uncompensated = number_after(&html, "Uncompensated ");
+        let fom = number_after(&html, "nT, FOM ");
+        let ir_page = number_after(&html, "; IR ");
+        let ir_cli = cli["improvement_ratio"].as_f64().unwrap();
+        println!(
+            "{what}: FOM {fom} nT of {uncompensated} uncompensated, IR page {ir_page} / CLI {ir_cli:.4}"
+        );
+        assert!(
+            fom < uncompensated / 5.0,
+            "{what}: FOM {fom} vs {uncompensated}"
+        );
+        assert!(
+            (ir_page - ir_cli).abs() < 0.006,
+            "{what}: IR {ir_page} vs {ir_cli}"
+        );
+        assert_eq!(
+            cli["fom_table"]["improvement_ratio"].as_f64(),
+            Some(ir_cli),
+            "{what}: the FOM table's IR is the summary's"
+        );
+        for id in ["qc-detrended", "qc-bandpassed", "qc-fourth-difference"] {
+            assert!(
+                html.contains(&format!("data-plot=\"{id}\"")),
+                "{what}: {id}"
+            );
+        }
+        for text in ["/ 16", "Reciprocal passes", "magcomp version", "SHA-256"] {
+            assert!(html.contains(text), "{what}: no '{text}'");
+        }
+        // The file's calibrated σ, not the filter's ±200 nT prior.
+        let c0 = &file["coefficients"][0];
+        let sigma = format!(
+            "{:.4} ± {:.4}",
+            c0["value"].as_f64().unwrap(),
+            c0["sigma"].as_f64().unwrap()
+        );
+        assert!(html.contains(&sigma), "{what}: no '{sigma}'");
+        assert!(!html.contains("± 200.0000"), "{what}: prior σ shown");
+    }
+    let r2 = std::fs::read_to_string(pages[1].1.join("index.html")).unwrap();
+    assert!(
+        r2.contains("coefficients: file"),
+        "box 2: no coefficient provenance"
+    );
+    assert!(
+        r2.contains("within ±0.02 nT (%)"),
+        "box 2: --d4-limit-nt not applied"
+    );
+    if Path::new(CHROMIUM).exists() {
+        let profile = dir.join("profile");
+        std::fs::create_dir_all(&profile).unwrap();
+        let url = format!("file://{}", pages[1].1.join("index.html").display());
+        let run = chromium_logged(&["--dump-dom".into(), url], &profile).expect("chromium");
+        let dom = String::from_utf8_lossy(&run.stdout);
+        assert!(run.status.success() && dom.contains("data-plot=\"qc-fourth-difference\""));
+        assert_eq!(dom.matches("<td>yaw</td>").count(), 4);
+    } else {
+        println!("SKIP the browser part: {CHROMIUM} not installed");
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

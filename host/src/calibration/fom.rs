@@ -13,7 +13,7 @@ use super::result::Compensation;
 use crate::estimate::kf::KfOptions;
 use crate::flight::Flight;
 use crate::model::spec::ModelSpec;
-use crate::qc::figures::{band_passed, is_manoeuvre, peak_to_peak};
+use crate::qc::figures::{band_passed, improvement_ratio_of_bands, is_manoeuvre, peak_to_peak};
 use crate::qc::manoeuvres::{Leg, Manoeuvre, Pattern};
 use serde::{Deserialize, Serialize};
 
@@ -53,8 +53,12 @@ pub struct FomTable {
     pub uncompensated_nt: f64,
     /// Σ compensated peak-to-peak: the FOM (nT).
     pub fom_nt: f64,
-    /// Σ uncompensated / Σ compensated.
+    /// The improvement ratio over the table's manoeuvres (`qc::figures::improvement_ratio`'s
+    /// definition: band-passed standard deviations, not the peak-to-peak sums).
     pub improvement_ratio: f64,
+    /// Σ uncompensated / Σ compensated peak-to-peak (not the IR).
+    #[serde(default)]
+    pub peak_to_peak_ratio: f64,
     /// Σ peak-to-peak of (compensated − field estimate): what the aircraft left (nT).
     pub aircraft_fom_nt: Option<f64>,
     /// What the field estimate was (e.g. `kf anomaly`).
@@ -159,7 +163,11 @@ pub fn fom_table(
         manoeuvres: rows.iter().map(|r| r.cells.len()).sum(),
         uncompensated_nt,
         fom_nt,
-        improvement_ratio: uncompensated_nt / fom_nt,
+        improvement_ratio: {
+            let rows: Vec<usize> = pattern.manoeuvres().flat_map(|m| m.start..m.end).collect();
+            improvement_ratio_of_bands(&raw, &comp, &rows).unwrap_or(f64::NAN)
+        },
+        peak_to_peak_ratio: uncompensated_nt / fom_nt,
         aircraft_fom_nt: aircraft
             .as_ref()
             .map(|_| rows.iter().filter_map(|r| r.aircraft_sum_nt).sum()),
@@ -221,7 +229,7 @@ pub fn field_estimate_nt(flight: &Flight) -> Option<Vec<f64>> {
 }
 
 /// The labelled pattern when the trace has one, else the detected one.
-fn pattern_of(flight: &Flight) -> Option<(Pattern, &'static str)> {
+pub fn pattern_of(flight: &Flight) -> Option<(Pattern, &'static str)> {
     match labelled_pattern(flight) {
         Some(p) => Some((p, "labels")),
         None => Some((crate::qc::manoeuvres::detect(flight)?, "detected")),

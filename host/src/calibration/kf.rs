@@ -132,7 +132,10 @@ pub(super) fn run_kf_method(
         cross_check: None,
         predicted_band_rms_nt: None,
         provenance: None,
-        covariance: {
+        // Applied coefficients keep the σ and covariance their calibration found: the
+        // filter run here holds them fixed and reports its prior σ (±200 nT, …), which says
+        // nothing about how well they were determined.
+        covariance: coeffs.and_then(|c| c.covariance.clone()).or_else(|| {
             let k = run.coefficients.len();
             (run.coefficient_covariance.len() == k * k && k > 0).then(|| {
                 run.coefficient_covariance
@@ -140,7 +143,7 @@ pub(super) fn run_kf_method(
                     .map(|row| row.to_vec())
                     .collect()
             })
-        },
+        }),
         coefficients: run
             .coefficient_names
             .iter()
@@ -149,7 +152,9 @@ pub(super) fn run_kf_method(
                 name: n.clone(),
                 unit: u.clone(),
                 value: *v,
-                sigma: *s,
+                sigma: coeffs
+                    .and_then(|c| c.coefficients.iter().find(|k| &k.name == n))
+                    .map_or(*s, |k| k.sigma),
             })
             .collect(),
     };

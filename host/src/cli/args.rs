@@ -343,6 +343,9 @@ pub struct Evaluated {
     pub summary: Summary,
     /// Where the coefficients came from, for the reader.
     pub source: String,
+    /// The `--coeffs` file's provenance (None when fitted on this flight, or for a file
+    /// written before provenance was recorded).
+    pub coefficient_provenance: Option<Provenance>,
     /// The coefficient file's ground speed for a trace without positions (`--speed-mps`
     /// it was calibrated with), for the diagnosis that follows.
     pub assumed_speed_mps: Option<f64>,
@@ -364,6 +367,7 @@ impl EstimatorArgs {
             comp,
             summary,
             source,
+            coefficient_provenance: file.as_ref().and_then(|f| f.provenance.clone()),
             assumed_speed_mps: file.as_ref().and_then(|f| f.assumed_speed_mps),
         })
     }

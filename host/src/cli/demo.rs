@@ -210,6 +210,7 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
         &trace,
         &[model, better],
         Some(&d),
+        &Default::default(),
         &report_dir,
     )?;
     println!("report with plots (before/after): {}", page.display());

@@ -169,6 +169,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
                 &trace,
                 &it.models()?,
                 it.steps.first().map(|s| &s.diagnosis),
+                &sheet_info(&args.input, &trace, &model.text()),
                 dir,
             )?;
             if !args.json {
@@ -186,12 +187,14 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     let d = diagnose(diagnosed, &model, &opts)?;
     drop(stage);
     if let Some(dir) = &args.report {
+        let info = sheet_info(&args.input, &trace, &model.text());
         let path = match &evaluated {
-            Some(ev) => write_evaluation(&trace, ev, dir)?,
+            Some(ev) => write_evaluation(&trace, ev, &info, dir)?,
             None => crate::report::flight_report::write_report(
                 &trace,
                 std::slice::from_ref(&model),
                 Some(&d),
+                &info,
                 dir,
             )?,
         };
@@ -268,10 +271,24 @@ fn json(
     Ok(serde_json::to_string_pretty(&v)?)
 }
 
+/// The QC sheet's knowledge of the input (its provenance when it can be hashed) with the
+/// default noise band.
+fn sheet_info(
+    input: &super::args::TraceInput,
+    trace: &crate::io::trace::Trace,
+    model: &str,
+) -> crate::report::qc_sheet::SheetInfo {
+    crate::report::qc_sheet::SheetInfo {
+        this_flight: input.provenance(trace, model).ok(),
+        ..Default::default()
+    }
+}
+
 /// The page of the checked compensation (`report --coeffs`'s).
 pub(super) fn write_evaluation(
     trace: &crate::io::trace::Trace,
     ev: &Evaluated,
+    info: &crate::report::qc_sheet::SheetInfo,
     dir: &Path,
 ) -> Result<PathBuf> {
     let page = calibration::build(
@@ -281,6 +298,8 @@ pub(super) fn write_evaluation(
             comp: &ev.comp,
             summary: &ev.summary,
             source: ev.source.clone(),
+            info,
+            coefficient_provenance: ev.coefficient_provenance.as_ref(),
         },
     );
     std::fs::create_dir_all(dir)

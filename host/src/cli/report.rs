@@ -7,7 +7,9 @@
 use super::args::{EstimatorArgs, TraceInput, TuningArgs};
 use crate::calibration::coefficients::Method;
 use crate::model::spec::ModelSpec;
+use crate::qc::figures::FOURTH_DIFFERENCE_LIMIT_NT;
 use crate::report::flight_report::{write_report, REPORT_PAGE};
+use crate::report::qc_sheet::SheetInfo;
 use anyhow::{bail, Result};
 use std::path::{Path, PathBuf};
 
@@ -32,6 +34,10 @@ pub struct ReportArgs {
     pub coeffs: Option<PathBuf>,
     #[command(flatten)]
     pub tuning: TuningArgs,
+    /// The QC sheet's 4th-difference noise band (±nT): the page gives the share of samples
+    /// within it. 0.05 nT is a common survey-contract figure; give your contract's.
+    #[arg(long, value_name = "NT", default_value_t = FOURTH_DIFFERENCE_LIMIT_NT)]
+    pub d4_limit_nt: f64,
     /// Output directory (created); the page is DIR/index.html.
     #[arg(
         short = 'o',
@@ -51,8 +57,23 @@ impl ReportArgs {
             method: None,
             coeffs: None,
             tuning: TuningArgs::default(),
+            d4_limit_nt: FOURTH_DIFFERENCE_LIMIT_NT,
             out: out.into(),
         }
+    }
+
+    /// What the QC sheet shows of the input: its provenance and the noise band.
+    fn sheet_info(&self, trace: &crate::io::trace::Trace, model: &str) -> Result<SheetInfo> {
+        if !(self.d4_limit_nt.is_finite() && self.d4_limit_nt > 0.0) {
+            bail!(
+                "--d4-limit-nt must be a positive number of nT, not {}",
+                self.d4_limit_nt
+            );
+        }
+        Ok(SheetInfo {
+            this_flight: Some(self.input.provenance(trace, model)?),
+            d4_limit_nt: self.d4_limit_nt,
+        })
     }
 
     /// One compensation is evaluated (rather than models diagnosed).
@@ -85,7 +106,8 @@ pub fn run(args: &ReportArgs) -> Result<()> {
                 .warnings
                 .extend(args.input.provenance_warnings(Some(&trace), &c));
         }
-        let path = super::diagnose::write_evaluation(&trace, &ev, &args.out)?;
+        let info = args.sheet_info(&trace, &ev.summary.model)?;
+        let path = super::diagnose::write_evaluation(&trace, &ev, &info, &args.out)?;
         super::compensate::print_warnings(&ev.summary);
         println!("report written to {}", path.display());
         return Ok(());
@@ -101,8 +123,9 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         .map(|m| ModelSpec::parse(m))
         .collect::<Result<Vec<_>>>()?;
     let field = models.iter().any(|m| m.field);
+    let info = args.sheet_info(&trace, &models[0].text())?;
     let trace = super::args::diagnosis_trace(trace, args.tuning.speed_mps, field, true)?;
-    let path = write_report(&trace, &models, None, &args.out)?;
+    let path = write_report(&trace, &models, None, &info, &args.out)?;
     println!("report written to {}", path.display());
     Ok(())
 }

@@ -100,25 +100,39 @@ pub fn peak_to_peak(v: &[f64]) -> f64 {
     }
 }
 
-/// Standard deviation of the band-passed signal before / after compensation, over the
-/// manoeuvres when labelled (else the whole flight), on the samples where both are known.
+/// The rows the improvement ratio is taken over: the labelled manoeuvres (`cal_*_roll|pitch|yaw`
+/// in `segment`), else the manoeuvres detected without labels (`qc::manoeuvres`), else the
+/// whole flight.
+pub fn pattern_rows(flight: &Flight) -> Vec<usize> {
+    let labelled: Vec<usize> = flight
+        .segments
+        .as_ref()
+        .map(|s| (0..s.len()).filter(|&i| is_manoeuvre(&s[i])).collect())
+        .unwrap_or_default();
+    if !labelled.is_empty() {
+        return labelled;
+    }
+    match crate::qc::manoeuvres::detect(flight) {
+        Some(p) => p.manoeuvres().flat_map(|m| m.start..m.end).collect(),
+        None => (0..flight.len()).collect(),
+    }
+}
+
+/// The improvement ratio, IR: the standard deviation of the 0.1–0.9 Hz band-passed
+/// uncompensated scalar over that of the band-passed compensated one, over the calibration
+/// pattern ([`pattern_rows`]), on the samples where both are known. The one definition
+/// every figure called IR uses (docs/model.md §6a).
 pub fn improvement_ratio(flight: &Flight, compensated_nt: &[f64]) -> Option<f64> {
     let before = band_passed(flight, &flight.mag_nt)?;
     let after = band_passed(flight, compensated_nt)?;
-    let rows: Vec<usize> = {
-        let m: Vec<usize> = flight
-            .segments
-            .as_ref()
-            .map(|s| (0..s.len()).filter(|&i| is_manoeuvre(&s[i])).collect())
-            .unwrap_or_default();
-        if m.is_empty() {
-            (0..flight.len()).collect()
-        } else {
-            m
-        }
-    };
+    improvement_ratio_of_bands(&before, &after, &pattern_rows(flight))
+}
+
+/// [`improvement_ratio`] of signals already band-passed, over `rows`.
+pub fn improvement_ratio_of_bands(before: &[f64], after: &[f64], rows: &[usize]) -> Option<f64> {
     let rows: Vec<usize> = rows
-        .into_iter()
+        .iter()
+        .copied()
         .filter(|&i| before[i].is_finite() && after[i].is_finite())
         .collect();
     if rows.len() < 2 {
@@ -128,4 +142,49 @@ pub fn improvement_ratio(flight: &Flight, compensated_nt: &[f64]) -> Option<f64>
     let a: Vec<f64> = rows.iter().map(|&i| after[i]).collect();
     let ir = std_of(&b) / std_of(&a);
     ir.is_finite().then_some(ir)
+}
+
+/// The acceptance band of the 4th-difference noise (±nT): a common survey-contract
+/// figure for a caesium magnetometer's noise envelope at 10 Hz; the contract's own figure
+/// applies where it differs.
+pub const FOURTH_DIFFERENCE_LIMIT_NT: f64 = 0.05;
+
+/// The aeromagnetic noise figure: the 4th difference normalised by 16,
+/// `d4[i] = (x[i-2] − 4x[i-1] + 6x[i] − 4x[i+1] + x[i+2]) / 16` (nT), which passes white
+/// noise at √70/16 ≈ 0.52 of its σ and a cubic trend not at all. NaN at the ends, where a
+/// sample of the five is missing, and across time gaps.
+pub fn fourth_difference_nt(flight: &Flight, x: &[f64]) -> Vec<f64> {
+    let breaks = crate::qc::gaps::time_breaks(&flight.t_s);
+    let n = x.len();
+    (0..n)
+        .map(|i| {
+            if i < 2 || i + 2 >= n || breaks.iter().any(|&b| b + 2 > i && b <= i + 2) {
+                return f64::NAN;
+            }
+            (x[i - 2] - 4.0 * x[i - 1] + 6.0 * x[i] - 4.0 * x[i + 1] + x[i + 2]) / 16.0
+        })
+        .collect()
+}
+
+/// The 4th-difference noise of one signal: rms, peak |d4| and the share of samples
+/// within ±`limit_nt`.
+#[derive(Clone, Debug, Serialize)]
+pub struct NoiseFigure {
+    pub rms_nt: f64,
+    pub peak_nt: f64,
+    pub within_limit: f64,
+}
+
+/// [`NoiseFigure`] of a 4th difference over its finite samples; None when there are none.
+pub fn noise_figure(d4_nt: &[f64], limit_nt: f64) -> Option<NoiseFigure> {
+    let f: Vec<f64> = d4_nt.iter().copied().filter(|v| v.is_finite()).collect();
+    if f.is_empty() {
+        return None;
+    }
+    let n = f.len() as f64;
+    Some(NoiseFigure {
+        rms_nt: (f.iter().map(|v| v * v).sum::<f64>() / n).sqrt(),
+        peak_nt: f.iter().fold(0.0, |m, v| m.max(v.abs())),
+        within_limit: f.iter().filter(|v| v.abs() <= limit_nt).count() as f64 / n,
+    })
 }

@@ -12,6 +12,7 @@
 //! roll while flying along the field's horizontal direction moves it exactly as a yaw.
 
 use crate::flight::Flight;
+use crate::signal::stats::moving_mean;
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 
@@ -108,26 +109,10 @@ fn fill_forward(v: &mut [f64]) {
     }
 }
 
-/// Centred moving mean over `w` samples (shorter at the ends).
-fn moving_mean(v: &[f64], w: usize) -> Vec<f64> {
-    let n = v.len();
-    let h = w / 2;
-    let mut cum = vec![0.0; n + 1];
-    for i in 0..n {
-        cum[i + 1] = cum[i] + v[i];
-    }
-    (0..n)
-        .map(|i| {
-            let (a, b) = (i.saturating_sub(h), (i + h + 1).min(n));
-            (cum[b] - cum[a]) / (b - a) as f64
-        })
-        .collect()
-}
-
 /// The fluxgate-frame axis the field turns about (the aircraft's vertical, pointing along
 /// the field's vertical component) and two horizontal axes completing a right-handed
 /// frame; None when the flight does not turn enough to show it.
-fn cone_frame(flight: &Flight) -> Option<[Vector3<f64>; 3]> {
+pub(super) fn cone_frame(flight: &Flight) -> Option<[Vector3<f64>; 3]> {
     let u: Vec<Vector3<f64>> = flight
         .samples
         .iter()
@@ -332,83 +317,166 @@ pub fn detect(flight: &Flight) -> Option<Pattern> {
         })
         .collect();
 
+    // Without INS, each leg's window is split into its pitch, roll and yaw sets by the
+    // body rate the fluxgate sees (`sets`); a leg that does not show them keeps `m1`, `m2`, ….
+    let rates = (manoeuvre_source == "fluxgate")
+        .then(|| cone_frame(flight))
+        .flatten()
+        .map(|frame| super::sets::fluxgate_rates(flight, &frame, (lo, hi)));
     let mut legs = Vec::new();
     let mut first_heading: Option<f64> = None;
-    for (a, b) in legs_rows {
-        let mut segs = Vec::new();
-        let mut i = a;
-        while i < b {
-            let Some(k) = dominant[i] else {
-                i += 1;
-                continue;
-            };
-            let start = i;
-            let mut end = i + 1;
-            let mut j = i + 1;
-            // Extend over the same axis, across pauses shorter than MAX_PAUSE_S.
-            while j < b && j - end <= samples_of(MAX_PAUSE_S) {
-                match dominant[j] {
-                    Some(kk) if kk == k => end = j + 1,
-                    Some(_) => break,
-                    None => {}
-                }
-                j += 1;
-            }
-            let crossings = band[k][start..end]
-                .windows(2)
-                .filter(|w| w[0] * w[1] < 0.0)
-                .count();
-            if end - start >= samples_of(MIN_MANOEUVRE_S) && crossings >= MIN_ZERO_CROSSINGS {
-                let amp = (start..end).map(|r| env[k][r]).fold(0.0, f64::max);
-                segs.push((k, start, end, amp));
-            }
-            i = end;
-        }
+    for (li, &(a, b)) in legs_rows.iter().enumerate() {
+        // The sets may reach past the leg's ends: a roll swings the fluxgate's heading
+        // beyond LEG_EXTEND_DEG, so look up to one leg window further while the smoothed
+        // heading stays on the leg and before the neighbouring legs.
+        let prev_end = if li > 0 { legs_rows[li - 1].1 } else { 0 };
+        let next_start = legs_rows.get(li + 1).map_or(n, |l| l.0);
+        let (sa, sb) = set_window(
+            &smooth,
+            (a, b),
+            samples_of(LEG_WINDOW_S),
+            (prev_end, next_start),
+        );
+        let segs: Vec<(String, usize, usize, f64)> = match rates
+            .as_ref()
+            .and_then(|r| super::sets::split_leg(r, sa, sb))
+        {
+            Some(parts) => parts
+                .into_iter()
+                // The amplitude of the field direction, as for the numbered manoeuvres.
+                .map(|(k, s, e)| {
+                    let amp = (s..e).flat_map(|r| env.iter().map(move |x| x[r]));
+                    (k.to_string(), s, e, amp.fold(0.0, f64::max))
+                })
+                .collect(),
+            None => axis_segments(&dominant, &band, &env, (a, b), fs, manoeuvre_source),
+        };
         if segs.is_empty() {
             continue;
         }
-        let mean_heading = smooth[a..b].iter().sum::<f64>() / (b - a) as f64;
-        let (heading_deg, tag) = if heading_source == "fluxgate" {
-            let h0 = *first_heading.get_or_insert(mean_heading);
-            let r = (mean_heading - h0).rem_euclid(360.0);
-            (r, format!("r{:03}", r.round() as i64 % 360))
-        } else {
-            let h = mean_heading.rem_euclid(360.0);
-            (h, format!("h{:03}", h.round() as i64 % 360))
-        };
-        let manoeuvres = segs
-            .iter()
-            .enumerate()
-            .map(|(m, &(k, s, e, amp))| {
-                let kind = if manoeuvre_source == "attitude" {
-                    ["roll", "pitch", "yaw"][k].to_string()
-                } else {
-                    format!("m{}", m + 1)
-                };
-                Manoeuvre {
-                    label: format!("cal_{tag}_{kind}"),
-                    kind,
-                    start: s,
-                    end: e,
-                    t_start: flight.t_s[s],
-                    t_end: flight.t_s[e - 1],
-                    amplitude_deg: amp,
-                }
-            })
-            .collect();
-        legs.push(Leg {
-            heading_deg,
-            tag,
-            start: a,
-            end: b,
-            manoeuvres,
-        });
+        legs.push(make_leg(
+            flight,
+            &smooth,
+            heading_source,
+            &mut first_heading,
+            (a, b),
+            segs,
+        ));
     }
     (!legs.is_empty()).then(|| Pattern {
         heading_source: heading_source.into(),
         manoeuvre_source: manoeuvre_source.into(),
         legs,
     })
+}
+
+/// The manoeuvres of leg rows `a..b`: runs of one dominant axis (across pauses shorter
+/// than MAX_PAUSE_S) that oscillate; named by the axis with INS attitude, else `m1`, `m2`, ….
+fn axis_segments(
+    dominant: &[Option<usize>],
+    band: &[Vec<f64>],
+    env: &[Vec<f64>],
+    (a, b): (usize, usize),
+    fs: f64,
+    manoeuvre_source: &str,
+) -> Vec<(String, usize, usize, f64)> {
+    let samples_of = |s: f64| ((s * fs).round() as usize).max(1);
+    let mut segs = Vec::new();
+    let mut i = a;
+    while i < b {
+        let Some(k) = dominant[i] else {
+            i += 1;
+            continue;
+        };
+        let start = i;
+        let mut end = i + 1;
+        let mut j = i + 1;
+        while j < b && j - end <= samples_of(MAX_PAUSE_S) {
+            match dominant[j] {
+                Some(kk) if kk == k => end = j + 1,
+                Some(_) => break,
+                None => {}
+            }
+            j += 1;
+        }
+        let crossings = band[k][start..end]
+            .windows(2)
+            .filter(|w| w[0] * w[1] < 0.0)
+            .count();
+        if end - start >= samples_of(MIN_MANOEUVRE_S) && crossings >= MIN_ZERO_CROSSINGS {
+            let amp = (start..end).map(|r| env[k][r]).fold(0.0, f64::max);
+            let kind = if manoeuvre_source == "attitude" {
+                ["roll", "pitch", "yaw"][k].to_string()
+            } else {
+                format!("m{}", segs.len() + 1)
+            };
+            segs.push((kind, start, end, amp));
+        }
+        i = end;
+    }
+    segs
+}
+
+/// Rows `a..b` widened by up to `reach` on each side, within `bounds`, while the smoothed
+/// heading stays within LEG_MAX_TURN_DEG of its median over the leg.
+fn set_window(
+    smooth: &[f64],
+    (a, b): (usize, usize),
+    reach: usize,
+    bounds: (usize, usize),
+) -> (usize, usize) {
+    let mut h: Vec<f64> = smooth[a..b].to_vec();
+    h.sort_by(|x, y| x.total_cmp(y));
+    let med = h[h.len() / 2];
+    let near = |i: usize| (smooth[i] - med).abs() < LEG_MAX_TURN_DEG;
+    let (mut sa, mut sb) = (a, b);
+    while sa > a.saturating_sub(reach).max(bounds.0) && near(sa - 1) {
+        sa -= 1;
+    }
+    while sb < (b + reach).min(bounds.1) && near(sb) {
+        sb += 1;
+    }
+    (sa, sb)
+}
+
+/// A leg of rows `a..b` with its manoeuvres `(kind, start, end, amplitude)`, its heading the
+/// mean of the smoothed heading (relative to the first leg's for the fluxgate's).
+fn make_leg(
+    flight: &Flight,
+    smooth: &[f64],
+    heading_source: &str,
+    first_heading: &mut Option<f64>,
+    (a, b): (usize, usize),
+    segs: Vec<(String, usize, usize, f64)>,
+) -> Leg {
+    let mean_heading = smooth[a..b].iter().sum::<f64>() / (b - a) as f64;
+    let (heading_deg, tag) = if heading_source == "fluxgate" {
+        let h0 = *first_heading.get_or_insert(mean_heading);
+        let r = (mean_heading - h0).rem_euclid(360.0);
+        (r, format!("r{:03}", r.round() as i64 % 360))
+    } else {
+        let h = mean_heading.rem_euclid(360.0);
+        (h, format!("h{:03}", h.round() as i64 % 360))
+    };
+    let manoeuvres = segs
+        .into_iter()
+        .map(|(kind, s, e, amp)| Manoeuvre {
+            label: format!("cal_{tag}_{kind}"),
+            kind,
+            start: s,
+            end: e,
+            t_start: flight.t_s[s],
+            t_end: flight.t_s[e - 1],
+            amplitude_deg: amp,
+        })
+        .collect();
+    Leg {
+        heading_deg,
+        tag,
+        start: a,
+        end: b,
+        manoeuvres,
+    }
 }
 
 /// Runs of `true` at least `min_len` long: (first, last + 1).

@@ -7,4 +7,5 @@ pub mod figures;
 pub mod gaps;
 pub mod inputs;
 pub mod manoeuvres;
+pub mod sets;
 pub mod truth;

@@ -4,8 +4,7 @@
 //! first, then the figures, MagNav's `plot_mag_c` overlay per line (uncompensated,
 //! compensated and interference against time), the FOM table and the coefficients.
 
-use super::{HtmlReport, Plot, Section, Series, PALETTE};
-use crate::calibration::fom::FomTable;
+use super::{fmt_opt, HtmlReport, Plot, Section, Series, PALETTE};
 use crate::calibration::result::Compensation;
 use crate::calibration::summary::Summary;
 use crate::flight::Flight;
@@ -25,12 +24,27 @@ pub struct Evaluation<'a> {
     pub summary: &'a Summary,
     /// E.g. "coefficients from cal.json" or "fitted on this flight".
     pub source: String,
+    /// This flight as a coefficient file would record it (the QC sheet's metadata).
+    pub info: &'a super::qc_sheet::SheetInfo,
+    /// The applied coefficient file's provenance; None when fitted on this flight.
+    pub coefficient_provenance: Option<&'a crate::calibration::provenance::Provenance>,
 }
 
-fn fmt_opt(v: Option<f64>, digits: usize) -> String {
-    match v {
-        Some(x) if x.is_finite() => format!("{x:.digits$}"),
-        _ => "–".into(),
+/// The page title: the QC sheet's (file, sensor, window, date) when the input is known,
+/// else the trace's site or source.
+pub fn page_title(
+    trace: &Trace,
+    this_flight: Option<&crate::calibration::provenance::Provenance>,
+) -> String {
+    match this_flight {
+        Some(_) => super::qc_sheet::title(this_flight),
+        None => format!(
+            "QC sheet: {}",
+            trace
+                .meta("site")
+                .or(trace.meta("source"))
+                .unwrap_or("flight")
+        ),
     }
 }
 
@@ -38,11 +52,7 @@ fn fmt_opt(v: Option<f64>, digits: usize) -> String {
 pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
     let s = ev.summary;
     let flight = ev.flight;
-    let name = trace
-        .meta("site")
-        .or(trace.meta("source"))
-        .unwrap_or("flight");
-    let mut page = HtmlReport::new(&format!("Compensation report: {name}"));
+    let mut page = HtmlReport::new(&page_title(trace, ev.info.this_flight.as_ref()));
     for w in &s.warnings {
         page = page.warning(w);
     }
@@ -61,6 +71,21 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
         s.model,
         ev.source
     ));
+    let pattern = crate::calibration::fom::pattern_of(flight).map(|p| p.0);
+    let compensation = format!("{}, model {}, {}", s.method.name(), s.model, ev.source);
+    let sheet = super::qc_sheet::Sheet {
+        flight,
+        compensated_nt: &ev.comp.compensated_nt,
+        info: ev.info,
+        coefficients: ev.coefficient_provenance,
+        compensation,
+        pattern: pattern.as_ref(),
+        table: s.fom_table.as_ref(),
+        improvement_ratio: s.improvement_ratio,
+    };
+    for sec in super::qc_sheet::sections(&sheet) {
+        page = page.section(sec);
+    }
     page = page.section(figures_section(s));
     page = page.section(overlay_section(
         trace,
@@ -70,9 +95,6 @@ pub fn build(trace: &Trace, ev: &Evaluation) -> HtmlReport {
         "overlay",
         "Uncompensated, compensated and interference",
     ));
-    if let Some(t) = &s.fom_table {
-        page = page.section(fom_section(t));
-    }
     if let Some(c) = &ev.comp.coefficients {
         let labels: Vec<String> = c
             .coefficients
@@ -135,9 +157,11 @@ pub fn figures_section(s: &Summary) -> Section {
     ];
     Section::new("Figures")
         .paragraph(
-            "IR: standard deviation before / after compensation in the manoeuvre band (> 1: \
-             compensation removed interference). The error against truth is shown only for \
-             simulated flights.",
+            "IR (improvement ratio): the standard deviation of the 0.1–0.9 Hz band-passed \
+             uncompensated scalar over that of the band-passed compensated one, over the \
+             calibration pattern (labelled or detected manoeuvres; the whole flight when none \
+             is found); > 1: compensation removed interference. The one IR magcomp prints \
+             (docs/model.md §6a). The error against truth is shown only for simulated flights.",
         )
         .table(&["figure", "value"], &rows)
 }
@@ -253,78 +277,4 @@ pub fn overlay_section(
         s = s.plot(p);
     }
     s
-}
-
-/// The AARC-style FOM table (`calibration::fom`), one row per heading × manoeuvre.
-pub fn fom_section(t: &FomTable) -> Section {
-    let mut rows = Vec::new();
-    for r in &t.rows {
-        for c in &r.cells {
-            rows.push(vec![
-                r.heading.clone(),
-                c.kind.clone(),
-                format!("{:.1}–{:.1}", c.t_start, c.t_end),
-                format!("{:.3}", c.uncompensated_nt),
-                format!("{:.3}", c.compensated_nt),
-                fmt_opt(c.aircraft_nt, 3),
-            ]);
-        }
-        rows.push(vec![
-            r.heading.clone(),
-            "Σ".into(),
-            String::new(),
-            format!("{:.3}", r.uncompensated_sum_nt),
-            format!("{:.3}", r.compensated_sum_nt),
-            fmt_opt(r.aircraft_sum_nt, 3),
-        ]);
-    }
-    let labels: Vec<String> = t
-        .rows
-        .iter()
-        .flat_map(|r| {
-            r.cells
-                .iter()
-                .map(move |c| format!("{} {}", r.heading, c.kind))
-        })
-        .collect();
-    let lrefs: Vec<&str> = labels.iter().map(String::as_str).collect();
-    let comp: Vec<f64> = t
-        .rows
-        .iter()
-        .flat_map(|r| r.cells.iter().map(|c| c.compensated_nt))
-        .collect();
-    let bars = Plot::new("fom", "Compensated peak-to-peak per manoeuvre")
-        .y_label("peak-to-peak (nT)")
-        .bars(&lrefs, &comp, None);
-    Section::new("Figure of merit per heading and manoeuvre")
-        .plot_sized(bars, 960, 300)
-        .paragraph(&format!(
-            "{} manoeuvres ({}; headings from {}, manoeuvres from {}). Peak-to-peak in the \
-             manoeuvre band. Uncompensated {:.3} nT, FOM {:.3} nT, IR {:.2}{}.",
-            t.manoeuvres,
-            t.source,
-            t.heading_source,
-            t.manoeuvre_source,
-            t.uncompensated_nt,
-            t.fom_nt,
-            t.improvement_ratio,
-            t.aircraft_fom_nt
-                .map(|a| format!(
-                    "; aircraft-only FOM {a:.3} nT (compensated − {})",
-                    t.field_estimate.as_deref().unwrap_or("the field estimate")
-                ))
-                .unwrap_or_default()
-        ))
-        .table_with_caption(
-            "FOM table",
-            &[
-                "heading",
-                "manoeuvre",
-                "time (s)",
-                "uncompensated p-p (nT)",
-                "compensated p-p (nT)",
-                "aircraft-only p-p (nT)",
-            ],
-            &rows,
-        )
 }

@@ -2,7 +2,9 @@
 //! with failure windows and segments, the paper's spectrum figure, per-manoeuvre FOM and
 //! the coefficients with 1σ; for two or more models, the before/after comparison.
 
-use super::{HtmlReport, Plot, Section, Series, PALETTE};
+use super::qc_sheet::SheetInfo;
+use super::{fmt_opt, HtmlReport, Plot, Section, Series, PALETTE};
+use crate::calibration::fom::{fom_table, pattern_of, FomTable};
 use crate::diagnose::{diagnose, residual_spectrum, DiagnoseOptions, Diagnosis};
 use crate::flight::{scalar_relative_nt, Flight};
 use crate::io::trace::Trace;
@@ -20,6 +22,7 @@ struct ModelResult {
     spec: ModelSpec,
     diag: Diagnosis,
     fom_nt: Option<f64>,
+    table: Option<FomTable>,
     ir: Option<f64>,
     error_nt: Option<f64>,
 }
@@ -38,9 +41,10 @@ pub fn write_report(
     trace: &Trace,
     models: &[ModelSpec],
     first: Option<&Diagnosis>,
+    info: &SheetInfo,
     dir: &Path,
 ) -> Result<PathBuf> {
-    let page = build_report(trace, models, first)?;
+    let page = build_report(trace, models, first, info)?;
     std::fs::create_dir_all(dir)
         .with_context(|| format!("cannot create report directory {}", dir.display()))?;
     let path = dir.join(REPORT_PAGE);
@@ -48,10 +52,13 @@ pub fn write_report(
     Ok(path)
 }
 
+/// The page: the QC sheet of the first model's compensation (`qc_sheet`), then each
+/// model's diagnosis. `info`: the input as a coefficient file would record it, the noise band.
 pub fn build_report(
     trace: &Trace,
     models: &[ModelSpec],
     first: Option<&Diagnosis>,
+    info: &SheetInfo,
 ) -> Result<HtmlReport> {
     if models.is_empty() {
         bail!("give at least one --model");
@@ -65,8 +72,21 @@ pub fn build_report(
         };
         let flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
         let run = &diag.run;
+        let table = pattern_of(&flight).and_then(|(p, source)| {
+            fom_table(
+                &flight,
+                &p,
+                source,
+                &run.compensated_nt,
+                Some((&run.anomaly_nt, "kf anomaly")),
+            )
+        });
         results.push(ModelResult {
-            fom_nt: fom(&flight, &run.compensated_nt).map(|f| f.0),
+            // Labelled manoeuvres, else the detected pattern's table (the real boxes).
+            fom_nt: fom(&flight, &run.compensated_nt)
+                .map(|f| f.0)
+                .or(table.as_ref().map(|t| t.fom_nt)),
+            table,
             ir: improvement_ratio(&flight, &run.compensated_nt),
             error_nt: truth_error_nt(&flight, &run.interference_nt),
             spec: spec.clone(),
@@ -74,11 +94,11 @@ pub fn build_report(
         });
     }
     let flight = Flight::from_trace(trace, &[], &[])?;
-    let name = trace
-        .meta("site")
-        .or(trace.meta("source"))
-        .unwrap_or("flight");
-    let mut page = HtmlReport::new(&format!("Compensation report: {name}")).paragraph(&format!(
+    let mut page = HtmlReport::new(&super::calibration::page_title(
+        trace,
+        info.this_flight.as_ref(),
+    ))
+    .paragraph(&format!(
         "{} samples at {:.0} Hz, {:.0} s. Models: {}. The residual is what the model could \
          not predict (its one-step innovation); the model expects it to be white noise of the \
          shown ±2σ size. Red bands mark time windows where it is not.",
@@ -120,6 +140,24 @@ pub fn build_report(
             r.diag.failures.len()
         ));
     }
+    let r0 = &results[0];
+    let pattern = pattern_of(&flight).map(|p| p.0);
+    let sheet = super::qc_sheet::Sheet {
+        flight: &flight,
+        compensated_nt: &r0.diag.run.compensated_nt,
+        info,
+        coefficients: None,
+        compensation: format!(
+            "kf, model {}, calibrated on this flight (the diagnosis's filter run)",
+            r0.spec.text()
+        ),
+        pattern: pattern.as_ref(),
+        table: r0.table.as_ref(),
+        improvement_ratio: r0.ir,
+    };
+    for s in super::qc_sheet::sections(&sheet) {
+        page = page.section(s);
+    }
     if results.len() >= 2 {
         page = page.section(comparison(&flight, &results));
     }
@@ -140,13 +178,6 @@ pub fn build_report(
         ));
     }
     Ok(page)
-}
-
-fn fmt_opt(v: Option<f64>, digits: usize) -> String {
-    match v {
-        Some(x) if x.is_finite() => format!("{x:.digits$}"),
-        _ => "–".into(),
-    }
 }
 
 fn comparison(flight: &Flight, results: &[ModelResult]) -> Section {

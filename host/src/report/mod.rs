@@ -21,6 +21,7 @@ mod evidence;
 pub mod flight_report;
 mod html;
 mod plot;
+pub mod qc_sheet;
 mod ticks;
 
 pub use html::{HtmlReport, Section};
@@ -43,4 +44,12 @@ pub fn escape(text: &str) -> String {
         }
     }
     out
+}
+
+/// A figure with `digits` decimals, or "–" when absent or not finite.
+pub(crate) fn fmt_opt(v: Option<f64>, digits: usize) -> String {
+    match v {
+        Some(x) if x.is_finite() => format!("{x:.digits$}"),
+        _ => "–".into(),
+    }
 }

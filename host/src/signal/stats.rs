@@ -245,6 +245,22 @@ pub fn lag1_autocorr(x: &[f64]) -> f64 {
     (1..n).map(|i| (x[i] - m) * (x[i - 1] - m)).sum::<f64>() / v
 }
 
+/// Centred moving mean over `w` samples (shorter at the ends).
+pub fn moving_mean(v: &[f64], w: usize) -> Vec<f64> {
+    let n = v.len();
+    let h = w / 2;
+    let mut cum = vec![0.0; n + 1];
+    for i in 0..n {
+        cum[i + 1] = cum[i] + v[i];
+    }
+    (0..n)
+        .map(|i| {
+            let (a, b) = (i.saturating_sub(h), (i + h + 1).min(n));
+            (cum[b] - cum[a]) / (b - a) as f64
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
