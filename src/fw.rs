@@ -235,11 +235,14 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
     // `hil-sync`: frames taken per port (scalar, flux, GPS), acknowledged after each one
     #[cfg(feature = "hil-sync")]
     let mut taken = [0u64; 3];
+    // `SETCOEF` values waiting for `MODE,SURVEY`: one value must not switch the board to a
+    // half-uploaded set.
+    let mut staged: Option<[f32; N_COEF]> = None;
     loop {
         let ev = match health::idle(Task::Acq, select(EVENTS.receive(), COMMANDS.receive())).await {
             Either::First(ev) => ev,
             Either::Second(cmd) => {
-                handle_command(cmd, acq, &mut store).await;
+                handle_command(cmd, acq, &mut store, &mut staged).await;
                 continue;
             }
         };
@@ -302,12 +305,17 @@ fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> R
     }
 }
 
-/// Writes the other image than the newest, then reads it back from the store itself.
-fn save_coefficients(st: &mut board::CoefStore, acq: &BoardAcquisition) -> bool {
+/// Writes the other image than the newest (with the staged coefficients when a set waits
+/// for `MODE,SURVEY`), then reads it back from the store itself.
+fn save_coefficients(
+    st: &mut board::CoefStore,
+    acq: &BoardAcquisition,
+    staged: Option<&[f32; N_COEF]>,
+) -> bool {
     let mut back = store::ERASED;
     let (i, seq) = store::next(image_seqs(st, &mut back));
     let mut img = store::ERASED;
-    if store::seal(seq, acq, &mut img).is_err() || st.write(i, &img).is_err() {
+    if store::seal(seq, acq, staged, &mut img).is_err() || st.write(i, &img).is_err() {
         return false;
     }
     st.read(i, &mut back).is_ok() && back == img
@@ -354,10 +362,26 @@ fn refused(e: CommandError) -> Line {
     Line::fill(|out| encode_error(e, out))
 }
 
-async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board::CoefStore) {
+async fn handle_command(
+    cmd: Command,
+    acq: &mut BoardAcquisition,
+    st: &mut board::CoefStore,
+    staged: &mut Option<[f32; N_COEF]>,
+) {
     let reply = match cmd {
         Command::Mode(m) => {
-            acq.set_survey_mode(m == Mode::Survey);
+            // A staged set becomes the survey's coefficients here, all at once.
+            match staged.take() {
+                Some(c) if m == Mode::Survey => {
+                    if acq.set_coefficients(&c).is_err() {
+                        defmt::error!("staged coefficients refused");
+                    }
+                }
+                other => {
+                    *staged = other;
+                    acq.set_survey_mode(m == Mode::Survey);
+                }
+            }
             Line::sentence(|c| {
                 c.bytes(b"MCACK,MODE,")?;
                 c.bytes(mode_word(m))
@@ -390,21 +414,26 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board
             Ok(())
         }),
         Command::GetCoef(Some(i)) => {
-            let v = coefficients(acq)
+            let v = staged
+                .unwrap_or_else(|| coefficients(acq))
                 .get(usize::from(i))
                 .copied()
                 .unwrap_or(f32::NAN);
             Line::fill(|out| encode_ack_coef(i, v, out))
         }
-        Command::GetCoef(None) => ack_values(b"GETCOEF", &coefficients(acq)),
+        Command::GetCoef(None) => {
+            ack_values(b"GETCOEF", &staged.unwrap_or_else(|| coefficients(acq)))
+        }
         Command::SetCoef { index, value } => {
-            let mut c = coefficients(acq);
-            if let Some(slot) = c.get_mut(usize::from(index)) {
-                *slot = value;
-            }
-            match acq.set_coefficients(&c) {
-                Ok(()) => Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out)),
-                Err(_) => refused(CommandError::ValueOutOfBounds),
+            // Staged, not applied: `MODE,SURVEY` applies the whole set (docs/protocols.md §5).
+            let mut c = staged.unwrap_or_else(|| coefficients(acq));
+            match c.get_mut(usize::from(index)) {
+                Some(slot) if value.is_finite() => {
+                    *slot = value;
+                    *staged = Some(c);
+                    Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out))
+                }
+                _ => refused(CommandError::ValueOutOfBounds),
             }
         }
         Command::GetFlux(Some(i)) => {
@@ -448,7 +477,7 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board
             Err(_) => refused(CommandError::ValueOutOfBounds),
         },
         Command::Save => {
-            if save_coefficients(st, acq) {
+            if save_coefficients(st, acq, staged.as_ref()) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
             } else {
                 // flash failure is not a command error: say so in the ACK's place
@@ -467,6 +496,7 @@ async fn handle_command(cmd: Command, acq: &mut BoardAcquisition, st: &mut board
             };
             let mut failed = false;
             if cmd != Command::Flush {
+                *staged = None;
                 // in place: no second filter on the stack
                 if bc::restart_filter(acq).is_err() {
                     defmt::error!("compensator re-init failed");

@@ -83,13 +83,22 @@ impl Slot {
         }
     }
 
-    /// The acquisition's current values for this slot.
-    fn read(self, acq: &BoardAcquisition, out: &mut [f32; MAX_VALUES]) -> usize {
+    /// The acquisition's current values for this slot; the model's are `staged` when a
+    /// set is waiting for `MODE,SURVEY`.
+    fn read(
+        self,
+        acq: &BoardAcquisition,
+        staged: Option<&[f32; N_COEF]>,
+        out: &mut [f32; MAX_VALUES],
+    ) -> usize {
         let n = self.values();
         match self {
-            Slot::Model => {
-                acq.coefficients(&mut out[..n]);
-            }
+            Slot::Model => match staged {
+                Some(c) => out[..n].copy_from_slice(c),
+                None => {
+                    acq.coefficients(&mut out[..n]);
+                }
+            },
             Slot::FluxCal => out[..n].copy_from_slice(&acq.flux_calibration().to_array()),
             Slot::Lag => out[0] = acq.lag_s(),
             Slot::FluxTemp => out[..n].copy_from_slice(&acq.flux_temp_calibration().to_array()),
@@ -151,11 +160,15 @@ pub fn defaults(acq: &mut BoardAcquisition) {
 }
 
 /// Encodes the acquisition's current values as a whole store image.
-pub fn save(acq: &BoardAcquisition, raw: &mut [u8; LEN]) -> Result<(), ()> {
+pub fn save(
+    acq: &BoardAcquisition,
+    staged: Option<&[f32; N_COEF]>,
+    raw: &mut [u8; LEN],
+) -> Result<(), ()> {
     let mut at = 0;
     for s in SLOTS {
         let mut v = [0f32; MAX_VALUES];
-        let n = s.read(acq, &mut v);
+        let n = s.read(acq, staged, &mut v);
         at += encode_blob(s.id(), &v[..n], &mut raw[at..]).map_err(|_| ())?;
     }
     Ok(())
@@ -219,12 +232,18 @@ fn part(img: &Image, at: usize) -> &[u8; LEN] {
         .unwrap_or(&[0xFF; LEN])
 }
 
-/// Seals the acquisition's current values as image `seq`.
-pub fn seal(seq: u32, acq: &BoardAcquisition, img: &mut Image) -> Result<(), ()> {
+/// Seals the acquisition's current values (the model's `staged` ones when given) as image
+/// `seq`.
+pub fn seal(
+    seq: u32,
+    acq: &BoardAcquisition,
+    staged: Option<&[f32; N_COEF]>,
+    img: &mut Image,
+) -> Result<(), ()> {
     img[..4].copy_from_slice(&IMAGE_MAGIC);
     img[4..8].copy_from_slice(&seq.to_le_bytes());
     let body: &mut [u8; LEN] = (&mut img[8..8 + LEN]).try_into().map_err(|_| ())?;
-    save(acq, body)?;
+    save(acq, staged, body)?;
     let crc = crc32(&img[..8 + LEN]);
     img[8 + LEN..].copy_from_slice(&crc.to_le_bytes());
     Ok(())

@@ -353,6 +353,9 @@ fn malformed_commands_rejected_valid_ones_applied() {
     );
     assert!(ack(&mut b, "MCCMD,SETCOEF,0,5.25").starts_with("$MCACK,SETCOEF,0,"));
     assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 5.25);
+    // staged, not flown: one SETCOEF does not switch the board to a half-sent set
+    let s = ack(&mut b, "MCCMD,STATUS");
+    assert!(s.starts_with("$MCACK,STATUS,CAL,"), "{s}");
     // the fluxgate calibration (`fluxcal`): identity until set, 12 values
     let flux = ack(&mut b, "MCCMD,GETFLUX");
     assert_eq!(

@@ -138,3 +138,27 @@ fn several_sensors_calibrate_and_compensate() {
         assert!(err < 0.005, "{ext}: gradient error {err}");
     }
 }
+
+/// `--gradients` without `--sensors` is refused by `compensate` as by `calibrate`: it was
+/// silently ignored, so a user asking for a gradient got none and no word why.
+#[test]
+fn gradients_without_sensors_are_refused_by_both_commands() {
+    let cfg = SimConfig {
+        seed: 2,
+        max_duration_s: Some(60.0),
+        ..Default::default()
+    };
+    let trace = simulate_multi(&cfg, &STINGER_WINGTIPS_CABIN_M[..2]).unwrap();
+    let input = tmp("grad-only.csv");
+    write_trace(&input, &trace).unwrap();
+    for cmd in ["calibrate", "compensate"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+            .args([cmd, s(&input), "--gradients", "mag_1-mag_2", "-o"])
+            .arg(tmp(&format!("grad-only-{cmd}.out")))
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{cmd} accepted --gradients alone");
+        assert!(err.contains("--gradients needs --sensors"), "{cmd}: {err}");
+    }
+}

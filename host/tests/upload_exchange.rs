@@ -76,6 +76,8 @@ struct FakeReport {
     ram: BoardState,
     saved: Option<BoardState>,
     saves: usize,
+    /// `MODE,SURVEY` received after the last `SAVE` (the set is flown only then).
+    survey_after_save: bool,
     lines_received: usize,
     damaged: usize,
 }
@@ -159,7 +161,14 @@ fn handle(cmd: Command, s: &mut BoardState, r: &mut FakeReport, fault: Fault) ->
         Command::Save => {
             r.saved = Some(s.clone());
             r.saves += 1;
+            r.survey_after_save = false;
             ack_values(b"SAVE", &[])
+        }
+        Command::Mode(magcomp_core::protocol::command::Mode::Survey) => {
+            r.survey_after_save = r.saves > 0;
+            let mut out = [0u8; 64];
+            let n = encode_ack(b"MODE", &[b"SURVEY"], &mut out).unwrap();
+            out[..n].to_vec()
         }
         other => panic!("upload does not send {other:?}"),
     }
@@ -173,6 +182,7 @@ fn fake_board(mut port: UnixStream, fault: Fault) -> JoinHandle<FakeReport> {
             ram: state.clone(),
             saved: None,
             saves: 0,
+            survey_after_save: false,
             lines_received: 0,
             damaged: 0,
         };
@@ -344,7 +354,9 @@ fn clean_line_every_line_acknowledged_and_read_back() {
     assert_eq!(s.read_back_ok, READ_BACK);
     assert_eq!(s.read_back.resends, 0);
     assert_eq!(r.board.saves, 1);
-    assert_eq!(r.board.lines_received, LINES + READ_BACK);
+    // the read-back, then MODE,SURVEY: the board flies the set only after both
+    assert_eq!(r.board.lines_received, LINES + READ_BACK + 1);
+    assert!(r.board.survey_after_save);
     let saved = r.board.saved.unwrap();
     let off_by_ulps = assert_holds_the_file(&saved);
     // the 2-ulp tolerance is exercised: σ-scaling moved some coefficients
@@ -359,7 +371,7 @@ fn a_lost_byte_in_every_fifth_line_is_resent() {
     let d = r.board.damaged;
     // every 5th of the lines received, resends included
     assert_eq!(d, r.board.lines_received / 5);
-    assert_eq!(r.board.lines_received, LINES + READ_BACK + d);
+    assert_eq!(r.board.lines_received, LINES + READ_BACK + 1 + d);
     assert_eq!(s.exchange.resends + s.read_back.resends, d);
     assert_eq!(
         s.exchange.transport_errors + s.read_back.transport_errors,
@@ -405,7 +417,7 @@ fn a_lost_terminator_is_recovered_by_the_timeout() {
     let s = r.result.unwrap();
     assert_eq!(s.exchange.timeouts, 1);
     assert_eq!(s.exchange.resends, 1);
-    assert_eq!(r.board.lines_received, LINES + READ_BACK + 1);
+    assert_eq!(r.board.lines_received, LINES + READ_BACK + 1 + 1);
     assert_eq!(s.read_back_ok, READ_BACK);
     assert_holds_the_file(&r.board.saved.unwrap());
 }
@@ -419,6 +431,10 @@ fn a_refused_value_stops_before_save() {
         "{e}"
     );
     assert_eq!(r.board.saves, 0, "SAVE never sent");
+    assert!(
+        !r.board.survey_after_save,
+        "a refused upload is never flown"
+    );
     // 16 SETCOEF + SETFLUX 0–4, then nothing
     assert_eq!(r.board.lines_received, 16 + 5);
     assert_eq!(
@@ -456,7 +472,9 @@ fn a_value_stored_wrong_fails_the_read_back() {
         "{e}"
     );
     assert_eq!(r.board.saves, 1);
+    // a failed read-back: the set is never switched to (no MODE,SURVEY)
     assert_eq!(r.board.lines_received, LINES + READ_BACK);
+    assert!(!r.board.survey_after_save);
 }
 
 /// `magcomp upload --to SOCKET`: the exchange from the command line; exit 0 with the

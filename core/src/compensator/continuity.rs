@@ -30,9 +30,11 @@ const MAX_GAP_S: f64 = 2.0;
 pub enum Continuity {
     /// Consistent with the recent samples.
     Consistent,
-    /// Departs from the recent samples beyond the limit, or cannot be checked (the first
-    /// sample, or the first after a long gap): flagged `MAG_SUSPECT`.
+    /// Departs from the recent samples beyond the limit: flagged `MAG_SUSPECT`, not fused.
     Suspect,
+    /// Nothing to judge it against (the first sample, or the first after a long gap):
+    /// flagged `MAG_SUSPECT`, but the filter may take its level from it.
+    Unverified,
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -65,7 +67,7 @@ impl ScalarContinuity {
             // Nothing to judge against: this sample starts the record, unverified.
             *self = Self::new();
             self.accept(t_s, mag, None);
-            return Continuity::Suspect;
+            return Continuity::Unverified;
         };
         let departure = self.departure_nt(t_s, mag, t1, x1);
         if libm::fabsf(departure) <= self.limit_nt() {
@@ -162,7 +164,7 @@ mod tests {
     #[test]
     fn the_first_sample_is_unverified_and_a_quiet_record_passes() {
         let mut c = ScalarContinuity::new();
-        assert_eq!(c.judge(0.0, nt(quiet(0))), Continuity::Suspect);
+        assert_eq!(c.judge(0.0, nt(quiet(0))), Continuity::Unverified);
         for i in 1..200 {
             assert_eq!(
                 c.judge(i as f64 * 0.1, nt(quiet(i))),

@@ -62,16 +62,16 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         // scalar is judged against its own recent readings.
         let judged_here = !offered || self.updates == 0;
         if judged_here {
-            let suspect = match ep.mag {
-                Some(m) if ep.dmag_nt.is_finite() => {
-                    self.continuity.judge(ep.t_s, m) == Continuity::Suspect
-                }
-                _ => false,
+            let verdict = match ep.mag {
+                Some(m) if ep.dmag_nt.is_finite() => self.continuity.judge(ep.t_s, m),
+                _ => Continuity::Consistent,
             };
-            if suspect {
+            if verdict != Continuity::Consistent {
                 flags.set(Flags::MAG_SUSPECT);
             }
-            if !offered || suspect {
+            // An unverified first reading still gives the filter its level (the anomaly
+            // estimate of the first record is otherwise the prior's); a jump does not.
+            if !offered || verdict == Continuity::Suspect {
                 return ScalarFusion::NONE;
             }
         }

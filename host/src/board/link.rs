@@ -9,7 +9,7 @@
 //! or — if the terminator was lost — does not answer until the next line ends.
 
 use anyhow::{anyhow, bail, Context, Result};
-use magcomp_core::protocol::command::{encode_command, parse_reply, Command, Reply};
+use magcomp_core::protocol::command::{encode_command, parse_reply, Command, Mode, Reply};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError};
 use std::time::{Duration, Instant};
@@ -192,6 +192,14 @@ fn answers(cmd: &Command, ack: &[u8]) -> Result<Option<Option<f32>>> {
     if f.first() != Some(&word) {
         return Ok(None);
     }
+    if let Command::Mode(m) = cmd {
+        // `$MCACK,MODE,SURVEY`: a word, not a number.
+        let want = match m {
+            Mode::Survey => "SURVEY",
+            Mode::Cal => "CAL",
+        };
+        return Ok((f.get(1) == Some(&want)).then_some(None));
+    }
     let rest = match index {
         Some(i) => {
             if f.get(1).and_then(|s| s.parse::<u16>().ok()) != Some(i) {
@@ -339,11 +347,13 @@ pub struct UploadSummary {
 
 /// Sends the SET lines of `cmds` each until acknowledged, then `SAVE` if it is in `cmds`
 /// (only then: a refused or unanswered line stops everything before it), then reads every
-/// value back and compares it with the one sent.
+/// value back and compares it with the one sent, and only then switches the board to
+/// survey mode (`MODE,SURVEY`): the board stages `SETCOEF` values and applies the whole
+/// set at that command, so a half-sent set is never flown.
 pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<UploadSummary> {
     for c in cmds.iter().filter(|c| **c != Command::Save) {
         link.exchange(c).context(
-            "stopped before SAVE: the stored values are unchanged; the board runs partly new ones until RESET reloads them",
+            "stopped before SAVE: the stored values are unchanged; the board keeps flying its old coefficients (the new ones are staged until MODE,SURVEY, dropped by RESET)",
         )?;
     }
     if cmds.contains(&Command::Save) {
@@ -382,6 +392,10 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
             mismatches.len() + read_back_ok,
             mismatches.join("; ")
         );
+    }
+    if cmds.iter().any(|c| matches!(c, Command::SetCoef { .. })) {
+        link.exchange(&Command::Mode(Mode::Survey))
+            .context("MODE,SURVEY not acknowledged: the set is loaded but not flown")?;
     }
     Ok(UploadSummary {
         exchange,

@@ -73,7 +73,8 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         .collect();
     check_outputs(&inputs, &[&a.out])?;
     crate::io::progress::force_progress(a.long.progress);
-    if a.multi.sensors.is_some() {
+    // `--gradients` alone is refused by the plan, as `calibrate` refuses it.
+    if a.multi.sensors.is_some() || a.multi.gradients.is_some() {
         let trace = a.input.read()?;
         match a.multi.plan(&trace, a.input.map.as_deref())? {
             SensorPlan::Today => {}

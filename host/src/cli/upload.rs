@@ -157,7 +157,7 @@ pub fn run(args: &UploadArgs) -> Result<()> {
     let s = upload(&mut link, &cmds).with_context(|| format!("uploading to {}", args.to))?;
     let e = s.exchange;
     println!(
-        "sent {} lines to {}: {} acknowledged, {} resends ({} damaged, {} unanswered){}; read-back OK: {} of {} values equal the file ({} resends)",
+        "sent {} lines to {}: {} acknowledged, {} resends ({} damaged, {} unanswered){}; read-back OK: {} of {} values equal the file ({} resends); survey mode on with this set",
         e.lines_sent,
         args.to,
         e.acknowledged,
