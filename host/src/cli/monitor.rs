@@ -1,5 +1,6 @@
 //! `magcomp monitor`: decode and show the board's output stream live (a port, a file, or
-//! `-`), optionally saving the records (`crate::board::monitor`).
+//! `-`), optionally saving the records (`crate::board::monitor`), or as a chart recorder in
+//! the browser (`--web`, `crate::live`).
 
 use crate::board::monitor::{monitor_stream, Display, MonitorStats};
 use anyhow::{Context, Result};
@@ -10,7 +11,8 @@ use std::time::Duration;
 /// Decode and show the compensator's output stream live (values, flags, rates, errors).
 #[derive(clap::Args, Clone, Debug)]
 pub struct MonitorArgs {
-    /// Serial device (configure it with `stty`), a recorded file, or `-` for stdin.
+    /// Serial device (configure it with `stty`), a recorded file, `-` for stdin, or (with
+    /// `--web`) `tcp:HOST:PORT`.
     #[arg(value_name = "PORT_OR_FILE")]
     pub input: String,
 
@@ -30,9 +32,65 @@ pub struct MonitorArgs {
     /// Keep reading at the end of a file that a logger is still writing (stop with Ctrl-C).
     #[arg(long)]
     pub follow: bool,
+
+    /// Serve a live chart-recorder page instead of printing (open the printed address in a
+    /// browser; stop with Ctrl-C). A lost port is reopened every second.
+    #[arg(long)]
+    pub web: bool,
+
+    /// With `--web`: address to listen on (port 0 picks a free one; the address is printed).
+    #[arg(long, default_value = "127.0.0.1:8022", value_name = "ADDR:PORT")]
+    pub listen: String,
+
+    /// With `--web`: play a recorded file at its records' own pace (their time stamps).
+    #[arg(long)]
+    pub realtime: bool,
+
+    /// With `--web`: acceptance band of the 4th difference of the compensated field (± nT,
+    /// d4 normalised by 1/16).
+    #[arg(long, default_value_t = crate::live::feed::D4_BAND_NT, value_name = "NT")]
+    pub d4_band_nt: f64,
+
+    /// With `--web`: records kept on the strips.
+    #[arg(long, default_value_t = 1200, value_name = "N")]
+    pub window_records: usize,
+}
+
+/// `--web`: serve the live page until stopped.
+fn run_web(args: &MonitorArgs) -> Result<MonitorStats> {
+    anyhow::ensure!(
+        args.save.is_none() && !args.quiet,
+        "--web shows the stream in the browser: --save and --quiet are for the text monitor"
+    );
+    anyhow::ensure!(
+        args.d4_band_nt.is_finite() && args.d4_band_nt > 0.0,
+        "--d4-band-nt must be > 0"
+    );
+    anyhow::ensure!(
+        (10..=100_000).contains(&args.window_records),
+        "--window-records must be 10..=100000"
+    );
+    let input = crate::live::source::Input {
+        name: args.input.clone(),
+        follow: args.follow,
+        realtime: args.realtime,
+    };
+    let settings = crate::live::server::PageSettings {
+        d4_band_nt: args.d4_band_nt,
+        window_records: args.window_records,
+    };
+    crate::live::server::serve(input, &args.listen, &settings)?;
+    Ok(MonitorStats::default())
 }
 
 pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
+    if args.web {
+        return run_web(args);
+    }
+    anyhow::ensure!(
+        !args.realtime,
+        "--realtime paces the --web page; the text monitor reads as fast as it can"
+    );
     anyhow::ensure!(
         args.interval_s.is_finite() && args.interval_s > 0.0,
         "--interval-s must be > 0"
