@@ -491,3 +491,20 @@ fn a_pulled_cable_is_reported_and_the_port_reopened() {
     );
     assert!(reconnect_s < 2.5, "reconnected after {reconnect_s:.1} s");
 }
+
+#[test]
+fn a_device_stty_refuses_is_reported_and_retried() {
+    // /dev/null is a device but not a terminal: `stty` fails, the page is told why, and
+    // the server keeps trying (as for an adapter not plugged in yet).
+    let (server, url) = start_server(&["--stty", "raw -echo", "/dev/null"]);
+    let mut ws = ws_connect(&format!("{}ws", url.replace("http://", "ws://")));
+    let got = read_until(&mut ws, |v| v["kind"] == "link");
+    drop(server);
+    let link = got.last().unwrap();
+    assert_eq!(link["up"], false, "{link}");
+    let text = link["text"].as_str().unwrap();
+    assert!(
+        text.contains("cannot open /dev/null") && text.contains("stty"),
+        "{text}"
+    );
+}

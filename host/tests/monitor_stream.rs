@@ -210,6 +210,7 @@ fn run_monitor_reads_a_file_and_saves() {
         web: false,
         listen: String::new(),
         realtime: false,
+        stty: None,
         d4_band_nt: 0.05,
         window_records: 1200,
     };

@@ -51,6 +51,11 @@ pub struct MonitorArgs {
     #[arg(long, default_value_t = crate::live::feed::D4_BAND_NT, value_name = "NT")]
     pub d4_band_nt: f64,
 
+    /// With `--web`: `stty` settings for a serial device, applied at every (re)open (a USB
+    /// adapter pulled and put back loses them), e.g. "115200 raw -echo".
+    #[arg(long, value_name = "SETTINGS")]
+    pub stty: Option<String>,
+
     /// With `--web`: records kept on the strips.
     #[arg(long, default_value_t = 1200, value_name = "N")]
     pub window_records: usize,
@@ -74,6 +79,7 @@ fn run_web(args: &MonitorArgs) -> Result<MonitorStats> {
         name: args.input.clone(),
         follow: args.follow,
         realtime: args.realtime,
+        stty: args.stty.clone(),
     };
     let settings = crate::live::server::PageSettings {
         d4_band_nt: args.d4_band_nt,
@@ -88,8 +94,8 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
         return run_web(args);
     }
     anyhow::ensure!(
-        !args.realtime,
-        "--realtime paces the --web page; the text monitor reads as fast as it can"
+        !args.realtime && args.stty.is_none(),
+        "--realtime and --stty are for --web (set a port up with `stty` for the text monitor)"
     );
     anyhow::ensure!(
         args.interval_s.is_finite() && args.interval_s > 0.0,

@@ -26,6 +26,9 @@ pub struct Input {
     pub follow: bool,
     /// Play the records at the pace of their time stamps (a recorded stream).
     pub realtime: bool,
+    /// `stty` settings applied to a device before every (re)open (e.g. `115200 raw -echo`):
+    /// a USB adapter pulled and put back comes back with the kernel's defaults.
+    pub stty: Option<String>,
 }
 
 enum Port {
@@ -35,7 +38,8 @@ enum Port {
 }
 
 impl Port {
-    fn open(name: &str) -> std::io::Result<Port> {
+    fn open(input: &Input) -> std::io::Result<Port> {
+        let name = input.name.as_str();
         if name == "-" {
             return Ok(Port::Stdin(std::io::stdin()));
         }
@@ -44,6 +48,9 @@ impl Port {
         }
         let f = std::fs::File::open(name)?;
         let regular = f.metadata()?.is_file();
+        if let (Some(settings), false) = (&input.stty, regular) {
+            set_line(name, settings)?;
+        }
         Ok(Port::File(f, regular))
     }
     fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
@@ -102,7 +109,7 @@ pub fn follow(input: &Input, mut send: impl FnMut(Message)) {
     let mut buf = [0u8; 4096];
     let mut link_down: Option<String> = None;
     loop {
-        let mut port = match Port::open(&input.name) {
+        let mut port = match Port::open(input) {
             Ok(p) => p,
             Err(e) => {
                 let text = format!("cannot open {}: {e}; retrying", input.name);
@@ -186,4 +193,21 @@ fn flush_rest(
         handle(feed, l, pacer, input, send);
         Ok::<(), ()>(())
     });
+}
+
+/// `stty -F DEVICE SETTINGS…`: the system's own tool sets the line (no termios code here).
+fn set_line(device: &str, settings: &str) -> std::io::Result<()> {
+    let out = std::process::Command::new("stty")
+        .arg("-F")
+        .arg(device)
+        .args(settings.split_whitespace())
+        .output()?;
+    if out.status.success() {
+        Ok(())
+    } else {
+        Err(std::io::Error::other(format!(
+            "stty {settings}: {}",
+            String::from_utf8_lossy(&out.stderr).trim()
+        )))
+    }
 }
