@@ -2,7 +2,7 @@
 //! ([`Monitor`]) classifies every line and counts gaps and restarts; this adds what the page
 //! draws on top of it (the 4th difference, a monotonic chart time, alarms and events).
 
-use crate::board::monitor::{flag_words, Monitor};
+use crate::board::monitor::{flag_words, Monitor, MAX_GAPS};
 use crate::board::replay::nt_text;
 use magcomp_core::protocol::record::Record;
 use magcomp_core::{Flags, MagCounts};
@@ -118,10 +118,12 @@ impl Feed {
     }
 
     fn record(&mut self, r: &Record, now: Instant, unix_ms: f64) -> RecordMsg {
-        let st = self.monitor.stats().clone();
-        let garbage = st.crc_errors + st.parse_errors + st.other_lines;
-        let restarted = st.restarts > self.seen.restarts || st.boots > self.seen.boots.max(1);
-        let lost = st.missing - self.seen.missing;
+        // The counters, not the whole stats (their gap list runs to 1000 entries), per record.
+        let counts = self.counts();
+        let garbage = counts.crc_errors + counts.malformed + counts.other_lines;
+        let restarted =
+            counts.restarts > self.seen.restarts || counts.boots > self.seen.boots.max(1);
+        let lost = counts.missing - self.seen.missing;
         let mut events = Vec::new();
         if restarted {
             events.push(format!("board restart (sequence now {})", r.seq));
@@ -129,11 +131,12 @@ impl Feed {
             self.ring.clear();
         }
         if lost > 0 {
-            let gap = st
-                .gaps
-                .last()
-                .map(|(a, b)| format!(" (seq {a}–{b})"))
-                .unwrap_or_default();
+            let gaps = &self.monitor.stats().gaps;
+            // Past MAX_GAPS the list stops growing: its last entry is not this gap.
+            let gap = match gaps.last() {
+                Some((a, b)) if gaps.len() < MAX_GAPS => format!(" (seq {a}–{b})"),
+                _ => String::new(),
+            };
             events.push(format!("lost {lost} records{gap}"));
             self.lost_until = Some((now + ALARM_HOLD, format!("LOST {lost} records{gap}")));
             self.ring.clear();
@@ -153,9 +156,9 @@ impl Feed {
         }
         self.not_converged = Some(nc);
         self.seen = SeenCounts {
-            missing: st.missing,
-            restarts: st.restarts,
-            boots: st.boots.max(self.seen.boots),
+            missing: counts.missing,
+            restarts: counts.restarts,
+            boots: counts.boots.max(self.seen.boots),
             garbage,
         };
         let (d4_seq, d4_nt) = self.fourth_difference(r);
@@ -175,21 +178,26 @@ impl Feed {
             d4_nt,
             alarms: self.alarms(r.flags, now),
             events,
-            counts: Counts {
-                records: st.records,
-                crc_errors: st.crc_errors,
-                malformed: st.parse_errors,
-                other_lines: st.other_lines,
-                missing: st.missing,
-                restarts: st.restarts,
-                boots: st.boots,
-                rate_hz: self.monitor.rate_hz(),
-                board: st.boot.as_ref().map(|b| {
-                    let cause = b.reset_cause.as_deref().unwrap_or("?");
-                    format!("{} {} (last reset {cause})", b.board, b.version)
-                }),
-            },
+            counts,
             sent_unix_ms: unix_ms,
+        }
+    }
+
+    fn counts(&self) -> Counts {
+        let st = self.monitor.stats();
+        Counts {
+            records: st.records,
+            crc_errors: st.crc_errors,
+            malformed: st.parse_errors,
+            other_lines: st.other_lines,
+            missing: st.missing,
+            restarts: st.restarts,
+            boots: st.boots,
+            rate_hz: self.monitor.rate_hz(),
+            board: st.boot.as_ref().map(|b| {
+                let cause = b.reset_cause.as_deref().unwrap_or("?");
+                format!("{} {} (last reset {cause})", b.board, b.version)
+            }),
         }
     }
 
