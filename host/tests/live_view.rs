@@ -508,3 +508,62 @@ fn a_device_stty_refuses_is_reported_and_retried() {
         "{text}"
     );
 }
+
+#[test]
+fn several_sensors_are_drawn_with_their_gradient() {
+    if !Path::new(CHROMIUM).exists() {
+        println!("SKIP: {CHROMIUM} not installed (apt-get install chromium)");
+        return;
+    }
+    // Two boards, same record times; the second's field is 1.5 nT higher (15 000 counts).
+    let dir = tempfile::tempdir().unwrap();
+    let n = 30;
+    let mut files = Vec::new();
+    let mut want = Vec::new();
+    for (k, offset) in [0i64, 15_000].into_iter().enumerate() {
+        let recs: Vec<Record> = (0..n)
+            .map(|s| {
+                let mut r = rec(s, 50.0 + f64::from(s) * 0.1, 0);
+                r.mag = r.mag.map(|m| MagCounts(m.0 + offset));
+                r.compensated = Record::compensate(r.mag, r.interference_nt);
+                r
+            })
+            .collect();
+        let f = dir.path().join(format!("board{k}.txt"));
+        std::fs::write(&f, recs.iter().map(record_line).collect::<String>()).unwrap();
+        files.push(f.to_str().unwrap().to_string());
+        want.push(recs);
+    }
+    let (server, url) = start_server(&["--realtime", &files[0], "--also", &files[1]]);
+    let (chrome, mut page) = Page::open(&url, &dir.path().join("profile"));
+    let t0 = Instant::now();
+    let mut p = Value::Null;
+    while t0.elapsed() < Duration::from_secs(15) {
+        p = page.plotted();
+        let done = p["streams"]
+            .as_array()
+            .is_some_and(|s| s.iter().all(|s| numbers(&s["seq"]).len() == n as usize));
+        if done {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let errors_dom = page.text_of("errors");
+    drop(chrome);
+    drop(server);
+
+    for (k, recs) in want.iter().enumerate() {
+        let comp = numbers(&p["streams"][k]["comp"]);
+        let expect: Vec<Option<f64>> = recs
+            .iter()
+            .map(|r| r.compensated.map(MagCounts::to_nt_f64))
+            .collect();
+        assert_eq!(comp, expect, "stream {k}");
+    }
+    let g = numbers(&p["gradient"][0]);
+    let g: Vec<f64> = g.into_iter().flatten().collect();
+    assert_eq!(g.len(), n as usize, "{:?}", p["gradient"]);
+    assert!(g.iter().all(|v| (v - 1.5).abs() < 1e-9), "{g:?}");
+    assert!(page.console_errors.is_empty(), "{:?}", page.console_errors);
+    assert!(errors_dom.is_empty(), "{errors_dom}");
+}

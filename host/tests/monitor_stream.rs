@@ -211,6 +211,7 @@ fn run_monitor_reads_a_file_and_saves() {
         listen: String::new(),
         realtime: false,
         stty: None,
+        also: Vec::new(),
         d4_band_nt: 0.05,
         window_records: 1200,
     };

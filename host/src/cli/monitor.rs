@@ -56,6 +56,11 @@ pub struct MonitorArgs {
     #[arg(long, value_name = "SETTINGS")]
     pub stty: Option<String>,
 
+    /// With `--web`: another board output to follow (a further sensor), drawn beside the
+    /// first with its gradient to it; repeatable.
+    #[arg(long, value_name = "PORT_OR_FILE")]
+    pub also: Vec<String>,
+
     /// With `--web`: records kept on the strips.
     #[arg(long, default_value_t = 1200, value_name = "N")]
     pub window_records: usize,
@@ -75,17 +80,20 @@ fn run_web(args: &MonitorArgs) -> Result<MonitorStats> {
         (10..=100_000).contains(&args.window_records),
         "--window-records must be 10..=100000"
     );
-    let input = crate::live::source::Input {
-        name: args.input.clone(),
-        follow: args.follow,
-        realtime: args.realtime,
-        stty: args.stty.clone(),
-    };
+    let inputs = std::iter::once(&args.input)
+        .chain(&args.also)
+        .map(|name| crate::live::source::Input {
+            name: name.clone(),
+            follow: args.follow,
+            realtime: args.realtime,
+            stty: args.stty.clone(),
+        })
+        .collect();
     let settings = crate::live::server::PageSettings {
         d4_band_nt: args.d4_band_nt,
         window_records: args.window_records,
     };
-    crate::live::server::serve(input, &args.listen, &settings)?;
+    crate::live::server::serve(inputs, &args.listen, &settings)?;
     Ok(MonitorStats::default())
 }
 
@@ -94,8 +102,8 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
         return run_web(args);
     }
     anyhow::ensure!(
-        !args.realtime && args.stty.is_none(),
-        "--realtime and --stty are for --web (set a port up with `stty` for the text monitor)"
+        !args.realtime && args.stty.is_none() && args.also.is_empty(),
+        "--realtime, --stty and --also are for --web (set a port up with `stty` for the text monitor)"
     );
     anyhow::ensure!(
         args.interval_s.is_finite() && args.interval_s > 0.0,

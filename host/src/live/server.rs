@@ -15,7 +15,7 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 use tokio::sync::broadcast;
 
-/// Messages kept for a page that connects late: two minutes at the board's 10 Hz.
+/// Messages kept per stream for a page that connects late: two minutes at the board's 10 Hz.
 pub const BACKLOG: usize = 1200;
 /// Messages queued per page before a slow one skips ahead (it is told by a gap in `seq`).
 const QUEUE: usize = 4096;
@@ -37,18 +37,35 @@ struct Shared {
     page: String,
     tx: broadcast::Sender<Arc<str>>,
     backlog: Mutex<VecDeque<Arc<str>>>,
+    /// Messages kept: [`BACKLOG`] per stream.
+    backlog_len: usize,
 }
 
-/// The page with its settings filled in.
-pub fn page_html(s: &PageSettings) -> String {
+/// The page with its settings and the streams' names filled in.
+pub fn page_html(s: &PageSettings, names: &[&str]) -> String {
+    // `<` escaped so no name can close the page's script element.
+    let names = serde_json::to_string(names)
+        .unwrap_or_else(|_| "[]".into())
+        .replace('<', "\\u003c");
     PAGE.replace("__D4_BAND_NT__", &format!("{}", s.d4_band_nt))
         .replace("__WINDOW_RECORDS__", &s.window_records.to_string())
+        .replace("__STREAMS__", &names)
 }
 
-/// Serves the live view of `input` on `listen` until the process is stopped. Prints the
-/// address it listens on (`live view: http://…/`) once bound, so a caller that asked for
-/// port 0 learns which port it got.
-pub fn serve(input: Input, listen: &str, settings: &PageSettings) -> Result<()> {
+/// A message and the input (sensor) it came from, as sent to the page.
+#[derive(serde::Serialize)]
+struct Tagged<'a> {
+    stream: usize,
+    #[serde(flatten)]
+    message: &'a Message,
+}
+
+/// Serves the live view of `inputs` (one board output each: several sensors) on `listen`
+/// until the process is stopped. Prints the address it listens on
+/// (`live view: http://…/`) once bound, so a caller that asked for port 0 learns which
+/// port it got.
+pub fn serve(inputs: Vec<Input>, listen: &str, settings: &PageSettings) -> Result<()> {
+    anyhow::ensure!(!inputs.is_empty(), "no input to follow");
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -58,18 +75,25 @@ pub fn serve(input: Input, listen: &str, settings: &PageSettings) -> Result<()> 
             .await
             .with_context(|| format!("listening on {listen}"))?;
         let addr = listener.local_addr()?;
-        println!("live view: http://{addr}/  (following {})", input.name);
+        let names: Vec<&str> = inputs.iter().map(|i| i.name.as_str()).collect();
+        println!(
+            "live view: http://{addr}/  (following {})",
+            names.join(", ")
+        );
         use std::io::Write;
         std::io::stdout().flush()?;
         let (tx, _) = broadcast::channel(QUEUE);
         let shared = Arc::new(Shared {
-            page: page_html(settings),
+            page: page_html(settings, &names),
             tx,
-            backlog: Mutex::new(VecDeque::with_capacity(BACKLOG)),
+            backlog: Mutex::new(VecDeque::with_capacity(BACKLOG * inputs.len())),
+            backlog_len: BACKLOG * inputs.len(),
         });
-        let feeder = shared.clone();
-        // The port is read with blocking calls (a serial device is a file): its own thread.
-        std::thread::spawn(move || follow(&input, |m| publish(&feeder, &m)));
+        for (stream, input) in inputs.into_iter().enumerate() {
+            let feeder = shared.clone();
+            // A port is read with blocking calls (a serial device is a file): its own thread.
+            std::thread::spawn(move || follow(&input, |m| publish(&feeder, stream, &m)));
+        }
         let app = Router::new()
             .route("/", get(index))
             .route("/uPlot.iife.min.js", get(uplot_js))
@@ -80,15 +104,15 @@ pub fn serve(input: Input, listen: &str, settings: &PageSettings) -> Result<()> 
     })
 }
 
-fn publish(shared: &Shared, m: &Message) {
-    let Ok(json) = serde_json::to_string(m) else {
+fn publish(shared: &Shared, stream: usize, message: &Message) {
+    let Ok(json) = serde_json::to_string(&Tagged { stream, message }) else {
         return;
     };
     let json: Arc<str> = json.into();
     // Under the backlog's lock, so a page connecting now gets each message once: in its
     // backlog or from its subscription, never both, never neither.
     let mut b = shared.backlog.lock().unwrap_or_else(|p| p.into_inner());
-    if b.len() == BACKLOG {
+    if b.len() >= shared.backlog_len {
         b.pop_front();
     }
     b.push_back(json.clone());
