@@ -567,3 +567,34 @@ fn several_sensors_are_drawn_with_their_gradient() {
     assert!(page.console_errors.is_empty(), "{:?}", page.console_errors);
     assert!(errors_dom.is_empty(), "{errors_dom}");
 }
+
+#[test]
+fn web_save_writes_what_the_text_monitor_saves() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("records.txt");
+    std::fs::write(&file, stream()).unwrap();
+    let input = file.to_str().unwrap();
+    let (web_csv, text_csv) = (dir.path().join("web.csv"), dir.path().join("text.csv"));
+    let out = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args([
+            "monitor",
+            input,
+            "--quiet",
+            "--save",
+            text_csv.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let want = std::fs::read_to_string(&text_csv).unwrap();
+    let (server, _url) = start_server(&[input, "--save", web_csv.to_str().unwrap()]);
+    let start = Instant::now();
+    let mut got = String::new();
+    while start.elapsed() < Duration::from_secs(10) && got != want {
+        std::thread::sleep(Duration::from_millis(100));
+        got = std::fs::read_to_string(&web_csv).unwrap_or_default();
+    }
+    drop(server);
+    assert_eq!(got.lines().count(), decoded(&stream()).len() + 3);
+    assert_eq!(got, want);
+}

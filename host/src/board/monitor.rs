@@ -505,6 +505,13 @@ pub fn status_text(st: &BoardStatus) -> String {
 /// Header and rows of the saved CSV (a trace-like file: `t` first, `#` metadata).
 pub const SAVE_HEADER: &str = "t,mag,interference,compensated,anomaly,innovation,flags,seq";
 
+/// The saved CSV's three header lines (two comments, the column names).
+pub fn write_save_header(w: &mut dyn Write, source: &str) -> std::io::Result<()> {
+    writeln!(w, "# source: magcomp monitor")?;
+    writeln!(w, "# input: {source}")?;
+    writeln!(w, "{SAVE_HEADER}")
+}
+
 pub fn save_row(r: &Record) -> String {
     format!(
         "{:.6},{},{},{},{},{},{},{}",
@@ -595,9 +602,7 @@ pub fn monitor_stream<R: Read, W: Write>(
 ) -> Result<MonitorStats> {
     let mut m = Monitor::new();
     if let Some(w) = save.as_mut() {
-        writeln!(w, "# source: magcomp monitor")?;
-        writeln!(w, "# input: {source}")?;
-        writeln!(w, "{SAVE_HEADER}")?;
+        write_save_header(w, source)?;
     }
     if let Display::Live(_) = display {
         write!(out, "\x1b[2J")?;

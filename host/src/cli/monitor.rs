@@ -17,7 +17,8 @@ pub struct MonitorArgs {
     pub input: String,
 
     /// Save the decoded records as a trace-like CSV
-    /// (t,mag,interference,compensated,anomaly,innovation,flags,seq).
+    /// (t,mag,interference,compensated,anomaly,innovation,flags,seq); with `--web`, the
+    /// first input's.
     #[arg(short = 'o', long, visible_alias = "out", value_name = "TRACE.csv")]
     pub save: Option<PathBuf>,
 
@@ -69,8 +70,8 @@ pub struct MonitorArgs {
 /// `--web`: serve the live page until stopped.
 fn run_web(args: &MonitorArgs) -> Result<MonitorStats> {
     anyhow::ensure!(
-        args.save.is_none() && !args.quiet,
-        "--web shows the stream in the browser: --save and --quiet are for the text monitor"
+        !args.quiet,
+        "--web shows the stream in the browser: --quiet is for the text monitor"
     );
     anyhow::ensure!(
         args.d4_band_nt.is_finite() && args.d4_band_nt > 0.0,
@@ -93,7 +94,9 @@ fn run_web(args: &MonitorArgs) -> Result<MonitorStats> {
         d4_band_nt: args.d4_band_nt,
         window_records: args.window_records,
     };
-    crate::live::server::serve(inputs, &args.listen, &settings)?;
+    // The first input's records, as the text monitor saves them.
+    let save = open_save(args)?.map(|w| Box::new(w) as Box<dyn Write + Send>);
+    crate::live::server::serve(inputs, save, &args.listen, &settings)?;
     Ok(MonitorStats::default())
 }
 
@@ -117,34 +120,8 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
     } else {
         Display::Summary(args.interval_s)
     };
-    if let Some(p) = &args.save {
-        let input = std::path::Path::new(&args.input);
-        let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
-        crate::io::output::check_outputs(inputs, &[p])?;
-    }
-    let mut save_file = match &args.save {
-        // Appended, as documented: a restarted monitor must not empty the log it adds to.
-        Some(p) => Some(std::io::BufWriter::new(
-            std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(p)
-                .with_context(|| format!("opening {}", p.display()))?,
-        )),
-        None => None,
-    };
-    // A file that has rows already keeps its one header: the new session's three header
-    // lines (two comments and the column names) are not repeated in the middle of it.
-    let has_rows = args
-        .save
-        .as_deref()
-        .and_then(|p| std::fs::metadata(p).ok())
-        .is_some_and(|m| m.is_file() && m.len() > 0);
-    let mut skipping = save_file.as_mut().map(|w| SkipLines {
-        inner: w,
-        skip: if has_rows { 3 } else { 0 },
-    });
-    let save: Option<&mut dyn Write> = skipping.as_mut().map(|w| w as &mut dyn Write);
+    let mut save_file = open_save(args)?;
+    let save: Option<&mut dyn Write> = save_file.as_mut().map(|w| w as &mut dyn Write);
     let mut out = stdout.lock();
     let stats = if args.input == "-" {
         monitor_stream(
@@ -167,13 +144,36 @@ pub fn run(args: &MonitorArgs) -> Result<MonitorStats> {
     Ok(stats)
 }
 
+/// `--save`: the CSV opened for appending, its header skipped when it has rows already.
+fn open_save(args: &MonitorArgs) -> Result<Option<SkipLines<std::io::BufWriter<std::fs::File>>>> {
+    let Some(p) = &args.save else {
+        return Ok(None);
+    };
+    let input = std::path::Path::new(&args.input);
+    let inputs: &[&std::path::Path] = if args.input == "-" { &[] } else { &[input] };
+    crate::io::output::check_outputs(inputs, &[p])?;
+    // A file that has rows already keeps its one header: the new session's three header
+    // lines (two comments and the column names) are not repeated in the middle of it.
+    let has_rows = std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.len() > 0);
+    // Appended, as documented: a restarted monitor must not empty the log it adds to.
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(p)
+        .with_context(|| format!("opening {}", p.display()))?;
+    Ok(Some(SkipLines {
+        inner: std::io::BufWriter::new(file),
+        skip: if has_rows { 3 } else { 0 },
+    }))
+}
+
 /// Passes writes through after dropping the first `skip` lines.
-struct SkipLines<'a, W: Write> {
-    inner: &'a mut W,
+struct SkipLines<W: Write> {
+    inner: W,
     skip: usize,
 }
 
-impl<W: Write> Write for SkipLines<'_, W> {
+impl<W: Write> Write for SkipLines<W> {
     fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
         let mut rest = buf;
         while self.skip > 0 {

@@ -64,7 +64,13 @@ struct Tagged<'a> {
 /// until the process is stopped. Prints the address it listens on
 /// (`live view: http://…/`) once bound, so a caller that asked for port 0 learns which
 /// port it got.
-pub fn serve(inputs: Vec<Input>, listen: &str, settings: &PageSettings) -> Result<()> {
+/// `save` receives the first input's records as `monitor --save` writes them.
+pub fn serve(
+    inputs: Vec<Input>,
+    mut save: Option<Box<dyn std::io::Write + Send>>,
+    listen: &str,
+    settings: &PageSettings,
+) -> Result<()> {
     anyhow::ensure!(!inputs.is_empty(), "no input to follow");
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -92,7 +98,8 @@ pub fn serve(inputs: Vec<Input>, listen: &str, settings: &PageSettings) -> Resul
         for (stream, input) in inputs.into_iter().enumerate() {
             let feeder = shared.clone();
             // A port is read with blocking calls (a serial device is a file): its own thread.
-            std::thread::spawn(move || follow(&input, |m| publish(&feeder, stream, &m)));
+            let save = save.take();
+            std::thread::spawn(move || follow(&input, save, |m| publish(&feeder, stream, &m)));
         }
         let app = Router::new()
             .route("/", get(index))

@@ -6,8 +6,8 @@
 //! can be played at its records' own pace.
 
 use super::feed::{Feed, Message};
-use crate::board::monitor::LineSplitter;
-use std::io::Read;
+use crate::board::monitor::{save_row, write_save_header, LineSplitter};
+use std::io::{Read, Write};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 /// Pause before reopening a port that failed: an unplugged adapter takes a moment to reappear.
@@ -93,6 +93,14 @@ impl Pacer {
     }
 }
 
+/// The page is told (as a link message: it shows in the events) that saving stopped.
+fn save_failed(e: &std::io::Error) -> Message {
+    Message::Link {
+        up: true,
+        text: format!("saving the records failed ({e}); no longer saving"),
+    }
+}
+
 fn unix_ms() -> f64 {
     SystemTime::now()
         .duration_since(UNIX_EPOCH)
@@ -102,8 +110,23 @@ fn unix_ms() -> f64 {
 /// Reads `input` until it ends for good (stdin or a file without `follow` at its end),
 /// sending every record and every change of the link to `send`. Never returns on a port
 /// that fails: it is reopened.
-pub fn follow(input: &Input, mut send: impl FnMut(Message)) {
+/// With `save`, every record is also written as `monitor --save` writes it (header first,
+/// flushed per record so the file is as current as the page); a write failure is reported
+/// on the page and ends the saving, not the view.
+pub fn follow(input: &Input, save: Option<Box<dyn Write + Send>>, mut send: impl FnMut(Message)) {
     let mut feed = Feed::new();
+    let source = if input.name == "-" {
+        "stdin"
+    } else {
+        &input.name
+    };
+    let mut save = save.and_then(|mut w| match write_save_header(&mut w, source) {
+        Ok(()) => Some(w),
+        Err(e) => {
+            send(save_failed(&e));
+            None
+        }
+    });
     let mut lines = LineSplitter::default();
     let mut pacer = Pacer::default();
     let mut buf = [0u8; 4096];
@@ -133,7 +156,9 @@ pub fn follow(input: &Input, mut send: impl FnMut(Message)) {
                 Ok(0) => match &port {
                     Port::File(_, true) if input.follow => std::thread::sleep(FOLLOW_POLL),
                     Port::File(_, true) | Port::Stdin(_) => {
-                        flush_rest(&mut feed, &mut lines, &mut pacer, input, &mut send);
+                        flush_rest(
+                            &mut feed, &mut lines, &mut pacer, input, &mut save, &mut send,
+                        );
                         send(Message::Link {
                             up: false,
                             text: format!("end of {}", input.name),
@@ -145,7 +170,7 @@ pub fn follow(input: &Input, mut send: impl FnMut(Message)) {
                 },
                 Ok(n) => {
                     let _ = lines.push(&buf[..n], |l| {
-                        handle(&mut feed, l, &mut pacer, input, &mut send);
+                        handle(&mut feed, l, &mut pacer, input, &mut save, &mut send);
                         Ok::<(), ()>(())
                     });
                 }
@@ -170,9 +195,16 @@ fn handle(
     line: &[u8],
     pacer: &mut Pacer,
     input: &Input,
+    save: &mut Option<Box<dyn Write + Send>>,
     send: &mut impl FnMut(Message),
 ) {
     if let Some(mut m) = feed.push_line(line, Instant::now(), unix_ms()) {
+        if let (Some(w), Some(r)) = (save.as_mut(), feed.monitor().stats().last.as_ref()) {
+            if let Err(e) = writeln!(w, "{}", save_row(r)).and_then(|()| w.flush()) {
+                send(save_failed(&e));
+                *save = None;
+            }
+        }
         if input.realtime {
             pacer.wait(m.t_s);
             // Stamped when it leaves, so the page's latency excludes the pacing.
@@ -187,10 +219,11 @@ fn flush_rest(
     lines: &mut LineSplitter,
     pacer: &mut Pacer,
     input: &Input,
+    save: &mut Option<Box<dyn Write + Send>>,
     send: &mut impl FnMut(Message),
 ) {
     let _ = lines.finish(|l| {
-        handle(feed, l, pacer, input, send);
+        handle(feed, l, pacer, input, save, send);
         Ok::<(), ()>(())
     });
 }
