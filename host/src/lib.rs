@@ -16,6 +16,7 @@
 //! - `diagnose`: model discovery;
 //! - `stream`: long flights in bounded memory;
 //! - `report`: plots and the HTML report;
+//! - `live`: the live view of the board's stream in the browser (`monitor --web`);
 //! - `cli`: one file per subcommand.
 
 pub mod board;
@@ -25,6 +26,7 @@ pub mod diagnose;
 pub mod estimate;
 pub mod flight;
 pub mod io;
+pub mod live;
 pub mod model;
 pub mod multi;
 pub mod qc;

@@ -207,6 +207,13 @@ fn run_monitor_reads_a_file_and_saves() {
         interval_s: 1.0,
         quiet: true,
         follow: false,
+        web: false,
+        listen: String::new(),
+        realtime: false,
+        stty: None,
+        also: Vec::new(),
+        d4_band_nt: 0.05,
+        window_records: 1200,
     };
     let st = run_monitor(&args).unwrap();
     assert_eq!(st.records, e.records);

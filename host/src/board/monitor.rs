@@ -506,6 +506,13 @@ pub fn status_text(st: &BoardStatus) -> String {
 /// Header and rows of the saved CSV (a trace-like file: `t` first, `#` metadata).
 pub const SAVE_HEADER: &str = "t,mag,interference,compensated,anomaly,innovation,flags,seq";
 
+/// The saved CSV's three header lines (two comments, the column names).
+pub fn write_save_header(w: &mut dyn Write, source: &str) -> std::io::Result<()> {
+    writeln!(w, "# source: magcomp monitor")?;
+    writeln!(w, "# input: {source}")?;
+    writeln!(w, "{SAVE_HEADER}")
+}
+
 pub fn save_row(r: &Record) -> String {
     format!(
         "{:.6},{},{},{},{},{},{},{}",
@@ -518,6 +525,59 @@ pub fn save_row(r: &Record) -> String {
         r.flags.0,
         r.seq
     )
+}
+
+/// Cuts a byte stream into lines for [`Monitor::push_line`], across reads. A line longer
+/// than [`MAX_LINE`] is not kept (a babbling port must not grow memory): it is handed on
+/// as `MAX_LINE + 1` bytes of `?`, which the monitor counts as an other line.
+#[derive(Clone, Debug, Default)]
+pub struct LineSplitter {
+    line: Vec<u8>,
+    overlong: bool,
+}
+
+impl LineSplitter {
+    /// Calls `each` with every line `bytes` completes (without its `\n`).
+    pub fn push<E>(
+        &mut self,
+        bytes: &[u8],
+        mut each: impl FnMut(&[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        for &b in bytes {
+            if b == b'\n' {
+                self.emit(&mut each)?;
+            } else if self.line.len() > MAX_LINE {
+                self.overlong = true;
+            } else {
+                self.line.push(b);
+            }
+        }
+        Ok(())
+    }
+
+    /// Hands on the unterminated rest at the end of the stream, if any.
+    pub fn finish<E>(&mut self, mut each: impl FnMut(&[u8]) -> Result<(), E>) -> Result<(), E> {
+        if self.overlong || !self.line.is_empty() {
+            self.emit(&mut each)?;
+        }
+        Ok(())
+    }
+
+    /// Drops a partial line: the bytes after a reconnection do not continue it.
+    pub fn clear(&mut self) {
+        self.line.clear();
+        self.overlong = false;
+    }
+
+    fn emit<E>(&mut self, each: &mut impl FnMut(&[u8]) -> Result<(), E>) -> Result<(), E> {
+        let r = if self.overlong {
+            each(&[b'?'; MAX_LINE + 1])
+        } else {
+            each(&self.line)
+        };
+        self.clear();
+        r
+    }
 }
 
 /// How the stream is shown.
@@ -543,16 +603,13 @@ pub fn monitor_stream<R: Read, W: Write>(
 ) -> Result<MonitorStats> {
     let mut m = Monitor::new();
     if let Some(w) = save.as_mut() {
-        writeln!(w, "# source: magcomp monitor")?;
-        writeln!(w, "# input: {source}")?;
-        writeln!(w, "{SAVE_HEADER}")?;
+        write_save_header(w, source)?;
     }
     if let Display::Live(_) = display {
         write!(out, "\x1b[2J")?;
     }
     let mut buf = [0u8; 4096];
-    let mut line: Vec<u8> = Vec::with_capacity(256);
-    let mut overlong = false;
+    let mut lines = LineSplitter::default();
     let mut last_draw = Instant::now();
     let mut next_summary_t: Option<f64> = None;
     let mut handle =
@@ -587,21 +644,7 @@ pub fn monitor_stream<R: Read, W: Write>(
             Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
             Err(e) => return Err(e).context(format!("reading {source}")),
         };
-        for &b in &buf[..n] {
-            if b == b'\n' {
-                if overlong {
-                    m.push_line(&[b'?'; MAX_LINE + 1]);
-                } else {
-                    handle(&mut m, &line, out, &mut save)?;
-                }
-                line.clear();
-                overlong = false;
-            } else if line.len() > MAX_LINE {
-                overlong = true;
-            } else {
-                line.push(b);
-            }
-        }
+        lines.push(&buf[..n], |l| handle(&mut m, l, out, &mut save))?;
         if let Display::Live(period) = display {
             if last_draw.elapsed() >= period {
                 draw(out, &m, source)?;
@@ -609,11 +652,7 @@ pub fn monitor_stream<R: Read, W: Write>(
             }
         }
     }
-    if overlong {
-        m.push_line(&[b'?'; MAX_LINE + 1]);
-    } else if !line.is_empty() {
-        handle(&mut m, &line, out, &mut save)?;
-    }
+    lines.finish(|l| handle(&mut m, l, out, &mut save))?;
     match display {
         Display::Live(_) => draw(out, &m, source)?,
         _ => writeln!(out, "end of stream: {}", m.summary_line())?,

@@ -21,7 +21,9 @@ pub fn chromium_logged(args: &[String], profile: &Path) -> Option<Output> {
     run_chromium(args, profile, true)
 }
 
-fn run_chromium(args: &[String], profile: &Path, log: bool) -> Option<Output> {
+/// Headless Chromium with this machine's flags (as [`chromium`]) and a fresh profile, not
+/// started: for a test that drives it itself (e.g. over `--remote-debugging-port`).
+pub fn chromium_command(profile: &Path) -> Command {
     let mut cmd = Command::new(CHROMIUM);
     cmd.args([
         "--headless",
@@ -35,6 +37,11 @@ fn run_chromium(args: &[String], profile: &Path, log: bool) -> Option<Output> {
         "--hide-scrollbars",
     ]);
     cmd.arg(format!("--user-data-dir={}", profile.display()));
+    cmd
+}
+
+fn run_chromium(args: &[String], profile: &Path, log: bool) -> Option<Output> {
+    let mut cmd = chromium_command(profile);
     if log {
         cmd.args(["--enable-logging=stderr", "--v=0"]);
     }

@@ -1,0 +1,352 @@
+//! The board's lines turned into the live page's messages: the monitor's own decoder
+//! ([`Monitor`]) classifies every line and counts gaps and restarts; this adds what the page
+//! draws on top of it (the 4th difference, a monotonic chart time, alarms and events).
+
+use crate::board::monitor::{flag_words, Monitor, MAX_GAPS};
+use crate::board::replay::nt_text;
+use magcomp_core::protocol::record::Record;
+use magcomp_core::{Flags, MagCounts};
+use serde::Serialize;
+use std::time::{Duration, Instant};
+
+/// How long an alarm raised by a single record (lost records, a restart, a rejected
+/// innovation, garbage) stays on the banner: long enough for an operator glancing over.
+pub const ALARM_HOLD: Duration = Duration::from_secs(5);
+
+/// Default acceptance band of the 4th difference (± nT), the usual survey noise spec.
+pub const D4_BAND_NT: f64 = 0.05;
+
+/// One message to the page (JSON, tagged by `kind`).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Message {
+    Record(Box<RecordMsg>),
+    /// The input was lost or came back (`up`), with why.
+    Link {
+        up: bool,
+        text: String,
+    },
+}
+
+/// A record as the page plots it. Field values are the line's own digits (4 decimals), so
+/// the page's numbers compare exactly with the stream's; missing or non-finite → `null`.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct RecordMsg {
+    pub seq: u32,
+    pub t_s: f64,
+    /// Chart time (s): the record time, continued across a board restart (whose clock
+    /// starts again) so the strips keep running left to right.
+    pub x_s: f64,
+    pub raw_nt: Option<f64>,
+    pub comp_nt: Option<f64>,
+    pub interf_nt: Option<f64>,
+    pub anom_nt: Option<f64>,
+    pub innov_nt: Option<f64>,
+    pub flags: u16,
+    pub flag_words: String,
+    /// 4th difference of the compensated field centred on record `d4_seq` (two records
+    /// back), once five consecutive records are in: exact from the integer counts.
+    pub d4_seq: Option<u32>,
+    pub d4_nt: Option<f64>,
+    /// Alarms on now (banner), and events that happened with this record (log).
+    pub alarms: Vec<String>,
+    pub events: Vec<String>,
+    pub counts: Counts,
+    /// When the server sent it (Unix ms): the page's alarm latency is measured from it.
+    pub sent_unix_ms: f64,
+}
+
+/// The monitor's counters, as the page's status line shows them.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct Counts {
+    pub records: u64,
+    pub crc_errors: u64,
+    pub malformed: u64,
+    pub other_lines: u64,
+    pub missing: u64,
+    pub restarts: u64,
+    pub boots: u64,
+    pub rate_hz: Option<f64>,
+    pub board: Option<String>,
+}
+
+/// `d4 = (x[i-2] − 4x[i-1] + 6x[i] − 4x[i+1] + x[i+2]) / 16`, in counts then nT. The /16
+/// makes white noise of σ come out with σ·√(70)/16 ≈ 0.52 σ and a step of h with at most
+/// 6h/16: the normalisation the RMS and Pico test displays use.
+pub fn fourth_difference_nt(x: &[MagCounts; 5]) -> f64 {
+    let c = x[0].0 - 4 * x[1].0 + 6 * x[2].0 - 4 * x[3].0 + x[4].0;
+    c as f64 / 16.0 / magcomp_core::units::COUNTS_PER_NT as f64
+}
+
+/// What the page needs beyond the monitor's counters.
+#[derive(Debug, Default)]
+pub struct Feed {
+    monitor: Monitor,
+    /// The last records' `(seq, compensated)`, newest last, consecutive only.
+    ring: Vec<(u32, MagCounts)>,
+    x_offset_s: f64,
+    last_x_s: Option<f64>,
+    seen: SeenCounts,
+    not_converged: Option<bool>,
+    lost_until: Option<(Instant, String)>,
+    restart_until: Option<Instant>,
+    rejected_until: Option<Instant>,
+    garbage_until: Option<Instant>,
+}
+
+/// Counter values at the previous record, to tell what changed since.
+#[derive(Debug, Default, Clone, Copy)]
+struct SeenCounts {
+    missing: u64,
+    restarts: u64,
+    boots: u64,
+    garbage: u64,
+}
+
+impl Feed {
+    pub fn new() -> Self {
+        Self::default()
+    }
+    pub fn monitor(&self) -> &Monitor {
+        &self.monitor
+    }
+
+    /// One line of the board's output; the page's message if it was a record.
+    pub fn push_line(&mut self, line: &[u8], now: Instant, unix_ms: f64) -> Option<RecordMsg> {
+        let r = self.monitor.push_line(line)?;
+        Some(self.record(&r, now, unix_ms))
+    }
+
+    fn record(&mut self, r: &Record, now: Instant, unix_ms: f64) -> RecordMsg {
+        // The counters, not the whole stats (their gap list runs to 1000 entries), per record.
+        let counts = self.counts();
+        let garbage = counts.crc_errors + counts.malformed + counts.other_lines;
+        let restarted =
+            counts.restarts > self.seen.restarts || counts.boots > self.seen.boots.max(1);
+        let lost = counts.missing - self.seen.missing;
+        let mut events = Vec::new();
+        if restarted {
+            events.push(format!("board restart (sequence now {})", r.seq));
+            self.restart_until = Some(now + ALARM_HOLD);
+            self.ring.clear();
+        }
+        if lost > 0 {
+            let gaps = &self.monitor.stats().gaps;
+            // Past MAX_GAPS the list stops growing: its last entry is not this gap.
+            let gap = match gaps.last() {
+                Some((a, b)) if gaps.len() < MAX_GAPS => format!(" (seq {a}–{b})"),
+                _ => String::new(),
+            };
+            events.push(format!("lost {lost} records{gap}"));
+            self.lost_until = Some((now + ALARM_HOLD, format!("LOST {lost} records{gap}")));
+            self.ring.clear();
+        }
+        if garbage > self.seen.garbage {
+            let n = garbage - self.seen.garbage;
+            events.push(format!("{n} undecodable line(s)"));
+            self.garbage_until = Some(now + ALARM_HOLD);
+        }
+        let rejected = r.flags.0 & (Flags::INNOVATION_REJECTED | Flags::TIE_REJECTED);
+        if rejected != 0 {
+            self.rejected_until = Some(now + ALARM_HOLD);
+        }
+        let nc = r.flags.contains(Flags::NOT_CONVERGED);
+        if self.not_converged.is_some_and(|was| was != nc) {
+            events.push(if nc { "not converged" } else { "converged" }.to_string());
+        }
+        self.not_converged = Some(nc);
+        self.seen = SeenCounts {
+            missing: counts.missing,
+            restarts: counts.restarts,
+            boots: counts.boots.max(self.seen.boots),
+            garbage,
+        };
+        let (d4_seq, d4_nt) = self.fourth_difference(r);
+        let x_s = self.chart_time(r.t_s);
+        RecordMsg {
+            seq: r.seq,
+            t_s: r.t_s,
+            x_s,
+            raw_nt: r.mag.map(MagCounts::to_nt_f64),
+            comp_nt: r.compensated.map(MagCounts::to_nt_f64),
+            interf_nt: as_sent(r.interference_nt),
+            anom_nt: as_sent(r.anomaly_nt),
+            innov_nt: as_sent(r.innovation_nt),
+            flags: r.flags.0,
+            flag_words: flag_words(r.flags),
+            d4_seq,
+            d4_nt,
+            alarms: self.alarms(r.flags, now),
+            events,
+            counts,
+            sent_unix_ms: unix_ms,
+        }
+    }
+
+    fn counts(&self) -> Counts {
+        let st = self.monitor.stats();
+        Counts {
+            records: st.records,
+            crc_errors: st.crc_errors,
+            malformed: st.parse_errors,
+            other_lines: st.other_lines,
+            missing: st.missing,
+            restarts: st.restarts,
+            boots: st.boots,
+            rate_hz: self.monitor.rate_hz(),
+            board: st.boot.as_ref().map(|b| {
+                let cause = b.reset_cause.as_deref().unwrap_or("?");
+                format!("{} {} (last reset {cause})", b.board, b.version)
+            }),
+        }
+    }
+
+    /// The 4th difference centred two records back, over five consecutive records.
+    fn fourth_difference(&mut self, r: &Record) -> (Option<u32>, Option<f64>) {
+        let consecutive = self
+            .ring
+            .last()
+            .is_some_and(|&(s, _)| s.wrapping_add(1) == r.seq);
+        match r.compensated {
+            Some(c) => {
+                if !consecutive {
+                    self.ring.clear();
+                }
+                self.ring.push((r.seq, c));
+                if self.ring.len() > 5 {
+                    self.ring.remove(0);
+                }
+            }
+            // A missing value breaks the run as a lost record does.
+            None => self.ring.clear(),
+        }
+        match self.ring.as_slice() {
+            [a, b, c, d, e] => (
+                Some(c.0),
+                Some(fourth_difference_nt(&[a.1, b.1, c.1, d.1, e.1])),
+            ),
+            _ => (None, None),
+        }
+    }
+
+    /// Record time, shifted after a backward jump so the chart time keeps increasing.
+    fn chart_time(&mut self, t_s: f64) -> f64 {
+        if !t_s.is_finite() {
+            return self.last_x_s.unwrap_or(0.0);
+        }
+        if let Some(last_x) = self.last_x_s {
+            if t_s + self.x_offset_s <= last_x {
+                // Restart: continue one record period (the last measured, else 0.1 s) on.
+                let dt = self.monitor.rate_hz().map_or(0.1, |h| 1.0 / h.max(1e-3));
+                self.x_offset_s = last_x + dt.min(1.0) - t_s;
+            }
+        }
+        let x = t_s + self.x_offset_s;
+        self.last_x_s = Some(x);
+        x
+    }
+
+    fn alarms(&mut self, flags: Flags, now: Instant) -> Vec<String> {
+        let mut a = Vec::new();
+        if flags.contains(Flags::NOT_CONVERGED) {
+            a.push("NOT CONVERGED".to_string());
+        }
+        if flags.degraded() {
+            let bits = Flags(flags.0 & DEGRADED_BITS);
+            a.push(format!("DEGRADED {}", flag_words(bits)));
+        }
+        let on = |until: Option<Instant>| until.is_some_and(|u| now < u);
+        if on(self.rejected_until) {
+            a.push("REJECTED innovations".to_string());
+        }
+        if let Some((until, text)) = &self.lost_until {
+            if now < *until {
+                a.push(text.clone());
+            }
+        }
+        if on(self.restart_until) {
+            a.push("BOARD RESTART".to_string());
+        }
+        if on(self.garbage_until) {
+            a.push("GARBAGE lines".to_string());
+        }
+        a
+    }
+}
+
+/// The flags `Flags::degraded` looks at (shown by name on the banner).
+const DEGRADED_BITS: u16 = Flags::FLUX_STALE
+    | Flags::NO_GPS
+    | Flags::MAG_MISSING
+    | Flags::AUX_MISSING
+    | Flags::DERIVATIVE_DEGRADED;
+
+/// The value as the record line carried it (4 decimals), or `None` when empty.
+fn as_sent(v: f32) -> Option<f64> {
+    nt_text(v).parse().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
+
+    fn line(seq: u32, comp: i64, flags: u16) -> Vec<u8> {
+        let r = Record {
+            seq,
+            t_s: 100.0 + f64::from(seq) * 0.1,
+            mag: Some(MagCounts(comp + 123_456)),
+            interference_nt: 12.3456,
+            compensated: Some(MagCounts(comp)),
+            anomaly_nt: f32::NAN,
+            innovation_nt: 0.0,
+            flags: Flags(flags),
+        };
+        let mut b = [0u8; MAX_RECORD_LEN];
+        let n = encode_record(&r, &mut b).unwrap();
+        b[..n].to_vec()
+    }
+
+    #[test]
+    fn fourth_difference_is_exact_and_restarts_after_a_gap() {
+        // A single count spike at seq 4: d4 centred on it is 6/16 count.
+        let now = Instant::now();
+        let mut f = Feed::new();
+        let comp = |s: u32| 500_000_000 + if s == 4 { 1 } else { 0 };
+        let mut out = Vec::new();
+        for s in (0..8).chain(10..16) {
+            out.push(f.push_line(&line(s, comp(s), 0), now, 0.0).unwrap());
+        }
+        let d4: Vec<(Option<u32>, Option<f64>)> = out.iter().map(|m| (m.d4_seq, m.d4_nt)).collect();
+        assert_eq!(d4[3], (None, None));
+        assert_eq!(d4[6], (Some(4), Some(6.0 / 16.0 / 1e4)));
+        // After the gap (8, 9 lost) four records pass before the first d4.
+        assert_eq!(d4[8..12].iter().filter(|d| d.0.is_some()).count(), 0);
+        assert_eq!(d4[12].0, Some(12));
+        assert!(out[8]
+            .alarms
+            .iter()
+            .any(|a| a.starts_with("LOST 2 records")));
+        assert_eq!(out[8].interf_nt, Some(12.3456));
+        assert_eq!(out[8].anom_nt, None);
+    }
+
+    #[test]
+    fn alarms_restart_and_chart_time() {
+        let now = Instant::now();
+        let mut f = Feed::new();
+        let nc = Flags::NOT_CONVERGED | Flags::FLUX_STALE;
+        let m0 = f.push_line(&line(0, 1, nc), now, 0.0).unwrap();
+        assert_eq!(m0.alarms, ["NOT CONVERGED", "DEGRADED FLUX_STALE"]);
+        let m1 = f.push_line(&line(1, 1, 0), now, 0.0).unwrap();
+        assert!(m1.alarms.is_empty());
+        assert_eq!(m1.events, ["converged"]);
+        assert!(f.push_line(b"garbage\xff", now, 0.0).is_none());
+        let m2 = f.push_line(&line(0, 1, 0), now, 0.0).unwrap();
+        assert!(m2.alarms.contains(&"BOARD RESTART".to_string()));
+        assert!(m2.alarms.contains(&"GARBAGE lines".to_string()));
+        assert!(m2.x_s > m1.x_s, "{} {}", m2.x_s, m1.x_s);
+        let later = f.push_line(&line(1, 1, 0), now + ALARM_HOLD, 0.0).unwrap();
+        assert!(later.alarms.is_empty(), "{:?}", later.alarms);
+    }
+}

@@ -1,0 +1,600 @@
+//! `magcomp monitor --web`: the live chart-recorder page, in headless Chromium (skipped with
+//! a message when it is not installed) and at the websocket.
+//!
+//! The browser test plays a recorded 10 Hz stream at its own pace (`--realtime`): a boot
+//! banner, a calibration converging, garbage lines and a record with a broken CRC, three
+//! lost records, a degraded record, a board reset (banner, sequence and clock start again).
+//! Chromium is driven over its DevTools protocol and the page's hidden `#plotted` element
+//! (what its charts hold, read back from uPlot) is polled in real time. Checked: the
+//! plotted values equal the stream's (the 4th difference against this file's own), live
+//! updates arrive at 10 Hz, the browser reports no console error or exception, each alarm
+//! is on the banner within 1 s of being sent, and the page follows the stream through the
+//! garbage and the reset to its last record.
+//!
+//! The socket test pulls the "cable" (a TCP source closes mid-stream) and checks the server
+//! says so, reconnects, and goes on with the records.
+
+use magcomp_core::protocol::common::crc16_ccitt;
+use magcomp_core::protocol::record::{decode_record, encode_record, Record, MAX_RECORD_LEN};
+use magcomp_core::{Flags, MagCounts};
+use serde_json::{json, Value};
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+mod common;
+use common::{chromium_command, CHROMIUM};
+
+fn sentence(body: &str) -> String {
+    format!("${body}*{:04X}\r\n", crc16_ccitt(body.as_bytes()))
+}
+
+fn record_line(r: &Record) -> String {
+    let mut b = [0u8; MAX_RECORD_LEN];
+    let n = encode_record(r, &mut b).unwrap();
+    String::from_utf8(b[..n].to_vec()).unwrap()
+}
+
+/// A record of a smooth field with a few counts of deterministic noise.
+fn rec(seq: u32, t_s: f64, flags: u16) -> Record {
+    let k = f64::from(seq);
+    let noise = ((seq.wrapping_mul(2_654_435_761) >> 20) % 601) as i64 - 300; // ±0.03 nT
+    let mag = MagCounts(515_000_000 + (20_000.0 * (0.05 * k).sin()) as i64 + noise);
+    let interf = (12.5 + 3.0 * (0.3 * k).sin()) as f32;
+    Record {
+        seq,
+        t_s,
+        mag: Some(mag),
+        interference_nt: interf,
+        compensated: Record::compensate(Some(mag), interf),
+        anomaly_nt: 0.5,
+        innovation_nt: 0.01,
+        flags: Flags(flags),
+    }
+}
+
+/// Seq of the injected events in the first boot.
+const LOST: std::ops::Range<u32> = 30..33;
+const DEGRADED_AT: u32 = 40;
+const CONVERGED_AT: u32 = 15;
+const FIRST_BOOT: u32 = 55;
+const SECOND_BOOT: u32 = 40;
+
+/// The scripted stream: 10 Hz, ~9 s.
+fn stream() -> String {
+    let mut s = sentence("MCBOOT,emu-f405,0.1.0,RST=POR");
+    for seq in 0..FIRST_BOOT {
+        if LOST.contains(&seq) {
+            continue;
+        }
+        let mut flags = 0;
+        if seq < CONVERGED_AT {
+            flags |= Flags::NOT_CONVERGED;
+        }
+        if seq == DEGRADED_AT {
+            flags |= Flags::FLUX_STALE;
+        }
+        let line = record_line(&rec(seq, 1000.0 + f64::from(seq) * 0.1, flags));
+        if seq == 20 {
+            // A garbage line and a copy of the record with one digit changed (CRC fails).
+            s.push_str("\u{1}\u{7f}noise ~~~ $MC\r\n");
+            s.push_str(&line.replacen(",20,", ",21,", 1));
+        }
+        s.push_str(&line);
+    }
+    // The board resets: banner, then its sequence and clock start again.
+    s.push_str(&sentence("MCBOOT,emu-f405,0.1.0,RST=PIN"));
+    for seq in 0..SECOND_BOOT {
+        s.push_str(&record_line(&rec(seq, 5.0 + f64::from(seq) * 0.1, 0)));
+    }
+    s
+}
+
+/// The stream's records as the core decodes them, in order.
+fn decoded(stream: &str) -> Vec<Record> {
+    stream
+        .lines()
+        .filter_map(|l| decode_record(l.as_bytes()).ok())
+        .collect()
+}
+
+/// This file's own 4th difference (1/16-normalised) per record, centred, over runs of
+/// consecutive sequence numbers.
+fn expected_d4(recs: &[Record]) -> Vec<Option<f64>> {
+    let mut d4 = vec![None; recs.len()];
+    for i in 2..recs.len().saturating_sub(2) {
+        let w = &recs[i - 2..=i + 2];
+        if w.windows(2).all(|p| p[1].seq == p[0].seq + 1) {
+            let x: Vec<i64> = w.iter().map(|r| r.compensated.unwrap().0).collect();
+            let c = x[0] - 4 * x[1] + 6 * x[2] - 4 * x[3] + x[4];
+            d4[i] = Some(c as f64 / 16.0 / 1e4);
+        }
+    }
+    d4
+}
+
+/// Starts `magcomp monitor --web` on a free port; returns it and the page's address.
+fn start_server(args: &[&str]) -> (Killed, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args(["monitor", "--web", "--listen", "127.0.0.1:0"])
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start magcomp monitor --web");
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    out.read_line(&mut first).unwrap();
+    let url = first
+        .split_whitespace()
+        .find(|w| w.starts_with("http://"))
+        .unwrap_or_else(|| panic!("no address in {first:?}"))
+        .to_string();
+    (Killed(child), url)
+}
+
+/// `None` while the browser's DevTools server is not answering yet. HTTP/1.1 with the body
+/// read to its `Content-Length`: that server does not answer HTTP/1.0 and keeps the
+/// connection open.
+fn http_get(host_port: &str, path: &str) -> Option<String> {
+    let mut s = TcpStream::connect(host_port).ok()?;
+    s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
+    write!(s, "GET {path} HTTP/1.1\r\nHost: {host_port}\r\n\r\n").ok()?;
+    let mut r = BufReader::new(s);
+    let mut len = 0;
+    loop {
+        let mut h = String::new();
+        r.read_line(&mut h).ok()?;
+        let h = h.trim_end();
+        if h.is_empty() {
+            break;
+        }
+        if let Some((k, v)) = h.split_once(':') {
+            if k.eq_ignore_ascii_case("content-length") {
+                len = v.trim().parse().ok()?;
+            }
+        }
+    }
+    let mut body = vec![0u8; len];
+    r.read_exact(&mut body).ok()?;
+    String::from_utf8(body).ok()
+}
+
+/// A child process killed when the test ends, passed or not (a failing assertion must not
+/// leave a server or a browser running).
+struct Killed(Child);
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+type Ws = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>;
+
+fn ws_connect(url: &str) -> Ws {
+    let (ws, _) = tungstenite::connect(url).unwrap();
+    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
+        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    }
+    ws
+}
+
+/// The page in Chromium, driven over the DevTools protocol.
+struct Page {
+    ws: Ws,
+    next_id: u64,
+    /// Console errors and uncaught exceptions the browser reported.
+    console_errors: Vec<String>,
+}
+
+impl Page {
+    fn open(url: &str, profile: &Path) -> (Killed, Page) {
+        let chrome = chromium_command(profile)
+            .args(["--remote-debugging-port=0", "--window-size=1200,1400", url])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start chromium");
+        let chrome = Killed(chrome);
+        let port_file = profile.join("DevToolsActivePort");
+        let start = Instant::now();
+        let port = loop {
+            if let Some(p) = std::fs::read_to_string(&port_file)
+                .ok()
+                .and_then(|t| t.lines().next().map(String::from))
+                .filter(|p| !p.is_empty())
+            {
+                break p;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(20),
+                "no DevTools port"
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        let target = loop {
+            let list: Value = http_get(&format!("127.0.0.1:{port}"), "/json/list")
+                .and_then(|b| serde_json::from_str(&b).ok())
+                .unwrap_or(Value::Null);
+            let page = list.as_array().and_then(|a| {
+                a.iter()
+                    .find(|t| t["type"] == "page" && t["url"].as_str() == Some(url))
+                    .and_then(|t| t["webSocketDebuggerUrl"].as_str().map(String::from))
+            });
+            if let Some(p) = page {
+                break p;
+            }
+            assert!(start.elapsed() < Duration::from_secs(20), "no page target");
+            std::thread::sleep(Duration::from_millis(50));
+        };
+        let mut page = Page {
+            ws: ws_connect(&target),
+            next_id: 1,
+            console_errors: Vec::new(),
+        };
+        page.call("Runtime.enable", json!({}));
+        (chrome, page)
+    }
+
+    /// Sends a command and returns its result, noting console events met on the way.
+    fn call(&mut self, method: &str, params: Value) -> Value {
+        let id = self.next_id;
+        self.next_id += 1;
+        let msg = json!({"id": id, "method": method, "params": params}).to_string();
+        self.ws.send(tungstenite::Message::text(msg)).unwrap();
+        loop {
+            let m = self.ws.read().unwrap();
+            let Ok(text) = m.to_text() else { continue };
+            let v: Value = serde_json::from_str(text).unwrap();
+            match v["method"].as_str() {
+                Some("Runtime.consoleAPICalled") if v["params"]["type"] == "error" => {
+                    self.console_errors.push(v["params"]["args"].to_string())
+                }
+                Some("Runtime.exceptionThrown") => self
+                    .console_errors
+                    .push(v["params"]["exceptionDetails"].to_string()),
+                _ => {}
+            }
+            if v["id"] == id {
+                return v["result"].clone();
+            }
+        }
+    }
+
+    /// The page's `#plotted` element, parsed (`Null` before the first draw).
+    fn plotted(&mut self) -> Value {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({"expression": "document.getElementById('plotted').textContent",
+                   "returnByValue": true}),
+        );
+        serde_json::from_str(r["result"]["value"].as_str().unwrap_or("")).unwrap_or(Value::Null)
+    }
+
+    fn text_of(&mut self, id: &str) -> String {
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({"expression": format!("document.getElementById('{id}').textContent"),
+                   "returnByValue": true}),
+        );
+        r["result"]["value"].as_str().unwrap_or("").to_string()
+    }
+}
+
+fn numbers(v: &Value) -> Vec<Option<f64>> {
+    v.as_array()
+        .map(|a| a.iter().map(Value::as_f64).collect())
+        .unwrap_or_default()
+}
+
+#[test]
+fn page_plots_the_stream_live_through_garbage_and_a_reset() {
+    if !Path::new(CHROMIUM).exists() {
+        println!("SKIP: {CHROMIUM} not installed (apt-get install chromium)");
+        return;
+    }
+    let t0 = Instant::now();
+    let dir = tempfile::tempdir().unwrap();
+    let text = stream();
+    let file = dir.path().join("records.txt");
+    std::fs::write(&file, &text).unwrap();
+    let (server, url) = start_server(&["--realtime", file.to_str().unwrap()]);
+    let (chrome, mut page) = Page::open(&url, &dir.path().join("profile"));
+
+    // Poll in real time until the last record of the second boot is on the page.
+    let recs = decoded(&text);
+    let last_seq = recs.last().unwrap().seq;
+    let mut p = Value::Null;
+    while t0.elapsed() < Duration::from_secs(25) {
+        p = page.plotted();
+        let seqs = numbers(&p["seq"]);
+        if seqs.len() == recs.len() && seqs.last() == Some(&Some(f64::from(last_seq))) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let errors_dom = page.text_of("errors");
+    let status = page.text_of("status");
+    drop(chrome);
+    drop(server);
+
+    // Plotted values equal the stream's: every decoded record, in order, exactly.
+    let seqs = numbers(&p["seq"]);
+    assert_eq!(seqs.len(), recs.len(), "page holds {seqs:?}");
+    let nt = |c: Option<MagCounts>| c.map(MagCounts::to_nt_f64);
+    let as_sent = |v: f32| format!("{v:.4}").parse::<f64>().ok();
+    let (raw, comp, interf) = (
+        numbers(&p["raw"]),
+        numbers(&p["comp"]),
+        numbers(&p["interf"]),
+    );
+    for (i, r) in recs.iter().enumerate() {
+        assert_eq!(seqs[i], Some(f64::from(r.seq)), "seq at {i}");
+        assert_eq!(raw[i], nt(r.mag), "raw at seq {}", r.seq);
+        assert_eq!(comp[i], nt(r.compensated), "compensated at seq {}", r.seq);
+        assert_eq!(
+            interf[i],
+            as_sent(r.interference_nt),
+            "interference at {}",
+            r.seq
+        );
+    }
+    let d4 = numbers(&p["d4"]);
+    let want = expected_d4(&recs);
+    assert_eq!(d4.len(), want.len());
+    for (i, (got, want)) in d4.iter().zip(&want).enumerate() {
+        match (got, want) {
+            (Some(g), Some(w)) => assert!((g - w).abs() < 1e-12, "d4 at {i}: {g} vs {w}"),
+            _ => assert_eq!(got, want, "d4 at {i} (seq {})", recs[i].seq),
+        }
+    }
+    assert!(
+        want.iter().flatten().count() >= 80,
+        "{}",
+        want.iter().flatten().count()
+    );
+    // The chart time keeps increasing across the reset.
+    let x = numbers(&p["x"]);
+    assert!(x.windows(2).all(|w| w[1] > w[0]), "{x:?}");
+
+    // Live updates at the stream's rate (10 Hz): every record after the page connected.
+    let recv: Vec<f64> = numbers(&p["recv_unix_ms"]).into_iter().flatten().collect();
+    let live = p["live_updates"].as_u64().unwrap();
+    let backlog = p["backlog_records"].as_u64().unwrap();
+    assert_eq!(
+        live + backlog,
+        recs.len() as u64,
+        "{live} live + {backlog} backlog"
+    );
+    assert!(live >= 50, "only {live} live updates");
+    let span_s = (recv[recv.len() - 1] - recv[0]) / 1e3;
+    let rate_hz = (recv.len() - 1) as f64 / span_s;
+    println!("live updates {live} (backlog {backlog}) at {rate_hz:.2} Hz");
+    assert!((rate_hz - 10.0).abs() < 1.0, "update rate {rate_hz:.2} Hz");
+
+    // No console error or exception, from the browser's side and the page's own record.
+    assert!(page.console_errors.is_empty(), "{:?}", page.console_errors);
+    assert!(errors_dom.is_empty(), "{errors_dom}");
+
+    // Each alarm reached the banner within 1 s of being sent (those sent while connected).
+    let log = p["alarm_log"].as_array().unwrap();
+    let first_live_ms = recv[0];
+    let mut seen = Vec::new();
+    for a in log {
+        let (sent, shown) = (
+            a["sent_unix_ms"].as_f64().unwrap(),
+            a["shown_unix_ms"].as_f64().unwrap(),
+        );
+        if sent >= first_live_ms {
+            let name = a["alarm"].as_str().unwrap().to_string();
+            println!(
+                "alarm {name} at seq {} after {:.0} ms",
+                a["seq"],
+                shown - sent
+            );
+            assert!(shown - sent < 1000.0, "{a}");
+            seen.push(name);
+        }
+    }
+    for name in ["LOST", "DEGRADED", "BOARD", "GARBAGE"] {
+        // The garbage comes at 2 s: before the page may have connected.
+        if name == "GARBAGE" && backlog > 20 {
+            continue;
+        }
+        assert!(
+            seen.iter().any(|s| s == name),
+            "{name} not seen live: {log:?}"
+        );
+    }
+    assert!(status.contains("restarts 1"), "{status}");
+    assert!(status.contains("lost 3"), "{status}");
+    println!("browser test took {:.1} s", t0.elapsed().as_secs_f64());
+}
+
+/// Reads websocket messages until `stop` says so (or 10 s pass).
+fn read_until(ws: &mut Ws, mut stop: impl FnMut(&Value) -> bool) -> Vec<Value> {
+    let start = Instant::now();
+    let mut got = Vec::new();
+    while start.elapsed() < Duration::from_secs(10) {
+        let m = ws.read().unwrap();
+        let Ok(t) = m.to_text() else { continue };
+        let v: Value = serde_json::from_str(t).unwrap();
+        // A backlog (what was sent before this client subscribed) is its messages.
+        let batch = match v["messages"].as_array() {
+            Some(b) if v["kind"] == "backlog" => b.clone(),
+            _ => vec![v],
+        };
+        for v in batch {
+            let done = stop(&v);
+            got.push(v);
+            if done {
+                return got;
+            }
+        }
+    }
+    got
+}
+
+#[test]
+fn a_pulled_cable_is_reported_and_the_port_reopened() {
+    let board = TcpListener::bind("127.0.0.1:0").unwrap();
+    let port = board.local_addr().unwrap().port();
+    let source = format!("tcp:127.0.0.1:{port}");
+    let (server, url) = start_server(&[&source]);
+    let ws_url = format!("{}ws", url.replace("http://", "ws://"));
+    let mut ws = ws_connect(&ws_url);
+
+    let send = |conn: &mut TcpStream, seqs: std::ops::Range<u32>| {
+        for s in seqs {
+            conn.write_all(record_line(&rec(s, f64::from(s) * 0.1, 0)).as_bytes())
+                .unwrap();
+        }
+        // Half a record, then the cable goes: it must not glue onto the next line.
+        conn.write_all(b"$MCREC,99,12.3").unwrap();
+        conn.flush().unwrap();
+    };
+    let (mut c1, _) = board.accept().unwrap();
+    send(&mut c1, 0..10);
+    let first = read_until(&mut ws, |v| v["kind"] == "record" && v["seq"] == 9);
+    drop(c1);
+    let lost = read_until(&mut ws, |v| v["kind"] == "link" && v["up"] == false);
+    assert!(
+        lost.last().unwrap()["text"]
+            .as_str()
+            .unwrap()
+            .contains("lost"),
+        "{lost:?}"
+    );
+    // The board comes back (after a reset): the server reconnects within its 1 s period.
+    let t_down = Instant::now();
+    let (mut c2, _) = board.accept().unwrap();
+    let reconnect_s = t_down.elapsed().as_secs_f64();
+    send(&mut c2, 0..10);
+    let back = read_until(&mut ws, |v| v["kind"] == "record" && v["seq"] == 9);
+    drop(server);
+
+    let records = |v: &[Value]| v.iter().filter(|m| m["kind"] == "record").count();
+    assert_eq!(records(&first) + records(&lost), 10, "{first:?}");
+    assert!(back.iter().any(|m| m["kind"] == "link" && m["up"] == true));
+    assert_eq!(records(&back), 10, "{back:?}");
+    let restart = back.iter().find(|m| m["seq"] == 0).unwrap();
+    assert!(
+        restart["alarms"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|a| a == "BOARD RESTART"),
+        "{restart}"
+    );
+    assert!(reconnect_s < 2.5, "reconnected after {reconnect_s:.1} s");
+}
+
+#[test]
+fn a_device_stty_refuses_is_reported_and_retried() {
+    // /dev/null is a device but not a terminal: `stty` fails, the page is told why, and
+    // the server keeps trying (as for an adapter not plugged in yet).
+    let (server, url) = start_server(&["--stty", "raw -echo", "/dev/null"]);
+    let mut ws = ws_connect(&format!("{}ws", url.replace("http://", "ws://")));
+    let got = read_until(&mut ws, |v| v["kind"] == "link");
+    drop(server);
+    let link = got.last().unwrap();
+    assert_eq!(link["up"], false, "{link}");
+    let text = link["text"].as_str().unwrap();
+    assert!(
+        text.contains("cannot open /dev/null") && text.contains("stty"),
+        "{text}"
+    );
+}
+
+#[test]
+fn several_sensors_are_drawn_with_their_gradient() {
+    if !Path::new(CHROMIUM).exists() {
+        println!("SKIP: {CHROMIUM} not installed (apt-get install chromium)");
+        return;
+    }
+    // Two boards, same record times; the second's field is 1.5 nT higher (15 000 counts).
+    let dir = tempfile::tempdir().unwrap();
+    let n = 30;
+    let mut files = Vec::new();
+    let mut want = Vec::new();
+    for (k, offset) in [0i64, 15_000].into_iter().enumerate() {
+        let recs: Vec<Record> = (0..n)
+            .map(|s| {
+                let mut r = rec(s, 50.0 + f64::from(s) * 0.1, 0);
+                r.mag = r.mag.map(|m| MagCounts(m.0 + offset));
+                r.compensated = Record::compensate(r.mag, r.interference_nt);
+                r
+            })
+            .collect();
+        let f = dir.path().join(format!("board{k}.txt"));
+        std::fs::write(&f, recs.iter().map(record_line).collect::<String>()).unwrap();
+        files.push(f.to_str().unwrap().to_string());
+        want.push(recs);
+    }
+    let (server, url) = start_server(&["--realtime", &files[0], "--also", &files[1]]);
+    let (chrome, mut page) = Page::open(&url, &dir.path().join("profile"));
+    let t0 = Instant::now();
+    let mut p = Value::Null;
+    while t0.elapsed() < Duration::from_secs(15) {
+        p = page.plotted();
+        let done = p["streams"]
+            .as_array()
+            .is_some_and(|s| s.iter().all(|s| numbers(&s["seq"]).len() == n as usize));
+        if done {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let errors_dom = page.text_of("errors");
+    drop(chrome);
+    drop(server);
+
+    for (k, recs) in want.iter().enumerate() {
+        let comp = numbers(&p["streams"][k]["comp"]);
+        let expect: Vec<Option<f64>> = recs
+            .iter()
+            .map(|r| r.compensated.map(MagCounts::to_nt_f64))
+            .collect();
+        assert_eq!(comp, expect, "stream {k}");
+    }
+    let g = numbers(&p["gradient"][0]);
+    let g: Vec<f64> = g.into_iter().flatten().collect();
+    assert_eq!(g.len(), n as usize, "{:?}", p["gradient"]);
+    assert!(g.iter().all(|v| (v - 1.5).abs() < 1e-9), "{g:?}");
+    assert!(page.console_errors.is_empty(), "{:?}", page.console_errors);
+    assert!(errors_dom.is_empty(), "{errors_dom}");
+}
+
+#[test]
+fn web_save_writes_what_the_text_monitor_saves() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("records.txt");
+    std::fs::write(&file, stream()).unwrap();
+    let input = file.to_str().unwrap();
+    let (web_csv, text_csv) = (dir.path().join("web.csv"), dir.path().join("text.csv"));
+    let out = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args([
+            "monitor",
+            input,
+            "--quiet",
+            "--save",
+            text_csv.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let want = std::fs::read_to_string(&text_csv).unwrap();
+    let (server, _url) = start_server(&[input, "--save", web_csv.to_str().unwrap()]);
+    let start = Instant::now();
+    let mut got = String::new();
+    while start.elapsed() < Duration::from_secs(10) && got != want {
+        std::thread::sleep(Duration::from_millis(100));
+        got = std::fs::read_to_string(&web_csv).unwrap_or_default();
+    }
+    drop(server);
+    assert_eq!(got.lines().count(), decoded(&stream()).len() + 3);
+    assert_eq!(got, want);
+}
