@@ -279,7 +279,8 @@ const DEGRADED_BITS: u16 = Flags::FLUX_STALE
     | Flags::NO_GPS
     | Flags::MAG_MISSING
     | Flags::AUX_MISSING
-    | Flags::DERIVATIVE_DEGRADED;
+    | Flags::DERIVATIVE_DEGRADED
+    | Flags::MAG_SUSPECT;
 
 /// The value as the record line carried it (4 decimals), or `None` when empty.
 fn as_sent(v: f32) -> Option<f64> {
