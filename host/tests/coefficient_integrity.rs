@@ -130,6 +130,25 @@ fn changed_values_are_refused_and_implausible_ones_named() {
             .arg(d.join("o.csv")),
     );
     assert!(e.contains("note:") && e.contains("no checksum"), "{e}");
+    // …and in `--json`, where a pipeline reads it, not only on stderr.
+    let (json, _) = run_ok_with_stderr(
+        bin()
+            .arg("compensate")
+            .arg(&trace)
+            .arg("--coeffs")
+            .arg(&edited)
+            .arg("--json")
+            .arg("--out")
+            .arg(d.join("o.csv")),
+    );
+    let j: Value = serde_json::from_str(&json).expect("--json output");
+    let warnings = j["warnings"].as_array().expect("warnings");
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.as_str().is_some_and(|w| w.contains("no checksum"))),
+        "{warnings:?}"
+    );
     let k = old["coefficients"].as_array().unwrap().len();
     let cases: Vec<Case> = vec![
         (

@@ -112,6 +112,10 @@ pub struct CoefficientFile {
     /// existed have none and still load).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub provenance: Option<super::provenance::Provenance>,
+    /// Read from a file without a checksum (written before magcomp sealed its files): a
+    /// change to its values cannot be detected. Not part of the file.
+    #[serde(skip)]
+    pub unsealed: bool,
     pub coefficients: Vec<Coefficient>,
 }
 
@@ -275,6 +279,11 @@ pub fn refuse_conflicting_settings(
     Ok(())
 }
 
+/// What a file without a checksum cannot promise (stderr at load; `--json` and the page
+/// through the applied-coefficient warnings).
+pub const UNSEALED_NOTE: &str = "no checksum (written before magcomp recorded one): a change \
+     to its values after calibration cannot be detected";
+
 /// Reads a coefficient file written by `calibrate`. Coefficients are matched to the
 /// file's model by name, whatever their order in the file, and returned in the model's
 /// order (the covariance is in the model's order already); a name the model lacks, one
@@ -301,7 +310,7 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
     let names = c
         .model_coefficient_names()
         .with_context(|| path.display().to_string())?;
-    let ordered = c
+    let mut ordered = c
         .in_order_of(&names)
         .with_context(|| format!("{} (model '{}')", path.display(), c.model))?;
     // After the names: a renamed, missing or extra coefficient is said as such.
@@ -322,11 +331,10 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
                 );
             }
         }
-        None => eprintln!(
-            "note: {}: no checksum (written before magcomp recorded one): a change to its \
-             values after calibration cannot be detected",
-            path.display()
-        ),
+        None => {
+            eprintln!("note: {}: {}", path.display(), UNSEALED_NOTE);
+            ordered.unsealed = true;
+        }
     }
     if let Some(p) = plausibility_problem(&c) {
         bail!("{}: {p}", path.display());
@@ -363,6 +371,7 @@ impl CoefficientFile {
             cross_check: None,
             predicted_band_rms_nt: None,
             provenance: None,
+            unsealed: false,
             coefficients,
         }
     }

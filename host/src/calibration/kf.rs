@@ -132,6 +132,7 @@ pub(super) fn run_kf_method(
         cross_check: None,
         predicted_band_rms_nt: None,
         provenance: None,
+        unsealed: false,
         // Applied coefficients keep the σ and covariance their calibration found: the
         // filter run here holds them fixed and reports its prior σ (±200 nT, …), which says
         // nothing about how well they were determined.

@@ -160,14 +160,21 @@ impl TraceInput {
         trace: Option<&Trace>,
         coeffs: &CoefficientFile,
     ) -> Vec<String> {
-        match &coeffs.provenance {
+        let mut out = match &coeffs.provenance {
             Some(p) => crate::calibration::provenance::warnings(
                 p,
                 &self.sensor(),
                 self.flight_date(trace).as_deref(),
             ),
             None => Vec::new(),
+        };
+        if coeffs.unsealed {
+            out.push(format!(
+                "the coefficient file has {}",
+                crate::calibration::coefficients::UNSEALED_NOTE
+            ));
         }
+        out
     }
 
     /// The trace for a calibration or a diagnosis: a long flight sampled faster than
