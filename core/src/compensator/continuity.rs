@@ -70,11 +70,12 @@ impl ScalarContinuity {
             return Continuity::Unverified;
         };
         let departure = self.departure_nt(t_s, mag, t1, x1);
-        if libm::fabsf(departure) <= self.limit_nt() {
+        let limit = self.limit_nt();
+        if libm::fabsf(departure) <= limit {
             self.accept(t_s, mag, Some(departure));
             return Continuity::Consistent;
         }
-        self.suspect(t_s, mag);
+        self.suspect(t_s, mag, limit);
         Continuity::Suspect
     }
 
@@ -127,10 +128,11 @@ impl ScalarContinuity {
     }
 
     /// A suspect sample: if it continues a run of suspect samples that agree with one
-    /// another long enough, the run is a real step and its last sample the new level.
-    fn suspect(&mut self, t_s: f64, mag: MagCounts) {
+    /// another (within `limit_nt`) long enough, the run is a real step and its last sample
+    /// the new level.
+    fn suspect(&mut self, t_s: f64, mag: MagCounts, limit_nt: f32) {
         let agrees = self.candidate.is_some_and(|(tc, xc)| {
-            t_s - tc <= MAX_GAP_S && libm::fabsf(mag.diff_nt(xc)) <= self.limit_nt()
+            t_s - tc <= MAX_GAP_S && libm::fabsf(mag.diff_nt(xc)) <= limit_nt
         });
         self.candidate_run = if agrees { self.candidate_run + 1 } else { 1 };
         self.candidate = Some((t_s, mag));

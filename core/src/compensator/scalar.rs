@@ -79,8 +79,9 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         // innovations show beyond the configured noise: on a real installation it is
         // 0.2–2 nT where the board assumes 0.02, and judged by the prediction alone 99 % of
         // the real SGL boxes' readings were "suspect". Taken before this sample joins it.
-        let model_error_var = (self.innovations.observed_r() - self.scalar_variance_nt2()).max(0.0);
-        let status = self.fuse_offered(ep, h, frozen_nt, flags);
+        let r = self.scalar_variance_nt2();
+        let model_error_var = (self.innovations.observed_r() - r).max(0.0);
+        let status = self.fuse_offered(ep, h, frozen_nt, r, flags);
         let suspect_sigma = self.cfg.suspect_sigma;
         let beyond = suspect_sigma > 0.0
             && status.innovation_nt * status.innovation_nt
@@ -125,15 +126,16 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         self.adapted_r += a * (observed.min(ADAPT_MAX_NT2) - self.adapted_r);
     }
 
-    /// The gated update of an offered sample (warm-up: Huber-weighted beyond the gate).
+    /// The gated update of an offered sample with scalar variance `r` (warm-up:
+    /// Huber-weighted beyond the gate).
     fn fuse_offered(
         &mut self,
         ep: &Epoch,
         h: &[f32; N],
         frozen_nt: f32,
+        r: f32,
         flags: &mut Flags,
     ) -> ScalarFusion {
-        let r = self.scalar_variance_nt2();
         let z = if self.survey {
             ep.dmag_nt - frozen_nt
         } else {
