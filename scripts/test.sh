@@ -20,8 +20,8 @@ cargo clippy -p magcomp-core -p magcomp -p magcomp-fuzz --all-targets -- -D warn
 step "core builds for the board (no_std, thumbv7em-none-eabihf)"
 cargo build -p magcomp-core --target thumbv7em-none-eabihf --release
 
-step "host tests (release: the accuracy tests fly whole simulated flights)"
-cargo test --release --no-fail-fast -p magcomp-core -p magcomp
+step "host tests (release: the accuracy tests fly whole simulated flights; two binaries at a time)"
+scripts/run-tests.sh
 
 step "fuzz: every decoder, the acquisition stream, the trace reader (4 s per target)"
 scripts/fuzz.sh 4
