@@ -619,6 +619,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             compensated: o.compensated,
             anomaly_nt: o.anomaly_nt,
             innovation_nt: o.innovation_nt,
+            sigma_nt: o.interference_sigma_nt,
             flags: o.flags,
         }
     }

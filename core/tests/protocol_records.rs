@@ -15,6 +15,7 @@ fn rec(mag: i64, interf: f32, anom: f32, innov: f32, t_s: f64, flags: u16) -> Re
         compensated: Record::compensate(m, interf),
         anomaly_nt: anom,
         innovation_nt: innov,
+        sigma_nt: 0.25,
         flags: Flags(flags),
     }
 }
@@ -32,7 +33,7 @@ fn record_format_and_roundtrip() {
     let (line, back) = roundtrip(&r);
     assert!(
         line.starts_with(
-            "$MCREC,4000000000,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0104*"
+            "$MCREC,4000000000,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0.2500,0104*"
         ),
         "{line}"
     );
@@ -73,7 +74,7 @@ fn record_nan_and_huge() {
     r.mag = None;
     let (line, back) = roundtrip(&r);
     assert!(
-        line.starts_with("$MCREC,4000000000,,,,,299999989E22,-INF,0000*"),
+        line.starts_with("$MCREC,4000000000,,,,,299999989E22,-INF,0.2500,0000*"),
         "{line}"
     );
     assert!(back.t_s.is_nan() && back.interference_nt.is_nan());
@@ -408,6 +409,19 @@ fn capture_roundtrip() {
 
 #[test]
 fn documented_examples_decode() {
+    // docs/protocols.md §4.
+    let r = decode_record(
+        b"$MCREC,42,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0.0400,0000*3C1B\r\n",
+    )
+    .unwrap();
+    assert_eq!(
+        (r.seq, r.mag, r.sigma_nt, r.flags),
+        (42, Some(MagCounts(536_204_401)), 0.04, Flags(0))
+    );
+    let r = decode_record(b"$MCREC,43,1234.600000,,,,,,,0008*C599").unwrap();
+    assert!(r.mag.is_none() && r.interference_nt.is_nan() && r.sigma_nt.is_nan());
+    assert_eq!(r.flags, Flags(Flags::MAG_MISSING));
+    // A stream from firmware before `sigma_nt` (8 data fields) still decodes, bound unknown.
     let r = decode_record(
         b"$MCREC,42,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0104*CB4A\r\n",
     )
@@ -416,8 +430,21 @@ fn documented_examples_decode() {
         (r.seq, r.mag, r.flags),
         (42, Some(MagCounts(536_204_401)), Flags(0x0104))
     );
+    assert!(r.sigma_nt.is_nan());
     let r = decode_record(b"$MCREC,43,1234.600000,,,,,,0008*5FDF").unwrap();
-    assert!(r.mag.is_none() && r.interference_nt.is_nan());
+    assert!(r.mag.is_none() && r.interference_nt.is_nan() && r.flags == Flags(8));
+    // 7 or 10 data fields are neither format.
+    let seven = b"MCREC,43,1234.600000,,,,,0008";
+    let ten = b"MCREC,43,1234.600000,,,,,,,,0008";
+    for body in [&seven[..], &ten[..]] {
+        let crc = magcomp_core::protocol::common::crc16_ccitt(body);
+        let line = format!("${}*{crc:04X}", std::str::from_utf8(body).unwrap());
+        assert_eq!(
+            decode_record(line.as_bytes()),
+            Err(RecordError::FieldCount),
+            "{line}"
+        );
+    }
     assert_eq!(
         parse_command(b"$MCCMD,SETCOEF,3,-1.25E-2*79", 21),
         Ok(Command::SetCoef {

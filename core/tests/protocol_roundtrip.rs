@@ -69,6 +69,7 @@ proptest! {
             compensated: Record::compensate(mag.map(MagCounts), interference),
             anomaly_nt: anomaly,
             innovation_nt: innovation,
+            sigma_nt: anomaly.abs(),
             flags: Flags(flags),
         };
         let mut out = [0u8; MAX_RECORD_LEN];
@@ -76,7 +77,7 @@ proptest! {
         let d = decode_record(&out[..n]).unwrap();
         prop_assert_eq!((d.seq, d.mag, d.compensated, d.flags), (r.seq, r.mag, r.compensated, r.flags));
         prop_assert_eq!(d.t_s, r.t_s);
-        for (a, b) in [(d.interference_nt, interference), (d.anomaly_nt, anomaly), (d.innovation_nt, innovation)] {
+        for (a, b) in [(d.interference_nt, interference), (d.anomaly_nt, anomaly), (d.innovation_nt, innovation), (d.sigma_nt, anomaly.abs())] {
             prop_assert!((a - b).abs() <= 0.5e-4 + b.abs() * f32::EPSILON, "{} vs {}", a, b);
         }
     }

@@ -123,6 +123,7 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                     compensated: Record::compensate(mag, -12.3456),
                     anomaly_nt: 1.5,
                     innovation_nt: -0.0123,
+                    sigma_nt: 0.25,
                     flags: Flags(if mag.is_none() { Flags::MAG_MISSING } else { 0 }),
                 };
                 let n = encode_record(&r, &mut out).unwrap();

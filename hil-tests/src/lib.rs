@@ -17,7 +17,7 @@ use std::io::{self, BufRead, Write};
 
 /// CSV header of decoded records (the same columns `magcomp replay` is to write).
 pub const CSV_HEADER: &str =
-    "seq,t_s,mag_nt,interference_nt,compensated_nt,anomaly_nt,innovation_nt,flags";
+    "seq,t_s,mag_nt,interference_nt,compensated_nt,anomaly_nt,innovation_nt,sigma_nt,flags";
 
 fn counts(c: Option<magcomp_core::MagCounts>) -> String {
     c.map(|c| {
@@ -42,7 +42,7 @@ pub fn write_csv<W: Write>(mut w: W, recs: &[Record]) -> io::Result<()> {
     for r in recs {
         writeln!(
             w,
-            "{},{:.6},{},{},{},{},{},{}",
+            "{},{:.6},{},{},{},{},{},{},{}",
             r.seq,
             r.t_s,
             counts(r.mag),
@@ -50,6 +50,7 @@ pub fn write_csv<W: Write>(mut w: W, recs: &[Record]) -> io::Result<()> {
             counts(r.compensated),
             num(r.anomaly_nt),
             num(r.innovation_nt),
+            num(r.sigma_nt),
             r.flags.0
         )?;
     }
@@ -66,7 +67,7 @@ pub fn read_csv<R: BufRead>(r: R) -> io::Result<Vec<Record>> {
             continue;
         }
         let f: Vec<&str> = line.split(',').collect();
-        if f.len() != 8 {
+        if f.len() != 9 {
             return Err(bad(n));
         }
         let opt_c = |s: &str| -> io::Result<Option<magcomp_core::MagCounts>> {
@@ -94,7 +95,8 @@ pub fn read_csv<R: BufRead>(r: R) -> io::Result<Vec<Record>> {
             compensated: opt_c(f[4])?,
             anomaly_nt: opt_f(f[5])?,
             innovation_nt: opt_f(f[6])?,
-            flags: magcomp_core::Flags(f[7].parse().map_err(|_| bad(n))?),
+            sigma_nt: opt_f(f[7])?,
+            flags: magcomp_core::Flags(f[8].parse().map_err(|_| bad(n))?),
         });
     }
     Ok(out)
@@ -120,7 +122,8 @@ pub fn compare_records(board: &[Record], replay: &[Record], tol_nt: f64) -> Resu
             && close(a.interference_nt.into(), b.interference_nt.into())
             && close(c(a.compensated), c(b.compensated))
             && close(a.anomaly_nt.into(), b.anomaly_nt.into())
-            && close(a.innovation_nt.into(), b.innovation_nt.into());
+            && close(a.innovation_nt.into(), b.innovation_nt.into())
+            && close(a.sigma_nt.into(), b.sigma_nt.into());
         if !ok {
             return Err(format!(
                 "record {} differs:\n board  {a:?}\n replay {b:?}",

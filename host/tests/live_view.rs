@@ -51,6 +51,7 @@ fn rec(seq: u32, t_s: f64, flags: u16) -> Record {
         compensated: Record::compensate(Some(mag), interf),
         anomaly_nt: 0.5,
         innovation_nt: 0.01,
+        sigma_nt: 0.25,
         flags: Flags(flags),
     }
 }

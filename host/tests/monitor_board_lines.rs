@@ -25,6 +25,7 @@ fn record(seq: u32) -> Vec<u8> {
         compensated: Record::compensate(Some(mag), 1.0),
         anomaly_nt: 0.0,
         innovation_nt: 0.0,
+        sigma_nt: 0.25,
         flags: Flags::empty(),
     };
     let mut b = [0u8; MAX_RECORD_LEN];

@@ -25,6 +25,7 @@ fn rec(seq: u32) -> Record {
         compensated: Record::compensate(Some(mag), interf),
         anomaly_nt: -3.21,
         innovation_nt: 0.0123,
+        sigma_nt: 0.25,
         flags,
     }
 }
@@ -147,7 +148,8 @@ fn counts_gaps_and_saved_rows_are_exact() {
     assert_eq!(r310[1], "53620.8431"); // 536204401 + 310·13 counts
     assert_eq!(r310[2], "12.6556");
     assert_eq!(r310[3], "53608.1875"); // − round(12.6556 × 1e4) counts
-    assert_eq!(r310[6], "1"); // FLUX_STALE
+    assert_eq!(r310[6], "0.2500"); // the record's stated bound
+    assert_eq!(r310[7], "1"); // FLUX_STALE
 
     // Summary lines: one per 10 s of record time over ~100 s, then the final one.
     let printed = String::from_utf8(out).unwrap();

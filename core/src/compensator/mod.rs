@@ -14,6 +14,7 @@ use crate::units::MagCounts;
 mod config;
 mod continuity;
 pub mod health;
+mod jitter;
 mod scalar;
 mod ties;
 pub use config::CompensatorConfig;
@@ -129,6 +130,8 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// Real time: the scalar variance the innovations have shown, held with a long
     /// memory (nT²; 0 before any): rises within seconds, decays over minutes.
     adapted_r: f32,
+    /// The output interference's sample-to-sample jitter (part of the record's bound).
+    jitter: jitter::InterferenceJitter,
     /// The survey envelope's variance at its last evaluation (nT²), and evaluations until
     /// the next one.
     envelope_var: f32,
@@ -233,6 +236,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             regressor_mean_count: 0,
             innovations: InnovationMonitor::new(),
             adapted_r: 0.0,
+            jitter: jitter::InterferenceJitter::new(),
             envelope_var: f32::INFINITY,
             envelope_countdown: 0,
             coefficient_sigma_nt: f32::NAN,
@@ -352,6 +356,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.regressor_mean_count = 0;
         self.innovations = InnovationMonitor::new();
         self.adapted_r = 0.0;
+        self.jitter = jitter::InterferenceJitter::new();
         self.envelope_var = f32::INFINITY;
         self.envelope_countdown = 0;
         self.coefficient_sigma_nt = f32::NAN;
@@ -458,13 +463,16 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             } else {
                 0.0
             };
-            return libm::sqrtf(self.innovations.observed_r().max(r) + c * c);
+            return libm::sqrtf(
+                self.innovations.observed_r().max(r) + c * c + self.jitter.variance_nt2(),
+            );
         }
         if self.not_converged {
             return f32::NAN;
         }
         let m = self.model_error_nt();
-        libm::sqrtf(self.coefficient_sigma_nt * self.coefficient_sigma_nt + m * m)
+        let c = self.coefficient_sigma_nt;
+        libm::sqrtf(c * c + m * m + self.jitter.variance_nt2())
     }
 
     /// Feeds the divergence check with this epoch's raw signal and the interference the
@@ -749,6 +757,14 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
                 (true, false) => Coefficients::Prior,
             };
             interference = self.interference_from(&phys, source);
+        }
+        // The jitter of what is shown as converged: the prior's or a moving estimate's
+        // output is not the record's bound's business.
+        if self.not_converged && !self.survey {
+            self.jitter = jitter::InterferenceJitter::new();
+        } else {
+            self.jitter
+                .push(interference, self.cfg.consistency_window_epochs);
         }
         let anomaly_nt = if self.field.is_some() {
             let a = self.field_at;

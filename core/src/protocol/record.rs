@@ -1,9 +1,11 @@
 //! Output record: one line per scalar sample on the output port.
 //!
 //! ```text
-//! $MCREC,<seq>,<t_s>,<mag_nt>,<interf_nt>,<comp_nt>,<anom_nt>,<innov_nt>,<flags>*<CRC16>\r\n
-//! $MCREC,42,1234.500000,53620.4401,12.3456,53608.0945,-3.2100,0.0123,0104*5A3C
+//! $MCREC,<seq>,<t_s>,<mag_nt>,<interf_nt>,<comp_nt>,<anom_nt>,<innov_nt>,<sigma_nt>,<flags>*<CRC16>\r\n
 //! ```
+//! `sigma_nt` is the record's own stated 1σ bound on its interference, so an operator (or a
+//! logger) can judge a record without the host; empty while `NOT_CONVERGED`. Streams from
+//! firmware before it (8 data fields) still decode, with the bound unknown (NaN).
 //! `t_s` 6 decimals; nT values 4 decimals; `mag` and `comp` printed exactly from their
 //! integer counts; other values rounded from f32/f64. NaN → empty field; ±inf → `INF`/`-INF`;
 //! values too large for 4 fixed decimals → `<9 digits>E<exp>`. `flags` is 4 hex digits.
@@ -29,6 +31,9 @@ pub struct Record {
     pub compensated: Option<MagCounts>,
     pub anomaly_nt: f32,
     pub innovation_nt: f32,
+    /// The record's stated 1σ bound on `interference_nt`
+    /// ([`crate::compensator::Output::interference_sigma_nt`]); NaN when unknown.
+    pub sigma_nt: f32,
     pub flags: Flags,
 }
 
@@ -52,7 +57,7 @@ pub enum RecordError {
         received: u16,
         computed: u16,
     },
-    /// Not exactly 8 data fields.
+    /// Not 9 data fields (or the 8 of a stream written before `sigma_nt`).
     FieldCount,
     /// Field `n` (0 = seq) unparseable.
     BadField(u8),
@@ -83,6 +88,8 @@ pub fn encode_record(r: &Record, out: &mut [u8]) -> Result<usize, RecordError> {
         c.float(r.anomaly_nt as f64, 4)?;
         c.byte(b',')?;
         c.float(r.innovation_nt as f64, 4)?;
+        c.byte(b',')?;
+        c.float(r.sigma_nt as f64, 4)?;
         c.byte(b',')?;
         c.hex_u16(r.flags.0)?;
         let crc = crc16_ccitt(&c.written()[1..]);
@@ -140,18 +147,21 @@ fn counts_field(s: &[u8], i: u8) -> Result<Option<MagCounts>, RecordError> {
 /// Parses a record line written by [`encode_record`].
 pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
     let payload = check_crc_line(line, b"MCREC,")?;
-    let mut f = [&b""[..]; 8];
+    let mut f = [&b""[..]; 9];
     let mut n = 0;
     for x in fields(payload).skip(1) {
-        if n == 8 {
+        if n == 9 {
             return Err(RecordError::FieldCount);
         }
         f[n] = x;
         n += 1;
     }
-    if n != 8 {
-        return Err(RecordError::FieldCount);
-    }
+    // 8 fields: a stream from firmware before `sigma_nt`; its flags sit where sigma does now.
+    let (sigma_field, flags_field) = match n {
+        9 => (Some(7), 8),
+        8 => (None, 7),
+        _ => return Err(RecordError::FieldCount),
+    };
     let fl = |i: usize| parse_float_field(f[i]).map_err(|_| RecordError::BadField(i as u8));
     let seq = super::common::parse_u32(f[0])
         .or_else(|| {
@@ -162,9 +172,14 @@ pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
                 .and_then(|m| u32::try_from(m).ok())
         })
         .ok_or(RecordError::BadField(0))?;
-    let flags = match f[7] {
-        s if s.len() == 4 => parse_hex_u32(s).ok_or(RecordError::BadField(7))? as u16,
-        _ => return Err(RecordError::BadField(7)),
+    let bad_flags = RecordError::BadField(flags_field as u8);
+    let flags = match f[flags_field] {
+        s if s.len() == 4 => parse_hex_u32(s).ok_or(bad_flags)? as u16,
+        _ => return Err(bad_flags),
+    };
+    let sigma_nt = match sigma_field {
+        Some(i) => fl(i)? as f32,
+        None => f32::NAN,
     };
     Ok(Record {
         seq,
@@ -174,6 +189,7 @@ pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
         compensated: counts_field(f[4], 4)?,
         anomaly_nt: fl(5)? as f32,
         innovation_nt: fl(6)? as f32,
+        sigma_nt,
         flags: Flags(flags),
     })
 }

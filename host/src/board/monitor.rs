@@ -432,6 +432,7 @@ impl Monitor {
                 let _ = writeln!(o, "  compensated    {} nT", counts_text(r.compensated));
                 let _ = writeln!(o, "  anomaly        {} nT", nt_text(r.anomaly_nt));
                 let _ = writeln!(o, "  innovation     {} nT", nt_text(r.innovation_nt));
+                let _ = writeln!(o, "  bound (1σ)     {} nT", nt_text(r.sigma_nt));
                 let _ = writeln!(
                     o,
                     "  flags          {:04X} {}",
@@ -504,7 +505,7 @@ pub fn status_text(st: &BoardStatus) -> String {
 }
 
 /// Header and rows of the saved CSV (a trace-like file: `t` first, `#` metadata).
-pub const SAVE_HEADER: &str = "t,mag,interference,compensated,anomaly,innovation,flags,seq";
+pub const SAVE_HEADER: &str = "t,mag,interference,compensated,anomaly,innovation,sigma,flags,seq";
 
 /// The saved CSV's three header lines (two comments, the column names).
 pub fn write_save_header(w: &mut dyn Write, source: &str) -> std::io::Result<()> {
@@ -515,13 +516,14 @@ pub fn write_save_header(w: &mut dyn Write, source: &str) -> std::io::Result<()>
 
 pub fn save_row(r: &Record) -> String {
     format!(
-        "{:.6},{},{},{},{},{},{},{}",
+        "{:.6},{},{},{},{},{},{},{},{}",
         r.t_s,
         counts_text(r.mag),
         nt_text(r.interference_nt),
         counts_text(r.compensated),
         nt_text(r.anomaly_nt),
         nt_text(r.innovation_nt),
+        nt_text(r.sigma_nt),
         r.flags.0,
         r.seq
     )

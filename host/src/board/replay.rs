@@ -34,7 +34,7 @@ pub const REPLAY_WINDOW: usize = 16;
 pub const BOARD_RATES_HZ: (f64, f64, f64) = (10.0, 10.0, 1.0);
 
 /// Columns of the records CSV.
-pub const CSV_HEADER: &str = "seq,t,mag,interference,compensated,anomaly,innovation,flags";
+pub const CSV_HEADER: &str = "seq,t,mag,interference,compensated,anomaly,innovation,sigma,flags";
 
 /// Everything the replay needs besides the bytes.
 #[derive(Clone, Debug)]
@@ -678,7 +678,7 @@ pub fn nt_text(v: f32) -> String {
 /// One CSV row (flags as a decimal integer, like the HIL harness reads them).
 pub fn csv_row(r: &Record) -> String {
     format!(
-        "{},{:.6},{},{},{},{},{},{}",
+        "{},{:.6},{},{},{},{},{},{},{}",
         r.seq,
         r.t_s,
         counts_text(r.mag),
@@ -686,6 +686,7 @@ pub fn csv_row(r: &Record) -> String {
         counts_text(r.compensated),
         nt_text(r.anomaly_nt),
         nt_text(r.innovation_nt),
+        nt_text(r.sigma_nt),
         r.flags.0
     )
 }

@@ -42,6 +42,8 @@ pub struct RecordMsg {
     pub interf_nt: Option<f64>,
     pub anom_nt: Option<f64>,
     pub innov_nt: Option<f64>,
+    /// The record's stated 1σ bound on the interference (none while not converged).
+    pub sigma_nt: Option<f64>,
     pub flags: u16,
     pub flag_words: String,
     /// 4th difference of the compensated field centred on record `d4_seq` (two records
@@ -172,6 +174,7 @@ impl Feed {
             interf_nt: as_sent(r.interference_nt),
             anom_nt: as_sent(r.anomaly_nt),
             innov_nt: as_sent(r.innovation_nt),
+            sigma_nt: as_sent(r.sigma_nt),
             flags: r.flags.0,
             flag_words: flag_words(r.flags),
             d4_seq,
@@ -301,6 +304,7 @@ mod tests {
             compensated: Some(MagCounts(comp)),
             anomaly_nt: f32::NAN,
             innovation_nt: 0.0,
+            sigma_nt: 0.25,
             flags: Flags(flags),
         };
         let mut b = [0u8; MAX_RECORD_LEN];

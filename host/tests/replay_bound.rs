@@ -1,0 +1,177 @@
+//! The board's records state their own bound (`$MCREC` `sigma_nt`, issue 17 item 1): a record
+//! shown converged carries a finite 1σ on its interference, a `NOT_CONVERGED` one none, and
+//! the bound holds against the simulator's truth on the board's own path (capture →
+//! `replay`, cold, calibrating in flight with the board's adapted scalar noise).
+//!
+//! What the bound covers: the interference's variation about the last minute's mean (its
+//! level is the anomaly's, levelled by tie lines; docs/model.md §5a). So the error is taken
+//! inside each run of ≥ 30 s of records shown good, less its 60 s running mean.
+//! Run in release: `cargo test --release -p magcomp --test replay_bound -- --nocapture`.
+
+#[path = "common/independent.rs"]
+mod independent_sim;
+
+use magcomp::board::capture::{trace_to_capture, CaptureOptions};
+use magcomp::board::replay::{replay_capture, ReplayOptions};
+use magcomp::io::trace::Trace;
+use magcomp::model::spec::ModelSpec;
+use magcomp::signal::bandpass::bandpass;
+use magcomp::sim::{simulate, SimConfig};
+use magcomp_core::protocol::record::Record;
+use magcomp_core::Flags;
+
+/// Records shown good: converged and not degraded.
+fn shown_good(r: &Record) -> bool {
+    !r.flags.contains(Flags::NOT_CONVERGED) && !r.flags.degraded()
+}
+
+fn board_records(trace: &Trace) -> Vec<Record> {
+    let cap = trace_to_capture(trace, &CaptureOptions::default()).unwrap();
+    let opts = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
+    let mut recs = Vec::new();
+    replay_capture(&cap[..], &opts, |r| {
+        recs.push(*r);
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(recs.len(), trace.len(), "one record per scalar sample");
+    recs
+}
+
+/// Every converged record states a finite positive bound; every `NOT_CONVERGED` one none.
+fn assert_bound_present_iff_converged(recs: &[Record], name: &str) {
+    for r in recs {
+        let converged = !r.flags.contains(Flags::NOT_CONVERGED);
+        let stated = r.sigma_nt.is_finite() && r.sigma_nt > 0.0;
+        assert_eq!(
+            converged, stated,
+            "{name}: record {} flags {:04X} sigma {}",
+            r.seq, r.flags.0, r.sigma_nt
+        );
+    }
+}
+
+/// How the records shown good hold their bound: over each run of ≥ 30 s of them, the
+/// interference error in the compensation band (0.1–0.9 Hz, filtered inside the run) and
+/// less its 60 s running mean.
+#[derive(Debug, Default)]
+struct Holding {
+    records: usize,
+    /// rms error / rms bound, and the share beyond 3σ, in the band.
+    band_ratio: f64,
+    band_beyond_3s: f64,
+    /// The same about the 60 s running mean (reported: the bound's band is what it states).
+    minute_ratio: f64,
+    minute_beyond_3s: f64,
+}
+
+fn bound_against_truth(recs: &[Record], truth: &[f64], rate_hz: f64) -> Holding {
+    let min_run = (30.0 * rate_hz) as usize;
+    let half = (30.0 * rate_hz) as usize;
+    let (mut band, mut minute, mut sig2) = ((0.0, 0usize), (0.0, 0usize), 0.0);
+    let mut n = 0;
+    let mut i = 0;
+    while i < recs.len() {
+        let j = (i..recs.len())
+            .find(|&k| !shown_good(&recs[k]))
+            .unwrap_or(recs.len());
+        if j - i >= min_run {
+            let d: Vec<f64> = (i..j)
+                .map(|k| recs[k].interference_nt as f64 - truth[k])
+                .collect();
+            let in_band = bandpass(&d, 4, 0.1, 0.9, rate_hz).unwrap();
+            for (k, dk) in d.iter().enumerate() {
+                let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(d.len()));
+                let about_minute = dk - d[lo..hi].iter().sum::<f64>() / (hi - lo) as f64;
+                let s = recs[i + k].sigma_nt as f64;
+                for (e, acc) in [(in_band[k], &mut band), (about_minute, &mut minute)] {
+                    acc.0 += e * e;
+                    acc.1 += usize::from(e.abs() > 3.0 * s);
+                }
+                sig2 += s * s;
+                n += 1;
+            }
+        }
+        i = j.max(i + 1);
+    }
+    let share = |c: usize| c as f64 / n.max(1) as f64;
+    Holding {
+        records: n,
+        band_ratio: (band.0 / sig2).sqrt(),
+        band_beyond_3s: share(band.1),
+        minute_ratio: (minute.0 / sig2).sqrt(),
+        minute_beyond_3s: share(minute.1),
+    }
+}
+
+fn check_flight(name: &str, trace: &Trace, truth_col: &str) {
+    let recs = board_records(trace);
+    assert_bound_present_iff_converged(&recs, name);
+    let converged = recs
+        .iter()
+        .filter(|r| !r.flags.contains(Flags::NOT_CONVERGED))
+        .count();
+    eprintln!("{name}: {converged} of {} records converged", recs.len());
+    let truth = trace.col(truth_col).unwrap().to_vec();
+    let t = trace.col("t").unwrap();
+    let rate_hz = 1.0 / (t[1] - t[0]);
+    let h = bound_against_truth(&recs, &truth, rate_hz);
+    eprintln!(
+        "{name}: {} records shown good in runs ≥ 30 s; band: error/bound {:.2}, beyond 3σ \
+         {:.1} %; about the minute's mean: {:.2}, {:.1} %",
+        h.records,
+        h.band_ratio,
+        h.band_beyond_3s * 100.0,
+        h.minute_ratio,
+        h.minute_beyond_3s * 100.0
+    );
+    if h.records == 0 {
+        return;
+    }
+    assert!(
+        h.band_ratio <= 2.0 && h.band_beyond_3s <= 0.05,
+        "{name}: {h:?}"
+    );
+}
+
+#[test]
+fn cloverleaf_with_exit_leg_records_hold_their_bound() {
+    let trace = simulate(&SimConfig::calibration_with_exit(7)).unwrap();
+    check_flight(
+        "cloverleaf + exit leg, seed 7",
+        &trace,
+        "truth_interference",
+    );
+}
+
+#[test]
+fn broad_flights_records_hold_their_bound() {
+    // Broad physics: noisy fluxgates that read the aircraft, a slow external variation,
+    // headings off the cardinal directions, sensor errors the model does not know.
+    // Each followed by the exit leg of `calibration_with_exit`: the board converges a minute
+    // after the pattern, so a pattern alone leaves no run of converged records to judge.
+    for seed in 1..=4 {
+        let exit = SimConfig::calibration_with_exit(seed);
+        let cfg = SimConfig {
+            flight: exit.flight,
+            survey_altitude_m: exit.survey_altitude_m,
+            survey_lines: exit.survey_lines,
+            line_length_m: exit.line_length_m,
+            survey_offset_m: exit.survey_offset_m,
+            ..SimConfig::broad(seed)
+        };
+        let trace = simulate(&cfg).unwrap();
+        check_flight(&format!("broad seed {seed}"), &trace, "truth_interference");
+    }
+}
+
+#[test]
+fn independent_flights_records_hold_their_bound() {
+    // The independent simulator's flights, where the shared data are present.
+    for name in ["clean_s33", "lag_s32"] {
+        match independent_sim::independent(name) {
+            Some(trace) => check_flight(name, &trace, "truth_interference"),
+            None => eprintln!("{name}: shared data absent, not checked"),
+        }
+    }
+}
