@@ -12,9 +12,13 @@ pub fn chi2_sf(x: f64, k: f64) -> f64 {
     ChiSquared::new(k).map_or(f64::NAN, |d| d.sf(x))
 }
 
-/// Upper quantile: the x with P(χ²_k > x) = p, from `statrs` (p is clamped to (0, 1]).
+/// Upper quantile: the x with P(χ²_k > x) = p, from `statrs` (as `1 − p` is formed, a p
+/// below ~1e-16 gives +∞).
 pub fn chi2_isf(p: f64, k: f64) -> f64 {
-    let p = p.clamp(1e-300, 1.0);
+    if p.is_nan() {
+        return f64::NAN; // statrs panics on a probability outside [0, 1]
+    }
+    let p = p.clamp(0.0, 1.0);
     ChiSquared::new(k).map_or(f64::NAN, |d| d.inverse_cdf(1.0 - p))
 }
 
@@ -195,6 +199,8 @@ mod tests {
         assert_eq!(chi2_sf(0.0, 3.0), 1.0);
         assert!(chi2_sf(f64::NAN, 3.0).is_nan());
         assert!(chi2_sf(1.0, 0.0).is_nan());
+        assert!(chi2_isf(f64::NAN, 3.0).is_nan());
+        assert_eq!(chi2_isf(2.0, 3.0), 0.0);
         // The diagnosis' F statistics are Wald forms F·q ~ χ²_q: F(0.95; 3, ∞) = 7.8147 / 3.
         assert!((chi2_isf(0.05, 3.0) / 3.0 - 2.604_9).abs() < 1e-4);
     }
