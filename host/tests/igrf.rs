@@ -1,6 +1,7 @@
 //! IGRF-14 synthesis against a reference implementation: `ppigrf` 2.1.0 evaluated at 14
 //! points (equator, poles, both hemispheres, 0–10 km, 1995–2029 including the secular
 //! variation extrapolation past 2025); `tests/data/igrf14_reference.py` regenerates them.
+//! And at 3,000 points worldwide (`tests/data/igrf14_worldwide.py`).
 use magcomp::flight::igrf::{decimal_year, parse_date, Igrf};
 
 #[test]
@@ -30,6 +31,36 @@ fn igrf14_matches_ppigrf_within_1nt() {
     }
     assert_eq!(rows, 14);
     eprintln!("IGRF-14 vs ppigrf: worst component difference {worst:.4} nT over {rows} points");
+}
+
+#[test]
+fn igrf14_matches_ppigrf_on_3000_points_worldwide() {
+    // `tests/data/igrf14_worldwide.py`: 3,000 points, poles (exactly ±90° among them) and
+    // the dateline included, 0–10 km, 1995–2029. ppigrf leaves north/east NaN at +90°.
+    let text = include_str!("data/igrf14_worldwide.csv");
+    let m = Igrf::igrf14();
+    let (mut worst, mut rows) = (0.0f64, 0);
+    for line in text.lines().skip(1) {
+        let f: Vec<&str> = line.split(',').collect();
+        let num = |i: usize| f[i].parse::<f64>().unwrap();
+        let (year, doy) = parse_date(f[3]).unwrap();
+        let c = m.coefficients_at(decimal_year(year, doy, 0.0)).unwrap();
+        let b = c.field(num(0), num(1), num(2));
+        for (got, want) in [
+            (b.north_nt, num(4)),
+            (b.east_nt, num(5)),
+            (b.down_nt, num(6)),
+            (b.total_nt, num(7)),
+        ] {
+            if want.is_finite() {
+                assert!((got - want).abs() < 0.5, "{line}: {got:.3} vs {want:.3} nT");
+                worst = worst.max((got - want).abs());
+            }
+        }
+        rows += 1;
+    }
+    assert_eq!(rows, 3000);
+    eprintln!("IGRF-14 vs ppigrf worldwide: worst component difference {worst:.4} nT");
 }
 
 #[test]

@@ -1,112 +1,25 @@
-//! Small statistics kit for the diagnosis: χ² tail probabilities and quantiles, AR
+//! Small statistics kit for the diagnosis: χ² tail probabilities and quantiles (`statrs`), AR
 //! prewhitening, least squares through a Gram matrix.
 
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-/// ln Γ(x) (Lanczos, g = 7), x > 0.
-fn ln_gamma(x: f64) -> f64 {
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        let pi = std::f64::consts::PI;
-        return (pi / (pi * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut a = C[0];
-    let t = x + 7.5;
-    for (i, c) in C.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
-}
-
-/// Regularised upper incomplete gamma Q(a, x) (Numerical Recipes: series below a + 1,
-/// continued fraction above).
-pub fn gamma_q(a: f64, x: f64) -> f64 {
-    if a.is_nan() || a <= 0.0 || x.is_nan() {
+/// P(χ²_k > x), from `statrs` (NaN for k ≤ 0 or a NaN argument).
+pub fn chi2_sf(x: f64, k: f64) -> f64 {
+    if x.is_nan() {
         return f64::NAN;
     }
-    if x <= 0.0 {
-        return 1.0;
-    }
-    let gln = ln_gamma(a);
-    if x < a + 1.0 {
-        let mut ap = a;
-        let mut sum = 1.0 / a;
-        let mut del = sum;
-        for _ in 0..1000 {
-            ap += 1.0;
-            del *= x / ap;
-            sum += del;
-            if del.abs() < sum.abs() * 1e-15 {
-                break;
-            }
-        }
-        (1.0 - sum * (-x + a * x.ln() - gln).exp()).clamp(0.0, 1.0)
-    } else {
-        let tiny = 1e-300;
-        let mut b = x + 1.0 - a;
-        let mut c = 1.0 / tiny;
-        let mut d = 1.0 / b;
-        let mut h = d;
-        for i in 1..1000 {
-            let an = -(i as f64) * (i as f64 - a);
-            b += 2.0;
-            d = an * d + b;
-            if d.abs() < tiny {
-                d = tiny;
-            }
-            c = b + an / c;
-            if c.abs() < tiny {
-                c = tiny;
-            }
-            d = 1.0 / d;
-            let del = d * c;
-            h *= del;
-            if (del - 1.0).abs() < 1e-15 {
-                break;
-            }
-        }
-        ((-x + a * x.ln() - gln).exp() * h).clamp(0.0, 1.0)
-    }
+    ChiSquared::new(k).map_or(f64::NAN, |d| d.sf(x))
 }
 
-/// P(χ²_k > x).
-pub fn chi2_sf(x: f64, k: f64) -> f64 {
-    gamma_q(k / 2.0, x / 2.0)
-}
-
-/// Upper quantile: the x with P(χ²_k > x) = p (bisection on the exact tail).
+/// Upper quantile: the x with P(χ²_k > x) = p, from `statrs` (as `1 − p` is formed, a p
+/// below ~1e-16 gives +∞).
 pub fn chi2_isf(p: f64, k: f64) -> f64 {
-    let p = p.clamp(1e-300, 1.0);
-    let (mut lo, mut hi) = (0.0f64, k.max(1.0));
-    while chi2_sf(hi, k) > p {
-        hi *= 2.0;
-        if hi > 1e9 {
-            return hi;
-        }
+    if p.is_nan() {
+        return f64::NAN; // statrs panics on a probability outside [0, 1]
     }
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if chi2_sf(mid, k) > p {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-        if hi - lo < 1e-9 * hi {
-            break;
-        }
-    }
-    0.5 * (lo + hi)
+    let p = p.clamp(0.0, 1.0);
+    ChiSquared::new(k).map_or(f64::NAN, |d| d.inverse_cdf(1.0 - p))
 }
 
 /// AR(p) coefficients `a` of `x` (Yule–Walker via Levinson–Durbin), so that
@@ -267,11 +180,29 @@ mod tests {
 
     #[test]
     fn chi2_matches_known_values() {
-        // χ²₁ > 3.841 has p = 0.05; χ²₁₀ > 18.307 has p = 0.05.
-        assert!((chi2_sf(3.841_458_8, 1.0) - 0.05).abs() < 1e-6);
-        assert!((chi2_sf(18.307_038, 10.0) - 0.05).abs() < 1e-6);
-        assert!((chi2_isf(0.05, 10.0) - 18.307).abs() < 1e-2);
+        // Table values (Abramowitz & Stegun 26.4; NIST/SEMATECH e-Handbook 1.3.6.7.4).
+        for (p, k, x) in [
+            (0.05, 1.0, 3.841_459),
+            (0.01, 1.0, 6.634_897),
+            (0.05, 2.0, 5.991_465),
+            (0.05, 10.0, 18.307_038),
+            (0.001, 5.0, 20.515_006),
+            (0.05, 100.0, 124.342_113),
+        ] {
+            assert!(
+                (chi2_sf(x, k) - p).abs() < 1e-6 * p.max(1e-3),
+                "sf({x}, {k})"
+            );
+            assert!((chi2_isf(p, k) - x).abs() < 1e-5 * x, "isf({p}, {k})");
+        }
         assert!(chi2_sf(400.0, 3.0) < 1e-80);
+        assert_eq!(chi2_sf(0.0, 3.0), 1.0);
+        assert!(chi2_sf(f64::NAN, 3.0).is_nan());
+        assert!(chi2_sf(1.0, 0.0).is_nan());
+        assert!(chi2_isf(f64::NAN, 3.0).is_nan());
+        assert_eq!(chi2_isf(2.0, 3.0), 0.0);
+        // The diagnosis' F statistics are Wald forms F·q ~ χ²_q: F(0.95; 3, ∞) = 7.8147 / 3.
+        assert!((chi2_isf(0.05, 3.0) / 3.0 - 2.604_9).abs() < 1e-4);
     }
 
     #[test]
