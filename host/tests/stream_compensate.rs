@@ -1,6 +1,6 @@
 //! Streaming `compensate --coeffs` (host/src/stream) against the in-memory path on the
 //! same simulated survey: the output files must be identical line for line (frames in =
-//! frames out), with a scalar glitch, a bad latitude, a time gap, a run of missing
+//! frames out), with a scalar glitch, a bad fluxgate row, a bad latitude, a time gap, a run of missing
 //! positions, an extra numeric and text column, the core field from the file or computed
 //! from a date, KF and Tolles–Lawson, and a `--time` selection.
 use magcomp::calibration::coefficients::{CoefficientFile, Method};
@@ -68,6 +68,8 @@ fn survey(with_igrf: bool) -> Trace {
         t.set_col(name, v);
     };
     set(&mut t, "mag", &|i, x| if i == 650 { x + 4000.0 } else { x });
+    // A bad fluxgate row (issue 21 item 2): taken out and bridged in the stream as in memory.
+    set(&mut t, "flux_z", &|i, x| if i == 2100 { 0.0 } else { x });
     set(&mut t, "lat", &|i, x| match i {
         900 => 95.0,
         1500..=1540 => f64::NAN,

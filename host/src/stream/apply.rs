@@ -4,7 +4,7 @@
 //! centred derivative, Tolles–Lawson's one-sample difference, one row to learn whether a
 //! time gap follows.
 use super::rows::{row_sample, Cols, RowFilter};
-use super::stats::{year_of_date, year_of_doy, DateSource, Despiker, Listed};
+use super::stats::{year_of_date, year_of_doy, DateSource, Despiker, FluxDespiker, Listed};
 use super::{Plan, Progress};
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::EstimatorSettings;
@@ -148,6 +148,7 @@ pub(crate) struct RunResult {
     pub error_rms_nt: Option<f64>,
     pub predicted_error_nt: Option<f64>,
     pub glitches: Listed<f64>,
+    pub flux_glitches: Listed<[f32; 3]>,
     gaps: Vec<(usize, f64, f64)>,
     gap_count: usize,
 }
@@ -327,15 +328,19 @@ fn feed(
     let mut filter = RowFilter::new(src.sel.clone());
     let mut positions = PositionChecker::default();
     let mut despiker = Despiker::new(plan.sample_rate_hz);
+    let mut flux_despiker = FluxDespiker::new(plan.sample_rate_hz);
     let mut waiting: VecDeque<(Pending, u64)> = VecDeque::new();
     let mut glitches = Listed::default();
+    let mut flux_glitches = FluxGlitches::default();
     let (mut gaps, mut gap_count) = (Vec::new(), 0usize);
     let mut prev_t: Option<f64> = None;
     let mut k = 0usize;
     let mut progress = Progress::new("pass 3/3 (compensating, writing)", quiet);
     let mut judged = |(row, glitch): (usize, bool),
+                      flux_glitch: bool,
                       waiting: &mut VecDeque<(Pending, u64)>,
-                      glitches: &mut Listed<f64>|
+                      glitches: &mut Listed<f64>,
+                      flux_glitches: &mut FluxGlitches|
      -> Result<()> {
         let (mut p, line) = waiting.pop_front().context("internal: despiker order")?;
         debug_assert_eq!(p.row, row);
@@ -343,7 +348,10 @@ fn feed(
             glitches.push(line, p.mag_nt);
             p.mag_nt = f64::NAN;
             p.sample.mag = None;
+        } else if flux_glitch {
+            flux_glitches.take_out(&mut p, line, waiting);
         }
+        flux_glitches.passed(&p, flux_glitch && !glitch);
         sink(p)
     };
     for_each_row(src.path, src.map, ReadOptions::default(), |row| {
@@ -352,6 +360,8 @@ fn feed(
         }
         progress.tick();
         let mut rs = row_sample(row, cols, plan.base0, &plan.offsets);
+        // Judged as measured, as `Flight::from_trace` judges it (before its calibration).
+        let flux_judged = flux_despiker.push(k, rs.sample.flux_nt, rs.mag_nt);
         if let Some(c) = &plan.fluxgate_calibration {
             rs.sample.flux_nt = c.apply(rs.sample.flux_nt.map(f64::from)).map(|v| v as f32);
         }
@@ -390,14 +400,28 @@ fn feed(
         };
         waiting.push_back((p, rs.line));
         if let Some(j) = despiker.push(k, rs.mag_nt) {
-            judged(j, &mut waiting, &mut glitches)?;
+            let flux_glitch = flux_judged.is_some_and(|(_, g)| g);
+            judged(
+                j,
+                flux_glitch,
+                &mut waiting,
+                &mut glitches,
+                &mut flux_glitches,
+            )?;
         }
         k += 1;
         Ok(())
     })
     .with_context(|| format!("reading {}", src.path.display()))?;
-    for j in despiker.finish() {
-        judged(j, &mut waiting, &mut glitches)?;
+    let flux_rest = flux_despiker.finish();
+    for (j, (_, flux_glitch)) in despiker.finish().into_iter().zip(flux_rest) {
+        judged(
+            j,
+            flux_glitch,
+            &mut waiting,
+            &mut glitches,
+            &mut flux_glitches,
+        )?;
     }
     progress.done();
     if k != plan.rows {
@@ -409,14 +433,55 @@ fn feed(
     }
     Ok(Found {
         glitches,
+        flux_glitches: flux_glitches.listed,
         gaps,
         gap_count,
     })
 }
 
+/// A fluxgate row found bad in the stream: its scalar is taken as missing (nothing is learnt
+/// from it) and its vector bridged from the last good row before and the first row after
+/// (still in the queue), as the in-memory path does (`flight::bridge_flux_glitches`).
+#[derive(Default)]
+struct FluxGlitches {
+    listed: Listed<[f32; 3]>,
+    /// Time and vector of the last row passed on with a good vector.
+    last_good: Option<(f64, [f32; 3])>,
+}
+
+impl FluxGlitches {
+    fn take_out(&mut self, p: &mut Pending, line: u64, queue: &VecDeque<(Pending, u64)>) {
+        self.listed.push(line, p.sample.flux_nt);
+        p.mag_nt = f64::NAN;
+        p.sample.mag = None;
+        let good = |f: &[f32; 3]| f.iter().all(|v| v.is_finite());
+        let after = queue
+            .iter()
+            .map(|(q, _)| (q.sample.t_s, q.sample.flux_nt))
+            .find(|(_, f)| good(f));
+        let t = p.sample.t_s;
+        p.sample.flux_nt = match (self.last_good, after) {
+            (Some((ta, a)), Some((tb, b))) if tb > ta => {
+                let w = ((t - ta) / (tb - ta)) as f32;
+                std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
+            }
+            (Some((_, a)), _) => a,
+            (None, Some((_, b))) => b,
+            (None, None) => [f32::NAN; 3],
+        };
+    }
+
+    fn passed(&mut self, p: &Pending, bridged: bool) {
+        if !bridged && p.sample.flux_nt.iter().all(|v| v.is_finite()) {
+            self.last_good = Some((p.sample.t_s, p.sample.flux_nt));
+        }
+    }
+}
+
 /// What [`feed`] found on the way: glitches, the first time gaps and their count.
 struct Found {
     glitches: Listed<f64>,
+    flux_glitches: Listed<[f32; 3]>,
     gaps: Vec<(usize, f64, f64)>,
     gap_count: usize,
 }
@@ -588,6 +653,7 @@ fn run_kf(
                 error_rms_nt: truth.then(|| error.rms()),
                 predicted_error_nt: covariance.as_ref().and_then(|c| regs.predicted(c)),
                 glitches: found.glitches,
+                flux_glitches: found.flux_glitches,
                 gaps: found.gaps,
                 gap_count: found.gap_count,
             })
@@ -673,6 +739,7 @@ fn run_tl(
             error_rms_nt: truth.then(|| error.rms()),
             predicted_error_nt: None,
             glitches: found.glitches,
+            flux_glitches: found.flux_glitches,
             gaps: found.gaps,
             gap_count: found.gap_count,
         })

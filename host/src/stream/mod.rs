@@ -253,6 +253,9 @@ pub fn compensate(
     if let Some(w) = stats::glitch_warning(path, &result.glitches) {
         crate::flight::position::warn_once(&w);
     }
+    if let Some(w) = stats::flux_glitch_warning(path, &result.flux_glitches) {
+        crate::flight::position::warn_once(&w);
+    }
     if let Some(w) = stats::faults_warning(path, &first.position_faults) {
         crate::flight::position::warn_once(&w);
     }
@@ -411,7 +414,8 @@ fn second_pass(
             }
             progress.tick();
             if need_noise {
-                second.push(k, row.line, row.num(cols.t), row.num(cols.mag));
+                let flux = cols.flux.map(|i| row.num(i) as f32);
+                second.push(k, row.line, row.num(cols.t), row.num(cols.mag), flux);
             }
             if need_igrf {
                 let year = match &date {

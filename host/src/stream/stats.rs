@@ -205,6 +205,47 @@ impl Despiker {
     }
 }
 
+/// The stream's [`crate::signal::despike::flux_glitches`]: a fluxgate row whose modulus
+/// `|B_F|`, or `|B_F| − mag`, is a glitch by the scalar's rule. It judges the same rows as
+/// the scalar's [`Despiker`], at the same delay, so the two verdicts meet in the queue.
+pub struct FluxDespiker {
+    modulus: Despiker,
+    against_scalar: Despiker,
+}
+
+impl FluxDespiker {
+    pub fn new(sample_rate_hz: f64) -> Self {
+        Self {
+            modulus: Despiker::new(sample_rate_hz),
+            against_scalar: Despiker::new(sample_rate_hz),
+        }
+    }
+
+    fn values(flux_nt: [f32; 3], mag_nt: f64) -> (f64, f64) {
+        let b = flux_nt.map(f64::from);
+        let modulus = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
+        (modulus, modulus - mag_nt)
+    }
+
+    /// Adds a row; returns the judged (row, is_glitch) when one is due.
+    pub fn push(&mut self, row: usize, flux_nt: [f32; 3], mag_nt: f64) -> Option<(usize, bool)> {
+        let (m, d) = Self::values(flux_nt, mag_nt);
+        let a = self.modulus.push(row, m)?;
+        let b = self.against_scalar.push(row, d)?;
+        debug_assert_eq!(a.0, b.0);
+        Some((a.0, a.1 || b.1))
+    }
+
+    pub fn finish(&mut self) -> Vec<(usize, bool)> {
+        let a = self.modulus.finish();
+        let b = self.against_scalar.finish();
+        a.into_iter()
+            .zip(b)
+            .map(|(x, y)| (x.0, x.1 || y.1))
+            .collect()
+    }
+}
+
 /// Up to `MAX_LISTED` examples and a total, for a warning that names lines.
 #[derive(Clone, Debug)]
 pub struct Listed<T> {
@@ -331,6 +372,9 @@ impl FirstPass {
 /// Pass 2 (needs the sample rate): glitches, time gaps, the scalar's noise.
 pub struct SecondPass {
     pub despiker: Despiker,
+    /// Bad fluxgate rows are taken out of the scalar too (as `Flight::from_trace` does
+    /// before the noise is estimated).
+    flux_despiker: FluxDespiker,
     pub gap_limit_s: f64,
     pub prev_t: Option<f64>,
     /// (data row, gap length, t before) of the first gaps, and their count.
@@ -347,6 +391,7 @@ impl SecondPass {
     pub fn new(sample_rate_hz: f64, median_dt_s: f64) -> Self {
         Self {
             despiker: Despiker::new(sample_rate_hz),
+            flux_despiker: FluxDespiker::new(sample_rate_hz),
             gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt_s,
             prev_t: None,
             gaps: Vec::new(),
@@ -358,7 +403,7 @@ impl SecondPass {
         }
     }
 
-    pub fn push(&mut self, row: usize, line: u64, t_s: f64, mag_nt: f64) {
+    pub fn push(&mut self, row: usize, line: u64, t_s: f64, mag_nt: f64, flux_nt: [f32; 3]) {
         if let Some(t0) = self.prev_t {
             if t_s - t0 > self.gap_limit_s {
                 if self.gaps.len() < 3 {
@@ -369,24 +414,28 @@ impl SecondPass {
         }
         self.prev_t = Some(t_s);
         self.pending.push_back((row, line, mag_nt));
+        let flux = self.flux_despiker.push(row, flux_nt, mag_nt);
         if let Some(j) = self.despiker.push(row, mag_nt) {
-            self.judged(j);
+            self.judged(j, flux.is_some_and(|(_, g)| g));
         }
     }
 
     pub fn finish(&mut self) {
-        for j in self.despiker.finish() {
-            self.judged(j);
+        let flux = self.flux_despiker.finish();
+        for (j, (_, flux_glitch)) in self.despiker.finish().into_iter().zip(flux) {
+            self.judged(j, flux_glitch);
         }
     }
 
-    fn judged(&mut self, (row, glitch): (usize, bool)) {
+    fn judged(&mut self, (row, glitch): (usize, bool), flux_glitch: bool) {
         let Some((r, line, mag)) = self.pending.pop_front() else {
             return;
         };
         debug_assert_eq!(r, row);
         let v = if glitch {
             self.glitches.push(line, mag);
+            f64::NAN
+        } else if flux_glitch {
             f64::NAN
         } else {
             mag
@@ -471,6 +520,30 @@ pub fn glitch_warning(path: &std::path::Path, g: &Listed<f64>) -> Option<String>
     );
     for (line, v) in &g.first {
         msg.push_str(&format!("\n  line {line}: mag = {v}"));
+    }
+    if g.total > g.first.len() {
+        msg.push_str(&format!("\n  … and {} more", g.total - g.first.len()));
+    }
+    Some(msg)
+}
+
+/// The stream's fluxgate-glitch warning (the in-memory path's words).
+pub fn flux_glitch_warning(path: &std::path::Path, g: &Listed<[f32; 3]>) -> Option<String> {
+    if g.total == 0 {
+        return None;
+    }
+    let mut msg = format!(
+        "{}: {} fluxgate sample(s) inconsistent with their neighbours or with the scalar \
+         (|B_F| − mag), taken as missing (samples flagged MAG_MISSING, vector bridged from \
+         the neighbours):",
+        path.display(),
+        g.total
+    );
+    for (line, v) in &g.first {
+        msg.push_str(&format!(
+            "\n  line {line}: flux = ({}, {}, {})",
+            v[0], v[1], v[2]
+        ));
     }
     if g.total > g.first.len() {
         msg.push_str(&format!("\n  … and {} more", g.total - g.first.len()));
