@@ -369,50 +369,8 @@ async fn handle_command(
     staged: &mut Option<[f32; N_COEF]>,
 ) {
     let reply = match cmd {
-        Command::Mode(m) => {
-            // A staged set becomes the survey's coefficients here, all at once.
-            match staged.take() {
-                Some(c) if m == Mode::Survey => {
-                    if acq.set_coefficients(&c).is_err() {
-                        defmt::error!("staged coefficients refused");
-                    }
-                }
-                other => {
-                    *staged = other;
-                    acq.set_survey_mode(m == Mode::Survey);
-                }
-            }
-            Line::sentence(|c| {
-                c.bytes(b"MCACK,MODE,")?;
-                c.bytes(mode_word(m))
-            })
-        }
-        Command::Status => Line::sentence(|c| {
-            c.bytes(b"MCACK,STATUS,")?;
-            let n = acq.counters();
-            c.bytes(mode_word(mode(acq)))?;
-            for v in [n.records, n.scalar_errors, n.flux_errors, n.gps_errors] {
-                c.byte(b',')?;
-                c.u64(v.into())?;
-            }
-            // err_uart: the flags counted in the interrupts (uart_stats) plus any error the
-            // driver itself returns; then the breakdown by kind and by port
-            let kinds = uart_stats::by_kind();
-            let uart = kinds
-                .iter()
-                .fold(UART_ERRORS.load(Ordering::Relaxed), |a, &k| {
-                    a.wrapping_add(k)
-                });
-            for v in [uart, CMD_ERRORS.load(Ordering::Relaxed)]
-                .into_iter()
-                .chain(kinds)
-                .chain(uart_stats::by_port())
-            {
-                c.byte(b',')?;
-                c.u64(v.into())?;
-            }
-            Ok(())
-        }),
+        Command::Mode(m) => set_mode(m, acq, staged),
+        Command::Status => status(acq),
         Command::GetCoef(Some(i)) => {
             let v = staged
                 .unwrap_or_else(|| coefficients(acq))
@@ -424,35 +382,13 @@ async fn handle_command(
         Command::GetCoef(None) => {
             ack_values(b"GETCOEF", &staged.unwrap_or_else(|| coefficients(acq)))
         }
-        Command::SetCoef { index, value } => {
-            // Staged, not applied: `MODE,SURVEY` applies the whole set (docs/protocols.md §5).
-            let mut c = staged.unwrap_or_else(|| coefficients(acq));
-            match c.get_mut(usize::from(index)) {
-                Some(slot) if value.is_finite() => {
-                    *slot = value;
-                    *staged = Some(c);
-                    Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out))
-                }
-                _ => refused(CommandError::ValueOutOfBounds),
-            }
-        }
+        Command::SetCoef { index, value } => stage_coefficient(index, value, acq, staged),
         Command::GetFlux(Some(i)) => {
             let v = acq.flux_calibration().to_array()[usize::from(i) % FLUX_CAL_LEN];
             Line::fill(|out| encode_ack_indexed(b"GETFLUX", i, v, out))
         }
         Command::GetFlux(None) => ack_values(b"GETFLUX", &acq.flux_calibration().to_array()),
-        Command::SetFlux { index, value } => {
-            let mut v = acq.flux_calibration().to_array();
-            v[usize::from(index) % FLUX_CAL_LEN] = value;
-            // One value at a time: a half-sent calibration must still be a plausible one.
-            match FluxCalibration::from_array(&v) {
-                Some(cal) => {
-                    acq.set_flux_calibration(cal);
-                    Line::fill(|out| encode_ack_indexed(b"SETFLUX", index, value, out))
-                }
-                None => refused(CommandError::ValueOutOfBounds),
-            }
-        }
+        Command::SetFlux { index, value } => set_flux(index, value, acq),
         Command::GetLag => ack_values(b"GETLAG", &[acq.lag_s()]),
         Command::GetFluxTemp(Some(i)) => {
             let v = acq.flux_temp_calibration().to_array()[usize::from(i) % FLUX_TEMP_LEN];
@@ -461,17 +397,7 @@ async fn handle_command(
         Command::GetFluxTemp(None) => {
             ack_values(b"GETFTEMP", &acq.flux_temp_calibration().to_array())
         }
-        Command::SetFluxTemp { index, value } => {
-            let mut v = acq.flux_temp_calibration().to_array();
-            v[usize::from(index) % FLUX_TEMP_LEN] = value;
-            match FluxTempCal::from_array(&v) {
-                Some(cal) => {
-                    acq.set_flux_temp_calibration(cal);
-                    Line::fill(|out| encode_ack_indexed(b"SETFTEMP", index, value, out))
-                }
-                None => refused(CommandError::ValueOutOfBounds),
-            }
-        }
+        Command::SetFluxTemp { index, value } => set_flux_temp(index, value, acq),
         Command::SetLag(v) => match acq.set_lag_s(v) {
             Ok(()) => ack_values(b"SETLAG", &[v]),
             Err(_) => refused(CommandError::ValueOutOfBounds),
@@ -485,44 +411,150 @@ async fn handle_command(
             }
         }
         Command::Reset | Command::Flush | Command::FactoryReset => {
-            // every sample keeps its record: emit the held ones before anything else
-            while let Some(r) = acq.flush() {
-                send_record(&r).await;
-            }
-            let name: &[u8] = match cmd {
-                Command::Reset => b"RESET",
-                Command::FactoryReset => b"FACTORY",
-                _ => b"FLUSH",
-            };
-            let mut failed = false;
-            if cmd != Command::Flush {
-                *staged = None;
-                // in place: no second filter on the stack
-                if bc::restart_filter(acq).is_err() {
-                    defmt::error!("compensator re-init failed");
-                    board::exit(false)
-                }
-                if cmd == Command::FactoryReset {
-                    // an erased store (as flash reads after an erase) and the boot defaults
-                    failed = (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
-                    store::defaults(acq);
-                } else {
-                    let _ = load_coefficients(st, acq);
-                }
-            }
-            if failed {
-                Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
-            } else {
-                Line::sentence(|c| {
-                    c.bytes(b"MCACK,")?;
-                    c.bytes(name)?;
-                    c.byte(b',')?;
-                    c.u64(acq.next_seq().into())
-                })
-            }
+            restart(cmd, acq, st, staged).await
         }
     };
     OUT.send(reply).await;
+}
+
+/// `MODE`: a staged set becomes the survey's coefficients here, all at once.
+fn set_mode(m: Mode, acq: &mut BoardAcquisition, staged: &mut Option<[f32; N_COEF]>) -> Line {
+    match staged.take() {
+        Some(c) if m == Mode::Survey => {
+            if acq.set_coefficients(&c).is_err() {
+                defmt::error!("staged coefficients refused");
+            }
+        }
+        other => {
+            *staged = other;
+            acq.set_survey_mode(m == Mode::Survey);
+        }
+    }
+    Line::sentence(|c| {
+        c.bytes(b"MCACK,MODE,")?;
+        c.bytes(mode_word(m))
+    })
+}
+
+/// `STATUS`: the mode and the board's counters.
+fn status(acq: &BoardAcquisition) -> Line {
+    Line::sentence(|c| {
+        c.bytes(b"MCACK,STATUS,")?;
+        let n = acq.counters();
+        c.bytes(mode_word(mode(acq)))?;
+        for v in [n.records, n.scalar_errors, n.flux_errors, n.gps_errors] {
+            c.byte(b',')?;
+            c.u64(v.into())?;
+        }
+        // err_uart: the flags counted in the interrupts (uart_stats) plus any error the
+        // driver itself returns; then the breakdown by kind and by port
+        let kinds = uart_stats::by_kind();
+        let uart = kinds
+            .iter()
+            .fold(UART_ERRORS.load(Ordering::Relaxed), |a, &k| {
+                a.wrapping_add(k)
+            });
+        for v in [uart, CMD_ERRORS.load(Ordering::Relaxed)]
+            .into_iter()
+            .chain(kinds)
+            .chain(uart_stats::by_port())
+        {
+            c.byte(b',')?;
+            c.u64(v.into())?;
+        }
+        Ok(())
+    })
+}
+
+/// `SETCOEF`: staged, not applied: `MODE,SURVEY` applies the whole set
+/// (docs/protocols.md §5).
+fn stage_coefficient(
+    index: u16,
+    value: f32,
+    acq: &BoardAcquisition,
+    staged: &mut Option<[f32; N_COEF]>,
+) -> Line {
+    let mut c = staged.unwrap_or_else(|| coefficients(acq));
+    match c.get_mut(usize::from(index)) {
+        Some(slot) if value.is_finite() => {
+            *slot = value;
+            *staged = Some(c);
+            Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out))
+        }
+        _ => refused(CommandError::ValueOutOfBounds),
+    }
+}
+
+/// `SETFLUX`: one value at a time, so a half-sent calibration must still be a plausible
+/// one.
+fn set_flux(index: u16, value: f32, acq: &mut BoardAcquisition) -> Line {
+    let mut v = acq.flux_calibration().to_array();
+    v[usize::from(index) % FLUX_CAL_LEN] = value;
+    match FluxCalibration::from_array(&v) {
+        Some(cal) => {
+            acq.set_flux_calibration(cal);
+            Line::fill(|out| encode_ack_indexed(b"SETFLUX", index, value, out))
+        }
+        None => refused(CommandError::ValueOutOfBounds),
+    }
+}
+
+/// `SETFTEMP`: as `SETFLUX`, for the fluxgate's temperature calibration.
+fn set_flux_temp(index: u16, value: f32, acq: &mut BoardAcquisition) -> Line {
+    let mut v = acq.flux_temp_calibration().to_array();
+    v[usize::from(index) % FLUX_TEMP_LEN] = value;
+    match FluxTempCal::from_array(&v) {
+        Some(cal) => {
+            acq.set_flux_temp_calibration(cal);
+            Line::fill(|out| encode_ack_indexed(b"SETFTEMP", index, value, out))
+        }
+        None => refused(CommandError::ValueOutOfBounds),
+    }
+}
+
+/// `RESET`, `FLUSH` and `FACTORY`: the held records out first, then (not for `FLUSH`)
+/// the filter restarted with the stored or, for `FACTORY`, the default coefficients.
+async fn restart(
+    cmd: Command,
+    acq: &mut BoardAcquisition,
+    st: &mut board::CoefStore,
+    staged: &mut Option<[f32; N_COEF]>,
+) -> Line {
+    // every sample keeps its record: emit the held ones before anything else
+    while let Some(r) = acq.flush() {
+        send_record(&r).await;
+    }
+    let name: &[u8] = match cmd {
+        Command::Reset => b"RESET",
+        Command::FactoryReset => b"FACTORY",
+        _ => b"FLUSH",
+    };
+    let mut failed = false;
+    if cmd != Command::Flush {
+        *staged = None;
+        // in place: no second filter on the stack
+        if bc::restart_filter(acq).is_err() {
+            defmt::error!("compensator re-init failed");
+            board::exit(false)
+        }
+        if cmd == Command::FactoryReset {
+            // an erased store (as flash reads after an erase) and the boot defaults
+            failed = (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
+            store::defaults(acq);
+        } else {
+            let _ = load_coefficients(st, acq);
+        }
+    }
+    if failed {
+        Line::sentence(|c| c.bytes(b"MCERR,8,STORAGE"))
+    } else {
+        Line::sentence(|c| {
+            c.bytes(b"MCACK,")?;
+            c.bytes(name)?;
+            c.byte(b',')?;
+            c.u64(acq.next_seq().into())
+        })
+    }
 }
 
 /// Commands arrive on the output port's RX line; malformed ones are answered here.

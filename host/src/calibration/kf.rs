@@ -5,9 +5,10 @@ use super::coefficients::{Coefficient, CoefficientFile, Method, RateCrossover, C
 use super::result::Compensation;
 use super::EstimatorSettings;
 use crate::estimate::corrections::run_kf;
-use crate::estimate::kf::KfOptions;
+use crate::estimate::kf::{KfOptions, KfRun};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
+use crate::model::corrections::ScalarLag;
 use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Result};
 
@@ -31,28 +32,85 @@ pub(super) fn run_kf_method(
         warnings.push(warning);
     }
     // The default calibration looks for a scalar delay the model was not told of.
-    let mut detected_lag = None;
-    let spec = if est.cross_check
+    let (spec, detected_lag) = if est.cross_check
         && coeffs.is_none()
         && !realtime
         && !crate::estimate::corrections::needed(&spec)
     {
-        match detect_lag(trace, &flight, &spec, assumed_speed_mps)? {
-            Some(l) => {
-                warnings.push(format!(
-                    "the scalar lags the fluxgate by {:.0} ± {:.0} ms: it is re-aligned (the \
-                     `lag` term is added to the model; `--method kf` keeps the model as given)",
-                    l.lag_s * 1e3,
-                    l.sigma_s * 1e3
-                ));
-                detected_lag = Some(l);
-                ModelSpec::parse(&format!("{}+lag", spec.text()))?
-            }
-            None => spec,
-        }
+        with_detected_lag(trace, &flight, spec, assumed_speed_mps, &mut warnings)?
     } else {
-        spec
+        (spec, None)
     };
+    let opts = kf_options(&spec, est, coeffs, realtime, detected_lag)?;
+    let mut run = run_kf(&flight, &opts)?;
+    warnings.extend(run.warnings.iter().cloned());
+    // Samples next to a time gap: their derivatives span it.
+    for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
+        if let Some(f) = run.flags.get_mut(i) {
+            *f |= magcomp_core::flags::Flags::DERIVATIVE_DEGRADED;
+        }
+    }
+    if qc.withheld.is_some() {
+        run.predicted_error_nt = None;
+    }
+    let file = coefficient_file(&run, &spec, &flight, coeffs, assumed_speed_mps);
+    let comp = Compensation {
+        model: spec.text(),
+        method: Some(Method::Kf),
+        interference_nt: run.interference_nt,
+        compensated_nt: run.compensated_nt,
+        anomaly_nt: Some(run.anomaly_nt),
+        innovation_nt: Some(run.innovation_nt),
+        flags: Some(run.flags),
+        interference_sigma_nt: realtime.then_some(run.interference_sigma_nt),
+        coefficients: Some(file),
+        regressors: run.regressors,
+        warnings,
+        jackknife_nt: run
+            .jackknife
+            .as_ref()
+            .map(|j| j.sigma_nt)
+            .filter(|_| qc.withheld.is_none()),
+        band_jackknife_nt: run
+            .jackknife
+            .as_ref()
+            .and_then(|j| j.band_sigma_nt)
+            .filter(|_| qc.withheld.is_none()),
+        withheld: qc.withheld,
+    };
+    Ok((flight, comp))
+}
+
+/// The model with `lag` added, and the delay, when the flight shows one (with a warning
+/// saying so); the model as given otherwise.
+fn with_detected_lag(
+    trace: &Trace,
+    flight: &Flight,
+    spec: ModelSpec,
+    assumed_speed_mps: Option<f64>,
+    warnings: &mut Vec<String>,
+) -> Result<(ModelSpec, Option<ScalarLag>)> {
+    let Some(l) = detect_lag(trace, flight, &spec, assumed_speed_mps)? else {
+        return Ok((spec, None));
+    };
+    warnings.push(format!(
+        "the scalar lags the fluxgate by {:.0} ± {:.0} ms: it is re-aligned (the \
+         `lag` term is added to the model; `--method kf` keeps the model as given)",
+        l.lag_s * 1e3,
+        l.sigma_s * 1e3
+    ));
+    Ok((ModelSpec::parse(&format!("{}+lag", spec.text()))?, Some(l)))
+}
+
+/// The filter's options: the user's settings, a detected delay, and what an applied
+/// coefficient file fixes.
+fn kf_options(
+    spec: &ModelSpec,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+    realtime: bool,
+    detected_lag: Option<ScalarLag>,
+) -> Result<KfOptions> {
     let mut opts = KfOptions::new(spec.clone());
     if let Some(l) = detected_lag {
         opts.preprocessing = Some(crate::model::corrections::Preprocessing {
@@ -66,41 +124,53 @@ pub(super) fn run_kf_method(
     // The calibration the user is given reports the flight's own evidence.
     opts.jackknife = true;
     if let Some(c) = coeffs {
-        opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
-        if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
-            bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
-        }
-        opts.fluxgate_calibration = c.fluxgate_calibration;
-        if spec.corrects(InputCorrection::Lag) && c.scalar_lag.is_none() {
-            bail!("the model has `lag` but the coefficient file has no scalar_lag");
-        }
-        if spec.corrects(InputCorrection::FluxTemp) && c.fluxgate_temperature.is_none() {
-            bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
-        }
-        opts.preprocessing = Some(crate::model::corrections::Preprocessing {
-            scalar_lag: c.scalar_lag,
-            fluxgate_temperature: c.fluxgate_temperature.clone(),
-        });
-        opts.rate_crossover_coefficients = c
-            .rate_crossover
-            .as_ref()
-            .filter(|r| r.applied)
-            .map(|r| r.fit.coefficients);
-        opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
-        opts.model_error_nt = c.model_error_nt;
+        apply_coefficient_file(&mut opts, spec, c)?;
     }
-    let mut run = run_kf(&flight, &opts)?;
-    warnings.extend(run.warnings.iter().cloned());
-    // Samples next to a time gap: their derivatives span it.
-    for i in crate::qc::gaps::gap_neighbours(&qc.breaks) {
-        if let Some(f) = run.flags.get_mut(i) {
-            *f |= magcomp_core::flags::Flags::DERIVATIVE_DEGRADED;
-        }
+    Ok(opts)
+}
+
+/// Fixes the filter's coefficients, their covariance and the input corrections to the
+/// file's; refuses a file without the corrections the model needs.
+fn apply_coefficient_file(
+    opts: &mut KfOptions,
+    spec: &ModelSpec,
+    c: &CoefficientFile,
+) -> Result<()> {
+    opts.coefficients = Some(c.coefficients.iter().map(|c| c.value).collect());
+    if spec.calibrates_fluxgate() && c.fluxgate_calibration.is_none() {
+        bail!("the model has `fluxcal` but the coefficient file has no fluxgate_calibration");
     }
-    if qc.withheld.is_some() {
-        run.predicted_error_nt = None;
+    opts.fluxgate_calibration = c.fluxgate_calibration;
+    if spec.corrects(InputCorrection::Lag) && c.scalar_lag.is_none() {
+        bail!("the model has `lag` but the coefficient file has no scalar_lag");
     }
-    let file = CoefficientFile {
+    if spec.corrects(InputCorrection::FluxTemp) && c.fluxgate_temperature.is_none() {
+        bail!("the model has `fluxtemp` but the coefficient file has no fluxgate_temperature");
+    }
+    opts.preprocessing = Some(crate::model::corrections::Preprocessing {
+        scalar_lag: c.scalar_lag,
+        fluxgate_temperature: c.fluxgate_temperature.clone(),
+    });
+    opts.rate_crossover_coefficients = c
+        .rate_crossover
+        .as_ref()
+        .filter(|r| r.applied)
+        .map(|r| r.fit.coefficients);
+    opts.coefficient_covariance = c.covariance.as_ref().map(|rows| rows.concat());
+    opts.model_error_nt = c.model_error_nt;
+    Ok(())
+}
+
+/// The coefficient file of the run: what it calibrated, or, with `coeffs` applied, the
+/// applied file's figures where the run held them fixed.
+fn coefficient_file(
+    run: &KfRun,
+    spec: &ModelSpec,
+    flight: &Flight,
+    coeffs: Option<&CoefficientFile>,
+    assumed_speed_mps: Option<f64>,
+) -> CoefficientFile {
+    CoefficientFile {
         format: COEFF_FORMAT.into(),
         model: spec.text(),
         method: Method::Kf,
@@ -158,32 +228,7 @@ pub(super) fn run_kf_method(
                     .map_or(*s, |k| k.sigma),
             })
             .collect(),
-    };
-    let comp = Compensation {
-        model: spec.text(),
-        method: Some(Method::Kf),
-        interference_nt: run.interference_nt,
-        compensated_nt: run.compensated_nt,
-        anomaly_nt: Some(run.anomaly_nt),
-        innovation_nt: Some(run.innovation_nt),
-        flags: Some(run.flags),
-        interference_sigma_nt: realtime.then_some(run.interference_sigma_nt),
-        coefficients: Some(file),
-        regressors: run.regressors,
-        warnings,
-        jackknife_nt: run
-            .jackknife
-            .as_ref()
-            .map(|j| j.sigma_nt)
-            .filter(|_| qc.withheld.is_none()),
-        band_jackknife_nt: run
-            .jackknife
-            .as_ref()
-            .and_then(|j| j.band_sigma_nt)
-            .filter(|_| qc.withheld.is_none()),
-        withheld: qc.withheld,
-    };
-    Ok((flight, comp))
+    }
 }
 
 /// The delay is looked for on at most this long a stretch (s): the one richest in
@@ -198,7 +243,7 @@ fn detect_lag(
     flight: &Flight,
     spec: &ModelSpec,
     assumed_speed_mps: Option<f64>,
-) -> Result<Option<crate::model::corrections::ScalarLag>> {
+) -> Result<Option<ScalarLag>> {
     let window = (LAG_SEARCH_S * flight.sample_rate_hz) as usize;
     if flight.len() <= window {
         return Ok(crate::estimate::corrections::lag::detect(flight, spec));

@@ -3,7 +3,7 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::compensate::{print_summary, print_warnings};
-use super::multi::SensorPlan;
+use super::multi::{MultiArgs, OneSensorRerun, SensorPlan};
 use crate::calibration::coefficients::Method;
 use crate::calibration::summary::summarise_with;
 use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
@@ -39,18 +39,22 @@ pub struct CalibrateArgs {
     pub aircraft_fom: bool,
 }
 
+impl OneSensorRerun for CalibrateArgs {
+    fn map_mut(&mut self) -> &mut Option<String> {
+        &mut self.input.map
+    }
+    fn multi_mut(&mut self) -> &mut MultiArgs {
+        &mut self.multi
+    }
+}
+
 pub fn run(a: &CalibrateArgs) -> Result<()> {
     check_outputs(&[&a.input.trace], &[&a.output])?;
     crate::io::progress::force_progress(a.long.progress);
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
     match a.multi.plan(&trace, a.input.map.as_deref())? {
         SensorPlan::Today => {}
-        SensorPlan::One(map) => {
-            let mut one = a.clone();
-            one.input.map = Some(map);
-            one.multi = Default::default();
-            return run(&one);
-        }
+        SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
         SensorPlan::Several(sensors) => {
             return super::multi::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
         }

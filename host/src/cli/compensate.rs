@@ -2,7 +2,7 @@
 //! or applying a coefficient file), write the output CSV and print the summary.
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
-use super::multi::SensorPlan;
+use super::multi::{MultiArgs, OneSensorRerun, SensorPlan};
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::compensate_trace;
 use crate::calibration::summary::{summarise, write_output_csv, Summary};
@@ -67,6 +67,15 @@ pub enum StreamMode {
     Never,
 }
 
+impl OneSensorRerun for CompensateArgs {
+    fn map_mut(&mut self) -> &mut Option<String> {
+        &mut self.input.map
+    }
+    fn multi_mut(&mut self) -> &mut MultiArgs {
+        &mut self.multi
+    }
+}
+
 pub fn run(a: &CompensateArgs) -> Result<()> {
     let inputs: Vec<&std::path::Path> = std::iter::once(a.input.trace.as_path())
         .chain(a.coeffs.as_deref())
@@ -78,12 +87,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         let trace = a.input.read()?;
         match a.multi.plan(&trace, a.input.map.as_deref())? {
             SensorPlan::Today => {}
-            SensorPlan::One(map) => {
-                let mut one = a.clone();
-                one.input.map = Some(map);
-                one.multi = Default::default();
-                return run(&one);
-            }
+            SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
             SensorPlan::Several(sensors) => {
                 return super::multi::compensate(
                     &trace,

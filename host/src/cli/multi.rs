@@ -46,6 +46,23 @@ pub enum SensorPlan {
     Several(Vec<SensorSpec>),
 }
 
+/// A command taking `--sensors`: with one sensor it reruns as today's command, reading
+/// that sensor through the `--map` its plan gives ([`SensorPlan::One`]).
+pub trait OneSensorRerun: Clone {
+    /// The command's own `--map`.
+    fn map_mut(&mut self) -> &mut Option<String>;
+    fn multi_mut(&mut self) -> &mut MultiArgs;
+
+    /// These arguments as today's command on the one sensor `map` reads: the map
+    /// replaced, `--sensors` dropped (so the rerun does not plan again).
+    fn as_one_sensor(&self, map: String) -> Self {
+        let mut one = self.clone();
+        *one.map_mut() = Some(map);
+        *one.multi_mut() = MultiArgs::default();
+        one
+    }
+}
+
 impl MultiArgs {
     /// The plan for `trace`, whose own `--map` is `map`; the sensors are parsed once.
     pub fn plan(&self, trace: &Trace, map: Option<&str>) -> Result<SensorPlan> {

@@ -370,6 +370,67 @@ pub fn fit_rate(
     compensated_nt: &[f64],
     regressors: &[[f64; 6]],
 ) -> Option<RateFit> {
+    let rows = crossing_rows(flight, crossings, compensated_nt, regressors);
+    let mut groups: Vec<(i64, i64)> = rows.iter().map(|r| r.headings).collect();
+    groups.sort();
+    groups.dedup();
+    let n = rows.len();
+    let ng = groups.len();
+    if n < MIN_CROSSINGS.max(ng + 6 + 4) {
+        return None;
+    }
+    let raw = design_matrix(&rows, &groups);
+    let w = whiten_at_likeliest_position_sigma(&rows, &raw, ng)?;
+    let y = DVector::from_iterator(n, w.column(ng + 6).iter().copied());
+    let a1 = w.columns(0, ng + 6).into_owned();
+    let test = FTest::of(&w.columns(0, ng).into_owned(), &a1, &y)?;
+    let (x, diag) = estimate_with_prior(&a1, &y, test.s2)?;
+    let nm: [f64; 6] = std::array::from_fn(|k| x[ng + k]);
+    let nv: [f64; 6] = std::array::from_fn(|k| test.s2 * diag[ng + k]);
+    let (coefficients, sigmas) = rate_coordinates(&nm, &nv);
+    // Rms of the raw differences (readable, unlike the whitened ones): about the heading
+    // pairs' means before, about the fitted intercepts and N after.
+    let d: Vec<f64> = rows.iter().map(|r| r.d_nt).collect();
+    let keys: Vec<(i64, i64)> = rows.iter().map(|r| r.headings).collect();
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let rms_before_nt = rms(&demeaned_by_key(&d, &keys));
+    let residual: Vec<f64> = (0..n)
+        .map(|r| rows[r].d_nt - (0..ng + 6).map(|c| raw[(r, c)] * x[c]).sum::<f64>())
+        .collect();
+    let rms_after_nt = rms(&residual);
+    Some(RateFit {
+        coefficients,
+        sigmas,
+        crossings: n,
+        rms_before_nt,
+        rms_after_nt,
+        f_statistic: test.f,
+        p_value: test.p,
+        added_parameters: test.q,
+    })
+}
+
+/// Per sample, the N-space regressors from the rate-term ones (e3² = 1 − e1² − e2²).
+fn n_space(r: &[f64; 6]) -> [f64; 6] {
+    let bdot = r[5];
+    [
+        r[0],
+        r[1],
+        bdot - r[0] - r[1],
+        2.0 * r[2],
+        2.0 * r[3],
+        2.0 * r[4],
+    ]
+}
+
+/// One row per crossing where the levelled difference, the regressor differences and the
+/// horizontal gradient are all finite.
+fn crossing_rows(
+    flight: &Flight,
+    crossings: &[Crossing],
+    compensated_nt: &[f64],
+    regressors: &[[f64; 6]],
+) -> Vec<Row> {
     let value_nt = flight.environment_corrected_nt(compensated_nt);
     let speed = |i: usize| -> f64 {
         let s = flight.samples[i].ground_speed_mps as f64;
@@ -378,18 +439,6 @@ pub fn fit_rate(
         } else {
             60.0
         }
-    };
-    // Per sample, the N-space regressors from the rate-term ones (e3² = 1 − e1² − e2²).
-    let n_space = |r: &[f64; 6]| -> [f64; 6] {
-        let bdot = r[5];
-        [
-            r[0],
-            r[1],
-            bdot - r[0] - r[1],
-            2.0 * r[2],
-            2.0 * r[3],
-            2.0 * r[4],
-        ]
     };
     let mut rows: Vec<Row> = Vec::new();
     for c in crossings {
@@ -422,17 +471,14 @@ pub fn fit_rate(
             });
         }
     }
-    let mut groups: Vec<(i64, i64)> = rows.iter().map(|r| r.headings).collect();
-    groups.sort();
-    groups.dedup();
-    let n = rows.len();
+    rows
+}
+
+/// `[intercepts per heading pair | N regressors | differences]`, a row per crossing.
+fn design_matrix(rows: &[Row], groups: &[(i64, i64)]) -> DMatrix<f64> {
     let ng = groups.len();
-    if n < MIN_CROSSINGS.max(ng + 6 + 4) {
-        return None;
-    }
     let group_col = |r: usize, g: usize| f64::from(u8::from(rows[r].headings == groups[g]));
-    // [intercepts | N regressors | differences]
-    let raw = DMatrix::from_fn(n, ng + 7, |r, c| {
+    DMatrix::from_fn(rows.len(), ng + 7, |r, c| {
         if c < ng {
             group_col(r, c)
         } else if c < ng + 6 {
@@ -440,11 +486,20 @@ pub fn fit_rate(
         } else {
             rows[r].d_nt
         }
-    });
-    // The position error's size by profile likelihood (scale profiled out).
+    })
+}
+
+/// The design whitened at the position error's size the profile likelihood prefers (scale
+/// profiled out) among [`POSITION_SIGMAS_M`].
+fn whiten_at_likeliest_position_sigma(
+    rows: &[Row],
+    raw: &DMatrix<f64>,
+    ng: usize,
+) -> Option<DMatrix<f64>> {
+    let n = rows.len();
     let mut best: Option<(f64, DMatrix<f64>)> = None;
     for sp in POSITION_SIGMAS_M {
-        let Some((w, logdet)) = whiten(covariance(&rows, sp), &raw) else {
+        let Some((w, logdet)) = whiten(covariance(rows, sp), raw) else {
             continue;
         };
         let a1 = w.columns(0, ng + 6).into_owned();
@@ -457,27 +512,51 @@ pub fn fit_rate(
             best = Some((nll, w));
         }
     }
-    let (_, w) = best?;
-    let y = DVector::from_iterator(n, w.column(ng + 6).iter().copied());
-    let a0 = w.columns(0, ng).into_owned();
-    let a1 = w.columns(0, ng + 6).into_owned();
-    let (_, rss0, rank0, _) = lstsq(&a0, &y)?;
-    let (_, rss1, rank1, _) = lstsq(&a1, &y)?;
-    let q = rank1.saturating_sub(rank0);
-    let dof = n.saturating_sub(rank1).max(1);
-    let s2 = rss1 / dof as f64;
-    let f = if q > 0 && rss1 > 0.0 {
-        ((rss0 - rss1).max(0.0) / q as f64) / s2
-    } else {
-        0.0
-    };
-    let p = if q > 0 {
-        chi2_sf(f * q as f64, q as f64)
-    } else {
-        1.0
-    };
-    // The estimate: the same whitened problem with the prior rows (in units of the fitted
-    // residual scale, so the prior's weight does not depend on the assumed σ's).
+    best.map(|(_, w)| w)
+}
+
+/// The F test of the intercepts-only fit (`a0`) against the one with N (`a1`).
+struct FTest {
+    /// Residual variance of the fit with N (whitened units).
+    s2: f64,
+    f: f64,
+    p: f64,
+    /// Parameters N adds (rank difference).
+    q: usize,
+}
+
+impl FTest {
+    fn of(a0: &DMatrix<f64>, a1: &DMatrix<f64>, y: &DVector<f64>) -> Option<Self> {
+        let n = y.len();
+        let (_, rss0, rank0, _) = lstsq(a0, y)?;
+        let (_, rss1, rank1, _) = lstsq(a1, y)?;
+        let q = rank1.saturating_sub(rank0);
+        let dof = n.saturating_sub(rank1).max(1);
+        let s2 = rss1 / dof as f64;
+        let f = if q > 0 && rss1 > 0.0 {
+            ((rss0 - rss1).max(0.0) / q as f64) / s2
+        } else {
+            0.0
+        };
+        let p = if q > 0 {
+            chi2_sf(f * q as f64, q as f64)
+        } else {
+            1.0
+        };
+        Some(Self { s2, f, p, q })
+    }
+}
+
+/// The estimate: the same whitened problem with the prior rows (in units of the fitted
+/// residual scale, so the prior's weight does not depend on the assumed σ's). The
+/// solution and the diagonal of its unscaled covariance.
+fn estimate_with_prior(
+    a1: &DMatrix<f64>,
+    y: &DVector<f64>,
+    s2: f64,
+) -> Option<(DVector<f64>, Vec<f64>)> {
+    let n = y.len();
+    let ng = a1.ncols() - 6;
     let lam = s2.sqrt() / N_PRIOR_SIGMA_S;
     let a2 = DMatrix::from_fn(n + 6, ng + 6, |r, c| {
         if r < n {
@@ -490,9 +569,12 @@ pub fn fit_rate(
     });
     let y2 = DVector::from_iterator(n + 6, y.iter().copied().chain(std::iter::repeat_n(0.0, 6)));
     let (x, _, _, diag) = lstsq(&a2, &y2)?;
-    let nm: [f64; 6] = std::array::from_fn(|k| x[ng + k]);
-    let nv: [f64; 6] = std::array::from_fn(|k| s2 * diag[ng + k]);
-    // N-space → rate-term coordinates: e1²(N11−N33) + e2²(N22−N33) + e1e2·2N12 + … + N33.
+    Some((x, diag))
+}
+
+/// N-space estimate and variances → rate-term coefficients and 1σ:
+/// e1²(N11−N33) + e2²(N22−N33) + e1e2·2N12 + … + N33.
+fn rate_coordinates(nm: &[f64; 6], nv: &[f64; 6]) -> ([f64; 6], [f64; 6]) {
     let coefficients = [
         nm[0] - nm[2],
         nm[1] - nm[2],
@@ -509,24 +591,5 @@ pub fn fit_rate(
         2.0 * nv[5].sqrt(),
         nv[2].sqrt(),
     ];
-    // Rms of the raw differences (readable, unlike the whitened ones): about the heading
-    // pairs' means before, about the fitted intercepts and N after.
-    let d: Vec<f64> = rows.iter().map(|r| r.d_nt).collect();
-    let keys: Vec<(i64, i64)> = rows.iter().map(|r| r.headings).collect();
-    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
-    let rms_before_nt = rms(&demeaned_by_key(&d, &keys));
-    let residual: Vec<f64> = (0..n)
-        .map(|r| rows[r].d_nt - (0..ng + 6).map(|c| raw[(r, c)] * x[c]).sum::<f64>())
-        .collect();
-    let rms_after_nt = rms(&residual);
-    Some(RateFit {
-        coefficients,
-        sigmas,
-        crossings: n,
-        rms_before_nt,
-        rms_after_nt,
-        f_statistic: f,
-        p_value: p,
-        added_parameters: q,
-    })
+    (coefficients, sigmas)
 }

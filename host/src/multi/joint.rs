@@ -12,7 +12,7 @@ use crate::io::trace::Trace;
 use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::compensator::{CompensatorConfig, GROUND_SPEED_MPS};
-use magcomp_core::epoch::{EpochBuilder, EpochConfig};
+use magcomp_core::epoch::{Epoch, EpochBuilder, EpochConfig};
 use magcomp_core::filter::FieldProcess;
 use magcomp_core::joint::{JointFilter, JointSensor, LateralGradient, Placement, MAX_SENSORS};
 
@@ -149,6 +149,57 @@ pub fn calibrate_joint(
             sensors.len()
         );
     }
+    let alone = calibrate_alone(trace, est, sensors)?;
+    let files: Vec<CoefficientFile> = alone
+        .iter()
+        .map(|(_, c)| c.coefficients.clone().context("no coefficients"))
+        .collect::<Result<_>>()?;
+    let flights = prepare_flights(&alone, &files, est)?;
+    let mut prepared = prepare(&flights, &files, sensors)?;
+    // Each sensor's noise stays its alone calibration's: raising it to the robust joint
+    // innovation rms (as the single-sensor run adapts its own) took a 300 m flight with
+    // sensors 1 m apart from 0.02 to 19 nT.
+    let label = choose_field_process(&mut prepared, &flights[0], &alone[0].1)?;
+    let full = pass(&prepared, None)?;
+    let refits = jackknife_refits(&prepared, &flights[0], sensors.len())?;
+    let mut results = Vec::new();
+    let mut jackknife_nt = Vec::new();
+    for (j, ((_, alone_j), s)) in alone.into_iter().zip(sensors).enumerate() {
+        let flight = &flights[j];
+        let evidence = SensorEvidence::of(&prepared, j, &refits[j], flight);
+        jackknife_nt.push(evidence.jackknife_nt);
+        let (joint, predicted) = joint_compensation(
+            &full,
+            j,
+            evidence,
+            flight,
+            &files[j],
+            (prepared.field.sigma1 as f64, &label),
+            &s.name,
+        );
+        results.push(choose_result(
+            s,
+            alone_j,
+            joint,
+            predicted,
+            files[j].predicted_error_nt,
+            flight,
+        ));
+    }
+    Ok(JointResult {
+        sensors: results,
+        flights,
+        sigma1: prepared.field.sigma1 as f64,
+        jackknife_nt,
+    })
+}
+
+/// Each sensor's trace and today's single-sensor calibration (`--method kf`) of it alone.
+fn calibrate_alone(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+) -> Result<Vec<(Trace, Compensation)>> {
     let est1 = alone_settings(est);
     let mut alone = Vec::new();
     for s in sensors {
@@ -157,32 +208,41 @@ pub fn calibrate_joint(
             .with_context(|| format!("{} alone", s.name))?;
         alone.push((t, comp));
     }
-    let files: Vec<CoefficientFile> = alone
-        .iter()
-        .map(|(_, c)| c.coefficients.clone().context("no coefficients"))
-        .collect::<Result<_>>()?;
-    let flights = prepare_flights(&alone, &files, est)?;
-    let prepared = prepare(&flights, &files, sensors)?;
-    let mut prepared = prepared;
-    // Each sensor's noise stays its alone calibration's: raising it to the robust joint
-    // innovation rms (as the single-sensor run adapts its own) took a 300 m flight with
-    // sensors 1 m apart from 0.02 to 19 nT.
-    let label = choose_field_process(&mut prepared, &flights[0], &alone[0].1)?;
-    let full = pass(&prepared, None)?;
-    // The flight's own evidence, as the single-sensor calibration (model.md §5b).
-    let span = crate::estimate::excitation::airborne_span(&flights[0]);
-    let blocks = crate::estimate::jackknife::blocks(&span, flights[0].sample_rate_hz);
-    let mut refits: Vec<Vec<Vec<f64>>> = vec![Vec::new(); sensors.len()];
+    Ok(alone)
+}
+
+/// Per sensor, the coefficients of the joint pass refitted with each jackknife block left
+/// out: the flight's own evidence, as the single-sensor calibration (model.md §5b).
+fn jackknife_refits(
+    prepared: &Prepared,
+    flight0: &Flight,
+    sensors: usize,
+) -> Result<Vec<Vec<Vec<f64>>>> {
+    let span = crate::estimate::excitation::airborne_span(flight0);
+    let blocks = crate::estimate::jackknife::blocks(&span, flight0.sample_rate_hz);
+    let mut refits: Vec<Vec<Vec<f64>>> = vec![Vec::new(); sensors];
     for b in blocks.iter().flatten() {
-        let p = pass(&prepared, Some(b.clone()))?;
+        let p = pass(prepared, Some(b.clone()))?;
         for (j, c) in p.coefficients.into_iter().enumerate() {
             refits[j].push(c);
         }
     }
-    let mut results = Vec::new();
-    let mut jackknife_nt = Vec::new();
-    for (j, ((trace_j, alone_j), s)) in alone.into_iter().zip(sensors).enumerate() {
-        let flight = &flights[j];
+    Ok(refits)
+}
+
+/// What one sensor's regressors and jackknife refits say of its joint coefficients.
+struct SensorEvidence {
+    /// Per sample: the sensor's regressors with the environment terms' zeroed.
+    interf_regs: Vec<Vec<f32>>,
+    spread: Option<RegressorSpread>,
+    /// The refits' covariance (None with fewer than two refits).
+    jackknife_cov: Option<Vec<f64>>,
+    jackknife_nt: Option<f64>,
+    band_jackknife_nt: Option<f64>,
+}
+
+impl SensorEvidence {
+    fn of(prepared: &Prepared, j: usize, refits: &[Vec<f64>], flight: &Flight) -> Self {
         let interf_regs: Vec<Vec<f32>> = prepared.regs[j]
             .iter()
             .map(|r| {
@@ -193,119 +253,151 @@ pub fn calibrate_joint(
             })
             .collect();
         let spread = RegressorSpread::of(&interf_regs);
-        let jk_cov =
-            (refits[j].len() >= 2).then(|| crate::estimate::jackknife::covariance(&refits[j]));
-        let jk = jk_cov.as_ref().and_then(|c| spread.as_ref()?.sigma_nt(c));
-        let band_jk = (refits[j].len() >= 2)
+        let jackknife_cov =
+            (refits.len() >= 2).then(|| crate::estimate::jackknife::covariance(refits));
+        let jackknife_nt = jackknife_cov
+            .as_ref()
+            .and_then(|c| spread.as_ref()?.sigma_nt(c));
+        let band_jackknife_nt = (refits.len() >= 2)
             .then(|| {
-                let series: Vec<Vec<f64>> = refits[j]
+                let series: Vec<Vec<f64>> = refits
                     .iter()
                     .map(|c| interference_of(&interf_regs, c))
                     .collect();
                 crate::estimate::jackknife::band_sigma_nt(flight, &series)
             })
             .flatten();
-        jackknife_nt.push(jk);
-        let k = full.coefficients[j].len();
-        let mut cov = full.covariance[j].clone();
-        if let Some(c) = &jk_cov {
-            for (a, b) in cov.iter_mut().zip(c) {
-                *a += b;
-            }
+        Self {
+            interf_regs,
+            spread,
+            jackknife_cov,
+            jackknife_nt,
+            band_jackknife_nt,
         }
-        let cov_sigma = spread
-            .as_ref()
-            .and_then(|s| s.sigma_nt(&full.covariance[j]));
-        let model_error = files[j].model_error_nt.unwrap_or(0.0);
-        let predicted = cov_sigma
-            .map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error * model_error).sqrt());
-        let interference_nt = interference_of(&interf_regs, &full.coefficients[j]);
-        let compensated_nt: Vec<f64> = flight
-            .mag_nt
-            .iter()
-            .zip(&interference_nt)
-            .map(|(m, i)| m - i)
-            .collect();
-        let mut file = files[j].clone();
-        for (c, (v, i)) in file
-            .coefficients
-            .iter_mut()
-            .zip(full.coefficients[j].iter().zip(0..k))
-        {
-            c.value = *v;
-            c.sigma = cov[i * k + i].max(0.0).sqrt();
-        }
-        file.covariance = Some(cov.chunks(k).map(<[f64]>::to_vec).collect());
-        file.sigma1 = Some(prepared.field.sigma1 as f64);
-        file.predicted_error_nt = predicted;
-        file.cross_check = None;
-        file.rate_crossover = None;
-        file.field_process = Some(label.clone());
-        let own_band = crate::qc::figures::band_rms_nt(flight, &compensated_nt);
-        file.predicted_band_rms_nt = band_jk
-            .filter(|_| own_band.is_finite())
-            .map(|b| own_band.hypot(b));
-        let mut warnings = Vec::new();
-        if !full.healthy {
-            warnings.push(format!(
-                "{}: the joint filter's covariance lost positive definiteness",
-                s.name
-            ));
-        }
-        let truth = flight.truth_interference_nt.as_ref();
-        let err = |i: &[f64]| truth.map(|t| crate::qc::truth::error_rms_nt(i, t, None));
-        let truth_error_alone_nt = err(&alone_j.interference_nt);
-        let truth_error_joint_nt = err(&interference_nt);
-        let _ = trace_j;
-        let joint = Compensation {
-            model: file.model.clone(),
-            method: Some(Method::Kf),
-            interference_nt,
-            compensated_nt,
-            anomaly_nt: Some(full.anomaly[j].clone()),
-            innovation_nt: Some(full.innovation[j].clone()),
-            flags: None,
-            interference_sigma_nt: None,
-            coefficients: Some(file),
-            regressors: interf_regs,
-            warnings,
-            jackknife_nt: jk,
-            band_jackknife_nt: band_jk,
-            withheld: None,
-        };
-        let alone_predicted = files[j].predicted_error_nt;
-        let joint_chosen = match (predicted, alone_predicted) {
-            (Some(p), Some(a)) => p <= a,
-            (Some(_), None) => true,
-            _ => false,
-        };
-        let mut alone_j = alone_j;
-        if !joint_chosen {
-            alone_j.warnings.push(format!(
-                "{}: the joint calibration predicts {} nT against {} nT alone: the sensor's \
-                 own calibration is kept (the anomaly differences between the sensors hold \
-                 more than the joint model describes)",
-                s.name,
-                predicted.map_or("?".into(), |p| format!("{p:.4}")),
-                alone_predicted.map_or("?".into(), |p| format!("{p:.4}")),
-            ));
-        }
-        results.push(SensorResult {
-            joint_chosen,
-            spec: s.clone(),
-            alone: alone_j,
-            joint,
-            predicted_error_nt: predicted,
-            truth_error_alone_nt,
-            truth_error_joint_nt,
-        });
     }
-    Ok(JointResult {
-        sensors: results,
-        flights,
-        sigma1: prepared.field.sigma1 as f64,
-        jackknife_nt,
-    })
+}
+
+/// Sensor `j`'s joint calibration (its alone file's settings with the joint coefficients,
+/// covariance and predicted error) applied to its flight, and that predicted error.
+/// `field` is the joint σ1 and the anomaly process's label.
+fn joint_compensation(
+    full: &Pass,
+    j: usize,
+    evidence: SensorEvidence,
+    flight: &Flight,
+    alone_file: &CoefficientFile,
+    (sigma1, label): (f64, &str),
+    name: &str,
+) -> (Compensation, Option<f64>) {
+    let SensorEvidence {
+        interf_regs,
+        spread,
+        jackknife_cov,
+        jackknife_nt: jk,
+        band_jackknife_nt: band_jk,
+    } = evidence;
+    let k = full.coefficients[j].len();
+    let mut cov = full.covariance[j].clone();
+    if let Some(c) = &jackknife_cov {
+        for (a, b) in cov.iter_mut().zip(c) {
+            *a += b;
+        }
+    }
+    let cov_sigma = spread
+        .as_ref()
+        .and_then(|s| s.sigma_nt(&full.covariance[j]));
+    let model_error = alone_file.model_error_nt.unwrap_or(0.0);
+    let predicted =
+        cov_sigma.map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error * model_error).sqrt());
+    let interference_nt = interference_of(&interf_regs, &full.coefficients[j]);
+    let compensated_nt: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(&interference_nt)
+        .map(|(m, i)| m - i)
+        .collect();
+    let mut file = alone_file.clone();
+    for (c, (v, i)) in file
+        .coefficients
+        .iter_mut()
+        .zip(full.coefficients[j].iter().zip(0..k))
+    {
+        c.value = *v;
+        c.sigma = cov[i * k + i].max(0.0).sqrt();
+    }
+    file.covariance = Some(cov.chunks(k).map(<[f64]>::to_vec).collect());
+    file.sigma1 = Some(sigma1);
+    file.predicted_error_nt = predicted;
+    file.cross_check = None;
+    file.rate_crossover = None;
+    file.field_process = Some(label.to_string());
+    let own_band = crate::qc::figures::band_rms_nt(flight, &compensated_nt);
+    file.predicted_band_rms_nt = band_jk
+        .filter(|_| own_band.is_finite())
+        .map(|b| own_band.hypot(b));
+    let mut warnings = Vec::new();
+    if !full.healthy {
+        warnings.push(format!(
+            "{name}: the joint filter's covariance lost positive definiteness"
+        ));
+    }
+    let joint = Compensation {
+        model: file.model.clone(),
+        method: Some(Method::Kf),
+        interference_nt,
+        compensated_nt,
+        anomaly_nt: Some(full.anomaly[j].clone()),
+        innovation_nt: Some(full.innovation[j].clone()),
+        flags: None,
+        interference_sigma_nt: None,
+        coefficients: Some(file),
+        regressors: interf_regs,
+        warnings,
+        jackknife_nt: jk,
+        band_jackknife_nt: band_jk,
+        withheld: None,
+    };
+    (joint, predicted)
+}
+
+/// The sensor's result: the joint calibration where its predicted error is at most the
+/// alone one's, else the alone one with a warning saying why.
+fn choose_result(
+    s: &SensorSpec,
+    mut alone: Compensation,
+    joint: Compensation,
+    predicted: Option<f64>,
+    alone_predicted: Option<f64>,
+    flight: &Flight,
+) -> SensorResult {
+    let truth = flight.truth_interference_nt.as_ref();
+    let err = |i: &[f64]| truth.map(|t| crate::qc::truth::error_rms_nt(i, t, None));
+    let truth_error_alone_nt = err(&alone.interference_nt);
+    let truth_error_joint_nt = err(&joint.interference_nt);
+    let joint_chosen = match (predicted, alone_predicted) {
+        (Some(p), Some(a)) => p <= a,
+        (Some(_), None) => true,
+        _ => false,
+    };
+    if !joint_chosen {
+        alone.warnings.push(format!(
+            "{}: the joint calibration predicts {} nT against {} nT alone: the sensor's \
+             own calibration is kept (the anomaly differences between the sensors hold \
+             more than the joint model describes)",
+            s.name,
+            predicted.map_or("?".into(), |p| format!("{p:.4}")),
+            alone_predicted.map_or("?".into(), |p| format!("{p:.4}")),
+        ));
+    }
+    SensorResult {
+        joint_chosen,
+        spec: s.clone(),
+        alone,
+        joint,
+        predicted_error_nt: predicted,
+        truth_error_alone_nt,
+        truth_error_joint_nt,
+    }
 }
 
 /// Each sensor's flight as its alone calibration saw it: assumed speed, its pre-processing
@@ -359,18 +451,7 @@ fn prepare(
 ) -> Result<Prepared> {
     let rate = flights[0].sample_rate_hz;
     let cfg = CompensatorConfig::for_rate(rate as f32);
-    // One anomaly: its roughness is the geology's. Each sensor's own σ1 also holds what its
-    // model lacks; the median of them is taken.
-    let sigma1 = median(files.iter().filter_map(|f| f.sigma1).collect());
-    if !(sigma1.is_finite() && sigma1 > 0.0) {
-        bail!("the sensors' calibrations gave no σ1");
-    }
-    let field = FieldProcess::new(
-        sigma1 as f32,
-        (0.1 * sigma1) as f32,
-        cfg.field_length_m,
-        cfg.bh_prior_nt,
-    );
+    let field = shared_field(files, &cfg)?;
     let mut specs = Vec::new();
     let mut regs = Vec::new();
     let mut interference = Vec::new();
@@ -380,101 +461,19 @@ fn prepare(
     let mut held = Vec::new();
     let (mut ds_m, mut dh_m) = (Vec::new(), Vec::new());
     for (j, (flight, file)) in flights.iter().zip(files).enumerate() {
-        let spec = ModelSpec::parse(&file.model)?;
-        let epoch_cfg = EpochConfig {
-            earth_dir_ned: flight.earth_dir_ned,
-            ..EpochConfig::for_rate(rate as f32)
-        };
-        let mut builder = EpochBuilder::<{ crate::estimate::kf::HOST_WINDOW }>::new(epoch_cfg)
-            .context("internal: epoch builder")?;
-        let mut epochs = Vec::with_capacity(flight.len());
-        for s in &flight.samples {
-            epochs.extend(builder.push(s));
-        }
-        while let Some(e) = builder.flush() {
-            epochs.push(e);
-        }
-        if epochs.len() != flight.len() {
-            bail!(
-                "internal: {} epochs for {} samples",
-                epochs.len(),
-                flight.len()
-            );
-        }
-        let (r, mask, pm, ps) = with_model(&spec, |model| {
-            let k = model.coefficient_count();
-            let mut buf = vec![0.0f32; k];
-            let rows: Vec<Vec<f32>> = epochs
-                .iter()
-                .map(|ep| {
-                    let mut at = 0;
-                    for t in model.terms {
-                        let l = t.len();
-                        t.regressors(ep, &mut buf[at..at + l]);
-                        at += l;
-                    }
-                    buf.clone()
-                })
-                .collect();
-            let mask: Vec<bool> = model
-                .terms
-                .iter()
-                .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
-                .collect();
-            let pm: Vec<f32> = model
-                .terms
-                .iter()
-                .flat_map(|t| (0..t.len()).map(|i| t.prior_mean(i)))
-                .collect();
-            let ps: Vec<f32> = model
-                .terms
-                .iter()
-                .flat_map(|t| (0..t.len()).map(|i| t.prior_sigma(i)))
-                .collect();
-            (rows, mask, pm, ps)
-        });
-        let rel = crate::flight::scalar_relative_nt(flight);
-        let zj: Vec<f64> = epochs
-            .iter()
-            .zip(rel)
-            .map(|(ep, v)| {
-                let on_ground = ep.reported_speed_mps < GROUND_SPEED_MPS;
-                if ep.dmag_nt.is_finite() && !ep.regressors_suspect && !on_ground {
-                    v
-                } else {
-                    f64::NAN
-                }
-            })
-            .collect();
+        let rows = SensorRows::of(flight, file, rate)?;
         if j == 0 {
-            ds_m = epochs.iter().map(|e| e.ds_m).collect();
-            dh_m = epochs.iter().map(|e| e.dh_m).collect();
+            (ds_m, dh_m) = (rows.ds_m, rows.dh_m);
         }
-        // The combinations this flight's manoeuvres leave undetermined are held at the
-        // prior, as in the single-sensor calibration (estimate::excitation).
-        let span = crate::estimate::excitation::airborne_span(flight);
-        let ps64: Vec<f64> = ps.iter().map(|v| *v as f64).collect();
-        held.push(crate::estimate::excitation::unexcited_combinations(
-            flight, &r[span], &ps64, &mask,
-        ));
-        specs.push(spec);
-        regs.push(r);
-        interference.push(mask);
-        prior_mean.push(pm);
-        prior_sigma.push(ps);
-        z.push(zj);
+        specs.push(rows.spec);
+        regs.push(rows.regs);
+        interference.push(rows.interference);
+        prior_mean.push(rows.prior_mean);
+        prior_sigma.push(rows.prior_sigma);
+        z.push(rows.z);
+        held.push(rows.held);
     }
-    // Body offsets from sensor 0; an unknown position is UNKNOWN_SEPARATION_M to starboard.
-    let p0 = sensors[0].position_m;
-    let offsets_m: Vec<[f64; 3]> = sensors
-        .iter()
-        .enumerate()
-        .map(|(j, s)| match (p0, s.position_m) {
-            _ if j == 0 => [0.0; 3],
-            (Some(a), Some(b)) => [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
-            _ => [0.0, UNKNOWN_SEPARATION_M, 0.0],
-        })
-        .collect();
+    let offsets_m = body_offsets_m(sensors);
     let places = placements(&flights[0], &offsets_m);
     // The cross-track gradient: as large as the along-track one's scale g, wandering by
     // about g over the field's correlation length L (a random walk of g²/L per metre).
@@ -500,6 +499,171 @@ fn prepare(
         held,
         field,
         field_profile: vec![1.0; flights[0].len()],
+    })
+}
+
+/// The one anomaly's process: its roughness is the geology's. Each sensor's own σ1 also
+/// holds what its model lacks; the median of them is taken.
+fn shared_field(files: &[CoefficientFile], cfg: &CompensatorConfig) -> Result<FieldProcess> {
+    let sigma1 = median(files.iter().filter_map(|f| f.sigma1).collect());
+    if !(sigma1.is_finite() && sigma1 > 0.0) {
+        bail!("the sensors' calibrations gave no σ1");
+    }
+    Ok(FieldProcess::new(
+        sigma1 as f32,
+        (0.1 * sigma1) as f32,
+        cfg.field_length_m,
+        cfg.bh_prior_nt,
+    ))
+}
+
+/// Body offsets from sensor 0; an unknown position is [`UNKNOWN_SEPARATION_M`] to
+/// starboard.
+fn body_offsets_m(sensors: &[SensorSpec]) -> Vec<[f64; 3]> {
+    let p0 = sensors[0].position_m;
+    sensors
+        .iter()
+        .enumerate()
+        .map(|(j, s)| match (p0, s.position_m) {
+            _ if j == 0 => [0.0; 3],
+            (Some(a), Some(b)) => [b[0] - a[0], b[1] - a[1], b[2] - a[2]],
+            _ => [0.0, UNKNOWN_SEPARATION_M, 0.0],
+        })
+        .collect()
+}
+
+/// One sensor's part of [`Prepared`], from its flight and its alone calibration's model.
+struct SensorRows {
+    spec: ModelSpec,
+    regs: Vec<Vec<f32>>,
+    interference: Vec<bool>,
+    prior_mean: Vec<f32>,
+    prior_sigma: Vec<f32>,
+    z: Vec<f64>,
+    held: Vec<Vec<f32>>,
+    /// Its track step and height above h0 per sample (sensor 0's are the shared ones).
+    ds_m: Vec<f32>,
+    dh_m: Vec<f32>,
+}
+
+impl SensorRows {
+    fn of(flight: &Flight, file: &CoefficientFile, rate: f64) -> Result<Self> {
+        let spec = ModelSpec::parse(&file.model)?;
+        let epochs = epochs_of(flight, rate)?;
+        let ModelRows {
+            regs,
+            interference,
+            prior_mean,
+            prior_sigma,
+        } = model_rows(&spec, &epochs);
+        let rel = crate::flight::scalar_relative_nt(flight);
+        let z: Vec<f64> = epochs
+            .iter()
+            .zip(rel)
+            .map(|(ep, v)| {
+                let on_ground = ep.reported_speed_mps < GROUND_SPEED_MPS;
+                if ep.dmag_nt.is_finite() && !ep.regressors_suspect && !on_ground {
+                    v
+                } else {
+                    f64::NAN
+                }
+            })
+            .collect();
+        // The combinations this flight's manoeuvres leave undetermined are held at the
+        // prior, as in the single-sensor calibration (estimate::excitation).
+        let span = crate::estimate::excitation::airborne_span(flight);
+        let ps64: Vec<f64> = prior_sigma.iter().map(|v| *v as f64).collect();
+        let held = crate::estimate::excitation::unexcited_combinations(
+            flight,
+            &regs[span],
+            &ps64,
+            &interference,
+        );
+        Ok(Self {
+            spec,
+            ds_m: epochs.iter().map(|e| e.ds_m).collect(),
+            dh_m: epochs.iter().map(|e| e.dh_m).collect(),
+            regs,
+            interference,
+            prior_mean,
+            prior_sigma,
+            z,
+            held,
+        })
+    }
+}
+
+/// The flight's epochs, one per sample (the builder flushed at the end).
+fn epochs_of(flight: &Flight, rate: f64) -> Result<Vec<Epoch>> {
+    let epoch_cfg = EpochConfig {
+        earth_dir_ned: flight.earth_dir_ned,
+        ..EpochConfig::for_rate(rate as f32)
+    };
+    let mut builder = EpochBuilder::<{ crate::estimate::kf::HOST_WINDOW }>::new(epoch_cfg)
+        .context("internal: epoch builder")?;
+    let mut epochs = Vec::with_capacity(flight.len());
+    for s in &flight.samples {
+        epochs.extend(builder.push(s));
+    }
+    while let Some(e) = builder.flush() {
+        epochs.push(e);
+    }
+    if epochs.len() != flight.len() {
+        bail!(
+            "internal: {} epochs for {} samples",
+            epochs.len(),
+            flight.len()
+        );
+    }
+    Ok(epochs)
+}
+
+/// The model's regressors per epoch (model order, physical units), which of them are
+/// interference, and the terms' prior means and 1σ.
+struct ModelRows {
+    regs: Vec<Vec<f32>>,
+    interference: Vec<bool>,
+    prior_mean: Vec<f32>,
+    prior_sigma: Vec<f32>,
+}
+
+fn model_rows(spec: &ModelSpec, epochs: &[Epoch]) -> ModelRows {
+    with_model(spec, |model| {
+        let k = model.coefficient_count();
+        let mut buf = vec![0.0f32; k];
+        let rows: Vec<Vec<f32>> = epochs
+            .iter()
+            .map(|ep| {
+                let mut at = 0;
+                for t in model.terms {
+                    let l = t.len();
+                    t.regressors(ep, &mut buf[at..at + l]);
+                    at += l;
+                }
+                buf.clone()
+            })
+            .collect();
+        let mask: Vec<bool> = model
+            .terms
+            .iter()
+            .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
+            .collect();
+        let pm: Vec<f32> = model
+            .terms
+            .iter()
+            .flat_map(|t| (0..t.len()).map(|i| t.prior_mean(i)))
+            .collect();
+        let ps: Vec<f32> = model
+            .terms
+            .iter()
+            .flat_map(|t| (0..t.len()).map(|i| t.prior_sigma(i)))
+            .collect();
+        ModelRows {
+            regs: rows,
+            interference: mask,
+            prior_mean: pm,
+            prior_sigma: ps,
+        }
     })
 }
 

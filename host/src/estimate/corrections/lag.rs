@@ -288,49 +288,84 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
     if cols.is_empty() {
         bail!("the model has no regressors to estimate the scalar lag against");
     }
-    // The scalar, its core-field change and the regressors through the same zero-phase
-    // filter: it commutes with the shift and with constant coefficients.
-    let half_span_s = CompensatorConfig::for_rate(fs as f32).epoch.half_width as f64 / fs;
-    let band = (
-        ESTIMATE_LOW_HZ,
-        (ESTIMATE_HIGH_HZ_S / half_span_s).min(0.2 * fs.min(SEARCH_RATE_HZ)),
-    );
-    let gaps = crate::signal::bandpass::Gaps {
-        breaks: &[],
-        max_fill: n,
-        min_len: 0,
-    };
-    let lp = |x: &[f64]| crate::signal::bandpass::bandpass_gaps(x, 4, band.0, band.1, fs, &gaps);
-    let cols: Vec<Vec<f64>> = cols.iter().map(|c| lp(c)).collect::<Result<_>>()?;
-    // The scalar relative to its first value, and the core-field change (at the true
-    // instants: only the scalar is shifted).
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
-    let mag_rel: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
-    let y0 = crate::flight::scalar_relative_nt(flight);
-    let igrf_rel: Vec<f64> = mag_rel
-        .iter()
-        .zip(&y0)
-        .map(|(m, y)| {
-            let d = m - y;
-            if d.is_finite() {
-                d
-            } else {
-                0.0
-            }
+    let band = BandLimited::of(flight, &cols)?;
+    let near_bad = near_missing(&band.bad, max_shift);
+    let search = LagSearch::new(flight, spec, band, geometry, near_bad)?;
+    let (tau, f_min) = search.minimise();
+    Ok(ScalarLag {
+        lag_s: tau,
+        sigma_s: search.sigma_s(tau, f_min),
+    })
+}
+
+/// The scalar relative to its first value, its core-field change and the regressors,
+/// each through the same zero-phase band-pass: it commutes with the shift and with
+/// constant coefficients (module notes, **Band**).
+struct BandLimited {
+    cols: Vec<Vec<f64>>,
+    mag_rel: Vec<f64>,
+    igrf_rel: Vec<f64>,
+    /// Samples without a scalar reading or with a regressor missing.
+    bad: Vec<bool>,
+}
+
+impl BandLimited {
+    fn of(flight: &Flight, cols: &[Vec<f64>]) -> Result<Self> {
+        let fs = flight.sample_rate_hz;
+        let n = flight.len();
+        let half_span_s = CompensatorConfig::for_rate(fs as f32).epoch.half_width as f64 / fs;
+        let band = (
+            ESTIMATE_LOW_HZ,
+            (ESTIMATE_HIGH_HZ_S / half_span_s).min(0.2 * fs.min(SEARCH_RATE_HZ)),
+        );
+        let gaps = crate::signal::bandpass::Gaps {
+            breaks: &[],
+            max_fill: n,
+            min_len: 0,
+        };
+        let lp =
+            |x: &[f64]| crate::signal::bandpass::bandpass_gaps(x, 4, band.0, band.1, fs, &gaps);
+        let cols: Vec<Vec<f64>> = cols.iter().map(|c| lp(c)).collect::<Result<_>>()?;
+        // The scalar relative to its first value, and the core-field change (at the true
+        // instants: only the scalar is shifted).
+        let m0 = flight
+            .mag_nt
+            .iter()
+            .copied()
+            .find(|v| v.is_finite())
+            .unwrap_or(0.0);
+        let mag_rel: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
+        let y0 = crate::flight::scalar_relative_nt(flight);
+        let igrf_rel: Vec<f64> = mag_rel
+            .iter()
+            .zip(&y0)
+            .map(|(m, y)| {
+                let d = m - y;
+                if d.is_finite() {
+                    d
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let mag_rel = lp(&mag_rel)?;
+        let igrf_rel = lp(&igrf_rel)?;
+        let bad: Vec<bool> = (0..n)
+            .map(|i| !y0[i].is_finite() || cols.iter().any(|c| !c[i].is_finite()))
+            .collect();
+        Ok(Self {
+            cols,
+            mag_rel,
+            igrf_rel,
+            bad,
         })
-        .collect();
-    let mag_rel = lp(&mag_rel)?;
-    let igrf_rel = lp(&igrf_rel)?;
-    // One missing-sample pattern for every trial τ (the ends and whatever is within the
-    // largest shift of a missing reading), so the regressors' innovations are computed once.
-    let bad: Vec<bool> = (0..n)
-        .map(|i| !y0[i].is_finite() || cols.iter().any(|c| !c[i].is_finite()))
-        .collect();
+    }
+}
+
+/// One missing-sample pattern for every trial τ (the ends and whatever is within the
+/// largest shift of a missing reading), so the regressors' innovations are computed once.
+fn near_missing(bad: &[bool], max_shift: usize) -> Vec<bool> {
+    let n = bad.len();
     let mut near_bad = vec![false; n];
     let mut last_bad: Option<usize> = None;
     for i in 0..n {
@@ -347,48 +382,180 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
         }
         near_bad[i] |= next_bad.is_some_and(|b| b - i <= max_shift);
     }
-    // Decimated to ~10 Hz (the columns hold nothing above 2 Hz): the search's cost no
-    // longer grows with the sample rate. The scalar is still read at full-rate positions.
-    let dec = ((fs / SEARCH_RATE_HZ).floor() as usize).max(1);
-    let at: Vec<usize> = (0..n).step_by(dec).collect();
-    let cols: Vec<Vec<f64>> = cols
-        .iter()
-        .map(|c| at.iter().map(|&k| c[k]).collect())
-        .collect();
-    let geometry = Geometry {
-        ds_m: at
+    near_bad
+}
+
+/// The scalar read at t + τ on the search's (decimated) samples, less the core field's
+/// change; missing where the shift could reach a missing reading.
+struct ShiftedScalar {
+    fs: f64,
+    /// The full-rate index of each search sample.
+    at: Vec<usize>,
+    near_bad: Vec<bool>,
+    mag_rel: Vec<f64>,
+    igrf_rel: Vec<f64>,
+}
+
+impl ShiftedScalar {
+    fn at(&self, tau: f64) -> Vec<f64> {
+        self.at
             .iter()
-            .map(|&k| geometry.ds_m[k.saturating_sub(dec - 1)..=k].iter().sum())
-            .collect(),
-        dh_m: at.iter().map(|&k| geometry.dh_m[k]).collect(),
-    };
-    let y_at = |tau: f64| -> Vec<f64> {
-        at.iter()
             .map(|&k| {
-                if near_bad[k] {
+                if self.near_bad[k] {
                     f64::NAN
                 } else {
-                    value_at(&mag_rel, k as f64 + tau * fs) - igrf_rel[k]
+                    value_at(&self.mag_rel, k as f64 + tau * self.fs) - self.igrf_rel[k]
                 }
             })
             .collect()
-    };
-    let n = at.len();
+    }
+}
+
+/// The regressors' innovations on the usable search samples, as the orthonormal basis
+/// (the SVD's U, its non-negligible columns) the scalar is projected off.
+struct RegressorBasis {
+    rows: Vec<usize>,
+    keep: Vec<usize>,
+    u: DMatrix<f64>,
+}
+
+/// The delay search: the residual of the shifted scalar after the fit on the regressors,
+/// as a function of τ.
+struct LagSearch {
+    scalar: ShiftedScalar,
+    geometry: Geometry,
+    settings: FieldSettings,
+    basis: RegressorBasis,
+}
+
+impl LagSearch {
+    fn new(
+        flight: &Flight,
+        spec: &ModelSpec,
+        band: BandLimited,
+        geometry: Geometry,
+        near_bad: Vec<bool>,
+    ) -> Result<Self> {
+        let fs = flight.sample_rate_hz;
+        // Decimated to ~10 Hz (the columns hold nothing above 2 Hz): the search's cost no
+        // longer grows with the sample rate. The scalar is still read at full-rate positions.
+        let dec = ((fs / SEARCH_RATE_HZ).floor() as usize).max(1);
+        let at: Vec<usize> = (0..flight.len()).step_by(dec).collect();
+        let cols: Vec<Vec<f64>> = band
+            .cols
+            .iter()
+            .map(|c| at.iter().map(|&k| c[k]).collect())
+            .collect();
+        let geometry = Geometry {
+            ds_m: at
+                .iter()
+                .map(|&k| geometry.ds_m[k.saturating_sub(dec - 1)..=k].iter().sum())
+                .collect(),
+            dh_m: at.iter().map(|&k| geometry.dh_m[k]).collect(),
+        };
+        let scalar = ShiftedScalar {
+            fs,
+            at,
+            near_bad,
+            mag_rel: band.mag_rel,
+            igrf_rel: band.igrf_rel,
+        };
+        let settings = field_settings(flight, spec);
+        let basis = regressor_basis(&scalar, &cols, &geometry, settings)?;
+        Ok(Self {
+            scalar,
+            geometry,
+            settings,
+            basis,
+        })
+    }
+
+    /// Residual of the scalar read at t + τ (its whitened innovations) after the least-
+    /// squares fit on the regressors' (orthogonal projection: no normal-equation
+    /// cancellation).
+    fn residual(&self, tau: f64) -> Vec<f64> {
+        let yt = self.scalar.at(tau);
+        let inn_y = filter_columns(&self.geometry, &[&yt], self.settings);
+        let z: Vec<f64> = self.basis.rows.iter().map(|&k| inn_y.cols[0][k]).collect();
+        let mut r = z.clone();
+        for &j in &self.basis.keep {
+            let col = self.basis.u.column(j);
+            let c: f64 = col.iter().zip(&z).map(|(a, b)| a * b).sum();
+            for (rk, uk) in r.iter_mut().zip(col.iter()) {
+                *rk -= c * uk;
+            }
+        }
+        r
+    }
+
+    fn objective(&self, tau: f64) -> f64 {
+        self.residual(tau).iter().map(|v| v * v).sum::<f64>() / self.basis.rows.len() as f64
+    }
+
+    /// τ and the objective there: the grid's best, refined by Brent's method.
+    fn minimise(&self) -> (f64, f64) {
+        let steps = (MAX_LAG_S / GRID_STEP_S).round() as i64;
+        let (mut best_tau, mut best) = (0.0, f64::INFINITY);
+        for k in -steps..=steps {
+            let tau = k as f64 * GRID_STEP_S;
+            let v = self.objective(tau);
+            if v < best {
+                (best_tau, best) = (tau, v);
+            }
+        }
+        brent(
+            &mut |t| self.objective(t),
+            best_tau - GRID_STEP_S,
+            best_tau + GRID_STEP_S,
+            1e-6,
+        )
+    }
+
+    /// 1σ of τ from the objective's curvature at its minimum.
+    fn sigma_s(&self, tau: f64, f_min: f64) -> f64 {
+        let h = 0.002;
+        let curvature = (self.objective(tau + h) - 2.0 * f_min + self.objective(tau - h)) / (h * h);
+        // Effective sample count of the (not quite white) residual from its lag-1
+        // correlation.
+        let rho = crate::signal::stats::lag1_autocorr(&self.residual(tau)).clamp(0.0, 0.99);
+        let n_eff = self.basis.rows.len() as f64 * (1.0 - rho) / (1.0 + rho);
+        if curvature > 0.0 {
+            (2.0 * f_min / (n_eff * curvature)).sqrt()
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// The anomaly-field filter's settings for the search: the scalar's noise (never below
+/// 5 pT) and, with `field`, σ1 from the flight's spectrum.
+fn field_settings(flight: &Flight, spec: &ModelSpec) -> FieldSettings {
     let noise_nt = {
         let s = crate::estimate::kf::estimate_noise_nt(&flight.mag_nt).unwrap_or(0.02);
         (s * s + 0.005f64.powi(2)).sqrt()
     };
-    let settings = FieldSettings {
+    FieldSettings {
         sigma1: spec.field.then(|| {
             crate::estimate::kf::estimate_sigma1_for(flight, &vec![0.0; flight.len()])
                 .unwrap_or(crate::estimate::kf::DEFAULT_SIGMA1)
         }),
         noise_nt,
-    };
-    let y_zero = y_at(0.0);
+    }
+}
+
+/// The regressors' innovations (filtered once, beside the unshifted scalar's, which sets
+/// the rows: finite everywhere and an innovation variance within 10× the median).
+fn regressor_basis(
+    scalar: &ShiftedScalar,
+    cols: &[Vec<f64>],
+    geometry: &Geometry,
+    settings: FieldSettings,
+) -> Result<RegressorBasis> {
+    let n = scalar.at.len();
+    let y_zero = scalar.at(0.0);
     let mut columns: Vec<&[f64]> = vec![&y_zero];
     columns.extend(cols.iter().map(|c| c.as_slice()));
-    let inn = filter_columns(&geometry, &columns, settings);
+    let inn = filter_columns(geometry, &columns, settings);
     let med = crate::signal::stats::median(&inn.var_nt2);
     let rows: Vec<usize> = (0..n)
         .filter(|&k| inn.var_nt2[k] <= 10.0 * med && inn.cols.iter().all(|c| c[k].is_finite()))
@@ -406,54 +573,7 @@ pub fn estimate(flight: &Flight, spec: &ModelSpec) -> Result<ScalarLag> {
     let keep: Vec<usize> = (0..svd.singular_values.len())
         .filter(|&j| svd.singular_values[j] > 1e-9 * smax)
         .collect();
-    // Residual of the scalar read at t + τ (its whitened innovations) after the least-
-    // squares fit on the regressors' (orthogonal projection: no normal-equation
-    // cancellation).
-    let residual = |tau: f64| -> Vec<f64> {
-        let yt = y_at(tau);
-        let inn_y = filter_columns(&geometry, &[&yt], settings);
-        let z: Vec<f64> = rows.iter().map(|&k| inn_y.cols[0][k]).collect();
-        let mut r = z.clone();
-        for &j in &keep {
-            let col = u.column(j);
-            let c: f64 = col.iter().zip(&z).map(|(a, b)| a * b).sum();
-            for (rk, uk) in r.iter_mut().zip(col.iter()) {
-                *rk -= c * uk;
-            }
-        }
-        r
-    };
-    let objective =
-        |tau: f64| -> f64 { residual(tau).iter().map(|v| v * v).sum::<f64>() / rows.len() as f64 };
-    let steps = (MAX_LAG_S / GRID_STEP_S).round() as i64;
-    let (mut best_tau, mut best) = (0.0, f64::INFINITY);
-    for k in -steps..=steps {
-        let tau = k as f64 * GRID_STEP_S;
-        let v = objective(tau);
-        if v < best {
-            (best_tau, best) = (tau, v);
-        }
-    }
-    let (tau, f_min) = brent(
-        &mut |t| objective(t),
-        best_tau - GRID_STEP_S,
-        best_tau + GRID_STEP_S,
-        1e-6,
-    );
-    let h = 0.002;
-    let curvature = (objective(tau + h) - 2.0 * f_min + objective(tau - h)) / (h * h);
-    // Effective sample count of the (not quite white) residual from its lag-1 correlation.
-    let rho = crate::signal::stats::lag1_autocorr(&residual(tau)).clamp(0.0, 0.99);
-    let n_eff = rows.len() as f64 * (1.0 - rho) / (1.0 + rho);
-    let sigma_s = if curvature > 0.0 {
-        (2.0 * f_min / (n_eff * curvature)).sqrt()
-    } else {
-        f64::INFINITY
-    };
-    Ok(ScalarLag {
-        lag_s: tau,
-        sigma_s,
-    })
+    Ok(RegressorBasis { rows, keep, u })
 }
 
 #[cfg(test)]

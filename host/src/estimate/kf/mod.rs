@@ -594,100 +594,18 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         bail!("no samples");
     }
     let spec = &opts.model;
-    // The filter's r covers sensor noise plus what the model cannot follow (fluxgate noise
-    // in the regressors, residual model error): never below 5 pT.
-    let noise_nt = match opts.noise_nt {
-        Some(v) => v,
-        None => {
-            let sensor = estimate_noise_nt(&flight.mag_nt).unwrap_or(0.02);
-            (sensor * sensor + 0.005f64.powi(2)).sqrt()
-        }
-    };
-    let sigma1 = match opts.sigma1 {
-        Some(v) => v,
-        None if spec.field => {
-            // A first post-flight pass with the paper's σ1 gives the interference estimate
-            // that is removed before the spectrum is taken.
-            let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
-            let interf = calibrated_interference(flight, opts, cfg)?;
-            let spectral =
-                estimate_sigma1_with(flight, &interf, Some(&known_environment_nt(flight, spec)))
-                    .unwrap_or(DEFAULT_SIGMA1)
-                    * opts.sigma1_scale;
-            select_sigma1(flight, opts, spectral, noise_nt)?
-        }
-        None => DEFAULT_SIGMA1,
-    };
-    let sensor_noise_nt = noise_nt;
-    let noise_nt = match (opts.noise_nt, &opts.coefficients) {
-        (None, None) => adapted_noise_nt(flight, opts, sigma1, noise_nt)?,
-        _ => noise_nt,
-    };
-    // What the innovations show beyond the sensor's noise is signal the model cannot
-    // follow: interference it lacks a term for. It stays in the compensated output, so it
-    // belongs in the predicted error (on the real SGL boxes the coefficient covariance
-    // alone predicted 0.85–1.2 nT where the box-to-box transfer left 3.0–4.4 nT).
-    let model_error_nt = match opts.coefficients {
-        Some(_) => opts.model_error_nt,
-        None => (noise_nt > sensor_noise_nt)
-            .then(|| (noise_nt * noise_nt - sensor_noise_nt * sensor_noise_nt).sqrt()),
-    };
-    let mut cfg = base_config(flight, opts, sigma1, noise_nt);
+    let noise = FilterNoise::of(flight, opts)?;
+    let mut cfg = base_config(flight, opts, noise.sigma1, noise.noise_nt);
     // The record's bound and the convergence tolerance count what the widened noise
     // covers beyond the sensor's own as model error (it stays in the output).
-    cfg.sensor_noise_nt = sensor_noise_nt as f32;
+    cfg.sensor_noise_nt = noise.sensor_noise_nt as f32;
     let mut warnings = Vec::new();
-    let held;
-    // Post-flight only: which combinations the flight excites is known at its end, and the
-    // board (which real time reproduces) cannot know it in advance.
-    let opts = if opts.coefficients.is_none() && opts.held_combinations.is_empty() && !opts.realtime
-    {
-        let (_, regs, ..) = pass(flight, opts, cfg, None, true)?;
-        let terms = spec.build_terms();
-        let prior: Vec<f64> = terms
-            .iter()
-            .flat_map(|t| (0..t.len()).map(|i| t.prior_sigma(i) as f64 * opts.prior_scale))
-            .collect();
-        let interference: Vec<bool> = terms
-            .iter()
-            .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
-            .collect();
-        let span = crate::estimate::excitation::airborne_span(flight);
-        let weak = crate::estimate::excitation::unexcited_combinations(
-            flight,
-            &regs[span],
-            &prior,
-            &interference,
-        );
-        if !weak.is_empty() {
-            warnings.push(crate::estimate::excitation::warning(
-                weak.len(),
-                interference.iter().filter(|i| **i).count(),
-                true,
-            ));
-        }
-        let mut o = opts.clone();
-        o.held_combinations = weak;
-        held = o;
-        &held
-    } else {
-        opts
-    };
-    let profiled;
-    let mut field_process = String::from("stationary");
-    // Only when σ1 itself is estimated: a σ1 the user gives is taken as the model.
-    let opts = if opts.field_profiles
-        && spec.field
-        && opts.sigma1.is_none()
-        && opts.field_profile.is_none()
-        && opts.coefficients.is_none()
-    {
-        let (o, label) = choose_field_profile(flight, opts, cfg)?;
-        profiled = o;
-        field_process = label;
-        &profiled
-    } else {
-        opts
+    let held = hold_unexcited_combinations(flight, opts, cfg, &mut warnings)?;
+    let opts = held.as_ref().unwrap_or(opts);
+    let profiled = profile_field(flight, opts, cfg)?;
+    let (opts, field_process) = match &profiled {
+        Some((o, label)) => (o, label.clone()),
+        None => (opts, String::from("stationary")),
     };
     let (cal_outs, regs, coeffs, covariance, cal_healthy) = match &opts.coefficients {
         Some(c) => pass(flight, opts, cfg, Some(c), true)?,
@@ -700,38 +618,14 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         }
     };
     let spread = RegressorSpread::of(&regs);
-    // Post-flight: what the flight's own parts say of the coefficients, beside what the
-    // filter's model says (`crate::estimate::jackknife`); the covariance carries both.
-    let mut jackknife = None;
-    let checked = opts.jackknife && !opts.realtime && opts.coefficients.is_none();
-    let covariance = match (&spread, checked) {
-        (Some(spread), true) => match jackknife::kf_jackknife(
-            flight,
-            opts,
-            cfg,
-            (&regs, spread),
-            (&coeffs, &covariance),
-        )? {
-            Some(j) => {
-                // Summed, not the larger of the two: on the broad simulated flights the
-                // filter's covariance and the jackknife each came out at 0.5–0.8 × the
-                // actual error (the model error they both miss is most of it), their sum
-                // at 0.57–1.99 ×; the price is 2–3 × pessimism over strong geology.
-                let total = covariance
-                    .iter()
-                    .zip(&j.covariance)
-                    .map(|(a, b)| a + b)
-                    .collect();
-                if j.inflation > jackknife::INCONSISTENT_REFITS {
-                    warnings.push(j.lower_bound_warning());
-                }
-                jackknife = Some(j);
-                total
-            }
-            None => covariance,
-        },
-        _ => covariance,
-    };
+    let (covariance, jackknife) = with_jackknife(
+        flight,
+        opts,
+        cfg,
+        (&regs, spread.as_ref()),
+        (&coeffs, covariance),
+        &mut warnings,
+    )?;
     let (outs, coeffs, healthy) = if opts.realtime || opts.coefficients.is_some() {
         (cal_outs, coeffs, cal_healthy)
     } else {
@@ -742,21 +636,10 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     let coefficient_sigmas = (0..k)
         .map(|i| covariance[i * k + i].max(0.0).sqrt())
         .collect();
-    // Given coefficients predict this flight's error only with their own covariance.
     let (coefficient_covariance, predicted_error_nt) =
-        match (&opts.coefficients, &opts.coefficient_covariance) {
-            (Some(_), Some(given)) => {
-                let predicted = spread.as_ref().and_then(|s| s.sigma_nt(given));
-                (given.clone(), predicted)
-            }
-            (Some(_), None) => (covariance, None),
-            (None, _) => {
-                let predicted = spread.as_ref().and_then(|s| s.sigma_nt(&covariance));
-                (covariance, predicted)
-            }
-        };
-    let predicted_error_nt = predicted_error_nt.map(|p| p.hypot(model_error_nt.unwrap_or(0.0)));
-    if let Some(m) = model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
+        predicted_error(opts, spread.as_ref(), covariance, noise.model_error_nt);
+    if let Some(m) = noise.model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
+        let sensor_noise_nt = noise.sensor_noise_nt;
         warnings.push(format!(
             "the model leaves {m:.2} nT rms of the signal unexplained beyond the scalar's own \
              noise ({sensor_noise_nt:.3} nT): an effect the model lacks stays in the compensated \
@@ -771,9 +654,9 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         coefficient_covariance,
         coefficients: coeffs,
         regressors: regs,
-        sigma1,
-        noise_nt,
-        model_error_nt,
+        sigma1: noise.sigma1,
+        noise_nt: noise.noise_nt,
+        model_error_nt: noise.model_error_nt,
         warnings,
         filter_healthy: healthy,
         jackknife,
@@ -784,6 +667,198 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         },
         ..Default::default()
     };
+    push_outputs(&mut run, &outs, flight);
+    if spec.has(TermKind::Rate) {
+        apply_rate_crossovers(flight, opts, &mut run);
+    }
+    Ok(run)
+}
+
+/// The filter's noise levels for one run: σ1 of the anomaly process, the measurement
+/// noise r, and how much of r is the sensor's own.
+struct FilterNoise {
+    /// The scalar's own noise (nT), before any widening for model error.
+    sensor_noise_nt: f64,
+    /// The measurement noise the filter uses (nT).
+    noise_nt: f64,
+    sigma1: f64,
+    /// What `noise_nt` covers beyond the sensor's noise (see [`KfRun::model_error_nt`]).
+    model_error_nt: Option<f64>,
+}
+
+impl FilterNoise {
+    fn of(flight: &Flight, opts: &KfOptions) -> Result<Self> {
+        let spec = &opts.model;
+        // The filter's r covers sensor noise plus what the model cannot follow (fluxgate
+        // noise in the regressors, residual model error): never below 5 pT.
+        let noise_nt = match opts.noise_nt {
+            Some(v) => v,
+            None => {
+                let sensor = estimate_noise_nt(&flight.mag_nt).unwrap_or(0.02);
+                (sensor * sensor + 0.005f64.powi(2)).sqrt()
+            }
+        };
+        let sigma1 = match opts.sigma1 {
+            Some(v) => v,
+            None if spec.field => {
+                // A first post-flight pass with the paper's σ1 gives the interference
+                // estimate that is removed before the spectrum is taken.
+                let cfg = base_config(flight, opts, DEFAULT_SIGMA1, noise_nt);
+                let interf = calibrated_interference(flight, opts, cfg)?;
+                let spectral = estimate_sigma1_with(
+                    flight,
+                    &interf,
+                    Some(&known_environment_nt(flight, spec)),
+                )
+                .unwrap_or(DEFAULT_SIGMA1)
+                    * opts.sigma1_scale;
+                select_sigma1(flight, opts, spectral, noise_nt)?
+            }
+            None => DEFAULT_SIGMA1,
+        };
+        let sensor_noise_nt = noise_nt;
+        let noise_nt = match (opts.noise_nt, &opts.coefficients) {
+            (None, None) => adapted_noise_nt(flight, opts, sigma1, noise_nt)?,
+            _ => noise_nt,
+        };
+        // What the innovations show beyond the sensor's noise is signal the model cannot
+        // follow: interference it lacks a term for. It stays in the compensated output, so
+        // it belongs in the predicted error (on the real SGL boxes the coefficient
+        // covariance alone predicted 0.85–1.2 nT where the box-to-box transfer left
+        // 3.0–4.4 nT).
+        let model_error_nt = match opts.coefficients {
+            Some(_) => opts.model_error_nt,
+            None => (noise_nt > sensor_noise_nt)
+                .then(|| (noise_nt * noise_nt - sensor_noise_nt * sensor_noise_nt).sqrt()),
+        };
+        Ok(Self {
+            sensor_noise_nt,
+            noise_nt,
+            sigma1,
+            model_error_nt,
+        })
+    }
+}
+
+/// The options with the combinations this flight does not excite held at their prior
+/// (and a warning naming how many), or None when that check does not apply. Post-flight
+/// only: which combinations the flight excites is known at its end, and the board (which
+/// real time reproduces) cannot know it in advance.
+fn hold_unexcited_combinations(
+    flight: &Flight,
+    opts: &KfOptions,
+    cfg: CompensatorConfig,
+    warnings: &mut Vec<String>,
+) -> Result<Option<KfOptions>> {
+    if opts.coefficients.is_some() || !opts.held_combinations.is_empty() || opts.realtime {
+        return Ok(None);
+    }
+    let (_, regs, ..) = pass(flight, opts, cfg, None, true)?;
+    let terms = opts.model.build_terms();
+    let prior: Vec<f64> = terms
+        .iter()
+        .flat_map(|t| (0..t.len()).map(|i| t.prior_sigma(i) as f64 * opts.prior_scale))
+        .collect();
+    let interference: Vec<bool> = terms
+        .iter()
+        .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
+        .collect();
+    let span = crate::estimate::excitation::airborne_span(flight);
+    let weak = crate::estimate::excitation::unexcited_combinations(
+        flight,
+        &regs[span],
+        &prior,
+        &interference,
+    );
+    if !weak.is_empty() {
+        warnings.push(crate::estimate::excitation::warning(
+            weak.len(),
+            interference.iter().filter(|i| **i).count(),
+            true,
+        ));
+    }
+    let mut o = opts.clone();
+    o.held_combinations = weak;
+    Ok(Some(o))
+}
+
+/// The options with the anomaly process the likelihood chose, and its label; None when
+/// the stationary process stays. Only when σ1 itself is estimated: a σ1 the user gives is
+/// taken as the model.
+fn profile_field(
+    flight: &Flight,
+    opts: &KfOptions,
+    cfg: CompensatorConfig,
+) -> Result<Option<(KfOptions, String)>> {
+    if opts.field_profiles
+        && opts.model.field
+        && opts.sigma1.is_none()
+        && opts.field_profile.is_none()
+        && opts.coefficients.is_none()
+    {
+        choose_field_profile(flight, opts, cfg).map(Some)
+    } else {
+        Ok(None)
+    }
+}
+
+/// The coefficients' covariance with the jackknife's added, and the jackknife, when it
+/// applies. Post-flight: what the flight's own parts say of the coefficients, beside what
+/// the filter's model says (`crate::estimate::jackknife`); the covariance carries both.
+fn with_jackknife(
+    flight: &Flight,
+    opts: &KfOptions,
+    cfg: CompensatorConfig,
+    (regs, spread): (&[Vec<f32>], Option<&RegressorSpread>),
+    (coeffs, covariance): (&[f64], Vec<f64>),
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<f64>, Option<KfJackknife>)> {
+    let checked = opts.jackknife && !opts.realtime && opts.coefficients.is_none();
+    let Some(spread) = spread.filter(|_| checked) else {
+        return Ok((covariance, None));
+    };
+    let Some(j) =
+        jackknife::kf_jackknife(flight, opts, cfg, (regs, spread), (coeffs, &covariance))?
+    else {
+        return Ok((covariance, None));
+    };
+    // Summed, not the larger of the two: on the broad simulated flights the filter's
+    // covariance and the jackknife each came out at 0.5–0.8 × the actual error (the model
+    // error they both miss is most of it), their sum at 0.57–1.99 ×; the price is 2–3 ×
+    // pessimism over strong geology.
+    let total = covariance
+        .iter()
+        .zip(&j.covariance)
+        .map(|(a, b)| a + b)
+        .collect();
+    if j.inflation > jackknife::INCONSISTENT_REFITS {
+        warnings.push(j.lower_bound_warning());
+    }
+    Ok((total, Some(j)))
+}
+
+/// The covariance the run reports and the flight's predicted error (with the model error
+/// added). Given coefficients predict this flight's error only with their own covariance.
+fn predicted_error(
+    opts: &KfOptions,
+    spread: Option<&RegressorSpread>,
+    covariance: Vec<f64>,
+    model_error_nt: Option<f64>,
+) -> (Vec<f64>, Option<f64>) {
+    let (covariance, predicted) = match (&opts.coefficients, &opts.coefficient_covariance) {
+        (Some(_), Some(given)) => (given.clone(), spread.and_then(|s| s.sigma_nt(given))),
+        (Some(_), None) => (covariance, None),
+        (None, _) => {
+            let predicted = spread.and_then(|s| s.sigma_nt(&covariance));
+            (covariance, predicted)
+        }
+    };
+    let predicted = predicted.map(|p| p.hypot(model_error_nt.unwrap_or(0.0)));
+    (covariance, predicted)
+}
+
+/// The filter's per-sample records into the run's columns (nT).
+fn push_outputs(run: &mut KfRun, outs: &[Output], flight: &Flight) {
     for (o, mag) in outs.iter().zip(&flight.mag_nt) {
         let i = o.interference_nt as f64;
         run.interference_nt.push(i);
@@ -798,10 +873,6 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             .push(o.interference_sigma_nt as f64);
         run.flags.push(o.flags.0);
     }
-    if spec.has(TermKind::Rate) {
-        apply_rate_crossovers(flight, opts, &mut run);
-    }
-    Ok(run)
 }
 
 /// Significance the crossover rate fit needs before it is applied: without evidence the

@@ -464,148 +464,233 @@ pub(super) fn scan<R: Read>(
     total_bytes: u64,
     rd: &mut impl Sink,
 ) -> Result<Vec<(String, String)>, TraceError> {
-    let io = |source| TraceError::Io {
-        file: name.to_string(),
-        source,
+    let mut lines = Lines::new(reader, name);
+    let layout = match opts.layout {
+        Layout::Auto => lines.sniff_layout()?,
+        given => given,
     };
-    let mut r = BufReader::with_capacity(1 << 18, reader);
-    let mut layout = opts.layout;
-    if layout == Layout::Auto {
-        let head = r.fill_buf().map_err(io)?;
+    let mut scan = Scan {
+        name,
+        layout,
+        meta: Vec::new(),
+        have_header: false,
+        xyz_names: None,
+        scratch: String::new(),
+    };
+    while let Some((line_no, raw)) = lines.next_line(&mut opts.progress, total_bytes)? {
+        scan.line(line_no, raw, rd)?;
+    }
+    if let Some(p) = opts.progress.as_mut() {
+        p(lines.bytes, total_bytes);
+    }
+    if !scan.have_header {
+        return Err(TraceError::NoHeader {
+            file: name.to_string(),
+        });
+    }
+    Ok(scan.meta)
+}
+
+/// Progress is reported every this many bytes read.
+const PROGRESS_STEP: u64 = 4 << 20;
+
+/// The file's lines through one reused buffer, counted and reported as progress.
+struct Lines<'n, R> {
+    r: BufReader<R>,
+    name: &'n str,
+    buf: Vec<u8>,
+    line_no: u64,
+    bytes: u64,
+    next_progress: u64,
+}
+
+impl<'n, R: Read> Lines<'n, R> {
+    fn new(reader: R, name: &'n str) -> Self {
+        Self {
+            r: BufReader::with_capacity(1 << 18, reader),
+            name,
+            buf: Vec::with_capacity(4096),
+            line_no: 0,
+            bytes: 0,
+            next_progress: PROGRESS_STEP,
+        }
+    }
+
+    fn io(&self, source: std::io::Error) -> TraceError {
+        TraceError::Io {
+            file: self.name.to_string(),
+            source,
+        }
+    }
+
+    /// The layout by the first non-blank character: `/` is XYZ, anything else CSV.
+    fn sniff_layout(&mut self) -> Result<Layout, TraceError> {
+        let head = match self.r.fill_buf() {
+            Ok(head) => head,
+            Err(e) => return Err(self.io(e)),
+        };
         let head = head.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(head);
         let first = head.iter().find(|b| !b.is_ascii_whitespace());
-        layout = if first == Some(&b'/') {
+        Ok(if first == Some(&b'/') {
             Layout::Xyz
         } else {
             Layout::Csv
-        };
+        })
     }
-    let mut meta = Vec::new();
-    let mut have_header = false;
-    let mut xyz_names: Option<(u64, String)> = None;
-    let mut buf = Vec::with_capacity(4096);
-    let mut scratch = String::new();
-    let mut line_no = 0u64;
-    let mut bytes = 0u64;
-    const PROGRESS_STEP: u64 = 4 << 20;
-    let mut next_progress = PROGRESS_STEP;
 
-    loop {
-        buf.clear();
+    /// The next line's number and bytes without its line break (nor, on the first line, a
+    /// UTF-8 byte-order mark); None at the end of the file.
+    fn next_line(
+        &mut self,
+        progress: &mut Option<&mut dyn FnMut(u64, u64)>,
+        total_bytes: u64,
+    ) -> Result<Option<(u64, &[u8])>, TraceError> {
+        self.buf.clear();
         // Bounded: a file without line breaks (`/dev/zero`) must end in an error, not in
         // one line growing until the allocation aborts.
-        let n = (&mut r)
+        let n = match (&mut self.r)
             .take(MAX_LINE_BYTES as u64 + 1)
-            .read_until(b'\n', &mut buf)
-            .map_err(io)?;
+            .read_until(b'\n', &mut self.buf)
+        {
+            Ok(n) => n,
+            Err(e) => return Err(self.io(e)),
+        };
         if n == 0 {
-            break;
+            return Ok(None);
         }
-        if n > MAX_LINE_BYTES && buf.last() != Some(&b'\n') {
-            return Err(io(std::io::Error::new(
+        if n > MAX_LINE_BYTES && self.buf.last() != Some(&b'\n') {
+            return Err(self.io(std::io::Error::new(
                 std::io::ErrorKind::InvalidData,
                 format!(
                     "line {} is longer than {} MiB: not a trace (CSV or XYZ) file",
-                    line_no + 1,
+                    self.line_no + 1,
                     MAX_LINE_BYTES >> 20
                 ),
             )));
         }
-        bytes += n as u64;
-        line_no += 1;
-        if bytes >= next_progress {
-            if let Some(p) = opts.progress.as_mut() {
-                p(bytes, total_bytes);
+        self.bytes += n as u64;
+        self.line_no += 1;
+        if self.bytes >= self.next_progress {
+            if let Some(p) = progress.as_mut() {
+                p(self.bytes, total_bytes);
             }
-            next_progress = bytes + PROGRESS_STEP;
+            self.next_progress = self.bytes + PROGRESS_STEP;
         }
-        let mut raw: &[u8] = &buf;
-        if line_no == 1 {
+        let mut raw: &[u8] = &self.buf;
+        if self.line_no == 1 {
             raw = raw.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(raw);
         }
         while let [rest @ .., b'\n' | b'\r'] = raw {
             raw = rest;
         }
+        Ok(Some((self.line_no, raw)))
+    }
+}
+
+/// What the scan has seen so far: the layout, the metadata comments, whether the header
+/// was read, and (XYZ) the last comment, which names the columns.
+struct Scan<'n> {
+    name: &'n str,
+    layout: Layout,
+    meta: Vec<(String, String)>,
+    have_header: bool,
+    xyz_names: Option<(u64, String)>,
+    scratch: String,
+}
+
+impl Scan<'_> {
+    fn line(&mut self, line_no: u64, raw: &[u8], rd: &mut impl Sink) -> Result<(), TraceError> {
         let first = raw.iter().find(|b| !b.is_ascii_whitespace()).copied();
-        let Some(first) = first else { continue }; // blank line
-        let comment_char = if layout == Layout::Xyz { b'/' } else { b'#' };
+        let Some(first) = first else {
+            return Ok(()); // blank line
+        };
+        let comment_char = if self.layout == Layout::Xyz {
+            b'/'
+        } else {
+            b'#'
+        };
         if first == comment_char {
-            // Comments may carry any encoding (degree signs...): decode leniently.
-            if have_header {
-                continue;
-            }
-            let text = String::from_utf8_lossy(raw);
-            let body = text.trim_start().get(1..).unwrap_or("");
-            if layout == Layout::Xyz {
-                // `/ key: value` (as our XYZ writer puts them) is metadata as well; the
-                // last comment is the header either way.
-                if let Some(kv) = parse_meta(body) {
-                    meta.push(kv);
-                }
-                xyz_names = Some((line_no, body.to_string()));
-            } else if let Some(kv) = parse_meta(body) {
-                meta.push(kv);
-            }
-            continue;
+            self.comment(line_no, raw);
+            return Ok(());
         }
         let line = std::str::from_utf8(raw).map_err(|_| TraceError::Utf8 {
-            file: name.to_string(),
+            file: self.name.to_string(),
             line: line_no,
         })?;
-
-        if layout == Layout::Csv {
-            if !have_header {
-                let mut names = Vec::new();
-                csv_fields(line, &mut scratch, |_, f| {
-                    names.push(f.to_string());
-                    Ok(())
-                })?;
-                rd.header(names, line_no)?;
-                have_header = true;
-                continue;
-            }
-            let found = csv_fields(line, &mut scratch, |i, f| rd.field(line_no, i, f))?;
-            rd.end_row(line_no, found)?;
+        if self.layout == Layout::Csv {
+            self.csv_line(line_no, line, rd)
         } else {
-            if !have_header {
-                let Some((hl, names)) = xyz_names.take() else {
-                    return Err(TraceError::NoHeader {
-                        file: name.to_string(),
-                    });
-                };
-                let names: Vec<String> =
-                    names.split_ascii_whitespace().map(str::to_string).collect();
-                if names.is_empty() {
-                    return Err(TraceError::NoHeader {
-                        file: name.to_string(),
-                    });
-                }
-                rd.header(names, hl)?;
-                have_header = true;
-            }
-            let mut toks = line.split_ascii_whitespace();
-            let first_tok = toks.next().unwrap_or("");
-            if (first_tok.eq_ignore_ascii_case("line") || first_tok.eq_ignore_ascii_case("tie"))
-                && toks.clone().count() <= 1
-                && rd.columns() > 2
-            {
-                continue; // Geosoft line separator, not a data row
-            }
-            let mut found = 0;
-            for (i, f) in line.split_ascii_whitespace().enumerate() {
-                rd.field(line_no, i, f)?;
-                found = i + 1;
-            }
-            rd.end_row(line_no, found)?;
+            self.xyz_line(line_no, line, rd)
         }
     }
-    if let Some(p) = opts.progress.as_mut() {
-        p(bytes, total_bytes);
+
+    /// A comment before the header: metadata (`key: value`), and in XYZ the column names
+    /// when it is the last one.
+    fn comment(&mut self, line_no: u64, raw: &[u8]) {
+        if self.have_header {
+            return;
+        }
+        // Comments may carry any encoding (degree signs...): decode leniently.
+        let text = String::from_utf8_lossy(raw);
+        let body = text.trim_start().get(1..).unwrap_or("");
+        if self.layout == Layout::Xyz {
+            // `/ key: value` (as our XYZ writer puts them) is metadata as well; the
+            // last comment is the header either way.
+            if let Some(kv) = parse_meta(body) {
+                self.meta.push(kv);
+            }
+            self.xyz_names = Some((line_no, body.to_string()));
+        } else if let Some(kv) = parse_meta(body) {
+            self.meta.push(kv);
+        }
     }
-    if !have_header {
-        return Err(TraceError::NoHeader {
-            file: name.to_string(),
-        });
+
+    /// A CSV line: the header, then a row per line.
+    fn csv_line(&mut self, line_no: u64, line: &str, rd: &mut impl Sink) -> Result<(), TraceError> {
+        if !self.have_header {
+            let mut names = Vec::new();
+            csv_fields(line, &mut self.scratch, |_, f| {
+                names.push(f.to_string());
+                Ok(())
+            })?;
+            rd.header(names, line_no)?;
+            self.have_header = true;
+            return Ok(());
+        }
+        let found = csv_fields(line, &mut self.scratch, |i, f| rd.field(line_no, i, f))?;
+        rd.end_row(line_no, found)
     }
-    Ok(meta)
+
+    /// An XYZ data line (the header taken from the last comment before the first one);
+    /// Geosoft line separators are skipped.
+    fn xyz_line(&mut self, line_no: u64, line: &str, rd: &mut impl Sink) -> Result<(), TraceError> {
+        if !self.have_header {
+            let no_header = || TraceError::NoHeader {
+                file: self.name.to_string(),
+            };
+            let Some((hl, names)) = self.xyz_names.take() else {
+                return Err(no_header());
+            };
+            let names: Vec<String> = names.split_ascii_whitespace().map(str::to_string).collect();
+            if names.is_empty() {
+                return Err(no_header());
+            }
+            rd.header(names, hl)?;
+            self.have_header = true;
+        }
+        let mut toks = line.split_ascii_whitespace();
+        let first_tok = toks.next().unwrap_or("");
+        if (first_tok.eq_ignore_ascii_case("line") || first_tok.eq_ignore_ascii_case("tie"))
+            && toks.clone().count() <= 1
+            && rd.columns() > 2
+        {
+            return Ok(()); // Geosoft line separator, not a data row
+        }
+        let mut found = 0;
+        for (i, f) in line.split_ascii_whitespace().enumerate() {
+            rd.field(line_no, i, f)?;
+            found = i + 1;
+        }
+        rd.end_row(line_no, found)
+    }
 }
