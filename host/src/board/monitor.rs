@@ -223,6 +223,7 @@ pub struct Monitor {
     stats: MonitorStats,
     expected: Option<u32>,
     recent_t_s: VecDeque<f64>,
+    flagged: super::flagged_share::FlaggedShare,
 }
 
 impl Monitor {
@@ -334,6 +335,13 @@ impl Monitor {
             self.recent_t_s.push_back(r.t_s);
         }
         s.last = Some(*r);
+        self.flagged.push(r.flags);
+    }
+
+    /// `FLAGGED …` when more than 5 % of the last minute's records were refused or
+    /// degraded, with the commonest flags (issue 17 item 3).
+    pub fn flagged_alarm(&self) -> Option<String> {
+        self.flagged.alarm(&FLAG_NAMES)
     }
 
     /// Record rate (Hz) from the time stamps of the last records.
@@ -386,6 +394,9 @@ impl Monitor {
         }
         if let Some(st) = &s.status {
             let _ = write!(o, " | status {}", status_text(st));
+        }
+        if let Some(a) = self.flagged_alarm() {
+            let _ = write!(o, " | {a}");
         }
         if let Some(r) = &s.last {
             let _ = write!(

@@ -2,6 +2,8 @@
 //! and filter (`crate::board::replay`), writing the records it would send.
 
 use crate::board::capture::FluxFormat;
+use crate::board::flagged_share::FlagTally;
+use crate::board::monitor::FLAG_NAMES;
 use crate::board::replay::{
     csv_row, read_coefficients_for, read_flux_calibration, read_flux_temperature, read_scalar_lag,
     replay_capture, ReplayOptions, ReplayStats, CSV_HEADER,
@@ -143,7 +145,9 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
     }
     let mut buf = [0u8; MAX_RECORD_LEN];
+    let mut tally = FlagTally::default();
     let stats = replay_capture(BufReader::new(f), &opts, |r| {
+        tally.push(r.flags);
         if let Some(w) = csv.as_mut() {
             writeln!(w, "{}", csv_row(r))
                 .with_context(|| format!("writing {}", w.path().display()))?;
@@ -163,6 +167,9 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     }
     eprintln!("replay: {stats}");
     if let Some(w) = stats.dropped_warning() {
+        eprintln!("warning: {}: {w}", args.capture.display());
+    }
+    if let Some(w) = tally.warning(&FLAG_NAMES) {
         eprintln!("warning: {}: {w}", args.capture.display());
     }
     Ok(stats)

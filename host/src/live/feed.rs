@@ -273,6 +273,7 @@ impl Feed {
         if on(self.garbage_until) {
             a.push("GARBAGE lines".to_string());
         }
+        a.extend(self.monitor.flagged_alarm());
         a
     }
 }
