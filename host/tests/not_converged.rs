@@ -61,8 +61,8 @@ fn not_converged_while_the_pattern_is_flown_cleared_after_it_at_the_survey_requi
     assert!(nc[..100].iter().all(|&f| f));
     // … through the pattern (it ends at sample 6 985: every heading flown, the estimate
     // still moving), and cleared once it settles after it: the straight leg's last 150 s
-    // (of 200) are clear. Measured: first clear at 700.8 s (the pattern ends at 698.5 s),
-    // last set at 847.9 s (the return turn) of 1 089.
+    // (of 200) are clear. Measured with the board's 0.3 nT noise floor: first clear at
+    // 690.4 s (the pattern ends at 698.5 s), last set at 863.9 s (the return turn) of 1 089.
     let first_clear = nc.iter().position(|&f| !f).unwrap();
     assert!(
         first_clear > 5000,
@@ -80,12 +80,16 @@ fn not_converged_while_the_pattern_is_flown_cleared_after_it_at_the_survey_requi
             assert_eq!(k % 8, 0, "changed at {k}");
         }
     }
-    // a σ above the threshold always sets the flag; once every heading has been flown
-    // (the flag first clears) the flag is exactly "σ above the threshold"
+    // Before it first clears, a σ above the threshold always sets the flag. Once every
+    // heading has been flown and it has cleared, the documented hysteresis holds (the
+    // tolerance is the threshold here: the simulator's model error is below it): the flag
+    // is set again only beyond twice the threshold, and never at or below it.
     for (k, (f, s)) in r.iter().enumerate().step_by(8).skip(20) {
-        assert!(*s <= thr || *f, "epoch {k}: σ {s}");
-        if k >= first_clear {
-            assert_eq!(*f, *s > thr, "epoch {k}: σ {s}");
+        if k < first_clear {
+            assert!(*s <= thr || *f, "epoch {k}: σ {s}");
+        } else {
+            assert!(*s <= 2.0 * thr || *f, "epoch {k}: σ {s} clear");
+            assert!(*s > thr || !*f, "epoch {k}: σ {s} set");
         }
     }
 }

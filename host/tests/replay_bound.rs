@@ -60,7 +60,7 @@ struct Holding {
     /// rms error / rms bound, and the share beyond 3σ, in the band.
     band_ratio: f64,
     band_beyond_3s: f64,
-    /// The same about the 60 s running mean (reported: the bound's band is what it states).
+    /// The same about the 60 s running mean.
     minute_ratio: f64,
     minute_beyond_3s: f64,
 }
@@ -130,6 +130,12 @@ fn check_flight(name: &str, trace: &Trace, truth_col: &str) {
     }
     assert!(
         h.band_ratio <= 2.0 && h.band_beyond_3s <= 0.05,
+        "{name}: {h:?}"
+    );
+    // About the minute's mean (turns, the level moving between headings) it holds too, less
+    // tightly: 0.51–1.10 measured, up to 6.9 % beyond 3σ (cloverleaf).
+    assert!(
+        h.minute_ratio <= 2.0 && h.minute_beyond_3s <= 0.10,
         "{name}: {h:?}"
     );
 }

@@ -141,7 +141,8 @@ impl FlagTally {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::board::monitor::FLAG_NAMES;
+
+    use crate::board::flag_names::FLAG_NAMES;
 
     #[test]
     fn says_so_above_five_percent_and_why() {

@@ -3,6 +3,7 @@
 //! decoding with the board's reader, and simulated flights written as raw captures.
 
 pub mod capture;
+pub mod flag_names;
 pub mod flagged_share;
 pub mod link;
 pub mod monitor;

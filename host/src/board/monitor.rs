@@ -30,23 +30,7 @@ pub const MAX_GAP: u32 = 1_000_000;
 /// Records used for the rate estimate.
 const RATE_WINDOW: usize = 100;
 
-/// Flag bits as words, in bit order.
-pub const FLAG_NAMES: [&str; 14] = [
-    "FLUX_STALE",
-    "NO_GPS",
-    "PARSE_ERROR",
-    "MAG_MISSING",
-    "INNOVATION_REJECTED",
-    "FILTER_RESET",
-    "TIE_POINT",
-    "AUX_MISSING",
-    "SURVEY_MODE",
-    "NOT_CONVERGED",
-    "DERIVATIVE_DEGRADED",
-    "TIE_REJECTED",
-    "LEVEL_UNDETERMINED",
-    "MAG_SUSPECT",
-];
+pub use super::flag_names::FLAG_NAMES;
 
 /// `FLUX_STALE|NO_GPS`, `-` for none; unknown bits as `BIT14`.
 pub fn flag_words(f: Flags) -> String {

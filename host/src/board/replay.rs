@@ -73,6 +73,9 @@ impl ReplayOptions {
 /// What a replay read and produced.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ReplayStats {
+    /// The term coefficients the filter holds at the end, physical units, model order
+    /// (what the board's `GETCOEF` would read then).
+    pub final_coefficients: Vec<f32>,
     pub records: u64,
     pub counters: AcqCounters,
     /// Capture data lines read, and those that could not be decoded (skipped).
@@ -415,6 +418,10 @@ pub fn replay_capture<R: BufRead>(
             out.emit(&r, &mut stats)?;
         }
         stats.counters = acq.counters();
+        let mut held = vec![0.0f32; model.coefficient_count()];
+        let n = acq.compensator().coefficients(&mut held);
+        held.truncate(n);
+        stats.final_coefficients = held;
         Ok(stats)
     })
 }

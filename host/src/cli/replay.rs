@@ -58,7 +58,7 @@ pub struct ReplayArgs {
     #[arg(long, value_enum, value_name = "FORMAT")]
     pub flux: Option<FluxFormat>,
 
-    /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,flags.
+    /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,sigma,flags.
     #[arg(
         short = 'o',
         long = "out",
@@ -70,6 +70,12 @@ pub struct ReplayArgs {
     /// Records as the board sends them (`$MCREC,…*CRC` lines).
     #[arg(long, value_name = "OUT.txt")]
     pub records: Option<PathBuf>,
+
+    /// The coefficients the filter holds at the end of the capture (what the board's
+    /// `GETCOEF` would read then), one number per line in the model's order: a flight's
+    /// in-flight calibration, to be applied to another (`replay --coeffs`).
+    #[arg(long, value_name = "OUT.txt")]
+    pub coeffs_out: Option<PathBuf>,
 }
 
 pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
@@ -81,6 +87,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         .as_deref()
         .into_iter()
         .chain(args.records.as_deref())
+        .chain(args.coeffs_out.as_deref())
         .collect();
     crate::io::output::check_outputs(&inputs, &outputs)?;
     let model_text = match args.coeffs.as_deref() {
@@ -172,7 +179,19 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     if let Some(w) = tally.warning(&FLAG_NAMES) {
         eprintln!("warning: {}: {w}", args.capture.display());
     }
+    if let Some(p) = args.coeffs_out.as_deref() {
+        write_held_coefficients(p, &stats.final_coefficients)?;
+    }
     Ok(stats)
+}
+
+/// `--coeffs-out`: one coefficient per line (f32 written exactly, so it reads back as is).
+fn write_held_coefficients(path: &Path, coefficients: &[f32]) -> Result<()> {
+    let mut f = AtomicFile::create(path)?;
+    for c in coefficients {
+        writeln!(f, "{c:e}").with_context(|| format!("writing {}", path.display()))?;
+    }
+    f.commit()
 }
 
 /// `--model`: the spec, and whether it was named (by the user or a caller) rather than
