@@ -93,11 +93,11 @@ fn pipeline_flight(trace: &Trace) -> Flight {
     Flight::from_trace(&t, &[], &[]).unwrap()
 }
 
-/// The board's filter settings: default σ1 and noise, no tie points.
+/// The board's filter settings: default σ1, its noise floor, no tie points.
 fn board_kf() -> KfOptions {
     let mut ko = KfOptions::new(ModelSpec::parse("tl16+field").unwrap());
     ko.sigma1 = Some(1.0e-6);
-    ko.noise_nt = Some(0.02);
+    ko.noise_nt = Some(magcomp_core::acquisition::BOARD_NOISE_FLOOR_NT as f64);
     ko.tie_points = false;
     // The board keeps calibrating until told `MODE,SURVEY`; the host's label-driven
     // freeze at the end of the pattern is an operator action it does not take by itself.
