@@ -17,7 +17,7 @@ pub struct MonitorArgs {
     pub input: String,
 
     /// Save the decoded records as a trace-like CSV
-    /// (t,mag,interference,compensated,anomaly,innovation,flags,seq); with `--web`, the
+    /// (t,mag,interference,compensated,anomaly,innovation,sigma,flags,seq); with `--web`, the
     /// first input's.
     #[arg(short = 'o', long, visible_alias = "out", value_name = "TRACE.csv")]
     pub save: Option<PathBuf>,
