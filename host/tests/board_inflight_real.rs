@@ -10,25 +10,10 @@ mod common;
 #[path = "common/real_boxes.rs"]
 mod real_boxes_data;
 
-use common::cli::{bin, run_ok, tmp};
+use common::cli::{bin, csv_column, run_ok, tmp};
 use magcomp::io::trace::write_trace;
 use real_boxes_data::{band_std_nt, boxes};
 use std::path::Path;
-
-/// The named numeric column of a CSV with `#` comments.
-fn column(path: &Path, name: &str) -> Vec<f64> {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
-    let j = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == name)
-        .unwrap();
-    lines
-        .map(|l| l.split(',').nth(j).unwrap().parse().unwrap_or(f64::NAN))
-        .collect()
-}
 
 #[test]
 fn coefficients_the_board_learns_on_box_1_compensate_box_2_as_post_flight_does() {
@@ -79,7 +64,7 @@ fn coefficients_the_board_learns_on_box_1_compensate_box_2_as_post_flight_does()
                 .arg("-o")
                 .arg(&post),
         );
-        let band = |p: &Path, c: &str| band_std_nt(&column(p, c));
+        let band = |p: &Path, c: &str| band_std_nt(&csv_column(p, c));
         let (on_board, post_flight, raw) = (
             band(&board, "compensated"),
             band(&post, "compensated"),

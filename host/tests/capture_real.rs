@@ -7,7 +7,7 @@
 
 mod common;
 
-use common::cli::{bin, run_ok, run_ok_with_stderr, tmp};
+use common::cli::{bin, csv_column, run_ok, run_ok_with_stderr, tmp};
 use std::path::{Path, PathBuf};
 
 const ROWS: usize = 6500; // box 1
@@ -34,21 +34,6 @@ fn box1(dir: &Path) -> Option<PathBuf> {
     let p = dir.join("box1.csv");
     std::fs::write(&p, out).unwrap();
     Some(p)
-}
-
-/// A named numeric column of a CSV with `#` comments.
-fn column(path: &Path, name: &str) -> Vec<f64> {
-    let text = std::fs::read_to_string(path).unwrap();
-    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
-    let j = lines
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == name)
-        .unwrap_or_else(|| panic!("no {name} in {}", path.display()));
-    lines
-        .map(|l| l.split(',').nth(j).unwrap().parse().unwrap_or(f64::NAN))
-        .collect()
 }
 
 #[test]
@@ -97,7 +82,7 @@ fn real_flight_capture_replays_one_record_per_sample_as_realtime_compensate() {
             .arg("-o")
             .arg(&rec),
     );
-    let replayed = column(&rec, "compensated");
+    let replayed = csv_column(&rec, "compensated");
     assert_eq!(replayed.len(), ROWS, "one record per scalar sample");
 
     // The host's real-time compensation of the same trace with the same coefficients.
@@ -111,7 +96,7 @@ fn real_flight_capture_replays_one_record_per_sample_as_realtime_compensate() {
             .arg("-o")
             .arg(&rt),
     );
-    let host = column(&rt, "compensated");
+    let host = csv_column(&rt, "compensated");
     assert_eq!(host.len(), ROWS);
     // Every sample, the first included: survey mode needs no convergence.
     assert!(

@@ -22,26 +22,17 @@ const COUNTED: u16 = Flags::INNOVATION_REJECTED
     | Flags::DERIVATIVE_DEGRADED
     | Flags::MAG_SUSPECT;
 
+/// Records carrying any counted flag, and each counted flag's records.
 #[derive(Clone, Debug, Default)]
-pub struct FlaggedShare {
-    recent: VecDeque<u16>,
+struct FlagCounts {
     flagged: usize,
     per_bit: [usize; 16],
 }
 
-impl FlaggedShare {
-    pub fn push(&mut self, flags: Flags) {
-        let f = flags.0 & COUNTED;
-        if self.recent.len() == WINDOW_RECORDS {
-            if let Some(old) = self.recent.pop_front() {
-                self.count(old, false);
-            }
-        }
-        self.recent.push_back(f);
-        self.count(f, true);
-    }
-
-    fn count(&mut self, f: u16, add: bool) {
+impl FlagCounts {
+    /// Counts a record's counted flags in (`add`) or out.
+    fn count(&mut self, flags: u16, add: bool) {
+        let f = flags & COUNTED;
         let step = |c: &mut usize| {
             if add {
                 *c += 1
@@ -58,10 +49,29 @@ impl FlaggedShare {
             }
         }
     }
+}
+
+#[derive(Clone, Debug, Default)]
+pub struct FlaggedShare {
+    recent: VecDeque<u16>,
+    counts: FlagCounts,
+}
+
+impl FlaggedShare {
+    pub fn push(&mut self, flags: Flags) {
+        if self.recent.len() == WINDOW_RECORDS {
+            if let Some(old) = self.recent.pop_front() {
+                self.counts.count(old, false);
+            }
+        }
+        self.recent.push_back(flags.0);
+        self.counts.count(flags.0, true);
+    }
 
     /// Share of the window's records flagged (None before `MIN_RECORDS`).
     pub fn share(&self) -> Option<f64> {
-        (self.recent.len() >= MIN_RECORDS).then(|| self.flagged as f64 / self.recent.len() as f64)
+        (self.recent.len() >= MIN_RECORDS)
+            .then(|| self.counts.flagged as f64 / self.recent.len() as f64)
     }
 
     /// `FLAGGED 12.0 % of the last 600 records: INNOVATION_REJECTED 10.0 %, …` (the three
@@ -72,7 +82,7 @@ impl FlaggedShare {
             "FLAGGED {:.1} % of the last {} records: {}",
             100.0 * share,
             self.recent.len(),
-            commonest(&self.per_bit, self.recent.len(), names)
+            commonest(&self.counts.per_bit, self.recent.len(), names)
         ))
     }
 }
@@ -102,8 +112,7 @@ fn commonest(per_bit: &[usize; 16], n: usize, names: &[&str]) -> String {
 #[derive(Clone, Debug, Default)]
 pub struct FlagTally {
     shown: usize,
-    flagged: usize,
-    per_bit: [usize; 16],
+    counts: FlagCounts,
 }
 
 impl FlagTally {
@@ -112,27 +121,19 @@ impl FlagTally {
             return;
         }
         self.shown += 1;
-        let f = flags.0 & COUNTED;
-        if f != 0 {
-            self.flagged += 1;
-        }
-        for (bit, c) in self.per_bit.iter_mut().enumerate() {
-            if f & (1 << bit) != 0 {
-                *c += 1;
-            }
-        }
+        self.counts.count(flags.0, true);
     }
 
     /// The warning when more than [`ALARM_SHARE`] of the records shown converged were
     /// refused or degraded.
     pub fn warning(&self, names: &[&str]) -> Option<String> {
-        let share = self.flagged as f64 / self.shown.max(1) as f64;
+        let share = self.counts.flagged as f64 / self.shown.max(1) as f64;
         (self.shown > 0 && share > ALARM_SHARE).then(|| {
             format!(
                 "{:.1} % of the {} records shown converged were refused at the gate or degraded: {}",
                 100.0 * share,
                 self.shown,
-                commonest(&self.per_bit, self.shown, names)
+                commonest(&self.counts.per_bit, self.shown, names)
             )
         })
     }

@@ -449,16 +449,22 @@ fn flux_glitch_warning(
     msg
 }
 
-/// The scalar relative to its first value, with the core-field model's change removed as
-/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
-/// filter's interference + field states model. f64, exact.
-pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
-    let m0 = flight
+/// The flight's first finite scalar reading (0 without any): what the relative scalars are
+/// taken from, so the sums run on tens of nT, not 50 000.
+pub fn first_reading_nt(flight: &Flight) -> f64 {
+    flight
         .mag_nt
         .iter()
         .copied()
         .find(|v| v.is_finite())
-        .unwrap_or(0.0);
+        .unwrap_or(0.0)
+}
+
+/// The scalar relative to its first value, with the core-field model's change removed as
+/// the core's epoch builder does (the main-field gradient is not the anomaly): what the
+/// filter's interference + field states model. f64, exact.
+pub fn scalar_relative_nt(flight: &Flight) -> Vec<f64> {
+    let m0 = first_reading_nt(flight);
     let igrf0 = flight
         .samples
         .iter()

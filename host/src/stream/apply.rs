@@ -336,11 +336,11 @@ fn feed(
     let mut prev_t: Option<f64> = None;
     let mut k = 0usize;
     let mut progress = Progress::new("pass 3/3 (compensating, writing)", quiet);
+    // The row at the queue's front, judged by both despikers (`waiting` is also filled
+    // by the row loop, so it is passed in; the findings are kept here).
     let mut judged = |(row, glitch): (usize, bool),
                       flux_glitch: bool,
-                      waiting: &mut VecDeque<(Pending, u64)>,
-                      glitches: &mut Listed<f64>,
-                      flux_glitches: &mut FluxGlitches|
+                      waiting: &mut VecDeque<(Pending, u64)>|
      -> Result<()> {
         let (mut p, line) = waiting.pop_front().context("internal: despiker order")?;
         debug_assert_eq!(p.row, row);
@@ -401,13 +401,7 @@ fn feed(
         waiting.push_back((p, rs.line));
         if let Some(j) = despiker.push(k, rs.mag_nt) {
             let flux_glitch = flux_judged.is_some_and(|(_, g)| g);
-            judged(
-                j,
-                flux_glitch,
-                &mut waiting,
-                &mut glitches,
-                &mut flux_glitches,
-            )?;
+            judged(j, flux_glitch, &mut waiting)?;
         }
         k += 1;
         Ok(())
@@ -415,13 +409,7 @@ fn feed(
     .with_context(|| format!("reading {}", src.path.display()))?;
     let flux_rest = flux_despiker.finish();
     for (j, (_, flux_glitch)) in despiker.finish().into_iter().zip(flux_rest) {
-        judged(
-            j,
-            flux_glitch,
-            &mut waiting,
-            &mut glitches,
-            &mut flux_glitches,
-        )?;
+        judged(j, flux_glitch, &mut waiting)?;
     }
     progress.done();
     if k != plan.rows {

@@ -57,3 +57,18 @@ pub fn data_rows(p: &Path) -> usize {
         .count()
         - 1
 }
+
+/// A named numeric column of a CSV with `#` comments.
+pub fn csv_column(path: &Path, name: &str) -> Vec<f64> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let j = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == name)
+        .unwrap_or_else(|| panic!("no {name} in {}", path.display()));
+    lines
+        .map(|l| l.split(',').nth(j).unwrap().parse().unwrap_or(f64::NAN))
+        .collect()
+}

@@ -149,12 +149,7 @@ pub fn shifted(y: &[f64], shift: f64) -> Vec<f64> {
 
 /// The flight with its scalar re-aligned: `mag(t) ← mag(t + τ)`.
 pub fn realign(flight: &Flight, lag_s: f64) -> Flight {
-    let m0 = flight
-        .mag_nt
-        .iter()
-        .copied()
-        .find(|v| v.is_finite())
-        .unwrap_or(0.0);
+    let m0 = crate::flight::first_reading_nt(flight);
     // Relative to the first reading: the kernel's sums then run on tens of nT, not 50 000.
     let rel: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
     let out = shifted(&rel, lag_s * flight.sample_rate_hz);
@@ -328,12 +323,7 @@ impl BandLimited {
         let cols: Vec<Vec<f64>> = cols.iter().map(|c| lp(c)).collect::<Result<_>>()?;
         // The scalar relative to its first value, and the core-field change (at the true
         // instants: only the scalar is shifted).
-        let m0 = flight
-            .mag_nt
-            .iter()
-            .copied()
-            .find(|v| v.is_finite())
-            .unwrap_or(0.0);
+        let m0 = crate::flight::first_reading_nt(flight);
         let mag_rel: Vec<f64> = flight.mag_nt.iter().map(|v| v - m0).collect();
         let y0 = crate::flight::scalar_relative_nt(flight);
         let igrf_rel: Vec<f64> = mag_rel
