@@ -45,7 +45,11 @@ fn ratio(s: &Summary) -> f64 {
 
 #[test]
 fn on_clean_broad_flights_the_filter_is_kept_and_its_figure_is_honest() {
-    for seed in [1u64, 4, 6, 9] {
+    // Seed 2 is where the held-out figure alone would pick TL18-OLS (0.025 nT held out
+    // against the filter's 0.032; true error 0.130 against 0.015): the cloverleaf flies
+    // over the same ground again and least squares fits the recurring anomaly. Its
+    // jackknives (0.047 against 0.026 nT) are beyond their resolution and decide.
+    for seed in [1u64, 2, 4, 6, 9] {
         let trace = simulate(&SimConfig::broad(seed)).expect("simulate");
         let d = run(&trace, &default_settings());
         let tl = run(&trace, &tl_ols());

@@ -76,6 +76,12 @@ pub(super) fn run_kf_method(
             .as_ref()
             .and_then(|j| j.band_sigma_nt)
             .filter(|_| qc.withheld.is_none()),
+        holdout_band_nt: run
+            .jackknife
+            .as_ref()
+            .and_then(|j| j.holdout_band_nt)
+            .filter(|_| qc.withheld.is_none()),
+        refit_inflation: run.jackknife.as_ref().map(|j| j.inflation),
         withheld: qc.withheld,
     };
     Ok((flight, comp))

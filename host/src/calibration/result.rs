@@ -25,6 +25,13 @@ pub struct Compensation {
     pub jackknife_nt: Option<f64>,
     /// The same in the manoeuvre band: what a band-passed figure on another flight sees.
     pub band_jackknife_nt: Option<f64>,
+    /// Calibration: the method's blocked cross-validation in the manoeuvre band
+    /// (`crate::estimate::jackknife::holdout_band_nt`).
+    pub holdout_band_nt: Option<f64>,
+    /// Kalman filter calibration: how far its jackknife refits moved over what its own
+    /// covariances allow (`crate::estimate::kf::KfJackknife::inflation`; ≈ 1 when its model
+    /// holds).
+    pub refit_inflation: Option<f64>,
     /// Why the figures that would pretend (IR, FOM, predicted error) are withheld
     /// (`qc::inputs`); None when they stand.
     pub withheld: Option<String>,

@@ -124,6 +124,9 @@ pub(super) fn run_tl_method(
     let band_jackknife_nt = refits
         .as_ref()
         .and_then(|r| crate::estimate::jackknife::band_sigma_nt(&flight, r));
+    let holdout_band_nt = refits
+        .as_ref()
+        .and_then(|r| crate::estimate::jackknife::holdout_band_nt(&flight, &span, r));
     let file = CoefficientFile {
         tl_config: Some(fit.config.clone()),
         predicted_error_nt,
@@ -164,6 +167,8 @@ pub(super) fn run_tl_method(
         warnings,
         jackknife_nt: predicted_error_nt,
         band_jackknife_nt,
+        holdout_band_nt,
+        refit_inflation: None,
         withheld: qc.withheld,
         ..Default::default()
     };

@@ -110,6 +110,36 @@ pub fn band_sigma_nt(flight: &Flight, refits: &[Vec<f64>]) -> Option<f64> {
     series_sigma_nt(&band)
 }
 
+/// Blocked cross-validation in the manoeuvre band (nT rms): each block of `span`
+/// compensated by the refit that did not see it (`refits[b]`, the interference over the
+/// whole flight without block `b`). Unlike the jackknife's spread, this sees a bias too:
+/// coefficients that fit their own data but predict other manoeuvres badly (the anomaly
+/// states or the anomaly itself took part of the interference). It is what a band-passed
+/// figure of merit on another flight measures, the geology's band signal included, so
+/// only differences between methods on one flight mean anything. None when the blocks do
+/// not match the refits or a series cannot be filtered.
+pub fn holdout_band_nt(flight: &Flight, span: &Range<usize>, refits: &[Vec<f64>]) -> Option<f64> {
+    let blocks = blocks(span, flight.sample_rate_hz)?;
+    if blocks.len() != refits.len() {
+        return None;
+    }
+    // Band-passing is linear: band(mag − refit) = band(mag) − band(refit), and filtering
+    // whole series leaves no edge where two refits meet.
+    let mag = crate::qc::figures::band_passed(flight, &flight.mag_nt)?;
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (block, refit) in blocks.iter().zip(refits) {
+        let band = crate::qc::figures::band_passed(flight, refit)?;
+        for i in block.clone() {
+            let r = mag.get(i)? - band.get(i)?;
+            if r.is_finite() {
+                sum += r * r;
+                n += 1;
+            }
+        }
+    }
+    (n > 1).then(|| (sum / n as f64).sqrt())
+}
+
 /// Which method's coefficients the flight's evidence trusts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -139,6 +169,18 @@ pub struct CrossCheck {
     /// what decides whether they agree.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub band_disagreement_nt: Option<f64>,
+    /// How far the filter's refits moved over what its covariances allow
+    /// (`crate::estimate::kf::KfJackknife::inflation`): beyond
+    /// `crate::estimate::kf::INCONSISTENT_REFITS` its model does not hold.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kalman_filter_refit_inflation: Option<f64>,
+    /// Each method's blocked cross-validation in the band ([`holdout_band_nt`]): how well
+    /// coefficients fitted without a stretch compensate it. What decides when the filter's
+    /// model does not hold.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kalman_filter_holdout_band_nt: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tolles_lawson_holdout_band_nt: Option<f64>,
     pub chosen: Estimator,
 }
 

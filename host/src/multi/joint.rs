@@ -355,6 +355,8 @@ fn joint_compensation(
         warnings,
         jackknife_nt: jk,
         band_jackknife_nt: band_jk,
+        holdout_band_nt: None,
+        refit_inflation: None,
         withheld: None,
     };
     (joint, predicted)

@@ -15,6 +15,8 @@ pub struct KfJackknife {
     /// The same in the manoeuvre band (0.1–0.9 Hz): what a band-passed figure of merit on
     /// another flight sees of it.
     pub band_sigma_nt: Option<f64>,
+    /// Blocked cross-validation in the band (`crate::estimate::jackknife::holdout_band_nt`).
+    pub holdout_band_nt: Option<f64>,
     pub covariance: Vec<f64>,
     /// How far the refits moved from the full calibration, over what the filter's own
     /// covariances say they should have (≈ 1 when its model holds).
@@ -91,10 +93,12 @@ pub(super) fn kf_jackknife(
         .map(|c| super::interference_of(regs, c))
         .collect();
     let band_sigma_nt = crate::estimate::jackknife::band_sigma_nt(flight, &series);
+    let holdout_band_nt = crate::estimate::jackknife::holdout_band_nt(flight, &span, &series);
     Ok(spread.sigma_nt(&covariance).map(|sigma_nt| KfJackknife {
         blocks: blocks.len(),
         sigma_nt,
         band_sigma_nt,
+        holdout_band_nt,
         covariance,
         inflation,
     }))

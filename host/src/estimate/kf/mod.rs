@@ -13,7 +13,7 @@ use magcomp_core::AlignedSample;
 mod jackknife;
 mod tuning;
 
-pub use jackknife::KfJackknife;
+pub use jackknife::{KfJackknife, INCONSISTENT_REFITS};
 use tuning::{adapted_noise_nt, innovation_nll, select_sigma1};
 pub use tuning::{
     estimate_sigma1_for, estimate_sigma1_with, field_profile, known_environment_nt, FIELD_PROFILES,
