@@ -746,5 +746,10 @@ impl Drop for Board {
             let _ = c.kill();
             let _ = c.wait();
         }
+        // A passing run's logs and CSVs are not needed; a failing one keeps them for the
+        // post-mortem (its path is in the failure message).
+        if !std::thread::panicking() {
+            let _ = std::fs::remove_dir_all(&self.dir);
+        }
     }
 }

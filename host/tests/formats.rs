@@ -4,19 +4,11 @@
 #[cfg(feature = "hdf5")]
 use hdf5_metno as h5;
 use magcomp::io::trace::{read_trace, ColumnMap, Trace};
+mod common;
+use common::cli::{bin, tmp};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Mutex;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_magcomp"))
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("magcomp-fmt-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 /// Held while an HDF5 file is open for writing and while a child is spawned: a child
 /// forked by another test thread meanwhile would inherit the open file and its lock

@@ -199,7 +199,12 @@ fn restart_and_live_panel() {
 #[test]
 fn run_monitor_reads_a_file_and_saves() {
     let (bytes, e) = stream();
-    let dir = std::env::temp_dir().join(format!("magcomp-monitor-{}", std::process::id()));
+    // Removed when the test ends, passed or failed.
+    let scratch = tempfile::Builder::new()
+        .prefix("magcomp-monitor-")
+        .tempdir()
+        .unwrap();
+    let dir = scratch.path().to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let input = dir.join("out.txt");
     std::fs::write(&input, &bytes).unwrap();

@@ -20,8 +20,10 @@ fn magcomp(args: &[&str]) {
     );
 }
 
+/// A file in this test binary's scratch folder under `target/tmp` (cargo's
+/// `CARGO_TARGET_TMPDIR`): the same names each run, so runs overwrite, not accumulate.
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("magcomp-multi-cli-{}", std::process::id()));
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join("magcomp-multi-cli");
     std::fs::create_dir_all(&d).unwrap();
     d.join(name)
 }

@@ -159,7 +159,8 @@ fn real_boxes_without_positions_show_two_boxes_of_four_headings() {
             out.push_str(&format!("{:.1},{line}\n", (i - 1) as f64 / 10.0));
         }
     }
-    let tmp = std::env::temp_dir().join(format!("qc_boxes_{}.csv", std::process::id()));
+    let scratch = tempfile::tempdir().unwrap();
+    let tmp = scratch.path().join("qc_boxes.csv");
     std::fs::write(&tmp, out).unwrap();
     let map = magcomp::io::trace::ColumnMap::parse(
         "mag=mag_4_uc,flux_x=flux_b_x,flux_y=flux_b_y,flux_z=flux_b_z",

@@ -140,7 +140,12 @@ fn replay_cli_takes_the_correction_from_the_coefficient_file() {
         ..SimConfig::default()
     };
     let trace = simulate(&cfg).expect("simulate");
-    let dir = std::env::temp_dir().join(format!("magcomp-replay-ftemp-{}", std::process::id()));
+    // Removed when the test ends, passed or failed.
+    let scratch = tempfile::Builder::new()
+        .prefix("magcomp-replay-ftemp-")
+        .tempdir()
+        .unwrap();
+    let dir = scratch.path().to_path_buf();
     let cap = write_capture(&trace, &dir);
     let (coefficients, file) = coefficient_file(MODEL);
     let ft = |s1: f64| {

@@ -144,7 +144,12 @@ fn replay_cli_takes_the_lag_from_the_coefficient_file() {
     };
     cfg.hidden = vec![parse_hidden("lag:0.2").expect("spec")];
     let trace = simulate(&cfg).expect("simulate");
-    let dir = std::env::temp_dir().join(format!("magcomp-replay-lag-{}", std::process::id()));
+    // Removed when the test ends, passed or failed.
+    let scratch = tempfile::Builder::new()
+        .prefix("magcomp-replay-lag-")
+        .tempdir()
+        .unwrap();
+    let dir = scratch.path().to_path_buf();
     let cap = write_capture(&trace, &dir);
     let model = "tl16+field+lag";
     let (coefficients, file) = coefficient_file(model);

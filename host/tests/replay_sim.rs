@@ -291,7 +291,12 @@ fn corrupted_capture_gives_flagged_records_and_no_lost_sample() {
 #[test]
 fn run_replay_writes_csv_and_mcrec_lines() {
     let trace = flight_trace();
-    let dir = std::env::temp_dir().join(format!("magcomp-replay-{}", std::process::id()));
+    // Removed when the test ends, passed or failed.
+    let scratch = tempfile::Builder::new()
+        .prefix("magcomp-replay-")
+        .tempdir()
+        .unwrap();
+    let dir = scratch.path().to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let cap_path = dir.join("flight.cap");
     std::fs::write(

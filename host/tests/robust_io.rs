@@ -19,7 +19,10 @@ struct Fixture {
 fn fixture() -> &'static Fixture {
     static F: OnceLock<Fixture> = OnceLock::new();
     F.get_or_init(|| {
-        let d = tmp("robust-io-fixture");
+        // Shared by every test of this binary, so not a scratch dropped with one of them:
+        // under `target/tmp` (cargo's `CARGO_TARGET_TMPDIR`), overwritten by the next run.
+        let d = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("robust-io-fixture");
+        std::fs::create_dir_all(&d).unwrap();
         let capture = d.join("flight.cap");
         let flight = simulate(&d, &["--capture", capture.to_str().unwrap()]);
         let coeffs = d.join("coeffs.json");
@@ -155,7 +158,7 @@ fn an_unusable_out_is_refused_before_the_work() {
     // The input would fail when read (`/dev/zero`): the -o error comes first, at once.
     for (out, says) in [
         (d.join("no-such-dir").join("out.csv"), "does not exist"),
-        (d.clone(), "is a directory"),
+        (d.to_path_buf(), "is a directory"),
     ] {
         let t0 = Instant::now();
         let e = run_err(

@@ -28,8 +28,10 @@ fn est(method: Method) -> EstimatorSettings {
     }
 }
 
+/// A folder under `target/tmp` (cargo's `CARGO_TARGET_TMPDIR`): the same name each run,
+/// so runs overwrite, not accumulate.
 fn dir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("magcomp-stream-{name}-{}", std::process::id()));
+    let d = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("magcomp-stream-{name}"));
     std::fs::create_dir_all(&d).unwrap();
     d
 }

@@ -155,7 +155,7 @@ fn a_failed_write_leaves_the_previous_file_and_no_temporary() {
                 "--model".into(),
                 "tl16+field".into(),
                 "-o".into(),
-                os(&d),
+                os(&d.to_path_buf()),
             ],
             d.join("index.html"),
         ),

@@ -6,18 +6,10 @@
 
 use magcomp::flight::igrf::{decimal_year, Igrf};
 use magcomp::io::trace::{read_trace, ColumnMap, Trace};
+mod common;
+use common::cli::{bin, tmp};
 use std::path::{Path, PathBuf};
 use std::process::Command;
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_magcomp"))
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("magcomp-wf-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 fn run(cmd: &mut Command) -> (bool, String, String) {
     let out = cmd.output().expect("run magcomp");

@@ -120,7 +120,12 @@ fn rms_demeaned(a: &[f64], b: &[f64]) -> f64 {
 
 #[test]
 fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
-    let dir = std::env::temp_dir().join(format!("magcomp-wfs-{}", std::process::id()));
+    // Removed when the test ends, passed or failed.
+    let scratch = tempfile::Builder::new()
+        .prefix("magcomp-wfs-")
+        .tempdir()
+        .unwrap();
+    let dir = scratch.path().to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let (xyz, sim, line) = sgl_file(&dir);
     let rows_of = |want: &[f64]| -> Vec<usize> {

@@ -325,10 +325,12 @@ fn canonical_name(p: &Path) -> Option<PathBuf> {
 mod tests {
     use super::*;
 
-    fn dir(name: &str) -> PathBuf {
-        let d = std::env::temp_dir().join(format!("magcomp-output-{}-{name}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        d
+    /// Removed when the test ends.
+    fn dir(name: &str) -> tempfile::TempDir {
+        tempfile::Builder::new()
+            .prefix(&format!("magcomp-output-{name}-"))
+            .tempdir()
+            .unwrap()
     }
 
     fn leftovers(d: &Path) -> Vec<String> {
@@ -341,7 +343,8 @@ mod tests {
 
     #[test]
     fn a_failed_write_keeps_the_previous_file_and_leaves_no_temporary() {
-        let d = dir("fail");
+        let scratch = dir("fail");
+        let d = scratch.path();
         let p = d.join("out.csv");
         std::fs::write(&p, "previous\n").unwrap();
         let e = write_with::<()>(&p, |w| {
@@ -351,15 +354,16 @@ mod tests {
         .unwrap_err();
         assert!(format!("{e:#}").contains("out.csv"), "{e:#}");
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "previous\n");
-        assert!(leftovers(&d).is_empty(), "{:?}", leftovers(&d));
+        assert!(leftovers(d).is_empty(), "{:?}", leftovers(d));
         write_file(&p, "new\n").unwrap();
         assert_eq!(std::fs::read_to_string(&p).unwrap(), "new\n");
-        assert!(leftovers(&d).is_empty());
+        assert!(leftovers(d).is_empty());
     }
 
     #[test]
     fn the_same_file_under_another_name_is_refused() {
-        let d = dir("same");
+        let scratch = dir("same");
+        let d = scratch.path();
         let input = d.join("in.csv");
         std::fs::write(&input, "x\n").unwrap();
         let spelled = d.join(".").join("in.csv");

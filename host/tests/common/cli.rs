@@ -8,10 +8,35 @@ pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_magcomp"))
 }
 
-pub fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("magcomp-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+pub fn tmp(name: &str) -> Scratch {
+    Scratch(
+        tempfile::Builder::new()
+            .prefix(&format!("magcomp-cli-{name}-"))
+            .tempdir()
+            .unwrap(),
+    )
+}
+/// A scratch directory removed when dropped (at the end of the test, passed or failed);
+/// it reads as the directory's path.
+pub struct Scratch(tempfile::TempDir);
+
+impl std::ops::Deref for Scratch {
+    type Target = Path;
+    fn deref(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+impl AsRef<Path> for Scratch {
+    fn as_ref(&self) -> &Path {
+        self.0.path()
+    }
+}
+
+impl AsRef<std::ffi::OsStr> for Scratch {
+    fn as_ref(&self) -> &std::ffi::OsStr {
+        self.0.path().as_os_str()
+    }
 }
 
 /// Runs a command that must succeed; its stdout and stderr.
