@@ -4,6 +4,7 @@
 //! on this flight (an applied calibration checked, not re-fitted).
 
 use super::args::{EstimatorArgs, Evaluated, LongFlightArgs, TraceInput};
+use super::multi::{MultiArgs, OneSensorRerun, SensorPlan};
 use crate::calibration::compensated_trace;
 use crate::diagnose::{candidates, diagnose, iterate, DiagnoseOptions, Diagnosis};
 use crate::model::spec::{ModelSpec, DEFAULT_MODEL};
@@ -59,6 +60,21 @@ pub struct DiagnoseArgs {
     /// With `--iterate`: the most terms to add.
     #[arg(long, default_value_t = iterate::DEFAULT_MAX_STEPS, value_name = "N")]
     pub max_steps: usize,
+    /// `--sensors mag_1,mag_2,…`: discovery across sensors. Each sensor is diagnosed
+    /// against every other sensor's compensated field (where the anomaly cancels), and a
+    /// term is named for the sensor whose every diagnosis finds it and whose difference with
+    /// each other sensor carries it (docs/adding-an-effect.md). One sensor: today's command.
+    #[command(flatten)]
+    pub multi: MultiArgs,
+}
+
+impl OneSensorRerun for DiagnoseArgs {
+    fn map_mut(&mut self) -> &mut Option<String> {
+        &mut self.input.map
+    }
+    fn multi_mut(&mut self) -> &mut MultiArgs {
+        &mut self.multi
+    }
 }
 
 impl DiagnoseArgs {
@@ -77,6 +93,7 @@ impl DiagnoseArgs {
             min_explained: 0.15,
             iterate: false,
             max_steps: iterate::DEFAULT_MAX_STEPS,
+            multi: MultiArgs::default(),
         }
     }
 }
@@ -106,6 +123,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     }
     crate::io::progress::force_progress(args.long.progress);
     let (trace, decimated) = args.input.read_for_calibration(&args.long)?;
+    match args.multi.plan(&trace, args.input.map.as_deref())? {
+        SensorPlan::Today => {}
+        SensorPlan::One(map) => return run(&args.as_one_sensor(map)),
+        SensorPlan::Several(sensors) => return run_sensors(args, trace, &sensors),
+    }
     // The compensation checked first: a bad --coeffs fails before the long diagnosis.
     let evaluated = if evaluates {
         Some(args.est.evaluate(&trace, args.coeffs.as_deref())?)
@@ -307,4 +329,76 @@ pub(super) fn write_evaluation(
     let path = dir.join(crate::report::flight_report::REPORT_PAGE);
     page.write(&path)?;
     Ok(path)
+}
+
+/// `diagnose --sensors`: each sensor against the others' compensated fields
+/// (`crate::diagnose::sensors`).
+fn run_sensors(
+    args: &DiagnoseArgs,
+    trace: crate::io::trace::Trace,
+    sensors: &[crate::multi::sensors::SensorSpec],
+) -> Result<()> {
+    if args.coeffs.is_some() || args.iterate || args.report.is_some() || args.reference.is_some() {
+        bail!(
+            "diagnose --sensors takes each other sensor as the reference and diagnoses the \
+             model given: run --coeffs, --iterate, --report and --reference on one sensor"
+        );
+    }
+    if args.multi.gradients.is_some() {
+        bail!("--gradients belongs to compensate: diagnose --sensors writes no gradients");
+    }
+    let model = ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?;
+    let trace = super::args::diagnosis_trace(trace, args.est.tuning.speed_mps, model.field, true)?;
+    let aux = args
+        .aux
+        .as_deref()
+        .map(candidates::AuxSelection::parse)
+        .transpose()?;
+    let opts = DiagnoseOptions {
+        alpha: args.alpha,
+        min_explained: args.min_explained,
+        aux,
+        ..Default::default()
+    };
+    let stage = crate::io::progress::Stage::new("diagnosis of each sensor against the others");
+    let findings = crate::diagnose::sensors::diagnose_sensors(
+        &trace,
+        sensors,
+        &model,
+        &opts,
+        &args.est.settings(),
+    )?;
+    drop(stage);
+    if args.json {
+        println!("{}", crate::diagnose::sensors::to_json(&findings));
+        return Ok(());
+    }
+    println!(
+        "discovery across sensors, model {}: each sensor against the others' compensated fields",
+        model.text()
+    );
+    for f in &findings {
+        let named = if f.named.is_empty() {
+            "nothing".to_string()
+        } else {
+            f.named.join(", ")
+        };
+        println!("{}: named {named}", f.sensor);
+        for (other, d) in &f.against {
+            let significant: Vec<String> = (d.candidates.iter())
+                .filter(|c| c.significant)
+                .map(|c| format!("{} ({})", c.term, c.evidence.join("+")))
+                .collect();
+            println!(
+                "  against {other}: residual {:.3} nT; significant: {}",
+                d.residual_rms_nt,
+                if significant.is_empty() {
+                    "none".to_string()
+                } else {
+                    significant.join(", ")
+                }
+            );
+        }
+    }
+    Ok(())
 }

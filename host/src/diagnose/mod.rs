@@ -35,6 +35,7 @@ pub mod iterate;
 mod lag_detector;
 mod ranking;
 mod regression;
+pub mod sensors;
 mod table;
 mod workspace;
 
