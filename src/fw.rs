@@ -16,6 +16,7 @@ use magcomp_core::protocol::command::{
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::LagLine;
+use magcomp_core::protocol::raw::{RawSample, encode_raw};
 use magcomp_core::protocol::record::{Record, encode_record};
 
 #[cfg(feature = "board-acq")]
@@ -252,7 +253,12 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
             Event::Flux(..) => 1,
             Event::Gps(_) => 2,
         };
-        if let Some(r) = ev.apply(acq) {
+        let record = ev.apply(acq);
+        // `RAW,ON`: the sample as the aligner made it, for calibration after landing
+        if let Some(raw) = acq.take_raw() {
+            send_raw(&raw).await;
+        }
+        if let Some(r) = record {
             send_record(&r).await;
         }
         #[cfg(feature = "hil-sync")]
@@ -269,6 +275,15 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
             .await;
         }
     }
+}
+
+async fn send_raw(r: &RawSample) {
+    let line = Line::fill(|out| encode_raw(r, out).ok());
+    if line.len == 0 {
+        // cannot happen (MAX_RAW_LEN < 320): a bug, logged
+        defmt::error!("raw line {} did not encode", r.k);
+    }
+    OUT.send(line).await;
 }
 
 async fn send_record(r: &Record) {
@@ -402,6 +417,13 @@ async fn handle_command(
             Ok(()) => ack_values(b"SETLAG", &[v]),
             Err(_) => refused(CommandError::ValueOutOfBounds),
         },
+        Command::Raw(on) => {
+            acq.set_raw_output(on);
+            Line::sentence(|c| {
+                c.bytes(b"MCACK,RAW,")?;
+                c.bytes(if on { b"ON" } else { b"OFF" })
+            })
+        }
         Command::Save => {
             if save_coefficients(st, acq, staged.as_ref()) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))

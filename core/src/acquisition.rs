@@ -34,6 +34,7 @@ use crate::protocol::fluxgate::{
 };
 use crate::protocol::lag_line::{check_lag, LagError, LagLine};
 use crate::protocol::nmea::{Fix, NmeaError, NmeaReader, NmeaStats, Sentence};
+use crate::protocol::raw::RawSample;
 use crate::protocol::record::Record;
 use crate::protocol::scalar::{
     ScalarConfig, ScalarError, ScalarFrame, ScalarReader, ScalarStats, CS133_HZ_PER_NT_NANO,
@@ -210,6 +211,9 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     /// `(t at k_anchor, k_anchor)`.
     anchor: Option<(f64, u32)>,
     counters: AcqCounters,
+    /// `RAW,ON`: each scalar sample is also kept as a raw line ([`take_raw`](Self::take_raw)).
+    raw_output: bool,
+    last_raw: Option<RawSample>,
 }
 
 impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
@@ -235,6 +239,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             last_fix: None,
             anchor: None,
             counters: AcqCounters::default(),
+            raw_output: false,
+            last_raw: None,
         })
     }
 
@@ -293,6 +299,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             last_fix: None,
             anchor: None,
             counters: COUNTERS_ZERO,
+            raw_output: false,
+            last_raw: None,
         }
     }
 
@@ -325,6 +333,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.period_us = cfg.period_us().max(1);
         self.k = 0;
         self.seq = 0;
+        self.last_raw = None;
         self.last_fix = None;
         self.anchor = None;
         self.counters = AcqCounters::default();
@@ -470,9 +479,27 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             Some((t0, k0)) => t0 + f64::from(k.wrapping_sub(k0)) / self.cfg.scalar_hz,
             None => f64::from(k) / self.cfg.scalar_hz,
         };
+        if self.raw_output {
+            self.last_raw = Some(RawSample::of(k, &s));
+        }
         self.k = self.k.wrapping_add(1);
         let out = self.comp.push(&s)?;
         Some(self.record(out))
+    }
+
+    /// `RAW,ON` / `RAW,OFF`: keep each scalar sample as a raw line for the output port
+    /// (`protocol::raw`), so the flight's log is enough to calibrate after landing.
+    pub fn set_raw_output(&mut self, on: bool) {
+        self.raw_output = on;
+        self.last_raw = None;
+    }
+    pub fn raw_output(&self) -> bool {
+        self.raw_output
+    }
+
+    /// The raw line of the latest scalar sample, once (None with `RAW,OFF`).
+    pub fn take_raw(&mut self) -> Option<RawSample> {
+        self.last_raw.take()
     }
 
     /// The fluxgate's temperature correction (`fluxtemp`) applied to every frame.

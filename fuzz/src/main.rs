@@ -80,6 +80,8 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                 Command::Reset,
                 Command::Flush,
                 Command::FactoryReset,
+                Command::Raw(true),
+                Command::Raw(false),
                 Command::GetFlux(Some(11)),
                 Command::SetFlux {
                     index: 0,
@@ -129,6 +131,9 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                 let n = encode_record(&r, &mut out).unwrap();
                 s.extend_from_slice(&out[..n]);
             }
+            s.extend_from_slice(
+                b"$MCRAW,0,43200.000000,51468.8597,10873.9941,-12026.2393,48954.7461,45.28550633,-75.72062967,3001.2700,60.0120,0000*A8B2\r\n",
+            );
             v.push(s);
         }
         Seeds::Capture => v.push(

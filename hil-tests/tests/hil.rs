@@ -1222,3 +1222,75 @@ fn save_cut_at_any_point_keeps_the_old_set() {
     assert_eq!(lag(&mut b), 0.4, "{name}: the newest complete set");
     eprintln!("{name}: 9 cut saves kept the previous set; complete saves alternate images");
 }
+
+/// `RAW,ON` (issue 23 item 6): what post-flight calibration needs leaves the board. Every
+/// scalar sample also goes out as a `$MCRAW` line (sample number contiguous, no record
+/// lost), each decodes, and with `MAGCOMP_BIN` set they are byte for byte the lines of
+/// `magcomp replay --raw` on the same capture, which `magcomp calibrate` reads as a trace.
+#[test]
+fn raw_lines_follow_every_sample_as_the_host_replay_writes_them() {
+    let name = "raw";
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let r = reply(&mut b, "MCCMD,RAW,MAYBE");
+    assert!(r.starts_with("$MCERR,"), "RAW,MAYBE → {r}");
+    let r = reply(&mut b, "MCCMD,RAW,ON");
+    assert!(r.starts_with("$MCACK,RAW,ON"), "{r}");
+    let cap = synthetic_flight(&FlightSpec::new(0x7A3, 6.0));
+    b.stream(&cap, speed()).unwrap();
+    b.flush().unwrap();
+    let n = cap.scalar_t_s.len();
+    let (recs, bad) = b.records();
+    assert!(bad.is_empty(), "{bad:?}");
+    assert_eq!(
+        recs.len(),
+        n,
+        "{name}: frames in {n}, records out {}",
+        recs.len()
+    );
+    let raw: Vec<String> = b
+        .output()
+        .into_iter()
+        .filter(|l| l.starts_with("$MCRAW"))
+        .collect();
+    assert_eq!(
+        raw.len(),
+        n,
+        "{name}: frames in {n}, raw lines out {}",
+        raw.len()
+    );
+    for (k, l) in raw.iter().enumerate() {
+        let s = magcomp_core::protocol::raw::decode_raw(l.as_bytes())
+            .unwrap_or_else(|e| panic!("{name}: {l}: {e:?}"));
+        assert_eq!(s.k as usize, k, "{name}: sample numbers contiguous");
+    }
+    let cap_path = b.dir.join("capture.txt");
+    cap.write_raw(std::io::BufWriter::new(
+        std::fs::File::create(&cap_path).unwrap(),
+    ))
+    .unwrap();
+    let out = b.dir.join("replay.txt");
+    if let Some(host) = hil_tests::host_replay_with(&cap_path, &out, &["--raw"]) {
+        host.unwrap_or_else(|e| panic!("{name}: magcomp replay --raw: {e}"));
+        let text = std::fs::read_to_string(&out).unwrap();
+        let host_raw: Vec<&str> = text.lines().filter(|l| l.starts_with("$MCRAW")).collect();
+        assert_eq!(
+            host_raw.len(),
+            raw.len(),
+            "{name}: raw lines, board vs host"
+        );
+        for (a, h) in raw.iter().zip(&host_raw) {
+            assert_eq!(
+                a.trim_end(),
+                h.trim_end(),
+                "{name}: board vs magcomp replay --raw"
+            );
+        }
+        eprintln!("{name}: {n} raw lines = `magcomp replay --raw`");
+    }
+    // Off again: records only.
+    assert!(reply(&mut b, "MCCMD,RAW,OFF").starts_with("$MCACK,RAW,OFF"));
+}

@@ -166,6 +166,7 @@ fn replay_cli_takes_the_correction_from_the_coefficient_file() {
         output: Some(dir.join("rec.csv")),
         records: None,
         coeffs_out: None,
+        raw: false,
     };
     std::fs::write(&coeffs, file(&ft(1e-5))).unwrap();
     let stats = run_replay(&args).unwrap();

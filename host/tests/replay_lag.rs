@@ -171,6 +171,7 @@ fn replay_cli_takes_the_lag_from_the_coefficient_file() {
         output: Some(dir.join("rec.csv")),
         records: None,
         coeffs_out: None,
+        raw: false,
     };
     let rows = |args: &ReplayArgs| -> Vec<String> {
         let stats = run_replay(args).unwrap();

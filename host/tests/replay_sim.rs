@@ -316,6 +316,7 @@ fn run_replay_writes_csv_and_mcrec_lines() {
         output: Some(dir.join("rec.csv")),
         records: Some(dir.join("rec.txt")),
         coeffs_out: None,
+        raw: false,
     };
     let stats = run_replay(&args).unwrap();
     assert_eq!(stats.records as usize, trace.len());

@@ -69,6 +69,9 @@ pub enum Command {
         index: u16,
         value: f32,
     },
+    /// `RAW,ON` / `RAW,OFF`: a `$MCRAW` line per scalar sample besides its record
+    /// (`protocol::raw`).
+    Raw(bool),
     /// `FACTORY,ERASE`: erase the store and return to the boot defaults (the argument makes
     /// it hard to send by accident).
     FactoryReset,
@@ -257,6 +260,11 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
             (Some(b"ERASE"), None) => Ok(Command::FactoryReset),
             _ => Err(CommandError::BadArgument),
         },
+        b"RAW" => match (a1, a2) {
+            (Some(b"ON"), None) => Ok(Command::Raw(true)),
+            (Some(b"OFF"), None) => Ok(Command::Raw(false)),
+            _ => Err(CommandError::BadArgument),
+        },
         b"GETCOEF" => get(n_coef, Command::GetCoef),
         b"SETCOEF" => set(n_coef, |index, value| Command::SetCoef { index, value }),
         b"GETFLUX" => get(FLUX_CAL_LEN, Command::GetFlux),
@@ -316,6 +324,8 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::Reset => c.bytes(b"RESET")?,
             Command::Flush => c.bytes(b"FLUSH")?,
             Command::FactoryReset => c.bytes(b"FACTORY,ERASE")?,
+            Command::Raw(true) => c.bytes(b"RAW,ON")?,
+            Command::Raw(false) => c.bytes(b"RAW,OFF")?,
             Command::GetFlux(i) => get(&mut c, b"GETFLUX", i)?,
             Command::SetFlux { index, value } => set(&mut c, b"SETFLUX", index, value)?,
             Command::GetLag => c.bytes(b"GETLAG")?,
@@ -335,13 +345,6 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
     Some(c.pos())
 }
 
-fn finish_crc(c: &mut Cursor) -> Result<(), super::common::BufferFull> {
-    let crc = crc16_ccitt(&c.written()[1..]);
-    c.byte(b'*')?;
-    c.hex_u16(crc)?;
-    c.bytes(b"\r\n")
-}
-
 /// `$MCACK,<name>[,<field>...]*HHHH\r\n`; fields are written as given (ASCII).
 pub fn encode_ack(name: &[u8], args: &[&[u8]], out: &mut [u8]) -> Option<usize> {
     let mut c = Cursor::new(out);
@@ -352,7 +355,7 @@ pub fn encode_ack(name: &[u8], args: &[&[u8]], out: &mut [u8]) -> Option<usize> 
             c.byte(b',')?;
             c.bytes(a)?;
         }
-        finish_crc(&mut c)
+        super::common::finish_crc(&mut c)
     })()
     .ok()?;
     Some(c.pos())
@@ -373,7 +376,7 @@ pub fn encode_ack_indexed(name: &[u8], index: u16, value: f32, out: &mut [u8]) -
         c.u64(index as u64)?;
         c.byte(b',')?;
         c.sci(value as f64)?;
-        finish_crc(&mut c)
+        super::common::finish_crc(&mut c)
     })()
     .ok()?;
     Some(c.pos())
@@ -387,7 +390,7 @@ pub fn encode_error(e: CommandError, out: &mut [u8]) -> Option<usize> {
         c.u64(e.code() as u64)?;
         c.byte(b',')?;
         c.bytes(e.text().as_bytes())?;
-        finish_crc(&mut c)
+        super::common::finish_crc(&mut c)
     })()
     .ok()?;
     Some(c.pos())

@@ -353,6 +353,15 @@ pub(crate) fn fields(s: &[u8]) -> impl Iterator<Item = &[u8]> {
     s.split(|&b| b == b',')
 }
 
+/// Ends a `$…` line: `*`, the CRC-16/CCITT-FALSE of everything after the `$` as 4 hex
+/// digits, and `\r\n` (records, raw lines, replies).
+pub fn finish_crc(c: &mut Cursor) -> Result<(), BufferFull> {
+    let crc = crc16_ccitt(&c.written()[1..]);
+    c.byte(b'*')?;
+    c.hex_u16(crc)?;
+    c.bytes(b"\r\n")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -11,5 +11,6 @@ pub mod common;
 pub mod fluxgate;
 pub mod lag_line;
 pub mod nmea;
+pub mod raw;
 pub mod record;
 pub mod scalar;

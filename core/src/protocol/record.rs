@@ -13,7 +13,9 @@
 //! unlike NMEA's XOR it catches swapped and doubled characters, which matter for a data
 //! logger recording the stream as is.
 
-use super::common::{crc16_ccitt, fields, parse_decimal, parse_float_field, parse_hex_u32, Cursor};
+use super::common::{
+    crc16_ccitt, fields, finish_crc, parse_decimal, parse_float_field, parse_hex_u32, Cursor,
+};
 use crate::flags::Flags;
 use crate::units::MagCounts;
 
@@ -92,10 +94,7 @@ pub fn encode_record(r: &Record, out: &mut [u8]) -> Result<usize, RecordError> {
         c.float(r.sigma_nt as f64, 4)?;
         c.byte(b',')?;
         c.hex_u16(r.flags.0)?;
-        let crc = crc16_ccitt(&c.written()[1..]);
-        c.byte(b'*')?;
-        c.hex_u16(crc)?;
-        c.bytes(b"\r\n")
+        finish_crc(&mut c)
     })();
     res.map_err(|_| RecordError::BufferFull)?;
     Ok(c.pos())
@@ -127,7 +126,7 @@ pub(crate) fn check_crc_line<'a>(line: &'a [u8], prefix: &[u8]) -> Result<&'a [u
     Ok(&body[..star])
 }
 
-fn counts_field(s: &[u8], i: u8) -> Result<Option<MagCounts>, RecordError> {
+pub(crate) fn counts_field(s: &[u8], i: u8) -> Result<Option<MagCounts>, RecordError> {
     if s.is_empty() {
         return Ok(None);
     }
@@ -142,6 +141,16 @@ fn counts_field(s: &[u8], i: u8) -> Result<Option<MagCounts>, RecordError> {
         .filter(|v| v.unsigned_abs() < 1_000_000_000_000_000_000)
         .map(|v| Some(MagCounts(v)))
         .ok_or(RecordError::BadField(i))
+}
+
+/// A sequence number: any u32, all 10 digits of it.
+pub(crate) fn parse_seq(s: &[u8]) -> Option<u32> {
+    super::common::parse_u32(s).or_else(|| {
+        let d = parse_decimal(s).ok()?;
+        (d.scale == 0)
+            .then_some(d.mantissa)
+            .and_then(|m| u32::try_from(m).ok())
+    })
 }
 
 /// Parses a record line written by [`encode_record`].
@@ -163,15 +172,7 @@ pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
         _ => return Err(RecordError::FieldCount),
     };
     let fl = |i: usize| parse_float_field(f[i]).map_err(|_| RecordError::BadField(i as u8));
-    let seq = super::common::parse_u32(f[0])
-        .or_else(|| {
-            // seq may use all 10 digits of a u32.
-            let d = parse_decimal(f[0]).ok()?;
-            (d.scale == 0)
-                .then_some(d.mantissa)
-                .and_then(|m| u32::try_from(m).ok())
-        })
-        .ok_or(RecordError::BadField(0))?;
+    let seq = parse_seq(f[0]).ok_or(RecordError::BadField(0))?;
     let bad_flags = RecordError::BadField(flags_field as u8);
     let flags = match f[flags_field] {
         s if s.len() == 4 => parse_hex_u32(s).ok_or(bad_flags)? as u16,

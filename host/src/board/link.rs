@@ -157,6 +157,7 @@ fn ack_key(cmd: &Command) -> (&'static str, Option<u16>) {
         Command::Reset => ("RESET", None),
         Command::Flush => ("FLUSH", None),
         Command::FactoryReset => ("FACTORY", None),
+        Command::Raw(_) => ("RAW", None),
         Command::Status => ("STATUS", None),
         Command::Mode(_) => ("MODE", None),
     }

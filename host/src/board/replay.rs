@@ -20,6 +20,7 @@ use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acqu
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::{LagLine, LAG_FRAMES, MAX_LAG_S};
+use magcomp_core::protocol::raw::RawSample;
 use magcomp_core::protocol::record::Record;
 use magcomp_core::{Compensator, Flags, MagCounts};
 use std::fmt;
@@ -52,6 +53,8 @@ pub struct ReplayOptions {
     /// The fluxgate's temperature drift the board corrects (`fluxtemp`, `SETFTEMP`), with
     /// the temperature of each fluxgate line (4th field).
     pub flux_temp: Option<FluxTempCal>,
+    /// `RAW,ON`: each scalar sample also as a `$MCRAW` line ([`replay_capture_raw`]).
+    pub raw: bool,
 }
 
 impl ReplayOptions {
@@ -66,6 +69,7 @@ impl ReplayOptions {
             flux_calibration: None,
             lag_s: None,
             flux_temp: None,
+            raw: false,
         }
     }
 }
@@ -368,6 +372,17 @@ pub fn replay_capture<R: BufRead>(
     opts: &ReplayOptions,
     sink: impl FnMut(&Record) -> Result<()>,
 ) -> Result<ReplayStats> {
+    replay_capture_raw(input, opts, sink, |_| Ok(()))
+}
+
+/// [`replay_capture`], with each `$MCRAW` sample (`opts.raw`) going to `raw_sink` as the
+/// board sends it: before the record the same byte completed.
+pub fn replay_capture_raw<R: BufRead>(
+    input: R,
+    opts: &ReplayOptions,
+    sink: impl FnMut(&Record) -> Result<()>,
+    raw_sink: impl FnMut(&RawSample) -> Result<()>,
+) -> Result<ReplayStats> {
     let mut lines = CaptureLines {
         input,
         line: Vec::new(),
@@ -395,6 +410,7 @@ pub fn replay_capture<R: BufRead>(
         })?;
         acq.attach_lag_line(&mut lag_line);
         load_board_state(&mut acq, opts, &setup, model.coefficient_count())?;
+        acq.set_raw_output(opts.raw);
         let mut stats = ReplayStats {
             scalar_hz: setup.scalar_hz,
             flux_hz: setup.flux_hz,
@@ -404,6 +420,7 @@ pub fn replay_capture<R: BufRead>(
         };
         let mut out = Emitter {
             sink,
+            raw_sink,
             dropped: false,
         };
         feed(
@@ -556,13 +573,14 @@ fn load_board_state(
 
 /// Where records go: counted, the one after a dropped line flagged PARSE_ERROR, then to
 /// the sink.
-struct Emitter<F> {
+struct Emitter<F, G> {
     sink: F,
+    raw_sink: G,
     /// Set when a line was dropped: the next record carries PARSE_ERROR.
     dropped: bool,
 }
 
-impl<F: FnMut(&Record) -> Result<()>> Emitter<F> {
+impl<F: FnMut(&Record) -> Result<()>, G: FnMut(&RawSample) -> Result<()>> Emitter<F, G> {
     fn emit(&mut self, r: &Record, stats: &mut ReplayStats) -> Result<()> {
         let mut r = *r;
         if std::mem::take(&mut self.dropped) {
@@ -615,13 +633,13 @@ impl PortHistory {
 }
 
 /// Feeds every capture line from `first` on to the acquisition chain, emitting its records.
-fn feed<R: BufRead, F: FnMut(&Record) -> Result<()>>(
+fn feed<R: BufRead, F: FnMut(&Record) -> Result<()>, G: FnMut(&RawSample) -> Result<()>>(
     acq: &mut ReplayAcquisition<'_>,
     lines: &mut CaptureLines<R>,
     first: Option<Vec<u8>>,
     flux_format: FluxFormat,
     stats: &mut ReplayStats,
-    out: &mut Emitter<F>,
+    out: &mut Emitter<F, G>,
 ) -> Result<()> {
     let mut data = [0u8; MAX_CHUNK];
     let mut history = PortHistory::default();
@@ -653,7 +671,11 @@ fn feed<R: BufRead, F: FnMut(&Record) -> Result<()>>(
             continue;
         }
         for &b in bytes {
-            if let Some(r) = acq.push_byte(c.port, b) {
+            let record = acq.push_byte(c.port, b);
+            if let Some(raw) = acq.take_raw() {
+                (out.raw_sink)(&raw)?;
+            }
+            if let Some(r) = record {
                 out.emit(&r, stats)?;
             }
         }

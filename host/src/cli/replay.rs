@@ -6,11 +6,12 @@ use crate::board::flagged_share::FlagTally;
 use crate::board::monitor::FLAG_NAMES;
 use crate::board::replay::{
     csv_row, read_coefficients_for, read_flux_calibration, read_flux_temperature, read_scalar_lag,
-    replay_capture, ReplayOptions, ReplayStats, CSV_HEADER,
+    replay_capture_raw, ReplayOptions, ReplayStats, CSV_HEADER,
 };
 use crate::io::output::AtomicFile;
 use crate::model::spec::{InputCorrection, ModelSpec, BOARD_MODEL};
 use anyhow::{Context, Result};
+use magcomp_core::protocol::raw::{encode_raw, MAX_RAW_LEN};
 use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
 use std::io::{BufReader, Write};
 use std::path::{Path, PathBuf};
@@ -76,6 +77,13 @@ pub struct ReplayArgs {
     /// in-flight calibration, to be applied to another (`replay --coeffs`).
     #[arg(long, value_name = "OUT.txt")]
     pub coeffs_out: Option<PathBuf>,
+
+    /// As the board with `RAW,ON`: a `$MCRAW` line per scalar sample (scalar, fluxgate,
+    /// position, time, flags) in `--records` before its record, so the log reads back as
+    /// a trace for calibration after landing (`magcomp calibrate OUT.txt`;
+    /// docs/protocols.md).
+    #[arg(long, requires = "records")]
+    pub raw: bool,
 }
 
 pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
@@ -143,33 +151,50 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     let f = std::fs::File::open(&args.capture)
         .with_context(|| format!("opening {}", args.capture.display()))?;
     let mut csv = args.output.as_deref().map(AtomicFile::create).transpose()?;
-    let mut txt = args
-        .records
-        .as_deref()
-        .map(AtomicFile::create)
-        .transpose()?;
+    // The record and raw sinks both write the board's text stream, in the board's order.
+    let txt = std::cell::RefCell::new(
+        args.records
+            .as_deref()
+            .map(AtomicFile::create)
+            .transpose()?,
+    );
     if let Some(w) = csv.as_mut() {
         writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
     }
     let mut buf = [0u8; MAX_RECORD_LEN];
+    let mut raw_buf = [0u8; MAX_RAW_LEN];
     let mut tally = FlagTally::default();
-    let stats = replay_capture(BufReader::new(f), &opts, |r| {
-        tally.push(r.flags);
-        if let Some(w) = csv.as_mut() {
-            writeln!(w, "{}", csv_row(r))
-                .with_context(|| format!("writing {}", w.path().display()))?;
-        }
-        if let Some(w) = txt.as_mut() {
-            let n = encode_record(r, &mut buf).map_err(|_| {
-                anyhow::anyhow!("record {} does not fit a board record line", r.seq)
-            })?;
-            w.write_all(&buf[..n])
-                .with_context(|| format!("writing {}", w.path().display()))?;
-        }
-        Ok(())
-    })
+    opts.raw = args.raw;
+    let stats = replay_capture_raw(
+        BufReader::new(f),
+        &opts,
+        |r| {
+            tally.push(r.flags);
+            if let Some(w) = csv.as_mut() {
+                writeln!(w, "{}", csv_row(r))
+                    .with_context(|| format!("writing {}", w.path().display()))?;
+            }
+            if let Some(w) = txt.borrow_mut().as_mut() {
+                let n = encode_record(r, &mut buf).map_err(|_| {
+                    anyhow::anyhow!("record {} does not fit a board record line", r.seq)
+                })?;
+                w.write_all(&buf[..n])
+                    .with_context(|| format!("writing {}", w.path().display()))?;
+            }
+            Ok(())
+        },
+        |raw| {
+            if let Some(w) = txt.borrow_mut().as_mut() {
+                let n = encode_raw(raw, &mut raw_buf)
+                    .map_err(|_| anyhow::anyhow!("sample {} does not fit a raw line", raw.k))?;
+                w.write_all(&raw_buf[..n])
+                    .with_context(|| format!("writing {}", w.path().display()))?;
+            }
+            Ok(())
+        },
+    )
     .with_context(|| format!("replaying {}", args.capture.display()))?;
-    for w in [csv, txt].into_iter().flatten() {
+    for w in [csv, txt.into_inner()].into_iter().flatten() {
         w.commit()?;
     }
     eprintln!("replay: {stats}");

@@ -52,6 +52,8 @@ pub enum TraceError {
     Write { msg: String },
     /// An HDF5 file that is not one, or whose datasets do not form a trace.
     Hdf5 { file: String, msg: String },
+    /// A board output log that holds no trace (no `$MCRAW` lines).
+    BoardLog { file: String, msg: String },
 }
 
 impl fmt::Display for TraceError {
@@ -127,6 +129,7 @@ impl fmt::Display for TraceError {
             }
             TraceError::Write { msg } => write!(f, "cannot write trace: {msg}"),
             TraceError::Hdf5 { file, msg } => write!(f, "{file}: {msg}"),
+            TraceError::BoardLog { file, msg } => write!(f, "{file}: {msg}"),
         }
     }
 }

@@ -320,7 +320,7 @@ fn add_column(trace: &mut Trace, ch: Channel, cname: String, name: &str) -> Resu
 
 /// Refuses a `t` column that is not strictly increasing.
 #[cfg(feature = "hdf5")]
-fn check_time_increases(trace: &Trace, name: &str) -> Result<(), TraceError> {
+pub(super) fn check_time_increases(trace: &Trace, name: &str) -> Result<(), TraceError> {
     let Some(t) = trace.col("t") else {
         return Ok(());
     };

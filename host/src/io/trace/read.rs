@@ -57,6 +57,13 @@ pub fn read_trace_with(
     if is_hdf5_path(path) {
         return super::h5::read_hdf5(path, map, opts.check_time);
     }
+    if super::board_log::is_board_log(path) {
+        let trace = super::board_log::read_board_log(path)?;
+        if opts.check_time {
+            super::h5::check_time_increases(&trace, &path.display().to_string())?;
+        }
+        return Ok(trace);
+    }
     let (file, name, total) = open(path, &mut opts)?;
     read_impl(file, &name, map, opts, total)
 }
