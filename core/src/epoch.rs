@@ -65,7 +65,7 @@ impl AlignedSample {
 /// in the usual case: below 2^24 counts (1677 nT) the difference converts to f32 exactly and
 /// one correctly rounded f32 division gives the correctly rounded quotient, which the f64
 /// path also gives (its f64 quotient cannot fall on an f32 rounding midpoint).
-fn diff_nt(a: MagCounts, b: MagCounts) -> f32 {
+pub(crate) fn diff_nt(a: MagCounts, b: MagCounts) -> f32 {
     let d = a.0 - b.0;
     if d.unsigned_abs() < 1 << 24 {
         (d as i32) as f32 / COUNTS_PER_NT as f32

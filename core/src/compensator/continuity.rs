@@ -9,6 +9,7 @@
 //! robust spread (their median absolute value). A real step (engine start, the apron's
 //! steel) is taken as the new level after [`STEP_RUN`] samples that agree with one another.
 
+use crate::epoch::diff_nt;
 use crate::units::MagCounts;
 
 /// Smallest departure ever judged suspect (nT): above the quantum magnetometers' noise
@@ -91,11 +92,11 @@ impl ScalarContinuity {
     /// Departure of `mag` from the line through the last two accepted samples (from the
     /// last one alone when there is one).
     fn departure_nt(&self, t_s: f64, mag: MagCounts, t1: f64, x1: MagCounts) -> f32 {
-        let step_nt = mag.diff_nt(x1);
+        let step_nt = diff_nt(mag, x1);
         match self.last[1] {
             Some((t2, x2)) if t1 > t2 => {
                 let slope_ratio = ((t_s - t1) / (t1 - t2)) as f32;
-                step_nt - x1.diff_nt(x2) * slope_ratio
+                step_nt - diff_nt(x1, x2) * slope_ratio
             }
             _ => step_nt,
         }
@@ -132,7 +133,7 @@ impl ScalarContinuity {
     /// the new level.
     fn suspect(&mut self, t_s: f64, mag: MagCounts, limit_nt: f32) {
         let agrees = self.candidate.is_some_and(|(tc, xc)| {
-            t_s - tc <= MAX_GAP_S && libm::fabsf(mag.diff_nt(xc)) <= limit_nt
+            t_s - tc <= MAX_GAP_S && libm::fabsf(diff_nt(mag, xc)) <= limit_nt
         });
         self.candidate_run = if agrees { self.candidate_run + 1 } else { 1 };
         self.candidate = Some((t_s, mag));

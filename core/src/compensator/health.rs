@@ -39,8 +39,13 @@ pub const fn is_manoeuvre_point(k: usize) -> bool {
 }
 
 /// `v` rotated by `angle_rad` about body axis `axis` (0 x, 1 y, 2 z).
+#[cfg(test)]
 fn rotated(v: [f32; 3], axis: usize, angle_rad: f32) -> [f32; 3] {
-    let (s, c) = (libm::sinf(angle_rad), libm::cosf(angle_rad));
+    rotated_sc(v, axis, (libm::sinf(angle_rad), libm::cosf(angle_rad)))
+}
+
+/// `v` rotated about body axis `axis` by the angle whose sine and cosine are `(s, c)`.
+fn rotated_sc(v: [f32; 3], axis: usize, (s, c): (f32, f32)) -> [f32; 3] {
     let (i, j) = ((axis + 1) % 3, (axis + 2) % 3);
     let mut out = v;
     out[i] = c * v[i] - s * v[j];
@@ -58,10 +63,8 @@ fn axis_cross(axis: usize, v: [f32; 3]) -> [f32; 3] {
     out
 }
 
-/// The epoch as it would be at envelope point `k` (< [`ENVELOPE_POINTS`]): the same
-/// position, field strength and auxiliary channels, another attitude.
-pub fn envelope_epoch(ep: &Epoch, k: usize) -> Epoch {
-    let mut out = *ep;
+/// The rotation of envelope point `k` (axis, angle in rad), `None` for the rate points.
+fn envelope_rotation(k: usize) -> Option<(usize, f32)> {
     match k {
         0..=8 => {
             let (axis, amp_deg) = MANOEUVRES_DEG[k / 3];
@@ -69,7 +72,63 @@ pub fn envelope_epoch(ep: &Epoch, k: usize) -> Epoch {
             match k % 3 {
                 0 | 1 => {
                     let sign = if k.is_multiple_of(3) { 1.0 } else { -1.0 };
-                    out.e = rotated(ep.e, axis, sign * amp);
+                    Some((axis, sign * amp))
+                }
+                _ => None,
+            }
+        }
+        _ => Some((2, HEADINGS_DEG[k - 9].to_radians())),
+    }
+}
+
+/// Sine and cosine of every envelope point's rotation ((0, 0) for the rate points):
+/// formed once, not with 18 soft-float `sinf`/`cosf` calls per envelope evaluation.
+#[derive(Clone, Copy, Debug)]
+pub struct EnvelopeRotations([(f32, f32); ENVELOPE_POINTS]);
+
+impl EnvelopeRotations {
+    pub const ZERO: Self = Self([(0.0, 0.0); ENVELOPE_POINTS]);
+
+    pub fn new() -> Self {
+        Self(core::array::from_fn(|k| match envelope_rotation(k) {
+            Some((_, a)) => (libm::sinf(a), libm::cosf(a)),
+            None => (0.0, 0.0),
+        }))
+    }
+}
+
+impl Default for EnvelopeRotations {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// The epoch as it would be at envelope point `k` (< [`ENVELOPE_POINTS`]): the same
+/// position, field strength and auxiliary channels, another attitude.
+pub fn envelope_epoch(ep: &Epoch, k: usize) -> Epoch {
+    let sc = envelope_rotation(k).map_or((0.0, 0.0), |(_, a)| (libm::sinf(a), libm::cosf(a)));
+    envelope_epoch_sc(ep, k, sc)
+}
+
+/// [`envelope_epoch`] with the sine and cosine of the point's rotation given.
+fn envelope_epoch_sc(ep: &Epoch, k: usize, sc: (f32, f32)) -> Epoch {
+    let mut out = *ep;
+    envelope_attitude(ep, k, sc, &mut out);
+    out
+}
+
+/// Sets `out.e` and `out.e_dot_per_s` to those of envelope point `k` of `ep` (the rest of
+/// `out` is left as it is: the envelope reuses one copy of the epoch for all points).
+fn envelope_attitude(ep: &Epoch, k: usize, sc: (f32, f32), out: &mut Epoch) {
+    out.e = ep.e;
+    out.e_dot_per_s = ep.e_dot_per_s;
+    match k {
+        0..=8 => {
+            let (axis, amp_deg) = MANOEUVRES_DEG[k / 3];
+            let amp = amp_deg.to_radians();
+            match k % 3 {
+                0 | 1 => {
+                    out.e = rotated_sc(ep.e, axis, sc);
                     out.e_dot_per_s = [0.0; 3];
                 }
                 _ => {
@@ -80,11 +139,10 @@ pub fn envelope_epoch(ep: &Epoch, k: usize) -> Epoch {
             }
         }
         _ => {
-            out.e = rotated(ep.e, 2, HEADINGS_DEG[k - 9].to_radians());
+            out.e = rotated_sc(ep.e, 2, sc);
             out.e_dot_per_s = [0.0; 3];
         }
     }
-    out
 }
 
 /// Innovation statistics over an exponential window (a plain average until it fills).
@@ -538,8 +596,9 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
             .saturating_add(1)
             .min(self.cfg.converged_window_epochs.max(1));
         let alpha = 1.0 / self.regressor_mean_count as f32;
-        for i in self.terms_at..self.n {
-            self.regressor_mean[i] += alpha * (phys[i] - self.regressor_mean[i]);
+        let r = self.terms_at..self.n;
+        for (m, p) in self.regressor_mean[r.clone()].iter_mut().zip(&phys[r]) {
+            *m += alpha * (p - *m);
         }
         self.history
             .push(self.filter.state(), self.cfg.converged_window_epochs);
@@ -552,7 +611,7 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         if self.converged_countdown == 0 {
             self.converged_countdown = self.cfg.converged_every.max(1);
             let mean = self.regressor_mean;
-            let window_var = self.interference_change_variance(phys, &mean);
+            let window_var = self.interference_change_variance(phys, &mean, 0);
             // The envelope (12 × O(n²)) every `ENVELOPE_EVERY`-th evaluation: on the
             // Cortex-M4 it doubled `Compensator::push` when made at every one (7 953 →
             // 14 680 instructions on average, 21 states); the envelope moves with the
@@ -646,11 +705,20 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
             None => f32::INFINITY,
         };
         let (mut band_var, mut heading_var, mut heading_moved) = (0.0f32, 0.0f32, 0.0f32);
+        // the states before the terms drop out of the 12 variances exactly when finite
+        // (checked once here; not worth its cost for the single window variance)
+        let lead = if self.filter.leading_rows_finite(self.terms_at) {
+            self.terms_at
+        } else {
+            0
+        };
         let mut other = [0.0f32; N];
+        let mut at = *ep;
         for k in 0..ENVELOPE_POINTS {
             // only the interference terms' entries are read below
-            self.term_regressors(&envelope_epoch(ep, k), &mut other[self.terms_at..self.n]);
-            let v = self.interference_change_variance(phys, &other);
+            envelope_attitude(ep, k, self.envelope_rotations.0[k], &mut at);
+            self.term_regressors(&at, &mut other[self.terms_at..self.n]);
+            let v = self.interference_change_variance(phys, &other, lead);
             let moved = match &oldest {
                 Some(old) => libm::fabsf(self.interference_moved(&other, old) - level_moved),
                 None => f32::INFINITY,

@@ -94,7 +94,19 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     builder: EpochBuilder<W>,
     filter: UdFilter<N>,
     field: Option<FieldProcess>,
+    /// Φ and G of the field's time update: `discretise` fills them once (at reset), each
+    /// epoch rewrites only the entries that depend on the step (`discretise_step`).
+    phi: [[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+    g: [[f32; MAX_DYNAMIC]; MAX_NOISE],
     scale: [f32; N],
+    /// Per state: a coefficient of an interference term, and its prior mean (physical; 0
+    /// for other states). Formed at reset so the per-epoch sums make no `dyn` calls.
+    interference: [bool; N],
+    /// Every term is an interference term (no mask needed).
+    all_interference: bool,
+    prior_phys: [f32; N],
+    /// Sine and cosine of each envelope point's rotation (health.rs), formed once.
+    envelope_rotations: health::EnvelopeRotations,
     n_offset: usize,
     n_clone: usize,
     field_at: usize,
@@ -211,7 +223,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             builder: EpochBuilder::empty(),
             filter: UdFilter::empty(),
             field: None,
+            phi: [[0.0; MAX_DYNAMIC]; MAX_DYNAMIC],
+            g: [[0.0; MAX_DYNAMIC]; MAX_NOISE],
             scale: [1.0; N],
+            interference: [false; N],
+            all_interference: true,
+            prior_phys: [0.0; N],
+            envelope_rotations: health::EnvelopeRotations::ZERO,
             n_offset: 0,
             n_clone: 0,
             field_at: 0,
@@ -328,7 +346,24 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.model = model;
         self.cfg = cfg;
         self.field = field;
+        if let Some(f) = &field {
+            let mut dq = [0.0f32; MAX_NOISE];
+            f.discretise(1.0, field_at, &mut self.phi, &mut self.g, &mut dq);
+        }
         self.scale = scale;
+        self.interference = [false; N];
+        self.prior_phys = [0.0; N];
+        let mut at = terms_at;
+        for t in model.terms {
+            let is_interference = t.is_interference();
+            for i in 0..t.len() {
+                self.interference[at + i] = is_interference;
+                self.prior_phys[at + i] = t.prior_mean(i);
+            }
+            at += t.len();
+        }
+        self.all_interference = model.terms.iter().all(|t| t.is_interference());
+        self.envelope_rotations = health::EnvelopeRotations::new();
         self.n_offset = n_offset;
         self.n_clone = n_clone;
         self.field_at = field_at;
@@ -379,39 +414,38 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             Coefficients::LastGood => &self.last_good[..],
             _ => self.filter.state(),
         };
-        let mut interference = 0.0f32;
-        let mut at = self.terms_at;
-        for t in self.model.terms {
-            let l = t.len();
-            if t.is_interference() {
-                let (xs, ss, ps) = (&x[at..at + l], &self.scale[at..at + l], &phys[at..at + l]);
-                for (i, ((xi, si), pi)) in xs.iter().zip(ss).zip(ps).enumerate() {
-                    let c = match source {
-                        Coefficients::Prior => t.prior_mean(i),
-                        _ => xi * si,
-                    };
-                    interference += c * pi;
-                }
-            }
-            at += l;
+        // the terms' coefficients in model order, so the same sum in the same order
+        let r = self.terms_at..self.n;
+        let (mask, ps) = (&self.interference[r.clone()], &phys[r.clone()]);
+        match (source, self.all_interference) {
+            (Coefficients::Prior, true) => dot(&self.prior_phys[r], ps),
+            (Coefficients::Prior, false) => masked_dot(mask, &self.prior_phys[r], ps),
+            (_, true) => dot3(&x[r.clone()], &self.scale[r], ps),
+            (_, false) => masked_dot3(mask, &x[r.clone()], &self.scale[r], ps),
         }
-        interference
     }
 
     /// Predicted variance (nT²) of the interference difference between regressors `phys`
-    /// and `other` (interference terms only).
-    fn interference_change_variance(&self, phys: &[f32; N], other: &[f32; N]) -> f32 {
-        let mut d = [0.0f32; N];
-        let mut at = self.terms_at;
-        for t in self.model.terms {
-            if t.is_interference() {
-                for i in at..at + t.len() {
-                    d[i] = (phys[i] - other[i]) * self.scale[i];
-                }
-            }
-            at += t.len();
+    /// and `other` (interference terms only). `lead`: 0, or `terms_at` when
+    /// `filter.leading_rows_finite(terms_at)` (the envelope checks it once for its 12
+    /// points): the difference is zero on the states before the terms, which then drop out
+    /// exactly.
+    fn interference_change_variance(
+        &mut self,
+        phys: &[f32; N],
+        other: &[f32; N],
+        lead: usize,
+    ) -> f32 {
+        let r = lead..self.n;
+        let (mask, scale) = (&self.interference[r.clone()], &self.scale[r.clone()]);
+        let (p, o) = (&phys[r.clone()], &other[r]);
+        if lead == self.terms_at && self.all_interference {
+            self.filter
+                .predicted_variance_tail(lead, 0.0, |d| change_regressor_all(p, o, scale, d))
+        } else {
+            self.filter
+                .predicted_variance_tail(lead, 0.0, |d| change_regressor(mask, p, o, scale, d))
         }
-        self.filter.predicted_variance(&d[..self.n], 0.0)
     }
 
     /// How much the interference at physical regressors `phys` differs between the present
@@ -420,14 +454,10 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     fn interference_moved(&self, phys: &[f32; N], old: &[f32; N]) -> f32 {
         let x = self.filter.state();
         let mut moved = 0.0f32;
-        let mut at = self.terms_at;
-        for t in self.model.terms {
-            if t.is_interference() {
-                for i in at..at + t.len() {
-                    moved += phys[i] * self.scale[i] * (x[i] - old[i]);
-                }
+        for i in self.terms_at..self.n {
+            if self.interference[i] {
+                moved += phys[i] * self.scale[i] * (x[i] - old[i]);
             }
-            at += t.len();
         }
         moved
     }
@@ -493,15 +523,11 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         let estimate = self.interference_from(phys, Coefficients::Current);
         let departure = estimate - self.interference_from(phys, Coefficients::LastGood);
         let mut prior_var = 0.0f32;
-        let mut at = self.terms_at;
-        for t in self.model.terms {
-            if t.is_interference() {
-                for (k, i) in (at..at + t.len()).enumerate() {
-                    let m = libm::fabsf(t.prior_mean(k)) + self.scale[i];
-                    prior_var += (m * phys[i]) * (m * phys[i]);
-                }
+        for i in self.terms_at..self.n {
+            if self.interference[i] {
+                let m = libm::fabsf(self.prior_phys[i]) + self.scale[i];
+                prior_var += (m * phys[i]) * (m * phys[i]);
             }
-            at += t.len();
         }
         let window = self.cfg.converged_window_epochs;
         let runaway = self.divergence.push(ep.dmag_nt, estimate, window);
@@ -700,12 +726,13 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     pub fn term_regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
         let mut ok = true;
         let mut at = 0;
-        let mut buf = [0.0f32; MAX_TERM_STATES];
         for t in self.model.terms {
             let l = t.len();
-            ok &= t.regressors(ep, &mut buf[..l]);
-            if at + l <= out.len() {
-                out[at..at + l].copy_from_slice(&buf[..l]);
+            // a term writes all of `out[..l]` (`Term::regressors`): straight into place
+            // (12 times per envelope evaluation), through a scratch only past the end
+            match out.get_mut(at..at + l) {
+                Some(o) => ok &= t.regressors(ep, o),
+                None => ok &= t.regressors(ep, &mut [0.0f32; MAX_TERM_STATES][..l]),
             }
             at += l;
         }
@@ -790,16 +817,14 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     fn predict_field(&mut self, ep: &Epoch) {
         if let Some(f) = self.field {
             if ep.ds_m > 0.0 && ep.ds_m.is_finite() {
-                let mut phi = [[0.0f32; MAX_DYNAMIC]; MAX_DYNAMIC];
-                let mut g = [[0.0f32; MAX_DYNAMIC]; MAX_NOISE];
                 let mut dq = [0.0f32; MAX_NOISE];
-                f.discretise(ep.ds_m, self.field_at, &mut phi, &mut g, &mut dq);
+                f.discretise_step(ep.ds_m, self.field_at, &mut self.phi, &mut self.g, &mut dq);
                 if self.field_noise_scale != 1.0 {
                     for v in dq.iter_mut() {
                         *v *= self.field_noise_scale;
                     }
                 }
-                self.filter.time_update(self.n_dyn, &phi, &g, &dq);
+                self.filter.time_update(self.n_dyn, &self.phi, &self.g, &dq);
             }
         }
     }
@@ -807,7 +832,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// The epoch's regressors, physical (`phys`, for the interference sums) and scaled by
     /// the states' prior 1σ (`h`, for the filter; survey mode: the dynamic states only, the
     /// frozen coefficients are no states). Returns the interference of the present
-    /// coefficients and the sum over every term (what survey mode subtracts).
+    /// coefficients and the sum over every term (what survey mode subtracts); zeros in
+    /// calibrate mode, which reads neither.
     fn regressors(
         &self,
         ep: &Epoch,
@@ -823,20 +849,22 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             phys[self.field_at + 3] = ep.dh_m;
         }
         let mut at = self.terms_at;
-        let mut buf = [0.0f32; MAX_TERM_STATES];
         for t in self.model.terms {
             let l = t.len();
-            if !t.regressors(ep, &mut buf[..l]) {
+            // a term writes all of `out[..l]` (`Term::regressors`): straight into place
+            if !t.regressors(ep, &mut phys[at..at + l]) {
                 flags.set(Flags::AUX_MISSING);
             }
-            phys[at..at + l].copy_from_slice(&buf[..l]);
             at += l;
         }
         let x = self.filter.state();
         let mut interference = 0.0f32;
         let mut frozen = 0.0f32;
         let mut at = self.terms_at;
-        for t in self.model.terms {
+        // calibrate mode: `process` computes the interference from the updated state and
+        // the frozen sum is survey mode's; neither sum is read
+        let terms = if self.survey { self.model.terms } else { &[] };
+        for t in terms {
             // once per term: a `dyn` call the optimiser cannot hoist out of the loop itself
             let is_interference = t.is_interference();
             let l = t.len();
@@ -893,5 +921,88 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         for i in first_clone..first_clone + n_clone {
             x[i] += shift_nt / scale[i];
         }
+    }
+}
+
+// Loops of the per-epoch bookkeeping as free, non-generic functions: compiled once, here, at
+// this crate's opt-level 3 (a method generic over N is compiled in the calling crate, at the
+// firmware's "s"; see filter/ud.rs). Same arithmetic in the same order as the loops they
+// replaced.
+
+/// `Σ c_i·p_i` over the states where `mask_i`.
+#[inline(never)]
+#[allow(clippy::needless_range_loop)] // arrays indexed together: one bounds check each
+fn masked_dot(mask: &[bool], c: &[f32], p: &[f32]) -> f32 {
+    let n = mask.len();
+    let (c, p) = (&c[..n], &p[..n]);
+    let mut sum = 0.0f32;
+    for i in 0..n {
+        if mask[i] {
+            sum += c[i] * p[i];
+        }
+    }
+    sum
+}
+
+/// `masked_dot` with every entry taken.
+#[inline(never)]
+#[allow(clippy::needless_range_loop)]
+fn dot(c: &[f32], p: &[f32]) -> f32 {
+    let n = c.len();
+    let p = &p[..n];
+    let mut sum = 0.0f32;
+    for i in 0..n {
+        sum += c[i] * p[i];
+    }
+    sum
+}
+
+/// `masked_dot3` with every entry taken.
+#[inline(never)]
+#[allow(clippy::needless_range_loop)]
+fn dot3(x: &[f32], s: &[f32], p: &[f32]) -> f32 {
+    let n = x.len();
+    let (s, p) = (&s[..n], &p[..n]);
+    let mut sum = 0.0f32;
+    for i in 0..n {
+        sum += x[i] * s[i] * p[i];
+    }
+    sum
+}
+
+/// `Σ (x_i·s_i)·p_i` over the states where `mask_i`.
+#[inline(never)]
+#[allow(clippy::needless_range_loop)]
+fn masked_dot3(mask: &[bool], x: &[f32], s: &[f32], p: &[f32]) -> f32 {
+    let n = mask.len();
+    let (x, s, p) = (&x[..n], &s[..n], &p[..n]);
+    let mut sum = 0.0f32;
+    for i in 0..n {
+        if mask[i] {
+            sum += x[i] * s[i] * p[i];
+        }
+    }
+    sum
+}
+
+/// The interference change regressor: `d_i = (p_i − o_i)·s_i` where `mask_i`, else 0.
+#[inline(never)]
+#[allow(clippy::needless_range_loop)] // five arrays indexed together: one bounds check each
+fn change_regressor(mask: &[bool], p: &[f32], o: &[f32], s: &[f32], d: &mut [f32]) {
+    let n = d.len();
+    let (mask, p, o, s) = (&mask[..n], &p[..n], &o[..n], &s[..n]);
+    for i in 0..n {
+        d[i] = if mask[i] { (p[i] - o[i]) * s[i] } else { 0.0 };
+    }
+}
+
+/// `change_regressor` where every entry is an interference term's.
+#[inline(never)]
+#[allow(clippy::needless_range_loop)]
+fn change_regressor_all(p: &[f32], o: &[f32], s: &[f32], d: &mut [f32]) {
+    let n = d.len();
+    let (p, o, s) = (&p[..n], &o[..n], &s[..n]);
+    for i in 0..n {
+        d[i] = (p[i] - o[i]) * s[i];
     }
 }

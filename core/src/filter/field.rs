@@ -60,8 +60,6 @@ impl FieldProcess {
         g: &mut [[f32; MAX_DYNAMIC]; MAX_NOISE],
         dq: &mut [f32; MAX_NOISE],
     ) {
-        let d = ds_m.abs();
-        let s = &self.scale;
         for (i, row) in phi.iter_mut().enumerate() {
             for (j, v) in row.iter_mut().enumerate() {
                 *v = if i == j { 1.0 } else { 0.0 };
@@ -70,6 +68,27 @@ impl FieldProcess {
         for col in g.iter_mut() {
             *col = [0.0; MAX_DYNAMIC];
         }
+        for k in 0..FIELD_STATES {
+            g[k][off + k] = 1.0;
+        }
+        self.discretise_step(ds_m, off, phi, g, dq);
+    }
+
+    /// The part of [`discretise`](Self::discretise) that depends on the step: writes only
+    /// the entries of Φ and G that vary with `ds_m`, and all of `dq`. On arrays
+    /// `discretise` filled once (for any step, at the same `off`) it gives exactly what
+    /// `discretise` gives: the compensator keeps Φ and G and so neither zeroes nor refills
+    /// 104 floats every epoch.
+    pub fn discretise_step(
+        &self,
+        ds_m: f32,
+        off: usize,
+        phi: &mut [[f32; MAX_DYNAMIC]; MAX_DYNAMIC],
+        g: &mut [[f32; MAX_DYNAMIC]; MAX_NOISE],
+        dq: &mut [f32; MAX_NOISE],
+    ) {
+        let d = ds_m.abs();
+        let s = &self.scale;
         // Physical Φ and U_q entries, then x̃ = x/s: Φ̃_ij = Φ_ij s_j/s_i, Ũ_ij = U_ij s_j/s_i.
         let d2 = d * d;
         let p = [(0, 1, d), (0, 2, 0.5 * d2), (1, 2, d), (3, 4, d)];
@@ -82,9 +101,6 @@ impl FieldProcess {
             (1, 2, 0.5 * d),
             (3, 4, 0.5 * d),
         ];
-        for k in 0..FIELD_STATES {
-            g[k][off + k] = 1.0;
-        }
         for &(i, j, v) in &uq {
             g[j][off + i] = v * s[j] / s[i];
         }

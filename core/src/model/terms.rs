@@ -143,18 +143,6 @@ impl Term for Induced {
     }
 }
 
-/// (i, j) pairs of the eddy regressors `e_i·ė_j`, in the paper's order.
-const EDDY_PAIRS: [(usize, usize); 8] = [
-    (0, 0),
-    (1, 1),
-    (0, 1),
-    (1, 0),
-    (0, 2),
-    (2, 0),
-    (1, 2),
-    (2, 1),
-];
-
 impl Term for Eddy {
     fn name(&self) -> &'static str {
         TermKind::Eddy.name()
@@ -166,8 +154,22 @@ impl Term for Eddy {
         8
     }
     fn regressors(&self, ep: &Epoch, out: &mut [f32]) -> bool {
-        for (o, &(i, j)) in out.iter_mut().zip(EDDY_PAIRS.iter()) {
-            *o = ep.e[i] * ep.e_dot_per_s[j] * ep.field_ratio;
+        // e_i·ė_j for (i, j) = (0,0) (1,1) (0,1) (1,0) (0,2) (2,0) (1,2) (2,1), the paper's
+        // order, written out: a loop over an index table cost ~19 instructions a regressor
+        // on the M4, and this runs 13 times an epoch at every envelope evaluation
+        let ([a, b, c], [da, db, dc]) = (ep.e, ep.e_dot_per_s);
+        let m = [
+            a * da,
+            b * db,
+            a * db,
+            b * da,
+            a * dc,
+            c * da,
+            b * dc,
+            c * db,
+        ];
+        for (o, v) in out.iter_mut().zip(m) {
+            *o = v * ep.field_ratio;
         }
         true
     }
