@@ -23,20 +23,30 @@ use anyhow::Result;
 /// flights 56–135 nT against 0.3–0.7 (≥ 100×).
 pub const DISAGREEMENT_SIGMAS: f64 = 3.0;
 
-/// `kalman`: the filter's calibration of `trace`. Returns it, or TL18-OLS's, with the
-/// cross-check attached; the filter's as it is when either figure is missing.
-pub(super) fn choose(
+/// The TL18-OLS calibration of `trace` the filter's is checked against; None when TL
+/// cannot fit the flight (no fluxgate rows in the air, say). It needs nothing of the
+/// filter's run, so `calibrate` computes it beside the filter.
+pub(super) fn least_squares(
     trace: &Trace,
     est: &EstimatorSettings,
-    kalman: (Flight, Compensation),
-) -> Result<(Flight, Compensation)> {
-    let Some(kf_nt) = kalman.1.jackknife_nt else {
-        return Ok(kalman);
-    };
+) -> Option<(Flight, Compensation)> {
     let tl_est = EstimatorSettings {
         tl_terms: "tl18".into(),
         tl_ridge: Some(0.0),
         ..est.clone()
+    };
+    tl::run_tl_method(trace, &tl_est, None).ok()
+}
+
+/// `kalman`: the filter's calibration, `least_squares` TL18-OLS's ([`least_squares`]).
+/// Returns the filter's, or TL18-OLS's, with the cross-check attached; the filter's as it
+/// is when either figure is missing.
+pub(super) fn choose(
+    kalman: (Flight, Compensation),
+    least_squares: Option<(Flight, Compensation)>,
+) -> Result<(Flight, Compensation)> {
+    let Some(kf_nt) = kalman.1.jackknife_nt else {
+        return Ok(kalman);
     };
     // A delay the filter's calibration found and re-aligned: TL's coefficient files carry
     // no delay, so the filter's result stands (its jackknife is the predicted error).
@@ -49,7 +59,7 @@ pub(super) fn choose(
         return Ok(kalman);
     }
     // A flight TL cannot fit (no fluxgate rows in the air, say) leaves the filter's result.
-    let Ok(least_squares) = tl::run_tl_method(trace, &tl_est, None) else {
+    let Some(least_squares) = least_squares else {
         return Ok(kalman);
     };
     let Some(tl_nt) = least_squares.1.jackknife_nt else {

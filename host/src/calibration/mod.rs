@@ -108,8 +108,16 @@ fn run_method(
     let model_text = coeffs.map(|c| c.model.clone()).unwrap_or(est.model.clone());
     match method {
         Method::Kf if est.cross_check && coeffs.is_none() && !realtime => {
-            let kalman = kf::run_kf_method(trace, est, coeffs, realtime, &model_text)?;
-            cross_check::choose(trace, est, kalman)
+            // TL18-OLS does not depend on the filter's run: on the other cores beside it.
+            let (kalman, least_squares) = std::thread::scope(|s| {
+                let tl = s.spawn(|| cross_check::least_squares(trace, est));
+                let kalman = kf::run_kf_method(trace, est, coeffs, realtime, &model_text);
+                (
+                    kalman,
+                    tl.join().expect("the TL18-OLS cross-check panicked"),
+                )
+            });
+            cross_check::choose(kalman?, least_squares)
         }
         Method::Kf => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
         Method::Tl => tl::run_tl_method(trace, est, coeffs),

@@ -115,35 +115,61 @@ fn kernel(x: f64) -> f64 {
 /// `y` read at fractional index `pos`; NaN when the kernel's support leaves `y` or holds a
 /// missing value.
 pub fn value_at(y: &[f64], pos: f64) -> f64 {
-    let i0 = pos.floor();
-    let frac = pos - i0;
-    let i0 = i0 as i64;
-    if frac.abs() < 1e-12 {
-        return if i0 >= 0 && (i0 as usize) < y.len() {
-            y[i0 as usize]
-        } else {
-            f64::NAN
-        };
+    Taps::default().value_at(y, pos)
+}
+
+/// The kernel's weights for one fractional offset, kept while the offset repeats: reading
+/// a whole series at one shift computes them once per binade of the index instead of once
+/// a sample (33 sines and 66 Bessel series). `pos − ⌊pos⌋` is exact and `j − pos` is the
+/// rounding of the same real as `(j − i₀) − frac`, so the weights, their order of
+/// summation and every value read are bit-identical to computing them afresh.
+#[derive(Default)]
+struct Taps {
+    frac_bits: Option<u64>,
+    weights: [f64; 2 * HALF_TAPS],
+    sum: f64,
+}
+
+impl Taps {
+    fn value_at(&mut self, y: &[f64], pos: f64) -> f64 {
+        let i0 = pos.floor();
+        let frac = pos - i0;
+        let i0 = i0 as i64;
+        if frac.abs() < 1e-12 {
+            return if i0 >= 0 && (i0 as usize) < y.len() {
+                y[i0 as usize]
+            } else {
+                f64::NAN
+            };
+        }
+        let h = HALF_TAPS as i64;
+        let (a, b) = (i0 - h + 1, i0 + h);
+        if a < 0 || b >= y.len() as i64 {
+            return f64::NAN;
+        }
+        if self.frac_bits != Some(frac.to_bits()) {
+            let mut w = 0.0;
+            for (m, slot) in (1 - h..=h).zip(self.weights.iter_mut()) {
+                *slot = kernel(m as f64 - frac);
+                w += *slot;
+            }
+            self.frac_bits = Some(frac.to_bits());
+            self.sum = w;
+        }
+        let mut s = 0.0;
+        for (k, v) in self.weights.iter().zip(&y[a as usize..=b as usize]) {
+            s += k * v;
+        }
+        // Normalised by the weights' sum: a constant passes exactly.
+        s / self.sum
     }
-    let h = HALF_TAPS as i64;
-    let (a, b) = (i0 - h + 1, i0 + h);
-    if a < 0 || b >= y.len() as i64 {
-        return f64::NAN;
-    }
-    let (mut s, mut w) = (0.0, 0.0);
-    for j in a..=b {
-        let k = kernel(j as f64 - pos);
-        s += k * y[j as usize];
-        w += k;
-    }
-    // Normalised by the weights' sum: a constant passes exactly.
-    s / w
 }
 
 /// `y` advanced by `shift` samples: `out[k] = y(k + shift)`.
 pub fn shifted(y: &[f64], shift: f64) -> Vec<f64> {
+    let mut taps = Taps::default();
     (0..y.len())
-        .map(|k| value_at(y, k as f64 + shift))
+        .map(|k| taps.value_at(y, k as f64 + shift))
         .collect()
 }
 
@@ -388,13 +414,14 @@ struct ShiftedScalar {
 
 impl ShiftedScalar {
     fn at(&self, tau: f64) -> Vec<f64> {
+        let mut taps = Taps::default();
         self.at
             .iter()
             .map(|&k| {
                 if self.near_bad[k] {
                     f64::NAN
                 } else {
-                    value_at(&self.mag_rel, k as f64 + tau * self.fs) - self.igrf_rel[k]
+                    taps.value_at(&self.mag_rel, k as f64 + tau * self.fs) - self.igrf_rel[k]
                 }
             })
             .collect()

@@ -62,12 +62,16 @@ pub(super) fn kf_jackknife(
         return Ok(None);
     };
     let (mut moved, mut expected) = (0.0, 0.0);
-    for block in &blocks {
+    // The refits are independent passes (on the cores); they are summed in order.
+    let passes = super::parallel::map(&blocks, |block| {
         let o = KfOptions {
             skip_updates: Some(block.clone()),
             ..opts.clone()
         };
-        let (_, _, c, p, _) = pass(flight, &o, cfg, None, false)?;
+        pass(flight, &o, cfg, None, false).map(|(_, _, c, p, _)| (c, p))
+    });
+    for refit in passes {
+        let (c, p) = refit?;
         // Nested estimates: var(c_k − c) = P_k − P when the model holds.
         let d: Vec<f64> = c
             .iter()

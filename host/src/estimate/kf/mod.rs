@@ -11,6 +11,7 @@ use magcomp_core::model::{Term, TermKind};
 use magcomp_core::AlignedSample;
 
 mod jackknife;
+mod parallel;
 mod tuning;
 
 pub use jackknife::{KfJackknife, INCONSISTENT_REFITS};
@@ -426,28 +427,38 @@ fn choose_field_profile(
         .iter()
         .map(|&p| field_profile(flight, &interference, cfg.noise_nt as f64, p))
         .collect();
-    for (k, profile) in std::iter::once(&stationary).chain(&local).enumerate() {
-        for &m in &FIELD_PROFILE_SCALES {
-            if k == 0 && m == 1.0 {
-                continue; // the stationary pass above
-            }
-            let mut o = opts.clone();
-            o.field_profile = Some(profile.iter().map(|v| v * m).collect());
-            let (outs, ..) = pass(flight, &o, cfg, None, false)?;
-            let nll = innovation_nll(&outs);
-            if nll < best.0 {
-                let label = match k {
-                    0 => format!("stationary, {m} × σ1²"),
-                    _ => {
-                        let (step, half, median) = FIELD_PROFILES[k - 1];
-                        format!(
-                            "local roughness (step {step}, ±{half} samples at 10 Hz, {}), {m} × σ1²",
-                            if median { "median" } else { "mean" }
-                        )
-                    }
-                };
-                best = (nll, o, label);
-            }
+    let trials: Vec<(usize, f64)> = (0..=local.len())
+        .flat_map(|k| FIELD_PROFILE_SCALES.iter().map(move |&m| (k, m)))
+        // The stationary process at 1 × σ1² is the pass above.
+        .filter(|&(k, m)| !(k == 0 && m == 1.0))
+        .collect();
+    let profile = |k: usize, m: f64| -> KfOptions {
+        let p = if k == 0 { &stationary } else { &local[k - 1] };
+        KfOptions {
+            field_profile: Some(p.iter().map(|v| v * m).collect()),
+            ..opts.clone()
+        }
+    };
+    // Independent passes (on the cores); the choice runs in their order.
+    let nlls = parallel::map(&trials, |&(k, m)| {
+        let (outs, ..) = pass(flight, &profile(k, m), cfg, None, false)?;
+        Ok::<_, anyhow::Error>(innovation_nll(&outs))
+    });
+    for (&(k, m), nll) in trials.iter().zip(nlls) {
+        let nll = nll?;
+        if nll < best.0 {
+            let o = profile(k, m);
+            let label = match k {
+                0 => format!("stationary, {m} × σ1²"),
+                _ => {
+                    let (step, half, median) = FIELD_PROFILES[k - 1];
+                    format!(
+                        "local roughness (step {step}, ±{half} samples at 10 Hz, {}), {m} × σ1²",
+                        if median { "median" } else { "mean" }
+                    )
+                }
+            };
+            best = (nll, o, label);
         }
     }
     Ok((best.1, best.2))
@@ -543,12 +554,14 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         return run_kf_on(flight, opts);
     }
     let mut not_calibrated = None;
+    let mut tuning = None;
     let (calibration, fit) = match opts.fluxgate_calibration {
         Some(c) => (c, None),
         None if opts.realtime => (fluxcal::FluxgateCalibration::IDENTITY, None),
         None => {
             // `fluxcal` adds no filter state, so the first pass is the model without it.
-            let mut first = run_kf_on(flight, &first_pass(opts))?;
+            let (mut first, tuned) = run_kf_tuned(flight, &first_pass(opts), None)?;
+            tuning = Some(tuned);
             let fitted = fluxcal::fit_flight(flight, &first.interference_nt)
                 .and_then(fluxcal::FluxgateFit::determined)
                 .and_then(fluxcal::FluxgateFit::physical);
@@ -571,7 +584,10 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
             }
         }
     };
-    let mut run = run_kf_on(&fluxcal::calibrated_flight(flight, &calibration), opts)?;
+    // The second run keeps the first's σ1, noise and anomaly process: the fluxgate's
+    // calibration moves the interference by far less than what chose them.
+    let calibrated = fluxcal::calibrated_flight(flight, &calibration);
+    let (mut run, _) = run_kf_tuned(&calibrated, opts, tuning.as_ref())?;
     run.warnings.extend(not_calibrated);
     run.fluxgate_calibration = Some(calibration);
     run.fluxgate_fit = fit;
@@ -579,6 +595,24 @@ pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
 }
 
 fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
+    run_kf_tuned(flight, opts, None).map(|(run, _)| run)
+}
+
+/// What a run chose for its filter from the flight (σ1, the noise, the anomaly process:
+/// dozens of passes), for a second run on the same flight to reuse.
+struct Tuning {
+    noise: FilterNoise,
+    /// The anomaly process's profile and label, when the run chose one.
+    field: Option<(Option<Vec<f64>>, String)>,
+}
+
+/// The run in stages: the filter's noise and anomaly process (`reuse`d, or chosen on the
+/// flight), the excitation check, the calibration pass, the jackknife, the output pass.
+fn run_kf_tuned(
+    flight: &Flight,
+    opts: &KfOptions,
+    reuse: Option<&Tuning>,
+) -> Result<(KfRun, Tuning)> {
     let survey_from = opts.survey_from;
     let unfrozen;
     let opts = if survey_from.is_some() {
@@ -594,7 +628,10 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
         bail!("no samples");
     }
     let spec = &opts.model;
-    let noise = FilterNoise::of(flight, opts)?;
+    let noise = match reuse {
+        Some(t) => t.noise,
+        None => FilterNoise::of(flight, opts)?,
+    };
     let mut cfg = base_config(flight, opts, noise.sigma1, noise.noise_nt);
     // The record's bound and the convergence tolerance count what the widened noise
     // covers beyond the sensor's own as model error (it stays in the output).
@@ -602,7 +639,20 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     let mut warnings = Vec::new();
     let held = hold_unexcited_combinations(flight, opts, cfg, &mut warnings)?;
     let opts = held.as_ref().unwrap_or(opts);
-    let profiled = profile_field(flight, opts, cfg)?;
+    let profiled = match reuse {
+        Some(t) => t.field.as_ref().map(|(p, label)| {
+            let o = KfOptions {
+                field_profile: p.clone(),
+                ..opts.clone()
+            };
+            (o, label.clone())
+        }),
+        None => profile_field(flight, opts, cfg)?,
+    };
+    let tuning = Tuning {
+        noise,
+        field: (profiled.as_ref()).map(|(o, label)| (o.field_profile.clone(), label.clone())),
+    };
     let (opts, field_process) = match &profiled {
         Some((o, label)) => (o, label.clone()),
         None => (opts, String::from("stationary")),
@@ -671,11 +721,12 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     if spec.has(TermKind::Rate) {
         apply_rate_crossovers(flight, opts, &mut run);
     }
-    Ok(run)
+    Ok((run, tuning))
 }
 
 /// The filter's noise levels for one run: σ1 of the anomaly process, the measurement
 /// noise r, and how much of r is the sensor's own.
+#[derive(Clone, Copy)]
 struct FilterNoise {
     /// The scalar's own noise (nT), before any widening for model error.
     sensor_noise_nt: f64,

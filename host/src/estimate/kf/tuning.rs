@@ -100,12 +100,16 @@ pub(super) fn select_sigma1(
     // A candidate must beat the best so far by more than the sensor noise can explain
     // (one noise σ per manoeuvre): at 3000 m all candidates tie within noise and the
     // FOM's own scatter would otherwise pick a needlessly rigid field.
-    let mut best = (f64::INFINITY, spectral);
-    for &m in &opts.sigma1_candidates {
+    // The candidates' passes are independent (on the cores); the choice runs in order.
+    let scores = super::parallel::map(&opts.sigma1_candidates, |&m| {
         let s1 = spectral * m;
         let cfg = base_config(flight, opts, s1, noise_nt);
         let interf = calibrated_interference(flight, opts, cfg)?;
-        if let Some((score, parts)) = selection_score(flight, &interf) {
+        Ok::<_, anyhow::Error>((s1, selection_score(flight, &interf)))
+    });
+    let mut best = (f64::INFINITY, spectral);
+    for scored in scores {
+        if let (s1, Some((score, parts))) = scored? {
             if score < best.0 - parts as f64 * noise_nt {
                 best = (score, s1);
             }
