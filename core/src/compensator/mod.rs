@@ -12,13 +12,13 @@ use crate::model::{Model, TermKind, MAX_TERM_STATES};
 use crate::units::MagCounts;
 
 mod config;
-mod continuity;
+
 pub mod health;
 mod jitter;
 mod scalar;
 mod ties;
+use crate::continuity::ScalarContinuity;
 pub use config::CompensatorConfig;
-use continuity::ScalarContinuity;
 use health::{CoefficientHistory, Divergence, HeadingCoverage, InnovationMonitor};
 pub use scalar::ScalarFusion;
 use ties::{TieState, TIE_STATE_INIT};
