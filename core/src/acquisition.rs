@@ -23,6 +23,7 @@
 //!   emits the held ones at the end of a stream.
 
 use crate::compensator::{Compensator, CompensatorConfig, CompensatorError};
+use crate::continuity::{Continuity, FluxContinuity};
 use crate::flags::Flags;
 use crate::model::Model;
 use crate::protocol::aligner::{Aligner, AlignerConfig};
@@ -148,6 +149,10 @@ pub struct AcqCounters {
     /// Fluxgate frames accepted / rejected (ASCII lines or SPI frames).
     pub flux_frames: u32,
     pub flux_errors: u32,
+    /// Fluxgate frames accepted by the parser but whose modulus departs from the recent
+    /// frames' ([`FluxContinuity`]): counted in `flux_frames`, held as unusable (samples
+    /// using them are `FLUX_STALE`).
+    pub flux_suspect: u32,
     /// NMEA sentences accepted (including unsupported types) / rejected.
     pub gps_sentences: u32,
     pub gps_errors: u32,
@@ -174,6 +179,7 @@ const COUNTERS_ZERO: AcqCounters = AcqCounters {
     scalar_errors: 0,
     flux_frames: 0,
     flux_errors: 0,
+    flux_suspect: 0,
     gps_sentences: 0,
     gps_errors: 0,
     records: 0,
@@ -195,6 +201,8 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     flux_spi: FluxStats,
     nmea: NmeaReader,
     aligner: Aligner,
+    /// The fluxgate modulus judged against its recent past, frame by frame.
+    flux_check: FluxContinuity,
     comp: Compensator<'a, N, W>,
     /// The fluxgate's delay line (`lag`), when the caller gave one (8 KiB: the board keeps
     /// it in its own zero-initialised static).
@@ -230,6 +238,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             flux_spi: FluxStats::default(),
             nmea: NmeaReader::new(),
             aligner: Aligner::new(cfg.aligner_config()),
+            flux_check: FluxContinuity::new(),
             comp,
             lag_line: None,
             lag_s: 0.0,
@@ -290,6 +299,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             flux_spi: FluxStats { ok: 0, errors: 0 },
             nmea: NmeaReader::new(),
             aligner: Aligner::new(aligner),
+            flux_check: FluxContinuity::new(),
             comp: Compensator::placeholder(model),
             lag_line: None,
             lag_s: 0.0,
@@ -325,6 +335,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.flux_spi = FluxStats::default();
         self.nmea = NmeaReader::new();
         self.aligner = Aligner::new(cfg.aligner_config());
+        self.flux_check = FluxContinuity::new();
         // A fresh start has no delay until one is set (the board reloads its stored τ).
         self.lag_s = 0.0;
         if let Some(l) = self.lag_line.as_deref_mut() {
@@ -441,6 +452,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     /// Applies a fluxgate calibration to every frame from now on.
     pub fn set_flux_calibration(&mut self, cal: FluxCalibration) {
         self.cfg.flux_scalar_cal = cal;
+        // The modulus moves with the calibration: not a glitch.
+        self.flux_check.restart();
     }
     pub fn coefficients(&self, out: &mut [f32]) -> usize {
         self.comp.coefficients(out)
@@ -511,6 +524,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     /// clears it). With one set, a frame without a temperature is `FLUX_STALE`.
     pub fn set_flux_temp_calibration(&mut self, cal: FluxTempCal) {
         self.cfg.flux_temp_cal = cal;
+        self.flux_check.restart();
     }
 
     /// One byte from the fluxgate's serial ASCII port (sensor frame, nT; `X,Y,Z[,T]`).
@@ -566,6 +580,19 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                     self.cfg.flux_scalar_cal.apply(v)
                 };
                 let now = self.now_us();
+                if v.iter().all(|x| x.is_finite())
+                    && self.flux_check.judge(now as f64 * 1e-6, v) == Continuity::Suspect
+                {
+                    // Parsed but read wrong (an axis 0, a corrupted digit): as a frame
+                    // without its temperature, it counts for timing, samples using it are
+                    // FLUX_STALE.
+                    inc(&mut self.counters.flux_suspect);
+                    self.aligner.push_flux_unusable(now);
+                    if let Some(l) = self.lag_line.as_deref_mut() {
+                        l.push(now, [f32::NAN; 3]);
+                    }
+                    return;
+                }
                 if self.aligner.push_flux(now, v) {
                     if let Some(l) = self.lag_line.as_deref_mut() {
                         l.push(now, v);

@@ -14,6 +14,7 @@
 
 pub mod acquisition;
 pub mod compensator;
+pub mod continuity;
 pub mod epoch;
 pub mod filter;
 pub mod flags;

@@ -4,6 +4,7 @@
 //! `[offset (models without field) | tie-point clones | field (5) | term coefficients…]`.
 //! All states are scaled by their prior 1σ (model.md §5, the paper's normalisation).
 
+use crate::continuity::ScalarContinuity;
 use crate::epoch::{AlignedSample, Epoch, EpochBuilder, EpochConfig};
 use crate::filter::field::{FieldProcess, FIELD_STATES};
 use crate::filter::ud::{UdFilter, MAX_DYNAMIC, MAX_NOISE};
@@ -12,13 +13,11 @@ use crate::model::{Model, TermKind, MAX_TERM_STATES};
 use crate::units::MagCounts;
 
 mod config;
-mod continuity;
 pub mod health;
 mod jitter;
 mod scalar;
 mod ties;
 pub use config::CompensatorConfig;
-use continuity::ScalarContinuity;
 use health::{CoefficientHistory, Divergence, HeadingCoverage, InnovationMonitor};
 pub use scalar::ScalarFusion;
 use ties::{TieState, TIE_STATE_INIT};

@@ -1,8 +1,8 @@
 //! The scalar magnetometer as an aid source (as PX4's EKF2 keeps one fusion per file): its
 //! innovation, gate and update, and a status record of what the last fusion did.
 
-use super::continuity::Continuity;
 use super::Compensator;
+use crate::continuity::Continuity;
 use crate::epoch::Epoch;
 use crate::flags::Flags;
 

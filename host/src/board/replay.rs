@@ -133,7 +133,7 @@ impl fmt::Display for ReplayStats {
         write!(
             f,
             "{} records from {} scalar lines (rates {}/{}/{} Hz, fluxgate {}); errors: scalar {}, flux {}, gps {}; \
-             flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines; \
+             flux frames suspect {}; flagged: flux stale {}, no GPS {}, mag missing {}, parse error {}; {} bad capture lines; \
              dropped: {} duplicated lines, {} lines back in time",
             self.records,
             c.scalar_lines,
@@ -144,6 +144,7 @@ impl fmt::Display for ReplayStats {
             c.scalar_errors,
             c.flux_errors,
             c.gps_errors,
+            c.flux_suspect,
             c.flux_stale,
             c.no_gps,
             c.mag_missing,

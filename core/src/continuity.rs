@@ -1,0 +1,446 @@
+//! A reading judged against its own recent past: the scalar where the filter cannot judge
+//! it, and the fluxgate's modulus on every frame. One engine, [`ContinuityCheck`], generic
+//! over the reading ([`Reading`]) and with its own floor, so the scalar's arithmetic is
+//! exactly what it was before the fluxgate shared it.
+//!
+//! The scalar ([`ScalarContinuity`]) is judged before the filter has fused a first sample
+//! (it has no level yet), on the ground (no updates), and on samples whose regressors are
+//! suspect (predict only). A scalar line carries no checksum, so a corrupted digit is a
+//! different number; without this check a +4000 nT value at sample 65, or a tens digit
+//! changed on the apron, left the board unflagged.
+//!
+//! The fluxgate ([`FluxContinuity`]): a frame that passes its checksum and parse but reads
+//! wrong (an axis 0, a corrupted digit moving the modulus by thousands of nT) would go
+//! straight into the regressors; the board has no look-ahead, so this is the causal
+//! counterpart of the host's despiker (`host/src/signal/despike.rs`).
+//!
+//! The prediction is the line through the last two accepted samples; a sample is suspect
+//! when it departs from it by more than a floor plus a multiple of the recent departures'
+//! robust spread (their median absolute value). A real step (engine start, the apron's
+//! steel) is taken as the new level after `STEP_RUN` (3) samples that agree with one another.
+
+use crate::epoch::diff_nt;
+use crate::units::MagCounts;
+
+/// Smallest scalar departure ever judged suspect (nT): above the quantum magnetometers'
+/// noise (0.002–0.02 nT) and their second differences at rest, below a corrupted units digit.
+const SCALAR_FLOOR_NT: f32 = 0.5;
+/// Smallest fluxgate-modulus departure ever judged suspect (nT): the host despiker's floor;
+/// no real field moves the fluxgate modulus 20 nT between two frames at ≥ 10 Hz beyond what
+/// its recent departures show (the fluxgate's own noise and quantisation are ~0.1–1 nT).
+pub const FLUX_FLOOR_NT: f32 = 20.0;
+/// Multiple of the recent departures' median absolute value: 8 × 1.48 ≈ 12σ for Gaussian
+/// departures, so manoeuvres and taxiing (whose departures the median follows) pass.
+const SPREAD_FACTOR: f32 = 12.0;
+/// Recent departures kept for the spread.
+const SPREAD_LEN: usize = 8;
+/// Suspect samples in a row that agree with one another before they are taken as a real
+/// step to a new level.
+const STEP_RUN: u8 = 3;
+/// After this long without an accepted sample there is no past to judge against (s).
+const MAX_GAP_S: f64 = 2.0;
+
+/// The verdict on one sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Continuity {
+    /// Consistent with the recent samples.
+    Consistent,
+    /// Departs from the recent samples beyond the limit: flagged `MAG_SUSPECT`, not fused.
+    Suspect,
+    /// Nothing to judge it against (the first sample, or the first after a long gap):
+    /// flagged `MAG_SUSPECT`, but the filter may take its level from it.
+    Unverified,
+}
+
+/// A reading the check can difference (nT).
+pub trait Reading: Copy {
+    /// `self − earlier` in nT.
+    fn diff_nt(self, earlier: Self) -> f32;
+}
+
+impl Reading for MagCounts {
+    fn diff_nt(self, earlier: Self) -> f32 {
+        diff_nt(self, earlier)
+    }
+}
+
+/// A value already in nT (the fluxgate's modulus).
+impl Reading for f32 {
+    fn diff_nt(self, earlier: Self) -> f32 {
+        self - earlier
+    }
+}
+
+/// The scalar's check (floor 0.5 nT).
+pub type ScalarContinuity = ContinuityCheck<MagCounts>;
+
+impl ContinuityCheck<MagCounts> {
+    pub const fn new() -> Self {
+        Self::with_floor(SCALAR_FLOOR_NT)
+    }
+}
+
+impl Default for ContinuityCheck<MagCounts> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct ContinuityCheck<V: Reading> {
+    /// Smallest departure ever judged suspect (nT).
+    floor_nt: f32,
+    /// The last two accepted samples (time s, reading), newest first.
+    last: [Option<(f64, V)>; 2],
+    departures_nt: [f32; SPREAD_LEN],
+    departures_len: usize,
+    departures_next: usize,
+    /// The last suspect sample and how many in a row agree with it.
+    candidate: Option<(f64, V)>,
+    candidate_run: u8,
+}
+
+impl<V: Reading> ContinuityCheck<V> {
+    pub const fn with_floor(floor_nt: f32) -> Self {
+        Self {
+            floor_nt,
+            last: [None; 2],
+            departures_nt: [0.0; SPREAD_LEN],
+            departures_len: 0,
+            departures_next: 0,
+            candidate: None,
+            candidate_run: 0,
+        }
+    }
+
+    /// Forgets the past (keeps the floor).
+    pub fn restart(&mut self) {
+        *self = Self::with_floor(self.floor_nt);
+    }
+
+    /// Judges `mag` at `t_s` against the recent accepted samples and learns from it.
+    pub fn judge(&mut self, t_s: f64, mag: V) -> Continuity {
+        let Some((t1, x1)) = self.last[0].filter(|(t1, _)| t_s - *t1 <= MAX_GAP_S) else {
+            // Nothing to judge against: this sample starts the record, unverified.
+            self.restart();
+            self.accept(t_s, mag, None);
+            return Continuity::Unverified;
+        };
+        let departure = self.departure_nt(t_s, mag, t1, x1);
+        let limit = self.limit_nt();
+        if libm::fabsf(departure) <= limit {
+            self.accept(t_s, mag, Some(departure));
+            return Continuity::Consistent;
+        }
+        self.suspect(t_s, mag, limit);
+        Continuity::Suspect
+    }
+
+    /// Records a sample the filter judged and found consistent with its prediction, so the
+    /// continuity check stays current while the filter does the judging.
+    pub fn accept_judged(&mut self, t_s: f64, mag: V) {
+        let departure = self.last[0]
+            .filter(|(t1, _)| t_s - *t1 <= MAX_GAP_S)
+            .map(|(t1, x1)| self.departure_nt(t_s, mag, t1, x1));
+        self.accept(t_s, mag, departure);
+    }
+
+    /// Departure of `mag` from the line through the last two accepted samples (from the
+    /// last one alone when there is one).
+    fn departure_nt(&self, t_s: f64, mag: V, t1: f64, x1: V) -> f32 {
+        let step_nt = mag.diff_nt(x1);
+        match self.last[1] {
+            Some((t2, x2)) if t1 > t2 => {
+                let slope_ratio = ((t_s - t1) / (t1 - t2)) as f32;
+                step_nt - x1.diff_nt(x2) * slope_ratio
+            }
+            _ => step_nt,
+        }
+    }
+
+    fn limit_nt(&self) -> f32 {
+        let n = self.departures_len;
+        if n == 0 {
+            // One accepted sample: no spread yet, so only a gross departure is suspect.
+            return 100.0 * self.floor_nt;
+        }
+        let mut sorted = [0.0f32; SPREAD_LEN];
+        for (s, d) in sorted.iter_mut().zip(&self.departures_nt[..n]) {
+            *s = libm::fabsf(*d);
+        }
+        let sorted = &mut sorted[..n];
+        sorted.sort_unstable_by(|a, b| a.total_cmp(b));
+        self.floor_nt + SPREAD_FACTOR * sorted[n / 2]
+    }
+
+    fn accept(&mut self, t_s: f64, mag: V, departure_nt: Option<f32>) {
+        self.last = [Some((t_s, mag)), self.last[0]];
+        if let Some(d) = departure_nt.filter(|d| d.is_finite()) {
+            self.departures_nt[self.departures_next] = d;
+            self.departures_next = (self.departures_next + 1) % SPREAD_LEN;
+            self.departures_len = (self.departures_len + 1).min(SPREAD_LEN);
+        }
+        self.candidate = None;
+        self.candidate_run = 0;
+    }
+
+    /// A suspect sample: if it continues a run of suspect samples that agree with one
+    /// another (within `limit_nt`) long enough, the run is a real step and its last sample
+    /// the new level.
+    fn suspect(&mut self, t_s: f64, mag: V, limit_nt: f32) {
+        let agrees = self.candidate.is_some_and(|(tc, xc)| {
+            t_s - tc <= MAX_GAP_S && libm::fabsf(mag.diff_nt(xc)) <= limit_nt
+        });
+        self.candidate_run = if agrees { self.candidate_run + 1 } else { 1 };
+        self.candidate = Some((t_s, mag));
+        if self.candidate_run >= STEP_RUN {
+            // The spread of the old level says nothing about the new one.
+            self.restart();
+            self.accept(t_s, mag, None);
+        }
+    }
+}
+
+/// The fluxgate's check on the modulus |B| (nT, f32) of each corrected body-frame frame:
+/// floor [`FLUX_FLOOR_NT`], the same spread multiple, run and gap as the scalar's. Time is
+/// the frame's stamp (s); a stamp earlier than the last accepted one (a clock reset)
+/// restarts it.
+#[derive(Clone, Copy, Debug)]
+pub struct FluxContinuity(ContinuityCheck<f32>);
+
+impl FluxContinuity {
+    pub const fn new() -> Self {
+        Self(ContinuityCheck::with_floor(FLUX_FLOOR_NT))
+    }
+
+    /// Forgets the past (a new calibration, a restart).
+    pub fn restart(&mut self) {
+        self.0.restart();
+    }
+
+    /// Judges the frame `v` (body frame, nT) stamped `t_s`. A frame that is not finite is
+    /// `Suspect` and not learnt from.
+    pub fn judge(&mut self, t_s: f64, v: [f32; 3]) -> Continuity {
+        let m = modulus_nt(v);
+        if !m.is_finite() {
+            return Continuity::Suspect;
+        }
+        if self.0.last[0].is_some_and(|(t1, _)| t_s < t1) {
+            self.0.restart();
+        }
+        self.0.judge(t_s, m)
+    }
+}
+
+impl Default for FluxContinuity {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// |v| (nT).
+pub fn modulus_nt(v: [f32; 3]) -> f32 {
+    libm::sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn nt(v: f64) -> MagCounts {
+        MagCounts::from_nt_f64(v).unwrap()
+    }
+
+    /// 10 Hz, a slow ramp with 0.01 nT of alternating noise.
+    fn quiet(i: usize) -> f64 {
+        50_000.0 + 0.3 * i as f64 + if i.is_multiple_of(2) { 0.01 } else { -0.01 }
+    }
+
+    #[test]
+    fn the_first_sample_is_unverified_and_a_quiet_record_passes() {
+        let mut c = ScalarContinuity::new();
+        assert_eq!(c.judge(0.0, nt(quiet(0))), Continuity::Unverified);
+        for i in 1..200 {
+            assert_eq!(
+                c.judge(i as f64 * 0.1, nt(quiet(i))),
+                Continuity::Consistent,
+                "sample {i}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_changed_digit_is_suspect_and_the_next_sample_is_not() {
+        for (digit_nt, sign) in [(1.0, 1.0), (4000.0, 1.0), (10.0, -1.0), (2.0, -1.0)] {
+            let mut c = ScalarContinuity::new();
+            for i in 0..50 {
+                c.judge(i as f64 * 0.1, nt(quiet(i)));
+            }
+            let bad = quiet(50) + sign * digit_nt;
+            assert_eq!(c.judge(5.0, nt(bad)), Continuity::Suspect, "{digit_nt}");
+            assert_eq!(c.judge(5.1, nt(quiet(51))), Continuity::Consistent);
+        }
+    }
+
+    #[test]
+    fn a_real_step_becomes_the_new_level_after_a_short_run() {
+        let mut c = ScalarContinuity::new();
+        for i in 0..50 {
+            c.judge(i as f64 * 0.1, nt(quiet(i)));
+        }
+        let mut verdicts = [Continuity::Consistent; 8];
+        for (k, v) in verdicts.iter_mut().enumerate() {
+            let i = 50 + k;
+            *v = c.judge(i as f64 * 0.1, nt(quiet(i) + 35.0));
+        }
+        // Three suspect (the run that proves the step), then consistent again.
+        assert_eq!(&verdicts[..3], &[Continuity::Suspect; 3]);
+        assert!(verdicts[4..].iter().all(|v| *v == Continuity::Consistent));
+    }
+
+    #[test]
+    fn a_wild_first_sample_costs_only_a_short_run() {
+        let mut c = ScalarContinuity::new();
+        c.judge(0.0, nt(quiet(0) + 400.0));
+        let suspect = (1..100)
+            .filter(|&i| c.judge(i as f64 * 0.1, nt(quiet(i))) == Continuity::Suspect)
+            .count();
+        assert!(suspect <= STEP_RUN as usize, "{suspect}");
+    }
+
+    #[test]
+    fn manoeuvres_pass() {
+        // A 20 nT, 3 s interference swing at 10 Hz.
+        let mut c = ScalarContinuity::new();
+        let x = |i: usize| {
+            quiet(i) + 20.0 * libm::sin(i as f64 * 0.1 * 2.0 * core::f64::consts::PI / 3.0)
+        };
+        c.judge(0.0, nt(x(0)));
+        let suspect = (1..600)
+            .filter(|&i| c.judge(i as f64 * 0.1, nt(x(i))) == Continuity::Suspect)
+            .count();
+        assert_eq!(suspect, 0);
+    }
+
+    // The fluxgate's check.
+
+    /// 10 Hz, a fluxgate vector whose modulus ramps slowly (0.5 nT/frame) with 0.3 nT of
+    /// alternating noise, turning slowly in the body frame.
+    fn flux_quiet(i: usize) -> [f32; 3] {
+        let m = 52_000.0 + 0.5 * i as f64 + if i.is_multiple_of(2) { 0.3 } else { -0.3 };
+        flux_at(i, m)
+    }
+
+    fn flux_at(i: usize, modulus: f64) -> [f32; 3] {
+        let a = i as f64 * 0.01;
+        let (s, c) = (libm::sin(a), libm::cos(a));
+        let u = [0.6 * c, 0.6 * s, 0.8];
+        u.map(|x| (x * modulus) as f32)
+    }
+
+    fn flux_judge_all(f: impl Fn(usize) -> [f32; 3], n: usize) -> [usize; 3] {
+        let mut c = FluxContinuity::new();
+        let mut counts = [0; 3];
+        for i in 0..n {
+            let k = match c.judge(i as f64 * 0.1, f(i)) {
+                Continuity::Consistent => 0,
+                Continuity::Suspect => 1,
+                Continuity::Unverified => 2,
+            };
+            counts[k] += 1;
+        }
+        counts
+    }
+
+    #[test]
+    fn flux_quiet_and_manoeuvring_records_pass() {
+        assert_eq!(flux_judge_all(flux_quiet, 2000), [1999, 0, 1]);
+        // A manoeuvre: the modulus swings ±300 nT at 0.3 Hz (its second difference
+        // reaches 10.7 nT per frame at 10 Hz), plus the noise.
+        let swing = |i: usize| {
+            let t = i as f64 * 0.1;
+            let m = 52_000.0
+                + 300.0 * libm::sin(2.0 * core::f64::consts::PI * 0.3 * t)
+                + if i.is_multiple_of(2) { 0.3 } else { -0.3 };
+            flux_at(i, m)
+        };
+        assert_eq!(flux_judge_all(swing, 2000), [1999, 0, 1]);
+    }
+
+    #[test]
+    fn a_flux_frame_read_wrong_is_suspect_and_the_next_is_not() {
+        let zero_z = |v: [f32; 3]| [v[0], v[1], 0.0];
+        let plus_5000 = |v: [f32; 3]| [v[0], v[1], v[2] + 5000.0];
+        let zero_x = |v: [f32; 3]| [0.0, v[1], v[2]];
+        // A glitch just above the floor and the spread (the quiet record's departures are
+        // ~1.2 nT: limit ≈ 20 + 12 × 1.2 ≈ 34 nT), not one below it.
+        let plus_60 = |v: [f32; 3]| [v[0], v[1], v[2] + 60.0 / 0.8];
+        let fs: [&dyn Fn([f32; 3]) -> [f32; 3]; 4] = [&zero_z, &plus_5000, &zero_x, &plus_60];
+        for (k, f) in fs.iter().enumerate() {
+            let mut c = FluxContinuity::new();
+            for i in 0..100 {
+                c.judge(i as f64 * 0.1, flux_quiet(i));
+            }
+            assert_eq!(
+                c.judge(10.0, f(flux_quiet(100))),
+                Continuity::Suspect,
+                "{k}"
+            );
+            for i in 101..120 {
+                assert_eq!(
+                    c.judge(i as f64 * 0.1, flux_quiet(i)),
+                    Continuity::Consistent,
+                    "{k} {i}"
+                );
+            }
+        }
+        let mut c = FluxContinuity::new();
+        for i in 0..100 {
+            c.judge(i as f64 * 0.1, flux_quiet(i));
+        }
+        let small = |v: [f32; 3]| [v[0], v[1], v[2] + 10.0 / 0.8];
+        assert_eq!(
+            c.judge(10.0, small(flux_quiet(100))),
+            Continuity::Consistent
+        );
+    }
+
+    #[test]
+    fn a_real_flux_step_is_taken_after_three_frames() {
+        let mut c = FluxContinuity::new();
+        for i in 0..100 {
+            c.judge(i as f64 * 0.1, flux_quiet(i));
+        }
+        let stepped = |i: usize| {
+            let m =
+                52_000.0 + 0.5 * i as f64 + 500.0 + if i.is_multiple_of(2) { 0.3 } else { -0.3 };
+            flux_at(i, m)
+        };
+        let verdicts: [Continuity; 20] =
+            core::array::from_fn(|k| c.judge((100 + k) as f64 * 0.1, stepped(100 + k)));
+        assert_eq!(&verdicts[..3], &[Continuity::Suspect; 3]);
+        assert!(
+            verdicts[3..].iter().all(|v| *v == Continuity::Consistent),
+            "{verdicts:?}"
+        );
+    }
+
+    #[test]
+    fn flux_after_a_gap_or_a_clock_reset_is_unverified() {
+        let mut c = FluxContinuity::new();
+        for i in 0..50 {
+            c.judge(i as f64 * 0.1, flux_quiet(i));
+        }
+        // 3 s without a frame, then a level 800 nT away: nothing to judge it against.
+        assert_eq!(c.judge(7.9, flux_at(79, 52_800.0)), Continuity::Unverified);
+        assert_eq!(c.judge(8.0, flux_at(80, 52_800.5)), Continuity::Consistent);
+        // The clock went back (a restart): a fresh start.
+        assert_eq!(c.judge(0.0, flux_quiet(0)), Continuity::Unverified);
+        assert_eq!(
+            c.judge(0.1, [f32::NAN, 0.0, 0.0]),
+            Continuity::Suspect,
+            "not finite"
+        );
+        assert_eq!(c.judge(0.2, flux_quiet(2)), Continuity::Consistent);
+    }
+}
