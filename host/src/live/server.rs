@@ -47,7 +47,10 @@ pub fn page_html(s: &PageSettings, names: &[&str]) -> String {
     let names = serde_json::to_string(names)
         .unwrap_or_else(|_| "[]".into())
         .replace('<', "\\u003c");
+    let flags = serde_json::to_string(&crate::board::flag_names::FLAG_NAMES)
+        .unwrap_or_else(|_| "[]".into());
     PAGE.replace("__D4_BAND_NT__", &format!("{}", s.d4_band_nt))
+        .replace("__FLAG_NAMES__", &flags)
         .replace("__WINDOW_RECORDS__", &s.window_records.to_string())
         .replace("__STREAMS__", &names)
 }
@@ -180,5 +183,26 @@ async fn push(mut socket: WebSocket, s: Arc<Shared>) {
                 return;
             },
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_page_gets_every_setting_and_the_flag_names_from_the_one_list() {
+        let s = PageSettings {
+            d4_band_nt: 0.5,
+            window_records: 600,
+        };
+        let page = page_html(&s, &["board </script>"]);
+        assert!(!page.contains("__"), "a placeholder is left");
+        let names = serde_json::to_string(&crate::board::flag_names::FLAG_NAMES).unwrap();
+        assert!(page.contains(&format!("const FLAG_NAMES = {names};")));
+        assert!(
+            page.contains("board \\u003c/script>"),
+            "a name closes the script"
+        );
     }
 }
