@@ -509,3 +509,48 @@ fn tl_ridge_zero_is_least_squares() {
     );
     assert!(e.contains("--tl-ridge"), "{e}");
 }
+
+/// `compensate --realtime --survey-from T`: the operator's `MODE,SURVEY` at T replayed. No
+/// record well before T is in survey mode and every record from T on is (the switch lands
+/// on the sample the filter is at, which the centred derivative outputs a sample later);
+/// without `--realtime` it is refused.
+#[test]
+fn realtime_switches_to_survey_mode_where_told() {
+    let d = tmp("survey-from");
+    let flight = simulate(&d, &[]);
+    let out = d.join("rt.csv");
+    run_ok(
+        bin()
+            .arg("compensate")
+            .arg(&flight)
+            .args(["--realtime", "--survey-from", "400", "-o"])
+            .arg(&out),
+    );
+    let t = common::cli::csv_column(&out, "t");
+    let text = std::fs::read_to_string(&out).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let j = header.iter().position(|h| *h == "flags").unwrap();
+    let survey: Vec<bool> = lines
+        .map(|l| {
+            let f = l.split(',').nth(j).unwrap().trim_start_matches("0x");
+            u16::from_str_radix(f, 16).unwrap() & magcomp_core::Flags::SURVEY_MODE != 0
+        })
+        .collect();
+    assert_eq!(survey.len(), t.len());
+    for (t, s) in t.iter().zip(&survey) {
+        if *t >= 400.0 {
+            assert!(s, "t {t}: not in survey mode");
+        } else if *t < 399.0 {
+            assert!(!s, "t {t}: in survey mode before the switch");
+        }
+    }
+    let err = run_err(
+        bin()
+            .arg("compensate")
+            .arg(&flight)
+            .args(["--survey-from", "400", "-o"])
+            .arg(d.join("post.csv")),
+    );
+    assert!(err.contains("--realtime"), "{err}");
+}

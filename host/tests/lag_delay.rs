@@ -139,6 +139,7 @@ fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
         tl_ridge: None,
         speed_mps: None,
         cross_check: false,
+        survey_from_s: None,
     };
     let (f, cal) = compensate_trace(&trace, &est, None, false).expect("calibrate");
     let file = cal.coefficients.clone().expect("file");

@@ -31,6 +31,7 @@ fn est(method: Method, model: &str) -> EstimatorSettings {
         tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
         cross_check: false,
+        survey_from_s: None,
     }
 }
 

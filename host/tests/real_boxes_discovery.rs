@@ -35,6 +35,7 @@ fn transfer_nt(b: &Boxes, mag: &str, model: &str) -> f64 {
         tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
         cross_check: false,
+        survey_from_s: None,
     };
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();

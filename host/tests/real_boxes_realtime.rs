@@ -35,6 +35,7 @@ fn settings(cross_check: bool) -> EstimatorSettings {
         speed_mps: Some(SPEED_MPS),
         // The product's default calibration (the cross-checked method) is the reference.
         cross_check,
+        survey_from_s: None,
     }
 }
 

@@ -25,6 +25,7 @@ fn est(method: Method) -> EstimatorSettings {
         tl_ridge: None,
         speed_mps: None,
         cross_check: false,
+        survey_from_s: None,
     }
 }
 

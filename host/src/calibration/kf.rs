@@ -41,7 +41,12 @@ pub(super) fn run_kf_method(
     } else {
         (spec, None)
     };
-    let opts = kf_options(&spec, est, coeffs, realtime, detected_lag)?;
+    let mut opts = kf_options(&spec, est, coeffs, realtime, detected_lag)?;
+    if realtime {
+        opts.survey_from = est
+            .survey_from_s
+            .map(|t| flight.t_s.partition_point(|&x| x < t));
+    }
     let mut run = run_kf(&flight, &opts)?;
     warnings.extend(run.warnings.iter().cloned());
     // Samples next to a time gap: their derivatives span it.

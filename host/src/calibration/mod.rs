@@ -42,6 +42,9 @@ pub struct EstimatorSettings {
     /// name: TL18-OLS is used instead when the flight's own evidence trusts it more
     /// ([`cross_check`]).
     pub cross_check: bool,
+    /// Real time: switch to survey mode at this time (s), as the operator's `MODE,SURVEY`
+    /// would: the coefficients held then are kept for the rest of the flight.
+    pub survey_from_s: Option<f64>,
 }
 
 impl Default for EstimatorSettings {
@@ -55,6 +58,7 @@ impl Default for EstimatorSettings {
             tl_ridge: None,
             speed_mps: None,
             cross_check: false,
+            survey_from_s: None,
         }
     }
 }

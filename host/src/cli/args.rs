@@ -393,6 +393,7 @@ impl EstimatorArgs {
             // The default method is checked against TL18-OLS; a method asked for by name
             // is used as asked.
             cross_check: self.method.is_none(),
+            survey_from_s: None,
         }
     }
 

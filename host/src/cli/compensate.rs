@@ -4,8 +4,8 @@
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::multi::{MultiArgs, OneSensorRerun, SensorPlan};
 use crate::calibration::coefficients::CoefficientFile;
-use crate::calibration::compensate_trace;
 use crate::calibration::summary::{summarise, write_output_csv, Summary};
+use crate::calibration::{compensate_trace, EstimatorSettings};
 use crate::flight::input::Decimation;
 use crate::io::output::check_outputs;
 use crate::io::progress::quiet_progress;
@@ -31,6 +31,16 @@ pub struct CompensateArgs {
     /// post-flight — calibrate on the whole trace, then apply the final coefficients).
     #[arg(long)]
     pub realtime: bool,
+    /// With `--realtime`: switch to survey mode at this time (s, the trace's `t`), as the
+    /// operator's `MODE,SURVEY` would. The coefficients held then are kept for the rest of
+    /// the flight; its records carry `SURVEY_MODE`.
+    #[arg(
+        long,
+        value_name = "T_S",
+        requires = "realtime",
+        conflicts_with = "coeffs"
+    )]
+    pub survey_from: Option<f64>,
     /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
     /// and every other input column (lat, lon, LINE, X, Y, …; the input `mag` as
     /// `in_mag`), row for row; `OUT.xyz` writes Geosoft XYZ; docs/trace-format.md.
@@ -116,7 +126,11 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         a.input.read()?
     };
     let stage = crate::io::progress::Stage::new("compensation (all filter passes)");
-    let (flight, comp) = compensate_trace(&trace, &a.est.settings(), coeffs.as_ref(), a.realtime)?;
+    let est = EstimatorSettings {
+        survey_from_s: a.survey_from,
+        ..a.est.settings()
+    };
+    let (flight, comp) = compensate_trace(&trace, &est, coeffs.as_ref(), a.realtime)?;
     drop(stage);
     let carried = crate::flight::input::carried_columns(&trace);
     {
