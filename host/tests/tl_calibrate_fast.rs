@@ -29,7 +29,10 @@ const BEFORE: [f64; 18] = [
 ];
 const BEFORE_PREDICTED_ERROR_NT: f64 = 0.08138404492904758;
 const BEFORE_PREDICTED_BAND_RMS_NT: f64 = 0.025189286627385628;
-const BEFORE_AIRCRAFT_FOM_NT: f64 = 1.6805906849365395;
+/// The aircraft-only FOM comes from a Kalman filter pass, which the staged calibration
+/// changed on purpose (its fluxcal run reuses the first run's σ1): 1.6805906849365395
+/// before it, +4·10⁻⁵ relative. The TL coefficients above are untouched by it.
+const BEFORE_AIRCRAFT_FOM_NT: f64 = 1.680660513436106;
 
 fn close(a: f64, b: f64) -> bool {
     (a - b).abs() <= 1e-9 * b.abs().max(1e-12)
