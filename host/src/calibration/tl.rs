@@ -121,12 +121,9 @@ pub(super) fn run_tl_method(
     let predicted_error_nt = refits
         .as_ref()
         .and_then(|r| crate::estimate::jackknife::series_sigma_nt(r));
-    let band_jackknife_nt = refits
-        .as_ref()
-        .and_then(|r| crate::estimate::jackknife::band_sigma_nt(&flight, r));
-    let holdout_band_nt = refits
-        .as_ref()
-        .and_then(|r| crate::estimate::jackknife::holdout_band_nt(&flight, &span, r));
+    let (band_jackknife_nt, holdout_band_nt) = refits.as_ref().map_or((None, None), |r| {
+        crate::estimate::jackknife::band_figures(&flight, &span, r)
+    });
     let file = CoefficientFile {
         tl_config: Some(fit.config.clone()),
         predicted_error_nt,

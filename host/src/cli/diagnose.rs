@@ -167,21 +167,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         ),
     };
     let diagnosed = left.as_ref().unwrap_or(&trace);
-    let aux = args
-        .aux
-        .as_deref()
-        .map(candidates::AuxSelection::parse)
-        .transpose()?;
-    if let Some(sel) = &aux {
-        candidates::check_selection(&trace, sel)?;
-    }
-    let opts = DiagnoseOptions {
-        alpha: args.alpha,
-        min_explained: args.min_explained,
-        aux,
-        reference: args.reference.clone(),
-        ..Default::default()
-    };
+    let opts = diagnose_options(args, &trace)?;
     if args.iterate {
         let stage = crate::io::progress::Stage::new("diagnosis, iterated");
         let it = iterate::iterate(&trace, &model, &opts, args.max_steps)?;
@@ -349,17 +335,7 @@ fn run_sensors(
     }
     let model = ModelSpec::parse(args.est.model.as_deref().unwrap_or(DEFAULT_MODEL))?;
     let trace = super::args::diagnosis_trace(trace, args.est.tuning.speed_mps, model.field, true)?;
-    let aux = args
-        .aux
-        .as_deref()
-        .map(candidates::AuxSelection::parse)
-        .transpose()?;
-    let opts = DiagnoseOptions {
-        alpha: args.alpha,
-        min_explained: args.min_explained,
-        aux,
-        ..Default::default()
-    };
+    let opts = diagnose_options(args, &trace)?;
     let stage = crate::io::progress::Stage::new("diagnosis of each sensor against the others");
     let findings = crate::diagnose::sensors::diagnose_sensors(
         &trace,
@@ -401,4 +377,27 @@ fn run_sensors(
         }
     }
     Ok(())
+}
+
+/// The diagnosis settings the arguments give; an `--aux` selection that matches no column
+/// of `trace` is refused.
+fn diagnose_options(
+    args: &DiagnoseArgs,
+    trace: &crate::io::trace::Trace,
+) -> Result<DiagnoseOptions> {
+    let aux = args
+        .aux
+        .as_deref()
+        .map(candidates::AuxSelection::parse)
+        .transpose()?;
+    if let Some(sel) = &aux {
+        candidates::check_selection(trace, sel)?;
+    }
+    Ok(DiagnoseOptions {
+        alpha: args.alpha,
+        min_explained: args.min_explained,
+        aux,
+        reference: args.reference.clone(),
+        ..Default::default()
+    })
 }

@@ -99,36 +99,53 @@ pub fn series_sigma_nt(refits: &[Vec<f64>]) -> Option<f64> {
     sigma.is_finite().then_some(sigma)
 }
 
+/// The refits' manoeuvre-band signals (`figures::band_passed`); None when one cannot be
+/// filtered.
+fn band_passed_refits(flight: &Flight, refits: &[Vec<f64>]) -> Option<Vec<Vec<f64>>> {
+    refits
+        .iter()
+        .map(|s| crate::qc::figures::band_passed(flight, s))
+        .collect()
+}
+
 /// [`series_sigma_nt`] of the refits' manoeuvre-band signals (`figures::band_passed`):
 /// what a band-passed figure on another flight sees of the error; None when a refit's
 /// series cannot be filtered.
 pub fn band_sigma_nt(flight: &Flight, refits: &[Vec<f64>]) -> Option<f64> {
-    let band: Vec<Vec<f64>> = refits
-        .iter()
-        .map(|s| crate::qc::figures::band_passed(flight, s))
-        .collect::<Option<_>>()?;
-    series_sigma_nt(&band)
+    series_sigma_nt(&band_passed_refits(flight, refits)?)
+}
+
+/// [`band_sigma_nt`] and [`holdout_band_nt`] of the same refits (the interference over the
+/// whole flight without each block of `span`), each refit band-passed once for both.
+pub fn band_figures(
+    flight: &Flight,
+    span: &Range<usize>,
+    refits: &[Vec<f64>],
+) -> (Option<f64>, Option<f64>) {
+    match band_passed_refits(flight, refits) {
+        Some(band) => (series_sigma_nt(&band), holdout_band_nt(flight, span, &band)),
+        None => (None, None),
+    }
 }
 
 /// Blocked cross-validation in the manoeuvre band (nT rms): each block of `span`
-/// compensated by the refit that did not see it (`refits[b]`, the interference over the
-/// whole flight without block `b`). Unlike the jackknife's spread, this sees a bias too:
-/// coefficients that fit their own data but predict other manoeuvres badly (the anomaly
-/// states or the anomaly itself took part of the interference). It is what a band-passed
-/// figure of merit on another flight measures, the geology's band signal included, so
-/// only differences between methods on one flight mean anything. None when the blocks do
-/// not match the refits or a series cannot be filtered.
-pub fn holdout_band_nt(flight: &Flight, span: &Range<usize>, refits: &[Vec<f64>]) -> Option<f64> {
+/// compensated by the refit that did not see it (`band_refits[b]`: the band-passed
+/// interference over the whole flight without block `b`). Unlike the jackknife's spread,
+/// this sees a bias too: coefficients that fit their own data but predict other
+/// manoeuvres badly (the anomaly states or the anomaly itself took part of the
+/// interference). It is what a band-passed figure of merit on another flight measures, the
+/// geology's band signal included, so only differences between methods on one flight mean
+/// anything. None when the blocks do not match the refits or the scalar cannot be filtered.
+fn holdout_band_nt(flight: &Flight, span: &Range<usize>, band_refits: &[Vec<f64>]) -> Option<f64> {
     let blocks = blocks(span, flight.sample_rate_hz)?;
-    if blocks.len() != refits.len() {
+    if blocks.len() != band_refits.len() {
         return None;
     }
     // Band-passing is linear: band(mag − refit) = band(mag) − band(refit), and filtering
     // whole series leaves no edge where two refits meet.
     let mag = crate::qc::figures::band_passed(flight, &flight.mag_nt)?;
     let (mut sum, mut n) = (0.0, 0usize);
-    for (block, refit) in blocks.iter().zip(refits) {
-        let band = crate::qc::figures::band_passed(flight, refit)?;
+    for (block, band) in blocks.iter().zip(band_refits) {
         for i in block.clone() {
             let r = mag.get(i)? - band.get(i)?;
             if r.is_finite() {

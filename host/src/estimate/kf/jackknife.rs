@@ -96,8 +96,8 @@ pub(super) fn kf_jackknife(
         .iter()
         .map(|c| super::interference_of(regs, c))
         .collect();
-    let band_sigma_nt = crate::estimate::jackknife::band_sigma_nt(flight, &series);
-    let holdout_band_nt = crate::estimate::jackknife::holdout_band_nt(flight, &span, &series);
+    let (band_sigma_nt, holdout_band_nt) =
+        crate::estimate::jackknife::band_figures(flight, &span, &series);
     Ok(spread.sigma_nt(&covariance).map(|sigma_nt| KfJackknife {
         blocks: blocks.len(),
         sigma_nt,
