@@ -38,11 +38,8 @@ fn times(path: &Path) -> Vec<String> {
 #[test]
 fn decimated_calibration_costs_less_than_the_bound_and_keeps_every_row() {
     // Removed when the test ends, passed or failed.
-    let scratch = tempfile::Builder::new()
-        .prefix("magcomp-decimate-")
-        .tempdir()
-        .unwrap();
-    let dir = scratch.path().to_path_buf();
+    let scratch = common::cli::tmp("decimate");
+    let dir = scratch.to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let mut trace = simulate(&common::short_1khz_calibration()).unwrap();
     let n = trace.len();

@@ -1,5 +1,6 @@
 //! `monitor`: a generated `$MCREC` stream with gaps, corruption, replies and noise.
 
+mod common;
 use magcomp::board::monitor::{monitor_stream, Display, SAVE_HEADER};
 use magcomp::cli::monitor::{run as run_monitor, MonitorArgs};
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
@@ -200,11 +201,8 @@ fn restart_and_live_panel() {
 fn run_monitor_reads_a_file_and_saves() {
     let (bytes, e) = stream();
     // Removed when the test ends, passed or failed.
-    let scratch = tempfile::Builder::new()
-        .prefix("magcomp-monitor-")
-        .tempdir()
-        .unwrap();
-    let dir = scratch.path().to_path_buf();
+    let scratch = common::cli::tmp("monitor");
+    let dir = scratch.to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let input = dir.join("out.txt");
     std::fs::write(&input, &bytes).unwrap();

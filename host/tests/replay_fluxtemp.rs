@@ -8,6 +8,7 @@
 
 #[path = "common/board_replay.rs"]
 mod board_replay;
+mod common;
 
 use board_replay::{board_flight, coefficient_file, rms_about_mean, survey_replay, write_capture};
 use magcomp::board::capture::{trace_to_capture, CaptureOptions};
@@ -141,11 +142,8 @@ fn replay_cli_takes_the_correction_from_the_coefficient_file() {
     };
     let trace = simulate(&cfg).expect("simulate");
     // Removed when the test ends, passed or failed.
-    let scratch = tempfile::Builder::new()
-        .prefix("magcomp-replay-ftemp-")
-        .tempdir()
-        .unwrap();
-    let dir = scratch.path().to_path_buf();
+    let scratch = common::cli::tmp("replay-ftemp");
+    let dir = scratch.to_path_buf();
     let cap = write_capture(&trace, &dir);
     let (coefficients, file) = coefficient_file(MODEL);
     let ft = |s1: f64| {

@@ -1,6 +1,7 @@
 //! Simulated flight → raw capture → `replay` (the board's acquisition code) → records,
 //! held against the host pipeline on the same trace.
 
+mod common;
 use magcomp::board::capture::{trace_to_capture, CaptureOptions, FluxFormat};
 use magcomp::board::replay::{csv_row, replay_capture, ReplayOptions, ReplayStats, CSV_HEADER};
 use magcomp::cli::replay::{run as run_replay, ReplayArgs};
@@ -292,11 +293,8 @@ fn corrupted_capture_gives_flagged_records_and_no_lost_sample() {
 fn run_replay_writes_csv_and_mcrec_lines() {
     let trace = flight_trace();
     // Removed when the test ends, passed or failed.
-    let scratch = tempfile::Builder::new()
-        .prefix("magcomp-replay-")
-        .tempdir()
-        .unwrap();
-    let dir = scratch.path().to_path_buf();
+    let scratch = common::cli::tmp("replay");
+    let dir = scratch.to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let cap_path = dir.join("flight.cap");
     std::fs::write(

@@ -5,6 +5,7 @@
 //! survey's columns carried through, the IGRF column checked against the reference
 //! implementation, and the FOM table ranking KF ahead of TL as the true error does.
 
+mod common;
 use magcomp::calibration::fom;
 use magcomp::flight::input::{prepare, Selection};
 use magcomp::flight::Flight;
@@ -121,11 +122,8 @@ fn rms_demeaned(a: &[f64], b: &[f64]) -> f64 {
 #[test]
 fn box_by_line_calibrate_apply_to_survey_lines_igrf_and_fom() {
     // Removed when the test ends, passed or failed.
-    let scratch = tempfile::Builder::new()
-        .prefix("magcomp-wfs-")
-        .tempdir()
-        .unwrap();
-    let dir = scratch.path().to_path_buf();
+    let scratch = common::cli::tmp("wfs");
+    let dir = scratch.to_path_buf();
     std::fs::create_dir_all(&dir).unwrap();
     let (xyz, sim, line) = sgl_file(&dir);
     let rows_of = |want: &[f64]| -> Vec<usize> {
