@@ -14,12 +14,31 @@ use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
 
-/// The model compiled into the board (the paper's: 16 TL coefficients + 5 field states).
+/// The model compiled into the board: the paper's (16 TL coefficients + 5 field states),
+/// or with the `flux-witness` feature the paper's plus `fluxmod`, for an installation
+/// whose fluxgate sees the aircraft's field (docs/firmware.md, "Fluxgate witness").
+#[cfg(not(feature = "flux-witness"))]
 pub const MODEL_SPEC: &[u8] = b"tl16+field";
+#[cfg(feature = "flux-witness")]
+pub const MODEL_SPEC: &[u8] = b"tl16+field+fluxmod";
 /// Coefficients of `MODEL_SPEC` (the index bound of GETCOEF/SETCOEF).
+#[cfg(not(feature = "flux-witness"))]
 pub const N_COEF: usize = 16;
+#[cfg(feature = "flux-witness")]
+pub const N_COEF: usize = 17;
+
+/// The model of `MODEL_SPEC`.
+pub fn board_model() -> Model<'static> {
+    if cfg!(feature = "flux-witness") {
+        Model::paper_with_fluxgate_witness()
+    } else {
+        Model::paper()
+    }
+}
+
 /// State capacity and derivative-window capacity of the on-board filter. 24 holds the paper
-/// model (21) plus two tie-point clones; RAM scales with its square.
+/// model (21) plus two tie-point clones, or the witnessed model (22) plus two; RAM scales
+/// with its square.
 pub const STATE_CAPACITY: usize = 24;
 pub const WINDOW: usize = 16;
 
@@ -46,14 +65,14 @@ pub fn acq_config() -> AcqConfig {
 pub fn start(acq: &mut BoardAcquisition) -> Result<(), AcqError> {
     acq.reset_in_place(
         acq_config(),
-        Model::paper(),
+        board_model(),
         compensator_config(SCALAR_HZ as f32, WINDOW),
     )
 }
 
 /// Restarts the compensator in place (`RESET`); sequence numbers and time base continue.
 pub fn restart_filter(acq: &mut BoardAcquisition) -> Result<(), CompensatorError> {
-    acq.reset_compensator(Model::paper(), compensator_config(SCALAR_HZ as f32, WINDOW))
+    acq.reset_compensator(board_model(), compensator_config(SCALAR_HZ as f32, WINDOW))
 }
 
 /// One frame (or parse failure) from a sensor port, in arrival order.

@@ -67,6 +67,7 @@ pub struct Model<'a> {
 }
 
 static PAPER_TERMS: [&dyn Term; 3] = [&Permanent, &Induced, &Eddy];
+static WITNESSED_TERMS: [&dyn Term; 4] = [&Permanent, &Induced, &Eddy, &FluxMod];
 
 impl Model<'static> {
     /// The paper's model: `tl16 + field`, 21 states.
@@ -74,6 +75,16 @@ impl Model<'static> {
         Model {
             field: true,
             terms: &PAPER_TERMS,
+        }
+    }
+
+    /// The paper's model with the fluxgate as a witness of the interference:
+    /// `tl16 + field + fluxmod`, 22 states. For an installation whose fluxgate sees the
+    /// aircraft's field (the host's post-flight calibration says so and adds `fluxmod`).
+    pub fn paper_with_fluxgate_witness() -> Self {
+        Model {
+            field: true,
+            terms: &WITNESSED_TERMS,
         }
     }
 }

@@ -70,8 +70,17 @@ pub fn upload_commands(
     // `fluxcal`, `lag` and `fluxtemp` add no filter state: their coefficients are the board model's.
     let without_fluxcal = theirs.without_input_corrections();
     if without_fluxcal.text() != board.text() {
+        // The post-flight default adds `fluxmod` where the fluxgate is a witness; only the
+        // firmware built with `flux-witness` runs it.
+        let hint = if theirs.has(TermKind::FluxMod) && !board.has(TermKind::FluxMod) {
+            " (the post-flight calibration took the fluxgate as a witness, `fluxmod`: flash the \
+             board built with `--features flux-witness` and give `--board-model \
+             tl16+field+fluxmod`, or calibrate with `--method kf` for the paper's model)"
+        } else {
+            ""
+        };
         bail!(
-            "the coefficients are for model '{}', the board runs '{}'",
+            "the coefficients are for model '{}', the board runs '{}'{hint}",
             theirs.text(),
             board.text()
         );
@@ -331,6 +340,15 @@ mod tests {
         absurd.scale_per_degc[1] = 0.5;
         let e = with(Some(absurd)).unwrap_err();
         assert!(format!("{e:#}").contains("not a plausible"), "{e:#}");
+    }
+
+    #[test]
+    fn a_witnessed_calibration_names_the_image_that_runs_it() {
+        let witnessed = file("tl16+field+fluxmod", 17, None);
+        let e = upload_lines(&witnessed, "tl16+field", true).unwrap_err();
+        assert!(format!("{e:#}").contains("flux-witness"), "{e:#}");
+        let lines = upload_lines(&witnessed, "tl16+field+fluxmod", true).unwrap();
+        assert_eq!(lines.iter().filter(|l| l.contains("SETCOEF")).count(), 17);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 use crate::estimate::corrections::fluxtemp;
 use crate::estimate::corrections::run_kf;
 use crate::estimate::fluxcal::{self, FluxgateCalibration};
+use crate::estimate::fluxgate_witness::{self, calibrated_modulus_noise_nt};
 use crate::estimate::kf::{KfOptions, KfRun};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
@@ -63,21 +64,15 @@ pub(crate) fn rate_crossover_test(
     ))
 }
 
-/// How many times the scalar's unexplained signal (its model error) the fluxgate's
-/// modulus misfits after its 9-parameter calibration against the compensated scalar:
-/// geology cancels in that comparison, so a ratio well above 1 is a field the fluxgate sees
-/// and the scalar's residual cannot account for — the aircraft's own field at the
-/// fluxgate (`fluxmod`'s premise). `None` where the fit cannot be made.
+/// [`fluxgate_witness::own_field_ratio`] for `run`: the fluxgate against the scalar minus
+/// `run`'s interference, over what `run` leaves unexplained.
 pub(crate) fn fluxgate_own_field_ratio(flight: &Flight, run: &KfRun) -> Option<f64> {
-    let fit = fluxcal::fit_flight(flight, &interference_for_fluxgate(flight, run)).ok()?;
-    // Against the larger of what the scalar leaves unexplained and the fluxgate's own
-    // white noise.
-    let rms = run
-        .model_error_nt
-        .unwrap_or(0.0)
-        .max(run.noise_nt)
-        .max(calibrated_modulus_noise_nt(&fit).1);
-    (rms > 0.0).then(|| fit.modulus_sd_after_nt / rms)
+    let unexplained_nt = run.model_error_nt.unwrap_or(0.0).max(run.noise_nt);
+    fluxgate_witness::own_field_ratio(
+        flight,
+        &interference_for_fluxgate(flight, run),
+        unexplained_nt,
+    )
 }
 
 /// The interference the fluxgate is fitted against: `run`'s estimate, or with a prepared
@@ -92,19 +87,6 @@ fn interference_for_fluxgate(flight: &Flight, run: &KfRun) -> Vec<f64> {
             .collect(),
         None => run.interference_nt.clone(),
     }
-}
-
-/// The calibrated modulus' finite residuals and their white noise (nT, from third
-/// differences: robust to the smooth misfit the sd includes).
-fn calibrated_modulus_noise_nt(fit: &fluxcal::FluxgateFit) -> (Vec<f64>, f64) {
-    let resid: Vec<f64> = fit
-        .residual_nt
-        .iter()
-        .copied()
-        .filter(|v| v.is_finite())
-        .collect();
-    let noise = crate::estimate::kf::estimate_noise_nt(&resid).unwrap_or(0.0);
-    (resid, noise)
 }
 
 /// `fluxcal` is not a regressor: it is tested on the fluxgate itself. The 9-parameter

@@ -380,10 +380,6 @@ fn prior_sigma_of(c: &ColTerm) -> Vec<f64> {
     })
 }
 
-/// The fluxgate's calibrated misfit must exceed this many times the scalar's unexplained
-/// rms before `fluxmod` is a candidate ([`effect_tests::fluxgate_own_field_ratio`]).
-pub const FLUXMOD_MIN_OWN_FIELD_RATIO: f64 = 5.0;
-
 /// A model "explains the data" only when its mean NIS and every band's residual power are
 /// within this factor of what it expects.
 pub const EXPLAINED_FACTOR: f64 = 2.0;
@@ -454,7 +450,7 @@ fn candidate_specs<'a>(
     // 3.7 nT residual; our simulator's: its 0.5 nT noise).
     if !model.has(TermKind::FluxMod)
         && effect_tests::fluxgate_own_field_ratio(flight, run)
-            .is_some_and(|r| r >= FLUXMOD_MIN_OWN_FIELD_RATIO)
+            .is_some_and(|r| r >= crate::estimate::fluxgate_witness::MIN_OWN_FIELD_RATIO)
     {
         cand_texts.push(TermKind::FluxMod.name().into());
     }

@@ -212,6 +212,11 @@ fn calibration_of(p: &SVector<f64, 9>) -> FluxgateCalibration {
     }
 }
 
+/// Gauss–Newton steps of [`fit_modulus`] (a well-scaled fluxgate converges in 3–4).
+const MAX_GAUSS_NEWTON_STEPS: usize = 30;
+/// Halvings of one step before it is given up.
+const MAX_STEP_HALVINGS: usize = 30;
+
 /// Fits the 9-parameter calibration so that `|M·B_F + b| = reference_nt`.
 pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFit> {
     let rows: Vec<usize> = (0..flux.len().min(reference_nt.len()))
@@ -227,10 +232,20 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
             rows.len()
         );
     }
+    let sum_sq = |p: &SVector<f64, 9>| {
+        let cal = calibration_of(p);
+        rows.iter()
+            .map(|&i| (reference_nt[i] - norm(cal.apply(flux[i]))).powi(2))
+            .sum::<f64>()
+    };
     let mut p = SVector::<f64, 9>::zeros();
+    let mut cost = sum_sq(&p);
     let mut jtj = SMatrix::<f64, 9, 9>::zeros();
-    // Gauss–Newton: the problem is nearly linear (|δ| ≪ |B|), so a few steps converge.
-    for _ in 0..8 {
+    // Gauss–Newton: nearly linear where |δ| ≪ |B|. A fluxgate whose scale is far off (the
+    // SGL aircraft's `flux_c`: 1.5 µT of modulus misfit) makes the full step overshoot, and
+    // undamped it diverged (9.7 µT misfit after, 1.2 µT before): a step is halved until the
+    // misfit falls.
+    for _ in 0..MAX_GAUSS_NEWTON_STEPS {
         let cal = calibration_of(&p);
         jtj = SMatrix::<f64, 9, 9>::zeros();
         let mut jtr = SVector::<f64, 9>::zeros();
@@ -254,10 +269,22 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
             jtj += j * j.transpose();
             jtr += j * r;
         }
-        let Some(step) = jtj.cholesky().map(|c| c.solve(&jtr)) else {
+        let Some(mut step) = jtj.cholesky().map(|c| c.solve(&jtr)) else {
             bail!("the flight's attitudes do not determine the fluxgate calibration (too few headings or attitudes)");
         };
+        let mut trial_cost = sum_sq(&(p + step));
+        for _ in 0..MAX_STEP_HALVINGS {
+            if trial_cost <= cost {
+                break;
+            }
+            step *= 0.5;
+            trial_cost = sum_sq(&(p + step));
+        }
+        if trial_cost > cost {
+            break; // no step lowers the misfit: p is the minimum to rounding
+        }
         p += step;
+        cost = trial_cost;
         if step.amax() < 1e-12 * (1.0 + p.amax()) {
             break;
         }

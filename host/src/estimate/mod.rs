@@ -8,6 +8,7 @@ pub mod corrections;
 pub mod crossover;
 pub mod excitation;
 pub mod fluxcal;
+pub mod fluxgate_witness;
 pub mod innovations;
 pub mod jackknife;
 pub mod joint_fit;

@@ -5,7 +5,9 @@
 
 use super::sensors::{sensor_trace, SensorSpec};
 use crate::calibration::result::Compensation;
-use crate::calibration::{compensate_trace, CoefficientFile, EstimatorSettings, Method};
+use crate::calibration::{
+    compensate_trace, fluxgate_witness, CoefficientFile, EstimatorSettings, Method,
+};
 use crate::estimate::kf::{interference_of, RegressorSpread};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
@@ -152,7 +154,7 @@ pub fn calibrate_joint(
     let alone = calibrate_alone(trace, est, sensors)?;
     let files: Vec<CoefficientFile> = alone
         .iter()
-        .map(|(_, c)| c.coefficients.clone().context("no coefficients"))
+        .map(|(_, c, _)| c.coefficients.clone().context("no coefficients"))
         .collect::<Result<_>>()?;
     let flights = prepare_flights(&alone, &files, est)?;
     let mut prepared = prepare(&flights, &files, sensors)?;
@@ -164,7 +166,7 @@ pub fn calibrate_joint(
     let refits = jackknife_refits(&prepared, &flights[0], sensors.len())?;
     let mut results = Vec::new();
     let mut jackknife_nt = Vec::new();
-    for (j, ((_, alone_j), s)) in alone.into_iter().zip(sensors).enumerate() {
+    for (j, ((_, alone_j, witnessed_j), s)) in alone.into_iter().zip(sensors).enumerate() {
         let flight = &flights[j];
         let evidence = SensorEvidence::of(&prepared, j, &refits[j], flight);
         jackknife_nt.push(evidence.jackknife_nt);
@@ -177,12 +179,18 @@ pub fn calibrate_joint(
             (prepared.field.sigma1 as f64, &label),
             &s.name,
         );
+        // The witnessed calibration, where there is one, is the sensor's own candidate.
+        let alone_j = witnessed_j.unwrap_or(alone_j);
+        let alone_predicted = alone_j
+            .coefficients
+            .as_ref()
+            .and_then(|c| c.predicted_error_nt);
         results.push(choose_result(
             s,
             alone_j,
             joint,
             predicted,
-            files[j].predicted_error_nt,
+            alone_predicted,
             flight,
         ));
     }
@@ -194,19 +202,33 @@ pub fn calibrate_joint(
     })
 }
 
-/// Each sensor's trace and today's single-sensor calibration (`--method kf`) of it alone.
+/// Each sensor alone: its trace, today's single-sensor calibration (`--method kf`) of it,
+/// which the joint run starts from, and, where the sensor's fluxgate is a decisive witness
+/// of its interference, that calibration with `fluxmod` added
+/// (`calibration::fluxgate_witness`), which competes with the joint one.
+type Alone = (Trace, Compensation, Option<Compensation>);
+
 fn calibrate_alone(
     trace: &Trace,
     est: &EstimatorSettings,
     sensors: &[SensorSpec],
-) -> Result<Vec<(Trace, Compensation)>> {
+) -> Result<Vec<Alone>> {
     let est1 = alone_settings(est);
     let mut alone = Vec::new();
     for s in sensors {
         let t = sensor_trace(trace, s);
-        let (_, comp) = compensate_trace(&t, &est1, None, false)
+        let (flight, comp) = compensate_trace(&t, &est1, None, false)
             .with_context(|| format!("{} alone", s.name))?;
-        alone.push((t, comp));
+        // As the single-sensor default: `--method kf` keeps the model as given.
+        let witnessed = if est.cross_check {
+            let (_, considered) =
+                fluxgate_witness::consider(&t, &est1, (flight, comp.clone()), &est1.model)
+                    .with_context(|| format!("{} alone, with its fluxgate as a witness", s.name))?;
+            (considered.model != comp.model).then_some(considered)
+        } else {
+            None
+        };
+        alone.push((t, comp, witnessed));
     }
     Ok(alone)
 }
@@ -405,12 +427,12 @@ fn choose_result(
 /// Each sensor's flight as its alone calibration saw it: assumed speed, its pre-processing
 /// (`lag`, `fluxtemp`) and fluxgate calibration applied.
 fn prepare_flights(
-    alone: &[(Trace, Compensation)],
+    alone: &[Alone],
     files: &[CoefficientFile],
     est: &EstimatorSettings,
 ) -> Result<Vec<Flight>> {
     let mut flights = Vec::new();
-    for ((t, _), file) in alone.iter().zip(files) {
+    for ((t, _, _), file) in alone.iter().zip(files) {
         let spec = ModelSpec::parse(&file.model)?;
         let mut f = Flight::from_trace(t, &spec.channels(), &spec.relative_channels())?;
         if spec.field && !f.has_track() {
