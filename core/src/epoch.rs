@@ -74,6 +74,65 @@ pub(crate) fn diff_nt(a: MagCounts, b: MagCounts) -> f32 {
     }
 }
 
+/// `(a − b) as f32` for f64 times without soft-float f64 on the M4 where both are positive
+/// with the same exponent (all but the pairs across a power of two): the difference is
+/// then the integer `d` of their bit patterns times the exponent's unit `2^k`, which the
+/// f64 subtraction returns exactly, and the conversion rounds once to f32. Here `|d|` is
+/// rounded to 24 bits by the FPU's u32 conversion (from its top 31 bits and a sticky bit
+/// for the rest when it is longer: the same rounding) and scaled exactly by `2^k` (kept in
+/// f32's normal range). Anything else takes the f64 path.
+pub(crate) fn diff_f32(a: f64, b: f64) -> f32 {
+    let (ia, ib) = (a.to_bits(), b.to_bits());
+    // sign and exponent: equal, positive, 2^k and |d|·2^k (|d| < 2^52) normal f32
+    let e = (ia >> 52) as u32;
+    if e != (ib >> 52) as u32 || !(1075 - 126..=1075 + 60).contains(&e) {
+        return (a - b) as f32;
+    }
+    let d = ia as i64 - ib as i64;
+    let u = d.unsigned_abs();
+    let v = if u >> 31 == 0 {
+        u as u32 as f32
+    } else {
+        let s = 33 - u.leading_zeros(); // u >> s has 31 bits
+        let sticky = u32::from(u & ((1 << s) - 1) != 0);
+        ((u >> s) as u32 | sticky) as f32 * f32::from_bits((127 + s) << 23)
+    };
+    let v = if d < 0 { -v } else { v };
+    v * f32::from_bits((e + 127 - 1075) << 23)
+}
+
+/// `counts / (COUNTS_PER_NT · B*)` as f32.
+const FIELD_RATIO_PER_COUNT: f64 = 1.0 / (COUNTS_PER_NT as f64 * B_STAR_NT);
+
+/// `(m as f64 · FIELD_RATIO_PER_COUNT) as f32` — the f64 product rounded to 53 bits, then to
+/// 24 — by integers, exactly (no soft-float multiply and conversions on the M4), for counts
+/// in [2^21, 2^32) (210 to 429 000 nT); anything else takes the f64 path.
+pub(crate) fn field_ratio(m: i64) -> f32 {
+    const BITS: u64 = FIELD_RATIO_PER_COUNT.to_bits();
+    const MANT: u64 = (BITS & ((1 << 52) - 1)) | (1 << 52);
+    const EXP: i32 = (BITS >> 52) as i32 - 1075;
+    /// `x / 2^s` rounded to nearest, ties to even (1 ≤ s < 64).
+    fn shift_round(x: u64, s: u32) -> u64 {
+        let (q, rem, half) = (x >> s, x & ((1 << s) - 1), 1u64 << (s - 1));
+        q + u64::from(rem > half || (rem == half && q & 1 == 1))
+    }
+    if !(1 << 21..1 << 32).contains(&m) {
+        return (m as f64 * FIELD_RATIO_PER_COUNT) as f32;
+    }
+    // the exact product m·MANT in [2^73, 2^85), as hi·2^32 + lo
+    let a = (m as u64) * (MANT & 0xffff_ffff);
+    let hi = (m as u64) * (MANT >> 32) + (a >> 32);
+    let lo = a & 0xffff_ffff;
+    // rounded to 53 bits: the low r bits dropped, 21 ≤ r ≤ 32, so all from `lo`
+    let r = 64 - hi.leading_zeros() - 21;
+    let q = (hi << (32 - r)) | (lo >> r);
+    let (rem, half) = (lo & ((1 << r) - 1), 1 << (r - 1));
+    let t53 = q + u64::from(rem > half || (rem == half && q & 1 == 1));
+    // then to 24 bits (t53 ≤ 2^53, so t24 ≤ 2^24: exact in f32), scaled by a power of two
+    let t24 = shift_round(t53, 29);
+    t24 as u32 as f32 * f32::from_bits(((r as i32 + 29 + EXP + 127) as u32) << 23)
+}
+
 /// Mean Earth radius for the local flat-Earth conversion of position steps (m): the one
 /// the host's flight positions and captures use too.
 pub const EARTH_RADIUS_M: f64 = 6_371_000.0;
@@ -140,7 +199,35 @@ struct Prev {
     t_s: f64,
     north_m: f64,
     east_m: f64,
+    north_f32: f32,
+    east_f32: f32,
     aux: [f32; MAX_AUX],
+}
+
+/// The last fix's local position per coordinate, keyed by the coordinate's bits: the board
+/// holds a GNSS fix (1–10 Hz) across the scalar samples in between, and an unchanged
+/// coordinate gives the same metres (f64 is soft-float on the M4, ~150 instructions a
+/// coordinate with the f32 conversion).
+#[derive(Clone, Copy, Debug)]
+struct LocalPosition {
+    lat_bits: u64,
+    north_m: f64,
+    north_f32: f32,
+    lon_bits: u64,
+    east_m: f64,
+    east_f32: f32,
+}
+
+impl LocalPosition {
+    /// Matches no finite coordinate.
+    const NONE: Self = Self {
+        lat_bits: u64::MAX,
+        north_m: 0.0,
+        north_f32: 0.0,
+        lon_bits: u64::MAX,
+        east_m: 0.0,
+        east_f32: 0.0,
+    };
 }
 
 #[derive(Clone, Copy, Debug)]
@@ -153,7 +240,12 @@ struct Slot {
     ds_m: f32,
     north_m: f64,
     east_m: f64,
-    cycles: [f64; MAX_AUX],
+    /// `north_m`, `east_m` and the aux channels' cycles as the epoch carries them (f32).
+    north_f32: f32,
+    east_f32: f32,
+    aux_cycles: [f32; MAX_AUX],
+    /// The aux channels that are finite (bit k: channel k).
+    aux_finite: u8,
 }
 
 /// Configuration of the epoch builder.
@@ -193,8 +285,12 @@ pub struct EpochBuilder<const W: usize> {
     h0_m: Option<f32>,
     /// First fix and its metres per degree north and east: `(lat0, lon0, k_north, k_east)`.
     origin: Option<(f64, f64, f64, f64)>,
+    position: LocalPosition,
     last_e: Option<[f32; 3]>,
     last_cycles: [f64; MAX_AUX],
+    /// Aux channels integrated since the start (bit k: channel k); the others' cycles are
+    /// still exactly 0.
+    integrated: u8,
     igrf0_nt: Option<f64>,
 }
 
@@ -212,8 +308,10 @@ impl<const W: usize> EpochBuilder<W> {
             reference: None,
             h0_m: cfg.h0_m,
             origin: None,
+            position: LocalPosition::NONE,
             last_e: None,
             last_cycles: [0.0; MAX_AUX],
+            integrated: 0,
             igrf0_nt: None,
         })
     }
@@ -262,6 +360,8 @@ impl<const W: usize> EpochBuilder<W> {
                 t_s: p.s.t_s,
                 north_m: p.north_m,
                 east_m: p.east_m,
+                north_f32: p.north_f32,
+                east_f32: p.east_f32,
                 aux: p.s.aux,
             })
         } else {
@@ -278,19 +378,32 @@ impl<const W: usize> EpochBuilder<W> {
         };
         // Local position (f64: lat/lon need it), origin at the first fix. The metres per
         // degree are formed once: f64 is soft-float on the M4 (~100 instructions a multiply).
-        let (north_m, east_m) = if s.lat_deg.is_finite() && s.lon_deg.is_finite() {
-            let (lat0, lon0, k_north, k_east) = *self.origin.get_or_insert_with(|| {
-                let k_north = EARTH_RADIUS_M * (core::f64::consts::PI / 180.0);
-                let coslat0 = libm::cos(s.lat_deg.to_radians());
-                (s.lat_deg, s.lon_deg, k_north, k_north * coslat0)
-            });
-            ((s.lat_deg - lat0) * k_north, (s.lon_deg - lon0) * k_east)
-        } else {
-            prev.map(|p| (p.north_m, p.east_m)).unwrap_or((0.0, 0.0))
-        };
+        let (north_m, east_m, north_f32, east_f32) =
+            if s.lat_deg.is_finite() && s.lon_deg.is_finite() {
+                let (lat0, lon0, k_north, k_east) = *self.origin.get_or_insert_with(|| {
+                    let k_north = EARTH_RADIUS_M * (core::f64::consts::PI / 180.0);
+                    let coslat0 = libm::cos(s.lat_deg.to_radians());
+                    (s.lat_deg, s.lon_deg, k_north, k_north * coslat0)
+                });
+                let c = &mut self.position;
+                if s.lat_deg.to_bits() != c.lat_bits {
+                    c.lat_bits = s.lat_deg.to_bits();
+                    c.north_m = (s.lat_deg - lat0) * k_north;
+                    c.north_f32 = c.north_m as f32;
+                }
+                if s.lon_deg.to_bits() != c.lon_bits {
+                    c.lon_bits = s.lon_deg.to_bits();
+                    c.east_m = (s.lon_deg - lon0) * k_east;
+                    c.east_f32 = c.east_m as f32;
+                }
+                (c.north_m, c.east_m, c.north_f32, c.east_f32)
+            } else {
+                prev.map(|p| (p.north_m, p.east_m, p.north_f32, p.east_f32))
+                    .unwrap_or((0.0, 0.0, 0.0, 0.0))
+            };
         let (dt_s, ds_m) = match prev {
             Some(p) => {
-                let dt = (s.t_s - p.t_s) as f32;
+                let dt = diff_f32(s.t_s, p.t_s);
                 let dt = if dt.is_finite() && dt > 0.0 { dt } else { 0.0 };
                 let ds = if s.ground_speed_mps.is_finite() {
                     s.ground_speed_mps.abs() * dt
@@ -305,9 +418,13 @@ impl<const W: usize> EpochBuilder<W> {
         };
         // Rotation phase by the trapezoid rule: the rectangle rule drifts by up to ~15° per
         // sample at 10 Hz when the rpm changes.
+        let mut aux_finite = 0u8;
+        for (k, a) in s.aux.iter().enumerate() {
+            aux_finite |= u8::from(a.is_finite()) << k;
+        }
         let mut cycles = self.last_cycles;
         for (k, (c, a)) in cycles.iter_mut().zip(s.aux.iter()).enumerate() {
-            if a.is_finite() {
+            if aux_finite & (1 << k) != 0 {
                 let prev_a = prev
                     .as_ref()
                     .map(|p| p.aux[k])
@@ -315,9 +432,19 @@ impl<const W: usize> EpochBuilder<W> {
                     .unwrap_or(*a);
                 *c += 0.5 * (*a as f64 + prev_a as f64) / 60.0 * dt_s as f64;
                 *c -= libm::floor(*c);
+                self.integrated |= 1 << k;
             }
         }
         self.last_cycles = cycles;
+        // channels never integrated hold exactly 0: no soft-float conversion for them
+        let mut aux_cycles = [0.0f32; MAX_AUX];
+        if self.integrated != 0 {
+            for (k, (o, v)) in aux_cycles.iter_mut().zip(cycles.iter()).enumerate() {
+                if self.integrated & (1 << k) != 0 {
+                    *o = *v as f32;
+                }
+            }
+        }
         if self.h0_m.is_none() && s.alt_m.is_finite() {
             self.h0_m = Some(s.alt_m);
         }
@@ -331,7 +458,10 @@ impl<const W: usize> EpochBuilder<W> {
             ds_m,
             north_m,
             east_m,
-            cycles,
+            north_f32,
+            east_f32,
+            aux_cycles,
+            aux_finite,
         });
         self.pushed += 1;
         if self.pushed - self.emitted > self.cfg.half_width as u64 {
@@ -375,16 +505,20 @@ impl<const W: usize> EpochBuilder<W> {
         if !c.e_valid {
             flags.set(Flags::FLUX_STALE);
         }
-        let span_s = (b.s.t_s - a.s.t_s) as f32;
+        let span_s = diff_f32(b.s.t_s, a.s.t_s);
         let inv_span = if span_s > 0.0 { 1.0 / span_s } else { 0.0 };
         let mut e_dot = [0.0f32; 3];
         for (i, v) in e_dot.iter_mut().enumerate() {
             *v = (b.e[i] - a.e[i]) * inv_span;
         }
-        let mut aux_dot = [0.0f32; MAX_AUX];
-        for (i, v) in aux_dot.iter_mut().enumerate() {
-            let d = (b.s.aux[i] - a.s.aux[i]) * inv_span;
-            *v = if d.is_finite() { d } else { f32::NAN };
+        // NaN wherever either end is not finite (the difference is not then either)
+        let mut aux_dot = [f32::NAN; MAX_AUX];
+        let both = a.aux_finite & b.aux_finite;
+        if both != 0 {
+            for (i, v) in aux_dot.iter_mut().enumerate() {
+                let d = (b.s.aux[i] - a.s.aux[i]) * inv_span;
+                *v = if d.is_finite() { d } else { f32::NAN };
+            }
         }
         // Exact reference handling: differences of integer counts, never of f32 values.
         let core_delta_nt = if c.s.igrf_nt.is_finite() {
@@ -419,9 +553,9 @@ impl<const W: usize> EpochBuilder<W> {
         // simulated calibration (1 % missing samples tripled the flight's error figure).
         let field_counts = c.s.mag.or(self.reference).map(|m| m.0);
         let field_ratio = match field_counts {
-            // one soft-float multiply instead of two divisions (counts → nT → ratio); the f64
-            // rounding differences are far below the f32 result's resolution
-            Some(m) => (m as f64 * (1.0 / (COUNTS_PER_NT as f64 * B_STAR_NT))) as f32,
+            // one f64 multiply instead of two divisions (counts → nT → ratio), its value
+            // formed by integers on the usual path (`field_ratio`)
+            Some(m) => field_ratio(m),
             None => 1.0,
         };
         // f32 is enough here: the fluxgate's own noise (0.1–2 nT) dwarfs the 0.004 nT ULP.
@@ -435,11 +569,6 @@ impl<const W: usize> EpochBuilder<W> {
             _ => 0.0,
         };
         let speed = if c.dt_s > 0.0 { c.ds_m / c.dt_s } else { 0.0 };
-        let mut aux_cycles = [0.0f32; MAX_AUX];
-        for (o, v) in aux_cycles.iter_mut().zip(c.cycles.iter()) {
-            // channels never integrated (missing) hold +0.0: skip the soft-float conversion
-            *o = if v.to_bits() == 0 { 0.0 } else { *v as f32 };
-        }
         Some(Epoch {
             t_s: c.s.t_s,
             mag: c.s.mag,
@@ -456,11 +585,11 @@ impl<const W: usize> EpochBuilder<W> {
             speed_mps: speed,
             reported_speed_mps: c.s.ground_speed_mps,
             dh_m,
-            north_m: c.north_m as f32,
-            east_m: c.east_m as f32,
+            north_m: c.north_f32,
+            east_m: c.east_f32,
             aux: c.s.aux,
             aux_dot,
-            aux_cycles,
+            aux_cycles: c.aux_cycles,
             base_nt: c.s.base_nt,
             flags,
             regressors_suspect,
@@ -510,8 +639,10 @@ impl<const W: usize> EpochBuilder<W> {
             reference: None,
             h0_m: None,
             origin: None,
+            position: LocalPosition::NONE,
             last_e: None,
             last_cycles: [0.0; MAX_AUX],
+            integrated: 0,
             igrf0_nt: None,
         }
     }
@@ -529,8 +660,10 @@ impl<const W: usize> EpochBuilder<W> {
         self.reference = None;
         self.h0_m = cfg.h0_m;
         self.origin = None;
+        self.position = LocalPosition::NONE;
         self.last_e = None;
         self.last_cycles = [0.0; MAX_AUX];
+        self.integrated = 0;
         self.igrf0_nt = None;
         true
     }
@@ -538,8 +671,92 @@ impl<const W: usize> EpochBuilder<W> {
 
 #[cfg(test)]
 mod tests {
-    use super::diff_nt;
+    use super::{diff_f32, diff_nt, field_ratio, FIELD_RATIO_PER_COUNT};
     use crate::units::MagCounts;
+
+    #[test]
+    fn integer_field_ratio_equals_the_f64_path() {
+        let check = |m: i64| {
+            let (x, y) = (field_ratio(m), (m as f64 * FIELD_RATIO_PER_COUNT) as f32);
+            assert!(x.to_bits() == y.to_bits(), "{m}: {x:e} against {y:e}");
+        };
+        // every count of 49 000-51 000 nT, sampled steps elsewhere, the range's ends, and
+        // the f64 fallback outside it
+        for m in 490_000_000..510_000_000 {
+            check(m);
+        }
+        let mut m = 1i64;
+        while m < 1 << 40 {
+            for v in [m - 1, m, m + 1, -m] {
+                check(v);
+            }
+            m = m * 1_000_003 / 1_000_000 + 1;
+        }
+        for m in [
+            0,
+            i64::MIN,
+            i64::MAX,
+            (1 << 21) - 1,
+            1 << 21,
+            (1 << 32) - 1,
+            1 << 32,
+        ] {
+            check(m);
+        }
+    }
+
+    #[test]
+    fn fast_time_difference_equals_the_f64_path() {
+        let check = |a: f64, b: f64| {
+            let (x, y) = (diff_f32(a, b), (a - b) as f32);
+            assert!(
+                x.to_bits() == y.to_bits(),
+                "{a:e} - {b:e}: {x:e} against {y:e}"
+            );
+        };
+        // sample times at 10 Hz to 2 kHz, jittered, across powers of two, and far apart
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        for base in [
+            0.0, 0.37, 1.0, 2.0, 1023.9, 43_200.0, 65_535.95, 1.7e9, 3.1e13,
+        ] {
+            for _ in 0..20_000 {
+                let r = next();
+                let a = base + (r % 1_000_000) as f64 * 1e-4;
+                let dt = [1e-3, 5e-4, 0.1, 0.1000001, 1.0, 3.0][(r >> 32) as usize % 6];
+                let b = a - dt * ((r >> 40) % 4) as f64 + ((r >> 48) % 7) as f64 * 1e-9;
+                check(a, b);
+                check(b, a);
+                check(a, a);
+            }
+        }
+        // random bit patterns: every exponent pair, signs, zeros, subnormals, NaN and ∞
+        for _ in 0..200_000 {
+            let a = f64::from_bits(next());
+            let b = f64::from_bits((a.to_bits() & !0xffff_ffff) ^ (next() >> 40));
+            for (x, y) in [(a, b), (b, a), (a, f64::from_bits(next()))] {
+                let (u, v) = (diff_f32(x, y), (x - y) as f32);
+                assert!(
+                    u.to_bits() == v.to_bits() || (u.is_nan() && v.is_nan()),
+                    "{x:e} {y:e}"
+                );
+            }
+        }
+        for (a, b) in [
+            (f64::NAN, 1.0),
+            (f64::INFINITY, 1.0),
+            (0.0, 0.0),
+            (-1.0, -1.5),
+        ] {
+            let (u, v) = (diff_f32(a, b), (a - b) as f32);
+            assert!(u.to_bits() == v.to_bits() || (u.is_nan() && v.is_nan()));
+        }
+    }
 
     #[test]
     fn fast_diff_equals_the_f64_path() {

@@ -747,8 +747,12 @@ impl Drop for Board {
             let _ = c.wait();
         }
         // A passing run's logs and CSVs are not needed; a failing one keeps them for the
-        // post-mortem (its path is in the failure message).
-        if !std::thread::panicking() {
+        // post-mortem (its path is in the failure message). `MAGCOMP_HIL_KEEP=1` keeps every
+        // run's, with its whole output port in output.txt: comparing two firmware builds'
+        // records line by line (scripts/hil-records-diff.sh).
+        if std::env::var("MAGCOMP_HIL_KEEP").as_deref() == Ok("1") {
+            self.save_output();
+        } else if !std::thread::panicking() {
             let _ = std::fs::remove_dir_all(&self.dir);
         }
     }

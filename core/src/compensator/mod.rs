@@ -697,8 +697,9 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// `half_width` samples back (exactly one output per pushed sample overall, with
     /// [`flush`](Self::flush) at the end of the stream).
     pub fn push(&mut self, s: &AlignedSample) -> Option<Output> {
-        let ep = self.builder.push(s)?;
-        Some(self.process(&ep))
+        // by reference: moving the epoch out of the `Option` copied its 216 bytes
+        let ep = self.builder.push(s);
+        ep.as_ref().map(|ep| self.process(ep))
     }
 
     /// Emits the samples still held for the centred derivative (end of stream).
