@@ -212,8 +212,10 @@ fn calibration_of(p: &SVector<f64, 9>) -> FluxgateCalibration {
     }
 }
 
-/// Gauss–Newton steps of [`fit_modulus`] (a well-scaled fluxgate converges in 3–4).
-const MAX_GAUSS_NEWTON_STEPS: usize = 30;
+/// Full Gauss–Newton steps of [`fit_modulus`] (a well-scaled fluxgate converges in 3–4);
+/// halved steps do not count, up to [`MAX_DAMPED_STEPS`] in all.
+const MAX_GAUSS_NEWTON_STEPS: usize = 8;
+const MAX_DAMPED_STEPS: usize = 30;
 /// Halvings of one step before it is given up.
 const MAX_STEP_HALVINGS: usize = 30;
 
@@ -245,7 +247,11 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
     // SGL aircraft's `flux_c`: 1.5 µT of modulus misfit) makes the full step overshoot, and
     // undamped it diverged (9.7 µT misfit after, 1.2 µT before): a step is halved until the
     // misfit falls.
-    for _ in 0..MAX_GAUSS_NEWTON_STEPS {
+    let mut full_steps = 0;
+    for _ in 0..MAX_DAMPED_STEPS {
+        if full_steps == MAX_GAUSS_NEWTON_STEPS {
+            break;
+        }
         let cal = calibration_of(&p);
         jtj = SMatrix::<f64, 9, 9>::zeros();
         let mut jtr = SVector::<f64, 9>::zeros();
@@ -272,15 +278,20 @@ pub fn fit_modulus(flux: &[[f64; 3]], reference_nt: &[f64]) -> Result<FluxgateFi
         let Some(mut step) = jtj.cholesky().map(|c| c.solve(&jtr)) else {
             bail!("the flight's attitudes do not determine the fluxgate calibration (too few headings or attitudes)");
         };
+        // Only a step that raises the misfit beyond rounding is halved, so a fit that
+        // converges takes exactly the steps it took undamped.
         let mut trial_cost = sum_sq(&(p + step));
+        let mut halved = false;
         for _ in 0..MAX_STEP_HALVINGS {
-            if trial_cost <= cost {
+            if trial_cost <= cost * (1.0 + 1e-9) {
                 break;
             }
             step *= 0.5;
+            halved = true;
             trial_cost = sum_sq(&(p + step));
         }
-        if trial_cost > cost {
+        full_steps += usize::from(!halved);
+        if trial_cost > cost * (1.0 + 1e-9) {
             break; // no step lowers the misfit: p is the minimum to rounding
         }
         p += step;
