@@ -13,8 +13,17 @@
 //!
 //! The socket test pulls the "cable" (a TCP source closes mid-stream) and checks the server
 //! says so, reconnects, and goes on with the records.
+//!
+//! With `$MCRAW` lines (a simulated calibration pattern and a survey line through `replay
+//! --raw --records`): every record's height and GPS state equal its raw line's, and one FOM
+//! table arrives, after the pattern's end and the quiet time, with the figures the host's
+//! own report path gives for the same lines (computed here through the library). The same
+//! lines flown twice give a second table over the second pattern's rows, which the page
+//! shows (with its number and time) beside the heights. Without raw lines the page says
+//! `RAW,ON` is needed.
 
 use magcomp_core::protocol::common::crc16_ccitt;
+use magcomp_core::protocol::raw::decode_raw;
 use magcomp_core::protocol::record::{decode_record, encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::{Flags, MagCounts};
 use serde_json::{json, Value};
@@ -319,8 +328,23 @@ fn page_plots_the_stream_live_through_garbage_and_a_reset() {
     }
     let errors_dom = page.text_of("errors");
     let status = page.text_of("status");
+    let alt_note = page.text_of("alt-note");
+    let note_class = page.call(
+        "Runtime.evaluate",
+        json!({"expression": "document.getElementById('alt-note').className",
+               "returnByValue": true}),
+    );
     drop(chrome);
     drop(server);
+
+    // No raw line in the stream: no height, and the page says what would bring it.
+    assert!(
+        numbers(&p["alt"]).iter().all(Option::is_none),
+        "{}",
+        p["alt"]
+    );
+    assert_eq!(note_class["result"]["value"], "note", "the note is hidden");
+    assert!(alt_note.contains("$MCCMD,RAW,ON"), "{alt_note}");
 
     // Plotted values equal the stream's: every decoded record, in order, exactly.
     let seqs = numbers(&p["seq"]);
@@ -598,4 +622,284 @@ fn web_save_writes_what_the_text_monitor_saves() {
     drop(server);
     assert_eq!(got.lines().count(), decoded(&stream()).len() + 3);
     assert_eq!(got, want);
+}
+
+/// A simulated calibration pattern and a short survey line as the board sends them with
+/// `RAW,ON` (`replay --raw --records`: a `$MCRAW` line before each sample's record), the
+/// board flying coefficients calibrated on the flight (survey mode: a check pattern, whose
+/// compensated figures are small, not the filter learning from zero).
+fn raw_stream(dir: &Path) -> std::path::PathBuf {
+    use common::cli::{bin, run_ok, simulate};
+    let cap = dir.join("flight.cap");
+    let flight = simulate(
+        dir,
+        &[
+            "--flight",
+            "calibration+survey",
+            "--lines",
+            "1",
+            "--line-length-m",
+            "6000",
+            "--capture",
+            cap.to_str().unwrap(),
+        ],
+    );
+    let coeffs = dir.join("coeffs.json");
+    run_ok(bin().arg("calibrate").arg(&flight).arg("-o").arg(&coeffs));
+    let log = dir.join("log.txt");
+    run_ok(
+        bin()
+            .arg("replay")
+            .arg(&cap)
+            .arg("--coeffs")
+            .arg(&coeffs)
+            .args(["--raw", "--records"])
+            .arg(&log),
+    );
+    log
+}
+
+/// The FOM table the host computes for the log's raw lines with `t` in `first..=last`
+/// (raw-line times) and the records' compensated values: the report's own path (the board
+/// log as a trace, the unlabelled detector, the FOM table), not the live view's.
+fn expected_table(log: &Path, first: f64, last: f64) -> magcomp::calibration::fom::FomTable {
+    use magcomp::io::trace::board_log::read_board_log;
+    let mut trace = read_board_log(log).unwrap();
+    let t = trace.col("t").unwrap().to_vec();
+    let keep: Vec<usize> = (0..t.len())
+        .filter(|&i| t[i] >= first && t[i] <= last)
+        .collect();
+    for (_, v) in &mut trace.numeric {
+        *v = keep.iter().map(|&i| v[i]).collect();
+    }
+    let text = std::fs::read_to_string(log).unwrap();
+    let comp: std::collections::HashMap<u64, f64> = decoded(&text)
+        .iter()
+        .map(|r| {
+            let c = r.compensated.map_or(f64::NAN, MagCounts::to_nt_f64);
+            ((r.t_s * 1e6).round() as u64, c)
+        })
+        .collect();
+    let comp_nt: Vec<f64> = trace
+        .col("t")
+        .unwrap()
+        .iter()
+        .map(|t| comp[&((t * 1e6).round() as u64)])
+        .collect();
+    let flight = magcomp::flight::Flight::from_trace(&trace, &[], &[]).unwrap();
+    let pattern = magcomp::qc::manoeuvres::detect(&flight).expect("a pattern");
+    magcomp::calibration::fom::fom_table(&flight, &pattern, "detected", &comp_nt, None).unwrap()
+}
+
+/// The log flown twice: the same lines again, sample numbers, sequence numbers and times
+/// continued (as if the pattern and the line were flown again right after).
+fn flown_twice(text: &str) -> String {
+    use magcomp_core::protocol::raw::{encode_raw, MAX_RAW_LEN};
+    let raws = text.lines().filter(|l| l.starts_with("$MCRAW,")).count() as u32;
+    let recs = decoded(text);
+    let (n, dt_s) = (recs.len() as u32, recs[1].t_s - recs[0].t_s);
+    let shift_s = f64::from(raws) * dt_s;
+    let mut out = text.to_string();
+    for l in text.lines() {
+        if let Ok(mut r) = decode_raw(l.as_bytes()) {
+            r.k += raws;
+            r.t_s += shift_s;
+            let mut b = [0u8; MAX_RAW_LEN];
+            let len = encode_raw(&r, &mut b).unwrap();
+            out.push_str(std::str::from_utf8(&b[..len]).unwrap());
+        } else if let Ok(mut r) = decode_record(l.as_bytes()) {
+            r.seq += n;
+            r.t_s += shift_s;
+            out.push_str(&record_line(&r));
+        }
+    }
+    out
+}
+
+/// Height as each raw line's own digits, and its GPS state, by sample time (µs).
+fn heights(text: &str) -> std::collections::HashMap<u64, (Option<f64>, bool)> {
+    text.lines()
+        .filter_map(|l| Some((l, decode_raw(l.as_bytes()).ok()?)))
+        .map(|(l, r)| {
+            let alt = l.split(',').nth(9).and_then(|a| a.parse::<f64>().ok());
+            let fix = !r.flags.contains(Flags::NO_GPS);
+            ((r.t_s * 1e6).round() as u64, (alt, fix))
+        })
+        .collect()
+}
+
+/// Every message the server sends for `log` (read at full speed) up to its end.
+fn messages_of(log: &Path) -> Vec<Value> {
+    let (server, url) = start_server(&[log.to_str().unwrap()]);
+    let mut ws = ws_connect(&format!("{}ws", url.replace("http://", "ws://")));
+    let got = read_until(&mut ws, |v| v["kind"] == "link" && v["up"] == false);
+    drop(server);
+    got
+}
+
+/// The latest FOM message among `got` (a page opened late gets it apart from the backlog).
+fn latest_fom(got: &[Value]) -> Value {
+    got.iter()
+        .filter(|m| m["kind"] == "fom")
+        .max_by_key(|m| m["number"].as_u64())
+        .cloned()
+        .unwrap_or(Value::Null)
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-9 * a.abs().max(1.0)
+}
+
+/// Each figure of the table the page got against the host's own.
+fn assert_same_table(got: &Value, want: &magcomp::calibration::fom::FomTable) {
+    let num = |v: &Value| v.as_f64().unwrap_or(f64::NAN);
+    assert_eq!(got["manoeuvres"], want.manoeuvres);
+    for (k, w) in [
+        ("fom_nt", want.fom_nt),
+        ("uncompensated_nt", want.uncompensated_nt),
+        ("improvement_ratio", want.improvement_ratio),
+    ] {
+        assert!(close(num(&got[k]), w), "{k}: {} against {w}", got[k]);
+    }
+    let rows = got["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), want.rows.len());
+    for (g, w) in rows.iter().zip(&want.rows) {
+        assert_eq!(g["heading"], w.heading.as_str());
+        assert!(close(num(&g["compensated_sum_nt"]), w.compensated_sum_nt));
+        assert!(close(
+            num(&g["uncompensated_sum_nt"]),
+            w.uncompensated_sum_nt
+        ));
+        let cells = g["cells"].as_array().unwrap();
+        assert_eq!(cells.len(), w.cells.len());
+        for (gc, wc) in cells.iter().zip(&w.cells) {
+            assert_eq!(gc["kind"], wc.kind.as_str());
+            assert!(
+                close(num(&gc["uncompensated_nt"]), wc.uncompensated_nt),
+                "{gc}"
+            );
+            assert!(close(num(&gc["compensated_nt"]), wc.compensated_nt), "{gc}");
+        }
+    }
+}
+
+#[test]
+fn raw_lines_give_height_gps_and_the_fom_table_after_the_pattern() {
+    let dir = common::cli::tmp("live-raw");
+    let log = raw_stream(&dir);
+    let text = std::fs::read_to_string(&log).unwrap();
+    let height = heights(&text);
+    assert!(height.values().filter(|h| h.0.is_some()).count() > 10_000);
+
+    // At the websocket: every record's height and GPS state, and one table.
+    let got = messages_of(&log);
+    let records: Vec<&Value> = got.iter().filter(|m| m["kind"] == "record").collect();
+    let mut foms: Vec<&Value> = got.iter().filter(|m| m["kind"] == "fom").collect();
+    // The stored table and its copy still in the backlog are one table.
+    foms.dedup_by_key(|m| m["number"].as_u64());
+    assert!(records.len() >= 1000, "{} records", records.len());
+    for m in &records {
+        let key = (m["t_s"].as_f64().unwrap() * 1e6).round() as u64;
+        let (alt, fix) = height[&key];
+        assert_eq!(m["alt_m"].as_f64(), alt, "{m}");
+        assert_eq!(m["gps_fix"].as_bool(), Some(fix), "{m}");
+    }
+    assert_eq!(foms.len(), 1, "one pattern, one table");
+    let f = foms[0];
+    let (t_s, end) = (
+        f["t_s"].as_f64().unwrap(),
+        f["pattern_end_t_s"].as_f64().unwrap(),
+    );
+    // Computed once the quiet time after the last manoeuvre had passed, at the first
+    // check after it (checks every 10 s of record time).
+    println!("FOM table at {t_s:.1} s, last manoeuvre ended {end:.1} s");
+    assert!(t_s >= end + 30.0 && t_s < end + 30.0 + 10.5, "{t_s} {end}");
+    let want = expected_table(
+        &log,
+        f["first_t_s"].as_f64().unwrap(),
+        f["last_t_s"].as_f64().unwrap(),
+    );
+    println!("{}", magcomp::calibration::fom::format_table(&want));
+    // 4 headings × pitch and roll at least (the detector misses some yaws).
+    assert!(
+        want.manoeuvres >= 8 && want.rows.len() >= 4,
+        "{}",
+        want.manoeuvres
+    );
+    assert_same_table(&f["table"], &want);
+
+    // Flown twice: a second table, over the second pattern's rows, replaces the first.
+    let log2 = dir.join("twice.txt");
+    let text2 = flown_twice(&text);
+    std::fs::write(&log2, &text2).unwrap();
+    let f2 = latest_fom(&messages_of(&log2));
+    assert_eq!(f2["number"], 2, "{f2}");
+    let shift_s = f2["t_s"].as_f64().unwrap() - t_s;
+    assert!(shift_s > 1500.0, "second table {shift_s} s after the first");
+    let first2 = f2["first_t_s"].as_f64().unwrap();
+    assert!(
+        first2 > end,
+        "{first2}: the second pattern's rows start after the first's end"
+    );
+    let want2 = expected_table(&log2, first2, f2["last_t_s"].as_f64().unwrap());
+    println!(
+        "second: {}",
+        magcomp::calibration::fom::format_table(&want2)
+    );
+    assert_same_table(&f2["table"], &want2);
+
+    if !Path::new(CHROMIUM).exists() {
+        println!("SKIP page part: {CHROMIUM} not installed (apt-get install chromium)");
+        return;
+    }
+    // The page, opened after the stream flown twice has been read: its strips get the
+    // backlog, its table the latest FOM message (the second pattern's).
+    let height = heights(&text2);
+    let (server, url) = start_server(&[log2.to_str().unwrap()]);
+    std::thread::sleep(Duration::from_millis(1500));
+    let (chrome, mut page) = Page::open(&url, &dir.join("profile"));
+    let t0 = Instant::now();
+    let mut p = Value::Null;
+    while t0.elapsed() < Duration::from_secs(20) {
+        p = page.plotted();
+        if p["fom"]["number"] == 2 && numbers(&p["alt"]).len() >= 300 {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let note_class = page.call(
+        "Runtime.evaluate",
+        json!({"expression": "document.getElementById('alt-note').className",
+               "returnByValue": true}),
+    );
+    let errors_dom = page.text_of("errors");
+    drop(chrome);
+    drop(server);
+    let (x, alt) = (numbers(&p["x"]), numbers(&p["alt"]));
+    assert_eq!(alt.len(), 300, "{p}");
+    for (x, a) in x.iter().zip(&alt) {
+        let key = (x.unwrap() * 1e6).round() as u64;
+        assert_eq!(*a, height[&key].0, "height at {x:?}");
+    }
+    let gps = p["gps_fix"].as_array().unwrap();
+    assert!(gps.iter().all(|g| g.is_boolean()), "{gps:?}");
+    assert_eq!(note_class["result"]["value"], "note hidden");
+    assert_same_table(&p["fom"]["table"], &want2);
+    let shown = p["fom_text"].as_str().unwrap();
+    for s in [
+        format!(
+            "pattern 2, computed at t = {:.1} s",
+            f2["t_s"].as_f64().unwrap()
+        ),
+        format!("FOM {:.3} nT", want2.fom_nt),
+        format!("IR {:.2}", want2.improvement_ratio),
+        format!(
+            "{:.2} / {:.3}",
+            want2.rows[0].cells[0].uncompensated_nt, want2.rows[0].cells[0].compensated_nt
+        ),
+    ] {
+        assert!(shown.contains(&s), "{s} not in {shown}");
+    }
+    assert!(page.console_errors.is_empty(), "{:?}", page.console_errors);
+    assert!(errors_dom.is_empty(), "{errors_dom}");
 }

@@ -8,12 +8,13 @@
 //! for files and logs), and a final summary at the end of the stream.
 //! Every line is accounted for: records, CRC failures, malformed records, replies
 //! (`$MCACK`/`$MCERR`), boot banners (`$MCBOOT`), frame acknowledgements (`$MCSYN`, HIL
-//! builds), other lines. Missing sequence numbers are counted and listed; the last `STATUS`
+//! builds), raw sample lines (`$MCRAW`, `RAW,ON`), other lines. Missing sequence numbers are counted and listed; the last `STATUS`
 //! reply's counters are shown (docs/protocols.md §5).
 
 use crate::board::replay::{counts_text, nt_text};
 use anyhow::{Context, Result};
 use magcomp_core::protocol::common::crc16_ccitt;
+use magcomp_core::protocol::raw::{decode_raw, RawSample};
 use magcomp_core::protocol::record::{decode_record, Record, RecordError};
 use magcomp_core::Flags;
 use std::collections::VecDeque;
@@ -69,6 +70,9 @@ pub struct MonitorStats {
     pub replies: u64,
     /// Anything else (noise, overlong lines, board lines with a bad CRC).
     pub other_lines: u64,
+    /// `$MCRAW` sample lines (`RAW,ON`), and those whose CRC or fields failed.
+    pub raw_lines: u64,
+    pub raw_errors: u64,
     /// `$MCBOOT` banners (more than one: the board restarted) and the last one.
     pub boots: u64,
     pub boot: Option<BootBanner>,
@@ -208,6 +212,8 @@ pub struct Monitor {
     expected: Option<u32>,
     recent_t_s: VecDeque<f64>,
     flagged: super::flagged_share::FlaggedShare,
+    /// The last raw line decoded and not yet taken ([`Monitor::take_raw`]).
+    last_raw: Option<RawSample>,
 }
 
 impl Monitor {
@@ -216,6 +222,11 @@ impl Monitor {
     }
     pub fn stats(&self) -> &MonitorStats {
         &self.stats
+    }
+
+    /// The raw sample line (`$MCRAW`) last read, once.
+    pub fn take_raw(&mut self) -> Option<RawSample> {
+        self.last_raw.take()
     }
 
     /// One line (with or without its terminator); returns the record if it is one.
@@ -253,6 +264,16 @@ impl Monitor {
                     s.boot = Some(b);
                 }
                 None => s.other_lines += 1,
+            }
+            return None;
+        }
+        if l.starts_with(b"$MCRAW") {
+            match decode_raw(l) {
+                Ok(r) => {
+                    s.raw_lines += 1;
+                    self.last_raw = Some(r);
+                }
+                Err(_) => s.raw_errors += 1,
             }
             return None;
         }
@@ -367,6 +388,9 @@ impl Monitor {
             s.replies,
             s.missing
         );
+        if s.raw_lines + s.raw_errors > 0 {
+            let _ = write!(o, " | raw {} bad {}", s.raw_lines, s.raw_errors);
+        }
         if s.restarts > 0 {
             let _ = write!(o, " restarts {}", s.restarts);
         }

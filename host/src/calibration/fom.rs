@@ -18,7 +18,7 @@ use crate::qc::manoeuvres::{Leg, Manoeuvre, Pattern};
 use serde::{Deserialize, Serialize};
 
 /// One manoeuvre's figures (nT, peak-to-peak in the manoeuvre band).
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FomCell {
     pub label: String,
     pub kind: String,
@@ -31,7 +31,7 @@ pub struct FomCell {
 }
 
 /// One heading (leg).
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FomRow {
     pub heading: String,
     pub heading_deg: f64,
@@ -41,7 +41,7 @@ pub struct FomRow {
     pub aircraft_sum_nt: Option<f64>,
 }
 
-#[derive(Clone, Debug, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FomTable {
     /// `labels` (the trace's `segment` column) or `detected` (`qc::manoeuvres`).
     pub source: String,

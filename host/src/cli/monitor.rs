@@ -35,7 +35,9 @@ pub struct MonitorArgs {
     pub follow: bool,
 
     /// Serve a live chart-recorder page instead of printing (open the printed address in a
-    /// browser; stop with Ctrl-C). A lost port is reopened every second.
+    /// browser; stop with Ctrl-C). A lost port is reopened every second. With the board's
+    /// `$MCRAW` lines (`RAW,ON`) it also draws height and GPS state and shows the FOM table
+    /// once a calibration pattern has ended (docs/protocols.md §10d′).
     #[arg(long)]
     pub web: bool,
 

@@ -1,7 +1,10 @@
 //! The board's lines turned into the live page's messages: the monitor's own decoder
 //! ([`Monitor`]) classifies every line and counts gaps and restarts; this adds what the page
-//! draws on top of it (the 4th difference, a monotonic chart time, alarms and events).
+//! draws on top of it (the 4th difference, a monotonic chart time, alarms and events) and,
+//! from the `$MCRAW` lines (`RAW,ON`), each record's height and GPS state and the FOM
+//! table once a calibration pattern has ended ([`super::fom`]).
 
+use super::fom::{FomMsg, PatternWatch};
 use crate::board::monitor::{flag_words, Monitor, MAX_GAPS};
 use crate::board::replay::nt_text;
 use magcomp_core::protocol::record::Record;
@@ -21,6 +24,8 @@ pub const D4_BAND_NT: f64 = 0.05;
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Message {
     Record(Box<RecordMsg>),
+    /// The FOM table of a calibration pattern that has just ended.
+    Fom(Box<FomMsg>),
     /// The input was lost or came back (`up`), with why.
     Link {
         up: bool,
@@ -46,6 +51,12 @@ pub struct RecordMsg {
     pub sigma_nt: Option<f64>,
     pub flags: u16,
     pub flag_words: String,
+    /// Height (m) from this sample's `$MCRAW` line, its digits as sent; None without one
+    /// (`RAW,OFF`) or when the line had no height.
+    pub alt_m: Option<f64>,
+    /// The sample's GPS state from its `$MCRAW` line's flags (`NO_GPS` clear: a fix); None
+    /// without a raw line.
+    pub gps_fix: Option<bool>,
     /// 4th difference of the compensated field centred on record `d4_seq` (two records
     /// back), once five consecutive records are in: exact from the integer counts.
     pub d4_seq: Option<u32>,
@@ -65,6 +76,8 @@ pub struct Counts {
     pub crc_errors: u64,
     pub malformed: u64,
     pub other_lines: u64,
+    /// `$MCRAW` lines read: none means the board's `RAW` output is off.
+    pub raw_lines: u64,
     pub missing: u64,
     pub restarts: u64,
     pub boots: u64,
@@ -94,6 +107,9 @@ pub struct Feed {
     restart_until: Option<Instant>,
     rejected_until: Option<Instant>,
     garbage_until: Option<Instant>,
+    /// The raw lines' window and the pattern-end rule.
+    watch: PatternWatch,
+    fom: Option<FomMsg>,
 }
 
 /// Counter values at the previous record, to tell what changed since.
@@ -115,14 +131,30 @@ impl Feed {
 
     /// One line of the board's output; the page's message if it was a record.
     pub fn push_line(&mut self, line: &[u8], now: Instant, unix_ms: f64) -> Option<RecordMsg> {
-        let r = self.monitor.push_line(line)?;
-        Some(self.record(&r, now, unix_ms))
+        let r = self.monitor.push_line(line);
+        if let Some(raw) = self.monitor.take_raw() {
+            self.watch.push_raw(&raw);
+        }
+        Some(self.record(&r?, now, unix_ms))
+    }
+
+    /// The FOM table computed with the last record, once.
+    pub fn take_fom(&mut self) -> Option<FomMsg> {
+        self.fom.take()
+    }
+
+    /// Samples held for the FOM table (bounded: `fom::WINDOW_S`, `fom::MAX_ROWS`).
+    pub fn window_rows(&self) -> usize {
+        self.watch.len()
     }
 
     fn record(&mut self, r: &Record, now: Instant, unix_ms: f64) -> RecordMsg {
         // The counters, not the whole stats (their gap list runs to 1000 entries), per record.
         let counts = self.counts();
-        let garbage = counts.crc_errors + counts.malformed + counts.other_lines;
+        let garbage = counts.crc_errors
+            + counts.malformed
+            + counts.other_lines
+            + self.monitor.stats().raw_errors;
         let restarted =
             counts.restarts > self.seen.restarts || counts.boots > self.seen.boots.max(1);
         let lost = counts.missing - self.seen.missing;
@@ -165,6 +197,19 @@ impl Feed {
         };
         let (d4_seq, d4_nt) = self.fourth_difference(r);
         let x_s = self.chart_time(r.t_s);
+        let raw = self
+            .watch
+            .push_record(r.t_s, r.compensated.map(MagCounts::to_nt_f64));
+        if let Some(f) = self.watch.check(r.t_s) {
+            events.push(format!(
+                "FOM table {}: pattern ended at {:.1} s, FOM {:.3} nT, IR {:.2}",
+                f.number, f.pattern_end_t_s, f.table.fom_nt, f.table.improvement_ratio
+            ));
+            self.fom = Some(FomMsg {
+                sent_unix_ms: unix_ms,
+                ..f
+            });
+        }
         RecordMsg {
             seq: r.seq,
             t_s: r.t_s,
@@ -177,6 +222,8 @@ impl Feed {
             sigma_nt: as_sent(r.sigma_nt),
             flags: r.flags.0,
             flag_words: flag_words(r.flags),
+            alt_m: raw.and_then(|s| as_sent(s.alt_m)),
+            gps_fix: raw.map(|s| s.gps_fix),
             d4_seq,
             d4_nt,
             alarms: self.alarms(r.flags, now),
@@ -193,6 +240,7 @@ impl Feed {
             crc_errors: st.crc_errors,
             malformed: st.parse_errors,
             other_lines: st.other_lines,
+            raw_lines: st.raw_lines,
             missing: st.missing,
             restarts: st.restarts,
             boots: st.boots,
@@ -286,7 +334,7 @@ const DEGRADED_BITS: u16 = Flags::FLUX_STALE
     | Flags::DERIVATIVE_DEGRADED
     | Flags::MAG_SUSPECT;
 
-/// The value as the record line carried it (4 decimals), or `None` when empty.
+/// The value as the record or raw line carried it (4 decimals), or `None` when empty.
 fn as_sent(v: f32) -> Option<f64> {
     nt_text(v).parse().ok()
 }
@@ -335,6 +383,46 @@ mod tests {
             .any(|a| a.starts_with("LOST 2 records")));
         assert_eq!(out[8].interf_nt, Some(12.3456));
         assert_eq!(out[8].anom_nt, None);
+    }
+
+    #[test]
+    fn a_raw_line_gives_its_record_height_and_gps_state_and_is_no_garbage() {
+        use magcomp_core::protocol::raw::{encode_raw, RawSample, MAX_RAW_LEN};
+        let now = Instant::now();
+        let mut f = Feed::new();
+        let raw = |seq: u32, alt_m: f32, flags: u16| {
+            let t_s = 100.0 + f64::from(seq) * 0.1;
+            let r = RawSample {
+                k: seq,
+                ..crate::live::fom::tests::raw(t_s, alt_m, flags)
+            };
+            let mut b = [0u8; MAX_RAW_LEN];
+            let n = encode_raw(&r, &mut b).unwrap();
+            b[..n].to_vec()
+        };
+        // Records without raw lines: no height.
+        let m = f.push_line(&line(0, 1, 0), now, 0.0).unwrap();
+        assert_eq!((m.alt_m, m.gps_fix, m.counts.raw_lines), (None, None, 0));
+        // The raw lines come before their records (two samples ahead, as on the board).
+        assert!(f.push_line(&raw(1, 1234.5625, 0), now, 0.0).is_none());
+        assert!(f
+            .push_line(&raw(2, 1235.0, Flags::NO_GPS), now, 0.0)
+            .is_none());
+        let m1 = f.push_line(&line(1, 1, 0), now, 0.0).unwrap();
+        let m2 = f.push_line(&line(2, 1, 0), now, 0.0).unwrap();
+        assert_eq!((m1.alt_m, m1.gps_fix), (Some(1234.5625), Some(true)));
+        assert_eq!((m2.alt_m, m2.gps_fix), (Some(1235.0), Some(false)));
+        assert_eq!(m2.counts.raw_lines, 2);
+        assert!(m2.alarms.is_empty(), "{:?}", m2.alarms);
+        assert_eq!(m2.counts.other_lines, 0);
+        assert_eq!(f.window_rows(), 2);
+        // A raw line with a broken checksum is garbage.
+        let mut bad = raw(3, 1.0, 0);
+        bad[8] = b'9';
+        f.push_line(&bad, now, 0.0);
+        let m3 = f.push_line(&line(3, 1, 0), now, 0.0).unwrap();
+        assert!(m3.alarms.contains(&"GARBAGE lines".to_string()));
+        assert_eq!(m3.alt_m, None);
     }
 
     #[test]

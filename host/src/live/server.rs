@@ -1,6 +1,7 @@
 //! The local web server of the live view: one page, the vendored uPlot, and a websocket
 //! that pushes every record as JSON. A page opened late first gets the last
-//! [`BACKLOG`] messages so its strips start full.
+//! [`BACKLOG`] messages so its strips start full, and each stream's latest FOM table
+//! (however long ago it was computed).
 
 use super::feed::Message;
 use super::source::{follow, Input};
@@ -39,6 +40,9 @@ struct Shared {
     backlog: Mutex<VecDeque<Arc<str>>>,
     /// Messages kept: [`BACKLOG`] per stream.
     backlog_len: usize,
+    /// Each stream's latest FOM table message: kept apart from the backlog, which a table
+    /// computed more than [`BACKLOG`] records ago has left.
+    fom: Mutex<Vec<Option<Arc<str>>>>,
 }
 
 /// The page with its settings and the streams' names filled in.
@@ -97,6 +101,7 @@ pub fn serve(
             tx,
             backlog: Mutex::new(VecDeque::with_capacity(BACKLOG * inputs.len())),
             backlog_len: BACKLOG * inputs.len(),
+            fom: Mutex::new(vec![None; inputs.len()]),
         });
         for (stream, input) in inputs.into_iter().enumerate() {
             let feeder = shared.clone();
@@ -119,6 +124,12 @@ fn publish(shared: &Shared, stream: usize, message: &Message) {
         return;
     };
     let json: Arc<str> = json.into();
+    if matches!(message, Message::Fom(_)) {
+        let mut f = shared.fom.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(slot) = f.get_mut(stream) {
+            *slot = Some(json.clone());
+        }
+    }
     // Under the backlog's lock, so a page connecting now gets each message once: in its
     // backlog or from its subscription, never both, never neither.
     let mut b = shared.backlog.lock().unwrap_or_else(|p| p.into_inner());
@@ -150,7 +161,10 @@ async fn upgrade(ws: WebSocketUpgrade, State(s): State<Arc<Shared>>) -> Response
 async fn push(mut socket: WebSocket, s: Arc<Shared>) {
     let (backlog, mut rx) = {
         let b = s.backlog.lock().unwrap_or_else(|p| p.into_inner());
-        let joined: Vec<&str> = b.iter().map(|m| &**m).collect();
+        let f = s.fom.lock().unwrap_or_else(|p| p.into_inner());
+        // The latest tables first: a copy still in the backlog comes again later and the
+        // page shows the latest it has got either way.
+        let joined: Vec<&str> = f.iter().flatten().chain(b.iter()).map(|m| &**m).collect();
         (
             format!(
                 "{{\"kind\":\"backlog\",\"messages\":[{}]}}",

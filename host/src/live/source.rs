@@ -211,6 +211,10 @@ fn handle(
             m.sent_unix_ms = unix_ms();
         }
         send(Message::Record(Box::new(m)));
+        if let Some(mut f) = feed.take_fom() {
+            f.sent_unix_ms = unix_ms();
+            send(Message::Fom(Box::new(f)));
+        }
     }
 }
 

@@ -4,7 +4,7 @@
 //! skipped; a raw line whose checksum or fields fail is counted and said, never read.
 
 use super::{Trace, TraceError};
-use magcomp_core::protocol::raw::decode_raw;
+use magcomp_core::protocol::raw::{decode_raw, RawSample};
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
 
@@ -24,7 +24,7 @@ pub fn is_board_log(path: &Path) -> bool {
 }
 
 /// The columns of a board log's trace, in order.
-const COLUMNS: [&str; 9] = [
+pub const COLUMNS: [&str; 9] = [
     "t",
     "mag",
     "flux_x",
@@ -69,19 +69,7 @@ pub fn read_board_log(path: &Path) -> Result<Trace, TraceError> {
             first_bad.get_or_insert(lineno);
             continue;
         };
-        let mag = r.mag.map_or(f64::NAN, |m| m.to_nt_f64());
-        let row = [
-            r.t_s,
-            mag,
-            f64::from(r.flux_nt[0]),
-            f64::from(r.flux_nt[1]),
-            f64::from(r.flux_nt[2]),
-            r.lat_deg,
-            r.lon_deg,
-            f64::from(r.alt_m),
-            f64::from(r.ground_speed_mps),
-        ];
-        for (c, v) in cols.iter_mut().zip(row) {
+        for (c, v) in cols.iter_mut().zip(raw_row(&r)) {
             c.push(v);
         }
     }
@@ -94,10 +82,7 @@ pub fn read_board_log(path: &Path) -> Result<Trace, TraceError> {
                 .into(),
         });
     }
-    let mut trace = Trace {
-        meta: vec![("source".into(), "board output log ($MCRAW lines)".into())],
-        ..Trace::default()
-    };
+    let mut trace = raw_trace(cols);
     if bad > 0 {
         eprintln!(
             "warning: {file}: {bad} $MCRAW line(s) failed their checksum or fields and were \
@@ -108,8 +93,33 @@ pub fn read_board_log(path: &Path) -> Result<Trace, TraceError> {
             .meta
             .push(("board_log_bad_lines".into(), bad.to_string()));
     }
+    Ok(trace)
+}
+
+/// One raw line as a row of [`COLUMNS`] (a missing value is NaN).
+pub fn raw_row(r: &RawSample) -> [f64; 9] {
+    [
+        r.t_s,
+        r.mag.map_or(f64::NAN, |m| m.to_nt_f64()),
+        f64::from(r.flux_nt[0]),
+        f64::from(r.flux_nt[1]),
+        f64::from(r.flux_nt[2]),
+        r.lat_deg,
+        r.lon_deg,
+        f64::from(r.alt_m),
+        f64::from(r.ground_speed_mps),
+    ]
+}
+
+/// The trace of raw lines' rows, one column per [`COLUMNS`] entry: what a board log reads
+/// as, and what the live view builds from the lines it holds.
+pub fn raw_trace(cols: Vec<Vec<f64>>) -> Trace {
+    let mut trace = Trace {
+        meta: vec![("source".into(), "board output log ($MCRAW lines)".into())],
+        ..Trace::default()
+    };
     for (name, values) in COLUMNS.iter().zip(cols) {
         trace.numeric.push((name.to_string(), values));
     }
-    Ok(trace)
+    trace
 }

@@ -19,7 +19,7 @@
 //! columns and as an empty string in text columns. Infinite values are rejected.
 //! Names are matched after applying the column map.
 
-mod board_log;
+pub mod board_log;
 mod error;
 mod h5;
 mod map;
