@@ -410,17 +410,24 @@ fn pass(
 /// the least innovation NLL wins. The scales are bounded (¼–1 × σ1²): an unbounded
 /// likelihood search for σ1 runs away when the data hold an effect the model lacks
 /// (model.md §3).
+///
+/// `family`: only that process (0 the stationary, k the k-th profile) at its scales, beside
+/// the stationary at 1 × σ1² (a second run on the calibrated fluxgate: the first run's
+/// choice of family, its scale chosen again). Returns the options, their label and the
+/// family chosen.
 fn choose_field_profile(
     flight: &Flight,
     opts: &KfOptions,
     cfg: CompensatorConfig,
-) -> Result<(KfOptions, String)> {
+    family: Option<usize>,
+) -> Result<(KfOptions, String, usize)> {
     let (outs, regs, c, _, _) = pass(flight, opts, cfg, None, true)?;
     let interference = interference_of(&regs, &c);
     let mut best = (
         innovation_nll(&outs),
         opts.clone(),
         String::from("stationary"),
+        0,
     );
     let stationary = vec![1.0; flight.len()];
     let local: Vec<Vec<f64>> = FIELD_PROFILES
@@ -431,6 +438,7 @@ fn choose_field_profile(
         .flat_map(|k| FIELD_PROFILE_SCALES.iter().map(move |&m| (k, m)))
         // The stationary process at 1 × σ1² is the pass above.
         .filter(|&(k, m)| !(k == 0 && m == 1.0))
+        .filter(|&(k, _)| family.is_none_or(|f| f == k))
         .collect();
     let profile = |k: usize, m: f64| -> KfOptions {
         let p = if k == 0 { &stationary } else { &local[k - 1] };
@@ -458,10 +466,10 @@ fn choose_field_profile(
                     )
                 }
             };
-            best = (nll, o, label);
+            best = (nll, o, label, k);
         }
     }
-    Ok((best.1, best.2))
+    Ok((best.1, best.2, best.3))
 }
 
 fn calibrated_interference(
@@ -603,6 +611,8 @@ fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
 /// passes), for a second run on the same flight to reuse.
 struct Tuning {
     noise: FilterNoise,
+    /// The anomaly process family chosen (0 the stationary, k the k-th profile).
+    field_family: Option<usize>,
 }
 
 /// The run in stages: the filter's noise and anomaly process (`reuse`d, or chosen on the
@@ -649,10 +659,15 @@ fn run_kf_tuned(
     // The anomaly process is chosen again: the innovations that choose it carried the
     // fluxgate's error before its calibration (reusing the first run's choice cost the
     // joint filter at 300 m over strong geology 0.028 → 0.045 nT on a sensor, `multi_sim`).
-    let profiled = profile_field(flight, opts, cfg)?;
-    let tuning = Tuning { noise };
+    // Within the first run's family: its scale is what the fluxgate's error moved.
+    let family = reuse.and_then(|t| t.field_family);
+    let profiled = profile_field(flight, opts, cfg, family)?;
+    let tuning = Tuning {
+        noise,
+        field_family: profiled.as_ref().map(|p| p.2),
+    };
     let (opts, field_process) = match &profiled {
-        Some((o, label)) => (o, label.clone()),
+        Some((o, label, _)) => (o, label.clone()),
         None => (opts, String::from("stationary")),
     };
     let (cal_outs, regs, coeffs, covariance, cal_healthy) = match &opts.coefficients {
@@ -838,14 +853,15 @@ fn profile_field(
     flight: &Flight,
     opts: &KfOptions,
     cfg: CompensatorConfig,
-) -> Result<Option<(KfOptions, String)>> {
+    family: Option<usize>,
+) -> Result<Option<(KfOptions, String, usize)>> {
     if opts.field_profiles
         && opts.model.field
         && opts.sigma1.is_none()
         && opts.field_profile.is_none()
         && opts.coefficients.is_none()
     {
-        choose_field_profile(flight, opts, cfg).map(Some)
+        choose_field_profile(flight, opts, cfg, family).map(Some)
     } else {
         Ok(None)
     }
