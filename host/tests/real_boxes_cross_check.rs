@@ -13,7 +13,7 @@
 //!
 //! `mag_3` with `flux_b` and `mag_4` with `flux_c` are where the fluxgate sees the
 //! aircraft's field too and the default calibration adds it as a witness (`fluxmod`,
-//! `calibration::fluxgate_witness`): 1.73 / 2.18 and 0.87 / 1.11 nT, 0.39–0.66 × TL18-OLS.
+//! `calibration::fluxgate_witness`): 1.73 / 2.21 and 0.87 / 1.11 nT, 0.39–0.66 × TL18-OLS.
 
 #[path = "common/real_boxes.rs"]
 mod real_boxes_data;
