@@ -26,30 +26,34 @@ use crate::model::spec::ModelSpec;
 use anyhow::Result;
 use magcomp_core::model::TermKind;
 
+/// A calibration and, where the fluxgate was tried as a witness, the note that says how
+/// that went: the caller shows it whichever method it finally uses.
+pub type Considered = ((Flight, Compensation), Option<String>);
+
 /// `kalman`, the filter's calibration under `model_text`; or, where the fluxgate is a
-/// decisive witness, the calibration with `fluxmod` added, with a note saying why.
+/// decisive witness, the calibration with `fluxmod` added; with a note saying why.
 pub fn consider(
     trace: &Trace,
     est: &EstimatorSettings,
     kalman: (Flight, Compensation),
     model_text: &str,
-) -> Result<(Flight, Compensation)> {
+) -> Result<Considered> {
     let spec = ModelSpec::parse(model_text)?;
     if spec.has(TermKind::FluxMod) || !spec.has(TermKind::Induced) {
-        return Ok(kalman);
+        return Ok((kalman, None));
     }
     let Some(ratio) = sees_own_field(&kalman) else {
-        return Ok(kalman);
+        return Ok((kalman, None));
     };
     let with_text = spec.with(TermKind::FluxMod.name())?.text();
     // A candidate that cannot be fitted leaves the filter's calibration as it was.
-    let Ok(mut witnessed) = kf::run_kf_method(trace, est, None, false, &with_text) else {
-        return Ok(kalman);
+    let Ok(witnessed) = kf::run_kf_method(trace, est, None, false, &with_text) else {
+        return Ok((kalman, None));
     };
     let figures = |c: &Compensation| c.jackknife_nt.zip(c.holdout_band_nt);
     let (Some((jk0, held0)), Some((jk1, held1))) = (figures(&kalman.1), figures(&witnessed.1))
     else {
-        return Ok(kalman);
+        return Ok((kalman, None));
     };
     let resolution = jackknife_resolution();
     let evidence = format!(
@@ -57,7 +61,7 @@ pub fn consider(
     );
     if jk0 > resolution * jk1 && held0 > resolution * held1 {
         let weight = witness_weight(&witnessed.1);
-        witnessed.1.warnings.push(format!(
+        let note = format!(
             "the fluxgate sees a field of its own ({ratio:.0}× what the scalar leaves \
              unexplained) and is used as a witness of the interference: `fluxmod` is added \
              to the model ({evidence}; `--method kf` keeps the model as given). Its \
@@ -65,16 +69,15 @@ pub fn consider(
              variation from the fluxgate's modulus, so the fluxgate's noise and slow drift \
              enter the survey at that weight (levelling removes a slow drift)",
             100.0 * weight.abs()
-        ));
-        return Ok(witnessed);
+        );
+        return Ok((witnessed, Some(note)));
     }
-    let mut kalman = kalman;
-    kalman.1.warnings.push(format!(
+    let note = format!(
         "the fluxgate sees a field of its own ({ratio:.0}× what the scalar leaves \
-         unexplained), but adding `fluxmod` did not improve the calibration beyond the \
-         jackknife's resolution of {resolution:.2}× on both counts ({evidence}): not added"
-    ));
-    Ok(kalman)
+         unexplained), but adding `fluxmod` did not improve the filter's calibration beyond \
+         the jackknife's resolution of {resolution:.2}× on both counts ({evidence}): not added"
+    );
+    Ok((kalman, Some(note)))
 }
 
 /// `fluxmod`'s coefficient (nT/nT): compensated = scalar − c·(|B_F| − |B|) − …, so |c| is

@@ -123,7 +123,10 @@ fn run_method(
                     tl.join().expect("the TL18-OLS cross-check panicked"),
                 )
             });
-            cross_check::choose(kalman?, least_squares)
+            let (kalman, witness_note) = kalman?;
+            let (flight, mut comp) = cross_check::choose(kalman, least_squares)?;
+            comp.warnings.extend(witness_note);
+            Ok((flight, comp))
         }
         Method::Kf => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
         Method::Tl => tl::run_tl_method(trace, est, coeffs),

@@ -220,11 +220,15 @@ fn calibrate_alone(
         let (flight, comp) = compensate_trace(&t, &est1, None, false)
             .with_context(|| format!("{} alone", s.name))?;
         // As the single-sensor default: `--method kf` keeps the model as given.
+        let mut comp = comp;
         let witnessed = if est.cross_check {
-            let (_, considered) =
+            let ((_, mut considered), note) =
                 fluxgate_witness::consider(&t, &est1, (flight, comp.clone()), &est1.model)
                     .with_context(|| format!("{} alone, with its fluxgate as a witness", s.name))?;
-            (considered.model != comp.model).then_some(considered)
+            let added = considered.model != comp.model;
+            let shown = if added { &mut considered } else { &mut comp };
+            shown.warnings.extend(note);
+            added.then_some(considered)
         } else {
             None
         };
