@@ -125,9 +125,9 @@ fn plotted_tau_s(html: &str, p: &ReciprocalPair) -> f64 {
 }
 
 /// Seed 3 is the hardest of seeds 1–6 for the shift (measured with `measure_seeds`): the
-/// two lines are 10 m apart (the simulator's least spacing), and an anomaly striking
-/// obliquely across them is read displaced along the track by ~10 m × cot(angle), so even
-/// `mag − true interference` aligns at −2.9 m (τ −0.025 s) on the clean flight. The same
+/// ground itself sets it: `mag − true interference` aligns at −2.9 m (τ −0.025 s) on the
+/// clean flight, with perfect positions too; most likely the two lines being 10 m apart
+/// (the simulator's least spacing) under an anomaly striking obliquely across them. The same
 /// seed with and without the lag has the same geometry, so their difference is the lag's.
 #[test]
 fn a_hidden_lag_shifts_the_reciprocal_passes_by_two_v_tau() {
