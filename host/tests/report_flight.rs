@@ -258,6 +258,9 @@ fn a_trace_without_position_gets_the_diagnosis_page_at_the_assumed_speed() {
     }
     assert!(!html.contains("data-plot=\"overlay-0\""));
     assert!(html.contains("The trace has no position"));
+    // Issue 20 item 6: no reciprocal plot without positions, one line saying why.
+    assert!(html.contains("Reciprocal passes: none to plot (no positions)."));
+    assert!(!html.contains("data-plot=\"reciprocal-"));
     // It still finds the hidden pump current, and compensates about as well as with the
     // positions the simulator flew.
     assert!(

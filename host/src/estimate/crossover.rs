@@ -69,11 +69,11 @@ fn wrap_pi(a: f64) -> f64 {
     (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
-/// Crossings of straight, level parts of the track (course steady to 3° over ±4 s) whose
-/// courses differ by 30–150° and that are at least 60 s apart.
-pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
+/// Per sample of `ne` (the flight's [`Flight::local_ne_m`]): the course over ±2 s (rad from
+/// north, NaN without positions) and whether the track is straight there (the course holds
+/// to 3° over ±4 s, with no time gap).
+pub fn straight_course(flight: &Flight, ne: &[[f64; 2]]) -> (Vec<f64>, Vec<bool>) {
     let n = flight.len();
-    let ne = flight.local_ne_m();
     let t = &flight.t_s;
     let k = ((2.0 * flight.sample_rate_hz).round() as usize).max(1);
     let course_between =
@@ -92,6 +92,16 @@ pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
         straight[i] = wrap_pi(c1 - c2).abs() < 3f64.to_radians()
             && (t[i + 2 * k] - t[i - 2 * k]) < 4.0 * k as f64 / flight.sample_rate_hz + 1.0;
     }
+    (course, straight)
+}
+
+/// Crossings of straight, level parts of the track (course steady to 3° over ±4 s) whose
+/// courses differ by 30–150° and that are at least 60 s apart.
+pub fn find_crossings(flight: &Flight) -> Vec<Crossing> {
+    let n = flight.len();
+    let ne = flight.local_ne_m();
+    let t = &flight.t_s;
+    let (course, straight) = straight_course(flight, &ne);
     // A pass: a run of straight samples.
     let mut pass = vec![0usize; n];
     let mut id = 0;

@@ -1,7 +1,8 @@
 //! The report's evidence section (issue 20): the verdict, each candidate's witnesses
 //! (innovations held out, the band-passed measurement regressed directly, the reference
 //! difference, the whole-model refit) and the band-passed measurement with the direct fit
-//! of the model's terms and the named term over it.
+//! of the model's terms and the named term over it; then reciprocal passes over the same
+//! ground (`reciprocal.rs`), where a lag shows as a shift and a heading error as an offset.
 
 use super::{Plot, Section, Series, PALETTE};
 use crate::diagnose::{evidence::DIRECT_BAND_HZ, Diagnosis};
@@ -107,5 +108,5 @@ pub(super) fn evidence_section(flight: &Flight, d: &Diagnosis, i: usize, title: 
         );
         s = s.plot(plot);
     }
-    s
+    super::reciprocal::reciprocal_part(s, flight, &d.run.compensated_nt, i, title)
 }

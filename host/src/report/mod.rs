@@ -22,6 +22,7 @@ pub mod flight_report;
 mod html;
 mod plot;
 pub mod qc_sheet;
+pub mod reciprocal;
 mod ticks;
 
 pub use html::{HtmlReport, Section};

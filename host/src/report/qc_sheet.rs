@@ -237,8 +237,28 @@ fn heading_section(s: &Sheet) -> Section {
     sec
 }
 
+/// Every `every`-th row of `p.0..p.1` within SAME_GROUND_M of the track over rows
+/// `q.0..q.1` (`ne` from [`Flight::local_ne_m`]; q thinned to ≤ 2000 points).
+pub(super) fn same_ground_rows(
+    ne: &[[f64; 2]],
+    p: (usize, usize),
+    q: (usize, usize),
+    every: usize,
+) -> Vec<usize> {
+    let step = ((q.1 - q.0) / 2000).max(1);
+    let track: Vec<[f64; 2]> = (q.0..q.1).step_by(step).map(|i| ne[i]).collect();
+    (p.0..p.1)
+        .step_by(every.max(1))
+        .filter(|&i| {
+            track
+                .iter()
+                .any(|t| (t[0] - ne[i][0]).hypot(t[1] - ne[i][1]) < SAME_GROUND_M)
+        })
+        .collect()
+}
+
 /// Within this distance (m) two passes are over the same ground.
-const SAME_GROUND_M: f64 = 200.0;
+pub(super) const SAME_GROUND_M: f64 = 200.0;
 
 /// A reciprocal pair: where the ground is the same (positions), the difference of the two
 /// passes' means over the samples each has within SAME_GROUND_M of the other's track, so
@@ -255,19 +275,10 @@ fn reciprocal(s: &Sheet, a: &Leg, b: &Leg) -> (String, f64, f64) {
         return ("unknown (no positions)".into(), legs_mean.0, legs_mean.1);
     }
     let ne = f.local_ne_m();
-    // Rows of `p` within SAME_GROUND_M of `q`'s track (q thinned to ≤ 2000 points).
-    let near = |p: &Leg, q: &Leg| -> Vec<usize> {
-        let step = ((q.end - q.start) / 2000).max(1);
-        let track: Vec<[f64; 2]> = (q.start..q.end).step_by(step).map(|i| ne[i]).collect();
-        (p.start..p.end)
-            .filter(|&i| {
-                track
-                    .iter()
-                    .any(|t| (t[0] - ne[i][0]).hypot(t[1] - ne[i][1]) < SAME_GROUND_M)
-            })
-            .collect()
-    };
-    let (on_a, on_b) = (near(a, b), near(b, a));
+    let (on_a, on_b) = (
+        same_ground_rows(&ne, (a.start, a.end), (b.start, b.end), 1),
+        same_ground_rows(&ne, (b.start, b.end), (a.start, a.end), 1),
+    );
     let min_rows = (10.0 * f.sample_rate_hz) as usize;
     if on_a.len() < min_rows || on_b.len() < min_rows {
         return ("different".into(), legs_mean.0, legs_mean.1);
@@ -290,7 +301,7 @@ fn reciprocal(s: &Sheet, a: &Leg, b: &Leg) -> (String, f64, f64) {
 }
 
 /// `x` minus its least-squares line over the finite samples.
-fn detrended(t: &[f64], x: &[f64]) -> Vec<f64> {
+pub(super) fn detrended(t: &[f64], x: &[f64]) -> Vec<f64> {
     let pts: Vec<(f64, f64)> = t
         .iter()
         .zip(x)
@@ -312,7 +323,7 @@ fn detrended(t: &[f64], x: &[f64]) -> Vec<f64> {
 
 /// The y-range that holds `x` (0.5–99.5 % of its finite values, 20 % margin): the axis is
 /// scaled to what compensation left, not to the interference it removed.
-fn range_of(x: &[f64]) -> Option<(f64, f64)> {
+pub(super) fn range_of(x: &[f64]) -> Option<(f64, f64)> {
     let mut f: Vec<f64> = x.iter().copied().filter(|v| v.is_finite()).collect();
     if f.len() < 2 {
         return None;

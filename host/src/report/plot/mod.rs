@@ -40,6 +40,9 @@ pub struct Series {
     /// SVG `stroke-dasharray`, e.g. "6 3".
     pub dash: Option<String>,
     pub width_px: f64,
+    /// Also write the values as `data-x`/`data-y` (comma-separated) on the element, so a
+    /// test or a reader can take the plotted numbers back; for short series only.
+    pub values_attr: bool,
 }
 
 impl Series {
@@ -52,6 +55,7 @@ impl Series {
             color: None,
             dash: None,
             width_px: 1.4,
+            values_attr: false,
         }
     }
     pub fn scatter(name: &str, x: &[f64], y: &[f64]) -> Self {
@@ -70,6 +74,11 @@ impl Series {
     }
     pub fn width_px(mut self, w: f64) -> Self {
         self.width_px = w;
+        self
+    }
+    /// Writes the values on the element (`data-x`, `data-y`).
+    pub fn with_values(mut self) -> Self {
+        self.values_attr = true;
         self
     }
 }
@@ -114,6 +123,8 @@ pub struct Plot {
     segments: Vec<Segment>,
     bars: Option<Bars>,
     legend: Option<bool>,
+    /// Extra `data-KEY="VALUE"` attributes on the `<svg>` (figures the chart states).
+    data: Vec<(String, String)>,
 }
 
 impl Plot {
@@ -132,6 +143,7 @@ impl Plot {
             segments: Vec::new(),
             bars: None,
             legend: None,
+            data: Vec::new(),
         }
     }
     pub fn id(&self) -> &str {
@@ -222,6 +234,11 @@ impl Plot {
         }
         self
     }
+    /// Adds `data-KEY="VALUE"` to the `<svg>` element.
+    pub fn data(mut self, key: &str, value: &str) -> Self {
+        self.data.push((key.into(), value.into()));
+        self
+    }
     /// Forces the legend on or off (default: shown when a series has a name).
     pub fn legend(mut self, show: bool) -> Self {
         self.legend = Some(show);
@@ -239,6 +256,14 @@ impl Plot {
             id = escape(&self.id),
             t = escape(&self.title),
         );
+        if !self.data.is_empty() {
+            // Splice the extra attributes into the opening tag, before its closing `>`.
+            out.pop();
+            for (k, v) in &self.data {
+                let _ = write!(out, r#" data-{}="{}""#, escape(k), escape(v));
+            }
+            out.push('>');
+        }
         let _ = write!(out, "<title>{}</title>", escape(&self.title));
         let _ = write!(out, r##"<rect width="{w}" height="{h}" fill="#ffffff"/>"##);
         let _ = write!(

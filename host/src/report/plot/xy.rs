@@ -73,6 +73,20 @@ impl XyLayout {
 }
 
 /// ` stroke-dasharray="…"` for a dashed series, else nothing.
+/// ` data-x="…" data-y="…"` when the series asks for its values on the element.
+fn values_attr(s: &Series) -> String {
+    if !s.values_attr {
+        return String::new();
+    }
+    let join = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.3}"))
+            .collect::<Vec<_>>()
+            .join(",")
+    };
+    format!(r#" data-x="{}" data-y="{}""#, join(&s.x), join(&s.y))
+}
+
 fn dash_attr(s: &Series) -> String {
     s.dash
         .as_deref()
@@ -301,10 +315,11 @@ impl Plot {
                     if !d.is_empty() {
                         let _ = write!(
                             out,
-                            r#"<path class="series" data-name="{}" d="{d}" stroke="{}" stroke-width="{}" stroke-linejoin="round" stroke-linecap="round"{dash}/>"#,
+                            r#"<path class="series" data-name="{}"{values} d="{d}" stroke="{}" stroke-width="{}" stroke-linejoin="round" stroke-linecap="round"{dash}/>"#,
                             escape(&s.name),
                             escape(color),
                             s.width_px,
+                            values = values_attr(s),
                             dash = dash_attr(s)
                         );
                     }
