@@ -352,9 +352,10 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     }
 
     /// Restarts the compensator alone, in place (priors, derivative window, calibrate
-    /// mode) and the aligner's lost-frame reference with it, so a restarted filter learns
-    /// from what a fresh board would (the old run's frame phase flagged the first four
-    /// samples of a replay restarted in place, which then did not update); the time base,
+    /// mode), the aligner's lost-frame reference and the fluxgate continuity check with it,
+    /// so a restarted filter learns from what a fresh board would (the old run's frame
+    /// phase flagged the first four samples of a replay restarted in place, which then did
+    /// not update; its last fluxgate frames made the first one suspect); the time base,
     /// counters and sequence numbers continue. Call [`flush`](Self::flush) first so no
     /// sample loses its record. On error the compensator is unchanged.
     pub fn reset_compensator(
@@ -364,6 +365,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     ) -> Result<(), CompensatorError> {
         self.comp.reset_in_place(model, comp)?;
         self.aligner.forget_frame_ages();
+        // A fresh start for the fluxgate's continuity check too: the frames before the
+        // restart need not continue into the ones after it.
+        self.flux_check.restart();
         Ok(())
     }
 

@@ -1,7 +1,7 @@
 //! A reading judged against its own recent past: the scalar where the filter cannot judge
-//! it, and the fluxgate's modulus on every frame. One engine, [`ContinuityCheck`], generic
-//! over the reading ([`Reading`]) and with its own floor, so the scalar's arithmetic is
-//! exactly what it was before the fluxgate shared it.
+//! it, and the fluxgate's modulus and vector on every frame. One engine, [`ContinuityCheck`],
+//! generic over the reading ([`Reading`]) and with its own floor, so the scalar's
+//! arithmetic is exactly what it was before the fluxgate shared it.
 //!
 //! The scalar ([`ScalarContinuity`]) is judged before the filter has fused a first sample
 //! (it has no level yet), on the ground (no updates), and on samples whose regressors are
@@ -12,7 +12,8 @@
 //! The fluxgate ([`FluxContinuity`]): a frame that passes its checksum and parse but reads
 //! wrong (an axis 0, a corrupted digit moving the modulus by thousands of nT) would go
 //! straight into the regressors; the board has no look-ahead, so this is the causal
-//! counterpart of the host's despiker (`host/src/signal/despike.rs`).
+//! counterpart of the host's despiker (`host/src/signal/despike.rs`). Its vector side sees
+//! what keeps the modulus (an axis near 0 read as 0, a sign flip, swapped axes, a rotation).
 //!
 //! The prediction is the line through the last two accepted samples; a sample is suspect
 //! when it departs from it by more than a floor plus a multiple of the recent departures'
@@ -92,9 +93,7 @@ pub struct ContinuityCheck<V: Reading> {
     floor_nt: f32,
     /// The last two accepted samples (time s, reading), newest first.
     last: [Option<(f64, V)>; 2],
-    departures_nt: [f32; SPREAD_LEN],
-    departures_len: usize,
-    departures_next: usize,
+    departures: Spread,
     /// The last suspect sample and how many in a row agree with it.
     candidate: Option<(f64, V)>,
     candidate_run: u8,
@@ -105,9 +104,7 @@ impl<V: Reading> ContinuityCheck<V> {
         Self {
             floor_nt,
             last: [None; 2],
-            departures_nt: [0.0; SPREAD_LEN],
-            departures_len: 0,
-            departures_next: 0,
+            departures: Spread::new(),
             candidate: None,
             candidate_run: 0,
         }
@@ -159,26 +156,17 @@ impl<V: Reading> ContinuityCheck<V> {
     }
 
     fn limit_nt(&self) -> f32 {
-        let n = self.departures_len;
-        if n == 0 {
+        match self.departures.median_abs() {
+            Some(spread) => self.floor_nt + SPREAD_FACTOR * spread,
             // One accepted sample: no spread yet, so only a gross departure is suspect.
-            return 100.0 * self.floor_nt;
+            None => 100.0 * self.floor_nt,
         }
-        let mut sorted = [0.0f32; SPREAD_LEN];
-        for (s, d) in sorted.iter_mut().zip(&self.departures_nt[..n]) {
-            *s = libm::fabsf(*d);
-        }
-        let sorted = &mut sorted[..n];
-        sorted.sort_unstable_by(|a, b| a.total_cmp(b));
-        self.floor_nt + SPREAD_FACTOR * sorted[n / 2]
     }
 
     fn accept(&mut self, t_s: f64, mag: V, departure_nt: Option<f32>) {
         self.last = [Some((t_s, mag)), self.last[0]];
-        if let Some(d) = departure_nt.filter(|d| d.is_finite()) {
-            self.departures_nt[self.departures_next] = d;
-            self.departures_next = (self.departures_next + 1) % SPREAD_LEN;
-            self.departures_len = (self.departures_len + 1).min(SPREAD_LEN);
+        if let Some(d) = departure_nt {
+            self.departures.push(d);
         }
         self.candidate = None;
         self.candidate_run = 0;
@@ -188,47 +176,235 @@ impl<V: Reading> ContinuityCheck<V> {
     /// another (within `limit_nt`) long enough, the run is a real step and its last sample
     /// the new level.
     fn suspect(&mut self, t_s: f64, mag: V, limit_nt: f32) {
-        let agrees = self.candidate.is_some_and(|(tc, xc)| {
+        let agrees = self.agrees(t_s, mag, limit_nt);
+        self.note_suspect(t_s, mag, agrees);
+    }
+
+    /// Whether a suspect `mag` agrees with the last suspect sample (within `limit_nt`).
+    fn agrees(&self, t_s: f64, mag: V, limit_nt: f32) -> bool {
+        self.candidate.is_some_and(|(tc, xc)| {
             t_s - tc <= MAX_GAP_S && libm::fabsf(mag.diff_nt(xc)) <= limit_nt
-        });
+        })
+    }
+
+    /// Counts a suspect sample into the run; true when the run is a step and `mag` has
+    /// been taken as the new level.
+    fn note_suspect(&mut self, t_s: f64, mag: V, agrees: bool) -> bool {
         self.candidate_run = if agrees { self.candidate_run + 1 } else { 1 };
         self.candidate = Some((t_s, mag));
         if self.candidate_run >= STEP_RUN {
             // The spread of the old level says nothing about the new one.
             self.restart();
             self.accept(t_s, mag, None);
+            return true;
         }
+        false
     }
 }
 
-/// The fluxgate's check on the modulus |B| (nT, f32) of each corrected body-frame frame:
-/// floor [`FLUX_FLOOR_NT`], the same spread multiple, run and gap as the scalar's. Time is
-/// the frame's stamp (s); a stamp earlier than the last accepted one (a clock reset)
+/// The last [`SPREAD_LEN`] finite departures (nT) and their median absolute value.
+#[derive(Clone, Copy, Debug)]
+struct Spread {
+    nt: [f32; SPREAD_LEN],
+    len: usize,
+    next: usize,
+}
+
+impl Spread {
+    const fn new() -> Self {
+        Self {
+            nt: [0.0; SPREAD_LEN],
+            len: 0,
+            next: 0,
+        }
+    }
+
+    fn push(&mut self, d: f32) {
+        if d.is_finite() {
+            self.nt[self.next] = d;
+            self.next = (self.next + 1) % SPREAD_LEN;
+            self.len = (self.len + 1).min(SPREAD_LEN);
+        }
+    }
+
+    /// The upper median of |departure| (None while empty).
+    fn median_abs(&self) -> Option<f32> {
+        let n = self.len;
+        if n == 0 {
+            return None;
+        }
+        let mut sorted = [0.0f32; SPREAD_LEN];
+        for (s, d) in sorted.iter_mut().zip(&self.nt[..n]) {
+            *s = libm::fabsf(*d);
+        }
+        let sorted = &mut sorted[..n];
+        sorted.sort_unstable_by(|a, b| a.total_cmp(b));
+        Some(sorted[n / 2])
+    }
+}
+
+/// Angular acceleration (rad/s²) the vector check allows for beyond its recent departures:
+/// a body turning at a changing rate moves the field vector off the line through the last
+/// two frames by about |B| × α × dt² (SGL flight 1002's calibration manoeuvres and turn
+/// entries reach ~0.37 rad/s² equivalent, 200 nT at 10 Hz, with the departures before them
+/// ~10 nT); the median follows a manoeuvre within 4 frames, this covers its onset.
+pub const FLUX_ANGULAR_ACCEL_RAD_S2: f32 = 0.2;
+/// Fraction of the last frames' motion the vector check allows for beyond its recent
+/// departures: a change of body rate by that fraction of itself within one frame.
+pub const FLUX_RATE_CHANGE: f32 = 1.0;
+
+/// The fluxgate's check on each corrected body-frame frame (f32 nT), judged two ways
+/// against the line through the last two accepted frames:
+/// - the modulus |B| (floor [`FLUX_FLOOR_NT`]): a corrupted digit, an axis read as 0 where
+///   it was large;
+/// - the vector: the norm of the frame's vector departure, against [`FLUX_FLOOR_NT`] +
+///   [`FLUX_RATE_CHANGE`] × the last two frames' motion scaled to this interval +
+///   [`FLUX_ANGULAR_ACCEL_RAD_S2`] × |B| × dt², plus the same multiple of the median of its
+///   last 8 norms. It sees what keeps |B| (an axis that read near 0 read as 0, a sign flip
+///   of a small axis, two axes swapped, a rotated frame), which the modulus cannot; the
+///   motion and dt² terms let a change of body rate and a manoeuvre's onset through, its
+///   median the rest.
+///
+/// A frame is suspect when either says so, and then not learnt from by either; the same
+/// run and gap as the scalar's (3 suspects in a row that agree in both = a real step). Time
+/// is the frame's stamp (s); a stamp earlier than the last accepted one (a clock reset)
 /// restarts it.
 #[derive(Clone, Copy, Debug)]
-pub struct FluxContinuity(ContinuityCheck<f32>);
+pub struct FluxContinuity {
+    modulus: ContinuityCheck<f32>,
+    vector: VectorTrack,
+}
+
+/// The vector side of [`FluxContinuity`], accepting and restarting with the modulus engine.
+#[derive(Clone, Copy, Debug)]
+struct VectorTrack {
+    /// The last two accepted frames (time s, vector nT), newest first.
+    last: [Option<(f64, [f32; 3])>; 2],
+    departures: Spread,
+    /// The last suspect frame's departure vector: a run agrees when its frames depart from
+    /// the (unchanged) prediction alike, so a step taken while turning still agrees.
+    candidate: Option<[f32; 3]>,
+}
+
+impl VectorTrack {
+    const fn new() -> Self {
+        Self {
+            last: [None; 2],
+            departures: Spread::new(),
+            candidate: None,
+        }
+    }
+
+    /// `(t_s − t₁) / (t₁ − t₂)` for the last two accepted frames (None with fewer), once
+    /// per frame: f64 is soft-float on the board.
+    fn ratio(&self, t_s: f64) -> Option<f32> {
+        match self.last {
+            [Some((t1, _)), Some((t2, _))] if t1 > t2 => Some(((t_s - t1) / (t1 - t2)) as f32),
+            _ => None,
+        }
+    }
+
+    /// `v` minus the line through the last two accepted frames (`ratio` of [`Self::ratio`];
+    /// the last one alone when there is one; `v` itself when there is none).
+    fn departure(&self, ratio: Option<f32>, v: [f32; 3]) -> [f32; 3] {
+        match (self.last, ratio) {
+            ([Some((_, v1)), Some((_, v2))], Some(r)) => {
+                core::array::from_fn(|k| v[k] - v1[k] - (v1[k] - v2[k]) * r)
+            }
+            ([Some((_, v1)), _], _) => core::array::from_fn(|k| v[k] - v1[k]),
+            _ => v,
+        }
+    }
+
+    /// The limit on the departure's norm, `dt_s` after an accepted frame of modulus
+    /// `m1_nt`.
+    fn limit_nt(&self, ratio: Option<f32>, dt_s: f32, m1_nt: f32) -> f32 {
+        // The body rate may change by up to itself within a frame (a gust, a control
+        // input; the simulator's manoeuvres change their pitch rate 5 → 10°/s between two
+        // 10 Hz frames): allow the last frames' motion over this interval again.
+        let motion = match (self.last, ratio) {
+            ([Some((_, v1)), Some((_, v2))], Some(r)) => {
+                modulus_nt(core::array::from_fn(|k| v1[k] - v2[k])) * r
+            }
+            _ => 0.0,
+        };
+        let floor = FLUX_FLOOR_NT
+            + FLUX_RATE_CHANGE * motion
+            + FLUX_ANGULAR_ACCEL_RAD_S2 * m1_nt * dt_s * dt_s;
+        match self.departures.median_abs() {
+            Some(spread) => floor + SPREAD_FACTOR * spread,
+            None => 100.0 * floor,
+        }
+    }
+
+    fn accept(&mut self, t_s: f64, v: [f32; 3], departure_nt: Option<f32>) {
+        self.last = [Some((t_s, v)), self.last[0]];
+        if let Some(d) = departure_nt {
+            self.departures.push(d);
+        }
+        self.candidate = None;
+    }
+}
 
 impl FluxContinuity {
     pub const fn new() -> Self {
-        Self(ContinuityCheck::with_floor(FLUX_FLOOR_NT))
+        Self {
+            modulus: ContinuityCheck::with_floor(FLUX_FLOOR_NT),
+            vector: VectorTrack::new(),
+        }
     }
 
     /// Forgets the past (a new calibration, a restart).
     pub fn restart(&mut self) {
-        self.0.restart();
+        *self = Self::new();
     }
 
     /// Judges the frame `v` (body frame, nT) stamped `t_s`. A frame that is not finite is
     /// `Suspect` and not learnt from.
     pub fn judge(&mut self, t_s: f64, v: [f32; 3]) -> Continuity {
+        self.judge_with_margins(t_s, v).0
+    }
+
+    /// [`Self::judge`], with each check's departure as a fraction of its limit (modulus,
+    /// vector; 0 when not judged): how close a record came (measurements and tests).
+    pub fn judge_with_margins(&mut self, t_s: f64, v: [f32; 3]) -> (Continuity, [f32; 2]) {
         let m = modulus_nt(v);
         if !m.is_finite() {
-            return Continuity::Suspect;
+            return (Continuity::Suspect, [0.0; 2]);
         }
-        if self.0.last[0].is_some_and(|(t1, _)| t_s < t1) {
-            self.0.restart();
+        let last = self.modulus.last[0].filter(|(t1, _)| t_s >= *t1 && t_s - *t1 <= MAX_GAP_S);
+        let Some((t1, m1)) = last else {
+            // Nothing to judge against (the first frame, a gap, the clock went back).
+            self.restart();
+            self.modulus.accept(t_s, m, None);
+            self.vector.accept(t_s, v, None);
+            return (Continuity::Unverified, [0.0; 2]);
+        };
+        let dm = self.modulus.departure_nt(t_s, m, t1, m1);
+        let lm = self.modulus.limit_nt();
+        let ratio = self.vector.ratio(t_s);
+        let dv = self.vector.departure(ratio, v);
+        let nv = modulus_nt(dv);
+        let lv = self.vector.limit_nt(ratio, (t_s - t1) as f32, m1);
+        let margins = [libm::fabsf(dm) / lm, nv / lv];
+        if libm::fabsf(dm) <= lm && nv <= lv {
+            self.modulus.accept(t_s, m, Some(dm));
+            self.vector.accept(t_s, v, Some(nv));
+            return (Continuity::Consistent, margins);
         }
-        self.0.judge(t_s, m)
+        let agrees = self.modulus.agrees(t_s, m, lm)
+            && self
+                .vector
+                .candidate
+                .is_some_and(|c| modulus_nt(core::array::from_fn(|k| dv[k] - c[k])) <= lv);
+        if self.modulus.note_suspect(t_s, m, agrees) {
+            // A real step: the new level for both.
+            self.vector = VectorTrack::new();
+            self.vector.accept(t_s, v, None);
+        } else {
+            self.vector.candidate = Some(dv);
+        }
+        (Continuity::Suspect, margins)
     }
 }
 

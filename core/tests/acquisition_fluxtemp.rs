@@ -37,13 +37,17 @@ const CAL: FluxTempCal = FluxTempCal {
 
 /// Field of a manoeuvring aircraft (body frame, nT) and a sensor warming 10 → 30 °C.
 fn frame_at(k: usize) -> ([f64; 3], f64) {
-    let a = k as f64 * 0.3;
-    let b = [
+    (field_at(k as f64), 10.0 + 20.0 * k as f64 / 200.0)
+}
+
+/// The field of [`frame_at`] at frame `k` (before the first frame too).
+fn field_at(k: f64) -> [f64; 3] {
+    let a = k * 0.3;
+    [
         20_000.0 + 3000.0 * a.sin(),
         1000.0 * (0.7 * a).cos(),
         45_000.0 - 1000.0 * a.sin(),
-    ];
-    (b, 10.0 + 20.0 * k as f64 / 200.0)
+    ]
 }
 
 /// `n` epochs of fluxgate then scalar. `line(k)` writes the fluxgate's line.
@@ -280,7 +284,10 @@ fn correction_goes_through_the_delay_line() {
     let line = |delay: usize, with_t: bool| {
         move |k: usize| {
             let Some(k) = k.checked_sub(delay) else {
-                return "20000.000,0.000,45000.000,20.0000".to_string();
+                // The same field earlier, at the reference temperature: continuous with
+                // the frames after it (a jump would be a suspect frame on the board).
+                let b = field_at(k as f64 - delay as f64);
+                return format!("{:.3},{:.3},{:.3},20.0000", b[0], b[1], b[2]);
             };
             let (b, t) = frame_at(k);
             if (20..30).contains(&k) || !with_t {
