@@ -26,34 +26,39 @@ use crate::model::spec::ModelSpec;
 use anyhow::Result;
 use magcomp_core::model::TermKind;
 
-/// A calibration and, where the fluxgate was tried as a witness, the note that says how
-/// that went: the caller shows it whichever method it finally uses.
-pub type Considered = ((Flight, Compensation), Option<String>);
+/// What trying the fluxgate as a witness gave: the calibration with `fluxmod`, where it is
+/// kept, and the note that says how it went (the caller shows it whichever calibration it
+/// finally uses).
+#[derive(Default)]
+pub struct Witness {
+    pub kept: Option<(Flight, Compensation)>,
+    pub note: Option<String>,
+}
 
-/// `kalman`, the filter's calibration under `model_text`; or, where the fluxgate is a
-/// decisive witness, the calibration with `fluxmod` added; with a note saying why.
+/// Tries the fluxgate as a witness beside `kalman`, the filter's calibration under
+/// `model_text`: the calibration with `fluxmod` added is kept where it is decisively better.
 pub fn consider(
     trace: &Trace,
     est: &EstimatorSettings,
-    kalman: (Flight, Compensation),
+    kalman: &(Flight, Compensation),
     model_text: &str,
-) -> Result<Considered> {
+) -> Result<Witness> {
     let spec = ModelSpec::parse(model_text)?;
     if spec.has(TermKind::FluxMod) || !spec.has(TermKind::Induced) {
-        return Ok((kalman, None));
+        return Ok(Witness::default());
     }
-    let Some(ratio) = sees_own_field(&kalman) else {
-        return Ok((kalman, None));
+    let Some(ratio) = sees_own_field(kalman) else {
+        return Ok(Witness::default());
     };
     let with_text = spec.with(TermKind::FluxMod.name())?.text();
     // A candidate that cannot be fitted leaves the filter's calibration as it was.
     let Ok(witnessed) = kf::run_kf_method(trace, est, None, false, &with_text) else {
-        return Ok((kalman, None));
+        return Ok(Witness::default());
     };
     let figures = |c: &Compensation| c.jackknife_nt.zip(c.holdout_band_nt);
     let (Some((jk0, held0)), Some((jk1, held1))) = (figures(&kalman.1), figures(&witnessed.1))
     else {
-        return Ok((kalman, None));
+        return Ok(Witness::default());
     };
     let resolution = jackknife_resolution();
     let evidence = format!(
@@ -70,14 +75,20 @@ pub fn consider(
              enter the survey at that weight (levelling removes a slow drift)",
             100.0 * weight.abs()
         );
-        return Ok((witnessed, Some(note)));
+        return Ok(Witness {
+            kept: Some(witnessed),
+            note: Some(note),
+        });
     }
     let note = format!(
         "the fluxgate sees a field of its own ({ratio:.0}× what the scalar leaves \
          unexplained), but adding `fluxmod` did not improve the filter's calibration beyond \
          the jackknife's resolution of {resolution:.2}× on both counts ({evidence}): not added"
     );
-    Ok((kalman, Some(note)))
+    Ok(Witness {
+        kept: None,
+        note: Some(note),
+    })
 }
 
 /// `fluxmod`'s coefficient (nT/nT): compensated = scalar − c·(|B_F| − |B|) − …, so |c| is

@@ -116,8 +116,11 @@ fn run_method(
             // TL18-OLS does not depend on the filter's run: on the other cores beside it.
             let (kalman, least_squares) = std::thread::scope(|s| {
                 let tl = s.spawn(|| cross_check::least_squares(trace, est));
-                let kalman = kf::run_kf_method(trace, est, coeffs, realtime, &model_text)
-                    .and_then(|k| fluxgate_witness::consider(trace, est, k, &model_text));
+                let kalman =
+                    kf::run_kf_method(trace, est, coeffs, realtime, &model_text).and_then(|k| {
+                        let witness = fluxgate_witness::consider(trace, est, &k, &model_text)?;
+                        Ok((witness.kept.unwrap_or(k), witness.note))
+                    });
                 (
                     kalman,
                     tl.join().expect("the TL18-OLS cross-check panicked"),

@@ -217,20 +217,26 @@ fn calibrate_alone(
     let mut alone = Vec::new();
     for s in sensors {
         let t = sensor_trace(trace, s);
-        let (flight, comp) = compensate_trace(&t, &est1, None, false)
+        let run = compensate_trace(&t, &est1, None, false)
             .with_context(|| format!("{} alone", s.name))?;
         // As the single-sensor default: `--method kf` keeps the model as given.
-        let mut comp = comp;
-        let witnessed = if est.cross_check {
-            let ((_, mut considered), note) =
-                fluxgate_witness::consider(&t, &est1, (flight, comp.clone()), &est1.model)
-                    .with_context(|| format!("{} alone, with its fluxgate as a witness", s.name))?;
-            let added = considered.model != comp.model;
-            let shown = if added { &mut considered } else { &mut comp };
-            shown.warnings.extend(note);
-            added.then_some(considered)
+        let witness = if est.cross_check {
+            fluxgate_witness::consider(&t, &est1, &run, &est1.model)
+                .with_context(|| format!("{} alone, with its fluxgate as a witness", s.name))?
         } else {
-            None
+            fluxgate_witness::Witness::default()
+        };
+        let mut comp = run.1;
+        // The note goes with the calibration the sensor is offered.
+        let witnessed = match witness.kept {
+            Some((_, mut kept)) => {
+                kept.warnings.extend(witness.note);
+                Some(kept)
+            }
+            None => {
+                comp.warnings.extend(witness.note);
+                None
+            }
         };
         alone.push((t, comp, witnessed));
     }
