@@ -568,7 +568,10 @@ fn several_sensors_are_drawn_with_their_gradient() {
         let done = p["streams"]
             .as_array()
             .is_some_and(|s| s.iter().all(|s| numbers(&s["seq"]).len() == n as usize));
-        if done {
+        // The gradient strip is drawn on the page's next redraw after both streams' last
+        // record: wait for it too, or the snapshot can miss its last point under load.
+        let gradient_drawn = numbers(&p["gradient"][0]).iter().flatten().count() == n as usize;
+        if done && gradient_drawn {
             break;
         }
         std::thread::sleep(Duration::from_millis(200));
