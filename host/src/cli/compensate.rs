@@ -93,9 +93,12 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     check_outputs(&inputs, &[&a.out])?;
     crate::io::progress::force_progress(a.long.progress);
     // `--gradients` alone is refused by the plan, as `calibrate` refuses it.
-    if a.multi.sensors.is_some() || a.multi.gradients.is_some() {
+    if a.multi.applies(a.coeffs.as_deref()) {
         let trace = a.input.read()?;
-        match a.multi.plan(&trace, a.input.map.as_deref())? {
+        match a
+            .multi
+            .plan_with(&trace, a.input.map.as_deref(), a.coeffs.as_deref())?
+        {
             SensorPlan::Today => {}
             SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
             SensorPlan::Several(sensors) => {

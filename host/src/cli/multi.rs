@@ -1,6 +1,7 @@
-//! `calibrate --sensors` and `compensate --sensors`: several magnetometers at once
-//! (docs/trace-format.md "Several magnetometers"). With one sensor (or none) the commands
-//! are today's, unchanged.
+//! `calibrate --sensors` and `compensate --sensors` (and what `report --sensors` shares
+//! with them): several magnetometers at once (docs/trace-format.md "Several
+//! magnetometers"). With one sensor (or none) the commands are today's, unchanged. A
+//! several-sensor `--coeffs` file brings its own sensors.
 
 use crate::calibration::coefficients::{canonical_sha256, to_sealed_json, CoefficientFile};
 use crate::calibration::result::Compensation;
@@ -64,6 +65,33 @@ pub trait OneSensorRerun: Clone {
 }
 
 impl MultiArgs {
+    /// Whether the command must plan its sensors: `--sensors`/`--gradients` given, or
+    /// `--coeffs` naming a several-sensor file (which holds its sensors).
+    pub fn applies(&self, coeffs: Option<&Path>) -> bool {
+        self.sensors.is_some() || self.gradients.is_some() || coeffs.is_some_and(is_multi_file)
+    }
+
+    /// The plan for `trace` with `--coeffs` `coeffs`: without `--sensors`, a several-sensor
+    /// file's own sensors (so `compensate --coeffs joint.json` needs nothing more).
+    pub fn plan_with(
+        &self,
+        trace: &Trace,
+        map: Option<&str>,
+        coeffs: Option<&Path>,
+    ) -> Result<SensorPlan> {
+        match coeffs {
+            Some(path) if self.sensors.is_none() && is_multi_file(path) => {
+                let (m, _) = read_multi(path)?;
+                let sensors = sensors_of_file(&m, trace, path)?;
+                if sensors.len() == 1 && self.gradients.is_some() {
+                    bail!("--gradients needs two sensors or more");
+                }
+                Ok(SensorPlan::Several(sensors))
+            }
+            _ => self.plan(trace, map),
+        }
+    }
+
     /// The plan for `trace`, whose own `--map` is `map`; the sensors are parsed once.
     pub fn plan(&self, trace: &Trace, map: Option<&str>) -> Result<SensorPlan> {
         let Some(text) = &self.sensors else {
@@ -76,14 +104,14 @@ impl MultiArgs {
         match s.len() {
             0 => Ok(SensorPlan::Today),
             1 if self.gradients.is_some() => bail!("--gradients needs two sensors or more"),
-            1 => Ok(SensorPlan::One(single_map(&s.remove(0), map))),
+            1 => Ok(SensorPlan::One(single_map(&s.remove(0), map, trace))),
             _ => Ok(SensorPlan::Several(s)),
         }
     }
 }
 
 /// The `--map` that makes today's command read sensor `s`, after the map given.
-fn single_map(s: &SensorSpec, map: Option<&str>) -> String {
+fn single_map(s: &SensorSpec, map: Option<&str>, trace: &Trace) -> String {
     let mut entries: Vec<String> = map
         .into_iter()
         .flat_map(|m| m.split(','))
@@ -102,6 +130,11 @@ fn single_map(s: &SensorSpec, map: Option<&str>) -> String {
     for (c, f) in pairs {
         if c != f {
             entries.push(format!("{c}={f}"));
+            // A file column already named `c` (a simulated several-sensor file's `mag`,
+            // the stinger's copy) would clash with the mapped one: it is read as `c_file`.
+            if trace.col(c).is_some() {
+                entries.push(format!("{c}_file={c}"));
+            }
         }
     }
     entries.join(",")
@@ -160,6 +193,66 @@ pub fn read_multi(path: &Path) -> Result<(MultiFile, Vec<CoefficientFile>)> {
     }
     let _ = std::fs::remove_dir(&dir);
     Ok((m, files))
+}
+
+/// The sensors a several-sensor file was calibrated on, resolved to `trace`'s columns.
+pub fn sensors_of_file(m: &MultiFile, trace: &Trace, path: &Path) -> Result<Vec<SensorSpec>> {
+    m.sensors
+        .iter()
+        .map(|e| {
+            let columns = std::iter::once(&e.scalar_column).chain(&e.flux_columns);
+            if let Some(missing) = columns.into_iter().find(|c| trace.col(c).is_none()) {
+                bail!(
+                    "{} holds sensor {} read from column {missing}, which this trace lacks \
+                     (name its columns with --sensors)",
+                    path.display(),
+                    e.name
+                );
+            }
+            Ok(SensorSpec {
+                name: e.name.clone(),
+                scalar_column: e.scalar_column.clone(),
+                flux_columns: e.flux_columns.clone(),
+                position_m: e.position_m,
+            })
+        })
+        .collect()
+}
+
+/// Each sensor's coefficients: a several-sensor file's (matched by name), or the joint
+/// calibration's on this flight; and whether each is the joint estimate's.
+pub fn coefficient_sets(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+    coeffs: Option<&Path>,
+) -> Result<(Vec<CoefficientFile>, Vec<bool>)> {
+    match coeffs {
+        Some(path) => {
+            let (m, files) = read_multi(path)?;
+            sensors
+                .iter()
+                .map(|s| {
+                    m.sensors
+                        .iter()
+                        .position(|e| e.name == s.name)
+                        .map(|i| (files[i].clone(), m.sensors[i].joint))
+                        .with_context(|| format!("{} has no sensor {}", path.display(), s.name))
+                })
+                .collect::<Result<Vec<_>>>()
+                .map(|v| v.into_iter().unzip())
+        }
+        None => calibrate_joint(trace, est, sensors)?
+            .sensors
+            .iter()
+            .map(|s| {
+                let file = s.chosen().coefficients.clone();
+                file.map(|f| (f, s.joint_chosen))
+                    .with_context(|| format!("{}: no coefficients", s.spec.name))
+            })
+            .collect::<Result<Vec<_>>>()
+            .map(|v| v.into_iter().unzip()),
+    }
 }
 
 fn tempdir_for(path: &Path) -> Result<std::path::PathBuf> {
@@ -241,18 +334,8 @@ pub fn compensate(
 ) -> Result<()> {
     let results: Vec<Compensation> = match coeffs {
         Some(path) => {
-            let (m, files) = read_multi(path)?;
-            let ordered: Vec<CoefficientFile> = sensors
-                .iter()
-                .map(|s| {
-                    m.sensors
-                        .iter()
-                        .position(|e| e.name == s.name)
-                        .map(|i| files[i].clone())
-                        .with_context(|| format!("{} has no sensor {}", path.display(), s.name))
-                })
-                .collect::<Result<_>>()?;
-            apply_each(trace, est, sensors, &ordered)?
+            let (files, _) = coefficient_sets(trace, est, sensors, Some(path))?;
+            apply_each(trace, est, sensors, &files)?
                 .into_iter()
                 .map(|(_, c)| c)
                 .collect()

@@ -4,13 +4,21 @@
 //! compensation (`report::calibration`): an applied calibration checked on this flight,
 //! or Tolles–Lawson / the Kalman filter fitted on it.
 
+use super::args::Evaluated;
 use super::args::{EstimatorArgs, TraceInput, TuningArgs};
+use super::multi::{coefficient_sets, MultiArgs, OneSensorRerun, SensorPlan};
 use crate::calibration::coefficients::Method;
+use crate::calibration::summary::summarise;
+use crate::calibration::EstimatorSettings;
+use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
+use crate::multi::joint::apply_each;
+use crate::multi::sensors::{parse_pairs, sensor_trace, separation_m, SensorSpec};
 use crate::qc::figures::FOURTH_DIFFERENCE_LIMIT_NT;
 use crate::report::flight_report::{write_report, REPORT_PAGE};
 use crate::report::qc_sheet::SheetInfo;
-use anyhow::{bail, Result};
+use crate::report::sensors::{SensorRow, SensorsPage};
+use anyhow::{bail, Context, Result};
 use std::path::{Path, PathBuf};
 
 /// `magcomp report`.
@@ -34,6 +42,11 @@ pub struct ReportArgs {
     pub coeffs: Option<PathBuf>,
     #[command(flatten)]
     pub tuning: TuningArgs,
+    /// Several magnetometers: each sensor's own page and an overview page with their
+    /// compensated fields and differences. A several-sensor `--coeffs` file brings its own
+    /// sensors.
+    #[command(flatten)]
+    pub multi: MultiArgs,
     /// The QC sheet's 4th-difference noise band (±nT): the page gives the share of samples
     /// within it. 0.05 nT is a common survey-contract figure; give your contract's.
     #[arg(long, value_name = "NT", default_value_t = FOURTH_DIFFERENCE_LIMIT_NT)]
@@ -57,6 +70,7 @@ impl ReportArgs {
             method: None,
             coeffs: None,
             tuning: TuningArgs::default(),
+            multi: MultiArgs::default(),
             d4_limit_nt: FOURTH_DIFFERENCE_LIMIT_NT,
             out: out.into(),
         }
@@ -82,6 +96,15 @@ impl ReportArgs {
     }
 }
 
+impl OneSensorRerun for ReportArgs {
+    fn map_mut(&mut self) -> &mut Option<String> {
+        &mut self.input.map
+    }
+    fn multi_mut(&mut self) -> &mut MultiArgs {
+        &mut self.multi
+    }
+}
+
 pub fn run(args: &ReportArgs) -> Result<()> {
     let inputs: Vec<&Path> = std::iter::once(args.input.trace.as_path())
         .chain(args.coeffs.as_deref())
@@ -89,6 +112,16 @@ pub fn run(args: &ReportArgs) -> Result<()> {
     let page_path = args.out.join(REPORT_PAGE);
     crate::io::output::refuse_overwriting(&inputs, &[&page_path])?;
     let trace = args.input.read()?;
+    if args.multi.applies(args.coeffs.as_deref()) {
+        let plan =
+            args.multi
+                .plan_with(&trace, args.input.map.as_deref(), args.coeffs.as_deref())?;
+        match plan {
+            SensorPlan::Today => {}
+            SensorPlan::One(map) => return run(&args.as_one_sensor(map)),
+            SensorPlan::Several(sensors) => return run_sensors(args, &trace, &sensors),
+        }
+    }
     if args.evaluates() {
         if args.model.len() > 1 {
             bail!("--coeffs and --method evaluate one compensation: give at most one --model (several --model compare models by their diagnosis, without these)");
@@ -128,4 +161,107 @@ pub fn run(args: &ReportArgs) -> Result<()> {
     let path = write_report(&trace, &models, None, &info, &args.out)?;
     println!("report written to {}", path.display());
     Ok(())
+}
+
+/// `report` on several magnetometers (`super::multi::report`).
+fn run_sensors(args: &ReportArgs, trace: &Trace, sensors: &[SensorSpec]) -> Result<()> {
+    if args.model.len() > 1 || args.method.is_some() {
+        bail!("a report on several magnetometers shows each sensor's calibration: give at most one --model and no --method");
+    }
+    let est = EstimatorArgs {
+        model: args.model.first().cloned(),
+        method: None,
+        tuning: args.tuning.clone(),
+    };
+    let path = several_sensor_pages(
+        trace,
+        &est.settings(),
+        (sensors, args.multi.gradients.as_deref()),
+        args.coeffs.as_deref(),
+        &|model| args.sheet_info(trace, model),
+        &args.out,
+    )?;
+    println!("report written to {}", path.display());
+    Ok(())
+}
+
+/// `report --sensors` (or `--coeffs` naming a several-sensor file): each sensor's own
+/// calibration page in `out/<sensor>/` (the page `report --coeffs` writes for one sensor),
+/// and the overview page (`crate::report::sensors`) in `out/`. `sheet` gives the QC
+/// sheet's information for a model.
+fn several_sensor_pages(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    (sensors, gradients): (&[SensorSpec], Option<&str>),
+    coeffs: Option<&Path>,
+    sheet: &dyn Fn(&str) -> Result<SheetInfo>,
+    out: &Path,
+) -> Result<std::path::PathBuf> {
+    let pairs = match gradients {
+        Some(g) => parse_pairs(g, sensors)?,
+        None => Vec::new(),
+    };
+    let gradients = pairs
+        .iter()
+        .map(|&(a, b)| {
+            let sep = separation_m(&sensors[a], &sensors[b]).filter(|m| *m > 0.0);
+            sep.map(|m| (a, b, m)).with_context(|| {
+                format!(
+                    "--gradients {}-{}: both positions must be known and apart",
+                    sensors[a].name, sensors[b].name
+                )
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (files, joint) = coefficient_sets(trace, est, sensors, coeffs)?;
+    let source = match coeffs {
+        Some(p) => format!("Coefficients from {}", p.display()),
+        None => "Calibrated jointly on this flight".into(),
+    };
+    let mut evaluated = Vec::new();
+    for ((s, (flight, comp)), file) in sensors
+        .iter()
+        .zip(apply_each(trace, est, sensors, &files)?)
+        .zip(&files)
+    {
+        let ev = Evaluated {
+            summary: summarise(&flight, &comp),
+            flight,
+            comp,
+            source: format!("{source} (sensor {})", s.name),
+            coefficient_provenance: file.provenance.clone(),
+            assumed_speed_mps: file.assumed_speed_mps,
+        };
+        let info = sheet(&ev.summary.model)?;
+        super::diagnose::write_evaluation(&sensor_trace(trace, s), &ev, &info, &out.join(&s.name))?;
+        for w in &ev.summary.warnings {
+            eprintln!("warning: {}: {w}", s.name);
+        }
+        evaluated.push(ev);
+    }
+    let rows = sensors
+        .iter()
+        .zip(&evaluated)
+        .zip(&joint)
+        .map(|((s, ev), joint)| SensorRow {
+            name: &s.name,
+            scalar_column: &s.scalar_column,
+            fluxgate: s.flux_columns[0]
+                .trim_end_matches("_x")
+                .trim_end_matches("_X"),
+            position_m: s.position_m,
+            joint: Some(*joint),
+            flight: &ev.flight,
+            comp: &ev.comp,
+            href: format!("{}/{}", s.name, crate::report::flight_report::REPORT_PAGE),
+        })
+        .collect();
+    let page = crate::report::sensors::build(&SensorsPage {
+        source,
+        sensors: rows,
+        gradients,
+    });
+    let path = out.join(crate::report::flight_report::REPORT_PAGE);
+    page.write(&path)?;
+    Ok(path)
 }

@@ -34,6 +34,8 @@ enum Block {
         width_px: u32,
         height_px: u32,
     },
+    /// Relative links to pages written beside this one: (text, href).
+    Links(Vec<(String, String)>),
 }
 
 /// A titled section of a report.
@@ -78,6 +80,11 @@ impl Section {
     /// A plot at the default size (960 × 380 px; scales down with the page).
     pub fn plot(self, plot: Plot) -> Self {
         self.plot_sized(plot, 960, 380)
+    }
+    /// A list of links to pages written beside this one (relative `href`s).
+    pub fn links(mut self, links: &[(String, String)]) -> Self {
+        self.blocks.push(Block::Links(links.to_vec()));
+        self
     }
     pub fn plot_sized(mut self, plot: Plot, width_px: u32, height_px: u32) -> Self {
         self.blocks.push(Block::Plot {
@@ -190,6 +197,18 @@ fn render_block(out: &mut String, b: &Block) {
         }
         Block::Warning(text) => {
             let _ = writeln!(out, "<p class=\"warning\">warning: {}</p>", escape(text));
+        }
+        Block::Links(links) => {
+            out.push_str("<ul>\n");
+            for (text, href) in links {
+                let _ = writeln!(
+                    out,
+                    "<li><a href=\"{}\">{}</a></li>",
+                    escape(href),
+                    escape(text)
+                );
+            }
+            out.push_str("</ul>\n");
         }
         Block::Table {
             caption,

@@ -23,6 +23,7 @@ mod html;
 mod plot;
 pub mod qc_sheet;
 pub mod reciprocal;
+pub mod sensors;
 mod ticks;
 
 pub use html::{HtmlReport, Section};
