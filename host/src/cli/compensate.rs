@@ -102,12 +102,20 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
             SensorPlan::Today => {}
             SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
             SensorPlan::Several(sensors) => {
+                let est = EstimatorSettings {
+                    survey_from_s: a.survey_from,
+                    ..a.est.settings()
+                };
+                let how = super::multi::HowToCompensate {
+                    realtime: a.realtime,
+                    json: a.json,
+                };
                 return super::multi::compensate(
                     &trace,
-                    &a.est.settings(),
-                    &sensors,
-                    a.multi.gradients.as_deref(),
+                    &est,
+                    (&sensors, a.multi.gradients.as_deref()),
                     a.coeffs.as_deref(),
+                    how,
                     &a.out,
                 );
             }

@@ -5,10 +5,12 @@
 
 use crate::calibration::coefficients::{canonical_sha256, to_sealed_json, CoefficientFile};
 use crate::calibration::result::Compensation;
-use crate::calibration::EstimatorSettings;
+use crate::calibration::summary::{summarise, Summary};
+use crate::calibration::{compensate_trace, EstimatorSettings};
+use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::multi::joint::{apply_each, calibrate_joint};
-use crate::multi::sensors::{parse_pairs, parse_sensors, separation_m, SensorSpec};
+use crate::multi::sensors::{parse_pairs, parse_sensors, sensor_trace, separation_m, SensorSpec};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -322,42 +324,93 @@ fn fmt(v: Option<f64>) -> String {
     v.map_or("–".into(), |v| format!("{v:.4}"))
 }
 
+/// How `compensate --sensors` runs and reports.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct HowToCompensate {
+    /// Each sensor's causal filter, as the board runs one per sensor (`--realtime`).
+    pub realtime: bool,
+    /// The summary as JSON on stdout, one entry per sensor (`--json`).
+    pub json: bool,
+}
+
 /// `compensate --sensors`: calibrates jointly (or applies a several-sensor file) and
 /// writes each sensor's compensated field and interference and the named gradients.
+/// `--realtime` runs each sensor's own causal filter (from its file's coefficients with
+/// `--coeffs`): the board flies one filter per sensor, not the joint one.
 pub fn compensate(
     trace: &Trace,
     est: &EstimatorSettings,
-    sensors: &[SensorSpec],
-    gradients: Option<&str>,
+    (sensors, gradients): (&[SensorSpec], Option<&str>),
     coeffs: Option<&Path>,
+    how: HowToCompensate,
     out: &Path,
 ) -> Result<()> {
-    let results: Vec<Compensation> = match coeffs {
-        Some(path) => {
+    let runs: Vec<(Flight, Compensation)> = match (coeffs, how.realtime) {
+        (_, true) => {
+            let files = match coeffs {
+                Some(path) => coefficient_sets(trace, est, sensors, Some(path))?
+                    .0
+                    .into_iter()
+                    .map(Some)
+                    .collect(),
+                None => vec![None; sensors.len()],
+            };
+            sensors
+                .iter()
+                .zip(&files)
+                .map(|(s, f)| {
+                    compensate_trace(&sensor_trace(trace, s), est, f.as_ref(), true)
+                        .with_context(|| format!("{} in real time", s.name))
+                })
+                .collect::<Result<_>>()?
+        }
+        (Some(path), false) => {
             let (files, _) = coefficient_sets(trace, est, sensors, Some(path))?;
             apply_each(trace, est, sensors, &files)?
+        }
+        (None, false) => {
+            let r = calibrate_joint(trace, est, sensors)?;
+            r.flights
                 .into_iter()
-                .map(|(_, c)| c)
+                .zip(r.sensors.iter().map(|s| s.chosen().clone()))
                 .collect()
         }
-        None => calibrate_joint(trace, est, sensors)?
-            .sensors
-            .iter()
-            .map(|s| s.chosen().clone())
-            .collect(),
     };
     let pairs = match gradients {
         Some(g) => parse_pairs(g, sensors)?,
         None => Vec::new(),
     };
+    let results: Vec<Compensation> = runs.iter().map(|(_, c)| c.clone()).collect();
     let table = output_table(trace, sensors, &results, &pairs)?;
     crate::io::trace::write_trace(out, &table)?;
-    for (s, c) in sensors.iter().zip(&results) {
-        for w in &c.warnings {
-            if w.starts_with(&format!("{}:", s.name)) {
+    let summaries: Vec<(String, Summary)> = sensors
+        .iter()
+        .zip(&runs)
+        .map(|(s, (flight, comp))| (s.name.clone(), summarise(flight, comp)))
+        .collect();
+    if how.json {
+        let entries = summaries
+            .iter()
+            .map(|(name, summary)| {
+                let mut v = serde_json::to_value(summary)?;
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("sensor".into(), name.clone().into());
+                }
+                Ok(v)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        println!("{}", serde_json::json!({ "sensors": entries }));
+    }
+    for (name, summary) in &summaries {
+        if !how.json {
+            println!("{name}:");
+            super::compensate::print_summary(summary);
+        }
+        for w in &summary.warnings {
+            if w.starts_with(&format!("{name}:")) {
                 eprintln!("warning: {w}");
             } else {
-                eprintln!("warning: {}: {w}", s.name);
+                eprintln!("warning: {name}: {w}");
             }
         }
     }
@@ -366,7 +419,7 @@ pub fn compensate(
 }
 
 /// The output: `t`, per sensor `mag_K`, `interference_mag_K`, `compensated_mag_K`,
-/// `anomaly_mag_K` (KF), then `gradient_mag_A_mag_B` per pair, then the trace's position
+/// `anomaly_mag_K`, `flags_mag_K` and `interference_sigma_mag_K` (KF), then `gradient_mag_A_mag_B` per pair, then the trace's position
 /// and line columns when it has them.
 pub fn output_table(
     trace: &Trace,
@@ -391,6 +444,15 @@ pub fn output_table(
         out.set_col(&format!("compensated_{}", s.name), c.compensated_nt.clone());
         if let Some(a) = &c.anomaly_nt {
             out.set_col(&format!("anomaly_{}", s.name), a.clone());
+        }
+        // The record's flags and bound: in real time they say which outputs are not yet
+        // compensated (`NOT_CONVERGED`: the raw field) and how far each can be trusted.
+        if let Some(f) = &c.flags {
+            let flags = f.iter().map(|&v| f64::from(v)).collect();
+            out.set_col(&format!("flags_{}", s.name), flags);
+        }
+        if let Some(b) = &c.interference_sigma_nt {
+            out.set_col(&format!("interference_sigma_{}", s.name), b.clone());
         }
     }
     for &(a, b) in pairs {

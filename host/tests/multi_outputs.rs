@@ -1,9 +1,13 @@
-//! Issue 19 item 2: `report` takes a several-sensor coefficient file. A simulated stinger
+//! Issue 19 item 2, what the commands give for several magnetometers. `report` takes a
+//! several-sensor coefficient file. A simulated stinger
 //! and two wingtips are calibrated jointly; `report --coeffs joint.json` (the file brings
 //! its sensors) writes each sensor's calibration page and an overview whose figures are
 //! the library's for the same coefficients, whose compensation removes the interference,
 //! and whose sensor differences cancel the shared anomaly; `--sensors` picks a subset, one
 //! sensor is today's single report, and the page renders in headless Chromium.
+//! `compensate --sensors --realtime` runs each sensor's own causal filter (the board's
+//! one filter per sensor): each sensor's output is exactly the one-sensor `--realtime`
+//! run's; `--json` gives one summary per sensor.
 
 use magcomp::calibration::EstimatorSettings;
 use magcomp::cli::multi::{coefficient_sets, read_multi, sensors_of_file};
@@ -202,6 +206,82 @@ fn compensate_takes_the_sensors_of_a_several_sensor_file() {
             .col(&format!("compensated_mag_{k}"))
             .unwrap_or_else(|| panic!("compensated_mag_{k}"));
         assert_eq!(c.len(), table.col("t").unwrap().len());
+    }
+}
+
+#[test]
+fn realtime_runs_each_sensors_own_filter_and_json_has_every_sensor() {
+    let (trace, joint) = flight_and_file();
+    let d = dir();
+    let both = d.join("realtime.csv");
+    ok(&[
+        "compensate",
+        s(&trace),
+        "--sensors",
+        "mag_2,mag_3",
+        "--realtime",
+        "-o",
+        s(&both),
+    ]);
+    let both = read_trace(&both, &ColumnMap::default()).unwrap();
+    for k in [2, 3] {
+        let one = d.join(format!("realtime_{k}.csv"));
+        ok(&[
+            "compensate",
+            s(&trace),
+            "--sensors",
+            &format!("mag_{k}"),
+            "--realtime",
+            "-o",
+            s(&one),
+        ]);
+        let one = read_trace(&one, &ColumnMap::default()).unwrap();
+        // Not the joint post-flight output: in real time the output is raw until the
+        // sensor's own filter has converged.
+        let (a, b) = (
+            both.col(&format!("compensated_mag_{k}")).unwrap(),
+            one.col("compensated").unwrap(),
+        );
+        let differing = a.iter().zip(b).filter(|(x, y)| x != y).count();
+        assert!(
+            a.len() == b.len() && differing == 0,
+            "mag_{k}: {differing} rows differ"
+        );
+        // Each output says whether it is compensated yet: the first records are raw and
+        // flagged NOT_CONVERGED, as the board's are.
+        let flags = both.col(&format!("flags_mag_{k}")).expect("flags column");
+        let not_converged = |f: f64| (f as u16) & magcomp_core::Flags::NOT_CONVERGED != 0;
+        assert!(not_converged(flags[0]));
+        let cleared = flags.iter().position(|f| !not_converged(*f));
+        println!(
+            "mag_{k}: NOT_CONVERGED clears at row {cleared:?} of {}",
+            flags.len()
+        );
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_magcomp"))
+        .args([
+            "compensate",
+            s(&trace),
+            "--coeffs",
+            s(&joint),
+            "--json",
+            "-o",
+        ])
+        .arg(d.join("json.csv"))
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON document");
+    let sensors = v["sensors"].as_array().expect("sensors");
+    let names: Vec<&str> = sensors
+        .iter()
+        .map(|e| e["sensor"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["mag_1", "mag_2", "mag_3"]);
+    for e in sensors {
+        let ir = e["improvement_ratio"].as_f64().expect("IR");
+        println!("{}: IR {ir:.1} with the joint file", e["sensor"]);
+        assert!(ir > 20.0, "{e}");
     }
 }
 
