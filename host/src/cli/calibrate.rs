@@ -2,8 +2,8 @@
 //! flight and write them as a coefficient file.
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
-use super::compensate::{print_summary, print_warnings};
 use super::multi::{MultiArgs, OneSensorRerun, SensorPlan};
+use super::summary_text::{print_summary, print_warnings};
 use crate::calibration::coefficients::Method;
 use crate::calibration::summary::summarise_with;
 use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
@@ -106,7 +106,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     if a.json {
         println!(
             "{}",
-            super::compensate::with_printed_warnings(serde_json::to_value(&s)?)
+            super::summary_text::with_printed_warnings(serde_json::to_value(&s)?)
         );
     } else {
         println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");

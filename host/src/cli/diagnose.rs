@@ -219,11 +219,11 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
         }
         if let Some(ev) = &evaluated {
             println!("compensation checked ({}):", ev.source);
-            super::compensate::print_summary(&ev.summary);
+            super::summary_text::print_summary(&ev.summary);
         }
     }
     if let Some(ev) = &evaluated {
-        super::compensate::print_warnings(&ev.summary);
+        super::summary_text::print_warnings(&ev.summary);
     }
     Ok(())
 }

@@ -16,6 +16,7 @@ pub mod nmea;
 pub mod replay;
 pub mod report;
 pub mod simulate;
+pub mod summary_text;
 pub mod upload;
 
 use clap::{Parser, Subcommand};

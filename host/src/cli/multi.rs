@@ -404,7 +404,7 @@ pub fn compensate(
     for (name, summary) in &summaries {
         if !how.json {
             println!("{name}:");
-            super::compensate::print_summary(summary);
+            super::summary_text::print_summary(summary);
         }
         for w in &summary.warnings {
             if w.starts_with(&format!("{name}:")) {

@@ -141,7 +141,7 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         }
         let info = args.sheet_info(&trace, &ev.summary.model)?;
         let path = super::diagnose::write_evaluation(&trace, &ev, &info, &args.out)?;
-        super::compensate::print_warnings(&ev.summary);
+        super::summary_text::print_warnings(&ev.summary);
         println!("report written to {}", path.display());
         return Ok(());
     }

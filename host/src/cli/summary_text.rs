@@ -1,0 +1,103 @@
+//! How the commands print a summary: the text on stdout, the warnings on stderr, and the
+//! warnings a `--json` document carries. Shared by `calibrate`, `compensate`, `diagnose`,
+//! `report` and the several-sensor commands.
+
+use crate::calibration::summary::Summary;
+
+/// `v`'s `warnings` with, first, those printed on stderr as they were found (glitches,
+/// impossible positions: `flight::position::warn_once`), so `--json` tells what stderr
+/// tells.
+pub fn with_printed_warnings(mut v: serde_json::Value) -> serde_json::Value {
+    let printed = crate::flight::position::printed_warnings();
+    if let Some(w) = v.get_mut("warnings").and_then(|w| w.as_array_mut()) {
+        let mut all: Vec<serde_json::Value> = printed
+            .into_iter()
+            .map(serde_json::Value::from)
+            .filter(|p| !w.contains(p))
+            .collect();
+        all.append(w);
+        *w = all;
+    }
+    v
+}
+
+/// Warnings go to stderr always, whatever else is printed.
+pub fn print_warnings(s: &Summary) {
+    for w in &s.warnings {
+        eprintln!("warning: {w}");
+    }
+}
+
+pub fn print_summary(s: &Summary) {
+    println!(
+        "model {} ({}), {} samples",
+        s.model,
+        s.method.name(),
+        s.samples
+    );
+    println!(
+        "  compensated rms in the manoeuvre band: {:.4} nT",
+        s.compensated_band_rms_nt
+    );
+    if let Some(ir) = s.improvement_ratio {
+        println!("  improvement ratio:          {ir:.2}");
+    }
+    if let Some(f) = s.fom_nt {
+        println!("  figure of merit (FOM):      {f:.3} nT");
+    }
+    if let Some(a) = s.aircraft_fom_nt {
+        println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
+    }
+    if let Some(t) = &s.fom_table {
+        println!("{}", crate::calibration::fom::format_table(t));
+    }
+    if let Some(p) = s.predicted_error_nt {
+        println!(
+            "  predicted error:            {p:.4} nT rms (the coefficients' covariance and the flight's own jackknife)"
+        );
+    }
+    if let Some(p) = s.predicted_band_rms_nt {
+        println!(
+            "  predicted band rms:         {p:.4} nT (what a flight like the calibration should show in the manoeuvre band after compensation)"
+        );
+    }
+    if let Some(c) = &s.cross_check {
+        println!(
+            "  cross-check (jackknife):    Kalman filter {:.4} nT, TL18-OLS {:.4} nT, disagreement {:.4} nT: {} used",
+            c.kalman_filter_jackknife_nt,
+            c.tolles_lawson_jackknife_nt,
+            c.disagreement_nt,
+            match c.chosen {
+                crate::estimate::jackknife::Estimator::KalmanFilter => "Kalman filter",
+                crate::estimate::jackknife::Estimator::TollesLawsonOls => "TL18-OLS",
+            }
+        );
+    }
+    if let Some(e) = s.error_rms_nt {
+        println!("  error vs truth:             {e:.4} nT rms");
+    }
+    if let Some(o) = s.oracle_floor_nt {
+        println!("  oracle floor of the model:  {o:.4} nT rms (filter regressors only)");
+    }
+    if let Some(r) = &s.rate_crossover {
+        println!(
+            "  rate at {} crossovers:      differences {:.3} → {:.3} nT rms, p = {:.1e}, {}",
+            r.fit.crossings,
+            r.fit.rms_before_nt,
+            r.fit.rms_after_nt,
+            r.fit.p_value,
+            if r.applied {
+                "applied"
+            } else {
+                "not significant, not applied"
+            }
+        );
+        for (l, (v, e)) in r
+            .labels
+            .iter()
+            .zip(r.fit.coefficients.iter().zip(&r.fit.sigmas))
+        {
+            println!("    {l:<10} {v:>9.4} ± {e:.4} s");
+        }
+    }
+}
