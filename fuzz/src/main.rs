@@ -167,10 +167,17 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
             );
             v.push(s);
         }
-        Seeds::Capture => v.push(
-            b"# magcomp-capture v1\n# scalar_hz: 10\n1000 flux 312C322C330D0A\n2000 scalar 35333632302E343430310D0A\n"
-                .to_vec(),
-        ),
+        Seeds::Capture => {
+            v.push(
+                b"# magcomp-capture v1\n# scalar_hz: 10\n1000 flux 312C322C330D0A\n2000 scalar 35333632302E343430310D0A\n"
+                    .to_vec(),
+            );
+            // a counter line of three magnetometers, channel 1 dead
+            v.push(
+                b"# magcomp-capture v1\n# scalar_hz: 10\n1000 flux 312C322C330D0A\n2000 scalar 4D2C35333632302E343430312C2C35333631392E393034330D0A\n3000 scalar 35333632302E343430310D0A\n"
+                    .to_vec(),
+            );
+        }
         Seeds::Trace => v.push(
             b"t,mag,flux_x,flux_y,flux_z,lat,lon,alt\n0,50000.1,1,2,3,45,7,1000\n0.1,50000.2,1,2,3,45,7,1000\n"
                 .to_vec(),

@@ -472,6 +472,27 @@ mod tests {
         // a late ACK of another line, another command
         assert_eq!(answers(&set, b"SETCOEF,2,-6.12500000E1").unwrap(), None);
         assert_eq!(answers(&set, b"SETFLUX,3,-6.12500000E1").unwrap(), None);
+        // a sensor's SETCOEF: its ACK names the sensor; sensor 0's and another sensor's are
+        // other lines
+        let set2 = Command::SetSensorCoef {
+            sensor: 2,
+            index: 3,
+            value: -61.25,
+        };
+        assert_eq!(
+            answers(&set2, b"SETCOEF,2,3,-6.12500000E1").unwrap(),
+            Some(Some(-61.25))
+        );
+        assert_eq!(answers(&set2, b"SETCOEF,1,3,-6.12500000E1").unwrap(), None);
+        assert_eq!(answers(&set, b"SETCOEF,2,3,-6.12500000E1").unwrap(), None);
+        assert_eq!(answers(&set2, b"SETCOEF,3,-6.12500000E1").unwrap(), None);
+        assert_eq!(
+            read_back_of(&set2),
+            Some(Command::GetSensorCoef {
+                sensor: 2,
+                index: Some(3)
+            })
+        );
         // the same line echoed with another value: the board holds something else
         let e = answers(&set, b"SETCOEF,3,-6.1E1").unwrap_err();
         assert!(
