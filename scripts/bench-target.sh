@@ -33,8 +33,9 @@ desc() { case $1 in
   kf27) echo "plain covariance KF step, n=27";;
   sample21) echo "board per-sample path: parse+align+push+encode, 21";;
   epoch) echo "EpochBuilder::push alone (comp21 minus process)";;
+  sample3) echo "3 magnetometers on a counter line: parse+align+3 push+encode";;
 esac; }
-for r in empty comp21 comp27 tu21 mu21 tu27 mu27 kf21 kf27 sample21 epoch; do
+for r in empty comp21 comp27 tu21 mu21 tu27 mu27 kf21 kf27 sample21 epoch sample3; do
   l=$(count $r)
   m=$(field "$l" mean); mn=$(field "$l" min); mx=$(field "$l" max)
   MEAN[$r]=${m%.*}
@@ -49,6 +50,9 @@ s=$(( ${MEAN[sample21]} - ${MEAN[empty]} ))
 echo
 echo "highest scalar rate, CPU bound, at 168 MHz and 1.2-1.6 cycles/instruction, 50 % CPU budget:"
 echo "  $(( 168000000 / 2 * 10 / 16 / s )) - $(( 168000000 / 2 * 10 / 12 / s )) Hz (per-sample path $s instructions)"
+s3=$(( ${MEAN[sample3]} - ${MEAN[empty]} ))
+echo "3 magnetometers on a counter line ($s3 instructions per line):"
+echo "  CPU at 1 kHz: $(( s3 * 12 / 16800 )) - $(( s3 * 16 / 16800 )) %; highest rate at 50 % CPU: $(( 168000000 / 2 * 10 / 16 / s3 )) - $(( 168000000 / 2 * 10 / 12 / s3 )) Hz"
 FW="$ROOT/target/thumbv7em-none-eabihf/fw/magcomp-firmware"
 cargo build -q --profile fw --target thumbv7em-none-eabihf -p magcomp-firmware --bin magcomp-firmware
 echo

@@ -4,15 +4,15 @@
 //! path itself is `magcomp_core::acquisition`, the same code as `magcomp replay`.
 
 use magcomp_core::acquisition::{
-    AcqConfig, AcqError, Acquisition, FLUX_FULL_SCALE_NT, compensator_config,
+    AcqConfig, AcqError, AcqRecord, Acquisition, FLUX_FULL_SCALE_NT, compensator_config,
 };
 use magcomp_core::compensator::CompensatorError;
 use magcomp_core::model::Model;
 use magcomp_core::protocol::command::model_hash;
 use magcomp_core::protocol::fluxgate::{FluxAsciiReader, FluxError, FluxgateCal};
+use magcomp_core::protocol::multi_scalar::ScalarLine;
 use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
-use magcomp_core::protocol::record::Record;
-use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarFrame, ScalarReader};
+use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 
 /// The model compiled into the board: the paper's (16 TL coefficients + 5 field states),
 /// or with the `flux-witness` feature the paper's plus `fluxmod`, for an installation
@@ -50,6 +50,9 @@ pub const GPS_HZ: f64 = 1.0;
 
 pub type BoardAcquisition = Acquisition<'static, STATE_CAPACITY, WINDOW>;
 
+/// `SETCOEF` values waiting for `MODE,SURVEY`, per sensor (channel of a counter line).
+pub type Staged = [Option<[f32; N_COEF]>; magcomp_core::protocol::command::MAX_SENSORS];
+
 /// Model id stored in the coefficient blob.
 pub fn model_id() -> u32 {
     model_hash(MODEL_SPEC)
@@ -77,7 +80,8 @@ pub fn restart_filter(acq: &mut BoardAcquisition) -> Result<(), CompensatorError
 
 /// One frame (or parse failure) from a sensor port, in arrival order.
 pub enum Event {
-    Scalar(Result<ScalarFrame, ScalarError>),
+    /// A single field or a multi-channel counter line (`multi_scalar`), or its error.
+    Scalar(ScalarLine),
     /// Body frame (x forward, y starboard, z down), nT; the sensor's temperature (°C, NaN
     /// when the frame has none: SPI, a 3-field ASCII line).
     Flux(Result<[f32; 3], FluxError>, f32),
@@ -85,10 +89,11 @@ pub enum Event {
 }
 
 impl Event {
-    /// Into the acquisition: the record of a scalar line, nothing for the other ports.
-    pub fn apply(self, acq: &mut BoardAcquisition) -> Option<Record> {
+    /// Into the acquisition: the record of a scalar line (`$MCREC`, or `$MCMREC` once
+    /// counter lines arrive), nothing for the other ports.
+    pub fn apply(self, acq: &mut BoardAcquisition) -> Option<AcqRecord> {
         match self {
-            Event::Scalar(r) => acq.scalar_result(r),
+            Event::Scalar(l) => acq.scalar_line(l),
             Event::Flux(r, temp_degc) => {
                 acq.flux_result_temp(r, temp_degc);
                 None
@@ -115,7 +120,7 @@ impl ScalarPort {
         Self(ScalarReader::new(ScalarConfig::default()))
     }
     pub fn push(&mut self, b: u8) -> Option<Event> {
-        self.0.push(b).map(Event::Scalar)
+        self.0.push_line(b).map(Event::Scalar)
     }
 }
 

@@ -9,6 +9,8 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Timer, with_timeout};
 use embedded_io_async::{Read, Write};
+use magcomp_core::acquisition::AcqRecord;
+use magcomp_core::protocol::command::MAX_SENSORS;
 use magcomp_core::protocol::command::{
     Command, CommandError, CommandReader, FLUX_CAL_LEN, FLUX_TEMP_LEN, Mode, encode_ack_coef,
     encode_ack_indexed, encode_error,
@@ -17,7 +19,6 @@ use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::raw::{RawSample, encode_raw};
-use magcomp_core::protocol::record::{Record, encode_record};
 
 #[cfg(feature = "board-acq")]
 use defmt_rtt as _;
@@ -25,7 +26,7 @@ use defmt_rtt as _;
 use defmt_semihosting as _;
 
 use crate::board;
-use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF};
+use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF, Staged};
 use crate::board_shape::{CoefStore as _, Watchdog as _};
 use crate::health::{self, Task};
 use crate::store;
@@ -33,16 +34,17 @@ use crate::uart_stats;
 use magcomp_core::model::Model;
 use static_cell::ConstStaticCell;
 
-/// A line for the output port (records < 192 bytes; GETCOEF of all 16 coefficients < 320).
+/// A line for the output port (records < 192 bytes, multi records < 384 (`MAX_MULTI_RECORD_LEN`);
+/// GETCOEF of all 16 coefficients < 320).
 pub struct Line {
-    buf: [u8; 320],
+    buf: [u8; LINE_LEN],
     len: usize,
 }
 
 impl Line {
     const fn new() -> Self {
         Self {
-            buf: [0; 320],
+            buf: [0; LINE_LEN],
             len: 0,
         }
     }
@@ -69,6 +71,8 @@ impl Line {
         })
     }
 }
+
+const LINE_LEN: usize = magcomp_core::protocol::multi_record::MAX_MULTI_RECORD_LEN;
 
 type Mutex = CriticalSectionRawMutex;
 static EVENTS: Channel<Mutex, Event, 16> = Channel::new();
@@ -238,7 +242,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
     let mut taken = [0u64; 3];
     // `SETCOEF` values waiting for `MODE,SURVEY`: one value must not switch the board to a
     // half-uploaded set.
-    let mut staged: Option<[f32; N_COEF]> = None;
+    let mut staged: Staged = [None; MAX_SENSORS];
     loop {
         let ev = match health::idle(Task::Acq, select(EVENTS.receive(), COMMANDS.receive())).await {
             Either::First(ev) => ev,
@@ -286,11 +290,12 @@ async fn send_raw(r: &RawSample) {
     OUT.send(line).await;
 }
 
-async fn send_record(r: &Record) {
-    let line = Line::fill(|out| encode_record(r, out).ok());
+async fn send_record(r: &AcqRecord) {
+    let line = Line::fill(|out| r.encode(out).ok());
     if line.len == 0 {
-        // cannot happen (MAX_RECORD_LEN < 320): a bug, logged, the record still counted
-        defmt::error!("record {} did not encode", r.seq);
+        // cannot happen (MAX_RECORD_LEN, MAX_MULTI_RECORD_LEN ≤ LINE_LEN): a bug, logged, the
+        // record still counted
+        defmt::error!("record {} did not encode", r.seq());
     }
     OUT.send(line).await;
 }
@@ -322,11 +327,7 @@ fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> R
 
 /// Writes the other image than the newest (with the staged coefficients when a set waits
 /// for `MODE,SURVEY`), then reads it back from the store itself.
-fn save_coefficients(
-    st: &mut board::CoefStore,
-    acq: &BoardAcquisition,
-    staged: Option<&[f32; N_COEF]>,
-) -> bool {
+fn save_coefficients(st: &mut board::CoefStore, acq: &BoardAcquisition, staged: &Staged) -> bool {
     let mut back = store::ERASED;
     let (i, seq) = store::next(image_seqs(st, &mut back));
     let mut img = store::ERASED;
@@ -344,9 +345,15 @@ fn mode(acq: &BoardAcquisition) -> Mode {
     }
 }
 
-fn coefficients(acq: &BoardAcquisition) -> [f32; N_COEF] {
+/// Sensor `sensor`'s coefficients as `GETCOEF` reads them: the staged set when one waits.
+fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> [f32; N_COEF] {
+    if let Some(Some(c)) = staged.get(sensor) {
+        return *c;
+    }
     let mut c = [0f32; N_COEF];
-    acq.coefficients(&mut c);
+    if let Some(comp) = acq.sensor(sensor) {
+        comp.coefficients(&mut c);
+    }
     c
 }
 
@@ -381,23 +388,26 @@ async fn handle_command(
     cmd: Command,
     acq: &mut BoardAcquisition,
     st: &mut board::CoefStore,
-    staged: &mut Option<[f32; N_COEF]>,
+    staged: &mut Staged,
 ) {
     let reply = match cmd {
         Command::Mode(m) => set_mode(m, acq, staged),
         Command::Status => status(acq),
         Command::GetCoef(Some(i)) => {
-            let v = staged
-                .unwrap_or_else(|| coefficients(acq))
+            let v = coefficients(acq, staged, 0)
                 .get(usize::from(i))
                 .copied()
                 .unwrap_or(f32::NAN);
             Line::fill(|out| encode_ack_coef(i, v, out))
         }
-        Command::GetCoef(None) => {
-            ack_values(b"GETCOEF", &staged.unwrap_or_else(|| coefficients(acq)))
-        }
-        Command::SetCoef { index, value } => stage_coefficient(index, value, acq, staged),
+        Command::GetCoef(None) => ack_values(b"GETCOEF", &coefficients(acq, staged, 0)),
+        Command::GetSensorCoef { sensor, index } => get_sensor_coef(sensor, index, acq, staged),
+        Command::SetCoef { index, value } => stage_coefficient(0, index, value, acq, staged),
+        Command::SetSensorCoef {
+            sensor,
+            index,
+            value,
+        } => stage_coefficient(sensor, index, value, acq, staged),
         Command::GetFlux(Some(i)) => {
             let v = acq.flux_calibration().to_array()[usize::from(i) % FLUX_CAL_LEN];
             Line::fill(|out| encode_ack_indexed(b"GETFLUX", i, v, out))
@@ -425,7 +435,7 @@ async fn handle_command(
             })
         }
         Command::Save => {
-            if save_coefficients(st, acq, staged.as_ref()) {
+            if save_coefficients(st, acq, staged) {
                 Line::sentence(|c| c.bytes(b"MCACK,SAVE"))
             } else {
                 // flash failure is not a command error: say so in the ACK's place
@@ -439,19 +449,22 @@ async fn handle_command(
     OUT.send(reply).await;
 }
 
-/// `MODE`: a staged set becomes the survey's coefficients here, all at once.
-fn set_mode(m: Mode, acq: &mut BoardAcquisition, staged: &mut Option<[f32; N_COEF]>) -> Line {
-    match staged.take() {
-        Some(c) if m == Mode::Survey => {
-            if acq.set_coefficients(&c).is_err() {
-                defmt::error!("staged coefficients refused");
+/// `MODE`: the staged sets become the survey's coefficients here, all at once; a sensor
+/// with none staged keeps its own (as a single sensor's `MODE,SURVEY` without a set).
+fn set_mode(m: Mode, acq: &mut BoardAcquisition, staged: &mut Staged) -> Line {
+    if m == Mode::Survey {
+        for (sensor, set) in staged.iter_mut().enumerate() {
+            let Some(c) = set.take() else { continue };
+            if acq
+                .sensor_mut(sensor)
+                .is_none_or(|comp| comp.set_coefficients(&c).is_err())
+            {
+                defmt::error!("staged coefficients of sensor {} refused", sensor);
             }
         }
-        other => {
-            *staged = other;
-            acq.set_survey_mode(m == Mode::Survey);
-        }
     }
+    // survey: a no-op for the sensors just set (`set_coefficients` switched them)
+    acq.set_survey_mode(m == Mode::Survey);
     Line::sentence(|c| {
         c.bytes(b"MCACK,MODE,")?;
         c.bytes(mode_word(m))
@@ -488,20 +501,64 @@ fn status(acq: &BoardAcquisition) -> Line {
     })
 }
 
+/// `GETCOEF,<sensor>,<index>|ALL` (sensors 1–2): `$MCACK,GETCOEF,<sensor>[,<index>],…`.
+fn get_sensor_coef(
+    sensor: u8,
+    index: Option<u16>,
+    acq: &BoardAcquisition,
+    staged: &Staged,
+) -> Line {
+    let c = coefficients(acq, staged, sensor.into());
+    let values = match index {
+        Some(i) => c
+            .get(usize::from(i)..=usize::from(i))
+            .unwrap_or(&[f32::NAN]),
+        None => &c[..],
+    };
+    Line::sentence(|cur| {
+        cur.bytes(b"MCACK,GETCOEF,")?;
+        cur.u64(sensor.into())?;
+        if let Some(i) = index {
+            cur.byte(b',')?;
+            cur.u64(i.into())?;
+        }
+        for &v in values {
+            cur.byte(b',')?;
+            cur.sci(v.into())?;
+        }
+        Ok(())
+    })
+}
+
 /// `SETCOEF`: staged, not applied: `MODE,SURVEY` applies the whole set
-/// (docs/protocols.md §5).
+/// (docs/protocols.md §5). Sensor 0's reply is the single sensor's
+/// (`SETCOEF,<index>,<value>`), the others' name the sensor first.
 fn stage_coefficient(
+    sensor: u8,
     index: u16,
     value: f32,
     acq: &BoardAcquisition,
-    staged: &mut Option<[f32; N_COEF]>,
+    staged: &mut Staged,
 ) -> Line {
-    let mut c = staged.unwrap_or_else(|| coefficients(acq));
-    match c.get_mut(usize::from(index)) {
-        Some(slot) if value.is_finite() => {
+    let mut c = coefficients(acq, staged, sensor.into());
+    match (
+        c.get_mut(usize::from(index)),
+        staged.get_mut(usize::from(sensor)),
+    ) {
+        (Some(slot), Some(set)) if value.is_finite() => {
             *slot = value;
-            *staged = Some(c);
-            Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out))
+            *set = Some(c);
+            if sensor == 0 {
+                return Line::fill(|out| encode_ack_indexed(b"SETCOEF", index, value, out));
+            }
+            Line::sentence(|cur| {
+                cur.bytes(b"MCACK,SETCOEF,")?;
+                for n in [sensor.into(), index] {
+                    cur.u64(n.into())?;
+                    cur.byte(b',')?;
+                }
+                cur.sci(value.into())
+            })
         }
         _ => refused(CommandError::ValueOutOfBounds),
     }
@@ -540,10 +597,10 @@ async fn restart(
     cmd: Command,
     acq: &mut BoardAcquisition,
     st: &mut board::CoefStore,
-    staged: &mut Option<[f32; N_COEF]>,
+    staged: &mut Staged,
 ) -> Line {
     // every sample keeps its record: emit the held ones before anything else
-    while let Some(r) = acq.flush() {
+    while let Some(r) = acq.flush_any() {
         send_record(&r).await;
     }
     let name: &[u8] = match cmd {
@@ -553,7 +610,7 @@ async fn restart(
     };
     let mut failed = false;
     if cmd != Command::Flush {
-        *staged = None;
+        *staged = [None; MAX_SENSORS];
         // in place: no second filter on the stack
         if bc::restart_filter(acq).is_err() {
             defmt::error!("compensator re-init failed");

@@ -11,7 +11,13 @@
 //!
 //! Each slot is a core blob (`magcomp_core::protocol::command::{encode,decode}_blob`: magic,
 //! version, count, id, values, CRC-32). A store written before a later slot existed loads
-//! that slot's default (no fluxgate calibration / τ = 0 / no temperature drift).
+//! that slot's default (no fluxgate calibration / τ = 0 / no temperature drift / sensors 1
+//! and 2 calibrate).
+//!
+//! Sensors 1 and 2 (the counter line's channels, `SETCOEF,<sensor>,…`) were added after the
+//! four first slots, at the end: an image written before them (`MCS2`, its CRC after the
+//! four) is the new layout's prefix and still loads, its sensors 1–2 calibrating; new
+//! images say `MCS3`.
 
 use magcomp_core::protocol::command::{
     FLUX_CAL_LEN, FLUX_TEMP_LEN, blob_len, decode_blob, encode_blob, flux_blob_id,
@@ -21,13 +27,14 @@ use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 
 use magcomp_core::protocol::common::crc32;
 
-use crate::board_config::{BoardAcquisition, N_COEF, model_id};
+use crate::board_config::{BoardAcquisition, N_COEF, Staged, model_id};
 
 /// One blob of the store.
 #[derive(Clone, Copy)]
 pub enum Slot {
-    /// The model's coefficients (`SETCOEF`); without it the board calibrates.
-    Model,
+    /// Sensor n's coefficients (`SETCOEF`); without sensor 0's the board calibrates, without
+    /// sensor 1's or 2's that sensor does.
+    Model(u8),
     /// The fluxgate's scalar calibration (`SETFLUX`).
     FluxCal,
     /// The scalar's delay τ (`SETLAG`).
@@ -37,18 +44,33 @@ pub enum Slot {
 }
 
 /// The store, in order.
-pub const SLOTS: [Slot; 4] = [Slot::Model, Slot::FluxCal, Slot::Lag, Slot::FluxTemp];
+pub const SLOTS: [Slot; 6] = [
+    Slot::Model(0),
+    Slot::FluxCal,
+    Slot::Lag,
+    Slot::FluxTemp,
+    Slot::Model(1),
+    Slot::Model(2),
+];
 
-/// Bytes of the whole store.
-pub const LEN: usize = {
-    let mut n = 0;
+/// Slots of an `MCS2` image (before sensors 1–2).
+const SLOTS_V2: usize = 4;
+
+/// Bytes of the first `n` slots.
+const fn slots_len(n: usize) -> usize {
+    let mut len = 0;
     let mut i = 0;
-    while i < SLOTS.len() {
-        n += blob_len(SLOTS[i].values());
+    while i < n {
+        len += blob_len(SLOTS[i].values());
         i += 1;
     }
-    n
-};
+    len
+}
+
+/// Bytes of the whole store.
+pub const LEN: usize = slots_len(SLOTS.len());
+/// Bytes of an `MCS2` image's blobs.
+const LEN_V2: usize = slots_len(SLOTS_V2);
 
 /// Largest slot (values): the scratch array `save`/`load` use.
 const MAX_VALUES: usize = {
@@ -67,7 +89,7 @@ impl Slot {
     /// Values held.
     pub const fn values(self) -> usize {
         match self {
-            Slot::Model => N_COEF,
+            Slot::Model(_) => N_COEF,
             Slot::FluxCal => FLUX_CAL_LEN,
             Slot::Lag => 1,
             Slot::FluxTemp => FLUX_TEMP_LEN,
@@ -76,28 +98,25 @@ impl Slot {
 
     fn id(self) -> u32 {
         match self {
-            Slot::Model => model_id(),
+            // sensor n's blob: the model's id plus n, so blobs never stand in for each other
+            Slot::Model(n) => model_id().wrapping_add(n.into()),
             Slot::FluxCal => flux_blob_id(),
             Slot::Lag => lag_blob_id(),
             Slot::FluxTemp => flux_temp_blob_id(),
         }
     }
 
-    /// The acquisition's current values for this slot; the model's are `staged` when a
+    /// The acquisition's current values for this slot; a sensor's are `staged` when a
     /// set is waiting for `MODE,SURVEY`.
-    fn read(
-        self,
-        acq: &BoardAcquisition,
-        staged: Option<&[f32; N_COEF]>,
-        out: &mut [f32; MAX_VALUES],
-    ) -> usize {
+    fn read(self, acq: &BoardAcquisition, staged: &Staged, out: &mut [f32; MAX_VALUES]) -> usize {
         let n = self.values();
         match self {
-            Slot::Model => match staged {
-                Some(c) => out[..n].copy_from_slice(c),
-                None => {
-                    acq.coefficients(&mut out[..n]);
+            Slot::Model(s) => match (staged.get(usize::from(s)), acq.sensor(s.into())) {
+                (Some(Some(c)), _) => out[..n].copy_from_slice(c),
+                (_, Some(comp)) => {
+                    comp.coefficients(&mut out[..n]);
                 }
+                _ => {}
             },
             Slot::FluxCal => out[..n].copy_from_slice(&acq.flux_calibration().to_array()),
             Slot::Lag => out[0] = acq.lag_s(),
@@ -106,11 +125,19 @@ impl Slot {
         n
     }
 
-    /// Applies stored values (`None`: the slot was absent or invalid). `Err` only for the
-    /// model, whose absence means "calibrate".
+    /// Applies stored values (`None`: the slot was absent or invalid). `Err` only for
+    /// sensor 0's model, whose absence means "calibrate"; sensors 1–2 without theirs
+    /// calibrate on their own.
     fn apply(self, acq: &mut BoardAcquisition, v: Option<&[f32]>) -> Result<(), ()> {
         match self {
-            Slot::Model => acq.set_coefficients(v.ok_or(())?).map_err(|_| ()),
+            Slot::Model(0) => acq.set_coefficients(v.ok_or(())?).map_err(|_| ()),
+            Slot::Model(s) => {
+                if let (Some(v), Some(comp)) = (v, acq.sensor_mut(s.into())) {
+                    // a bad blob is refused: that sensor calibrates
+                    let _ = comp.set_coefficients(v);
+                }
+                Ok(())
+            }
             Slot::FluxCal => {
                 let cal = v
                     .and_then(|v| v.try_into().ok())
@@ -136,7 +163,8 @@ impl Slot {
 }
 
 /// Loads the stored slots into the acquisition. `Err` when the model's blob is missing or
-/// invalid (the board then calibrates; the later slots are not read).
+/// invalid (the board then calibrates; the later slots are not read). Bytes past an
+/// `MCS2` image's blobs hold no valid blob: sensors 1–2 then calibrate.
 pub fn load(raw: &[u8; LEN], acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut at = 0;
     for s in SLOTS {
@@ -160,11 +188,7 @@ pub fn defaults(acq: &mut BoardAcquisition) {
 }
 
 /// Encodes the acquisition's current values as a whole store image.
-pub fn save(
-    acq: &BoardAcquisition,
-    staged: Option<&[f32; N_COEF]>,
-    raw: &mut [u8; LEN],
-) -> Result<(), ()> {
+pub fn save(acq: &BoardAcquisition, staged: &Staged, raw: &mut [u8; LEN]) -> Result<(), ()> {
     let mut at = 0;
     for s in SLOTS {
         let mut v = [0f32; MAX_VALUES];
@@ -178,7 +202,9 @@ pub fn save(
 pub const N_IMAGES: usize = 2;
 /// Bytes of one image: magic, sequence number (u32 LE), the blobs, CRC-32 (u32 LE).
 pub const IMAGE_LEN: usize = 8 + LEN + 4;
-const IMAGE_MAGIC: [u8; 4] = *b"MCS2";
+const IMAGE_MAGIC: [u8; 4] = *b"MCS3";
+/// An image written before sensors 1–2: its CRC follows the first [`SLOTS_V2`] blobs.
+const IMAGE_MAGIC_V2: [u8; 4] = *b"MCS2";
 
 /// One image's bytes.
 pub type Image = [u8; IMAGE_LEN];
@@ -186,12 +212,21 @@ pub type Image = [u8; IMAGE_LEN];
 /// An image that reads as erased flash.
 pub const ERASED: Image = [0xFF; IMAGE_LEN];
 
-/// The sequence number of a valid image (magic and CRC check).
+/// The sequence number of a valid image (magic and CRC check), `MCS3` or `MCS2`.
 pub fn sequence(img: &Image) -> Option<u32> {
-    let body = &img[..8 + LEN];
-    let crc = img[8 + LEN..].try_into().ok().map(u32::from_le_bytes)?;
+    let magic: [u8; 4] = img[..4].try_into().ok()?;
+    let len = match magic {
+        IMAGE_MAGIC => LEN,
+        IMAGE_MAGIC_V2 => LEN_V2,
+        _ => return None,
+    };
+    let body = &img[..8 + len];
+    let crc = img[8 + len..12 + len]
+        .try_into()
+        .ok()
+        .map(u32::from_le_bytes)?;
     let seq = img[4..8].try_into().ok().map(u32::from_le_bytes)?;
-    (img[..4] == IMAGE_MAGIC && crc32(body) == crc).then_some(seq)
+    (crc32(body) == crc).then_some(seq)
 }
 
 /// Which image to load: the valid one with the newest sequence number (compared modulo
@@ -234,12 +269,7 @@ fn part(img: &Image, at: usize) -> &[u8; LEN] {
 
 /// Seals the acquisition's current values (the model's `staged` ones when given) as image
 /// `seq`.
-pub fn seal(
-    seq: u32,
-    acq: &BoardAcquisition,
-    staged: Option<&[f32; N_COEF]>,
-    img: &mut Image,
-) -> Result<(), ()> {
+pub fn seal(seq: u32, acq: &BoardAcquisition, staged: &Staged, img: &mut Image) -> Result<(), ()> {
     img[..4].copy_from_slice(&IMAGE_MAGIC);
     img[4..8].copy_from_slice(&seq.to_le_bytes());
     let body: &mut [u8; LEN] = (&mut img[8..8 + LEN]).try_into().map_err(|_| ())?;

@@ -21,9 +21,19 @@
 //!   day of a GGA, GLL or GNS fix, so records carry GPS time and stay evenly spaced through outages.
 //! - Records are delayed by the compensator's derivative half-width; [`Acquisition::flush`]
 //!   emits the held ones at the end of a stream.
+//!
+//! Several magnetometers (`protocol::multi_scalar`): a counter line carrying 2–3 fields
+//! runs one [`Compensator`] per channel, each with its own coefficients and field states,
+//! all on the one sample (same time base, fluxgate and GPS), and yields one
+//! [`MultiRecord`] per line. The channel count is learnt from the lines: single-field lines
+//! take exactly the single-sensor path above (same records, byte for byte); the first
+//! counter line switches to multi records until the next start, a later one with more
+//! channels adds them. A channel added mid-stream has no output for the samples its
+//! compensator has not seen: those records carry it as missing.
 
 use crate::compensator::{Compensator, CompensatorConfig, CompensatorError};
 use crate::continuity::{Continuity, FluxContinuity};
+use crate::epoch::AlignedSample;
 use crate::flags::Flags;
 use crate::model::Model;
 use crate::protocol::aligner::{Aligner, AlignerConfig};
@@ -34,12 +44,15 @@ use crate::protocol::fluxgate::{
     FluxgateCal,
 };
 use crate::protocol::lag_line::{check_lag, LagError, LagLine};
+use crate::protocol::multi_record::{ChannelRecord, MultiRecord};
+use crate::protocol::multi_scalar::{Channel, MultiFrame, ScalarLine, MAX_CHANNELS};
 use crate::protocol::nmea::{Fix, NmeaError, NmeaReader, NmeaStats, Sentence};
 use crate::protocol::raw::RawSample;
-use crate::protocol::record::Record;
+use crate::protocol::record::{encode_record, Record, RecordError};
 use crate::protocol::scalar::{
     ScalarConfig, ScalarError, ScalarFrame, ScalarReader, ScalarStats, CS133_HZ_PER_NT_NANO,
 };
+use crate::units::MagCounts;
 
 /// Fluxgate full scale of the reference board (±nT over ±2^23 ADC codes).
 pub const FLUX_FULL_SCALE_NT: f32 = 100_000.0;
@@ -140,6 +153,29 @@ pub enum AcqError {
     Compensator(CompensatorError),
 }
 
+/// One output line: a single sensor's `$MCREC` or a counter line's `$MCMREC`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AcqRecord {
+    One(Record),
+    Multi(MultiRecord),
+}
+
+impl AcqRecord {
+    pub fn seq(&self) -> u32 {
+        match self {
+            AcqRecord::One(r) => r.seq,
+            AcqRecord::Multi(r) => r.seq,
+        }
+    }
+    /// Writes the record's line with `\r\n`; returns the length.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, RecordError> {
+        match self {
+            AcqRecord::One(r) => encode_record(r, out),
+            AcqRecord::Multi(r) => crate::protocol::multi_record::encode_multi_record(r, out),
+        }
+    }
+}
+
 /// Frame, error and flag counters (saturating).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct AcqCounters {
@@ -204,6 +240,10 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     /// The fluxgate modulus judged against its recent past, frame by frame.
     flux_check: FluxContinuity,
     comp: Compensator<'a, N, W>,
+    /// Channels 1 and 2 of a counter line (`comp` is channel 0).
+    extra: [Compensator<'a, N, W>; MAX_CHANNELS - 1],
+    /// Channels seen on counter lines (1: single-sensor records).
+    channels: u8,
     /// The fluxgate's delay line (`lag`), when the caller gave one (8 KiB: the board keeps
     /// it in its own zero-initialised static).
     lag_line: Option<&'a mut LagLine>,
@@ -231,6 +271,11 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         if !cfg.valid() {
             return Err(AcqError::BadRate);
         }
+        let more = || Compensator::new(*comp.model(), *comp.config());
+        let extra = [
+            more().map_err(AcqError::Compensator)?,
+            more().map_err(AcqError::Compensator)?,
+        ];
         Ok(Self {
             cfg,
             scalar: ScalarReader::new(cfg.scalar),
@@ -240,6 +285,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             aligner: Aligner::new(cfg.aligner_config()),
             flux_check: FluxContinuity::new(),
             comp,
+            extra,
+            channels: 1,
             lag_line: None,
             lag_s: 0.0,
             period_us: cfg.period_us().max(1),
@@ -301,6 +348,11 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             aligner: Aligner::new(aligner),
             flux_check: FluxContinuity::new(),
             comp: Compensator::placeholder(model),
+            extra: [
+                Compensator::placeholder(model),
+                Compensator::placeholder(model),
+            ],
+            channels: 1,
             lag_line: None,
             lag_s: 0.0,
             period_us: 1,
@@ -329,6 +381,11 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.comp
             .reset_in_place(model, comp)
             .map_err(AcqError::Compensator)?;
+        for c in &mut self.extra {
+            c.reset_in_place(model, comp)
+                .map_err(AcqError::Compensator)?;
+        }
+        self.channels = 1;
         self.cfg = cfg;
         self.scalar = ScalarReader::new(cfg.scalar);
         self.flux = FluxAsciiReader::new();
@@ -364,6 +421,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         comp: CompensatorConfig,
     ) -> Result<(), CompensatorError> {
         self.comp.reset_in_place(model, comp)?;
+        for c in &mut self.extra {
+            c.reset_in_place(model, comp)?;
+        }
         self.aligner.forget_frame_ages();
         // A fresh start for the fluxgate's continuity check too: the frames before the
         // restart need not continue into the ones after it.
@@ -410,8 +470,30 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     pub fn replace_compensator(&mut self, comp: Compensator<'a, N, W>) -> Compensator<'a, N, W> {
         core::mem::replace(&mut self.comp, comp)
     }
+    /// Every channel's compensator.
     pub fn set_survey_mode(&mut self, on: bool) {
         self.comp.set_survey_mode(on);
+        for c in &mut self.extra {
+            c.set_survey_mode(on);
+        }
+    }
+    /// Channels seen on counter lines since the start (1: single-sensor records).
+    pub fn channels(&self) -> u8 {
+        self.channels
+    }
+    /// Channel `sensor`'s compensator (0 = the single sensor's), `None` beyond
+    /// [`MAX_CHANNELS`].
+    pub fn sensor(&self, sensor: usize) -> Option<&Compensator<'a, N, W>> {
+        match sensor {
+            0 => Some(&self.comp),
+            s => self.extra.get(s - 1),
+        }
+    }
+    pub fn sensor_mut(&mut self, sensor: usize) -> Option<&mut Compensator<'a, N, W>> {
+        match sensor {
+            0 => Some(&mut self.comp),
+            s => self.extra.get_mut(s - 1),
+        }
     }
     pub fn is_survey_mode(&self) -> bool {
         self.comp.is_survey_mode()
@@ -478,15 +560,25 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     /// A scalar line's result from a reader the caller runs itself (the board parses in
     /// its UART task): exactly one sample per line, rejected lines included.
     pub fn scalar_result(&mut self, r: Result<ScalarFrame, ScalarError>) -> Option<Record> {
+        let line_error = r.is_err();
+        let s = self.next_sample(r.ok().map(|f| f.mag), line_error);
+        let out = self.comp.push(&s)?;
+        Some(self.record(out))
+    }
+
+    /// The next sample `k` on the time base, paired with the fluxgate and GPS; a rejected
+    /// line (`line_error`) is counted and flagged `PARSE_ERROR`.
+    fn next_sample(&mut self, mag: Option<MagCounts>, line_error: bool) -> AlignedSample {
         let k = self.k;
         let t_us = self.now_us();
         inc(&mut self.counters.scalar_lines);
-        if r.is_err() {
+        if line_error {
             inc(&mut self.counters.scalar_errors);
+            self.aligner.note_parse_error();
         }
         let mut s = self
             .aligner
-            .push_scalar_result_delayed(t_us, r, self.lag_line.as_deref());
+            .push_scalar_delayed(t_us, mag, self.lag_line.as_deref());
         if let (None, false, Some((tod_s, at_us))) =
             (self.anchor, s.flags.contains(Flags::NO_GPS), self.last_fix)
         {
@@ -500,8 +592,72 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             self.last_raw = Some(RawSample::of(k, &s));
         }
         self.k = self.k.wrapping_add(1);
-        let out = self.comp.push(&s)?;
-        Some(self.record(out))
+        s
+    }
+
+    /// One byte from the scalar port, single-field or counter lines
+    /// ([`scalar_line`](Self::scalar_line)).
+    pub fn push_scalar_line_byte(&mut self, b: u8) -> Option<AcqRecord> {
+        let l = self.scalar.push_line(b)?;
+        self.scalar_line(l)
+    }
+
+    /// A scalar port line (single field or counter line) from a reader the caller runs:
+    /// exactly one sample, and one record once the compensators hold it no longer.
+    /// Single-field lines while no counter line has been seen are [`scalar_result`](Self::scalar_result)'s.
+    pub fn scalar_line(&mut self, l: ScalarLine) -> Option<AcqRecord> {
+        let f = match l {
+            ScalarLine::Single(r) if self.channels == 1 => {
+                return self.scalar_result(r).map(AcqRecord::One);
+            }
+            ScalarLine::Multi(f) => {
+                self.channels = self.channels.max(f.channels);
+                f
+            }
+            // a counter that has sent counter lines: a single field is its channel 0,
+            // an unreadable line every channel read wrong
+            ScalarLine::Single(r) => {
+                let mut f = MultiFrame {
+                    channels: self.channels,
+                    ch: [Channel::Missing; MAX_CHANNELS],
+                };
+                match r {
+                    Ok(s) => f.ch[0] = Channel::Field(s.mag),
+                    Err(e) => f.ch = [Channel::Invalid(e); MAX_CHANNELS],
+                }
+                f
+            }
+        };
+        self.multi_result(&f)
+    }
+
+    /// A counter line: the one sample for every channel, each through its compensator.
+    fn multi_result(&mut self, f: &MultiFrame) -> Option<AcqRecord> {
+        let invalid = |c: &Channel| matches!(c, Channel::Invalid(_));
+        let s = self.next_sample(f.ch[0].mag(), false);
+        if f.ch.iter().any(invalid) {
+            inc(&mut self.counters.scalar_errors);
+        }
+        let n = usize::from(self.channels);
+        // the aligner flagged channel 0's reading; each channel gets its own
+        let channel_sample = |c: &Channel| {
+            let mut si = s;
+            si.mag = c.mag();
+            si.flags.0 &= !(Flags::MAG_MISSING);
+            if si.mag.is_none() {
+                si.flags.set(Flags::MAG_MISSING);
+            }
+            if invalid(c) {
+                si.flags.set(Flags::PARSE_ERROR);
+            }
+            si
+        };
+        let out0 = self.comp.push(&channel_sample(&f.ch[0]));
+        let mut outs = [None; MAX_CHANNELS - 1];
+        for (i, o) in outs.iter_mut().enumerate().take(n - 1) {
+            *o = self.extra[i].push(&channel_sample(&f.ch[i + 1]));
+        }
+        Some(AcqRecord::Multi(self.multi_record(out0?, outs)))
     }
 
     /// `RAW,ON` / `RAW,OFF`: keep each scalar sample as a raw line for the output port
@@ -668,7 +824,57 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         Some(self.record(out))
     }
 
-    fn record(&mut self, o: crate::compensator::Output) -> Record {
+    /// [`flush`](Self::flush) for either kind of record: with counter lines, every channel's
+    /// held samples together.
+    pub fn flush_any(&mut self) -> Option<AcqRecord> {
+        if self.channels == 1 {
+            return self.flush().map(AcqRecord::One);
+        }
+        let out0 = self.comp.flush();
+        let mut outs = [None; MAX_CHANNELS - 1];
+        let n = usize::from(self.channels);
+        for (i, o) in outs.iter_mut().enumerate().take(n - 1) {
+            *o = self.extra[i].flush();
+        }
+        Some(AcqRecord::Multi(self.multi_record(out0?, outs)))
+    }
+
+    /// [`push_byte`](Self::push_byte) reading counter lines too.
+    pub fn push_byte_any(&mut self, port: Port, b: u8) -> Option<AcqRecord> {
+        match port {
+            Port::Scalar => self.push_scalar_line_byte(b),
+            _ => self.push_byte(port, b).map(AcqRecord::One),
+        }
+    }
+
+    fn multi_record(
+        &mut self,
+        out0: crate::compensator::Output,
+        outs: [Option<crate::compensator::Output>; MAX_CHANNELS - 1],
+    ) -> MultiRecord {
+        let one = |o: &crate::compensator::Output| ChannelRecord {
+            mag: o.mag,
+            interference_nt: o.interference_nt,
+            compensated: o.compensated,
+            sigma_nt: o.interference_sigma_nt,
+            flags: o.flags,
+        };
+        let mut ch = [ChannelRecord::MISSING; MAX_CHANNELS];
+        ch[0] = one(&out0);
+        let mut flags = out0.flags;
+        for (c, o) in ch[1..].iter_mut().zip(&outs) {
+            if let Some(o) = o {
+                *c = one(o);
+            }
+            flags = flags.union(c.flags);
+        }
+        // the counters count records, each flag when any channel carries it
+        let seq = self.count_record(flags);
+        MultiRecord::new(seq, out0.t_s, self.channels, ch)
+    }
+
+    /// The next sequence number, the record and its flags counted.
+    fn count_record(&mut self, flags: Flags) -> u32 {
         let seq = self.seq;
         self.seq = self.seq.wrapping_add(1);
         let c = &mut self.counters;
@@ -679,10 +885,15 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             (Flags::MAG_MISSING, &mut c.mag_missing),
             (Flags::PARSE_ERROR, &mut c.parse_error),
         ] {
-            if o.flags.contains(bit) {
+            if flags.contains(bit) {
                 inc(n);
             }
         }
+        seq
+    }
+
+    fn record(&mut self, o: crate::compensator::Output) -> Record {
+        let seq = self.count_record(o.flags);
         Record {
             seq,
             t_s: o.t_s,

@@ -460,3 +460,82 @@ fn documented_examples_decode() {
     .unwrap();
     assert_eq!(f.counts, [1, -1, 4_194_304]);
 }
+
+#[test]
+fn commands_address_a_sensor_with_one_more_argument() {
+    let p = |b: &str| parse_command(cmd_line(b).as_bytes(), 16);
+    use CommandError::*;
+    assert_eq!(
+        p("MCCMD,SETCOEF,2,3,-1.25E-2"),
+        Ok(Command::SetSensorCoef {
+            sensor: 2,
+            index: 3,
+            value: -0.0125
+        })
+    );
+    // sensor 0 is the single sensor's form
+    assert_eq!(
+        p("MCCMD,SETCOEF,0,3,-1.25E-2"),
+        Ok(Command::SetCoef {
+            index: 3,
+            value: -0.0125
+        })
+    );
+    assert_eq!(
+        p("MCCMD,GETCOEF,1,15"),
+        Ok(Command::GetSensorCoef {
+            sensor: 1,
+            index: Some(15)
+        })
+    );
+    assert_eq!(
+        p("MCCMD,GETCOEF,2,ALL"),
+        Ok(Command::GetSensorCoef {
+            sensor: 2,
+            index: None
+        })
+    );
+    assert_eq!(p("MCCMD,GETCOEF,0,ALL"), Ok(Command::GetCoef(None)));
+    assert_eq!(p("MCCMD,GETCOEF,0,4"), Ok(Command::GetCoef(Some(4))));
+    assert_eq!(p("MCCMD,SETCOEF,3,3,1.0"), Err(IndexOutOfBounds));
+    assert_eq!(p("MCCMD,SETCOEF,1,16,1.0"), Err(IndexOutOfBounds));
+    assert_eq!(p("MCCMD,GETCOEF,1,16"), Err(IndexOutOfBounds));
+    assert_eq!(p("MCCMD,SETCOEF,1,ALL,1.0"), Err(BadArgument));
+    assert_eq!(p("MCCMD,SETCOEF,1,2,INF"), Err(ValueOutOfBounds));
+    assert_eq!(p("MCCMD,GETCOEF,1,2,3"), Err(BadArgument));
+    assert_eq!(p("MCCMD,SETFLUX,1,2,3"), Err(BadArgument));
+    assert_eq!(p("MCCMD,SETCOEF,1,2,3,4"), Err(BadArgument));
+    let mut out = [0u8; 96];
+    for c in [
+        Command::SetSensorCoef {
+            sensor: 1,
+            index: 15,
+            value: -1.234_567_8e-5,
+        },
+        Command::GetSensorCoef {
+            sensor: 2,
+            index: None,
+        },
+        Command::GetSensorCoef {
+            sensor: 2,
+            index: Some(0),
+        },
+    ] {
+        let n = encode_command(&c, &mut out).unwrap();
+        assert_eq!(parse_command(&out[..n], 16), Ok(c));
+    }
+    let n = encode_command(
+        &Command::SetSensorCoef {
+            sensor: 2,
+            index: 3,
+            value: -0.0125,
+        },
+        &mut out,
+    )
+    .unwrap();
+    let line = String::from_utf8_lossy(&out[..n]);
+    assert!(
+        line.starts_with("$MCCMD,SETCOEF,2,3,-125000002E-10*"),
+        "{line}"
+    );
+}

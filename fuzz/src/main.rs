@@ -16,6 +16,9 @@ use magcomp_core::protocol::command::{
     encode_blob, encode_command, flux_blob_id, flux_temp_blob_id, lag_blob_id, Command, Mode,
 };
 use magcomp_core::protocol::fluxgate::encode_spi_frame;
+use magcomp_core::protocol::multi_record::{
+    encode_multi_record, ChannelRecord, MultiRecord, MAX_MULTI_RECORD_LEN,
+};
 use magcomp_core::protocol::record::{encode_record, Record};
 use magcomp_core::{Flags, MagCounts};
 use rand::rngs::SmallRng;
@@ -54,7 +57,10 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                 v.push(nmea(b));
             }
         }
-        Seeds::Scalar => v.push(b"53620.4401\r\n48000.0000\r\n99999.9999\r\n".to_vec()),
+        Seeds::Scalar => v.push(
+            b"53620.4401\r\n48000.0000\r\n99999.9999\r\nM,53620.4401,,53619.9043\r\nM,53620.4,5362X.1\r\n"
+                .to_vec(),
+        ),
         Seeds::Flux => v.push(b"12345.678,-123.400,45678.900\r\n0,0,0\r\n1,2,3,21.5*04\r\n".to_vec()),
         Seeds::Spi => {
             let mut s = Vec::new();
@@ -94,6 +100,15 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                     index: 4,
                     value: 2.5e-5,
                 },
+                Command::GetSensorCoef {
+                    sensor: 2,
+                    index: None,
+                },
+                Command::SetSensorCoef {
+                    sensor: 1,
+                    index: 15,
+                    value: -1.25e-2,
+                },
             ] {
                 let n = encode_command(&c, &mut out).unwrap();
                 s.extend_from_slice(&out[..n]);
@@ -115,7 +130,7 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
         }
         Seeds::Record => {
             let mut s = Vec::new();
-            let mut out = [0u8; 256];
+            let mut out = [0u8; MAX_MULTI_RECORD_LEN];
             for (i, mag) in [Some(MagCounts(536_204_401)), None].into_iter().enumerate() {
                 let r = Record {
                     seq: i as u32,
@@ -131,15 +146,38 @@ fn builtin(kind: Seeds) -> Vec<Vec<u8>> {
                 let n = encode_record(&r, &mut out).unwrap();
                 s.extend_from_slice(&out[..n]);
             }
+            // a counter line's record, channel 1 missing
+            let ch = |mag: Option<MagCounts>| ChannelRecord {
+                mag,
+                interference_nt: -12.3456,
+                compensated: Record::compensate(mag, -12.3456),
+                sigma_nt: 0.25,
+                flags: Flags(if mag.is_none() { Flags::MAG_MISSING } else { 0 }),
+            };
+            let c = [
+                ch(Some(MagCounts(536_204_401))),
+                ch(None),
+                ch(Some(MagCounts(536_199_043))),
+            ];
+            let m = MultiRecord::new(2, 43_202.1, 3, c);
+            let n = encode_multi_record(&m, &mut out).unwrap();
+            s.extend_from_slice(&out[..n]);
             s.extend_from_slice(
                 b"$MCRAW,0,43200.000000,51468.8597,10873.9941,-12026.2393,48954.7461,45.28550633,-75.72062967,3001.2700,60.0120,0000*A8B2\r\n",
             );
             v.push(s);
         }
-        Seeds::Capture => v.push(
-            b"# magcomp-capture v1\n# scalar_hz: 10\n1000 flux 312C322C330D0A\n2000 scalar 35333632302E343430310D0A\n"
-                .to_vec(),
-        ),
+        Seeds::Capture => {
+            v.push(
+                b"# magcomp-capture v1\n# scalar_hz: 10\n1000 flux 312C322C330D0A\n2000 scalar 35333632302E343430310D0A\n"
+                    .to_vec(),
+            );
+            // a counter line of three magnetometers, channel 1 dead
+            v.push(
+                b"# magcomp-capture v1\n# scalar_hz: 10\n1000 flux 312C322C330D0A\n2000 scalar 4D2C35333632302E343430312C2C35333631392E393034330D0A\n3000 scalar 35333632302E343430310D0A\n"
+                    .to_vec(),
+            );
+        }
         Seeds::Trace => v.push(
             b"t,mag,flux_x,flux_y,flux_z,lat,lon,alt\n0,50000.1,1,2,3,45,7,1000\n0.1,50000.2,1,2,3,45,7,1000\n"
                 .to_vec(),

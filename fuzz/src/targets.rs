@@ -1,9 +1,10 @@
 //! One function per fuzz target: decode the input and assert what must hold for any
 //! input (a panic here, or in the decoder, is a finding).
 
-use magcomp::board::replay::{replay_capture, ReplayOptions};
+use magcomp::board::replay::{replay_capture_any, ReplayOptions};
 use magcomp::io::trace::{read_trace_from, ColumnMap};
 use magcomp::model::spec::ModelSpec;
+use magcomp_core::acquisition::AcqRecord;
 use magcomp_core::protocol::capture::{decode_line, encode_line, MAX_CHUNK, MAX_LINE};
 use magcomp_core::protocol::command::{
     blob_len, decode_blob, encode_blob, encode_command, parse_command, Command, CommandReader,
@@ -13,10 +14,15 @@ use magcomp_core::protocol::fluxgate::{
     decode_spi_frame, encode_spi_frame, FluxAsciiReader, ADC_FULL_SCALE, MAX_ASCII_NT,
     SPI_FRAME_LEN,
 };
+use magcomp_core::protocol::multi_record::{
+    decode_multi_record, encode_multi_record, MAX_MULTI_RECORD_LEN,
+};
+use magcomp_core::protocol::multi_scalar::ScalarLine;
 use magcomp_core::protocol::nmea::{NmeaReader, Sentence};
 use magcomp_core::protocol::raw::{decode_raw, encode_raw, MAX_RAW_LEN};
 use magcomp_core::protocol::record::{decode_record, encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader, MAX_FIELD_NT, MIN_FIELD_NT};
+use magcomp_core::{Flags, MagCounts};
 use std::sync::OnceLock;
 
 pub type Target = fn(&[u8]);
@@ -25,11 +31,13 @@ pub type Target = fn(&[u8]);
 pub const TARGETS: &[(&str, Target, Seeds)] = &[
     ("nmea", nmea, Seeds::Gps),
     ("scalar", scalar, Seeds::Scalar),
+    ("scalar_line", scalar_line, Seeds::Scalar),
     ("flux_ascii", flux_ascii, Seeds::Flux),
     ("flux_spi", flux_spi, Seeds::Spi),
     ("command", command, Seeds::Command),
     ("blob", blob, Seeds::Blob),
     ("record", record, Seeds::Record),
+    ("multi_record", multi_record, Seeds::Record),
     ("raw", raw, Seeds::Record),
     ("capture", capture, Seeds::Capture),
     ("acquisition", acquisition, Seeds::Capture),
@@ -122,6 +130,50 @@ fn scalar(data: &[u8]) {
     assert_eq!(rd.stats.ok + rd.stats.errors + rd.stats.overlong, n);
 }
 
+/// Single fields and counter lines (`M,…`): every non-empty line is one result; a
+/// counter line carries 2–3 channels, each reading within the Earth-field range.
+fn scalar_line(data: &[u8]) {
+    let mut rd = ScalarReader::new(ScalarConfig::default());
+    let mut n = 0u32;
+    let in_range = |m: MagCounts| (MIN_FIELD_NT..=MAX_FIELD_NT).contains(&(m.0 / 10_000));
+    for &b in data {
+        match rd.push_line(b) {
+            None => continue,
+            Some(ScalarLine::Single(Ok(f))) => assert!(in_range(f.mag), "{f:?}"),
+            Some(ScalarLine::Single(Err(_))) => {}
+            Some(ScalarLine::Multi(f)) => {
+                assert!((2..=3).contains(&f.channels), "{f:?}");
+                assert!(f.ch.iter().filter_map(|c| c.mag()).all(in_range), "{f:?}");
+                assert!(f.ch[usize::from(f.channels)..]
+                    .iter()
+                    .all(|c| c.mag().is_none()));
+            }
+        }
+        n += 1;
+    }
+    assert_eq!(rd.stats.ok + rd.stats.errors + rd.stats.overlong, n);
+}
+
+/// Multi-sensor records (`$MCMREC`): decoding is idempotent after one canonicalisation,
+/// as for `$MCREC`.
+fn multi_record(data: &[u8]) {
+    let mut out = [0u8; MAX_MULTI_RECORD_LEN];
+    for line in data.split(|&b| b == b'\n') {
+        let Ok(r) = decode_multi_record(line) else {
+            continue;
+        };
+        let Ok(n) = encode_multi_record(&r, &mut out) else {
+            continue; // values too long for a record line: refused, fine
+        };
+        let r2 = decode_multi_record(&out[..n]).expect("an encoded multi record decodes");
+        let n2 = encode_multi_record(&r2, &mut out).unwrap();
+        let mut again = [0u8; MAX_MULTI_RECORD_LEN];
+        let n3 =
+            encode_multi_record(&decode_multi_record(&out[..n2]).unwrap(), &mut again).unwrap();
+        assert_eq!(&out[..n2], &again[..n3], "{r:?}");
+    }
+}
+
 fn flux_ascii(data: &[u8]) {
     let mut rd = FluxAsciiReader::new();
     let mut n = 0u32;
@@ -169,6 +221,15 @@ fn command(data: &[u8]) {
         }
         if let Command::SetFluxTemp { index, value } = c {
             assert!(value.is_finite() && usize::from(index) < 7);
+        }
+        if let Command::SetSensorCoef {
+            sensor,
+            index,
+            value,
+        } = c
+        {
+            assert!(value.is_finite() && value.abs() < MAX_COEF_ABS && (index as usize) < N_COEF);
+            assert!((1..3).contains(&sensor), "{c:?}");
         }
         if let Command::SetLag(v) = c {
             assert!(
@@ -291,10 +352,15 @@ fn acquisition(data: &[u8]) {
         opts.lag_s = Some(f32::from(b % 52) * 0.01);
     }
     let mut recs = Vec::new();
-    let Ok(st) = replay_capture(data, &opts, |r| {
-        recs.push(*r);
-        Ok(())
-    }) else {
+    let Ok(st) = replay_capture_any(
+        data,
+        &opts,
+        |r| {
+            recs.push(*r);
+            Ok(())
+        },
+        |_| Ok(()),
+    ) else {
         return; // refused with an error (e.g. unsupported version): fine
     };
     assert_eq!(recs.len() as u64, st.records);
@@ -302,13 +368,27 @@ fn acquisition(data: &[u8]) {
         st.records, st.counters.scalar_lines as u64,
         "one record per scalar line"
     );
-    for (i, r) in recs.iter().enumerate() {
-        assert_eq!(r.seq as usize, i);
-        assert!(r.t_s.is_finite(), "{r:?}");
-        let finite = r.interference_nt.is_finite() && r.innovation_nt.is_finite();
-        assert!(finite || r.flags.0 != 0 || r.mag.is_none(), "{r:?}");
-        if r.mag.is_none() {
-            assert!(r.compensated.is_none(), "{r:?}");
+    for (i, rec) in recs.iter().enumerate() {
+        assert_eq!(rec.seq() as usize, i);
+        match rec {
+            AcqRecord::One(r) => {
+                assert!(r.t_s.is_finite(), "{r:?}");
+                let finite = r.interference_nt.is_finite() && r.innovation_nt.is_finite();
+                assert!(finite || r.flags.0 != 0 || r.mag.is_none(), "{r:?}");
+                if r.mag.is_none() {
+                    assert!(r.compensated.is_none(), "{r:?}");
+                }
+            }
+            AcqRecord::Multi(r) => {
+                assert!(r.t_s.is_finite(), "{r:?}");
+                for c in &r.ch[..usize::from(r.channels)] {
+                    assert!(c.interference_nt.is_finite() || c.flags.0 != 0, "{r:?}");
+                    if c.mag.is_none() {
+                        assert!(c.compensated.is_none(), "{r:?}");
+                        assert!(c.flags.contains(Flags::MAG_MISSING), "{r:?}");
+                    }
+                }
+            }
         }
     }
 }

@@ -659,15 +659,12 @@ impl Board {
         .ok_or_else(|| format!("no reply to {:?}", String::from_utf8_lossy(bytes)))
     }
 
-    /// Waits until `n` records arrived (or `timeout`); returns the count seen.
+    /// Waits until `n` records (`$MCREC` or `$MCMREC`) arrived (or `timeout`); returns the
+    /// count seen.
     pub fn wait_records(&self, n: usize, timeout: Duration) -> usize {
         let end = Instant::now() + timeout;
         loop {
-            let got = self
-                .output()
-                .iter()
-                .filter(|l| l.starts_with("$MCREC"))
-                .count();
+            let got = self.output().iter().filter(|l| is_record_line(l)).count();
             if got >= n || Instant::now() > end {
                 return got;
             }
@@ -682,11 +679,7 @@ impl Board {
         let mut last = usize::MAX;
         let mut since = Instant::now();
         loop {
-            let n = self
-                .output()
-                .iter()
-                .filter(|l| l.starts_with("$MCREC"))
-                .count();
+            let n = self.output().iter().filter(|l| is_record_line(l)).count();
             if n != last {
                 last = n;
                 since = Instant::now();
@@ -756,4 +749,9 @@ impl Drop for Board {
             let _ = std::fs::remove_dir_all(&self.dir);
         }
     }
+}
+
+/// An output record line: a single sensor's `$MCREC` or a counter line's `$MCMREC`.
+pub fn is_record_line(l: &str) -> bool {
+    l.starts_with("$MCREC") || l.starts_with("$MCMREC")
 }

@@ -70,6 +70,12 @@ pub struct FlightSpec {
     /// Fraction of payload bytes replaced by random bytes (line terminators are kept so the
     /// sample count stays known; a corrupted terminator would merge two samples).
     pub corrupt_fraction: f64,
+    /// Scalar magnetometers: 1 writes single-field lines (`$ <nT>,0999`), 2–3 a
+    /// multi-channel counter line (`M,<nT>,<nT>[,<nT>]`), each sensor with its own
+    /// interference and 2 m further along the fuselage (docs/firmware.md).
+    pub sensors: usize,
+    /// Channel `.0` of the counter line sends an empty field (a dead sensor) in [start, end) s.
+    pub dead_channel_s: Option<(usize, f64, f64)>,
 }
 
 impl FlightSpec {
@@ -83,6 +89,8 @@ impl FlightSpec {
             flux_dropout_s: None,
             gps_outage_s: None,
             corrupt_fraction: 0.0,
+            sensors: 1,
+            dead_channel_s: None,
         }
     }
 }
@@ -188,10 +196,32 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
         let anomaly = 30.0 * (-((x_m - 900.0) / 200.0).powi(2)).exp();
         let interference = (3.0 * b[0] - 2.0 * b[1] + 1.5 * b[2]) / bn + 4.0;
         let total = f_nt + anomaly + interference + 0.01 * rng.gauss();
+        let bytes = if spec.sensors <= 1 {
+            format!("$ {total:.4},0999\r\n")
+        } else {
+            let mut line = String::from("M");
+            for i in 0..spec.sensors.min(3) {
+                // sensor i: 2·i m behind along the line, its own permanent field
+                let d_m = 2.0 * i as f64;
+                let anomaly = 30.0 * (-((x_m - d_m - 900.0) / 200.0).powi(2)).exp();
+                let k = 1.0 + 0.5 * i as f64;
+                let interference = k * (3.0 * b[0] - 2.0 * b[1] + 1.5 * b[2]) / bn + 4.0 * k;
+                let field = f_nt + anomaly + interference + 0.01 * rng.gauss();
+                let dead = spec
+                    .dead_channel_s
+                    .is_some_and(|(c, a, e)| c == i && t >= a && t < e);
+                line.push(',');
+                if !dead {
+                    line.push_str(&format!("{field:.4}"));
+                }
+            }
+            line.push_str("\r\n");
+            line
+        };
         chunks.push(Chunk {
             t_us: (t * 1e6) as u64,
             port: Port::Scalar,
-            bytes: format!("$ {total:.4},0999\r\n").into_bytes(),
+            bytes: bytes.into_bytes(),
         });
         scalar_t_s.push(t);
     }

@@ -11,6 +11,12 @@ pub mod prng;
 #[path = "../../src/board_config.rs"]
 pub mod board_config;
 pub mod replay;
+/// The board's coefficient store layout (pure: the tests check its images on the host).
+/// Its `Result<_, ()>` is the firmware's ("no valid set: calibrate"), public here only
+/// because this crate is a library.
+#[path = "../../src/store.rs"]
+#[allow(clippy::result_unit_err)]
+pub mod store;
 
 pub use magcomp_core::protocol::record::{Record, decode_record};
 use std::io::{self, BufRead, Write};

@@ -6,6 +6,7 @@
 
 use crate::board_config::{self, BoardAcquisition, FluxAsciiPort, GpsPort, ScalarPort};
 use crate::capture::{Capture, Port};
+use magcomp_core::acquisition::AcqRecord;
 use magcomp_core::model::Model;
 use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::record::Record;
@@ -18,8 +19,24 @@ pub fn replay(cap: &Capture) -> Vec<Record> {
 }
 
 /// As [`replay`], with the scalar's delay τ set (`SETLAG`) before the first byte: the
-/// board's delay line is attached at boot, as `src/fw.rs` does.
+/// board's delay line is attached at boot, as `src/fw.rs` does. Single-sensor captures
+/// only (a counter line's `$MCMREC` records: [`replay_any`]).
 pub fn replay_lagged(cap: &Capture, lag_s: f32) -> Vec<Record> {
+    replay_any_lagged(cap, lag_s)
+        .into_iter()
+        .map(|r| match r {
+            AcqRecord::One(r) => r,
+            AcqRecord::Multi(r) => panic!("record {}: a multi-sensor capture", r.seq),
+        })
+        .collect()
+}
+
+/// Every record, `$MCREC` or `$MCMREC`, the board should emit for `cap`.
+pub fn replay_any(cap: &Capture) -> Vec<AcqRecord> {
+    replay_any_lagged(cap, 0.0)
+}
+
+fn replay_any_lagged(cap: &Capture, lag_s: f32) -> Vec<AcqRecord> {
     let (mut scalar, mut flux, mut gps) = (ScalarPort::new(), FluxAsciiPort::new(), GpsPort::new());
     let mut acq = Box::new(BoardAcquisition::placeholder(Model {
         field: false,
@@ -44,7 +61,7 @@ pub fn replay_lagged(cap: &Capture, lag_s: f32) -> Vec<Record> {
             out.extend(ev.and_then(|ev| ev.apply(&mut acq)));
         }
     }
-    while let Some(r) = acq.flush() {
+    while let Some(r) = acq.flush_any() {
         out.push(r);
     }
     out

@@ -17,6 +17,7 @@ use magcomp::board::capture::{trace_to_capture, CaptureOptions};
 use magcomp::board::replay::{replay_capture, ReplayOptions};
 use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{simulate, SimConfig};
+use magcomp_core::acquisition::AcqRecord;
 use magcomp_core::model::Model;
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::record::Record;
@@ -50,7 +51,11 @@ fn firmware(cap: &[u8], acq: &mut BoardAcquisition) -> Vec<Record> {
                 Port::Gps => gps.push(b),
                 Port::Cmd | Port::Out => None,
             };
-            out.extend(ev.and_then(|ev| ev.apply(acq)));
+            // single-sensor captures here: every record is a `$MCREC`
+            out.extend(ev.and_then(|ev| ev.apply(acq)).map(|r| match r {
+                AcqRecord::One(r) => r,
+                AcqRecord::Multi(r) => panic!("record {}: a counter line", r.seq),
+            }));
         }
     }
     while let Some(r) = acq.flush() {

@@ -11,6 +11,8 @@
 //!   filter `CovFilter`, the yardstick: same structure (5 dynamic states, scalar measurement);
 //! - `sample21`: the board's whole per-sample path: scalar + fluxgate line parsing, the
 //!   aligner, `Compensator::push` and the record encoding;
+//! - `sample3`: the same with three magnetometers on a counter line (`M,…`): one line, three
+//!   `Compensator::push`, one `$MCMREC`;
 //! - `epoch`: `EpochBuilder::push` alone (the part of `Compensator::push` before the filter);
 //! - `empty`: the markers alone (overhead to subtract).
 #![no_std]
@@ -23,6 +25,7 @@ mod board_config;
 // the interrupt vector table (cortex-m-rt is built with its `device` feature)
 use embassy_stm32 as _;
 
+use core::fmt::Write as _;
 use core::hint::black_box;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug;
@@ -32,7 +35,7 @@ use magcomp_core::filter::covariance::CovFilter;
 use magcomp_core::filter::ud::{MAX_DYNAMIC, MAX_NOISE};
 use magcomp_core::model::{Eddy, Induced, Model, Permanent, Rate, Term};
 use magcomp_core::protocol::fluxgate::FluxAsciiReader;
-use magcomp_core::protocol::record::{MAX_RECORD_LEN, encode_record};
+use magcomp_core::protocol::multi_record::MAX_MULTI_RECORD_LEN;
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 use magcomp_core::{Compensator, CompensatorConfig, MagCounts};
 
@@ -68,6 +71,7 @@ markers!(
     bench_kf27_begin bench_kf27_end 17,
     bench_sample21_begin bench_sample21_end 19,
     bench_epoch_begin bench_epoch_end 21,
+    bench_sample3_begin bench_sample3_end 23,
 );
 
 /// A deterministic manoeuvring sample `k` at 10 Hz.
@@ -207,30 +211,39 @@ fn bench_kf<const N: usize>(n: usize, b: extern "C" fn(), e: extern "C" fn()) {
     black_box(f.state());
 }
 
-/// The board's per-sample work from bytes to an encoded record.
-fn bench_sample() {
-    static ACQ: static_cell::ConstStaticCell<board_config::BoardAcquisition> =
-        static_cell::ConstStaticCell::new(board_config::BoardAcquisition::placeholder(Model {
-            field: false,
-            terms: &[],
-        }));
-    let al = ACQ.take();
+/// The board's per-sample work from bytes to an encoded record, with `channels` scalar
+/// magnetometers (1: single-field lines; 2–3: a counter line), started afresh in place.
+fn bench_sample(
+    al: &mut board_config::BoardAcquisition,
+    channels: i64,
+    begin: extern "C" fn(),
+    end: extern "C" fn(),
+) {
     if board_config::start(al).is_err() {
         fail()
     }
     let mut scalar = ScalarReader::new(ScalarConfig::default());
     let mut flux = FluxAsciiReader::new();
-    let mut out = [0u8; MAX_RECORD_LEN];
+    let mut out = [0u8; MAX_MULTI_RECORD_LEN];
     for k in 0..WARMUP + STEPS {
         let s = sample(k);
         // the lines as the sensors send them (formatting is not part of the measured path)
-        let mut sl = [0u8; 24];
+        let mut sl = [0u8; 48];
         let sl = fmt_line(&mut sl, |w| {
             let m = s.mag.map_or(0, |m| m.0);
-            core::fmt::write(
-                w,
-                format_args!("$ {}.{:04},0999\r\n", m / 10_000, m % 10_000),
-            )
+            if channels == 1 {
+                return core::fmt::write(
+                    w,
+                    format_args!("$ {}.{:04},0999\r\n", m / 10_000, m % 10_000),
+                );
+            }
+            w.write_str("M")?;
+            for i in 0..channels {
+                // each sensor 1.2345 nT apart: its own reading, the same sample
+                let m = m + 12_345 * i;
+                core::fmt::write(w, format_args!(",{}.{:04}", m / 10_000, m % 10_000))?;
+            }
+            w.write_str("\r\n")
         });
         let mut fl = [0u8; 48];
         let fl = fmt_line(&mut fl, |w| {
@@ -238,7 +251,7 @@ fn bench_sample() {
             core::fmt::write(w, format_args!("{}.25,{}.5,{}.75\r\n", f[0], f[1], f[2]))
         });
         if k >= WARMUP {
-            bench_sample21_begin();
+            begin();
         }
         for &b in fl {
             if let Some(r) = flux.push(b) {
@@ -246,12 +259,12 @@ fn bench_sample() {
             }
         }
         for &b in sl {
-            if let Some(rec) = scalar.push(b).and_then(|r| al.scalar_result(r)) {
-                black_box(encode_record(&rec, &mut out).ok());
+            if let Some(rec) = scalar.push_line(b).and_then(|l| al.scalar_line(l)) {
+                black_box(rec.encode(&mut out).ok());
             }
         }
         if k >= WARMUP {
-            bench_sample21_end();
+            end();
         }
     }
 }
@@ -320,7 +333,15 @@ fn main() -> ! {
     );
     bench_kf::<21>(21, bench_kf21_begin, bench_kf21_end);
     bench_kf::<27>(27, bench_kf27_begin, bench_kf27_end);
-    bench_sample();
+    // one acquisition (3 compensators, ~22 KB) for both: `start` resets it in place
+    static ACQ: static_cell::ConstStaticCell<board_config::BoardAcquisition> =
+        static_cell::ConstStaticCell::new(board_config::BoardAcquisition::placeholder(Model {
+            field: false,
+            terms: &[],
+        }));
+    let al = ACQ.take();
+    bench_sample(al, 1, bench_sample21_begin, bench_sample21_end);
+    bench_sample(al, 3, bench_sample3_begin, bench_sample3_end);
     bench_epoch();
     debug::exit(debug::EXIT_SUCCESS);
     loop {

@@ -10,7 +10,11 @@
 //! $MCCMD,GETLAG*HH         $MCCMD,SETLAG,2.05E-1*HH
 //! $MCCMD,GETFTEMP*HH       $MCCMD,GETFTEMP,4*HH    $MCCMD,SETFTEMP,1,4.0E-1*HH
 //! $MCCMD,FACTORY,ERASE*HH
+//! $MCCMD,GETCOEF,2,ALL*HH  $MCCMD,GETCOEF,2,3*HH   $MCCMD,SETCOEF,2,3,-1.25E-2*HH
 //! ```
+//! With several magnetometers (`multi_scalar`) `GETCOEF`/`SETCOEF` address a sensor
+//! 0–2 as their first argument when they have one more; the forms without it are sensor
+//! 0's, as they always were (a single-sensor board's files and tools keep working).
 //! `GETFLUX`/`SETFLUX` address the fluxgate's scalar calibration (`fluxcal`), 12 values:
 //! the matrix row by row (0–8), then the bias in nT (9–11). `GETLAG`/`SETLAG` the scalar's
 //! delay τ in seconds (`lag`, 0 – [`MAX_LAG_S`]): the board pairs each scalar sample with
@@ -75,7 +79,22 @@ pub enum Command {
     /// `FACTORY,ERASE`: erase the store and return to the boot defaults (the argument makes
     /// it hard to send by accident).
     FactoryReset,
+    /// `GETCOEF,<sensor>,<index>|ALL`: sensor 1 or 2 of a counter line (sensor 0 is
+    /// [`Command::GetCoef`]).
+    GetSensorCoef {
+        sensor: u8,
+        index: Option<u16>,
+    },
+    /// `SETCOEF,<sensor>,<index>,<value>`, sensor 1 or 2 (0 is [`Command::SetCoef`]).
+    SetSensorCoef {
+        sensor: u8,
+        index: u16,
+        value: f32,
+    },
 }
+
+/// Sensors `GETCOEF`/`SETCOEF` address (the counter line's channels).
+pub const MAX_SENSORS: usize = crate::protocol::multi_scalar::MAX_CHANNELS;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CommandError {
@@ -205,6 +224,7 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
     let name = it.next().ok_or(CommandError::UnknownCommand)?;
     let a1 = it.next();
     let a2 = it.next();
+    let a3 = it.next();
     if it.next().is_some() {
         return Err(CommandError::BadArgument);
     }
@@ -226,6 +246,37 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         }
         Ok(value)
     };
+    let sensor_form = match (name, a3) {
+        (b"SETCOEF", Some(_)) | (b"GETCOEF", None) if a2.is_some() => true,
+        (_, Some(_)) => return Err(CommandError::BadArgument),
+        _ => false,
+    };
+    if sensor_form {
+        let sensor = index_below(a1.unwrap_or_default(), MAX_SENSORS)? as u8;
+        let index = match a2 {
+            Some(b"ALL") if a3.is_none() => None,
+            Some(i) => Some(index_below(i, n_coef)?),
+            None => return Err(CommandError::BadArgument),
+        };
+        return match (index, a3) {
+            (Some(index), Some(v)) => {
+                let value = value(v)?;
+                Ok(match sensor {
+                    0 => Command::SetCoef { index, value },
+                    sensor => Command::SetSensorCoef {
+                        sensor,
+                        index,
+                        value,
+                    },
+                })
+            }
+            (None, Some(_)) => Err(CommandError::BadArgument),
+            (index, None) => Ok(match sensor {
+                0 => Command::GetCoef(index),
+                sensor => Command::GetSensorCoef { sensor, index },
+            }),
+        };
+    }
     // `GET<X>[,i]` and `SET<X>,i,v` over a table of `n` values.
     let get = |n: usize, make: fn(Option<u16>) -> Command| match (a1, a2) {
         (None, None) => Ok(make(None)),
@@ -334,6 +385,21 @@ pub fn encode_command(cmd: &Command, out: &mut [u8]) -> Option<usize> {
             Command::SetLag(v) => {
                 c.bytes(b"SETLAG,")?;
                 c.sci(v as f64)?
+            }
+            Command::GetSensorCoef { sensor, index } => {
+                get(&mut c, b"GETCOEF", Some(sensor.into()))?;
+                match index {
+                    Some(i) => get(&mut c, b"", Some(i))?,
+                    None => c.bytes(b",ALL")?,
+                }
+            }
+            Command::SetSensorCoef {
+                sensor,
+                index,
+                value,
+            } => {
+                get(&mut c, b"SETCOEF", Some(sensor.into()))?;
+                set(&mut c, b"", index, value)?
             }
         }
         let x = xor_checksum(&c.written()[1..]);

@@ -10,6 +10,8 @@ pub mod command;
 pub mod common;
 pub mod fluxgate;
 pub mod lag_line;
+pub mod multi_record;
+pub mod multi_scalar;
 pub mod nmea;
 pub mod raw;
 pub mod record;

@@ -42,6 +42,8 @@ pub enum ScalarError {
     Overlong,
     /// A Larmor line arrived but no gyromagnetic ratio is configured.
     NoLarmorRatio,
+    /// A counter line (`M,…`, `multi_scalar`) with fewer than 2 or more than 3 fields.
+    ChannelCount,
 }
 
 /// One scalar sample.
@@ -193,23 +195,50 @@ impl ScalarReader {
     }
 
     /// Feeds one byte; a non-empty line yields exactly one result at its terminator.
+    /// Single-field formats only: a counter line (`M,…`) is an error here, as it always
+    /// was ([`push_line`](Self::push_line) reads both).
     pub fn push(&mut self, b: u8) -> Option<Result<ScalarFrame, ScalarError>> {
+        self.push_with(b, |l, cfg| {
+            super::multi_scalar::ScalarLine::Single(parse_scalar_line(l, cfg))
+        })
+        .map(|l| match l {
+            super::multi_scalar::ScalarLine::Single(r) => r,
+            super::multi_scalar::ScalarLine::Multi(_) => Err(ScalarError::BadCharacter),
+        })
+    }
+
+    /// Feeds one byte; a non-empty line yields exactly one line at its terminator: a single
+    /// field or a multi-channel counter line (`multi_scalar`).
+    pub fn push_line(&mut self, b: u8) -> Option<super::multi_scalar::ScalarLine> {
+        self.push_with(b, super::multi_scalar::parse_scalar_any)
+    }
+
+    fn push_with(
+        &mut self,
+        b: u8,
+        parse: impl FnOnce(&[u8], &ScalarConfig) -> super::multi_scalar::ScalarLine,
+    ) -> Option<super::multi_scalar::ScalarLine> {
+        use super::multi_scalar::ScalarLine;
         if b == b'\r' || b == b'\n' {
             let r = if self.overlong {
-                Err(ScalarError::Overlong)
+                ScalarLine::Single(Err(ScalarError::Overlong))
             } else if self.len == 0 {
                 return None;
             } else {
-                parse_scalar_line(&self.buf[..self.len], &self.cfg)
+                parse(&self.buf[..self.len], &self.cfg)
             };
             self.len = 0;
             self.overlong = false;
             match &r {
-                Ok(_) => self.stats.ok = self.stats.ok.saturating_add(1),
-                Err(ScalarError::Overlong) => {
+                ScalarLine::Single(Ok(_)) | ScalarLine::Multi(_) => {
+                    self.stats.ok = self.stats.ok.saturating_add(1)
+                }
+                ScalarLine::Single(Err(ScalarError::Overlong)) => {
                     self.stats.overlong = self.stats.overlong.saturating_add(1)
                 }
-                Err(_) => self.stats.errors = self.stats.errors.saturating_add(1),
+                ScalarLine::Single(Err(_)) => {
+                    self.stats.errors = self.stats.errors.saturating_add(1)
+                }
             }
             return Some(r);
         }

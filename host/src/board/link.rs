@@ -142,9 +142,18 @@ fn value(s: &str) -> Option<f32> {
     s.parse::<f32>().ok()
 }
 
-/// What the ACK of `cmd` looks like: its command word and the index it echoes.
-fn ack_key(cmd: &Command) -> (&'static str, Option<u16>) {
-    match *cmd {
+/// What the ACK of `cmd` looks like: its command word and the numbers it echoes (index;
+/// sensor and index for sensors 1–2).
+fn ack_key(cmd: &Command) -> (&'static str, Vec<u16>) {
+    let (word, index) = match *cmd {
+        Command::SetSensorCoef { sensor, index, .. } => {
+            return ("SETCOEF", vec![sensor.into(), index])
+        }
+        Command::GetSensorCoef {
+            sensor,
+            index: Some(i),
+        } => return ("GETCOEF", vec![sensor.into(), i]),
+        Command::GetSensorCoef { sensor, .. } => return ("GETCOEF", vec![sensor.into()]),
         Command::SetCoef { index, .. } => ("SETCOEF", Some(index)),
         Command::SetFlux { index, .. } => ("SETFLUX", Some(index)),
         Command::SetFluxTemp { index, .. } => ("SETFTEMP", Some(index)),
@@ -160,14 +169,17 @@ fn ack_key(cmd: &Command) -> (&'static str, Option<u16>) {
         Command::Raw(_) => ("RAW", None),
         Command::Status => ("STATUS", None),
         Command::Mode(_) => ("MODE", None),
-    }
+    };
+    (word, index.into_iter().collect())
 }
 
 /// The value a SET command carries, and whether the board may hold it within 2 ulp
 /// rather than exactly (a coefficient).
 pub fn set_value(cmd: &Command) -> Option<(f32, bool)> {
     match *cmd {
-        Command::SetCoef { value, .. } => Some((value, true)),
+        Command::SetCoef { value, .. } | Command::SetSensorCoef { value, .. } => {
+            Some((value, true))
+        }
         Command::SetFlux { value, .. } | Command::SetFluxTemp { value, .. } => Some((value, false)),
         Command::SetLag(v) => Some((v, false)),
         _ => None,
@@ -178,6 +190,10 @@ pub fn set_value(cmd: &Command) -> Option<(f32, bool)> {
 pub fn read_back_of(cmd: &Command) -> Option<Command> {
     match *cmd {
         Command::SetCoef { index, .. } => Some(Command::GetCoef(Some(index))),
+        Command::SetSensorCoef { sensor, index, .. } => Some(Command::GetSensorCoef {
+            sensor,
+            index: Some(index),
+        }),
         Command::SetFlux { index, .. } => Some(Command::GetFlux(Some(index))),
         Command::SetFluxTemp { index, .. } => Some(Command::GetFluxTemp(Some(index))),
         Command::SetLag(_) => Some(Command::GetLag),
@@ -201,15 +217,15 @@ fn answers(cmd: &Command, ack: &[u8]) -> Result<Option<Option<f32>>> {
         };
         return Ok((f.get(1) == Some(&want)).then_some(None));
     }
-    let rest = match index {
-        Some(i) => {
-            if f.get(1).and_then(|s| s.parse::<u16>().ok()) != Some(i) {
-                return Ok(None);
-            }
-            &f[2..]
-        }
-        None => &f[1..],
-    };
+    let echoed = f
+        .iter()
+        .skip(1)
+        .take(index.len())
+        .map(|s| s.parse::<u16>().ok());
+    if !echoed.eq(index.iter().map(|&i| Some(i))) {
+        return Ok(None);
+    }
+    let rest = &f[1 + index.len()..];
     let got = match rest {
         [] => None,
         [v] => Some(value(v).ok_or_else(|| {
@@ -381,7 +397,7 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
             read_back_ok += 1;
         } else {
             let (word, index) = ack_key(&get);
-            let index = index.map_or(String::new(), |i| format!(",{i}"));
+            let index: String = index.iter().map(|i| format!(",{i}")).collect();
             mismatches.push(format!("{word}{index}: board {got:e}, file {sent:e}"));
         }
     }
@@ -394,7 +410,10 @@ pub fn upload<W: Write>(link: &mut BoardLink<W>, cmds: &[Command]) -> Result<Upl
             mismatches.join("; ")
         );
     }
-    if cmds.iter().any(|c| matches!(c, Command::SetCoef { .. })) {
+    if cmds
+        .iter()
+        .any(|c| matches!(c, Command::SetCoef { .. } | Command::SetSensorCoef { .. }))
+    {
         link.exchange(&Command::Mode(Mode::Survey))
             .context("MODE,SURVEY not acknowledged: the set is loaded but not flown")?;
     }
@@ -453,6 +472,27 @@ mod tests {
         // a late ACK of another line, another command
         assert_eq!(answers(&set, b"SETCOEF,2,-6.12500000E1").unwrap(), None);
         assert_eq!(answers(&set, b"SETFLUX,3,-6.12500000E1").unwrap(), None);
+        // a sensor's SETCOEF: its ACK names the sensor; sensor 0's and another sensor's are
+        // other lines
+        let set2 = Command::SetSensorCoef {
+            sensor: 2,
+            index: 3,
+            value: -61.25,
+        };
+        assert_eq!(
+            answers(&set2, b"SETCOEF,2,3,-6.12500000E1").unwrap(),
+            Some(Some(-61.25))
+        );
+        assert_eq!(answers(&set2, b"SETCOEF,1,3,-6.12500000E1").unwrap(), None);
+        assert_eq!(answers(&set, b"SETCOEF,2,3,-6.12500000E1").unwrap(), None);
+        assert_eq!(answers(&set2, b"SETCOEF,3,-6.12500000E1").unwrap(), None);
+        assert_eq!(
+            read_back_of(&set2),
+            Some(Command::GetSensorCoef {
+                sensor: 2,
+                index: Some(3)
+            })
+        );
         // the same line echoed with another value: the board holds something else
         let e = answers(&set, b"SETCOEF,3,-6.1E1").unwrap_err();
         assert!(

@@ -14,6 +14,7 @@
 use crate::board::replay::{counts_text, nt_text};
 use anyhow::{Context, Result};
 use magcomp_core::protocol::common::crc16_ccitt;
+use magcomp_core::protocol::multi_record::{decode_multi_record, MultiRecord};
 use magcomp_core::protocol::raw::{decode_raw, RawSample};
 use magcomp_core::protocol::record::{decode_record, Record, RecordError};
 use magcomp_core::Flags;
@@ -92,6 +93,10 @@ pub struct MonitorStats {
     pub flag_counts: [u64; 16],
     pub first_t_s: Option<f64>,
     pub last: Option<Record>,
+    /// Of `records`, the several-magnetometer ones (`$MCMREC`), and the last of them (the
+    /// live view draws single-sensor records only; these are counted, with their flags).
+    pub multi_records: u64,
+    pub last_multi: Option<MultiRecord>,
 }
 
 /// `$MCBOOT,<board>,<version>[,RST=<cause>][,PANIC=<file:line>][,SYNC]*HHHH`.
@@ -287,9 +292,25 @@ impl Monitor {
             }
             return None;
         }
+        if l.starts_with(b"$MCMREC") {
+            match decode_multi_record(l) {
+                Ok(r) => {
+                    let flags = r.ch[..usize::from(r.channels)]
+                        .iter()
+                        .fold(Flags::empty(), |f, c| f.union(c.flags));
+                    self.track(r.seq, r.t_s, flags);
+                    let s = &mut self.stats;
+                    s.multi_records += 1;
+                    s.last_multi = Some(r);
+                }
+                Err(RecordError::Crc { .. }) => s.crc_errors += 1,
+                Err(_) => s.parse_errors += 1,
+            }
+            return None;
+        }
         if !l.starts_with(b"$MCREC") {
             // A record whose `$` or prefix was corrupted: its CRC cannot be checked.
-            if l.windows(6).any(|w| w == b"MCREC,") {
+            if l.windows(6).any(|w| w == b"MCREC,") || l.windows(7).any(|w| w == b"MCMREC,") {
                 s.parse_errors += 1;
             } else {
                 s.other_lines += 1;
@@ -313,34 +334,39 @@ impl Monitor {
     }
 
     fn record(&mut self, r: &Record) {
+        self.track(r.seq, r.t_s, r.flags);
+        self.stats.last = Some(*r);
+    }
+
+    /// A record of either kind: counted, its flags, its sequence number and time.
+    fn track(&mut self, seq: u32, t_s: f64, flags: Flags) {
         let s = &mut self.stats;
         s.records += 1;
         for (bit, c) in s.flag_counts.iter_mut().enumerate() {
-            if r.flags.0 & (1 << bit) != 0 {
+            if flags.0 & (1 << bit) != 0 {
                 *c += 1;
             }
         }
         match self.expected {
-            Some(e) if r.seq == e => {}
-            Some(e) if r.seq > e && r.seq - e <= MAX_GAP => {
-                s.missing += u64::from(r.seq - e);
+            Some(e) if seq == e => {}
+            Some(e) if seq > e && seq - e <= MAX_GAP => {
+                s.missing += u64::from(seq - e);
                 if s.gaps.len() < MAX_GAPS {
-                    s.gaps.push((e, r.seq - 1));
+                    s.gaps.push((e, seq - 1));
                 }
             }
             Some(_) => s.restarts += 1,
             None => {}
         }
-        self.expected = Some(r.seq.wrapping_add(1));
-        if r.t_s.is_finite() {
-            s.first_t_s.get_or_insert(r.t_s);
+        self.expected = Some(seq.wrapping_add(1));
+        if t_s.is_finite() {
+            s.first_t_s.get_or_insert(t_s);
             if self.recent_t_s.len() == RATE_WINDOW {
                 self.recent_t_s.pop_front();
             }
-            self.recent_t_s.push_back(r.t_s);
+            self.recent_t_s.push_back(t_s);
         }
-        s.last = Some(*r);
-        self.flagged.push(r.flags);
+        self.flagged.push(flags);
     }
 
     /// `FLAGGED …` when more than 5 % of the last minute's records were refused or
@@ -698,6 +724,38 @@ fn draw<W: Write>(out: &mut W, m: &Monitor, source: &str) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn multi_sensor_records_are_counted_with_their_flags_and_sequence() {
+        use magcomp_core::protocol::multi_record::{
+            encode_multi_record, ChannelRecord, MAX_MULTI_RECORD_LEN,
+        };
+        let mut m = Monitor::new();
+        let mut buf = [0u8; MAX_MULTI_RECORD_LEN];
+        for seq in [0u32, 1, 3] {
+            let mut ch = [ChannelRecord::MISSING; 3];
+            ch[0].flags = Flags(Flags::NO_GPS);
+            let r = MultiRecord {
+                seq,
+                t_s: f64::from(seq) * 0.1,
+                channels: 2,
+                ch,
+                diff: [None; 3],
+            };
+            let n = encode_multi_record(&r, &mut buf).unwrap();
+            // the live view draws single-sensor records: nothing returned
+            assert!(m.push_line(&buf[..n]).is_none());
+        }
+        buf[10] ^= 1;
+        m.push_line(&buf[..buf.iter().position(|&b| b == b'\n').unwrap()]);
+        let s = m.stats();
+        assert_eq!((s.records, s.multi_records, s.crc_errors), (3, 3, 1));
+        assert_eq!((s.missing, s.other_lines, s.parse_errors), (1, 0, 0));
+        assert_eq!(s.flag_counts[1], 3, "NO_GPS");
+        // channel 2 is not carried: its MISSING flag is not counted
+        assert_eq!(s.flag_counts[3], 3, "MAG_MISSING of channel 1 only");
+        assert_eq!(s.last_multi.map(|r| r.seq), Some(3));
+    }
 
     #[test]
     fn flag_words_decode_bits() {

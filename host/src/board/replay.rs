@@ -16,7 +16,9 @@ use crate::board::capture::FluxFormat;
 use crate::io::bounded::read_line_bounded;
 use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
-use magcomp_core::acquisition::{compensator_config, AcqConfig, AcqCounters, Acquisition};
+use magcomp_core::acquisition::{
+    compensator_config, AcqConfig, AcqCounters, AcqRecord, Acquisition,
+};
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::{LagLine, LAG_FRAMES, MAX_LAG_S};
@@ -377,11 +379,38 @@ pub fn replay_capture<R: BufRead>(
 }
 
 /// [`replay_capture`], with each `$MCRAW` sample (`opts.raw`) going to `raw_sink` as the
-/// board sends it: before the record the same byte completed.
+/// board sends it: before the record the same byte completed. A capture of a
+/// multi-channel counter (`$MCMREC` records) is an error here: see [`replay_capture_any`].
 pub fn replay_capture_raw<R: BufRead>(
     input: R,
     opts: &ReplayOptions,
-    sink: impl FnMut(&Record) -> Result<()>,
+    mut sink: impl FnMut(&Record) -> Result<()>,
+    raw_sink: impl FnMut(&RawSample) -> Result<()>,
+) -> Result<ReplayStats> {
+    replay_capture_any(
+        input,
+        opts,
+        |r| {
+            match r {
+            AcqRecord::One(r) => sink(r),
+            AcqRecord::Multi(r) => bail!(
+                "record {}: the capture's scalar port carries counter lines of {} magnetometers (multi-sensor records); replay them with --records",
+                r.seq,
+                r.channels
+            ),
+        }
+        },
+        raw_sink,
+    )
+}
+
+/// [`replay_capture_raw`] for both kinds of record: `$MCREC`, and `$MCMREC` when the
+/// scalar port carries multi-channel counter lines (`multi_scalar`), as the board emits
+/// them.
+pub fn replay_capture_any<R: BufRead>(
+    input: R,
+    opts: &ReplayOptions,
+    sink: impl FnMut(&AcqRecord) -> Result<()>,
     raw_sink: impl FnMut(&RawSample) -> Result<()>,
 ) -> Result<ReplayStats> {
     let mut lines = CaptureLines {
@@ -432,8 +461,8 @@ pub fn replay_capture_raw<R: BufRead>(
             &mut stats,
             &mut out,
         )?;
-        while let Some(r) = acq.flush() {
-            out.emit(&r, &mut stats)?;
+        while let Some(r) = acq.flush_any() {
+            out.emit(r, &mut stats)?;
         }
         stats.counters = acq.counters();
         let mut held = vec![0.0f32; model.coefficient_count()];
@@ -581,15 +610,27 @@ struct Emitter<F, G> {
     dropped: bool,
 }
 
-impl<F: FnMut(&Record) -> Result<()>, G: FnMut(&RawSample) -> Result<()>> Emitter<F, G> {
-    fn emit(&mut self, r: &Record, stats: &mut ReplayStats) -> Result<()> {
-        let mut r = *r;
-        if std::mem::take(&mut self.dropped) {
-            r.flags.set(Flags::PARSE_ERROR);
-        }
+impl<F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawSample) -> Result<()>> Emitter<F, G> {
+    fn emit(&mut self, mut r: AcqRecord, stats: &mut ReplayStats) -> Result<()> {
+        let dropped = std::mem::take(&mut self.dropped);
+        let t_s = match &mut r {
+            AcqRecord::One(r) => {
+                if dropped {
+                    r.flags.set(Flags::PARSE_ERROR);
+                }
+                r.t_s
+            }
+            AcqRecord::Multi(r) => {
+                if dropped {
+                    r.ch.iter_mut()
+                        .for_each(|c| c.flags.set(Flags::PARSE_ERROR));
+                }
+                r.t_s
+            }
+        };
         stats.records += 1;
-        stats.first_t_s.get_or_insert(r.t_s);
-        stats.last_t_s = Some(r.t_s);
+        stats.first_t_s.get_or_insert(t_s);
+        stats.last_t_s = Some(t_s);
         (self.sink)(&r)
     }
 }
@@ -634,7 +675,7 @@ impl PortHistory {
 }
 
 /// Feeds every capture line from `first` on to the acquisition chain, emitting its records.
-fn feed<R: BufRead, F: FnMut(&Record) -> Result<()>, G: FnMut(&RawSample) -> Result<()>>(
+fn feed<R: BufRead, F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawSample) -> Result<()>>(
     acq: &mut ReplayAcquisition<'_>,
     lines: &mut CaptureLines<R>,
     first: Option<Vec<u8>>,
@@ -672,12 +713,12 @@ fn feed<R: BufRead, F: FnMut(&Record) -> Result<()>, G: FnMut(&RawSample) -> Res
             continue;
         }
         for &b in bytes {
-            let record = acq.push_byte(c.port, b);
+            let record = acq.push_byte_any(c.port, b);
             if let Some(raw) = acq.take_raw() {
                 (out.raw_sink)(&raw)?;
             }
             if let Some(r) = record {
-                out.emit(&r, stats)?;
+                out.emit(r, stats)?;
             }
         }
     }

@@ -9,7 +9,7 @@ use crate::calibration::coefficients::{CoefficientFile, Method};
 use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::model::TermKind;
-use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS};
+use magcomp_core::protocol::command::{encode_command, Command, MAX_COEF_ABS, MAX_SENSORS};
 use magcomp_core::protocol::fluxgate::FluxTempCal;
 use magcomp_core::protocol::lag_line::MAX_LAG_S;
 
@@ -161,6 +161,41 @@ pub fn upload_commands(
     Ok(cmds)
 }
 
+/// The commands for a several-sensor coefficient file (`calibrate --sensors`), its sensors
+/// in the file's order being the counter line's channels 0, 1, 2: every sensor's
+/// coefficients (`SETCOEF,<sensor>,…`; sensor 0's in the single-sensor form), and the
+/// fluxgate's corrections from sensor 0's file (the board has one fluxgate), `SAVE` last
+/// unless `save` is false.
+pub fn sensor_commands(
+    files: &[CoefficientFile],
+    board_model: &str,
+    save: bool,
+) -> Result<Vec<Command>> {
+    if files.is_empty() || files.len() > MAX_SENSORS {
+        bail!(
+            "the file holds {} sensors; the board's counter line carries 1–{MAX_SENSORS}",
+            files.len()
+        );
+    }
+    let mut cmds = upload_commands(&files[0], board_model, false)?;
+    for (sensor, f) in files.iter().enumerate().skip(1) {
+        let theirs =
+            upload_commands(f, board_model, false).with_context(|| format!("sensor {sensor}"))?;
+        cmds.extend(theirs.into_iter().filter_map(|c| match c {
+            Command::SetCoef { index, value } => Some(Command::SetSensorCoef {
+                sensor: sensor as u8,
+                index,
+                value,
+            }),
+            _ => None,
+        }));
+    }
+    if save {
+        cmds.push(Command::Save);
+    }
+    Ok(cmds)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -184,6 +219,53 @@ mod tests {
             fluxgate_calibration: flux,
             ..CoefficientFile::new(model, Method::Kf, 10.0, coefficients)
         }
+    }
+
+    #[test]
+    fn a_several_sensor_file_sends_each_sensor_to_its_channel() {
+        let f = |v: f64| {
+            let mut x = file("tl16+field", 16, None);
+            x.coefficients[3].value = v;
+            x
+        };
+        let cmds = sensor_commands(&[f(1.0), f(2.0), f(3.0)], "tl16+field", true).unwrap();
+        // sensor 0 as a single file (16 SETCOEF, SETLAG, 7 SETFTEMP), 16 for each other, SAVE
+        assert_eq!(cmds.len(), 16 + 1 + 7 + 16 + 16 + 1);
+        assert_eq!(
+            cmds[3],
+            Command::SetCoef {
+                index: 3,
+                value: 1.0
+            }
+        );
+        for sensor in [1u8, 2] {
+            let mine: Vec<(u16, f32)> = cmds
+                .iter()
+                .filter_map(|c| match *c {
+                    Command::SetSensorCoef {
+                        sensor: s,
+                        index,
+                        value,
+                    } if s == sensor => Some((index, value)),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(mine.len(), 16);
+            assert_eq!(mine[3], (3, f32::from(sensor) + 1.0));
+        }
+        assert_eq!(cmds.last(), Some(&Command::Save));
+        let lines: Vec<String> = cmds
+            .iter()
+            .map(|c| {
+                let mut b = [0u8; 96];
+                let n = encode_command(c, &mut b).unwrap();
+                String::from_utf8_lossy(&b[..n]).into_owned()
+            })
+            .collect();
+        assert!(lines.iter().any(|l| l.starts_with("$MCCMD,SETCOEF,2,3,")));
+        let four: Vec<_> = (0..4).map(|_| f(1.0)).collect();
+        assert!(sensor_commands(&four, "tl16+field", true).is_err());
+        assert!(sensor_commands(&[], "tl16+field", true).is_err());
     }
 
     #[test]

@@ -6,13 +6,14 @@ use crate::board::flagged_share::FlagTally;
 use crate::board::monitor::FLAG_NAMES;
 use crate::board::replay::{
     csv_row, read_coefficients_for, read_flux_calibration, read_flux_temperature, read_scalar_lag,
-    replay_capture_raw, ReplayOptions, ReplayStats, CSV_HEADER,
+    replay_capture_any, ReplayOptions, ReplayStats, CSV_HEADER,
 };
 use crate::io::output::AtomicFile;
 use crate::model::spec::{InputCorrection, ModelSpec, BOARD_MODEL};
 use anyhow::{Context, Result};
+use magcomp_core::acquisition::AcqRecord;
+use magcomp_core::protocol::multi_record::MAX_MULTI_RECORD_LEN;
 use magcomp_core::protocol::raw::{encode_raw, MAX_RAW_LEN};
-use magcomp_core::protocol::record::{encode_record, MAX_RECORD_LEN};
 use std::io::{BufReader, Write};
 use std::path::{Path, PathBuf};
 
@@ -161,22 +162,37 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     if let Some(w) = csv.as_mut() {
         writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
     }
-    let mut buf = [0u8; MAX_RECORD_LEN];
+    let mut buf = [0u8; MAX_MULTI_RECORD_LEN];
     let mut raw_buf = [0u8; MAX_RAW_LEN];
     let mut tally = FlagTally::default();
     opts.raw = args.raw;
-    let stats = replay_capture_raw(
+    let stats = replay_capture_any(
         BufReader::new(f),
         &opts,
-        |r| {
-            tally.push(r.flags);
-            if let Some(w) = csv.as_mut() {
-                writeln!(w, "{}", csv_row(r))
-                    .with_context(|| format!("writing {}", w.path().display()))?;
+        |rec| {
+            match rec {
+                AcqRecord::One(r) => {
+                    tally.push(r.flags);
+                    if let Some(w) = csv.as_mut() {
+                        writeln!(w, "{}", csv_row(r))
+                            .with_context(|| format!("writing {}", w.path().display()))?;
+                    }
+                }
+                AcqRecord::Multi(r) => {
+                    r.ch[..usize::from(r.channels)]
+                        .iter()
+                        .for_each(|c| tally.push(c.flags));
+                    if csv.is_some() {
+                        anyhow::bail!(
+                            "the capture carries counter lines of {} magnetometers: their records ($MCMREC) have no CSV form, write them with --records",
+                            r.channels
+                        );
+                    }
+                }
             }
             if let Some(w) = txt.borrow_mut().as_mut() {
-                let n = encode_record(r, &mut buf).map_err(|_| {
-                    anyhow::anyhow!("record {} does not fit a board record line", r.seq)
+                let n = rec.encode(&mut buf).map_err(|_| {
+                    anyhow::anyhow!("record {} does not fit a board record line", rec.seq())
                 })?;
                 w.write_all(&buf[..n])
                     .with_context(|| format!("writing {}", w.path().display()))?;

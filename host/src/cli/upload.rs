@@ -3,7 +3,7 @@
 //! (`crate::board::link`).
 
 use crate::board::link::{command_line, upload, BoardLink, ExchangeOptions, LineSource};
-use crate::board::upload::upload_commands;
+use crate::board::upload::{sensor_commands, upload_commands};
 use crate::calibration::coefficients::read_coefficients;
 use anyhow::{bail, Context, Result};
 use std::io::Write;
@@ -91,12 +91,21 @@ pub fn run(args: &UploadArgs) -> Result<()> {
     if args.to_file {
         crate::io::output::check_writable(std::path::Path::new(&args.to))?;
     }
-    let file = read_coefficients(&args.coeffs)?;
+    // a several-sensor file (`calibrate --sensors`): each sensor to its counter channel
+    let files = if crate::cli::multi::is_multi_file(&args.coeffs) {
+        crate::cli::multi::read_multi(&args.coeffs)?.1
+    } else {
+        vec![read_coefficients(&args.coeffs)?]
+    };
+    let file = &files[0];
     let board_model = match &args.board_model {
         Some(m) => m.clone(),
         None => filter_model(&file.model)?,
     };
-    let cmds = upload_commands(&file, &board_model, !args.no_save)?;
+    let cmds = match files.len() {
+        1 => upload_commands(file, &board_model, !args.no_save)?,
+        _ => sensor_commands(&files, &board_model, !args.no_save)?,
+    };
     if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
         eprintln!(
             "note: the crossover rate fit's isotropic part ({:.4} s · d|B|/dt, the anomaly read {:.4} s late) has no board coefficient; the board compensates the rest",
