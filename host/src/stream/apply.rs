@@ -8,7 +8,7 @@ use super::stats::{year_of_date, year_of_doy, DateSource, Despiker, FluxDespiker
 use super::{Plan, Progress};
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::EstimatorSettings;
-use crate::estimate::kf::{HostCompensator, KfOptions};
+use crate::estimate::kf::{filter, HostCompensator, KfOptions};
 use crate::flight::input::Selection;
 use crate::flight::position::PositionChecker;
 use crate::io::csv::{csv_text, fixed_cell as num, number_cell};
@@ -527,25 +527,17 @@ fn run_kf(
         .sigma1
         .or(coeffs.sigma1)
         .context("internal: no sigma1")?;
-    let cfg = crate::estimate::kf::config_for(
+    let cfg = filter::config_for(
         (plan.sample_rate_hz, plan.earth_dir_ned, plan.tie_point),
         &opts,
         sigma1,
         plan.noise_nt,
     );
-    let c32: Vec<f32> = coeffs.coefficients.iter().map(|c| c.value as f32).collect();
+    let given: Vec<f64> = coeffs.coefficients.iter().map(|c| c.value).collect();
     let covariance = coeffs.covariance.as_ref().map(|rows| rows.concat());
     with_model(spec, |model| {
-        let mut comp = HostCompensator::new(model, cfg)
-            .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
-        comp.set_coefficients(&c32).map_err(|e| {
-            crate::model::errors::do_not_fit(&spec.text(), c32.len(), model.coefficient_count(), &e)
-        })?;
-        let interference_terms: Vec<bool> = model
-            .terms
-            .iter()
-            .flat_map(|t| std::iter::repeat_n(t.is_interference(), t.len()))
-            .collect();
+        let mut comp = filter::build(spec, model, cfg, Some(&given), &[])?;
+        let interference_terms = filter::interference_mask(&model);
         let k = model.coefficient_count();
         let mut buf = vec![0.0f32; k];
         let mut regs = RegressorCov::new(k);
@@ -594,12 +586,7 @@ fn run_kf(
                             ready: &mut VecDeque<(Pending, magcomp_core::compensator::Output)>|
              -> Result<()> {
                 if let Some((ep, o)) = ep_out {
-                    comp.term_regressors(&ep, &mut buf);
-                    for (v, &is) in buf.iter_mut().zip(&interference_terms) {
-                        if !is {
-                            *v = 0.0;
-                        }
-                    }
+                    filter::interference_regressors(comp, &ep, &interference_terms, &mut buf);
                     regs.push(&buf);
                     let p = in_filter
                         .pop_front()

@@ -1,11 +1,10 @@
-//! What the filter's noise model is fitted to, from the flight itself: the anomaly's σ1
-//! (along-track spectrum, then the FOM over labelled manoeuvres), the local-roughness
-//! profiles of the anomaly process, and the measurement noise from the innovations.
+//! The figures the filter's noise model is fitted to, from the flight itself: the
+//! anomaly's σ1 from the along-track spectrum, the FOM that chooses among its candidates,
+//! the local-roughness profiles of the anomaly process, the innovations' likelihood. The
+//! stages that make passes for them are in `stages` (`noise`, `field_process`).
 
-use super::{base_config, calibrated_interference, pass, KfOptions};
 use crate::flight::Flight;
 use crate::model::spec::ModelSpec;
-use anyhow::Result;
 use magcomp_core::compensator::Output;
 use magcomp_core::model::Term;
 use magcomp_core::spectrum::{estimate_sigma1, Sigma1Config};
@@ -68,7 +67,7 @@ pub fn estimate_sigma1_with(
 /// The trade's FOM of the compensated signal over the labelled calibration manoeuvres
 /// (`None` without labels). A label-free score (residual power in the manoeuvre band over
 /// the most active stretches) was tried and picked σ1 far too small at 3000 m.
-fn selection_score(flight: &Flight, interference_nt: &[f64]) -> Option<(f64, usize)> {
+pub(super) fn selection_score(flight: &Flight, interference_nt: &[f64]) -> Option<(f64, usize)> {
     let comp: Vec<f64> = flight
         .mag_nt
         .iter()
@@ -76,46 +75,6 @@ fn selection_score(flight: &Flight, interference_nt: &[f64]) -> Option<(f64, usi
         .map(|(m, i)| m - i)
         .collect();
     crate::qc::figures::fom(flight, &comp).map(|(f, parts)| (f, parts.len()))
-}
-
-/// Post-flight choice of σ1 among `spectral × candidate`: the spectral fit matches the
-/// anomaly's power at 1–8 km, but a potential field's spectrum falls faster than k⁻⁶
-/// towards the manoeuvre wavelengths, so at low altitude the k⁻⁶ model with that σ1 lets
-/// the field absorb manoeuvre-band interference. Each candidate is a full calibration;
-/// the least FOM over the labelled manoeuvres wins (segment labels are user data of a
-/// calibration flight); without labels the spectral σ1 is kept.
-pub(super) fn select_sigma1(
-    flight: &Flight,
-    opts: &KfOptions,
-    spectral: f64,
-    noise_nt: f64,
-) -> Result<f64> {
-    let labelled = flight
-        .segments
-        .as_ref()
-        .is_some_and(|s| s.iter().any(|l| crate::qc::figures::is_manoeuvre(l)));
-    if opts.sigma1_candidates.len() < 2 || !labelled {
-        return Ok(spectral);
-    }
-    // A candidate must beat the best so far by more than the sensor noise can explain
-    // (one noise σ per manoeuvre): at 3000 m all candidates tie within noise and the
-    // FOM's own scatter would otherwise pick a needlessly rigid field.
-    // The candidates' passes are independent (on the cores); the choice runs in order.
-    let scores = super::parallel::map(&opts.sigma1_candidates, |&m| {
-        let s1 = spectral * m;
-        let cfg = base_config(flight, opts, s1, noise_nt);
-        let interf = calibrated_interference(flight, opts, cfg)?;
-        Ok::<_, anyhow::Error>((s1, selection_score(flight, &interf)))
-    });
-    let mut best = (f64::INFINITY, spectral);
-    for scored in scores {
-        if let (s1, Some((score, parts))) = scored? {
-            if score < best.0 - parts as f64 * noise_nt {
-                best = (score, s1);
-            }
-        }
-    }
-    Ok(best.1)
 }
 
 /// Non-stationary anomaly processes tried post-flight: (third-difference step in samples at
@@ -209,81 +168,11 @@ pub(super) fn innovation_nll(outs: &[Output]) -> f64 {
     }
 }
 
-/// The measurement noise the filter needs on this flight: the scalar's own noise plus what
-/// the model cannot follow (a real aircraft's unmodelled interference, fluxgate noise in
-/// the regressors). Estimated from the innovations of a calibration pass, whose variance
-/// the filter predicts as `S = H·P·Hᵀ + r`: `r = E[ν²] − E[H·P·Hᵀ]`, with medians (of a
-/// χ²₁ variable, median/0.455 is its mean) so manoeuvre transients and glitches do not
-/// inflate it. Never below the sensor noise `floor_nt`. On our simulator the model is
-/// right and `r` stays at the sensor's noise; on the real SGL boxes the sensor noise
-/// (0.02 nT) was ~100× too small, and the 8σ gate refused 69 % of the samples.
-pub(super) fn adapted_noise_nt(
-    flight: &Flight,
-    opts: &KfOptions,
-    sigma1: f64,
-    floor_nt: f64,
-) -> Result<f64> {
-    // Only where the sensor's figure is grossly wrong: the gate then refuses many samples.
-    // A model error of a few times the sensor noise is better left to the terms the
-    // diagnosis adds and to the field states.
-    let (outs, ..) = pass(
-        flight,
-        opts,
-        base_config(flight, opts, sigma1, floor_nt),
-        None,
-        false,
-    )?;
-    let refused = outs
-        .iter()
-        .filter(|o| o.flags.contains(magcomp_core::Flags::INNOVATION_REJECTED))
-        .count();
-    if (refused as f64) < MAX_REFUSED_SHARE * outs.len() as f64 {
-        return Ok(floor_nt);
-    }
-    // Ungated: with a noise far too small, a gated filter refuses most samples, never
-    // converges, and its large H·P·Hᵀ then "explains" the innovations.
-    let opts = &KfOptions {
-        gate_sigma: 0.0,
-        ..opts.clone()
-    };
-    let mut noise_nt = floor_nt;
-    for _ in 0..4 {
-        let cfg = base_config(flight, opts, sigma1, noise_nt);
-        let (outs, ..) = pass(flight, opts, cfg, None, false)?;
-        let r = noise_nt * noise_nt;
-        let (mut nu2, mut hph): (Vec<f64>, Vec<f64>) = outs
-            .iter()
-            .filter(|o| o.innovation_nt.is_finite() && o.innovation_var_nt2.is_finite())
-            .map(|o| {
-                let nu = o.innovation_nt as f64;
-                (nu * nu, (o.innovation_var_nt2 as f64 - r).max(0.0))
-            })
-            .unzip();
-        if nu2.len() < 16 {
-            return Ok(noise_nt);
-        }
-        let model_var = median(&mut nu2) / 0.4549 - median(&mut hph);
-        let next = model_var.max(floor_nt * floor_nt).sqrt();
-        let converged = (next / noise_nt - 1.0).abs() < 0.1;
-        noise_nt = next;
-        if converged {
-            break;
-        }
-    }
-    Ok(noise_nt)
-}
-
 /// Unexplained signal (nT rms) above which the model error is a warning: below it, the
 /// survey tolerance is not at stake.
 pub const MODEL_ERROR_WARNING_NT: f64 = 0.05;
 
-/// Share of samples the gate may refuse with the sensor's noise before the noise is
-/// estimated from the innovations instead (the real boxes: 69 %). At 5 % the estimate also
-/// fired on simulated low-altitude flights over strong geology and on flights with a hidden
-/// effect, and the inflated noise cost them accuracy (300 m seed 3: 0.61 nT).
-const MAX_REFUSED_SHARE: f64 = 0.3;
-
-fn median(v: &mut [f64]) -> f64 {
+pub(super) fn median(v: &mut [f64]) -> f64 {
     let mid = v.len() / 2;
     v.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
     v[mid]

@@ -2,10 +2,10 @@
 //! stretch of the airborne flight (its scalar samples predict and do not update), with
 //! everything else the calibration chose (σ1, noise, anomaly process, held combinations).
 
-use super::{pass, KfOptions, RegressorSpread};
+use super::super::{interference_of, parallel, KfOptions, RegressorSpread};
+use super::filter_pass::{self, PassSetup};
 use crate::flight::Flight;
 use anyhow::Result;
-use magcomp_core::compensator::CompensatorConfig;
 
 /// The filter's jackknife: its figure (nT rms) and the coefficients' covariance (k×k).
 #[derive(Clone, Debug, Default)]
@@ -44,10 +44,10 @@ impl KfJackknife {
 }
 
 /// None when the airborne flight is too short to cut into blocks.
-pub(super) fn kf_jackknife(
+pub(crate) fn kf_jackknife(
     flight: &Flight,
     opts: &KfOptions,
-    cfg: CompensatorConfig,
+    filter: &PassSetup,
     (regs, spread): (&[Vec<f32>], &RegressorSpread),
     full: (&[f64], &[f64]),
 ) -> Result<Option<KfJackknife>> {
@@ -63,12 +63,12 @@ pub(super) fn kf_jackknife(
     };
     let (mut moved, mut expected) = (0.0, 0.0);
     // The refits are independent passes (on the cores); they are summed in order.
-    let passes = super::parallel::map(&blocks, |block| {
-        let o = KfOptions {
+    let passes = parallel::map(&blocks, |block| {
+        let setup = PassSetup {
             skip_updates: Some(block.clone()),
-            ..opts.clone()
+            ..filter.clone()
         };
-        pass(flight, &o, cfg, None, false).map(|(_, _, c, p, _)| (c, p))
+        filter_pass::run(flight, opts, &setup, None, false).map(|p| (p.coefficients, p.covariance))
     });
     for refit in passes {
         let (c, p) = refit?;
@@ -92,10 +92,7 @@ pub(super) fn kf_jackknife(
         f64::NAN
     };
     let covariance = crate::estimate::jackknife::covariance(&refits);
-    let series: Vec<Vec<f64>> = refits
-        .iter()
-        .map(|c| super::interference_of(regs, c))
-        .collect();
+    let series: Vec<Vec<f64>> = refits.iter().map(|c| interference_of(regs, c)).collect();
     let (band_sigma_nt, holdout_band_nt) =
         crate::estimate::jackknife::band_figures(flight, &span, &series);
     Ok(spread.sigma_nt(&covariance).map(|sigma_nt| KfJackknife {
