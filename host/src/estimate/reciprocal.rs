@@ -7,15 +7,15 @@
 //! that the innovations lack (`diagnose/evidence.rs`), and the report draws the pairs
 //! (`report/reciprocal.rs`).
 //!
-//! **Uncertainty of τ** ([`reciprocal_lag`]). The between-pair scatter (standard error of
-//! the pairs' mean τ), with a floor for what every pair of a flight shares: the ground
-//! itself. On the report's test flights (two lines 10 m apart at 300 m over strong
-//! geology, seeds 1–6) `mag − true interference`, with neither lag nor compensation error,
-//! aligns at up to ±4.9 m (τ ±0.041 s at 58 m/s): the two lines do not see the same
-//! anomaly, and an anomaly striking obliquely across them reads as a shift. That is not
-//! noise that averages over the pairs of one flight, so it is a floor
-//! ([`GROUND_SHIFT_SD_M`]), combined with the sampling's (a sample spacing V/fs per pass,
-//! ±V/(fs·√12) each, two passes).
+//! **Uncertainty of τ** ([`reciprocal_lag`]). Each pair's shift has its own 1σ
+//! ([`shift_sd_m`]: the misfit over the anomaly's slope). The ground adds what no misfit
+//! shows: two lines 10 m apart at 300 m over strong geology, with neither lag nor
+//! compensation error (`mag − true interference`, seeds 1–6), align at 4.1 m rms per pair
+//! ([`PAIR_GROUND_SD_M`]) and 2.5 m rms for a flight's mean of four
+//! ([`GROUND_SHIFT_SD_M`]): an anomaly striking obliquely across two lines reads as a
+//! shift, about a quarter of their separation here, and the pairs of a flight fly the
+//! same lines, so it does not average away. τ is the pairs' weighted mean, σ_τ theirs
+//! (widened when they scatter more than they state) with that floor: 0.021 s at 60 m/s.
 
 use super::crossover::straight_course;
 use crate::flight::Flight;
@@ -382,14 +382,14 @@ const SLOPE_HALF_SPAN_M: f64 = 50.0;
 /// detrended): linearised least squares, var s = σ_e² / (N_eff · mean a′²), with e the
 /// misfit left at `s` and a′ the first pass's slope, read every `spacing_m` (the samples'
 /// spacing: the grid between them is interpolation), N_eff from e's lag-1 correlation
-/// there. A flat anomaly (a high calibration leg: 1.7 nT over 4 km) or a large misfit
+/// there. A flat anomaly (a calibration leg over quiet ground: 1.7 nT over 4 km) or a large misfit
 /// leaves the shift loose. None when too few points remain.
 pub fn shift_sd_m(x: &[f64], a: &[f64], b: &[f64], s: f64, spacing_m: f64) -> Option<f64> {
     let (a, b) = (detrended(x, a), detrended(x, b));
     let step = (spacing_m.round() as usize).max(1);
     // The slope over ±SLOPE_HALF_SPAN_M: over a sample spacing the sensor's noise would
     // pass for slope where the anomaly is smooth (0.014 nT over 12 m is as steep as a
-    // 1.7 nT anomaly at 3 km).
+    // 1.7 nT anomaly over 4 km).
     let half = (SLOPE_HALF_SPAN_M as usize).max(step);
     let k_s = s.round() as i64;
     let n = a.len() as i64;
@@ -437,7 +437,8 @@ pub const PAIR_GROUND_SD_M: f64 = 4.1;
 /// rms 2.5 m, at most 5.4 m). The floor of σ_τ, with the sampling's.
 pub const GROUND_SHIFT_SD_M: f64 = 2.5;
 /// A pair counts when its own shift is fixed to this (m, 1σ): a lag of 0.3 s at 60 m/s
-/// is 36 m. The cloverleaf's legs at 3 km (1.7 nT of anomaly over 4 km) read ±10–150 m.
+/// is 36 m. Survey lines 10 m apart at 300 m over strong geology read ±3–7 m with a lag
+/// left in, the cloverleaf's legs over quiet ground (1.7 nT over 4 km) mostly ±15–90 m.
 pub const MAX_PAIR_SHIFT_SD_M: f64 = 12.0;
 /// A pair further than this many of its σ from the pairs' weighted median is set aside.
 pub const CLIP_SIGMAS: f64 = 3.0;
@@ -467,7 +468,7 @@ pub struct ReciprocalLag {
 
 /// The pairs (τ, σ, V) within [`CLIP_SIGMAS`] of their own σ of the pairs' weighted
 /// median, when at least [`MIN_PAIRS`] are: a pair that reads the manoeuvres' compensation
-/// error rather than the ground (a calibration leg at 3 km with a lag left in: shifts of
+/// error rather than the ground (a calibration leg over quiet ground with a lag left in: shifts of
 /// −128 to +193 m beside the survey lines' 8–26 m) does not measure the same τ.
 fn consistent(pairs: Vec<(f64, f64, f64)>) -> Vec<(f64, f64, f64)> {
     let mut by_tau = pairs.clone();
@@ -569,7 +570,7 @@ mod tests {
     }
 
     /// A sharp anomaly fixes the shift to well under a metre; the same misfit over a
-    /// smooth one (a high calibration leg) leaves it loose.
+    /// smooth one (a calibration leg over quiet ground) leaves it loose.
     #[test]
     fn a_smooth_anomaly_leaves_the_shift_loose() {
         let x: Vec<f64> = (0..5000).map(f64::from).collect();
