@@ -28,6 +28,7 @@ use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
 use crate::signal::bandpass::{bandpass_gaps, Gaps};
 use anyhow::Result;
+use magcomp_core::model::catalog::TermKind;
 use serde::Serialize;
 
 /// The band the direct regression runs in (Hz): the classic Tolles–Lawson band, where the
@@ -177,6 +178,9 @@ pub struct Refit {
     /// The refit's predicted error rose beyond [`REFIT_VETO_RISE`]: not recommended,
     /// whatever the other witnesses say.
     pub contradicts: bool,
+    /// For `lag`: the τ the refit estimated from the manoeuvres (s), shown beside the
+    /// reciprocal passes' τ.
+    pub lag_s: Option<f64>,
 }
 
 /// The model as diagnosed, calibrated with its jackknife (its predicted error and output
@@ -221,5 +225,14 @@ pub(super) fn refit(trace: &Trace, model: &ModelSpec, term: &str, base: &KfRun) 
         output_change_nt,
         supports,
         contradicts: after > REFIT_VETO_RISE * before,
+        lag_s: (TermKind::from_name(term) == Some(TermKind::Lag))
+            .then(|| {
+                run.preprocessing
+                    .as_ref()?
+                    .scalar_lag
+                    .as_ref()
+                    .map(|l| l.lag_s)
+            })
+            .flatten(),
     })
 }

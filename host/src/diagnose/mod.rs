@@ -19,8 +19,10 @@
 //! The innovations are not the only witness (`evidence.rs`): what the anomaly states can
 //! absorb leaves them almost untouched, so a candidate is material when any of the
 //! innovations (held out), the band-passed measurement regressed directly, the measurement
-//! minus a reference channel (`--reference`) or a refit of the whole model (its parts come
-//! to agree, the output moves) carries it. The table says which. "The model explains the
+//! minus a reference channel (`--reference`), a refit of the whole model (its parts come
+//! to agree, the output moves) or, for `lag`, reciprocal passes over the same ground
+//! (`reciprocal.rs`: the passes line up only when shifted by 2·V·τ) carries it. The table
+//! says which. "The model explains the
 //! data" is said only when the mean NIS and every band's power are within
 //! [`EXPLAINED_FACTOR`] of what the model expects (`Diagnosis::verdict`).
 
@@ -34,6 +36,7 @@ mod identifiability;
 pub mod iterate;
 mod lag_detector;
 mod ranking;
+pub mod reciprocal;
 mod regression;
 pub mod sensors;
 mod table;
@@ -94,6 +97,9 @@ pub struct DiagnoseOptions {
     /// A channel holding the field without this sensor's interference (`--reference
     /// mag_1_c`, a compensated stinger): the measurement minus it is a further witness.
     pub reference: Option<String>,
+    /// Judge `lag` on reciprocal passes over the same ground too (`reciprocal.rs`); off
+    /// only to compare a diagnosis with and without that witness.
+    pub reciprocal_passes: bool,
 }
 
 impl Default for DiagnoseOptions {
@@ -106,6 +112,7 @@ impl Default for DiagnoseOptions {
             min_fluxcal_change_nt: 0.01,
             aux: None,
             reference: None,
+            reciprocal_passes: true,
         }
     }
 }
@@ -180,8 +187,10 @@ pub struct Candidate {
     pub refit: Option<Refit>,
     /// With `fluxcal`/`fluxtemp`: the change correcting the fluxgate makes (nT rms).
     pub fluxgate_change_nt: Option<f64>,
+    /// For `lag`: what reciprocal passes over the same ground say (`reciprocal.rs`).
+    pub reciprocal: Option<reciprocal::Reciprocal>,
     /// The witnesses it was tested by (`innovations`, `band`, `reference`, `refit`,
-    /// `fluxgate`, `crossovers`).
+    /// `fluxgate`, `crossovers`, `reciprocal`).
     pub evidence_tested: Vec<String>,
     /// The witnesses that found it material: what the verdict rests on.
     pub evidence: Vec<String>,
@@ -207,6 +216,7 @@ impl Candidate {
             reference_heldout_fraction: None,
             refit: None,
             fluxgate_change_nt: None,
+            reciprocal: None,
             evidence_tested: Vec::new(),
             evidence: Vec::new(),
         }
@@ -424,6 +434,9 @@ pub fn diagnose_with(
     }
     if let Some(c) = recalibration_candidate(&ws, &cand_cols) {
         candidates.push(c);
+    }
+    if opts.reciprocal_passes {
+        reciprocal::attach(&ws.flight, &ws.run.compensated_nt, &mut candidates);
     }
     for c in &mut candidates {
         ranking::judge(c, opts, ws.m);

@@ -1,6 +1,7 @@
 //! How candidates are judged and ordered: a verdict from every witness (`evidence.rs`),
 //! the refits that corroborate or veto, and the ranking with its parsimony rule.
 
+use super::reciprocal::Verdict;
 use super::regression::fit_map;
 use super::workspace::Workspace;
 use super::{evidence, Candidate, DiagnoseOptions, RECALIBRATE};
@@ -36,6 +37,14 @@ pub(super) fn judge(c: &mut Candidate, opts: &DiagnoseOptions, m: f64) {
     .any(|&share| share >= evidence::CORROBORATED_SHARE);
     if corroborated && c.refit.as_ref().is_some_and(|r| r.supports) {
         rests_on.push("refit".to_string());
+    }
+    // The passes' τ beside the refit's (from the manoeuvres), when there is one.
+    let refit_tau_s = c.refit.as_ref().and_then(|r| r.lag_s);
+    if let Some(r) = c.reciprocal.as_mut() {
+        r.judge(refit_tau_s);
+        if r.verdict == Verdict::Supports {
+            rests_on.push("reciprocal".to_string());
+        }
     }
     c.material = !rests_on.is_empty();
     let vetoed = c.refit.as_ref().is_some_and(|r| r.contradicts);

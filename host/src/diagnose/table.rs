@@ -2,6 +2,7 @@
 //! and the verdict ("suggestion", "recalibrate", "explains the data" within
 //! [`EXPLAINED_FACTOR`], or "unexplained" with where and what could).
 
+use super::reciprocal::Verdict;
 use super::{evidence, Candidate, Diagnosis, EXPLAINED_FACTOR, RECALIBRATE};
 
 impl Diagnosis {
@@ -59,13 +60,14 @@ impl Diagnosis {
         let _ = writeln!(s, "candidate terms (best first):");
         let _ = writeln!(
             s,
-            "  {:<4} {:<24} {:>9} {:>9} {:>7} {:>7} {:>12} {:>4} {:>9} {:>9} {:>7}  {:<22} effect",
+            "  {:<4} {:<24} {:>9} {:>9} {:>7} {:>7} {:>7} {:>12} {:>4} {:>9} {:>9} {:>7}  {:<22} effect",
             "rank",
             "term",
             "explained",
             "held-out",
             "band",
             "ref",
+            "recip",
             "rms after nT",
             "dof",
             "F",
@@ -76,13 +78,14 @@ impl Diagnosis {
         for (i, c) in self.candidates.iter().enumerate() {
             let _ = writeln!(
                 s,
-                "  {:<4} {:<24} {:>8.1}% {:>9} {:>7} {:>7} {:>12.4} {:>4} {:>9.1} {:>9.1e} {:>7}  {:<22} {}",
+                "  {:<4} {:<24} {:>8.1}% {:>9} {:>7} {:>7} {:>7} {:>12.4} {:>4} {:>9.1} {:>9.1e} {:>7}  {:<22} {}",
                 i + 1,
                 c.term,
                 100.0 * c.explained_fraction,
                 pct(c.heldout_explained_fraction),
                 pct(c.band_heldout_fraction),
                 pct(c.reference_heldout_fraction),
+                c.reciprocal.as_ref().map_or("—", |r| r.verdict.word()),
                 c.heldout_rms_after_nt.unwrap_or(c.residual_rms_after_nt),
                 c.added_parameters,
                 c.f_statistic,
@@ -104,10 +107,29 @@ impl Diagnosis {
         }
         let _ = writeln!(
             s,
-            "  (held-out: share of the filter's innovations it removes on manoeuvres it was not fitted on; band: of the {:.1}–{:.1} Hz measurement regressed directly, no anomaly states; ref: of the measurement minus --reference; small: material by no witness, whatever its p)",
+            "  (held-out: share of the filter's innovations it removes on manoeuvres it was not fitted on; band: of the {:.1}–{:.1} Hz measurement regressed directly, no anomaly states; ref: of the measurement minus --reference; recip: reciprocal passes over the same ground, for lag; small: material by no witness, whatever its p)",
             evidence::DIRECT_BAND_HZ.0,
             evidence::DIRECT_BAND_HZ.1
         );
+        for c in &self.candidates {
+            if let Some(r) = &c.reciprocal {
+                let _ = writeln!(
+                    s,
+                    "reciprocal passes for {} ({} pair(s), τ = shift / 2V): {}: {}",
+                    c.term,
+                    r.pairs,
+                    r.verdict.word(),
+                    r.reason
+                );
+                if let Some(tau) = r.tau_s.filter(|_| r.verdict == Verdict::Supports) {
+                    let _ = writeln!(
+                        s,
+                        "  (τ {tau:+.3} s is a starting value for `{}`'s estimate)",
+                        c.term
+                    );
+                }
+            }
+        }
         let refits: Vec<&Candidate> = self
             .candidates
             .iter()

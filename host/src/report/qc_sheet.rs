@@ -6,6 +6,7 @@
 use super::{fmt_opt, Plot, Section, Series, PALETTE};
 use crate::calibration::fom::FomTable;
 use crate::calibration::provenance::Provenance;
+use crate::estimate::reciprocal::{detrended, same_ground_rows, SAME_GROUND_M};
 use crate::flight::Flight;
 use crate::qc::figures::{
     band_passed, fourth_difference_nt, noise_figure, FOURTH_DIFFERENCE_LIMIT_NT,
@@ -237,29 +238,6 @@ fn heading_section(s: &Sheet) -> Section {
     sec
 }
 
-/// Every `every`-th row of `p.0..p.1` within SAME_GROUND_M of the track over rows
-/// `q.0..q.1` (`ne` from [`Flight::local_ne_m`]; q thinned to ≤ 2000 points).
-pub(super) fn same_ground_rows(
-    ne: &[[f64; 2]],
-    p: (usize, usize),
-    q: (usize, usize),
-    every: usize,
-) -> Vec<usize> {
-    let step = ((q.1 - q.0) / 2000).max(1);
-    let track: Vec<[f64; 2]> = (q.0..q.1).step_by(step).map(|i| ne[i]).collect();
-    (p.0..p.1)
-        .step_by(every.max(1))
-        .filter(|&i| {
-            track
-                .iter()
-                .any(|t| (t[0] - ne[i][0]).hypot(t[1] - ne[i][1]) < SAME_GROUND_M)
-        })
-        .collect()
-}
-
-/// Within this distance (m) two passes are over the same ground.
-pub(super) const SAME_GROUND_M: f64 = 200.0;
-
 /// A reciprocal pair: where the ground is the same (positions), the difference of the two
 /// passes' means over the samples each has within SAME_GROUND_M of the other's track, so
 /// the anomaly cancels and what is left is heading error; else the legs' mean difference.
@@ -298,27 +276,6 @@ fn reciprocal(s: &Sheet, a: &Leg, b: &Leg) -> (String, f64, f64) {
         diff(&raw),
         diff(&comp),
     )
-}
-
-/// `x` minus its least-squares line over the finite samples.
-pub(super) fn detrended(t: &[f64], x: &[f64]) -> Vec<f64> {
-    let pts: Vec<(f64, f64)> = t
-        .iter()
-        .zip(x)
-        .filter(|(a, b)| a.is_finite() && b.is_finite())
-        .map(|(a, b)| (*a, *b))
-        .collect();
-    let n = pts.len().max(1) as f64;
-    let (mt, mx) = pts
-        .iter()
-        .fold((0.0, 0.0), |(a, b), p| (a + p.0 / n, b + p.1 / n));
-    let sxx: f64 = pts.iter().map(|p| (p.0 - mt).powi(2)).sum();
-    let sxy: f64 = pts.iter().map(|p| (p.0 - mt) * (p.1 - mx)).sum();
-    let slope = if sxx > 0.0 { sxy / sxx } else { 0.0 };
-    t.iter()
-        .zip(x)
-        .map(|(a, b)| b - mx - slope * (a - mt))
-        .collect()
 }
 
 /// The y-range that holds `x` (0.5–99.5 % of its finite values, 20 % margin): the axis is
