@@ -267,7 +267,7 @@ fn measure_independent() {
                     "  {what}: pair {:.0}/{:.0} t {:.0}–{:.0} / {:.0}–{:.0}: {:.0} m shared, pass sd {:.2} nT, diff rms {:.3} nT, shift {:?} ± {:?} m at {:.1} m/s",
                     q.heading_a_deg, q.heading_b_deg, q.t_a_s.0, q.t_a_s.1, q.t_b_s.0, q.t_b_s.1,
                     q.x_m.last().unwrap_or(&0.0) - q.x_m.first().unwrap_or(&0.0),
-                    magcomp::estimate::reciprocal::mean(&q.comp_a_nt.iter().map(|v| v.abs()).collect::<Vec<_>>()),
+                    magcomp::signal::stats::finite_mean(&q.comp_a_nt.iter().map(|v| v.abs()).collect::<Vec<_>>()),
                     q.rms_comp_nt, q.shift_m, q.shift_sd_m, q.speed_mps
                 );
             }

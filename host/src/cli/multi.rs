@@ -380,12 +380,12 @@ pub fn compensate(
         Some(g) => parse_pairs(g, sensors)?,
         None => Vec::new(),
     };
-    let results: Vec<Compensation> = runs.iter().map(|(_, c)| c.clone()).collect();
+    let (flights, results): (Vec<Flight>, Vec<Compensation>) = runs.into_iter().unzip();
     let table = output_table(trace, sensors, &results, &pairs)?;
     crate::io::trace::write_trace(out, &table)?;
     let summaries: Vec<(String, Summary)> = sensors
         .iter()
-        .zip(&runs)
+        .zip(flights.iter().zip(&results))
         .map(|(s, (flight, comp))| (s.name.clone(), summarise(flight, comp)))
         .collect();
     if how.json {

@@ -19,6 +19,7 @@
 
 use super::crossover::straight_course;
 use crate::flight::Flight;
+use crate::signal::stats::finite_mean;
 use serde::Serialize;
 
 /// Within this distance (m) two passes are over the same ground.
@@ -276,12 +277,6 @@ fn rms(v: &[f64]) -> f64 {
     (f.iter().map(|x| x * x).sum::<f64>() / f.len().max(1) as f64).sqrt()
 }
 
-/// Mean of the finite values (0 when there are none).
-pub fn mean(v: &[f64]) -> f64 {
-    let f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    f.iter().sum::<f64>() / f.len().max(1) as f64
-}
-
 /// The pair drawn on a common grid, and its best-aligning shift.
 fn pair(flight: &Flight, o: &Overlap, raw: &[f64], comp: &[f64]) -> ReciprocalPair {
     let (on_a, on_b, xa, xb) = (&o.on_a, &o.on_b, &o.xa, &o.xb);
@@ -320,7 +315,7 @@ fn pair(flight: &Flight, o: &Overlap, raw: &[f64], comp: &[f64]) -> ReciprocalPa
         t_b_s: span_s(on_b),
         rms_raw_nt: rms(&diff_raw_nt),
         rms_comp_nt: rms(&diff_comp_nt),
-        mean_comp_nt: mean(&diff_comp_nt),
+        mean_comp_nt: finite_mean(&diff_comp_nt),
         speed_mps,
         tau_s: shift_m.map(|s| s / (2.0 * speed_mps)),
         shift_m,

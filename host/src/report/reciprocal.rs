@@ -7,8 +7,9 @@
 use super::qc_sheet::range_of;
 use super::{Plot, Section, Series, PALETTE};
 pub use crate::estimate::reciprocal::ReciprocalPair;
-use crate::estimate::reciprocal::{mean, SAME_GROUND_M};
+use crate::estimate::reciprocal::SAME_GROUND_M;
 use crate::flight::Flight;
+use crate::signal::stats::finite_mean;
 
 /// Pairs drawn per model (the longest overlaps).
 const MAX_PAIRS: usize = 3;
@@ -74,8 +75,8 @@ fn pair_plots(mut s: Section, p: &ReciprocalPair, i: usize, k: usize, title: &st
     ));
     // The raw passes carry the aircraft's heading effect (tens to hundreds of nT): moved
     // as a whole to the compensated level so both fit one axis.
-    let level = mean(&[mean(&p.comp_a_nt), mean(&p.comp_b_nt)])
-        - mean(&[mean(&p.raw_a_nt), mean(&p.raw_b_nt)]);
+    let level = finite_mean(&[finite_mean(&p.comp_a_nt), finite_mean(&p.comp_b_nt)])
+        - finite_mean(&[finite_mean(&p.raw_a_nt), finite_mean(&p.raw_b_nt)]);
     let moved = |v: &[f64]| -> Vec<f64> { v.iter().map(|x| x + level).collect() };
     let data = |plot: Plot| {
         plot.data("heading-a-deg", &format!("{:.1}", p.heading_a_deg))

@@ -9,6 +9,7 @@ use super::{fmt_opt, HtmlReport, Plot, Section, PALETTE};
 use crate::calibration::result::Compensation;
 use crate::flight::Flight;
 use crate::qc::figures::{band_rms_nt, improvement_ratio};
+use crate::signal::stats::finite_mean;
 
 /// One sensor of the page: what identifies it and its compensation on this flight.
 pub struct SensorRow<'a> {
@@ -243,16 +244,4 @@ fn difference(a: &[f64], b: &[f64]) -> Vec<f64> {
     let d: Vec<f64> = a.iter().zip(b).map(|(x, y)| y - x).collect();
     let mean = finite_mean(&d);
     d.iter().map(|v| v - mean).collect()
-}
-
-fn finite_mean(v: &[f64]) -> f64 {
-    let (sum, n) = v
-        .iter()
-        .filter(|x| x.is_finite())
-        .fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
-    if n == 0 {
-        0.0
-    } else {
-        sum / n as f64
-    }
 }

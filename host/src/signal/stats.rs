@@ -134,6 +134,12 @@ pub fn gram_of(cols: &[&[f64]]) -> DMatrix<f64> {
 }
 
 /// Median of finite values (NaN if none).
+/// Mean of the finite values (0 when there are none).
+pub fn finite_mean(v: &[f64]) -> f64 {
+    let f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    f.iter().sum::<f64>() / f.len().max(1) as f64
+}
+
 pub fn median(v: &[f64]) -> f64 {
     let mut f: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     if f.is_empty() {
