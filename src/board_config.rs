@@ -106,6 +106,36 @@ impl Event {
     }
 }
 
+/// A sensor port's parser, as its UART task runs it: the event a byte completes, then the
+/// further events that byte owes (only the scalar port's merged lines owe any).
+pub trait SensorPort {
+    fn push(&mut self, b: u8) -> Option<Event>;
+    fn owed(&mut self) -> Option<Event> {
+        None
+    }
+}
+
+impl SensorPort for ScalarPort {
+    fn push(&mut self, b: u8) -> Option<Event> {
+        ScalarPort::push(self, b)
+    }
+    fn owed(&mut self) -> Option<Event> {
+        ScalarPort::owed(self)
+    }
+}
+
+impl SensorPort for GpsPort {
+    fn push(&mut self, b: u8) -> Option<Event> {
+        GpsPort::push(self, b)
+    }
+}
+
+impl SensorPort for FluxAsciiPort {
+    fn push(&mut self, b: u8) -> Option<Event> {
+        FluxAsciiPort::push(self, b)
+    }
+}
+
 /// The scalar port's parser (one per UART task on the board).
 pub struct ScalarPort(ScalarReader);
 
@@ -121,6 +151,11 @@ impl ScalarPort {
     }
     pub fn push(&mut self, b: u8) -> Option<Event> {
         self.0.push_line(b).map(Event::Scalar)
+    }
+    /// A further sample of the last line, when it ran into the next (a lost terminator):
+    /// taken after each byte until None, so each sample keeps its record and its time.
+    pub fn owed(&mut self) -> Option<Event> {
+        self.0.owed_line().map(Event::Scalar)
     }
 }
 

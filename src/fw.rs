@@ -26,7 +26,7 @@ use defmt_rtt as _;
 use defmt_semihosting as _;
 
 use crate::board;
-use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF, Staged};
+use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF, SensorPort, Staged};
 use crate::board_shape::{CoefStore as _, Watchdog as _};
 use crate::health::{self, Task};
 use crate::store;
@@ -164,17 +164,17 @@ async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
     }
 }
 
-/// A sensor UART's bytes through its port parser into the event channel, forever.
-async fn forward(
-    task: Task,
-    mut rx: BufferedUartRx<'static>,
-    mut parse: impl FnMut(u8) -> Option<Event>,
-) -> ! {
+/// A sensor UART's bytes through its port parser into the event channel, forever; a
+/// scalar line that ran into the next sends one event per sample it carried.
+async fn forward(task: Task, mut rx: BufferedUartRx<'static>, mut port: impl SensorPort) -> ! {
     let mut buf = [0u8; 64];
     loop {
         let n = health::idle(task, read_some(&mut rx, &mut buf)).await;
         for &b in &buf[..n] {
-            if let Some(ev) = parse(b) {
+            if let Some(ev) = port.push(b) {
+                EVENTS.send(ev).await;
+            }
+            while let Some(ev) = port.owed() {
                 EVENTS.send(ev).await;
             }
         }
@@ -184,15 +184,13 @@ async fn forward(
 #[embassy_executor::task]
 async fn scalar_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Scalar;
-    let mut port = bc::ScalarPort::new();
-    forward(TASK, rx, |b| port.push(b)).await
+    forward(TASK, rx, bc::ScalarPort::new()).await
 }
 
 #[embassy_executor::task]
 async fn gps_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Gps;
-    let mut port = bc::GpsPort::new();
-    forward(TASK, rx, |b| port.push(b)).await
+    forward(TASK, rx, bc::GpsPort::new()).await
 }
 
 /// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the board's axes).
@@ -200,8 +198,7 @@ async fn gps_task(rx: BufferedUartRx<'static>) {
 #[embassy_executor::task]
 async fn flux_uart_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Flux;
-    let mut port = bc::FluxAsciiPort::new();
-    forward(TASK, rx, |b| port.push(b)).await
+    forward(TASK, rx, bc::FluxAsciiPort::new()).await
 }
 
 /// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame

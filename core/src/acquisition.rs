@@ -596,10 +596,19 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     }
 
     /// One byte from the scalar port, single-field or counter lines
-    /// ([`scalar_line`](Self::scalar_line)).
+    /// ([`scalar_line`](Self::scalar_line)). After each byte the caller takes the lines a
+    /// merged line still owes ([`owed_scalar_line`](Self::owed_scalar_line)).
     pub fn push_scalar_line_byte(&mut self, b: u8) -> Option<AcqRecord> {
         let l = self.scalar.push_line(b)?;
         self.scalar_line(l)
+    }
+
+    /// A further sample of the last scalar line, when it ran into the next (a lost
+    /// terminator, `ScalarReader`): pass it to [`scalar_line`](Self::scalar_line) like a
+    /// line, until None, so every sample keeps its record and its time. The board's UART
+    /// task does the same with its own reader.
+    pub fn owed_scalar_line(&mut self) -> Option<ScalarLine> {
+        self.scalar.owed_line()
     }
 
     /// A scalar port line (single field or counter line) from a reader the caller runs:
@@ -808,11 +817,17 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         None
     }
 
-    /// A chunk of bytes from one port (a capture line); every record goes to `sink`.
+    /// A chunk of bytes from one port (a capture line); every record goes to `sink`, those
+    /// of a line's further samples ([`owed_scalar_line`](Self::owed_scalar_line)) included.
     pub fn push_bytes(&mut self, port: Port, bytes: &[u8], mut sink: impl FnMut(Record)) {
         for &b in bytes {
             if let Some(r) = self.push_byte(port, b) {
                 sink(r);
+            }
+            while let Some(ScalarLine::Single(r)) = self.owed_scalar_line() {
+                if let Some(rec) = self.scalar_result(r) {
+                    sink(rec);
+                }
             }
         }
     }

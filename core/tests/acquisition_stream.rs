@@ -387,9 +387,8 @@ fn random_bytes_never_panic_and_every_line_is_a_record() {
             } else {
                 b
             };
-            if a.push_byte(port, b).is_some() {
-                out += 1;
-            }
+            // push_bytes also hands on a merged line's further samples
+            a.push_bytes(port, &[b], |_| out += 1);
             if rng.below(997) == 0 {
                 let mut f = [0u8; 15];
                 for v in f.iter_mut() {
@@ -405,7 +404,7 @@ fn random_bytes_never_panic_and_every_line_is_a_record() {
         assert_eq!(out as u32, c.scalar_lines);
         assert_eq!(c.records, c.scalar_lines);
         let st = a.scalar_stats();
-        assert_eq!(st.ok + st.errors + st.overlong, c.scalar_lines);
+        assert_eq!(st.ok + st.errors + st.overlong + st.merged, c.scalar_lines);
     }
 }
 
@@ -520,4 +519,46 @@ fn a_fluxgate_calibration_undoes_a_distorted_fluxgate() {
     assert!(FluxCalibration::from_array(&bad).is_none());
     bad[0] = f32::NAN;
     assert!(FluxCalibration::from_array(&bad).is_none());
+}
+
+/// A scalar line whose terminator was lost runs into the next: the two samples keep a
+/// record each, flagged, and every later record keeps its time (read as one line, every
+/// later time was one period late).
+#[test]
+fn a_lost_line_end_keeps_every_sample_and_its_time() {
+    let clean = run(&mut acq(), &stream(300, false, None, None).chunks);
+    for lost in [1usize, 2, 3] {
+        let mut s = stream(300, false, None, None);
+        // drop the terminators of `lost` consecutive scalar lines from sample 120 on
+        let scalar_lines: Vec<usize> = (s.chunks.iter().enumerate())
+            .filter(|(_, (p, _))| *p == Port::Scalar)
+            .map(|(i, _)| i)
+            .collect();
+        let mut merged = Vec::new();
+        for &i in &scalar_lines[120..120 + lost + 1] {
+            merged.extend(s.chunks[i].1.iter().filter(|b| !matches!(b, b'\r' | b'\n')));
+        }
+        merged.extend(b"\r\n");
+        s.chunks[scalar_lines[120]].1 = merged;
+        for &i in scalar_lines[121..121 + lost].iter().rev() {
+            s.chunks.remove(i);
+        }
+        let mut a = acq();
+        let recs = run(&mut a, &s.chunks);
+        assert_eq!(recs.len(), clean.len(), "{lost} lost");
+        assert_contiguous(&recs);
+        let bad: Vec<usize> = (recs.iter().enumerate())
+            .filter(|(_, r)| r.flags.contains(Flags::MAG_MISSING | Flags::PARSE_ERROR))
+            .map(|(k, _)| k)
+            .collect();
+        assert_eq!(bad, (120..=120 + lost).collect::<Vec<_>>(), "{lost} lost");
+        for (k, (r, c)) in recs.iter().zip(&clean).enumerate() {
+            assert_eq!(r.t_s.to_bits(), c.t_s.to_bits(), "record {k}, {lost} lost");
+            if k > 120 + lost {
+                assert_eq!(r.mag, c.mag, "record {k}");
+            }
+        }
+        let st = a.scalar_stats();
+        assert_eq!((st.errors, st.merged), (1, lost as u32));
+    }
 }

@@ -260,3 +260,56 @@ fn a_checksummed_fluxgate_stream_refuses_a_frame_cut_short() {
     );
     assert_eq!((r.stats.ok, r.stats.errors), (3, 2));
 }
+
+/// Every line the reader yields for `text`, with the lines merged lines owe.
+fn lines_of(text: &str) -> Vec<Result<MagCounts, ScalarError>> {
+    use magcomp_core::protocol::multi_scalar::ScalarLine;
+    let mut r = ScalarReader::new(cfg());
+    let mut out = Vec::new();
+    let mut take = |l: ScalarLine| {
+        out.push(match l {
+            ScalarLine::Single(r) => r.map(|f| f.mag),
+            ScalarLine::Multi(f) => f.ch[0].mag().ok_or(ScalarError::BadCharacter),
+        })
+    };
+    for &b in text.as_bytes() {
+        if let Some(l) = r.push_line(b) {
+            take(l);
+        }
+        while let Some(l) = r.owed_line() {
+            take(l);
+        }
+    }
+    out
+}
+
+#[test]
+fn a_line_run_into_the_next_counts_its_samples() {
+    let m = |s: &str| Ok(MagCounts::from_nt_f64(s.parse().unwrap()).unwrap());
+    let bad = |e| Err(e);
+    // plain fields, one terminator lost, then two in a row
+    let got = lines_of("53620.4401\n53620.4402\n53620.440353620.4404\n53620.4405\n");
+    assert_eq!(got.len(), 5);
+    assert_eq!(got[3], bad(ScalarError::Merged));
+    assert_eq!(got[4], m("53620.4405"));
+    let got = lines_of("53620.4401\n53620.440253620.440353620.4404\n53620.4405\n");
+    assert_eq!(got.len(), 5);
+    assert_eq!(&got[2..4], &[bad(ScalarError::Merged); 2]);
+    // Geometrics lines, with CR LF: both lost
+    let got = lines_of("$ 53620.441,0999\r\n$ 53620.442,0999$ 53620.443,0999\r\n");
+    assert_eq!(got.len(), 3);
+    assert!(got[1].is_err() && got[2] == bad(ScalarError::Merged));
+    // counter lines whose channel 1 is dead on one of them: shorter, still two samples
+    let got = lines_of(
+        "M,53620.4401,53621.1187,53619.9043\nM,53620.4402,,53619.9044M,53620.4403,53621.1189,53619.9045\n",
+    );
+    assert_eq!(got.len(), 3);
+    assert_eq!(got[2], bad(ScalarError::Merged));
+    // a corrupted digit or a lost byte keeps one sample; so does junk before any good line
+    assert_eq!(lines_of("53620.4401\n536#0.4402\n").len(), 2);
+    assert_eq!(lines_of("53620.4401\n53620.442\n536200.44022\n").len(), 3);
+    assert_eq!(lines_of("53620.440353620.4404\n53620.4405\n").len(), 2);
+    // a stuck stream without terminators is at most MAX_MERGED_SAMPLES
+    let long = "53620.4401\n".to_string() + &"9".repeat(500) + "\n";
+    assert_eq!(lines_of(&long).len(), 1 + MAX_MERGED_SAMPLES as usize);
+}

@@ -76,6 +76,9 @@ pub struct FlightSpec {
     pub sensors: usize,
     /// Channel `.0` of the counter line sends an empty field (a dead sensor) in [start, end) s.
     pub dead_channel_s: Option<(usize, f64, f64)>,
+    /// Scalar lines (by sample number) sent without their terminator, so each runs into
+    /// the next: a lost line end, which must still give one record per sample.
+    pub lost_line_ends: Vec<usize>,
 }
 
 impl FlightSpec {
@@ -91,6 +94,7 @@ impl FlightSpec {
             corrupt_fraction: 0.0,
             sensors: 1,
             dead_channel_s: None,
+            lost_line_ends: Vec::new(),
         }
     }
 }
@@ -299,6 +303,12 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
         corrupted_bytes: 0,
         payload_bytes: 0,
     };
+    let scalar_lines = cap.chunks.iter_mut().filter(|c| c.port == Port::Scalar);
+    for (k, c) in scalar_lines.enumerate() {
+        if spec.lost_line_ends.contains(&k) {
+            c.bytes.retain(|b| !matches!(b, b'\r' | b'\n'));
+        }
+    }
     for c in &mut cap.chunks {
         for b in c.bytes.iter_mut() {
             if *b == b'\r' || *b == b'\n' {

@@ -59,6 +59,10 @@ fn replay_any_lagged(cap: &Capture, lag_s: f32) -> Vec<AcqRecord> {
                 Port::Gps => gps.push(b),
             };
             out.extend(ev.and_then(|ev| ev.apply(&mut acq)));
+            // a scalar line that ran into the next: one event per further sample
+            while let Some(ev) = scalar.owed() {
+                out.extend(ev.apply(&mut acq));
+            }
         }
     }
     while let Some(r) = acq.flush_any() {

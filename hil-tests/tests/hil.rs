@@ -210,6 +210,35 @@ fn flight_one_record_per_sample_with_dropout_and_outage_flags() {
     );
 }
 
+/// A scalar line whose terminator is lost runs into the next: the board gives each sample
+/// its record (the merged ones flagged, as `magcomp replay` does), and every later record
+/// keeps its time; read as one line, every later time was one period late.
+#[test]
+fn a_lost_scalar_line_end_keeps_every_record_and_its_time() {
+    let name = "lost_line_end";
+    let mut spec = FlightSpec::new(0x5EED_0021, 40.0);
+    spec.lost_line_ends = vec![50, 120, 121, 300];
+    let cap = synthetic_flight(&spec);
+    let Some((b, recs)) = run_flight(name, &cap) else {
+        return;
+    };
+    assert_one_record_per_sample(name, &b, &cap, &recs);
+    let missing: Vec<u32> = (recs.iter())
+        .filter(|r| r.flags.contains(Flags::MAG_MISSING | Flags::PARSE_ERROR))
+        .map(|r| r.seq)
+        .collect();
+    assert_eq!(missing, [50, 51, 120, 121, 122, 300, 301], "{name}");
+    for r in &recs {
+        let want_t = GPS_T0_S + f64::from(r.seq) / 10.0;
+        assert!(
+            (r.t_s - want_t).abs() < 1e-6,
+            "seq {}: t {} want {want_t}",
+            r.seq,
+            r.t_s
+        );
+    }
+}
+
 #[test]
 fn corrupted_bytes_are_flagged_and_counted_without_loss_or_reset() {
     let name = "corrupt";

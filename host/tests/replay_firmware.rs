@@ -52,16 +52,35 @@ fn firmware(cap: &[u8], acq: &mut BoardAcquisition) -> Vec<Record> {
                 Port::Cmd | Port::Out => None,
             };
             // single-sensor captures here: every record is a `$MCREC`
-            out.extend(ev.and_then(|ev| ev.apply(acq)).map(|r| match r {
+            let one = |r| match r {
                 AcqRecord::One(r) => r,
                 AcqRecord::Multi(r) => panic!("record {}: a counter line", r.seq),
-            }));
+            };
+            out.extend(ev.and_then(|ev| ev.apply(acq)).map(one));
+            while let Some(ev) = scalar.owed() {
+                out.extend(ev.apply(acq).map(one));
+            }
         }
     }
     while let Some(r) = acq.flush() {
         out.push(r);
     }
     out
+}
+
+/// `magcomp replay` of `cap` at the board's rates.
+fn host_replay(cap: &[u8]) -> Vec<Record> {
+    let mut ro = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
+    ro.rate_hz = Some(fw_config::SCALAR_HZ);
+    ro.flux_rate_hz = Some(fw_config::FLUX_HZ);
+    ro.gps_rate_hz = Some(fw_config::GPS_HZ);
+    let mut rep = Vec::new();
+    replay_capture(cap, &ro, |r| {
+        rep.push(*r);
+        Ok(())
+    })
+    .unwrap();
+    rep
 }
 
 fn assert_identical(fw: &[Record], rep: &[Record]) {
@@ -95,16 +114,7 @@ fn replay_equals_the_firmware_bit_for_bit() {
     let cap = trace_to_capture(&trace, &o).unwrap();
     let mut acq = board_acquisition();
     let fw = firmware(&cap, &mut acq);
-    let mut ro = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
-    ro.rate_hz = Some(fw_config::SCALAR_HZ);
-    ro.flux_rate_hz = Some(fw_config::FLUX_HZ);
-    ro.gps_rate_hz = Some(fw_config::GPS_HZ);
-    let mut rep = Vec::new();
-    replay_capture(&cap[..], &ro, |r| {
-        rep.push(*r);
-        Ok(())
-    })
-    .unwrap();
+    let rep = host_replay(&cap);
     assert_eq!(fw.len(), trace.len());
     assert_identical(&fw, &rep);
     // the STATUS counters the board reports
@@ -135,5 +145,63 @@ fn replay_equals_the_firmware_bit_for_bit() {
         // phase used to flag records 1–4 DERIVATIVE_DEGRADED, and flagged samples no longer
         // update the filter, so flags and values are identical throughout.
         assert_eq!(x.flags.0, y.flags.0, "record {} of {}", y.seq, b.len());
+    }
+}
+
+/// `cap` with the scalar port's line ends removed from the scalar lines numbered `lost`,
+/// so each runs into the next (a lost terminator).
+fn without_line_ends(cap: &[u8], lost: &[usize]) -> Vec<u8> {
+    use magcomp_core::protocol::capture::encode_line;
+    let mut out = Vec::new();
+    let (mut buf, mut line) = ([0u8; MAX_CHUNK], [0u8; 1024]);
+    let mut k = 0;
+    for l in cap.split(|&b| b == b'\n').filter(|l| !l.is_empty()) {
+        match decode_line(l, &mut buf) {
+            Ok(Some(c)) if c.port == Port::Scalar => {
+                let mut data = buf[..c.len].to_vec();
+                if lost.contains(&k) {
+                    data.retain(|b| !matches!(b, b'\r' | b'\n'));
+                }
+                k += 1;
+                let n = encode_line(c.t_us, c.port, &data, &mut line).unwrap();
+                out.extend_from_slice(&line[..n]);
+            }
+            _ => {
+                out.extend_from_slice(l);
+                out.push(b'\n');
+            }
+        }
+    }
+    out
+}
+
+/// A scalar line whose terminator is lost runs into the next (issue 21): on the board and
+/// in `magcomp replay` alike each sample keeps one record, the merged ones flagged, and
+/// every later record keeps its time (read as one line, every later time was one period
+/// late and the flight one record short).
+#[test]
+fn a_lost_scalar_line_end_keeps_every_record_and_time() {
+    let trace = simulate(&SimConfig {
+        max_duration_s: Some(60.0),
+        seed: 12,
+        ..SimConfig::default()
+    })
+    .unwrap();
+    let cap = trace_to_capture(&trace, &CaptureOptions::default()).unwrap();
+    let lost = [100, 250, 251, 400];
+    let merged = without_line_ends(&cap, &lost);
+    let clean = firmware(&cap, &mut board_acquisition());
+    let fw = firmware(&merged, &mut board_acquisition());
+    assert_eq!(clean.len(), trace.len());
+    assert_eq!(fw.len(), trace.len());
+    let rep = host_replay(&merged);
+    assert_identical(&fw, &rep);
+    let missing: Vec<usize> = (fw.iter().enumerate())
+        .filter(|(_, r)| r.mag.is_none())
+        .map(|(k, _)| k)
+        .collect();
+    assert_eq!(missing, [100, 101, 250, 251, 252, 400, 401]);
+    for (k, (a, b)) in fw.iter().zip(&clean).enumerate() {
+        assert_eq!(a.t_s.to_bits(), b.t_s.to_bits(), "record {k}");
     }
 }

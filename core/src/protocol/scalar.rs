@@ -44,6 +44,9 @@ pub enum ScalarError {
     NoLarmorRatio,
     /// A counter line (`M,…`, `multi_scalar`) with fewer than 2 or more than 3 fields.
     ChannelCount,
+    /// A further sample of a line that ran into the next (a lost terminator): the reader
+    /// owes one line per sample it carried ([`ScalarReader::owed_line`]).
+    Merged,
 }
 
 /// One scalar sample.
@@ -59,6 +62,10 @@ pub struct ScalarStats {
     pub ok: u32,
     pub errors: u32,
     pub overlong: u32,
+    /// Further samples of rejected lines that carried more than one (a lost terminator),
+    /// each handed out as a [`ScalarError::Merged`] line: every sample is one of `ok`,
+    /// `errors`, `overlong` or `merged`.
+    pub merged: u32,
 }
 
 /// Line parser configuration.
@@ -169,12 +176,33 @@ pub fn parse_scalar_line(line: &[u8], cfg: &ScalarConfig) -> Result<ScalarFrame,
     }
 }
 
+/// Most samples one rejected line is taken to carry: a sensor line is 8–40 bytes, so a
+/// longer run without a terminator is garbage, not lost terminators.
+pub const MAX_MERGED_SAMPLES: u16 = 4;
+
 /// Byte-at-a-time line reader for the scalar port.
+///
+/// Every sample must yield one record, and the board's time is the sample count: a line
+/// that ran into the next because its terminator was lost (`53620.440153620.4402`) is two
+/// samples, and read as one it would shift every later record's time by one period. A
+/// rejected line of about `n` times the good lines' length is taken as `n` samples
+/// (rounded, at most [`MAX_MERGED_SAMPLES`]): the line's own error, then `n − 1`
+/// [`ScalarError::Merged`] lines from [`owed_line`](Self::owed_line). A sensor's lines
+/// keep their length within a few bytes (fixed decimals; a counter line's empty channel),
+/// so the length counts samples whatever the format, and a corrupted byte does not change
+/// it; the good lines' length is the midpoint of the shortest and the longest seen. A
+/// line cut short or with a byte lost stays one sample.
 #[derive(Clone, Debug)]
 pub struct ScalarReader {
     buf: [u8; MAX_SCALAR_LINE],
     len: usize,
     overlong: bool,
+    /// Bytes of the current line, those beyond the buffer included.
+    seen: u16,
+    /// Shortest and longest line that parsed (0 before the first).
+    good_len: (u16, u16),
+    /// Further samples the last rejected line carried, not yet handed out.
+    owed: u16,
     pub cfg: ScalarConfig,
     pub stats: ScalarStats,
 }
@@ -185,11 +213,15 @@ impl ScalarReader {
             buf: [0; MAX_SCALAR_LINE],
             len: 0,
             overlong: false,
+            seen: 0,
+            good_len: (0, 0),
+            owed: 0,
             cfg,
             stats: ScalarStats {
                 ok: 0,
                 errors: 0,
                 overlong: 0,
+                merged: 0,
             },
         }
     }
@@ -227,21 +259,30 @@ impl ScalarReader {
             } else {
                 parse(&self.buf[..self.len], &self.cfg)
             };
+            let seen = self.seen;
             self.len = 0;
+            self.seen = 0;
             self.overlong = false;
             match &r {
                 ScalarLine::Single(Ok(_)) | ScalarLine::Multi(_) => {
-                    self.stats.ok = self.stats.ok.saturating_add(1)
+                    self.stats.ok = self.stats.ok.saturating_add(1);
+                    self.good_len = match self.good_len {
+                        (0, _) => (seen, seen),
+                        (lo, hi) => (lo.min(seen), hi.max(seen)),
+                    };
                 }
-                ScalarLine::Single(Err(ScalarError::Overlong)) => {
-                    self.stats.overlong = self.stats.overlong.saturating_add(1)
-                }
-                ScalarLine::Single(Err(_)) => {
-                    self.stats.errors = self.stats.errors.saturating_add(1)
+                ScalarLine::Single(Err(e)) => {
+                    if *e == ScalarError::Overlong {
+                        self.stats.overlong = self.stats.overlong.saturating_add(1)
+                    } else {
+                        self.stats.errors = self.stats.errors.saturating_add(1)
+                    }
+                    self.owed = self.samples_in(seen) - 1;
                 }
             }
             return Some(r);
         }
+        self.seen = self.seen.saturating_add(1);
         if self.len == MAX_SCALAR_LINE {
             self.overlong = true;
         } else {
@@ -249,6 +290,32 @@ impl ScalarReader {
             self.len += 1;
         }
         None
+    }
+
+    /// Samples a rejected line of `seen` bytes carried: its length over the good lines'
+    /// (the midpoint of the shortest and longest), rounded, 1 to [`MAX_MERGED_SAMPLES`]
+    /// (1 before any good line).
+    fn samples_in(&self, seen: u16) -> u16 {
+        let (lo, hi) = self.good_len;
+        let twice_typical = u32::from(lo) + u32::from(hi);
+        if twice_typical == 0 {
+            return 1;
+        }
+        let rounded = (4 * u32::from(seen) + twice_typical) / (2 * twice_typical);
+        rounded.clamp(1, u32::from(MAX_MERGED_SAMPLES)) as u16
+    }
+
+    /// The next further sample of a line that ran into the next, as a rejected line (call
+    /// after each line until None): one per sample it carried beyond the first.
+    pub fn owed_line(&mut self) -> Option<super::multi_scalar::ScalarLine> {
+        if self.owed == 0 {
+            return None;
+        }
+        self.owed -= 1;
+        self.stats.merged = self.stats.merged.saturating_add(1);
+        Some(super::multi_scalar::ScalarLine::Single(Err(
+            ScalarError::Merged,
+        )))
     }
 
     /// Bytes buffered for a line not yet terminated.

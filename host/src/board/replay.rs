@@ -720,6 +720,17 @@ fn feed<R: BufRead, F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawSample) -> 
             if let Some(r) = record {
                 out.emit(r, stats)?;
             }
+            // a line that ran into the next: its further samples, as the board's UART task
+            // hands them on
+            while let Some(l) = acq.owed_scalar_line() {
+                let record = acq.scalar_line(l);
+                if let Some(raw) = acq.take_raw() {
+                    (out.raw_sink)(&raw)?;
+                }
+                if let Some(r) = record {
+                    out.emit(r, stats)?;
+                }
+            }
         }
     }
     Ok(())
