@@ -21,6 +21,11 @@ use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 pub const MODEL_SPEC: &[u8] = b"tl16+field";
 #[cfg(feature = "flux-witness")]
 pub const MODEL_SPEC: &[u8] = b"tl16+field+fluxmod";
+/// Whether the fluxgate's frames carry its temperature: the serial fluxgate's do
+/// (`X,Y,Z,T*hh`); the SPI ADC (`flux-spi`) has no temperature channel, so a temperature
+/// calibration (`SETFTEMP`) would turn every record `FLUX_STALE` there and is refused.
+pub const FLUX_HAS_TEMPERATURE: bool = !cfg!(feature = "flux-spi");
+
 /// Coefficients of `MODEL_SPEC` (the index bound of GETCOEF/SETCOEF).
 #[cfg(not(feature = "flux-witness"))]
 pub const N_COEF: usize = 16;
@@ -182,7 +187,8 @@ impl GpsPort {
 }
 
 /// The fluxgate's serial ASCII alternative: sensor frame → body frame by the board's axes.
-/// (The acquisition board reads its ADC over SPI unless built with `flux-uart`.)
+/// (The flight image's fluxgate; the SPI ADC is the `flux-spi` build, not yet flight-ready:
+/// docs/firmware.md.)
 #[allow(dead_code)]
 pub struct FluxAsciiPort {
     reader: FluxAsciiReader,

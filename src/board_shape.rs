@@ -41,7 +41,7 @@ pub trait CoefStore {
 pub const BAUD_OUT: u32 = baud(option_env!("MAGCOMP_BAUD_OUT"), 921_600, 5_250_000);
 pub const BAUD_SCALAR: u32 = baud(option_env!("MAGCOMP_BAUD_SCALAR"), 115_200, 2_625_000);
 pub const BAUD_GPS: u32 = baud(option_env!("MAGCOMP_BAUD_GPS"), 115_200, 2_625_000);
-#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+#[cfg(not(feature = "flux-spi"))]
 pub const BAUD_FLUX: u32 = baud(option_env!("MAGCOMP_BAUD_FLUX"), 115_200, 2_625_000);
 
 /// `v` parsed at compile time (`const` items), or `default`. `max`: 16× oversampling of the

@@ -145,9 +145,9 @@ async fn main(spawner: Spawner) {
     spawner.spawn(acq_task(acq, b.store).unwrap());
     spawner.spawn(scalar_task(b.scalar).unwrap());
     spawner.spawn(gps_task(b.gps).unwrap());
-    #[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+    #[cfg(not(feature = "flux-spi"))]
     spawner.spawn(flux_uart_task(b.flux).unwrap());
-    #[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
+    #[cfg(all(feature = "board-acq", feature = "flux-spi"))]
     spawner.spawn(flux_spi_task(b.flux).unwrap());
 }
 
@@ -194,7 +194,7 @@ async fn gps_task(rx: BufferedUartRx<'static>) {
 }
 
 /// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the board's axes).
-#[cfg(any(feature = "board-emu", feature = "flux-uart"))]
+#[cfg(not(feature = "flux-spi"))]
 #[embassy_executor::task]
 async fn flux_uart_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Flux;
@@ -203,7 +203,7 @@ async fn flux_uart_task(rx: BufferedUartRx<'static>) {
 
 /// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame
 /// (status, 3 × 24-bit channels, CRC-16) and scale it to the body frame.
-#[cfg(all(feature = "board-acq", not(feature = "flux-uart")))]
+#[cfg(all(feature = "board-acq", feature = "flux-spi"))]
 #[embassy_executor::task]
 async fn flux_spi_task(mut f: board::FluxPort) {
     use magcomp_core::acquisition::FLUX_FULL_SCALE_NT;
@@ -575,8 +575,13 @@ fn set_flux(index: u16, value: f32, acq: &mut BoardAcquisition) -> Line {
     }
 }
 
-/// `SETFTEMP`: as `SETFLUX`, for the fluxgate's temperature calibration.
+/// `SETFTEMP`: as `SETFLUX`, for the fluxgate's temperature calibration. Without a
+/// temperature in the frames (the SPI ADC) only zeros (none) are taken: a set would make
+/// every frame unusable (`$MCERR,9,NO_TEMPERATURE`).
 fn set_flux_temp(index: u16, value: f32, acq: &mut BoardAcquisition) -> Line {
+    if !bc::FLUX_HAS_TEMPERATURE && value != 0.0 {
+        return Line::sentence(|c| c.bytes(b"MCERR,9,NO_TEMPERATURE"));
+    }
     let mut v = acq.flux_temp_calibration().to_array();
     v[usize::from(index) % FLUX_TEMP_LEN] = value;
     match FluxTempCal::from_array(&v) {

@@ -27,7 +27,7 @@ use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 
 use magcomp_core::protocol::common::crc32;
 
-use crate::board_config::{BoardAcquisition, N_COEF, Staged, model_id};
+use crate::board_config::{BoardAcquisition, FLUX_HAS_TEMPERATURE, N_COEF, Staged, model_id};
 
 /// One blob of the store.
 #[derive(Clone, Copy)]
@@ -152,7 +152,9 @@ impl Slot {
                 Ok(())
             }
             Slot::FluxTemp => {
+                // a set saved by a serial-fluxgate image is none here (no temperature)
                 let cal = v
+                    .filter(|_| FLUX_HAS_TEMPERATURE)
                     .and_then(|v| v.try_into().ok())
                     .and_then(FluxTempCal::from_array);
                 acq.set_flux_temp_calibration(cal.unwrap_or(FluxTempCal::NONE));

@@ -5,10 +5,10 @@
 //! |--------------------------|-------------|------------------------------|---------------------------|
 //! | output / command port    | USART1      | PA9 TX, PA10 RX              | 921 600 Bd (APB2, 84 MHz) |
 //! | scalar magnetometer      | USART2      | PA2 TX, PA3 RX               | 115 200 Bd                |
-//! | fluxgate ADC (24-bit)    | SPI1        | PA5 SCK, PA6 MISO, PA7 MOSI  | 1 MHz, mode 1             |
+//! | fluxgate ADC (24-bit)    | SPI1        | PA5 SCK, PA6 MISO, PA7 MOSI  | feature `flux-spi`, mode 1 |
 //! | fluxgate chip select     | GPIO        | PA4                          | active low                |
 //! | fluxgate DRDY            | EXTI1       | PB1                          | falling edge              |
-//! | fluxgate UART (alt.)     | USART3      | PB10 TX, PB11 RX             | feature `flux-uart`       |
+//! | fluxgate UART (default)  | USART3      | PB10 TX, PB11 RX             | 115 200 Bd                |
 //! | GPS NMEA                 | UART4       | PA0 TX, PA1 RX               | 115 200 Bd                |
 //! | GPS PPS (optional)       | EXTI0       | PB0                          | reserved, not used yet    |
 //! | SWD + RTT (defmt)        | SWD         | PA13 SWDIO, PA14 SWCLK       | probe-rs                  |
@@ -23,7 +23,7 @@ use embassy_stm32::wdg::IndependentWatchdog;
 use embassy_stm32::{bind_interrupts, flash, peripherals};
 use static_cell::ConstStaticCell;
 
-#[cfg(feature = "flux-uart")]
+#[cfg(not(feature = "flux-spi"))]
 use crate::board_shape::BAUD_FLUX;
 use crate::board_shape::{BAUD_GPS, BAUD_OUT, BAUD_SCALAR, Board, StoreError};
 use crate::store;
@@ -34,18 +34,18 @@ use crate::uart_stats::Port;
 crate::uart_error_counter!(OutErrors, USART1, USART1, Port::Out);
 crate::uart_error_counter!(ScalarErrors, USART2, USART2, Port::Scalar);
 crate::uart_error_counter!(GpsErrors, UART4, UART4, Port::Gps);
-#[cfg(feature = "flux-uart")]
+#[cfg(not(feature = "flux-spi"))]
 crate::uart_error_counter!(FluxErrors, USART3, USART3, Port::Flux);
 
 // each UART's error counter runs before the HAL's handler (src/uart_stats.rs)
-#[cfg(not(feature = "flux-uart"))]
+#[cfg(feature = "flux-spi")]
 bind_interrupts!(struct Irqs {
     USART1 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART1>;
     USART2 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
     UART4 => GpsErrors, usart::BufferedInterruptHandler<peripherals::UART4>;
     EXTI1 => embassy_stm32::exti::InterruptHandler<embassy_stm32::interrupt::typelevel::EXTI1>;
 });
-#[cfg(feature = "flux-uart")]
+#[cfg(not(feature = "flux-spi"))]
 bind_interrupts!(struct Irqs {
     USART1 => OutErrors, usart::BufferedInterruptHandler<peripherals::USART1>;
     USART2 => ScalarErrors, usart::BufferedInterruptHandler<peripherals::USART2>;
@@ -66,7 +66,7 @@ impl crate::board_shape::Watchdog for Watchdog {
 }
 
 /// Fluxgate port: the 24-bit SPI ADC with its data-ready line.
-#[cfg(not(feature = "flux-uart"))]
+#[cfg(feature = "flux-spi")]
 pub struct FluxPort {
     pub spi: embassy_stm32::spi::Spi<
         'static,
@@ -77,7 +77,7 @@ pub struct FluxPort {
     pub drdy: embassy_stm32::exti::ExtiInput<'static, embassy_stm32::mode::Async>,
 }
 /// Fluxgate port: the serial ASCII alternative.
-#[cfg(feature = "flux-uart")]
+#[cfg(not(feature = "flux-spi"))]
 pub type FluxPort = usart::BufferedUartRx<'static>;
 
 fn uart_config(baud: u32) -> usart::Config {
@@ -139,7 +139,7 @@ pub fn init() -> Board {
     let (_, scalar) = defmt::unwrap!(scalar.map_err(|_| ())).split();
     let (_, gps) = defmt::unwrap!(gps.map_err(|_| ())).split();
 
-    #[cfg(not(feature = "flux-uart"))]
+    #[cfg(feature = "flux-spi")]
     let flux = {
         use embassy_stm32::gpio::{Level, Output, Pull, Speed};
         let mut cfg = embassy_stm32::spi::Config::default();
@@ -151,7 +151,7 @@ pub fn init() -> Board {
             drdy: embassy_stm32::exti::ExtiInput::new(p.PB1, p.EXTI1, Pull::Up, Irqs),
         }
     };
-    #[cfg(feature = "flux-uart")]
+    #[cfg(not(feature = "flux-spi"))]
     let flux = {
         let (tx, rx) = buffers!(8, 512);
         let cfg = uart_config(BAUD_FLUX);

@@ -5,7 +5,7 @@
 //! USART2 (output/command), USART3 (scalar), UART4 (fluxgate), UART5 (GPS). The ELF is
 //! `MAGCOMP_FW_ELF` or built by `scripts/build-emu.sh`.
 //!
-//! Real board (`MAGCOMP_HIL_TARGET=serial`): the firmware built with `--features flux-uart,hil-sync`,
+//! Real board (`MAGCOMP_HIL_TARGET=serial`): the firmware built with `--features hil-sync` (its default serial fluxgate),
 //! flashed on an erased chip and reset with probe-rs before every test, and four serial devices:
 //! `MAGCOMP_HIL_OUT` (output/command, 921600 Bd), `MAGCOMP_HIL_SCALAR`, `MAGCOMP_HIL_FLUX`,
 //! `MAGCOMP_HIL_GPS` (115200 Bd), set raw with `stty`. `MAGCOMP_FW_ELF` names the ELF.
@@ -97,7 +97,7 @@ pub fn firmware_elf() -> Result<PathBuf> {
                     "-p",
                     "magcomp-firmware",
                     "--features",
-                    "flux-uart,hil-sync",
+                    "hil-sync",
                 ])
                 .current_dir(&root)
                 .stderr(Stdio::inherit())
