@@ -149,7 +149,13 @@ impl FrameCounter {
     fn feed(&mut self, port: Port, bytes: &[u8]) {
         for &b in bytes {
             match port {
-                Port::Scalar => self.n[0] += u64::from(self.scalar.push(b).is_some()),
+                Port::Scalar => {
+                    self.n[0] += u64::from(self.scalar.push_line(b).is_some());
+                    // a line that ran into the next: the board takes one event per sample
+                    while self.scalar.owed_line().is_some() {
+                        self.n[0] += 1;
+                    }
+                }
                 Port::Flux => self.n[1] += u64::from(self.flux.push(b).is_some()),
                 // the firmware does not forward valid-but-unused sentences
                 Port::Gps => match self.gps.push(b) {
