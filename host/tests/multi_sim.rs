@@ -46,6 +46,10 @@ struct Row {
     chosen: f64,
     chosen_predicted: f64,
     joint_chosen: bool,
+    /// The kept figure says it is a lower bound (the sensor's lever arm, `multi::lever`).
+    lower_bound: bool,
+    /// The lever arm's signal in the band (nT) and the noise the calibration allowed for.
+    lever: Option<(f64, f64)>,
 }
 
 /// Per sensor the errors, and the wingtip pair's gradient error and true rms (nT/m).
@@ -70,6 +74,8 @@ fn run_at(cfg: &SimConfig, offsets: &[[f64; 3]]) -> (Vec<Row>, f64, f64) {
             chosen: s.chosen_truth_error_nt().unwrap(),
             chosen_predicted: s.chosen_predicted_nt().unwrap(),
             joint_chosen: s.joint_chosen,
+            lower_bound: s.chosen_predicted_is_lower_bound(),
+            lever: s.lever_arm.map(|l| (l.signal_band_nt, l.noise_nt)),
         })
         .collect();
     // The wingtips: mag_2 and mag_3.
@@ -86,17 +92,22 @@ fn run_at(cfg: &SimConfig, offsets: &[[f64; 3]]) -> (Vec<Row>, f64, f64) {
 }
 
 /// Measured (this commit), nT rms against truth (README, docs/model.md §7):
-/// 3000 m, stinger + wingtips: alone 0.0043 / 0.0063 / 0.0054, joint 0.0029 / 0.0065 /
-/// 0.0046; the joint is kept for the stinger only (its predicted error is below the alone
-/// one's there); 300 m strong geology: joint 0.053 / 2.3 / 11.8 against alone 0.024 /
-/// 0.17 / 0.12: the sensors' anomaly differences (8 m out, ±1.4 m in a 10° roll over a
-/// 0.16 nT/m gradient) hold more than the joint model describes, its predicted error says
-/// so (9.4 / 13 / 18 nT) and every sensor keeps its alone calibration.
+/// 3000 m, stinger + wingtips: alone 0.0043 / 0.0063 / 0.0054, joint 0.0029 / 0.0066 /
+/// 0.0047; the joint is kept for the stinger only (its predicted error is below the alone
+/// one's there); 300 m strong geology: joint 6.7 / 2.6 / 2.5 against alone 0.024 /
+/// 0.17 / 0.12: the sensors' anomaly differences hold more than the joint model describes,
+/// its predicted error says so (8–15 nT) and every sensor keeps its alone calibration.
+/// The alone figures there are 0.42 / 2.41 / 1.83 × off: the stinger's on the
+/// conservative side of a single sensor at 300 m (covariance and jackknife summed), the
+/// wingtips' optimistic because their lever arm (`multi::lever`) is signal their model
+/// lacks: 0.052 nT in the band from the flight's gradient and their motion, 4.6 × the
+/// 0.011 nT noise they allowed for (3000 m: 0.001 nT, 0.09 ×), so their figure says it is
+/// a lower bound.
 /// Asserted: the kept result ≤ 1.05 × alone + 0.002 nT per sensor; the joint's actual ≤
 /// 2 × its predicted (never optimistic); the kept result's actual/predicted within [0.5, 2]
-/// at 3000 m (at 300 m the alone calibration's own figure is 0.42–2.4 × off: asserted
-/// within [0.3, 3]); the wingtip gradient (16 m) within 0.002 nT/m at 3000 m and 0.05
-/// nT/m at 300 m.
+/// at 3000 m and never below 1/3 at 300 m (issue 17 item 4); above 2 only where the figure
+/// says it is a lower bound, which it says for the wingtips at 300 m and for no sensor at
+/// 3000 m; the wingtip gradient (16 m) within 0.002 nT/m at 3000 m and 0.05 nT/m at 300 m.
 #[test]
 fn joint_against_alone_on_simulated_stinger_and_wingtips() {
     let results: Vec<_> = cases().into_iter().map(|c| (run(&c.cfg, 3), c)).collect();
@@ -104,7 +115,7 @@ fn joint_against_alone_on_simulated_stinger_and_wingtips() {
         for r in per {
             eprintln!(
                 "{} {}: alone {:.4}, joint {:.4} nT (predicted {:.4}); kept: {} {:.4} \
-                 (predicted {:.4}, actual/predicted {:.2})",
+                 (predicted {:.4}{}, actual/predicted {:.2}); lever arm {:?}",
                 c.label,
                 r.name,
                 r.alone,
@@ -113,7 +124,9 @@ fn joint_against_alone_on_simulated_stinger_and_wingtips() {
                 if r.joint_chosen { "joint" } else { "alone" },
                 r.chosen,
                 r.chosen_predicted,
-                r.chosen / r.chosen_predicted
+                if r.lower_bound { ", a lower bound" } else { "" },
+                r.chosen / r.chosen_predicted,
+                r.lever
             );
         }
         eprintln!(
@@ -141,14 +154,25 @@ fn joint_against_alone_on_simulated_stinger_and_wingtips() {
                 r.joint_predicted
             );
             let ratio = r.chosen / r.chosen_predicted;
-            let band = if high { 0.5..=2.0 } else { 0.3..=3.0 };
+            let lo = if high { 0.5 } else { 1.0 / 3.0 };
             assert!(
-                band.contains(&ratio),
-                "{} {}: actual {:.4} / predicted {:.4} = {ratio:.2}",
+                ratio >= lo && (ratio <= 2.0 || r.lower_bound),
+                "{} {}: actual {:.4} / predicted {:.4} = {ratio:.2} (lower bound: {})",
                 c.label,
                 r.name,
                 r.chosen,
-                r.chosen_predicted
+                r.chosen_predicted,
+                r.lower_bound
+            );
+            // The stinger sits at the trajectory's point; the wingtips 10 m from it.
+            let off_centre = r.name != "mag_1";
+            assert_eq!(
+                r.lower_bound,
+                off_centre && !high,
+                "{} {}: lever arm {:?}",
+                c.label,
+                r.name,
+                r.lever
             );
         }
         let limit = if high { 0.002 } else { 0.05 };
@@ -195,4 +219,52 @@ fn joint_gains_where_the_sensors_are_close() {
     eprintln!("gradient (2 m): error {grad_err:.4} nT/m, true rms {grad_rms:.4} nT/m");
     assert!(better >= 2, "joint better on {better} of 3");
     assert!(grad_err < 0.05);
+}
+
+/// Why the wingtips' alone figures are optimistic at 300 m over strong geology: their
+/// lever arm. The same wingtip sensors (the same aircraft draws, interference and noise)
+/// given the stinger's anomaly instead of their own, i.e. flown at the trajectory's point,
+/// are calibrated alone. Measured (seed 1): 0.168 / 0.116 nT against truth with their own
+/// anomaly (2.41 / 1.83 × predicted), 0.057 / 0.029 with the stinger's (1.21 / 0.61 ×).
+/// Asserted: the lever arm costs each wingtip more than its whole predicted error, and
+/// without it both are within [0.5, 2] × their predicted error.
+#[test]
+fn the_wingtips_lever_arm_is_what_their_figure_misses() {
+    use magcomp::calibration::{compensate_trace, Method};
+    use magcomp::multi::sensor_trace;
+    let cfg = &cases()[1].cfg;
+    let trace = simulate_multi(cfg, &STINGER_WINGTIPS_CABIN_M[..3]).unwrap();
+    let specs = parse_sensors("mag_1,mag_2,mag_3", &trace).unwrap();
+    let est = EstimatorSettings {
+        method: Method::Kf,
+        ..EstimatorSettings::default()
+    };
+    let stinger = trace.col("truth_anomaly_mag_1").unwrap().to_vec();
+    for s in &specs[1..] {
+        let own = sensor_trace(&trace, s);
+        // The scalar with the stinger's anomaly in place of its own.
+        let mut centred = own.clone();
+        let (mag, anomaly) = (own.col("mag").unwrap(), own.col("truth_anomaly").unwrap());
+        let moved: Vec<f64> = (0..mag.len())
+            .map(|i| mag[i] - anomaly[i] + stinger[i])
+            .collect();
+        centred.set_col("mag", moved);
+        centred.set_col("truth_anomaly", stinger.clone());
+        let figures = |t: &magcomp::io::trace::Trace| {
+            let (f, c) = compensate_trace(t, &est, None, false).unwrap();
+            let truth = f.truth_interference_nt.unwrap();
+            let e = magcomp::qc::truth::error_rms_nt(&c.interference_nt, &truth, None);
+            (e, c.coefficients.unwrap().predicted_error_nt.unwrap())
+        };
+        let ((e_own, p_own), (e_c, p_c)) = (figures(&own), figures(&centred));
+        eprintln!(
+            "{}: own anomaly {e_own:.4} nT (predicted {p_own:.4}, {:.2}×), the stinger's \
+             {e_c:.4} (predicted {p_c:.4}, {:.2}×)",
+            s.name,
+            e_own / p_own,
+            e_c / p_c
+        );
+        assert!(e_own - e_c > p_own, "{}", s.name);
+        assert!((0.5..=2.0).contains(&(e_c / p_c)), "{}", s.name);
+    }
 }

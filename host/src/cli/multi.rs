@@ -156,6 +156,10 @@ pub struct SensorEntry {
     /// The joint and the alone calibration's predicted errors (nT).
     pub joint_predicted_error_nt: Option<f64>,
     pub alone_predicted_error_nt: Option<f64>,
+    /// The alone figure is a lower bound: the sensor's lever arm makes more signal than
+    /// its calibration's noise (`multi::lever`).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub alone_predicted_is_lower_bound: bool,
     /// The sensor's coefficient file, as `calibrate` writes it for one sensor (sealed).
     pub coefficients: serde_json::Value,
 }
@@ -307,6 +311,7 @@ pub fn calibrate(
             joint: s.joint_chosen,
             joint_predicted_error_nt: s.predicted_error_nt,
             alone_predicted_error_nt: alone_p,
+            alone_predicted_is_lower_bound: s.lever_arm.is_some_and(|l| l.exceeds_noise()),
             coefficients: serde_json::from_str(&to_sealed_json(&file)?)?,
         });
     }

@@ -3,6 +3,7 @@
 //! [`magcomp_core::joint::JointFilter`] over all of them with the anomaly shared, and the
 //! joint coefficients applied to every sample, as the single-sensor post-flight run does.
 
+use super::lever::{lever_arms, LeverArm};
 use super::sensors::{sensor_trace, SensorSpec};
 use crate::calibration::result::Compensation;
 use crate::calibration::{
@@ -47,6 +48,10 @@ pub struct SensorResult {
     /// jackknife, model error; no truth) is at most the alone calibration's. Otherwise the
     /// alone calibration is kept, with a warning ([`SensorResult::chosen`]).
     pub joint_chosen: bool,
+    /// What the sensor's own lever arm does on this flight ([`super::lever`]): beyond the
+    /// noise its alone calibration allowed for, that calibration's predicted error is a
+    /// lower bound (its warnings say so).
+    pub lever_arm: Option<LeverArm>,
     /// Error against the simulator's truth (nT rms, mean removed), alone and joint.
     pub truth_error_alone_nt: Option<f64>,
     pub truth_error_joint_nt: Option<f64>,
@@ -70,6 +75,12 @@ impl SensorResult {
         } else {
             self.alone.coefficients.as_ref()?.predicted_error_nt
         }
+    }
+
+    /// The kept predicted error is a lower bound: the alone calibration is kept and its
+    /// lever arm's signal exceeds the noise it allowed for.
+    pub fn chosen_predicted_is_lower_bound(&self) -> bool {
+        !self.joint_chosen && self.lever_arm.is_some_and(|l| l.exceeds_noise())
     }
 
     /// Its error against the simulator's truth (nT).
@@ -164,6 +175,11 @@ pub fn calibrate_joint(
     let label = choose_field_process(&mut prepared, &flights[0], &alone[0].1)?;
     let full = pass(&prepared, None)?;
     let refits = jackknife_refits(&prepared, &flights[0], sensors.len())?;
+    let kept: Vec<&Compensation> = alone
+        .iter()
+        .map(|(_, c, w)| w.as_ref().unwrap_or(c))
+        .collect();
+    let levers = lever_arms(&flights, &kept, sensors);
     let mut results = Vec::new();
     let mut jackknife_nt = Vec::new();
     for (j, ((_, alone_j, witnessed_j), s)) in alone.into_iter().zip(sensors).enumerate() {
@@ -185,14 +201,12 @@ pub fn calibrate_joint(
             .coefficients
             .as_ref()
             .and_then(|c| c.predicted_error_nt);
-        results.push(choose_result(
-            s,
-            alone_j,
-            joint,
-            predicted,
-            alone_predicted,
-            flight,
-        ));
+        let mut r = choose_result(s, alone_j, joint, predicted, alone_predicted, flight);
+        r.lever_arm = levers[j];
+        if let Some(l) = levers[j].filter(LeverArm::exceeds_noise) {
+            r.alone.warnings.push(l.warning(&s.name));
+        }
+        results.push(r);
     }
     Ok(JointResult {
         sensors: results,
@@ -425,6 +439,7 @@ fn choose_result(
     }
     SensorResult {
         joint_chosen,
+        lever_arm: None,
         spec: s.clone(),
         alone,
         joint,

@@ -3,6 +3,7 @@
 //! sensor its own interference, and the gradients between them.
 
 pub mod joint;
+pub mod lever;
 pub mod sensors;
 
 pub use joint::{apply_each, calibrate_joint, JointResult, SensorResult};
