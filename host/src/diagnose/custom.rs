@@ -3,10 +3,9 @@
 //! coefficients), with a model built from any `Term` values. Lets a user check a new
 //! effect end to end before it is pasted into `core/src/model` (docs/adding-an-effect.md).
 
-use crate::estimate::kf::HostCompensator;
+use crate::estimate::kf::{self, HostCompensator};
 use crate::flight::Flight;
 use anyhow::{anyhow, bail, Result};
-use magcomp_core::compensator::CompensatorConfig;
 use magcomp_core::model::{Model, Term};
 
 /// Interference estimate per sample (nT) and the final coefficients, post-flight.
@@ -21,13 +20,13 @@ pub fn post_flight_with_terms(
     sigma1: f64,
     noise_nt: f64,
 ) -> Result<(Vec<f64>, Vec<f64>)> {
-    let mut cfg = CompensatorConfig::for_rate(flight.sample_rate_hz as f32);
-    cfg.sigma1 = sigma1 as f32;
-    cfg.sigma2 = (sigma1 / 10.0) as f32;
-    cfg.noise_nt = noise_nt as f32;
-    cfg.epoch.earth_dir_ned = flight.earth_dir_ned;
-    cfg.tie_points[0] = flight.tie_point;
-    crate::estimate::kf::set_run_mode(&mut cfg, false);
+    let geometry = (
+        flight.sample_rate_hz,
+        flight.earth_dir_ned,
+        flight.tie_point,
+    );
+    let mut cfg = kf::base_config(geometry, sigma1, noise_nt, kf::SIGMA2_RATIO);
+    kf::set_run_mode(&mut cfg, false);
     let model = Model { field, terms };
     let k = model.coefficient_count();
     let mut comp = HostCompensator::new(model, cfg).map_err(|e| {

@@ -22,15 +22,12 @@ pub(crate) type Geometry = (f64, Option<[f32; 3]>, Option<TiePoint>);
 /// The filter's configuration for a flight's geometry, the user's options and the noise
 /// levels the run chose (σ1, the measurement noise r, both nT-based).
 pub(crate) fn config_for(
-    (sample_rate_hz, earth_dir_ned, tie_point): Geometry,
+    geometry: Geometry,
     opts: &KfOptions,
     sigma1: f64,
     noise_nt: f64,
 ) -> CompensatorConfig {
-    let mut cfg = CompensatorConfig::for_rate(sample_rate_hz as f32);
-    cfg.sigma1 = sigma1 as f32;
-    cfg.sigma2 = (sigma1 * opts.sigma2_ratio) as f32;
-    cfg.noise_nt = noise_nt as f32;
+    let mut cfg = base_config(geometry, sigma1, noise_nt, opts.sigma2_ratio);
     cfg.prior_scale = opts.prior_scale as f32;
     cfg.h0_reanchor_m = opts.h0_reanchor_m as f32;
     cfg.gate_sigma = opts.gate_sigma as f32;
@@ -38,10 +35,28 @@ pub(crate) fn config_for(
     if let Some(hw) = opts.half_width {
         cfg.epoch.half_width = hw.max(1);
     }
-    cfg.epoch.earth_dir_ned = earth_dir_ned;
-    if opts.tie_points {
-        cfg.tie_points[0] = tie_point;
+    if !opts.tie_points {
+        cfg.tie_points[0] = None;
     }
+    cfg
+}
+
+/// The filter for a flight's geometry at σ1 (σ2 = `sigma2_ratio` × σ1) and scalar noise,
+/// everything else the core's defaults (the run mode is the caller's, [`set_run_mode`]):
+/// what [`config_for`] starts from, and what a model with terms outside the catalogue runs
+/// (`diagnose::custom`).
+pub(crate) fn base_config(
+    (sample_rate_hz, earth_dir_ned, tie_point): Geometry,
+    sigma1: f64,
+    noise_nt: f64,
+    sigma2_ratio: f64,
+) -> CompensatorConfig {
+    let mut cfg = CompensatorConfig::for_rate(sample_rate_hz as f32);
+    cfg.sigma1 = sigma1 as f32;
+    cfg.sigma2 = (sigma1 * sigma2_ratio) as f32;
+    cfg.noise_nt = noise_nt as f32;
+    cfg.epoch.earth_dir_ned = earth_dir_ned;
+    cfg.tie_points[0] = tie_point;
     cfg
 }
 

@@ -12,13 +12,16 @@ mod parallel;
 mod stages;
 mod tuning;
 
-pub(crate) use filter::set_run_mode;
+pub(crate) use filter::{base_config, set_run_mode};
 pub use filter::{HostCompensator, HOST_STATES, HOST_WINDOW};
 pub use stages::jackknife::{KfJackknife, INCONSISTENT_REFITS};
 pub use tuning::{
     estimate_sigma1_for, estimate_sigma1_with, field_profile, known_environment_nt, FIELD_PROFILES,
     FIELD_PROFILE_SCALES, MODEL_ERROR_WARNING_NT,
 };
+
+/// σ2 / σ1 of the anomaly process (docs/model.md §3 findings).
+pub const SIGMA2_RATIO: f64 = 0.1;
 
 /// What the user can set; `None` = estimated from the data. What the run's stages decide
 /// (σ1, noise, held combinations, anomaly process) they hand on as their own types
@@ -100,7 +103,7 @@ impl KfOptions {
             realtime: false,
             tie_points: true,
             coefficients: None,
-            sigma2_ratio: 0.1,
+            sigma2_ratio: SIGMA2_RATIO,
             sigma1_scale: 1.0,
             prior_scale: 1.0,
             half_width: None,
