@@ -95,6 +95,12 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     crate::io::progress::force_progress(a.long.progress);
     // `--gradients` alone is refused by the plan, as `calibrate` refuses it.
     if a.multi.applies(a.coeffs.as_deref()) {
+        if a.multi.names_several(a.coeffs.as_deref()) {
+            let size = std::fs::metadata(&a.input.trace).map_or(0, |m| m.len());
+            if let Some(note) = several_sensors_unstreamed(a.stream, size, &a.input.trace)? {
+                eprintln!("{note}");
+            }
+        }
         let trace = a.input.read()?;
         match a
             .multi
@@ -174,6 +180,34 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     }
     print_warnings(&s);
     Ok(())
+}
+
+/// Why several magnetometers are not streamed (docs/streaming.md).
+pub const SEVERAL_UNSTREAMED: &str =
+    "several magnetometers (--sensors, or a several-sensor --coeffs file) are compensated in memory";
+
+/// `compensate` on several magnetometers, which is not streamed, given `--stream mode` and
+/// an input of `size` bytes: `--stream always` is refused (it was silently ignored), and
+/// an input `auto` would have streamed gets a note that it is read whole (returned).
+pub fn several_sensors_unstreamed(
+    mode: StreamMode,
+    size: u64,
+    input: &std::path::Path,
+) -> Result<Option<String>> {
+    match mode {
+        StreamMode::Always => bail!(
+            "--stream always: this run cannot be streamed: {SEVERAL_UNSTREAMED} (~1 KB per row \
+             per sensor); use --stream auto or never, or stream one sensor at a time \
+             (--map mag=mag_K,flux_x=… with that sensor's `coefficients` from the file, \
+             a one-sensor coefficient file)"
+        ),
+        StreamMode::Auto if size >= AUTO_STREAM_BYTES => Ok(Some(format!(
+            "note: {} is read into memory (~1 KB per row per sensor), not streamed: \
+             {SEVERAL_UNSTREAMED}",
+            input.display()
+        ))),
+        _ => Ok(None),
+    }
 }
 
 /// The `compensate` hook: streams when `mode` (and, for `auto`, the input's size) says

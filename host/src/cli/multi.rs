@@ -73,6 +73,16 @@ impl MultiArgs {
         self.sensors.is_some() || self.gradients.is_some() || coeffs.is_some_and(is_multi_file)
     }
 
+    /// Whether the plan will be [`SensorPlan::Several`], known before the trace is read:
+    /// `--sensors` naming two or more, or a several-sensor `--coeffs` file without
+    /// `--sensors`.
+    pub fn names_several(&self, coeffs: Option<&Path>) -> bool {
+        match &self.sensors {
+            Some(text) => text.split(',').filter(|e| !e.trim().is_empty()).count() > 1,
+            None => coeffs.is_some_and(is_multi_file),
+        }
+    }
+
     /// The plan for `trace` with `--coeffs` `coeffs`: without `--sensors`, a several-sensor
     /// file's own sensors (so `compensate --coeffs joint.json` needs nothing more).
     pub fn plan_with(
