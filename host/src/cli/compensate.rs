@@ -94,8 +94,13 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     check_outputs(&inputs, &[&a.out])?;
     crate::io::progress::force_progress(a.long.progress);
     // `--gradients` alone is refused by the plan, as `calibrate` refuses it.
-    if a.multi.applies(a.coeffs.as_deref()) {
-        if a.multi.names_several(a.coeffs.as_deref()) {
+    // A several-sensor --coeffs file is read (and each sensor's set checked) once, here.
+    let multi = match a.coeffs.as_deref() {
+        Some(path) => super::multi::load_multi(path)?,
+        None => None,
+    };
+    if a.multi.applies(multi.as_ref()) {
+        if a.multi.names_several(multi.as_ref()) {
             let size = std::fs::metadata(&a.input.trace).map_or(0, |m| m.len());
             if let Some(note) = several_sensors_unstreamed(a.stream, size, &a.input.trace)? {
                 eprintln!("{note}");
@@ -104,11 +109,11 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         let trace = a.input.read()?;
         match a
             .multi
-            .plan_with(&trace, a.input.map.as_deref(), a.coeffs.as_deref())?
+            .plan_with(&trace, a.input.map.as_deref(), (a.coeffs.as_deref(), multi))?
         {
             SensorPlan::Today => {}
             SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
-            SensorPlan::Several(sensors) => {
+            SensorPlan::Several(sensors, multi) => {
                 let est = EstimatorSettings {
                     survey_from_s: a.survey_from,
                     ..a.est.settings()
@@ -121,7 +126,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
                     &trace,
                     &est,
                     (&sensors, a.multi.gradients.as_deref()),
-                    a.coeffs.as_deref(),
+                    multi.as_ref(),
                     how,
                     &a.out,
                 );
