@@ -11,10 +11,11 @@
 //! are the channel's own; the rest the sample's). The host reads a log of these lines as
 //! a several-sensor trace, `mag_1` … `mag_n` (docs/trace-format.md).
 
-use super::common::{fields, finish_crc, parse_float_field, parse_hex_u32, Cursor};
+use super::common::{finish_crc, parse_float_field, parse_hex_u32, Cursor};
+use super::multi_record::channel_fields;
 use super::multi_scalar::MAX_CHANNELS;
-use super::raw::{encode_raw, RawSample};
-use super::record::{check_crc_line, counts_field, parse_seq, RecordError};
+use super::raw::{encode_motion, encode_raw, RawSample};
+use super::record::{counts_field, parse_seq, RecordError};
 use crate::flags::Flags;
 use crate::units::MagCounts;
 
@@ -77,18 +78,7 @@ pub fn encode_multi_raw(r: &MultiRawSample, out: &mut [u8]) -> Result<usize, Rec
             c.byte(b',')?;
             c.hex_u16(f.0)?;
         }
-        for v in s.flux_nt {
-            c.byte(b',')?;
-            c.float(f64::from(v), 4)?;
-        }
-        for (v, scale) in [(s.lat_deg, 8), (s.lon_deg, 8)] {
-            c.byte(b',')?;
-            c.float(v, scale)?;
-        }
-        for v in [s.alt_m, s.ground_speed_mps] {
-            c.byte(b',')?;
-            c.float(f64::from(v), 4)?;
-        }
+        encode_motion(&mut c, s)?;
         finish_crc(&mut c)
     })();
     res.map_err(|_| RecordError::BufferFull)?;
@@ -97,19 +87,7 @@ pub fn encode_multi_raw(r: &MultiRawSample, out: &mut [u8]) -> Result<usize, Rec
 
 /// Parses a line written by [`encode_multi_raw`].
 pub fn decode_multi_raw(line: &[u8]) -> Result<MultiRawSample, RecordError> {
-    let payload = check_crc_line(line, b"MCMRAW,")?;
-    const MAX_FIELDS: usize = 3 + 2 * MAX_CHANNELS + 7;
-    let mut f = [&b""[..]; MAX_FIELDS];
-    let mut len = 0;
-    for x in fields(payload).skip(1) {
-        *f.get_mut(len).ok_or(RecordError::FieldCount)? = x;
-        len += 1;
-    }
-    let n = match f[2] {
-        b"2" => 2,
-        b"3" => 3,
-        _ => return Err(RecordError::BadField(2)),
-    };
+    let (f, len, n) = channel_fields::<{ 3 + 2 * MAX_CHANNELS + 7 }>(line, b"MCMRAW,")?;
     if len != 3 + 2 * n + 7 {
         return Err(RecordError::FieldCount);
     }
