@@ -18,7 +18,7 @@ use magcomp_core::protocol::command::{
 use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::LagLine;
-use magcomp_core::protocol::raw::{RawSample, encode_raw};
+use magcomp_core::protocol::multi_raw::RawLine;
 
 #[cfg(feature = "board-acq")]
 use defmt_rtt as _;
@@ -278,11 +278,11 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
     }
 }
 
-async fn send_raw(r: &RawSample) {
-    let line = Line::fill(|out| encode_raw(r, out).ok());
+async fn send_raw(r: &RawLine) {
+    let line = Line::fill(|out| r.encode(out).ok());
     if line.len == 0 {
-        // cannot happen (MAX_RAW_LEN < 320): a bug, logged
-        defmt::error!("raw line {} did not encode", r.k);
+        // cannot happen (MAX_RAW_LEN, MAX_MULTI_RAW_LEN ≤ LINE_LEN): a bug, logged
+        defmt::error!("raw line {} did not encode", r.k());
     }
     OUT.send(line).await;
 }

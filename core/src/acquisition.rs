@@ -44,6 +44,7 @@ use crate::protocol::fluxgate::{
     FluxgateCal,
 };
 use crate::protocol::lag_line::{check_lag, LagError, LagLine};
+use crate::protocol::multi_raw::{MultiRawSample, RawLine};
 use crate::protocol::multi_record::{ChannelRecord, MultiRecord};
 use crate::protocol::multi_scalar::{Channel, MultiFrame, ScalarLine, MAX_CHANNELS};
 use crate::protocol::nmea::{Fix, NmeaError, NmeaReader, NmeaStats, Sentence};
@@ -261,7 +262,7 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     counters: AcqCounters,
     /// `RAW,ON`: each scalar sample is also kept as a raw line ([`take_raw`](Self::take_raw)).
     raw_output: bool,
-    last_raw: Option<RawSample>,
+    last_raw: Option<RawLine>,
 }
 
 impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
@@ -589,7 +590,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             None => f64::from(k) / self.cfg.scalar_hz,
         };
         if self.raw_output {
-            self.last_raw = Some(RawSample::of(k, &s));
+            self.last_raw = Some(RawLine::One(RawSample::of(k, &s)));
         }
         self.k = self.k.wrapping_add(1);
         s
@@ -661,6 +662,21 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             }
             si
         };
+        // `RAW,ON`: every channel's reading as its compensator is given it (`$MCMRAW`)
+        if let (true, Some(RawLine::One(shared))) = (n > 1, self.last_raw) {
+            let mut raw = MultiRawSample {
+                shared,
+                channels: self.channels,
+                mag: [None; MAX_CHANNELS],
+                flags: [Flags(Flags::MAG_MISSING); MAX_CHANNELS],
+            };
+            for (i, c) in f.ch.iter().enumerate().take(n) {
+                let si = channel_sample(c);
+                (raw.mag[i], raw.flags[i]) = (si.mag, si.flags);
+            }
+            (raw.shared.mag, raw.shared.flags) = (raw.mag[0], raw.flags[0]);
+            self.last_raw = Some(RawLine::Multi(raw));
+        }
         let out0 = self.comp.push(&channel_sample(&f.ch[0]));
         let mut outs = [None; MAX_CHANNELS - 1];
         for (i, o) in outs.iter_mut().enumerate().take(n - 1) {
@@ -679,8 +695,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.raw_output
     }
 
-    /// The raw line of the latest scalar sample, once (None with `RAW,OFF`).
-    pub fn take_raw(&mut self) -> Option<RawSample> {
+    /// The raw line of the latest scalar sample, once (None with `RAW,OFF`): `$MCRAW`, or
+    /// `$MCMRAW` with every channel when the counter sends 2–3.
+    pub fn take_raw(&mut self) -> Option<RawLine> {
         self.last_raw.take()
     }
 

@@ -8,6 +8,7 @@ use hil_tests::board::{self, Board};
 use hil_tests::capture::{FlightSpec, Port, synthetic_flight};
 use hil_tests::replay::replay_any;
 use magcomp_core::Flags;
+use magcomp_core::protocol::multi_raw::decode_multi_raw;
 use magcomp_core::protocol::multi_record::{MAX_MULTI_RECORD_LEN, decode_multi_record};
 use magcomp_core::protocol::multi_scalar::{ScalarLine, parse_scalar_any};
 use magcomp_core::protocol::scalar::ScalarConfig;
@@ -128,6 +129,109 @@ fn three_sensors_one_record_per_line_byte_identical_to_replay_with_a_dead_channe
     eprintln!(
         "{name}: {n} lines in, {n} $MCMREC out, {dead} with channel 1 dead (logs in {})",
         b.dir.display()
+    );
+}
+
+/// `RAW,ON` on a 3-sensor counter: one `$MCMRAW` line per counter line (no `$MCRAW`),
+/// every channel's reading exactly as the counter sent it (the dead channel empty and
+/// flagged `MAG_MISSING`, the others never), sample numbers contiguous, and with
+/// `MAGCOMP_BIN` byte for byte the lines of `magcomp replay --raw` on the same capture
+/// (whose log `magcomp` reads as a several-sensor trace, `mag_1` … `mag_3`).
+#[test]
+fn raw_lines_carry_every_channel_exactly() {
+    let name = "multi3-raw";
+    let mut spec = FlightSpec::new(0x5EED_0034, 10.0);
+    spec.sensors = 3;
+    spec.dead_channel_s = Some((1, 3.0, 5.0));
+    let cap = synthetic_flight(&spec);
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let n = cap.scalar_t_s.len();
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: board start: {e}"));
+    let r = b
+        .command("MCCMD,RAW,ON")
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert!(r.starts_with("$MCACK,RAW,ON"), "{r}");
+    b.stream(&cap, 1.0)
+        .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
+    b.wait_records(n.saturating_sub(8), Duration::from_secs(10));
+    b.flush().unwrap_or_else(|e| panic!("{name}: {e}"));
+    let log = b.save_output();
+    let output = b.output();
+    assert!(
+        !output.iter().any(|l| l.starts_with("$MCRAW,")),
+        "{name}: a channel-0-only raw line"
+    );
+    let raw: Vec<&String> = output
+        .iter()
+        .filter(|l| l.starts_with("$MCMRAW,"))
+        .collect();
+    assert_eq!(
+        raw.len(),
+        n,
+        "{name}: lines in {n}, raw lines out ({})",
+        log.display()
+    );
+    let sent: Vec<_> = cap
+        .lines(Port::Scalar)
+        .map(
+            |c| match parse_scalar_any(&c.bytes, &ScalarConfig::default()) {
+                ScalarLine::Multi(f) => f,
+                other => panic!("{other:?}"),
+            },
+        )
+        .collect();
+    let mut dead = 0;
+    for (i, l) in raw.iter().enumerate() {
+        let r = decode_multi_raw(l.as_bytes()).unwrap_or_else(|e| panic!("{l}: {e:?}"));
+        assert_eq!(r.shared.k as usize, i, "{name}: sample numbers contiguous");
+        assert_eq!(r.channels, 3);
+        for c in 0..3 {
+            assert_eq!(r.mag[c], sent[i].ch[c].mag(), "k {i} channel {c}: mag");
+            assert_eq!(
+                r.flags[c].contains(Flags::MAG_MISSING),
+                r.mag[c].is_none(),
+                "k {i} channel {c}: flags"
+            );
+        }
+        dead += usize::from(r.mag[1].is_none());
+    }
+    assert_eq!(dead, 20, "2 s of sensor 1 dead at 10 Hz");
+    if let Ok(exe) = std::env::var("MAGCOMP_BIN") {
+        let cap_path = b.dir.join("capture.txt");
+        cap.write_raw(std::io::BufWriter::new(
+            std::fs::File::create(&cap_path).unwrap(),
+        ))
+        .unwrap();
+        let txt = b.dir.join("replay.txt");
+        let st = std::process::Command::new(&exe)
+            .arg("replay")
+            .arg(&cap_path)
+            .args(["--raw", "--records"])
+            .arg(&txt)
+            .status()
+            .unwrap_or_else(|e| panic!("{exe}: {e}"));
+        assert!(st.success(), "{exe} replay --raw failed");
+        let text = std::fs::read_to_string(&txt).unwrap();
+        let host: Vec<&str> = text.lines().filter(|l| l.starts_with("$MCMRAW,")).collect();
+        assert_eq!(host.len(), raw.len(), "{name}: raw lines, board vs host");
+        for (a, h) in raw.iter().zip(&host) {
+            assert_eq!(
+                a.trim_end(),
+                h.trim_end(),
+                "{name}: board vs magcomp replay --raw"
+            );
+        }
+        eprintln!("{name}: {n} $MCMRAW lines = `magcomp replay --raw`");
+    }
+    let r = b
+        .command("MCCMD,RAW,OFF")
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert!(r.starts_with("$MCACK,RAW,OFF"), "{r}");
+    eprintln!(
+        "{name}: {n} counter lines in, {n} $MCMRAW out, every channel exact, {dead} with channel 1 dead"
     );
 }
 

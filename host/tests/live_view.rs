@@ -596,6 +596,98 @@ fn several_sensors_are_drawn_with_their_gradient() {
     assert!(errors_dom.is_empty(), "{errors_dom}");
 }
 
+/// One board reading three magnetometers (`$MCMREC`): the page draws each channel's compensated
+/// field, its flags (channel 2 dead for 5 records), the pair differences, all exactly the line's.
+#[test]
+fn a_several_sensor_board_draws_each_channel_and_the_pair_differences() {
+    use magcomp_core::protocol::multi_record::{
+        encode_multi_record, ChannelRecord, MultiRecord, MAX_MULTI_RECORD_LEN,
+    };
+    if !Path::new(CHROMIUM).exists() {
+        println!("SKIP: {CHROMIUM} not installed (apt-get install chromium)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (n, dead) = (30u32, 10..15u32);
+    let recs: Vec<MultiRecord> = (0..n)
+        .map(|s| {
+            let ch = |c: i64| {
+                let base = rec(s, 0.0, 0);
+                let missing = c == 1 && dead.contains(&s);
+                let mag = base
+                    .mag
+                    .map(|m| MagCounts(m.0 + 15_000 * c))
+                    .filter(|_| !missing);
+                ChannelRecord {
+                    mag,
+                    interference_nt: base.interference_nt,
+                    compensated: Record::compensate(mag, base.interference_nt),
+                    sigma_nt: 0.25,
+                    flags: Flags(if missing { Flags::MAG_MISSING } else { 0 }),
+                }
+            };
+            MultiRecord::new(s, 50.0 + f64::from(s) * 0.1, 3, [ch(0), ch(1), ch(2)])
+        })
+        .collect();
+    let (mut b, mut text) = ([0u8; MAX_MULTI_RECORD_LEN], Vec::new());
+    for r in &recs {
+        let k = encode_multi_record(r, &mut b).unwrap();
+        text.extend_from_slice(&b[..k]);
+    }
+    let f = dir.path().join("multi.txt");
+    std::fs::write(&f, text).unwrap();
+    let (server, url) = start_server(&["--realtime", f.to_str().unwrap()]);
+    let (chrome, mut page) = Page::open(&url, &dir.path().join("profile"));
+    let t0 = Instant::now();
+    let mut p = Value::Null;
+    while t0.elapsed() < Duration::from_secs(15) {
+        p = page.plotted();
+        let drawn = |v: &Value| numbers(v).len() == n as usize;
+        if (0..3).all(|c| drawn(&p["channels"][c]["comp"]) && drawn(&p["diffs"][c])) {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    let errors_dom = page.text_of("errors");
+    drop((chrome, server));
+    let nt = |c: Option<MagCounts>| c.map(MagCounts::to_nt_f64);
+    for c in 0..3 {
+        let want: Vec<Option<f64>> = recs.iter().map(|r| nt(r.ch[c].compensated)).collect();
+        assert_eq!(
+            numbers(&p["channels"][c]["comp"]),
+            want,
+            "channel {}",
+            c + 1
+        );
+        let flags: Vec<Option<f64>> = recs
+            .iter()
+            .map(|r| Some(f64::from(r.ch[c].flags.0)))
+            .collect();
+        assert_eq!(
+            numbers(&p["channels"][c]["flags"]),
+            flags,
+            "channel {} flags",
+            c + 1
+        );
+    }
+    for k in 0..3 {
+        let want: Vec<Option<f64>> = recs.iter().map(|r| nt(r.diff[k])).collect();
+        assert_eq!(numbers(&p["diffs"][k]), want, "pair {k}");
+    }
+    // 2 − 1 is 1.5 nT (15 000 counts) where channel 2 reads, empty where it is dead.
+    let d21 = numbers(&p["diffs"][0]);
+    assert_eq!(d21.iter().filter(|d| d.is_none()).count(), dead.len());
+    assert!(
+        d21.iter().flatten().all(|d| (d - 1.5).abs() < 1e-12),
+        "{d21:?}"
+    );
+    assert_eq!(numbers(&p["comp"]), numbers(&p["channels"][0]["comp"]));
+    let shown = p["channel_flags"].as_str().unwrap_or("");
+    assert_eq!(shown, "1: ok, 2: ok, 3: ok", "the last record's flags");
+    assert!(page.console_errors.is_empty(), "{:?}", page.console_errors);
+    assert!(errors_dom.is_empty(), "{errors_dom}");
+}
+
 #[test]
 fn web_save_writes_what_the_text_monitor_saves() {
     let dir = tempfile::tempdir().unwrap();

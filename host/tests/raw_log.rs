@@ -131,3 +131,79 @@ fn a_log_of_records_only_says_what_is_missing() {
         "{err}"
     );
 }
+
+/// A several-sensor board's log (`$MCMRAW`, 3 channels): read as a trace with `mag_1` …
+/// `mag_3` in place of `mag`, each channel exactly as written (a missing reading NaN), a
+/// `$MCRAW` line before the counter's first counter line read as channel 1's, and a
+/// damaged line counted, never read.
+#[test]
+fn a_several_sensor_log_reads_every_channel_exactly() {
+    use magcomp::io::trace::board_log::read_board_log;
+    use magcomp_core::protocol::multi_raw::{MultiRawSample, RawLine, MAX_MULTI_RAW_LEN};
+    use magcomp_core::protocol::raw::RawSample;
+    use magcomp_core::{Flags, MagCounts};
+    let d = tmp("multi-raw-log");
+    let shared = |k: u32| RawSample {
+        k,
+        t_s: 100.0 + 0.1 * f64::from(k),
+        mag: None,
+        flux_nt: [20_000.0, -3_000.0, 45_000.5],
+        lat_deg: -45.5,
+        lon_deg: 170.25,
+        alt_m: 500.0,
+        ground_speed_mps: 60.0,
+        flags: Flags(0),
+    };
+    let counts = |k: u32, c: i64| MagCounts(530_000_000 + 1_234 * i64::from(k) + 77_777 * c);
+    let mut text = String::from("$MCBOOT,whatever\r\n");
+    let mut buf = [0u8; MAX_MULTI_RAW_LEN];
+    let one = RawLine::One(RawSample {
+        mag: Some(counts(0, 0)),
+        ..shared(0)
+    });
+    let n = one.encode(&mut buf).unwrap();
+    text.push_str(std::str::from_utf8(&buf[..n]).unwrap());
+    for k in 1..40u32 {
+        let mut mag = [Some(counts(k, 0)), Some(counts(k, 1)), Some(counts(k, 2))];
+        if (10..15).contains(&k) {
+            mag[1] = None;
+        }
+        let r = RawLine::Multi(MultiRawSample {
+            shared: shared(k),
+            channels: 3,
+            mag,
+            flags: mag.map(|m| Flags(if m.is_none() { Flags::MAG_MISSING } else { 0 })),
+        });
+        let n = r.encode(&mut buf).unwrap();
+        let mut line = std::str::from_utf8(&buf[..n]).unwrap().to_string();
+        if k == 20 {
+            line = line.replacen(",5300", ",5301", 1); // damaged: its checksum fails
+        }
+        text.push_str(&line);
+    }
+    let log = d.join("multi.txt");
+    std::fs::write(&log, text).unwrap();
+    let t = read_board_log(&log).unwrap();
+    assert!(t.col("mag").is_none(), "mag gives way to mag_1 … mag_3");
+    let rows: Vec<u32> = (0..40).filter(|&k| k != 20).collect();
+    assert_eq!(t.col("t").unwrap().len(), rows.len());
+    for c in 0..3 {
+        let col = t.col(&format!("mag_{}", c + 1)).unwrap();
+        for (v, &k) in col.iter().zip(&rows) {
+            let want = match (k, c) {
+                (0, 0) => counts(0, 0).to_nt_f64(),
+                (0, _) => f64::NAN,
+                (10..15, 1) => f64::NAN,
+                _ => counts(k, c as i64).to_nt_f64(),
+            };
+            assert!(
+                v.to_bits() == want.to_bits() || (v.is_nan() && want.is_nan()),
+                "k {k} mag_{}: {v} against {want}",
+                c + 1
+            );
+        }
+    }
+    assert_eq!(t.meta("board_log_bad_lines"), Some("1"));
+    let names: Vec<&str> = t.numeric.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(&names[..5], &["t", "mag_1", "mag_2", "mag_3", "flux_x"]);
+}

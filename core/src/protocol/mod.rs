@@ -10,6 +10,7 @@ pub mod command;
 pub mod common;
 pub mod fluxgate;
 pub mod lag_line;
+pub mod multi_raw;
 pub mod multi_record;
 pub mod multi_scalar;
 pub mod nmea;

@@ -127,11 +127,14 @@ pub fn encode_multi_record(r: &MultiRecord, out: &mut [u8]) -> Result<usize, Rec
     Ok(c.pos())
 }
 
-/// Parses a line written by [`encode_multi_record`].
-pub fn decode_multi_record(line: &[u8]) -> Result<MultiRecord, RecordError> {
-    let payload = check_crc_line(line, b"MCMREC,")?;
-    const MAX_FIELDS: usize = 3 + 5 * MAX_CHANNELS + 3;
-    let mut f = [&b""[..]; MAX_FIELDS];
+/// A several-channel line's fields after its sentence name (`<seq/k>,<t_s>,<n>,…`), checked
+/// against its CRC: at most `M`, how many there are, and the channel count `n` (2 or 3).
+pub(crate) fn channel_fields<'a, const M: usize>(
+    line: &'a [u8],
+    name: &[u8],
+) -> Result<([&'a [u8]; M], usize, usize), RecordError> {
+    let payload = check_crc_line(line, name)?;
+    let mut f = [&b""[..]; M];
     let mut len = 0;
     for x in fields(payload).skip(1) {
         *f.get_mut(len).ok_or(RecordError::FieldCount)? = x;
@@ -142,6 +145,12 @@ pub fn decode_multi_record(line: &[u8]) -> Result<MultiRecord, RecordError> {
         b"3" => 3,
         _ => return Err(RecordError::BadField(2)),
     };
+    Ok((f, len, n))
+}
+
+/// Parses a line written by [`encode_multi_record`].
+pub fn decode_multi_record(line: &[u8]) -> Result<MultiRecord, RecordError> {
+    let (f, len, n) = channel_fields::<{ 3 + 5 * MAX_CHANNELS + 3 }>(line, b"MCMREC,")?;
     if len != 3 + 5 * n + pair_count(n) {
         return Err(RecordError::FieldCount);
     }

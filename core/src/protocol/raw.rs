@@ -13,7 +13,7 @@
 //! its counts; flux, altitude and speed 4 decimals, latitude/longitude 8 (≈ 1 mm); NaN →
 //! empty field; framing and CRC as `$MCREC` ([`super::record`]).
 
-use super::common::{fields, finish_crc, parse_float_field, parse_hex_u32, Cursor};
+use super::common::{fields, finish_crc, parse_float_field, parse_hex_u32, BufferFull, Cursor};
 use super::record::{check_crc_line, counts_field, parse_seq, RecordError};
 use crate::epoch::AlignedSample;
 use crate::flags::Flags;
@@ -69,24 +69,31 @@ pub fn encode_raw(r: &RawSample, out: &mut [u8]) -> Result<usize, RecordError> {
         if let Some(m) = r.mag {
             c.fixed(m.0, 4)?;
         }
-        for v in r.flux_nt {
-            c.byte(b',')?;
-            c.float(f64::from(v), 4)?;
-        }
-        for (v, scale) in [(r.lat_deg, 8), (r.lon_deg, 8)] {
-            c.byte(b',')?;
-            c.float(v, scale)?;
-        }
-        for v in [r.alt_m, r.ground_speed_mps] {
-            c.byte(b',')?;
-            c.float(f64::from(v), 4)?;
-        }
+        encode_motion(&mut c, r)?;
         c.byte(b',')?;
         c.hex_u16(r.flags.0)?;
         finish_crc(&mut c)
     })();
     res.map_err(|_| RecordError::BufferFull)?;
     Ok(c.pos())
+}
+
+/// `,<flux_x>,<flux_y>,<flux_z>,<lat>,<lon>,<alt>,<speed>` of a raw line (`$MCRAW`,
+/// `$MCMRAW`): flux, height and speed 4 decimals, latitude/longitude 8.
+pub(crate) fn encode_motion(c: &mut Cursor, r: &RawSample) -> Result<(), BufferFull> {
+    for v in r.flux_nt {
+        c.byte(b',')?;
+        c.float(f64::from(v), 4)?;
+    }
+    for (v, scale) in [(r.lat_deg, 8), (r.lon_deg, 8)] {
+        c.byte(b',')?;
+        c.float(v, scale)?;
+    }
+    for v in [r.alt_m, r.ground_speed_mps] {
+        c.byte(b',')?;
+        c.float(f64::from(v), 4)?;
+    }
+    Ok(())
 }
 
 /// Parses a line written by [`encode_raw`].

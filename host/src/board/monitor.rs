@@ -93,8 +93,8 @@ pub struct MonitorStats {
     pub flag_counts: [u64; 16],
     pub first_t_s: Option<f64>,
     pub last: Option<Record>,
-    /// Of `records`, the several-magnetometer ones (`$MCMREC`), and the last of them (the
-    /// live view draws single-sensor records only; these are counted, with their flags).
+    /// Of `records`, the several-magnetometer ones (`$MCMREC`), and the last of them
+    /// (counted with their flags; the live view draws each channel from it).
     pub multi_records: u64,
     pub last_multi: Option<MultiRecord>,
 }
@@ -277,6 +277,17 @@ impl Monitor {
                 Ok(r) => {
                     s.raw_lines += 1;
                     self.last_raw = Some(r);
+                }
+                Err(_) => s.raw_errors += 1,
+            }
+            return None;
+        }
+        // A several-sensor board's raw line: counted as one, its shared part kept.
+        if l.starts_with(b"$MCMRAW") {
+            match magcomp_core::protocol::multi_raw::decode_multi_raw(l) {
+                Ok(r) => {
+                    s.raw_lines += 1;
+                    self.last_raw = Some(r.shared);
                 }
                 Err(_) => s.raw_errors += 1,
             }

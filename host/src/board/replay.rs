@@ -22,7 +22,7 @@ use magcomp_core::acquisition::{
 use magcomp_core::protocol::capture::{decode_line, Port, MAX_CHUNK};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::{LagLine, LAG_FRAMES, MAX_LAG_S};
-use magcomp_core::protocol::raw::RawSample;
+use magcomp_core::protocol::multi_raw::RawLine;
 use magcomp_core::protocol::record::Record;
 use magcomp_core::{Compensator, Flags, MagCounts};
 use std::fmt;
@@ -385,7 +385,7 @@ pub fn replay_capture_raw<R: BufRead>(
     input: R,
     opts: &ReplayOptions,
     mut sink: impl FnMut(&Record) -> Result<()>,
-    raw_sink: impl FnMut(&RawSample) -> Result<()>,
+    raw_sink: impl FnMut(&RawLine) -> Result<()>,
 ) -> Result<ReplayStats> {
     replay_capture_any(
         input,
@@ -411,7 +411,7 @@ pub fn replay_capture_any<R: BufRead>(
     input: R,
     opts: &ReplayOptions,
     sink: impl FnMut(&AcqRecord) -> Result<()>,
-    raw_sink: impl FnMut(&RawSample) -> Result<()>,
+    raw_sink: impl FnMut(&RawLine) -> Result<()>,
 ) -> Result<ReplayStats> {
     let mut lines = CaptureLines {
         input,
@@ -610,7 +610,7 @@ struct Emitter<F, G> {
     dropped: bool,
 }
 
-impl<F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawSample) -> Result<()>> Emitter<F, G> {
+impl<F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawLine) -> Result<()>> Emitter<F, G> {
     fn emit(&mut self, mut r: AcqRecord, stats: &mut ReplayStats) -> Result<()> {
         let dropped = std::mem::take(&mut self.dropped);
         let t_s = match &mut r {
@@ -675,7 +675,7 @@ impl PortHistory {
 }
 
 /// Feeds every capture line from `first` on to the acquisition chain, emitting its records.
-fn feed<R: BufRead, F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawSample) -> Result<()>>(
+fn feed<R: BufRead, F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawLine) -> Result<()>>(
     acq: &mut ReplayAcquisition<'_>,
     lines: &mut CaptureLines<R>,
     first: Option<Vec<u8>>,
@@ -771,6 +771,46 @@ pub fn csv_row(r: &Record) -> String {
         nt_text(r.sigma_nt),
         r.flags.0
     )
+}
+
+/// `replay -o` header of records of `n` magnetometers (`$MCMREC`): `seq,t`, per channel
+/// `mag_K,interference_mag_K,compensated_mag_K,sigma_mag_K,flags_mag_K`, then per pair of
+/// the record (2−1, 3−1, 3−2) `difference_mag_A_mag_B` = compensated B − compensated A.
+pub fn multi_csv_header(n: usize) -> String {
+    use magcomp_core::protocol::multi_record::{pair_count, PAIRS};
+    let mut h = String::from("seq,t");
+    for k in 1..=n {
+        for what in ["", "interference_", "compensated_", "sigma_", "flags_"] {
+            h.push_str(&format!(",{what}mag_{k}"));
+        }
+    }
+    for (a, b) in &PAIRS[..pair_count(n)] {
+        h.push_str(&format!(",difference_mag_{}_mag_{}", a + 1, b + 1));
+    }
+    h
+}
+
+/// One row of [`multi_csv_header`]'s columns: the record's values exactly as its line
+/// carries them (an empty field where the line's is).
+pub fn multi_csv_row(r: &magcomp_core::protocol::multi_record::MultiRecord) -> String {
+    use magcomp_core::protocol::multi_record::pair_count;
+    let n = usize::from(r.channels).min(r.ch.len());
+    let mut row = format!("{},{:.6}", r.seq, r.t_s);
+    for c in &r.ch[..n] {
+        row.push_str(&format!(
+            ",{},{},{},{},{}",
+            counts_text(c.mag),
+            nt_text(c.interference_nt),
+            counts_text(c.compensated),
+            nt_text(c.sigma_nt),
+            c.flags.0
+        ));
+    }
+    for d in &r.diff[..pair_count(n)] {
+        row.push(',');
+        row.push_str(&counts_text(*d));
+    }
+    row
 }
 
 #[cfg(test)]

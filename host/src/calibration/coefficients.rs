@@ -295,49 +295,51 @@ pub fn read_coefficients(path: &Path) -> Result<CoefficientFile> {
         crate::io::bounded::MAX_COEFFICIENT_FILE_BYTES,
         "magcomp coefficient file",
     )?;
-    let c: CoefficientFile = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a magcomp coefficient file", path.display()))?;
+    coefficients_from_text(&text, &path.display())
+}
+
+/// [`read_coefficients`] on a file's text, already read (a several-sensor file's sets);
+/// `path` names it in the messages.
+pub fn coefficients_from_text(text: &str, path: &dyn std::fmt::Display) -> Result<CoefficientFile> {
+    let c: CoefficientFile = serde_json::from_str(text)
+        .with_context(|| format!("{path} is not a magcomp coefficient file"))?;
     if c.format != COEFF_FORMAT {
-        bail!("{}: unknown format '{}'", path.display(), c.format);
+        bail!("{}: unknown format '{}'", path, c.format);
     }
     if let Some(bad) = c.coefficients.iter().find(|c| !c.value.is_finite()) {
-        bail!(
-            "{}: coefficient '{}' is not finite",
-            path.display(),
-            bad.name
-        );
+        bail!("{}: coefficient '{}' is not finite", path, bad.name);
     }
     let names = c
         .model_coefficient_names()
-        .with_context(|| path.display().to_string())?;
+        .with_context(|| path.to_string())?;
     let mut ordered = c
         .in_order_of(&names)
-        .with_context(|| format!("{} (model '{}')", path.display(), c.model))?;
+        .with_context(|| format!("{} (model '{}')", path, c.model))?;
     // After the names: a renamed, missing or extra coefficient is said as such.
     // A value changed after `calibrate` (two coefficients swapped: 2.43 nT; the sign of
     // `permanent.e3` flipped: 2.24 nT) was applied with exit 0 before the checksum.
-    let checksum = serde_json::from_str::<serde_json::Value>(&text)
+    let checksum = serde_json::from_str::<serde_json::Value>(text)
         .ok()
         .and_then(|v| v.get("checksum").map(|s| s.as_str().map(str::to_string)));
     match checksum {
-        Some(None) => bail!("{}: the checksum is not a string", path.display()),
+        Some(None) => bail!("{}: the checksum is not a string", path),
         Some(Some(sum)) => {
-            if canonical_sha256(&text)? != sum.to_ascii_lowercase() {
+            if canonical_sha256(text)? != sum.to_ascii_lowercase() {
                 bail!(
                     "{}: the content does not match its checksum: a value was changed after \
                      `calibrate` wrote the file (or it is damaged); recalibrate, or restore \
                      the original file",
-                    path.display()
+                    path
                 );
             }
         }
         None => {
-            eprintln!("note: {}: {}", path.display(), UNSEALED_NOTE);
+            eprintln!("note: {}: {}", path, UNSEALED_NOTE);
             ordered.unsealed = true;
         }
     }
     if let Some(p) = plausibility_problem(&c) {
-        bail!("{}: {p}", path.display());
+        bail!("{}: {p}", path);
     }
     Ok(ordered)
 }

@@ -55,7 +55,7 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
     match a.multi.plan(&trace, a.input.map.as_deref())? {
         SensorPlan::Today => {}
         SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
-        SensorPlan::Several(sensors) => {
+        SensorPlan::Several(sensors, _) => {
             return super::multi::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
         }
     }

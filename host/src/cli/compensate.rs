@@ -94,15 +94,26 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     check_outputs(&inputs, &[&a.out])?;
     crate::io::progress::force_progress(a.long.progress);
     // `--gradients` alone is refused by the plan, as `calibrate` refuses it.
-    if a.multi.applies(a.coeffs.as_deref()) {
+    // A several-sensor --coeffs file is read (and each sensor's set checked) once, here.
+    let multi = match a.coeffs.as_deref() {
+        Some(path) => super::multi::load_multi(path)?,
+        None => None,
+    };
+    if a.multi.applies(multi.as_ref()) {
+        if a.multi.names_several(multi.as_ref()) {
+            let size = std::fs::metadata(&a.input.trace).map_or(0, |m| m.len());
+            if let Some(note) = several_sensors_unstreamed(a.stream, size, &a.input.trace)? {
+                eprintln!("{note}");
+            }
+        }
         let trace = a.input.read()?;
         match a
             .multi
-            .plan_with(&trace, a.input.map.as_deref(), a.coeffs.as_deref())?
+            .plan_with(&trace, a.input.map.as_deref(), (a.coeffs.as_deref(), multi))?
         {
             SensorPlan::Today => {}
             SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
-            SensorPlan::Several(sensors) => {
+            SensorPlan::Several(sensors, multi) => {
                 let est = EstimatorSettings {
                     survey_from_s: a.survey_from,
                     ..a.est.settings()
@@ -115,7 +126,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
                     &trace,
                     &est,
                     (&sensors, a.multi.gradients.as_deref()),
-                    a.coeffs.as_deref(),
+                    multi.as_ref(),
                     how,
                     &a.out,
                 );
@@ -174,6 +185,34 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     }
     print_warnings(&s);
     Ok(())
+}
+
+/// Why several magnetometers are not streamed (docs/streaming.md).
+pub const SEVERAL_UNSTREAMED: &str =
+    "several magnetometers (--sensors, or a several-sensor --coeffs file) are compensated in memory";
+
+/// `compensate` on several magnetometers, which is not streamed, given `--stream mode` and
+/// an input of `size` bytes: `--stream always` is refused (it was silently ignored), and
+/// an input `auto` would have streamed gets a note that it is read whole (returned).
+pub fn several_sensors_unstreamed(
+    mode: StreamMode,
+    size: u64,
+    input: &std::path::Path,
+) -> Result<Option<String>> {
+    match mode {
+        StreamMode::Always => bail!(
+            "--stream always: this run cannot be streamed: {SEVERAL_UNSTREAMED} (~1 KB per row \
+             per sensor); use --stream auto or never, or stream one sensor at a time \
+             (--map mag=mag_K,flux_x=… with that sensor's `coefficients` from the file, \
+             a one-sensor coefficient file)"
+        ),
+        StreamMode::Auto if size >= AUTO_STREAM_BYTES => Ok(Some(format!(
+            "note: {} is read into memory (~1 KB per row per sensor), not streamed: \
+             {SEVERAL_UNSTREAMED}",
+            input.display()
+        ))),
+        _ => Ok(None),
+    }
 }
 
 /// The `compensate` hook: streams when `mode` (and, for `auto`, the input's size) says

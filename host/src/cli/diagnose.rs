@@ -126,7 +126,7 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
     match args.multi.plan(&trace, args.input.map.as_deref())? {
         SensorPlan::Today => {}
         SensorPlan::One(map) => return run(&args.as_one_sensor(map)),
-        SensorPlan::Several(sensors) => return run_sensors(args, trace, &sensors),
+        SensorPlan::Several(sensors, _) => return run_sensors(args, trace, &sensors),
     }
     // The compensation checked first: a bad --coeffs fails before the long diagnosis.
     let evaluated = if evaluates {

@@ -3,7 +3,7 @@
 //! magnetometers"). With one sensor (or none) the commands are today's, unchanged. A
 //! several-sensor `--coeffs` file brings its own sensors.
 
-use crate::calibration::coefficients::{canonical_sha256, to_sealed_json, CoefficientFile};
+use crate::calibration::coefficients::{coefficients_from_text, to_sealed_json, CoefficientFile};
 use crate::calibration::result::Compensation;
 use crate::calibration::summary::{summarise, Summary};
 use crate::calibration::{compensate_trace, EstimatorSettings};
@@ -13,7 +13,8 @@ use crate::multi::joint::{apply_each, calibrate_joint};
 use crate::multi::sensors::{parse_pairs, parse_sensors, sensor_trace, separation_m, SensorSpec};
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
+use serde_json::value::RawValue;
+use std::path::{Path, PathBuf};
 
 /// The format tag of a several-sensor coefficient file.
 pub const MULTI_FORMAT: &str = "magcomp-multi-coefficients-1";
@@ -45,8 +46,9 @@ pub enum SensorPlan {
     /// One sensor: today's command with this `--map` (`mag=` its scalar, `flux_x/y/z=` its
     /// fluxgate, after the map given), so one sensor is exactly today's run.
     One(String),
-    /// Several: one anomaly, each sensor its own interference.
-    Several(Vec<SensorSpec>),
+    /// Several: one anomaly, each sensor its own interference; with the several-sensor
+    /// `--coeffs` file the plan read (once), whose sets the command applies.
+    Several(Vec<SensorSpec>, Option<MultiCoefficients>),
 }
 
 /// A command taking `--sensors`: with one sensor it reruns as today's command, reading
@@ -68,30 +70,55 @@ pub trait OneSensorRerun: Clone {
 
 impl MultiArgs {
     /// Whether the command must plan its sensors: `--sensors`/`--gradients` given, or
-    /// `--coeffs` naming a several-sensor file (which holds its sensors).
-    pub fn applies(&self, coeffs: Option<&Path>) -> bool {
-        self.sensors.is_some() || self.gradients.is_some() || coeffs.is_some_and(is_multi_file)
+    /// `--coeffs` naming a several-sensor file (`multi`, from [`load_multi`]: it holds its
+    /// sensors).
+    pub fn applies(&self, multi: Option<&MultiCoefficients>) -> bool {
+        self.sensors.is_some() || self.gradients.is_some() || multi.is_some()
     }
 
-    /// The plan for `trace` with `--coeffs` `coeffs`: without `--sensors`, a several-sensor
-    /// file's own sensors (so `compensate --coeffs joint.json` needs nothing more).
+    /// Whether the plan will be [`SensorPlan::Several`], known before the trace is read:
+    /// `--sensors` naming two or more, or a several-sensor `--coeffs` file without
+    /// `--sensors`.
+    pub fn names_several(&self, multi: Option<&MultiCoefficients>) -> bool {
+        match &self.sensors {
+            Some(text) => text.split(',').filter(|e| !e.trim().is_empty()).count() > 1,
+            None => multi.is_some(),
+        }
+    }
+
+    /// The plan for `trace` with `--coeffs` `coeffs`, `multi` its several-sensor file when
+    /// it is one ([`load_multi`], read once: the plan carries it on): without `--sensors`,
+    /// a several-sensor file's own sensors (so `compensate --coeffs joint.json` needs
+    /// nothing more). Several sensors with a one-sensor `--coeffs` file are refused.
     pub fn plan_with(
         &self,
         trace: &Trace,
         map: Option<&str>,
-        coeffs: Option<&Path>,
+        (coeffs, multi): (Option<&Path>, Option<MultiCoefficients>),
     ) -> Result<SensorPlan> {
-        match coeffs {
-            Some(path) if self.sensors.is_none() && is_multi_file(path) => {
-                let (m, _) = read_multi(path)?;
-                let sensors = sensors_of_file(&m, trace, path)?;
+        let plan = match &multi {
+            Some(m) if self.sensors.is_none() => {
+                let sensors = sensors_of_file(&m.file, trace, &m.path)?;
                 if sensors.len() == 1 && self.gradients.is_some() {
                     bail!("--gradients needs two sensors or more");
                 }
-                Ok(SensorPlan::Several(sensors))
+                SensorPlan::Several(sensors, None)
             }
-            _ => self.plan(trace, map),
-        }
+            _ => self.plan(trace, map)?,
+        };
+        Ok(match plan {
+            SensorPlan::Several(sensors, _) => {
+                if let (Some(path), None) = (coeffs, &multi) {
+                    bail!(
+                        "{} is not a magcomp several-sensor file: several sensors take the \
+                         file `calibrate --sensors` writes",
+                        path.display()
+                    );
+                }
+                SensorPlan::Several(sensors, multi)
+            }
+            other => other,
+        })
     }
 
     /// The plan for `trace`, whose own `--map` is `map`; the sensors are parsed once.
@@ -107,7 +134,7 @@ impl MultiArgs {
             0 => Ok(SensorPlan::Today),
             1 if self.gradients.is_some() => bail!("--gradients needs two sensors or more"),
             1 => Ok(SensorPlan::One(single_map(&s.remove(0), map, trace))),
-            _ => Ok(SensorPlan::Several(s)),
+            _ => Ok(SensorPlan::Several(s, None)),
         }
     }
 }
@@ -160,8 +187,10 @@ pub struct SensorEntry {
     /// its calibration's noise (`multi::lever`).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub alone_predicted_is_lower_bound: bool,
-    /// The sensor's coefficient file, as `calibrate` writes it for one sensor (sealed).
-    pub coefficients: serde_json::Value,
+    /// The sensor's coefficient file, as `calibrate` writes it for one sensor (sealed),
+    /// kept as written: its checksum is checked on these very characters (a number read
+    /// and written again may come back one unit in the last place off).
+    pub coefficients: Box<RawValue>,
 }
 
 /// A several-sensor coefficient file.
@@ -172,33 +201,69 @@ pub struct MultiFile {
     pub sensors: Vec<SensorEntry>,
 }
 
-/// Whether `path` holds a several-sensor coefficient file.
-pub fn is_multi_file(path: &Path) -> bool {
-    std::fs::read_to_string(path)
-        .ok()
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-        .and_then(|v| v.get("format")?.as_str().map(|f| f == MULTI_FORMAT))
-        .unwrap_or(false)
+/// A several-sensor coefficient file, read and checked once: each sensor's set as a
+/// one-sensor file is checked (checksum, plausibility: `coefficients_from_text`).
+#[derive(Clone, Debug)]
+pub struct MultiCoefficients {
+    pub path: PathBuf,
+    pub file: MultiFile,
+    /// Each sensor's set, in the file's order.
+    pub sets: Vec<CoefficientFile>,
 }
 
-/// Reads a several-sensor file; each sensor's coefficients are checked as a single file is
-/// (checksum, plausibility: `read_coefficients`).
-pub fn read_multi(path: &Path) -> Result<(MultiFile, Vec<CoefficientFile>)> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}", path.display()))?;
-    let m: MultiFile = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a magcomp several-sensor file", path.display()))?;
-    let dir = tempdir_for(path)?;
-    let mut files = Vec::new();
-    for s in &m.sensors {
-        let p = dir.join(format!("{}.json", s.name));
-        std::fs::write(&p, serde_json::to_string(&s.coefficients)?)?;
-        let f = crate::calibration::read_coefficients(&p)
-            .with_context(|| format!("{}: sensor {}", path.display(), s.name));
-        let _ = std::fs::remove_file(&p);
-        files.push(f?);
+/// Reads `path` once: `None` when it is no several-sensor file (a one-sensor file, or
+/// one not read at all: the one-sensor reader says what is wrong with it).
+pub fn load_multi(path: &Path) -> Result<Option<MultiCoefficients>> {
+    #[derive(Deserialize)]
+    struct Format {
+        format: Option<String>,
     }
-    let _ = std::fs::remove_dir(&dir);
-    Ok((m, files))
+    let limit = crate::io::bounded::MAX_COEFFICIENT_FILE_BYTES
+        * crate::multi::sensors::MAX_TRACE_SENSORS as u64;
+    let Ok(text) =
+        crate::io::bounded::read_to_string_bounded(path, limit, "magcomp coefficient file")
+    else {
+        return Ok(None);
+    };
+    let is_multi = |t: &str| {
+        serde_json::from_str::<Format>(t).is_ok_and(|f| f.format.as_deref() == Some(MULTI_FORMAT))
+    };
+    let file: MultiFile = match serde_json::from_str::<MultiFile>(&text) {
+        Ok(m) if m.format == MULTI_FORMAT => m,
+        Ok(_) => return Ok(None),
+        Err(_) if !is_multi(&text) => return Ok(None),
+        Err(e) => {
+            return Err(e).with_context(|| {
+                format!("{} is not a magcomp several-sensor file", path.display())
+            })
+        }
+    };
+    let sets = file
+        .sensors
+        .iter()
+        .map(|s| {
+            let label = format!("{}: sensor {}", path.display(), s.name);
+            coefficients_from_text(s.coefficients.get(), &label)
+        })
+        .collect::<Result<_>>()?;
+    Ok(Some(MultiCoefficients {
+        path: path.to_path_buf(),
+        file,
+        sets,
+    }))
+}
+
+/// Whether `path` holds a several-sensor coefficient file (read whole: [`load_multi`]
+/// reads it once for a command).
+pub fn is_multi_file(path: &Path) -> bool {
+    load_multi(path).is_ok_and(|m| m.is_some())
+}
+
+/// Reads a several-sensor file ([`load_multi`]); a file of another kind is an error.
+pub fn read_multi(path: &Path) -> Result<(MultiFile, Vec<CoefficientFile>)> {
+    let m = load_multi(path)?
+        .with_context(|| format!("{} is not a magcomp several-sensor file", path.display()))?;
+    Ok((m.file, m.sets))
 }
 
 /// The sensors a several-sensor file was calibrated on, resolved to `trace`'s columns.
@@ -233,21 +298,40 @@ pub fn coefficient_sets(
     sensors: &[SensorSpec],
     coeffs: Option<&Path>,
 ) -> Result<(Vec<CoefficientFile>, Vec<bool>)> {
-    match coeffs {
+    let multi = match coeffs {
         Some(path) => {
-            let (m, files) = read_multi(path)?;
-            sensors
-                .iter()
-                .map(|s| {
-                    m.sensors
-                        .iter()
-                        .position(|e| e.name == s.name)
-                        .map(|i| (files[i].clone(), m.sensors[i].joint))
-                        .with_context(|| format!("{} has no sensor {}", path.display(), s.name))
-                })
-                .collect::<Result<Vec<_>>>()
-                .map(|v| v.into_iter().unzip())
+            let (file, sets) = read_multi(path)?;
+            Some(MultiCoefficients {
+                path: path.to_path_buf(),
+                file,
+                sets,
+            })
         }
+        None => None,
+    };
+    sets_of(trace, est, sensors, multi.as_ref())
+}
+
+/// [`coefficient_sets`] from a file already read (`multi`), or calibrated jointly.
+pub fn sets_of(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+    multi: Option<&MultiCoefficients>,
+) -> Result<(Vec<CoefficientFile>, Vec<bool>)> {
+    match multi {
+        Some(m) => sensors
+            .iter()
+            .map(|s| {
+                m.file
+                    .sensors
+                    .iter()
+                    .position(|e| e.name == s.name)
+                    .map(|i| (m.sets[i].clone(), m.file.sensors[i].joint))
+                    .with_context(|| format!("{} has no sensor {}", m.path.display(), s.name))
+            })
+            .collect::<Result<Vec<_>>>()
+            .map(|v| v.into_iter().unzip()),
         None => calibrate_joint(trace, est, sensors)?
             .sensors
             .iter()
@@ -261,15 +345,11 @@ pub fn coefficient_sets(
     }
 }
 
-fn tempdir_for(path: &Path) -> Result<std::path::PathBuf> {
-    let stem = canonical_sha256(&format!("{{\"p\":\"{}\"}}", path.display()))?;
-    let dir = std::env::temp_dir().join(format!(
-        "magcomp-multi-{}-{}",
-        std::process::id(),
-        &stem[..12]
-    ));
-    std::fs::create_dir_all(&dir)?;
-    Ok(dir)
+/// A sealed one-sensor file's text as it sits in a several-sensor file's `sensors` entry:
+/// the characters kept (so its checksum holds), the lines indented to the entry's depth.
+fn embedded(sealed: &str) -> Result<Box<RawValue>> {
+    let text = sealed.trim_end().replace('\n', "\n      ");
+    Ok(RawValue::from_string(text)?)
 }
 
 /// `calibrate --sensors`: the joint calibration, one file holding every sensor.
@@ -312,7 +392,7 @@ pub fn calibrate(
             joint_predicted_error_nt: s.predicted_error_nt,
             alone_predicted_error_nt: alone_p,
             alone_predicted_is_lower_bound: s.lever_arm.is_some_and(|l| l.exceeds_noise()),
-            coefficients: serde_json::from_str(&to_sealed_json(&file)?)?,
+            coefficients: embedded(&to_sealed_json(&file)?)?,
         });
     }
     let m = MultiFile {
@@ -346,14 +426,14 @@ pub fn compensate(
     trace: &Trace,
     est: &EstimatorSettings,
     (sensors, gradients): (&[SensorSpec], Option<&str>),
-    coeffs: Option<&Path>,
+    coeffs: Option<&MultiCoefficients>,
     how: HowToCompensate,
     out: &Path,
 ) -> Result<()> {
     let runs: Vec<(Flight, Compensation)> = match (coeffs, how.realtime) {
         (_, true) => {
             let files = match coeffs {
-                Some(path) => coefficient_sets(trace, est, sensors, Some(path))?
+                Some(m) => sets_of(trace, est, sensors, Some(m))?
                     .0
                     .into_iter()
                     .map(Some)
@@ -369,8 +449,8 @@ pub fn compensate(
                 })
                 .collect::<Result<_>>()?
         }
-        (Some(path), false) => {
-            let (files, _) = coefficient_sets(trace, est, sensors, Some(path))?;
+        (Some(m), false) => {
+            let (files, _) = sets_of(trace, est, sensors, Some(m))?;
             apply_each(trace, est, sensors, &files)?
         }
         (None, false) => {

@@ -5,15 +5,16 @@ use crate::board::capture::FluxFormat;
 use crate::board::flagged_share::FlagTally;
 use crate::board::monitor::FLAG_NAMES;
 use crate::board::replay::{
-    csv_row, read_coefficients_for, read_flux_calibration, read_flux_temperature, read_scalar_lag,
-    replay_capture_any, ReplayOptions, ReplayStats, CSV_HEADER,
+    csv_row, multi_csv_header, multi_csv_row, read_coefficients_for, read_flux_calibration,
+    read_flux_temperature, read_scalar_lag, replay_capture_any, ReplayOptions, ReplayStats,
+    CSV_HEADER,
 };
 use crate::io::output::AtomicFile;
 use crate::model::spec::{InputCorrection, ModelSpec, BOARD_MODEL};
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::AcqRecord;
+use magcomp_core::protocol::multi_raw::MAX_MULTI_RAW_LEN;
 use magcomp_core::protocol::multi_record::MAX_MULTI_RECORD_LEN;
-use magcomp_core::protocol::raw::{encode_raw, MAX_RAW_LEN};
 use std::io::{BufReader, Write};
 use std::path::{Path, PathBuf};
 
@@ -60,7 +61,10 @@ pub struct ReplayArgs {
     #[arg(long, value_enum, value_name = "FORMAT")]
     pub flux: Option<FluxFormat>,
 
-    /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,sigma,flags.
+    /// Records as CSV: seq,t,mag,interference,compensated,anomaly,innovation,sigma,flags;
+    /// a counter of several magnetometers (`$MCMREC`): seq,t, per channel K mag_K,
+    /// interference_mag_K, compensated_mag_K, sigma_mag_K, flags_mag_K, then
+    /// difference_mag_A_mag_B per pair (compensated B − A).
     #[arg(
         short = 'o',
         long = "out",
@@ -159,11 +163,10 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
             .map(AtomicFile::create)
             .transpose()?,
     );
-    if let Some(w) = csv.as_mut() {
-        writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
-    }
+    // The CSV's columns follow the first record: one sensor's, or every channel's.
+    let mut csv_channels: Option<u8> = None;
     let mut buf = [0u8; MAX_MULTI_RECORD_LEN];
-    let mut raw_buf = [0u8; MAX_RAW_LEN];
+    let mut raw_buf = [0u8; MAX_MULTI_RAW_LEN];
     let mut tally = FlagTally::default();
     opts.raw = args.raw;
     let stats = replay_capture_any(
@@ -174,6 +177,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
                 AcqRecord::One(r) => {
                     tally.push(r.flags);
                     if let Some(w) = csv.as_mut() {
+                        csv_header(w, &mut csv_channels, 1, r.seq)?;
                         writeln!(w, "{}", csv_row(r))
                             .with_context(|| format!("writing {}", w.path().display()))?;
                     }
@@ -182,11 +186,10 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
                     r.ch[..usize::from(r.channels)]
                         .iter()
                         .for_each(|c| tally.push(c.flags));
-                    if csv.is_some() {
-                        anyhow::bail!(
-                            "the capture carries counter lines of {} magnetometers: their records ($MCMREC) have no CSV form, write them with --records",
-                            r.channels
-                        );
+                    if let Some(w) = csv.as_mut() {
+                        csv_header(w, &mut csv_channels, r.channels, r.seq)?;
+                        writeln!(w, "{}", multi_csv_row(r))
+                            .with_context(|| format!("writing {}", w.path().display()))?;
                     }
                 }
             }
@@ -201,8 +204,9 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         },
         |raw| {
             if let Some(w) = txt.borrow_mut().as_mut() {
-                let n = encode_raw(raw, &mut raw_buf)
-                    .map_err(|_| anyhow::anyhow!("sample {} does not fit a raw line", raw.k))?;
+                let n = raw
+                    .encode(&mut raw_buf)
+                    .map_err(|_| anyhow::anyhow!("sample {} does not fit a raw line", raw.k()))?;
                 w.write_all(&raw_buf[..n])
                     .with_context(|| format!("writing {}", w.path().display()))?;
             }
@@ -210,6 +214,9 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         },
     )
     .with_context(|| format!("replaying {}", args.capture.display()))?;
+    if let (Some(w), None) = (csv.as_mut(), csv_channels) {
+        writeln!(w, "{CSV_HEADER}").with_context(|| format!("writing {}", w.path().display()))?;
+    }
     for w in [csv, txt.into_inner()].into_iter().flatten() {
         w.commit()?;
     }
@@ -224,6 +231,27 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         write_held_coefficients(p, &stats.final_coefficients)?;
     }
     Ok(stats)
+}
+
+/// The CSV's header before its first record (`n` magnetometers: 1 is `$MCREC`'s columns);
+/// a record of another count later is refused: one CSV cannot hold both.
+fn csv_header(w: &mut AtomicFile, written: &mut Option<u8>, n: u8, seq: u32) -> Result<()> {
+    match *written {
+        None => {
+            let h = match n {
+                1 => CSV_HEADER.to_string(),
+                n => multi_csv_header(n.into()),
+            };
+            writeln!(w, "{h}").with_context(|| format!("writing {}", w.path().display()))?;
+            *written = Some(n);
+            Ok(())
+        }
+        Some(k) if k == n => Ok(()),
+        Some(k) => bail!(
+            "record {seq}: the capture goes from {k} to {n} magnetometers per record; one CSV \
+             cannot hold both (write the records with --records)"
+        ),
+    }
 }
 
 /// `--coeffs-out`: one coefficient per line (f32 written exactly, so it reads back as is).

@@ -6,7 +6,7 @@
 
 use super::args::Evaluated;
 use super::args::{EstimatorArgs, TraceInput, TuningArgs};
-use super::multi::{coefficient_sets, MultiArgs, OneSensorRerun, SensorPlan};
+use super::multi::{sets_of, MultiArgs, MultiCoefficients, OneSensorRerun, SensorPlan};
 use crate::calibration::coefficients::Method;
 use crate::calibration::summary::summarise;
 use crate::calibration::EstimatorSettings;
@@ -112,14 +112,21 @@ pub fn run(args: &ReportArgs) -> Result<()> {
     let page_path = args.out.join(REPORT_PAGE);
     crate::io::output::refuse_overwriting(&inputs, &[&page_path])?;
     let trace = args.input.read()?;
-    if args.multi.applies(args.coeffs.as_deref()) {
-        let plan =
-            args.multi
-                .plan_with(&trace, args.input.map.as_deref(), args.coeffs.as_deref())?;
+    let multi = match args.coeffs.as_deref() {
+        Some(path) => super::multi::load_multi(path)?,
+        None => None,
+    };
+    if args.multi.applies(multi.as_ref()) {
+        let coeffs = (args.coeffs.as_deref(), multi);
+        let plan = args
+            .multi
+            .plan_with(&trace, args.input.map.as_deref(), coeffs)?;
         match plan {
             SensorPlan::Today => {}
             SensorPlan::One(map) => return run(&args.as_one_sensor(map)),
-            SensorPlan::Several(sensors) => return run_sensors(args, &trace, &sensors),
+            SensorPlan::Several(sensors, multi) => {
+                return run_sensors(args, &trace, (&sensors, multi.as_ref()))
+            }
         }
     }
     if args.evaluates() {
@@ -164,7 +171,11 @@ pub fn run(args: &ReportArgs) -> Result<()> {
 }
 
 /// `report` on several magnetometers (`super::multi::report`).
-fn run_sensors(args: &ReportArgs, trace: &Trace, sensors: &[SensorSpec]) -> Result<()> {
+fn run_sensors(
+    args: &ReportArgs,
+    trace: &Trace,
+    (sensors, multi): (&[SensorSpec], Option<&MultiCoefficients>),
+) -> Result<()> {
     if args.model.len() > 1 || args.method.is_some() {
         bail!("a report on several magnetometers shows each sensor's calibration: give at most one --model and no --method");
     }
@@ -177,7 +188,7 @@ fn run_sensors(args: &ReportArgs, trace: &Trace, sensors: &[SensorSpec]) -> Resu
         trace,
         &est.settings(),
         (sensors, args.multi.gradients.as_deref()),
-        args.coeffs.as_deref(),
+        multi,
         &|model| args.sheet_info(trace, model),
         &args.out,
     )?;
@@ -193,7 +204,7 @@ fn several_sensor_pages(
     trace: &Trace,
     est: &EstimatorSettings,
     (sensors, gradients): (&[SensorSpec], Option<&str>),
-    coeffs: Option<&Path>,
+    coeffs: Option<&MultiCoefficients>,
     sheet: &dyn Fn(&str) -> Result<SheetInfo>,
     out: &Path,
 ) -> Result<std::path::PathBuf> {
@@ -213,9 +224,9 @@ fn several_sensor_pages(
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    let (files, joint) = coefficient_sets(trace, est, sensors, coeffs)?;
+    let (files, joint) = sets_of(trace, est, sensors, coeffs)?;
     let source = match coeffs {
-        Some(p) => format!("Coefficients from {}", p.display()),
+        Some(m) => format!("Coefficients from {}", m.path.display()),
         None => "Calibrated jointly on this flight".into(),
     };
     let mut evaluated = Vec::new();

@@ -92,10 +92,9 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         crate::io::output::check_writable(std::path::Path::new(&args.to))?;
     }
     // a several-sensor file (`calibrate --sensors`): each sensor to its counter channel
-    let files = if crate::cli::multi::is_multi_file(&args.coeffs) {
-        crate::cli::multi::read_multi(&args.coeffs)?.1
-    } else {
-        vec![read_coefficients(&args.coeffs)?]
+    let files = match crate::cli::multi::load_multi(&args.coeffs)? {
+        Some(m) => m.sets,
+        None => vec![read_coefficients(&args.coeffs)?],
     };
     let file = &files[0];
     let board_model = match &args.board_model {

@@ -2,11 +2,14 @@
 //! ([`Monitor`]) classifies every line and counts gaps and restarts; this adds what the page
 //! draws on top of it (the 4th difference, a monotonic chart time, alarms and events) and,
 //! from the `$MCRAW` lines (`RAW,ON`), each record's height and GPS state and the FOM
-//! table once a calibration pattern has ended ([`super::fom`]).
+//! table once a calibration pattern has ended ([`super::fom`]). A several-magnetometer
+//! record (`$MCMREC`) is drawn too: each channel's compensated field and flags and the
+//! pair differences ([`RecordMsg::channels`], [`RecordMsg::diffs_nt`]).
 
 use super::fom::{FomMsg, PatternWatch};
 use crate::board::monitor::{flag_words, Monitor, MAX_GAPS};
 use crate::board::replay::nt_text;
+use magcomp_core::protocol::multi_record::{pair_count, MultiRecord};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::{Flags, MagCounts};
 use serde::Serialize;
@@ -61,12 +64,32 @@ pub struct RecordMsg {
     /// back), once five consecutive records are in: exact from the integer counts.
     pub d4_seq: Option<u32>,
     pub d4_nt: Option<f64>,
+    /// `$MCMREC` (2–3 magnetometers on one board): each channel, the first's values also
+    /// in the fields above (whose `flags` are every channel's, OR-ed, so the banner raises
+    /// any channel's alarm); empty for a `$MCREC`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub channels: Vec<ChannelMsg>,
+    /// With `channels`: the pair differences of the compensated fields (nT, exact from
+    /// counts), in the record's order 2−1, 3−1, 3−2 (`None` when either is missing).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub diffs_nt: Vec<Option<f64>>,
     /// Alarms on now (banner), and events that happened with this record (log).
     pub alarms: Vec<String>,
     pub events: Vec<String>,
     pub counts: Counts,
     /// When the server sent it (Unix ms): the page's alarm latency is measured from it.
     pub sent_unix_ms: f64,
+}
+
+/// One channel of a several-magnetometer record, as the page draws it (the line's digits).
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct ChannelMsg {
+    pub raw_nt: Option<f64>,
+    pub comp_nt: Option<f64>,
+    pub interf_nt: Option<f64>,
+    pub sigma_nt: Option<f64>,
+    pub flags: u16,
+    pub flag_words: String,
 }
 
 /// The monitor's counters, as the page's status line shows them.
@@ -131,11 +154,54 @@ impl Feed {
 
     /// One line of the board's output; the page's message if it was a record.
     pub fn push_line(&mut self, line: &[u8], now: Instant, unix_ms: f64) -> Option<RecordMsg> {
+        let multi_before = self.monitor.stats().multi_records;
         let r = self.monitor.push_line(line);
         if let Some(raw) = self.monitor.take_raw() {
             self.watch.push_raw(&raw);
         }
+        if self.monitor.stats().multi_records > multi_before {
+            let m = self.monitor.stats().last_multi?;
+            return Some(self.multi_record(&m, now, unix_ms));
+        }
         Some(self.record(&r?, now, unix_ms))
+    }
+
+    /// A `$MCMREC`: the first channel through [`Self::record`] (strips, 4th difference,
+    /// height), its flags every channel's so the banner says any channel's state; then
+    /// every channel and the pair differences.
+    fn multi_record(&mut self, m: &MultiRecord, now: Instant, unix_ms: f64) -> RecordMsg {
+        let n = usize::from(m.channels).min(m.ch.len());
+        let c0 = &m.ch[0];
+        let first = Record {
+            seq: m.seq,
+            t_s: m.t_s,
+            mag: c0.mag,
+            interference_nt: c0.interference_nt,
+            compensated: c0.compensated,
+            anomaly_nt: f32::NAN,
+            innovation_nt: f32::NAN,
+            sigma_nt: c0.sigma_nt,
+            flags: m.ch[..n]
+                .iter()
+                .fold(Flags::empty(), |f, c| f.union(c.flags)),
+        };
+        let mut msg = self.record(&first, now, unix_ms);
+        msg.channels = m.ch[..n]
+            .iter()
+            .map(|c| ChannelMsg {
+                raw_nt: c.mag.map(MagCounts::to_nt_f64),
+                comp_nt: c.compensated.map(MagCounts::to_nt_f64),
+                interf_nt: as_sent(c.interference_nt),
+                sigma_nt: as_sent(c.sigma_nt),
+                flags: c.flags.0,
+                flag_words: flag_words(c.flags),
+            })
+            .collect();
+        msg.diffs_nt = m.diff[..pair_count(n)]
+            .iter()
+            .map(|d| d.map(MagCounts::to_nt_f64))
+            .collect();
+        msg
     }
 
     /// The FOM table computed with the last record, once.
@@ -226,6 +292,8 @@ impl Feed {
             gps_fix: raw.map(|s| s.gps_fix),
             d4_seq,
             d4_nt,
+            channels: Vec::new(),
+            diffs_nt: Vec::new(),
             alarms: self.alarms(r.flags, now),
             events,
             counts,
@@ -423,6 +491,79 @@ mod tests {
         let m3 = f.push_line(&line(3, 1, 0), now, 0.0).unwrap();
         assert!(m3.alarms.contains(&"GARBAGE lines".to_string()));
         assert_eq!(m3.alt_m, None);
+    }
+
+    #[test]
+    fn a_multi_record_gives_every_channel_and_the_pair_differences() {
+        use magcomp_core::protocol::multi_record::{
+            encode_multi_record, ChannelRecord, MultiRecord, MAX_MULTI_RECORD_LEN,
+        };
+        let now = Instant::now();
+        let mut f = Feed::new();
+        let ch = |comp: Option<i64>, flags: u16| ChannelRecord {
+            mag: comp.map(|c| MagCounts(c + 100_000)),
+            interference_nt: 10.0,
+            compensated: comp.map(MagCounts),
+            sigma_nt: 0.25,
+            flags: Flags(flags),
+        };
+        let line = |seq: u32, chans: [ChannelRecord; 3]| {
+            let r = MultiRecord::new(seq, 100.0 + f64::from(seq) * 0.1, 3, chans);
+            let mut b = [0u8; MAX_MULTI_RECORD_LEN];
+            let n = encode_multi_record(&r, &mut b).unwrap();
+            b[..n].to_vec()
+        };
+        let m0 = f
+            .push_line(
+                &line(
+                    0,
+                    [
+                        ch(Some(500_000_000), 0),
+                        ch(Some(500_012_345), 0),
+                        ch(Some(499_990_000), 0),
+                    ],
+                ),
+                now,
+                0.0,
+            )
+            .expect("a multi record is drawn");
+        assert_eq!(m0.channels.len(), 3);
+        assert_eq!(m0.comp_nt, Some(50_000.0));
+        let comps: Vec<_> = m0.channels.iter().map(|c| c.comp_nt).collect();
+        assert_eq!(comps, [Some(50_000.0), Some(50_001.234_5), Some(49_999.0)]);
+        assert_eq!(m0.diffs_nt, [Some(1.2345), Some(-1.0), Some(-2.2345)]);
+        assert_eq!(m0.channels[1].interf_nt, Some(10.0));
+        assert!(m0.alarms.is_empty(), "{:?}", m0.alarms);
+        // Channel 2 missing: its pairs empty, its flag its own, the banner says it.
+        let m1 = f
+            .push_line(
+                &line(
+                    1,
+                    [
+                        ch(Some(500_000_001), 0),
+                        ch(None, Flags::MAG_MISSING),
+                        ch(Some(499_990_000), 0),
+                    ],
+                ),
+                now,
+                0.0,
+            )
+            .unwrap();
+        assert_eq!(m1.diffs_nt, [None, Some(-1.0001), None]);
+        assert_eq!(m1.channels[1].flags, Flags::MAG_MISSING);
+        assert_eq!((m1.channels[0].flags, m1.channels[2].flags), (0, 0));
+        assert_eq!(m1.flags, Flags::MAG_MISSING);
+        assert!(
+            m1.alarms.iter().any(|a| a.contains("MAG_MISSING")),
+            "{:?}",
+            m1.alarms
+        );
+        assert_eq!((m1.counts.records, m1.counts.missing), (2, 0));
+        // A single-sensor record carries no channels (its JSON unchanged).
+        let m2 = f.push_line(&super::tests::line(5, 1, 0), now, 0.0).unwrap();
+        assert!(m2.channels.is_empty() && m2.diffs_nt.is_empty());
+        let json = serde_json::to_value(&m2).unwrap();
+        assert!(json.get("channels").is_none() && json.get("diffs_nt").is_none());
     }
 
     #[test]

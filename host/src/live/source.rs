@@ -199,7 +199,14 @@ fn handle(
     send: &mut impl FnMut(Message),
 ) {
     if let Some(mut m) = feed.push_line(line, Instant::now(), unix_ms()) {
-        if let (Some(w), Some(r)) = (save.as_mut(), feed.monitor().stats().last.as_ref()) {
+        // `--save` writes single-sensor records (`monitor --save`'s columns have no channels).
+        let last = feed
+            .monitor()
+            .stats()
+            .last
+            .as_ref()
+            .filter(|_| m.channels.is_empty());
+        if let (Some(w), Some(r)) = (save.as_mut(), last) {
             if let Err(e) = writeln!(w, "{}", save_row(r)).and_then(|()| w.flush()) {
                 send(save_failed(&e));
                 *save = None;
