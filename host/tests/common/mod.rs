@@ -2,6 +2,7 @@
 #![allow(dead_code)] // each test binary uses the part it needs
 
 pub mod cli;
+pub mod diagnosis;
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
