@@ -3,6 +3,7 @@
 
 pub mod cli;
 pub mod diagnosis;
+pub mod memo;
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
