@@ -33,7 +33,10 @@ ELF=$(bash scripts/build-emu.sh | tail -1)
 echo "$ELF"
 
 step "host replay (magcomp replay: the board's records must equal it)"
-cargo build --locked --release -p magcomp --bin magcomp
+# With magcomp-fuzz selected as scripts/fuzz.sh selects it: the same features of the shared
+# dependencies (magcomp-fuzz turns on rand's small_rng), so after fuzz.sh in scripts/test.sh
+# this is fresh instead of a second release build of the magcomp library.
+cargo build --locked --release -p magcomp -p magcomp-fuzz --bin magcomp
 
 step "hil-tests on QEMU"
 MAGCOMP_BIN="$ROOT/target/release/magcomp" MAGCOMP_FW_ELF="$ELF" MAGCOMP_REQUIRE_QEMU=1 \

@@ -32,7 +32,11 @@ if [ -x scripts/fw-ci.sh ]; then
 fi
 
 step "benchmarks compile"
-cargo bench -p magcomp --no-run
+# The packages of scripts/run-tests.sh: the same features of the shared dependencies (the
+# core's dev-dependencies add some), so the library and its dependencies built for the tests
+# are reused (`cargo test --release` builds with the bench profile) and only the benchmarks
+# compile.
+cargo bench -p magcomp-core -p magcomp --no-run
 
 echo
 echo "all checks passed"

@@ -5,6 +5,10 @@
 //!
 //! Tests marked `#[ignore]` keep the full bar for effects that do not meet it; the reason,
 //! with the measured numbers, is in the attribute.
+//!
+//! Several tests fly the same flight (effect, seed) and diagnose it or compensate it with
+//! the same model: each flight, diagnosis and error is computed once and shared
+//! (`common::memo`), and every test still asserts on it.
 
 use magcomp::cli::diagnose::{run as run_diagnose, DiagnoseArgs};
 use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis};
@@ -16,10 +20,37 @@ use magcomp::model::spec::ModelSpec;
 use magcomp::qc::truth::error_rms_nt;
 use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
 use magcomp_core::model::Term;
+use std::ops::Deref;
+use std::sync::Arc;
+
+mod common;
+use common::memo::Memo;
 
 const DECOYS: [&str; 2] = ["cur_fan", "cur_avionics"];
 
-fn flight(hidden: &str, seed: u64, low_strong: bool) -> Trace {
+/// A simulated flight and the key its diagnoses and errors are shared under.
+struct Sim {
+    key: String,
+    trace: Arc<Trace>,
+}
+
+impl Deref for Sim {
+    type Target = Trace;
+    fn deref(&self) -> &Trace {
+        &self.trace
+    }
+}
+
+fn flight(hidden: &str, seed: u64, low_strong: bool) -> Sim {
+    static FLIGHTS: Memo<String, Arc<Trace>> = Memo::new();
+    let key = format!("{hidden} seed {seed} low/strong {low_strong}");
+    let trace = FLIGHTS.get(key.clone(), || {
+        Arc::new(simulate_flight(hidden, seed, low_strong))
+    });
+    Sim { key, trace }
+}
+
+fn simulate_flight(hidden: &str, seed: u64, low_strong: bool) -> Trace {
     let mut cfg = SimConfig {
         seed,
         decoys: DECOYS.iter().map(|s| s.to_string()).collect(),
@@ -36,7 +67,14 @@ fn flight(hidden: &str, seed: u64, low_strong: bool) -> Trace {
 }
 
 /// Compensation error against truth (demeaned rms of interference − truth), post-flight.
-fn error_nt(trace: &Trace, spec: &ModelSpec) -> f64 {
+fn error_nt(sim: &Sim, spec: &ModelSpec) -> f64 {
+    static ERRORS: Memo<(String, String), f64> = Memo::new();
+    ERRORS.get((sim.key.clone(), spec.text()), || {
+        compute_error_nt(sim, spec)
+    })
+}
+
+fn compute_error_nt(trace: &Trace, spec: &ModelSpec) -> f64 {
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
     let run = run_kf(&f, &KfOptions::new(spec.clone())).expect("kf");
     error_rms_nt(
@@ -46,13 +84,18 @@ fn error_nt(trace: &Trace, spec: &ModelSpec) -> f64 {
     )
 }
 
-fn diag(trace: &Trace, model: &str) -> Diagnosis {
-    diagnose(
-        trace,
-        &ModelSpec::parse(model).expect("spec"),
-        &DiagnoseOptions::default(),
-    )
-    .expect("diagnose")
+fn diag(sim: &Sim, model: &str) -> Arc<Diagnosis> {
+    static DIAGNOSES: Memo<(String, String), Arc<Diagnosis>> = Memo::new();
+    DIAGNOSES.get((sim.key.clone(), model.to_string()), || {
+        Arc::new(
+            diagnose(
+                sim,
+                &ModelSpec::parse(model).expect("spec"),
+                &DiagnoseOptions::default(),
+            )
+            .expect("diagnose"),
+        )
+    })
 }
 
 /// The full bar for one effect and seed; returns (error before, after) for the message.
@@ -77,7 +120,7 @@ fn check_effect_with(
 }
 
 fn check_trace(
-    trace: &Trace,
+    trace: &Sim,
     hidden: &str,
     expected_term: &str,
     seed: u64,
@@ -155,7 +198,28 @@ fn diurnal_anomaly_map_full_bar() {
 /// truth_anomaly. `env_sigma1`: estimate σ1 from the spectrum of the scalar minus the
 /// interference *and* the model's non-interference terms at their prior mean (β₀·base),
 /// which is what host/src/estimate/kf/mod.rs should do when the model has such terms.
-fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
+fn anomaly_error(sim: &Sim, spec: &str, env_sigma1: bool) -> f64 {
+    static MAPS: Memo<(String, String, bool), AnomalyError> = Memo::new();
+    let e = MAPS.get((sim.key.clone(), spec.to_string(), env_sigma1), || {
+        compute_anomaly_error(sim, spec, env_sigma1)
+    });
+    eprintln!(
+        "{} σ1 {:.2e}, β {:.3}: anomaly error {:.4} nT",
+        e.model, e.sigma1, e.beta, e.error_nt
+    );
+    e.error_nt
+}
+
+/// What [`anomaly_error`] prints and returns.
+#[derive(Clone)]
+struct AnomalyError {
+    model: String,
+    sigma1: f64,
+    beta: f64,
+    error_nt: f64,
+}
+
+fn compute_anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> AnomalyError {
     let spec = ModelSpec::parse(spec).expect("spec");
     let f = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).expect("flight");
     let base = trace.col("base").expect("base");
@@ -185,13 +249,12 @@ fn anomaly_error(trace: &Trace, spec: &str, env_sigma1: bool) -> f64 {
         .zip(base)
         .map(|((m, i), b)| m - i - beta * (b - base[0]))
         .collect();
-    eprintln!(
-        "{} σ1 {:.2e}, β {beta:.3}: anomaly error {:.4} nT",
-        spec.text(),
-        run.sigma1,
-        error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None)
-    );
-    error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None)
+    AnomalyError {
+        model: spec.text(),
+        sigma1: run.sigma1,
+        beta,
+        error_nt: error_rms_nt(&map, f.truth_anomaly_nt.as_ref().expect("truth"), None),
+    }
 }
 
 /// The change host/src/estimate/kf/mod.rs needs, shown here: with σ1 taken from the spectrum of
@@ -339,7 +402,14 @@ fn lag_full_bar() {
 }
 
 /// `SimConfig::crossover_box` with decoys and the hidden effect.
-fn crossover_flight(hidden: &str, seed: u64) -> Trace {
+fn crossover_flight(hidden: &str, seed: u64) -> Sim {
+    Sim {
+        key: format!("crossover box {hidden} seed {seed}"),
+        trace: Arc::new(simulate_crossover(hidden, seed)),
+    }
+}
+
+fn simulate_crossover(hidden: &str, seed: u64) -> Trace {
     let cfg = SimConfig {
         decoys: DECOYS.iter().map(|s| s.to_string()).collect(),
         hidden: if hidden.is_empty() {

@@ -9,7 +9,6 @@
 //!   names nothing, and says "explains the data" only within the stated factor;
 //! - coefficients of another aircraft applied: `recalibrate` named.
 
-use magcomp::calibration::summary::summarise;
 use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::diagnose::{diagnose, DiagnoseOptions, Diagnosis, EXPLAINED_FACTOR, RECALIBRATE};
 use magcomp::io::trace::Trace;
@@ -20,18 +19,10 @@ use magcomp::sim::{parse_hidden, simulate, SimConfig};
 mod independent_sim;
 use independent_sim::independent;
 
-const BASE: &str = "tl16+field+fluxcal";
+mod common;
+use common::diagnosis::{error_nt, named};
 
-/// Error against truth (nT) of the Kalman calibration with exactly this model.
-fn error_nt(trace: &Trace, model: &str) -> f64 {
-    let est = EstimatorSettings {
-        model: model.into(),
-        method: Method::Kf,
-        ..EstimatorSettings::default()
-    };
-    let (flight, comp) = compensate_trace(trace, &est, None, false).expect("calibrate");
-    summarise(&flight, &comp).error_rms_nt.expect("truth")
-}
+const BASE: &str = "tl16+field+fluxcal";
 
 fn diagnosed(trace: &Trace) -> Diagnosis {
     diagnose(
@@ -40,13 +31,6 @@ fn diagnosed(trace: &Trace) -> Diagnosis {
         &DiagnoseOptions::default(),
     )
     .expect("diagnose")
-}
-
-fn named(d: &Diagnosis) -> Option<&str> {
-    d.candidates
-        .iter()
-        .find(|c| c.significant)
-        .map(|c| c.term.as_str())
 }
 
 /// "Explains the data" is said exactly when the NIS and every band are within the factor.

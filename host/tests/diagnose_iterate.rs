@@ -5,6 +5,9 @@
 //! seed's flight without the effects, under `tl16+field`). `fluxtemp:CH` is tested on the
 //! fluxgate's modulus, so it must be named among temperature decoys that share its trend.
 //! Run in release: `cargo test --release -p magcomp --test diagnose_iterate`.
+//!
+//! The clean floor of a seed is computed once and shared by the tests that compare with it
+//! (`common::memo`).
 
 use magcomp::diagnose::{diagnose, iterate, DiagnoseOptions, Iteration};
 use magcomp::estimate::corrections::run_kf;
@@ -13,6 +16,9 @@ use magcomp::flight::Flight;
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;
 use magcomp::sim::{parse_hidden, simulate, SimConfig};
+
+mod common;
+use common::memo::Memo;
 
 /// Decoys: a current and temperatures drawn like the fluxgate's (ground → cruise over
 /// minutes plus a heater cycle), so they share its kind of trend.
@@ -43,7 +49,8 @@ fn error_nt(trace: &Trace, model: &str) -> f64 {
 }
 
 fn clean_floor_nt(seed: u64) -> f64 {
-    error_nt(&flight(&[], seed), "tl16+field")
+    static FLOORS: Memo<u64, f64> = Memo::new();
+    FLOORS.get(seed, || error_nt(&flight(&[], seed), "tl16+field"))
 }
 
 /// The terms the path added, in order.

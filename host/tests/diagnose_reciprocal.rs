@@ -10,29 +10,20 @@
 //!   it is without the witness.
 //!
 //! Run in release.
-use magcomp::calibration::summary::summarise;
-use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::diagnose::reciprocal::Verdict;
 use magcomp::diagnose::{diagnose, Candidate, DiagnoseOptions, Diagnosis};
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;
-use magcomp::sim::{parse_hidden, simulate, FlightKind, Geology, GeologyPreset, SimConfig};
+use magcomp::sim::{parse_hidden, simulate, FlightKind, SimConfig};
+
+mod common;
+use common::diagnosis::{error_nt, named, reciprocal_flights};
 
 const MODEL: &str = "tl16+field";
 
+/// The report's reciprocal flights with two more survey lines, so there are several pairs.
 fn config(lag_s: Option<f64>) -> SimConfig {
-    SimConfig {
-        seed: 3,
-        flight: FlightKind::CalibrationSurvey,
-        geology: Geology::preset(GeologyPreset::Strong),
-        survey_lines: 4,
-        line_spacing_m: 10.0,
-        line_length_m: 5000.0,
-        hidden: lag_s
-            .map(|t| vec![parse_hidden(&format!("lag:{t}")).expect("hidden")])
-            .unwrap_or_default(),
-        ..SimConfig::default()
-    }
+    reciprocal_flights(lag_s, 4)
 }
 
 fn diagnosed(trace: &Trace, reciprocal_passes: bool) -> Diagnosis {
@@ -50,24 +41,6 @@ fn lag_candidate(d: &Diagnosis) -> &Candidate {
         .iter()
         .find(|c| c.term == "lag")
         .expect("lag is a candidate")
-}
-
-fn named(d: &Diagnosis) -> Option<&str> {
-    d.candidates
-        .iter()
-        .find(|c| c.significant)
-        .map(|c| c.term.as_str())
-}
-
-/// Error against truth (nT) of the Kalman calibration with exactly this model.
-fn error_nt(trace: &Trace, model: &str) -> f64 {
-    let est = EstimatorSettings {
-        model: model.into(),
-        method: Method::Kf,
-        ..EstimatorSettings::default()
-    };
-    let (flight, comp) = compensate_trace(trace, &est, None, false).expect("calibrate");
-    summarise(&flight, &comp).error_rms_nt.expect("truth")
 }
 
 #[test]

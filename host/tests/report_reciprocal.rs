@@ -8,27 +8,17 @@ use magcomp::flight::Flight;
 use magcomp::model::spec::ModelSpec;
 use magcomp::report::flight_report::build_report;
 use magcomp::report::reciprocal::{reciprocal_pairs, ReciprocalPair};
-use magcomp::sim::{parse_hidden, simulate, FlightKind, Geology, GeologyPreset, SimConfig};
+use magcomp::sim::{simulate, SimConfig};
 use std::path::{Path, PathBuf};
 
 mod common;
+use common::diagnosis::reciprocal_flights;
 use common::{chromium, CHROMIUM};
 
 const MODEL: &str = "tl16+field";
 
 fn config(lag_s: Option<f64>) -> SimConfig {
-    SimConfig {
-        seed: 3,
-        flight: FlightKind::CalibrationSurvey,
-        geology: Geology::preset(GeologyPreset::Strong),
-        survey_lines: 2,
-        line_spacing_m: 10.0,
-        line_length_m: 5000.0,
-        hidden: lag_s
-            .map(|t| vec![parse_hidden(&format!("lag:{t}")).expect("hidden")])
-            .unwrap_or_default(),
-        ..SimConfig::default()
-    }
+    reciprocal_flights(lag_s, 2)
 }
 
 /// The value of attribute `name` in the opening tag that starts at `tag`.

@@ -195,13 +195,18 @@ pub(super) fn calibrated(flight: &Flight, model: &ModelSpec) -> Result<KfRun> {
     )
 }
 
-/// Refits `model` + `term` on the trace and compares it with `base` (from [`calibrated`]).
-/// None when either run has no predicted error.
-pub(super) fn refit(trace: &Trace, model: &ModelSpec, term: &str, base: &KfRun) -> Option<Refit> {
+/// `model` + `term` calibrated on the trace: what [`diagnose`](super::diagnose) of that
+/// model starts from, so `--iterate` reuses it when it adds the term. None when it fails.
+pub(super) fn refit_run(trace: &Trace, model: &ModelSpec, term: &str) -> Option<KfRun> {
     let spec = model.with(term).ok()?;
     // The flight again: a channel term brings its channel.
     let flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels()).ok()?;
-    let run = calibrated(&flight, &spec).ok()?;
+    calibrated(&flight, &spec).ok()
+}
+
+/// Compares `run` (`term` added, from [`refit_run`]) with `base` (from [`calibrated`]).
+/// None when either run has no predicted error.
+pub(super) fn refit(term: &str, run: &KfRun, base: &KfRun) -> Option<Refit> {
     let before = base.predicted_error_nt?;
     let after = run.predicted_error_nt?;
     let change: Vec<f64> = run

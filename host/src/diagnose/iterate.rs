@@ -5,7 +5,7 @@
 //! added when it is significant under everything already added (a lag found beside a pump
 //! current is tested with the current in the model).
 
-use super::{diagnose, DiagnoseOptions, Diagnosis};
+use super::{diagnose_from, DiagnoseOptions, Diagnosis};
 use crate::flight::Flight;
 use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
@@ -116,7 +116,9 @@ fn error_of(trace: &Trace, model: &ModelSpec, d: &Diagnosis) -> Result<Option<f6
     ))
 }
 
-/// Adds the best significant candidate and re-diagnoses, at most `max_steps` times.
+/// Adds the best significant candidate and re-diagnoses, at most `max_steps` times. A
+/// step starts from the previous step's refit of the term it adds when there is one (the
+/// same calibration of the same model on the same flight), not a second calibration.
 pub fn iterate(
     trace: &Trace,
     start: &ModelSpec,
@@ -125,9 +127,10 @@ pub fn iterate(
 ) -> Result<Iteration> {
     let mut model = start.clone();
     let mut steps = Vec::new();
+    let mut calibrated = None;
     let stopped = loop {
         let step = steps.len();
-        let d = diagnose(trace, &model, opts)
+        let (d, mut refits) = diagnose_from(trace, &model, opts, &[], calibrated.take())
             .with_context(|| format!("step {step}: diagnosing model {}", model.text()))?;
         let error_rms_nt = error_of(trace, &model, &d)?;
         let next = d
@@ -154,6 +157,7 @@ pub fn iterate(
                 "after {max_steps} added terms (--max-steps); the last model still has a significant candidate, {term}"
             );
         }
+        calibrated = refits.remove(&term);
         push(Some(term.clone()));
         model = model
             .with(&term)

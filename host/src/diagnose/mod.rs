@@ -406,8 +406,24 @@ pub fn diagnose_with(
     opts: &DiagnoseOptions,
     extra: &[ExtraTerm],
 ) -> Result<Diagnosis> {
+    Ok(diagnose_from(trace, model, opts, extra, None)?.0)
+}
+
+/// [`diagnose_with`], starting from `calibrated` when given (`model` calibrated on the
+/// trace by `evidence::calibrated`, e.g. the previous step's refit of the term `--iterate`
+/// adds); also returns the candidates' refitted runs by term.
+fn diagnose_from(
+    trace: &Trace,
+    model: &ModelSpec,
+    opts: &DiagnoseOptions,
+    extra: &[ExtraTerm],
+    calibrated: Option<KfRun>,
+) -> Result<(Diagnosis, HashMap<String, KfRun>)> {
     let flight = Flight::from_trace(trace, &model.channels(), &model.relative_channels())?;
-    let run = evidence::calibrated(&flight, model)?;
+    let run = match calibrated {
+        Some(run) => run,
+        None => evidence::calibrated(&flight, model)?,
+    };
     let cand_specs = candidate_specs(trace, model, opts, extra, &flight, &run)?;
     let ws = Workspace::build(trace, flight, model, opts, run, &cand_specs)?;
     let mut candidates = Vec::new();
@@ -441,9 +457,9 @@ pub fn diagnose_with(
     for c in &mut candidates {
         ranking::judge(c, opts, ws.m);
     }
-    ranking::refit_candidates(&ws, &mut candidates);
+    let refits = ranking::refit_candidates(&ws, &mut candidates);
     ranking::rank(&ws, &mut candidates, &cand_cols);
-    Ok(conclude(ws, candidates, untestable, &cand_cols))
+    Ok((conclude(ws, candidates, untestable, &cand_cols), refits))
 }
 
 /// The candidates of a diagnosis, each with how it is tested (`workspace::CandidateSpec`).

@@ -5,6 +5,7 @@ use super::reciprocal::Verdict;
 use super::regression::fit_map;
 use super::workspace::Workspace;
 use super::{evidence, Candidate, DiagnoseOptions, RECALIBRATE};
+use crate::estimate::kf::KfRun;
 use magcomp_core::model::catalog::TermKind;
 use std::collections::HashMap;
 
@@ -55,12 +56,17 @@ pub(super) fn judge(c: &mut Candidate, opts: &DiagnoseOptions, m: f64) {
 /// Refits the model with the statistically significant candidates (those another witness
 /// found material first, then the most significant; at most [`evidence::MAX_REFITS`]):
 /// where the anomaly states absorbed an effect, only the refit shows it, and a term the
-/// calibration cannot use shows there as a rise of its predicted error.
-pub(super) fn refit_candidates(ws: &Workspace, candidates: &mut [Candidate]) {
+/// calibration cannot use shows there as a rise of its predicted error. Returns the
+/// refitted runs by term.
+pub(super) fn refit_candidates(
+    ws: &Workspace,
+    candidates: &mut [Candidate],
+) -> HashMap<String, KfRun> {
+    let mut runs = HashMap::new();
     // Without deviation terms in the model (an applied calibration checked) its
     // predicted error is the model error alone, no yardstick for a refit's.
     if ws.run.predicted_error_nt.is_none() || ws.model.terms.is_empty() {
-        return;
+        return runs;
     }
     let mut order: Vec<usize> = (0..candidates.len())
         .filter(|&i| {
@@ -79,12 +85,19 @@ pub(super) fn refit_candidates(ws: &Workspace, candidates: &mut [Candidate]) {
     });
     for &i in order.iter().take(evidence::MAX_REFITS) {
         let c = &mut candidates[i];
-        c.refit = evidence::refit(ws.original_trace, ws.model, &c.term, &ws.run);
+        let run = evidence::refit_run(ws.original_trace, ws.model, &c.term);
+        c.refit = run
+            .as_ref()
+            .and_then(|run| evidence::refit(&c.term, run, &ws.run));
         if c.refit.is_some() {
             c.evidence_tested.push("refit".into());
         }
         judge(c, ws.opts, ws.m);
+        if let Some(run) = run {
+            runs.insert(c.term.clone(), run);
+        }
     }
+    runs
 }
 
 /// What a term adds to the model, not to its test: `lag` is detected through 9

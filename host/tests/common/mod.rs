@@ -2,6 +2,8 @@
 #![allow(dead_code)] // each test binary uses the part it needs
 
 pub mod cli;
+pub mod diagnosis;
+pub mod memo;
 
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
