@@ -409,6 +409,25 @@ pub fn diagnose_with(
     Ok(diagnose_from(trace, model, opts, extra, None)?.0)
 }
 
+/// `model` calibrated on `trace` as [`diagnose`] calibrates it first: what
+/// [`diagnose_calibrated`] starts from, so diagnoses of one flight against several
+/// references (`sensors`) calibrate it once.
+pub(crate) fn calibrate_for_diagnosis(trace: &Trace, model: &ModelSpec) -> Result<KfRun> {
+    let flight = Flight::from_trace(trace, &model.channels(), &model.relative_channels())?;
+    evidence::calibrated(&flight, model)
+}
+
+/// [`diagnose`] from `calibrated` ([`calibrate_for_diagnosis`] of the same trace's
+/// model channels: a reference column added since does not change it).
+pub(crate) fn diagnose_calibrated(
+    trace: &Trace,
+    model: &ModelSpec,
+    opts: &DiagnoseOptions,
+    calibrated: KfRun,
+) -> Result<Diagnosis> {
+    Ok(diagnose_from(trace, model, opts, &[], Some(calibrated))?.0)
+}
+
 /// [`diagnose_with`], starting from `calibrated` when given (`model` calibrated on the
 /// trace by `evidence::calibrated`, e.g. the previous step's refit of the term `--iterate`
 /// adds); also returns the candidates' refitted runs by term.

@@ -9,7 +9,7 @@
 //! own measurement nor against a third sensor. A term is named for K only where every one
 //! of K's diagnoses finds it significant and its difference with that sensor carries it.
 
-use super::{diagnose, DiagnoseOptions, Diagnosis};
+use super::{DiagnoseOptions, Diagnosis};
 use crate::calibration::{compensate_trace, EstimatorSettings};
 use crate::io::trace::Trace;
 use crate::model::spec::ModelSpec;
@@ -77,6 +77,10 @@ pub fn diagnose_sensors(
         .collect::<Result<_>>()?;
     let mut findings = Vec::with_capacity(sensors.len());
     for (k, s) in sensors.iter().enumerate() {
+        // the sensor's own calibration: the reference column added below is no channel of
+        // the model, so it is the same for every other sensor
+        let calibrated = super::calibrate_for_diagnosis(&own[k], model)
+            .with_context(|| format!("{}: its calibration for the diagnosis", s.name))?;
         let mut against = Vec::with_capacity(sensors.len() - 1);
         for (j, other) in sensors.iter().enumerate().filter(|&(j, _)| j != k) {
             let column = reference_column(&other.name);
@@ -86,7 +90,7 @@ pub fn diagnose_sensors(
                 reference: Some(column),
                 ..opts.clone()
             };
-            let d = diagnose(&t, model, &o)
+            let d = super::diagnose_calibrated(&t, model, &o, calibrated.clone())
                 .with_context(|| format!("{} against {}", s.name, other.name))?;
             against.push((other.name.clone(), d));
         }
