@@ -11,11 +11,11 @@
 //! are the channel's own; the rest the sample's). The host reads a log of these lines as
 //! a several-sensor trace, `mag_1` … `mag_n` (docs/trace-format.md).
 
-use super::common::{finish_crc, parse_float_field, parse_hex_u32, Cursor};
+use super::common::{finish_crc, parse_float_field, Cursor};
 use super::multi_record::channel_fields;
 use super::multi_scalar::MAX_CHANNELS;
-use super::raw::{encode_motion, encode_raw, RawSample};
-use super::record::{counts_field, parse_seq, RecordError};
+use super::raw::{decode_motion, encode_motion, encode_raw, RawSample};
+use super::record::{counts_field, flags_field, parse_seq, RecordError};
 use crate::flags::Flags;
 use crate::units::MagCounts;
 
@@ -91,32 +91,17 @@ pub fn decode_multi_raw(line: &[u8]) -> Result<MultiRawSample, RecordError> {
     if len != 3 + 2 * n + 7 {
         return Err(RecordError::FieldCount);
     }
-    let fl = |i: usize| parse_float_field(f[i]).map_err(|_| RecordError::BadField(i as u8));
     let mut mag = [None; MAX_CHANNELS];
     let mut flags = [Flags(Flags::MAG_MISSING); MAX_CHANNELS];
     for ch in 0..n {
         let (m, fi) = (3 + 2 * ch, 4 + 2 * ch);
         mag[ch] = counts_field(f[m], m as u8)?;
-        flags[ch] = match f[fi] {
-            s if s.len() == 4 => {
-                Flags(parse_hex_u32(s).ok_or(RecordError::BadField(fi as u8))? as u16)
-            }
-            _ => return Err(RecordError::BadField(fi as u8)),
-        };
+        flags[ch] = flags_field(f[fi], fi as u8)?;
     }
-    let o = 3 + 2 * n;
+    let k = parse_seq(f[0]).ok_or(RecordError::BadField(0))?;
+    let t_s = parse_float_field(f[1]).map_err(|_| RecordError::BadField(1))?;
     Ok(MultiRawSample {
-        shared: RawSample {
-            k: parse_seq(f[0]).ok_or(RecordError::BadField(0))?,
-            t_s: fl(1)?,
-            mag: mag[0],
-            flux_nt: [fl(o)? as f32, fl(o + 1)? as f32, fl(o + 2)? as f32],
-            lat_deg: fl(o + 3)?,
-            lon_deg: fl(o + 4)?,
-            alt_m: fl(o + 5)? as f32,
-            ground_speed_mps: fl(o + 6)? as f32,
-            flags: flags[0],
-        },
+        shared: decode_motion(&f, 3 + 2 * n, k, t_s, mag[0], flags[0])?,
         channels: n as u8,
         mag,
         flags,

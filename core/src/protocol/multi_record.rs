@@ -15,9 +15,9 @@
 //! checksum as `$MCREC`; a different sentence name so a single-sensor decoder never takes
 //! one for its own.
 
-use super::common::{fields, finish_crc, parse_float_field, parse_hex_u32, Cursor};
+use super::common::{fields, finish_crc, parse_float_field, Cursor};
 use super::multi_scalar::MAX_CHANNELS;
-use super::record::{check_crc_line, counts_field, parse_seq, RecordError};
+use super::record::{check_crc_line, counts_field, flags_field, parse_seq, RecordError};
 use crate::flags::Flags;
 use crate::units::MagCounts;
 
@@ -168,16 +168,12 @@ pub fn decode_multi_record(line: &[u8]) -> Result<MultiRecord, RecordError> {
     };
     for (k, ch) in r.ch[..n].iter_mut().enumerate() {
         let at = 3 + 5 * k;
-        let flags = match f[at + 4] {
-            s if s.len() == 4 => parse_hex_u32(s).map(|v| Flags(v as u16)),
-            _ => None,
-        };
         *ch = ChannelRecord {
             mag: counts_field(f[at], at as u8)?,
             interference_nt: fl(at + 1)?,
             compensated: counts_field(f[at + 2], (at + 2) as u8)?,
             sigma_nt: fl(at + 3)?,
-            flags: flags.ok_or(RecordError::BadField((at + 4) as u8))?,
+            flags: flags_field(f[at + 4], (at + 4) as u8)?,
         };
     }
     for (k, d) in r.diff[..pair_count(n)].iter_mut().enumerate() {

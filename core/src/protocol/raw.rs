@@ -13,8 +13,8 @@
 //! its counts; flux, altitude and speed 4 decimals, latitude/longitude 8 (≈ 1 mm); NaN →
 //! empty field; framing and CRC as `$MCREC` ([`super::record`]).
 
-use super::common::{fields, finish_crc, parse_float_field, parse_hex_u32, BufferFull, Cursor};
-use super::record::{check_crc_line, counts_field, parse_seq, RecordError};
+use super::common::{fields, finish_crc, parse_float_field, BufferFull, Cursor};
+use super::record::{check_crc_line, counts_field, flags_field, parse_seq, RecordError};
 use crate::epoch::AlignedSample;
 use crate::flags::Flags;
 use crate::units::MagCounts;
@@ -111,22 +111,34 @@ pub fn decode_raw(line: &[u8]) -> Result<RawSample, RecordError> {
     if n != FIELDS {
         return Err(RecordError::FieldCount);
     }
-    let fl = |i: usize| parse_float_field(f[i]).map_err(|_| RecordError::BadField(i as u8));
     let k = parse_seq(f[0]).ok_or(RecordError::BadField(0))?;
-    let flags = match f[10] {
-        s if s.len() == 4 => parse_hex_u32(s).ok_or(RecordError::BadField(10))? as u16,
-        _ => return Err(RecordError::BadField(10)),
-    };
+    let flags = flags_field(f[10], 10)?;
+    let t_s = parse_float_field(f[1]).map_err(|_| RecordError::BadField(1))?;
+    decode_motion(&f, 3, k, t_s, counts_field(f[2], 2)?, flags)
+}
+
+/// The sample whose motion fields ([`encode_motion`]) start at field `o` of `f`: fluxgate
+/// (3), latitude, longitude, height, ground speed; `k`, `t_s`, `mag` and `flags` as read
+/// before them.
+pub(crate) fn decode_motion(
+    f: &[&[u8]],
+    o: usize,
+    k: u32,
+    t_s: f64,
+    mag: Option<MagCounts>,
+    flags: Flags,
+) -> Result<RawSample, RecordError> {
+    let fl = |i: usize| parse_float_field(f[i]).map_err(|_| RecordError::BadField(i as u8));
     Ok(RawSample {
         k,
-        t_s: fl(1)?,
-        mag: counts_field(f[2], 2)?,
-        flux_nt: [fl(3)? as f32, fl(4)? as f32, fl(5)? as f32],
-        lat_deg: fl(6)?,
-        lon_deg: fl(7)?,
-        alt_m: fl(8)? as f32,
-        ground_speed_mps: fl(9)? as f32,
-        flags: Flags(flags),
+        t_s,
+        mag,
+        flux_nt: [fl(o)? as f32, fl(o + 1)? as f32, fl(o + 2)? as f32],
+        lat_deg: fl(o + 3)?,
+        lon_deg: fl(o + 4)?,
+        alt_m: fl(o + 5)? as f32,
+        ground_speed_mps: fl(o + 6)? as f32,
+        flags,
     })
 }
 

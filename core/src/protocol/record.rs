@@ -126,6 +126,16 @@ pub(crate) fn check_crc_line<'a>(line: &'a [u8], prefix: &[u8]) -> Result<&'a [u
     Ok(&body[..star])
 }
 
+/// A record's flags field `i`: exactly 4 hex digits.
+pub(crate) fn flags_field(s: &[u8], i: u8) -> Result<Flags, RecordError> {
+    match s {
+        s if s.len() == 4 => parse_hex_u32(s)
+            .map(|v| Flags(v as u16))
+            .ok_or(RecordError::BadField(i)),
+        _ => Err(RecordError::BadField(i)),
+    }
+}
+
 pub(crate) fn counts_field(s: &[u8], i: u8) -> Result<Option<MagCounts>, RecordError> {
     if s.is_empty() {
         return Ok(None);
@@ -166,18 +176,14 @@ pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
         n += 1;
     }
     // 8 fields: a stream from firmware before `sigma_nt`; its flags sit where sigma does now.
-    let (sigma_field, flags_field) = match n {
+    let (sigma_field, flags_at) = match n {
         9 => (Some(7), 8),
         8 => (None, 7),
         _ => return Err(RecordError::FieldCount),
     };
     let fl = |i: usize| parse_float_field(f[i]).map_err(|_| RecordError::BadField(i as u8));
     let seq = parse_seq(f[0]).ok_or(RecordError::BadField(0))?;
-    let bad_flags = RecordError::BadField(flags_field as u8);
-    let flags = match f[flags_field] {
-        s if s.len() == 4 => parse_hex_u32(s).ok_or(bad_flags)? as u16,
-        _ => return Err(bad_flags),
-    };
+    let flags = flags_field(f[flags_at], flags_at as u8)?;
     let sigma_nt = match sigma_field {
         Some(i) => fl(i)? as f32,
         None => f32::NAN,
@@ -191,6 +197,6 @@ pub fn decode_record(line: &[u8]) -> Result<Record, RecordError> {
         anomaly_nt: fl(5)? as f32,
         innovation_nt: fl(6)? as f32,
         sigma_nt,
-        flags: Flags(flags),
+        flags,
     })
 }

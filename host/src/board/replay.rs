@@ -713,23 +713,20 @@ fn feed<R: BufRead, F: FnMut(&AcqRecord) -> Result<()>, G: FnMut(&RawLine) -> Re
             continue;
         }
         for &b in bytes {
-            let record = acq.push_byte_any(c.port, b);
-            if let Some(raw) = acq.take_raw() {
-                (out.raw_sink)(&raw)?;
-            }
-            if let Some(r) = record {
-                out.emit(r, stats)?;
-            }
-            // a line that ran into the next: its further samples, as the board's UART task
-            // hands them on
-            while let Some(l) = acq.owed_scalar_line() {
-                let record = acq.scalar_line(l);
+            let mut record = acq.push_byte_any(c.port, b);
+            loop {
                 if let Some(raw) = acq.take_raw() {
                     (out.raw_sink)(&raw)?;
                 }
                 if let Some(r) = record {
                     out.emit(r, stats)?;
                 }
+                // a line that ran into the next: its further samples, as the board's UART
+                // task hands them on
+                let Some(l) = acq.owed_scalar_line() else {
+                    break;
+                };
+                record = acq.scalar_line(l);
             }
         }
     }
