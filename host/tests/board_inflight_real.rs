@@ -8,8 +8,8 @@
 //! flux_b, mag_4 with flux_c), the flight image (`tl16+field`) cannot: it is judged against
 //! the post-flight filter without the witness, and the `flux-witness` image's model
 //! (`replay --model tl16+field+fluxmod`, the same core code) must close most of the gap.
-//! Measured: mag_5 0.71 against 0.77 nT; mag_3 4.55 against 4.05 (filter alone; the
-//! default 1.73), witnessed 2.14 (1.24 × the default); mag_4 with flux_c 3.20 against 3.31,
+//! Measured: mag_5 0.71 against 0.77 nT; mag_3 4.58 against 4.05 (filter alone; the
+//! default 1.73), witnessed 2.13 (1.23 × the default); mag_4 with flux_c 3.18 against 3.31,
 //! witnessed 1.03 (1.20 × the default 0.86).
 
 mod common;
