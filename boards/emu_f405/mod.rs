@@ -135,15 +135,19 @@ pub fn init() -> Board {
 /// `!OLDSTORE` / `!OLDLEGACY` move the store to the old sectors as an upgrade finds it.
 pub struct CoefStore {
     mem: [store::Image; store::N_IMAGES],
-    old: [store::Image; store::N_OLD_IMAGES],
+    /// In a static, not in the struct: `init` builds the `Board` on the main task's stack,
+    /// and 760 more bytes there would raise the start-up stack peak the hil runs measure.
+    old: &'static mut [store::Image; store::N_OLD_IMAGES],
 }
 
 impl CoefStore {
-    const fn new() -> Self {
+    fn new() -> Self {
         // erased flash reads as 0xFF: start the same way
+        static OLD: ConstStaticCell<[store::Image; store::N_OLD_IMAGES]> =
+            ConstStaticCell::new([store::ERASED; store::N_OLD_IMAGES]);
         Self {
             mem: [store::ERASED; store::N_IMAGES],
-            old: [store::ERASED; store::N_OLD_IMAGES],
+            old: OLD.take(),
         }
     }
 
@@ -153,9 +157,10 @@ impl CoefStore {
         let Some(u) = crate::fw::test_hook::take_upgrade() else {
             return;
         };
-        self.old = [store::ERASED; store::N_OLD_IMAGES];
+        // in place (`fill`, `copy_from_slice`): no image-sized temporaries on the stack
+        self.old.iter_mut().for_each(|img| img.fill(0xFF));
         match u {
-            Upgrade::TwoImages => self.old = self.mem,
+            Upgrade::TwoImages => self.old.copy_from_slice(&self.mem),
             Upgrade::OneImage => {
                 let seqs = core::array::from_fn(|i| store::sequence(&self.mem[i]));
                 if let Some(i) = store::newest(seqs) {
@@ -165,7 +170,7 @@ impl CoefStore {
             }
         }
         // the new firmware's sectors held the earlier firmware's code: not erased, no image
-        self.mem = [[0x00; store::IMAGE_LEN]; store::N_IMAGES];
+        self.mem.iter_mut().for_each(|img| img.fill(0x00));
     }
 
     /// The CPU stalls while the real board erases a sector (one flash bank): here the
@@ -204,7 +209,7 @@ impl crate::board_shape::CoefStore for CoefStore {
     fn retire_old(&mut self) -> Result<(), StoreError> {
         self.upgrade();
         // as flash programming does it: the first word to 0, no erase
-        for img in &mut self.old {
+        for img in self.old.iter_mut() {
             if img[..4] != [0; 4] && img[..4] != [0xFF; 4] {
                 img[..4].fill(0);
             }
