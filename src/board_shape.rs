@@ -29,11 +29,24 @@ pub trait Watchdog {
 pub struct StoreError;
 
 /// The coefficient store: [`store::N_IMAGES`] images of [`store::IMAGE_LEN`] bytes, each
-/// erased and written on its own (layout in `store.rs`).
+/// erased and written on its own (layout in `store.rs`), and the [`store::N_OLD_IMAGES`]
+/// the earlier firmware wrote elsewhere.
 pub trait CoefStore {
     fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError>;
+    /// Erases the image's sector and writes it: the CPU stalls for the erase (up to
+    /// [`SECTOR_ERASE_MAX_US`]), the other image is not touched.
     fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError>;
+    /// The earlier firmware's image `image` (the real board's sector 10 or 11).
+    fn read_old(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError>;
+    /// Makes the earlier firmware's images unreadable as a store (their first word
+    /// programmed to 0: no erase, no stall), so a `FACTORY,ERASE` cannot bring them back.
+    fn retire_old(&mut self) -> Result<(), StoreError>;
 }
+
+/// Longest erase of one image's 16 KiB sector: STM32F405 datasheet (DS8626, "Flash memory
+/// programming"), t_ERASE16KB at x32 parallelism (2.7–3.6 V): 250 ms typical, 500 ms max
+/// (x8, the reset value of PSIZE: 400 / 800 ms). The emulated store stalls this long.
+pub const SECTOR_ERASE_MAX_US: u32 = 500_000;
 
 /// Baud rates per port, chosen at build time (`MAGCOMP_BAUD_OUT`, `MAGCOMP_BAUD_SCALAR`,
 /// `MAGCOMP_BAUD_FLUX`, `MAGCOMP_BAUD_GPS`, decimal); what each sensor rate needs is in

@@ -27,7 +27,7 @@ use defmt_semihosting as _;
 
 use crate::board;
 use crate::board_config::{self as bc, BoardAcquisition, Event, N_COEF, SensorPort, Staged};
-use crate::board_shape::{CoefStore as _, Watchdog as _};
+use crate::board_shape::{CoefStore as _, StoreError, Watchdog as _};
 use crate::health::{self, Task};
 use crate::store;
 use crate::uart_stats;
@@ -297,12 +297,16 @@ async fn send_record(r: &AcqRecord) {
     OUT.send(line).await;
 }
 
-/// The sequence numbers of the store's images, read one at a time into `buf` (an
-/// unreadable image counts as invalid): one image buffer on the stack, not two.
-fn image_seqs(st: &mut board::CoefStore, buf: &mut store::Image) -> [Option<u32>; store::N_IMAGES] {
+/// The sequence numbers of the two images `read` reads (the current or the earlier
+/// firmware's), one at a time into `buf` (an unreadable image counts as invalid): one image
+/// buffer on the stack, not two.
+fn image_seqs(
+    buf: &mut store::Image,
+    mut read: impl FnMut(usize, &mut store::Image) -> Result<(), StoreError>,
+) -> [Option<u32>; store::N_IMAGES] {
     let mut seqs = [None; store::N_IMAGES];
     for (i, seq) in seqs.iter_mut().enumerate() {
-        if st.read(i, buf).is_ok() {
+        if read(i, buf).is_ok() {
             *seq = store::sequence(buf);
         }
     }
@@ -310,13 +314,19 @@ fn image_seqs(st: &mut board::CoefStore, buf: &mut store::Image) -> [Option<u32>
 }
 
 /// Loads the newest valid image (layout: `store.rs`); `Err` when it holds no valid model
-/// blob or there is none.
+/// blob or there is none. With no valid image, the earlier firmware's store: its newest
+/// valid image, else its single-image blobs (`store::load_legacy`), so an upgraded board
+/// keeps its calibration until the next `SAVE` writes the current images.
 fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut img = store::ERASED;
-    let newest = store::newest(image_seqs(st, &mut img));
-    // no valid image: perhaps a store written before the two images, in image 1's sector
-    st.read(newest.unwrap_or(1), &mut img).map_err(|_| ())?;
-    match newest {
+    if let Some(i) = store::newest(image_seqs(&mut img, |i, b| st.read(i, b))) {
+        st.read(i, &mut img).map_err(|_| ())?;
+        return store::load_image(&img, acq);
+    }
+    let old = store::newest(image_seqs(&mut img, |i, b| st.read_old(i, b)));
+    // the single-image store was where the two-image firmware put its image 1
+    st.read_old(old.unwrap_or(1), &mut img).map_err(|_| ())?;
+    match old {
         Some(_) => store::load_image(&img, acq),
         None => store::load_legacy(&img, acq),
     }
@@ -326,7 +336,7 @@ fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> R
 /// for `MODE,SURVEY`), then reads it back from the store itself.
 fn save_coefficients(st: &mut board::CoefStore, acq: &BoardAcquisition, staged: &Staged) -> bool {
     let mut back = store::ERASED;
-    let (i, seq) = store::next(image_seqs(st, &mut back));
+    let (i, seq) = store::next(image_seqs(&mut back, |i, b| st.read(i, b)));
     let mut img = store::ERASED;
     if store::seal(seq, acq, staged, &mut img).is_err() || st.write(i, &img).is_err() {
         return false;
@@ -619,8 +629,11 @@ async fn restart(
             board::exit(false)
         }
         if cmd == Command::FactoryReset {
-            // an erased store (as flash reads after an erase) and the boot defaults
-            failed = (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
+            // the earlier firmware's images first, else boot would load them; and only if
+            // they are gone, the current ones erased: a cut between the two leaves the
+            // current set, never an older one. Then the boot defaults.
+            failed = st.retire_old().is_err()
+                || (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
             store::defaults(acq);
         } else {
             let _ = load_coefficients(st, acq);
@@ -707,7 +720,7 @@ async fn output_task(mut tx: BufferedUartTx<'static>) {
 /// Feeds the IWDG every 500 ms, but only when every task is idle or has finished work since
 /// the previous check (`health::Progress`). A task stuck on an await that never completes
 /// (the TX wake-up above, a full channel whose consumer died) or spinning, or a hard fault,
-/// stops the feeding and the IWDG resets the board within its 4 s; `$MCBOOT` then says
+/// stops the feeding and the IWDG resets the board within its 3.5 s; `$MCBOOT` then says
 /// `RST=IWDG`.
 #[embassy_executor::task]
 async fn watchdog_task(mut wdg: board::Watchdog) {
@@ -715,7 +728,7 @@ async fn watchdog_task(mut wdg: board::Watchdog) {
     let mut progress = health::Progress::new();
     let mut reported = 0;
     loop {
-        Timer::after_millis(500).await;
+        Timer::after_millis(crate::WATCHDOG_CHECK_MS.into()).await;
         match progress.check() {
             Ok(()) => wdg.feed(),
             Err(t) => defmt::warn!("task {} made no progress: watchdog not fed", t),
@@ -732,10 +745,11 @@ async fn watchdog_task(mut wdg: board::Watchdog) {
 /// command-port line starting with `!` goes here, not to the command parser.
 /// `!STALL`: the output task stops, busy, on an await that never completes (as a lost
 /// wake-up would), so the watchdog must reset the board. `!PANIC`: a panic, whose record the
-/// next boot must report. `!CUT<n>`: the next `SAVE` is cut after `n` bytes.
+/// next boot must report. `!CUT<n>`: the next `SAVE` is cut after `n` bytes. `!OLDSTORE`,
+/// `!OLDLEGACY`: the store as a board upgraded from earlier firmware has it ([`Upgrade`]).
 #[cfg(feature = "board-emu")]
 pub mod test_hook {
-    use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+    use core::sync::atomic::{AtomicBool, AtomicU8, AtomicU32, Ordering};
 
     static STALL: AtomicBool = AtomicBool::new(false);
 
@@ -762,6 +776,8 @@ pub mod test_hook {
                         b"STALL" => STALL.store(true, Ordering::Relaxed),
                         b"PANIC" => panic!("test hook !PANIC"),
                         [b'C', b'U', b'T', n @ ..] => cut_next_save(n),
+                        b"OLDSTORE" => UPGRADE.store(Upgrade::TwoImages as u8, Ordering::Relaxed),
+                        b"OLDLEGACY" => UPGRADE.store(Upgrade::OneImage as u8, Ordering::Relaxed),
                         _ => {}
                     }
                     self.line = None;
@@ -796,6 +812,29 @@ pub mod test_hook {
     pub fn take_cut() -> Option<usize> {
         let n = CUT_AT.swap(u32::MAX, Ordering::Relaxed);
         (n != u32::MAX).then_some(n as usize)
+    }
+
+    /// The store as a board flashed with earlier firmware and then upgraded has it: the
+    /// current images' sectors hold that firmware's code (no image), its store is in the
+    /// old sectors. boards/emu_f405's store applies it at its next access.
+    #[derive(Clone, Copy, PartialEq, Eq)]
+    pub enum Upgrade {
+        /// From the two-image firmware: the images, as they are, in the old sectors.
+        TwoImages = 1,
+        /// From the single-image firmware: the newest image's blobs alone at the start of
+        /// old image 1, old image 0 erased.
+        OneImage = 2,
+    }
+
+    static UPGRADE: AtomicU8 = AtomicU8::new(0);
+
+    /// The store layout the next store access must take, if one was asked for.
+    pub fn take_upgrade() -> Option<Upgrade> {
+        match UPGRADE.swap(0, Ordering::Relaxed) {
+            1 => Some(Upgrade::TwoImages),
+            2 => Some(Upgrade::OneImage),
+            _ => None,
+        }
     }
 
     pub async fn maybe_stall() {

@@ -48,6 +48,22 @@ mod store;
 #[cfg(target_os = "none")]
 mod uart_stats;
 
-/// Watchdog timeout (µs): long enough for a flash sector erase on the real board (1–2 s).
+/// The watchdog task's check period (ms): it feeds the watchdog at most this often.
 #[cfg(target_os = "none")]
-pub const WATCHDOG_TIMEOUT_US: u32 = 4_000_000;
+pub const WATCHDOG_CHECK_MS: u32 = 500;
+
+/// Watchdog timeout (µs). The longest the tasks can go unfed without being stalled: the CPU
+/// stalled by `FACTORY,ERASE`'s two sector erases (2 × 500 ms max), plus two check periods
+/// (the check due during the stall runs after it and may find the command's task still
+/// sending its reply; the next one feeds): 2.0 s. The IWDG counts the LSI, 17–47 kHz
+/// (DS8626) for the 32 kHz the timeout is computed with, so 3.5 s may last only 2.38 s:
+/// 0.38 s of margin (checked below).
+#[cfg(target_os = "none")]
+pub const WATCHDOG_TIMEOUT_US: u32 = 3_500_000;
+
+#[cfg(target_os = "none")]
+const _: () = {
+    let stall_us = 2 * board_shape::SECTOR_ERASE_MAX_US + 2 * WATCHDOG_CHECK_MS * 1000;
+    // shortest real timeout at the LSI's 47 kHz, with 0.25 s to spare
+    assert!(WATCHDOG_TIMEOUT_US / 47 * 32 >= stall_us + 250_000);
+};

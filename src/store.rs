@@ -18,6 +18,12 @@
 //! four first slots, at the end: an image written before them (`MCS2`, its CRC after the
 //! four) is the new layout's prefix and still loads, its sensors 1–2 calibrating; new
 //! images say `MCS3`.
+//!
+//! Where the images are is the board's business (`board_shape::CoefStore`): on the real
+//! board the 16 KiB flash sectors 1 and 2. Earlier firmware kept them in the 128 KiB
+//! sectors 10 and 11 ([`N_OLD_IMAGES`], and before the two images a single store of blobs
+//! alone at the start of sector 11: [`load_legacy`]); boot reads those only when neither
+//! current image is valid, so an upgraded board keeps its calibration until its next `SAVE`.
 
 use magcomp_core::protocol::command::{
     FLUX_CAL_LEN, FLUX_TEMP_LEN, blob_len, decode_blob, encode_blob, flux_blob_id,
@@ -202,6 +208,9 @@ pub fn save(acq: &BoardAcquisition, staged: &Staged, raw: &mut [u8; LEN]) -> Res
 
 /// Images in the store, written alternately.
 pub const N_IMAGES: usize = 2;
+/// Images at the earlier firmware's place (the real board's sectors 10 and 11): the same
+/// two images, read by boot when no current one is valid, retired by `FACTORY,ERASE`.
+pub const N_OLD_IMAGES: usize = N_IMAGES;
 /// Bytes of one image: magic, sequence number (u32 LE), the blobs, CRC-32 (u32 LE).
 pub const IMAGE_LEN: usize = 8 + LEN + 4;
 const IMAGE_MAGIC: [u8; 4] = *b"MCS3";
@@ -257,7 +266,7 @@ pub fn load_image(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
 }
 
 /// Loads a store written before the two images existed: the blobs alone at the start of
-/// what is now the second image's sector (the real board's sector 11).
+/// the earlier firmware's second image (the real board's sector 11).
 pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
     load(part(img, 0), acq)
 }

@@ -13,8 +13,9 @@
 //! | GPS PPS (optional)       | EXTI0       | PB0                          | reserved, not used yet    |
 //! | SWD + RTT (defmt)        | SWD         | PA13 SWDIO, PA14 SWCLK       | probe-rs                  |
 //! | HSE crystal              | OSC         | PH0, PH1                     | 8 MHz                     |
-//! | coefficients             | FLASH       | sectors 10–11, 0x080C_0000   | 2 × 128 KiB, two images, outside memory.x |
-//! | watchdog                 | IWDG        | LSI 32 kHz                   | 4 s, fed on progress      |
+//! | coefficients             | FLASH       | sectors 1–2, 0x0800_4000     | 2 × 16 KiB, two images, no code (memory.x) |
+//! | earlier firmware's store | FLASH       | sectors 10–11, 0x080C_0000   | read if 1–2 hold none, retired by FACTORY |
+//! | watchdog                 | IWDG        | LSI 32 kHz                   | 3.5 s, fed on progress    |
 
 use embassy_stm32::rcc::*;
 use embassy_stm32::time::Hertz;
@@ -174,11 +175,15 @@ pub fn init() -> Board {
     }
 }
 
-/// The store's two images: flash sectors 10 and 11 (128 KiB each, outside memory.x's
-/// program area). Image 1 is sector 11, where the single-image store of earlier firmware
-/// kept its blobs (`store::load_legacy`).
-const IMAGE_SECTORS: [u32; store::N_IMAGES] = [0x000C_0000, 0x000E_0000];
-const SECTOR_SIZE: u32 = 128 * 1024;
+/// The store's two images: flash sectors 1 and 2 (16 KiB each; memory.x keeps code out of
+/// sectors 1–3), as offsets from the flash base.
+const IMAGE_SECTORS: [u32; store::N_IMAGES] = [0x0000_4000, 0x0000_8000];
+const SECTOR_SIZE: u32 = 16 * 1024;
+/// The earlier firmware's images: sectors 10 and 11 (128 KiB, outside memory.x's program
+/// area). Its image 1 is sector 11, where the single-image store before it kept its blobs.
+const OLD_SECTORS: [u32; store::N_OLD_IMAGES] = [0x000C_0000, 0x000E_0000];
+
+const _: () = assert!(store::IMAGE_LEN as u32 <= SECTOR_SIZE);
 
 /// Coefficient store: two flash sectors, one image each.
 pub struct CoefStore {
@@ -189,6 +194,25 @@ impl CoefStore {
     fn sector(image: usize) -> Result<u32, StoreError> {
         IMAGE_SECTORS.get(image).copied().ok_or(StoreError)
     }
+
+    /// Erases one sector at x32 parallelism. embassy-stm32 0.6 sets PSIZE for programming
+    /// only and erases with whatever the control register holds: x8 after reset and after
+    /// its own writes, 400 ms typ / 800 ms max for 16 KiB instead of x32's 250 / 500
+    /// (DS8626; x32 needs 2.7–3.6 V, the board runs at 3.3 V). The register only takes a
+    /// write unlocked, so unlock it here (the driver then finds it unlocked, keeps PSIZE and
+    /// locks it again after the erase).
+    fn erase_x32(&mut self, at: u32) -> Result<(), StoreError> {
+        use embassy_stm32::pac::{FLASH, flash::vals::Psize};
+        if FLASH.cr().read().lock() {
+            // RM0090 3.5.1: the two keys in a row; a wrong one locks the register until reset
+            FLASH.keyr().write_value(0x4567_0123);
+            FLASH.keyr().write_value(0xCDEF_89AB);
+        }
+        FLASH.cr().modify(|w| w.set_psize(Psize::PSIZE32));
+        self.flash
+            .blocking_erase(at, at + SECTOR_SIZE)
+            .map_err(|_| StoreError)
+    }
 }
 
 impl crate::board_shape::CoefStore for CoefStore {
@@ -197,17 +221,36 @@ impl crate::board_shape::CoefStore for CoefStore {
             .blocking_read(Self::sector(image)?, img)
             .map_err(|_| StoreError)
     }
-    /// Erases the image's sector (~1–2 s on F405: the watchdog timeout allows it) and
-    /// writes it; the other image is not touched.
+    /// Erases the image's 16 KiB sector (250 ms typ, 500 ms max: the CPU stalls, the
+    /// watchdog timeout allows it) and writes it; the other image is not touched.
     fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError> {
         let at = Self::sector(image)?;
         // flash programming needs a multiple of the 4-byte write size
         let mut buf = [0xFFu8; store::IMAGE_LEN.div_ceil(4) * 4];
         buf[..store::IMAGE_LEN].copy_from_slice(img);
-        self.flash
-            .blocking_erase(at, at + SECTOR_SIZE)
-            .map_err(|_| StoreError)?;
+        self.erase_x32(at)?;
         self.flash.blocking_write(at, &buf).map_err(|_| StoreError)
+    }
+    fn read_old(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
+        let at = OLD_SECTORS.get(image).ok_or(StoreError)?;
+        self.flash.blocking_read(*at, img).map_err(|_| StoreError)
+    }
+    /// Programs the first word of each old image to 0 (its magic, or the single-image
+    /// store's first blob's): programming only clears bits, so no 128 KiB erase (1–2 s).
+    /// Erased or already retired words are left alone.
+    fn retire_old(&mut self) -> Result<(), StoreError> {
+        for at in OLD_SECTORS {
+            let mut word = [0u8; 4];
+            self.flash
+                .blocking_read(at, &mut word)
+                .map_err(|_| StoreError)?;
+            if word != [0; 4] && word != [0xFF; 4] {
+                self.flash
+                    .blocking_write(at, &[0; 4])
+                    .map_err(|_| StoreError)?;
+            }
+        }
+        Ok(())
     }
 }
 

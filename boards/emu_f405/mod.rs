@@ -6,7 +6,8 @@
 //!   from a SysTick driver (QEMU's TIM2 lacks compare interrupts);
 //! - fluxgate on its UART alternative (QEMU has no SPI ADC);
 //! - coefficients in a RAM store with the same blob format (QEMU does not emulate the
-//!   flash controller): they survive a soft restart of the tasks, not a QEMU restart;
+//!   flash controller): they survive a soft restart of the tasks, not a QEMU restart; a
+//!   write stalls the tasks for a sector erase's worst case, as the real CPU stalls;
 //! - logs over semihosting (QEMU stdout) instead of RTT;
 //! - the IWDG is a model in the SysTick interrupt (QEMU has none), see [`Watchdog`].
 //!
@@ -128,33 +129,91 @@ pub fn init() -> Board {
     }
 }
 
-/// Coefficient store: RAM stand-in for the two flash sectors (same images, same checks).
-/// `!CUT<n>` (fw::test_hook) makes the next write stop after `n` bytes of the erased image,
-/// as a power cut during `SAVE` would leave it.
+/// Coefficient store: RAM stand-in for the two flash sectors (same images, same checks)
+/// and for the earlier firmware's two. `!CUT<n>` (fw::test_hook) makes the next write stop
+/// after `n` bytes of the erased image, as a power cut during `SAVE` would leave it;
+/// `!OLDSTORE` / `!OLDLEGACY` move the store to the old sectors as an upgrade finds it.
 pub struct CoefStore {
     mem: [store::Image; store::N_IMAGES],
+    /// In a static, not in the struct: `init` builds the `Board` on the main task's stack,
+    /// and 760 more bytes there would raise the start-up stack peak the hil runs measure.
+    old: &'static mut [store::Image; store::N_OLD_IMAGES],
 }
 
 impl CoefStore {
-    const fn new() -> Self {
+    fn new() -> Self {
         // erased flash reads as 0xFF: start the same way
+        static OLD: ConstStaticCell<[store::Image; store::N_OLD_IMAGES]> =
+            ConstStaticCell::new([store::ERASED; store::N_OLD_IMAGES]);
         Self {
             mem: [store::ERASED; store::N_IMAGES],
+            old: OLD.take(),
+        }
+    }
+
+    /// Applies a pending `!OLDSTORE` / `!OLDLEGACY`.
+    fn upgrade(&mut self) {
+        use crate::fw::test_hook::Upgrade;
+        let Some(u) = crate::fw::test_hook::take_upgrade() else {
+            return;
+        };
+        // in place (`fill`, `copy_from_slice`): no image-sized temporaries on the stack
+        self.old.iter_mut().for_each(|img| img.fill(0xFF));
+        match u {
+            Upgrade::TwoImages => self.old.copy_from_slice(&self.mem),
+            Upgrade::OneImage => {
+                let seqs = core::array::from_fn(|i| store::sequence(&self.mem[i]));
+                if let Some(i) = store::newest(seqs) {
+                    let n = store::IMAGE_LEN - 8;
+                    self.old[1][..n].copy_from_slice(&self.mem[i][8..]);
+                }
+            }
+        }
+        // the new firmware's sectors held the earlier firmware's code: not erased, no image
+        self.mem.iter_mut().for_each(|img| img.fill(0x00));
+    }
+
+    /// The CPU stalls while the real board erases a sector (one flash bank): here the
+    /// tasks stall as long, spinning on the SysTick clock, while interrupts still run (so
+    /// the UARTs keep receiving, as DMA would on the real board; see docs/firmware.md).
+    fn erase_stall() {
+        let end = embassy_time::Instant::now()
+            + embassy_time::Duration::from_micros(crate::board_shape::SECTOR_ERASE_MAX_US.into());
+        while embassy_time::Instant::now() < end {
+            core::hint::spin_loop();
         }
     }
 }
 
 impl crate::board_shape::CoefStore for CoefStore {
     fn read(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
+        self.upgrade();
         img.copy_from_slice(self.mem.get(image).ok_or(StoreError)?);
         Ok(())
     }
     fn write(&mut self, image: usize, img: &store::Image) -> Result<(), StoreError> {
+        self.upgrade();
         let dst = self.mem.get_mut(image).ok_or(StoreError)?;
         let n = crate::fw::test_hook::take_cut().unwrap_or(store::IMAGE_LEN);
         *dst = store::ERASED;
+        Self::erase_stall();
         let n = n.min(store::IMAGE_LEN);
         dst[..n].copy_from_slice(&img[..n]);
+        Ok(())
+    }
+    fn read_old(&mut self, image: usize, img: &mut store::Image) -> Result<(), StoreError> {
+        self.upgrade();
+        img.copy_from_slice(self.old.get(image).ok_or(StoreError)?);
+        Ok(())
+    }
+    fn retire_old(&mut self) -> Result<(), StoreError> {
+        self.upgrade();
+        // as flash programming does it: the first word to 0, no erase
+        for img in self.old.iter_mut() {
+            if img[..4] != [0; 4] && img[..4] != [0xFF; 4] {
+                img[..4].fill(0);
+            }
+        }
         Ok(())
     }
 }

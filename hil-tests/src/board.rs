@@ -527,6 +527,18 @@ impl Board {
         Ok(())
     }
 
+    /// As [`Board::stream`], but at the capture's own pace whatever the board does: no
+    /// waiting for `$MCSYN`, so while the board stalls (a flash erase) the sensors' bytes
+    /// keep coming and pile up in its receive buffers, as a real sensor's would. The order
+    /// across ports is then the board's to keep: records may differ from the replay's
+    /// values, not in number.
+    pub fn stream_unpaced(&mut self, cap: &Capture, speed: f64) -> Result<()> {
+        let sync = std::mem::replace(&mut self.sync, false);
+        let r = self.stream(cap, speed);
+        self.sync = sync;
+        r
+    }
+
     /// Waits until the board acknowledged at least `n` frames per port (`$MCSYN`).
     fn wait_frames(&mut self, n: [u64; 3], timeout: Duration) -> Result<()> {
         let end = Instant::now() + timeout;
