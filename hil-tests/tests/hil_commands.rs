@@ -712,11 +712,24 @@ fn save_cut_at_any_point_keeps_the_old_set() {
     assert!(set_and_save(&mut b, 0.1).starts_with("$MCACK,SAVE"));
     reload(&mut b);
     assert_eq!(lag(&mut b), 0.1);
-    // image: 8-byte header, the four blobs (208 bytes), CRC-32: cut before, inside, at the end
-    for (round, cut) in [0usize, 1, 7, 8, 100, 215, 216, 219]
-        .into_iter()
-        .enumerate()
-    {
+    // image: 8-byte header, the blobs (the first four 208 bytes, then sensors 1 and 2),
+    // CRC-32 last: cut before, inside the first blobs and the later sensors', at the end
+    let len = hil_tests::store::IMAGE_LEN;
+    let cuts = [
+        0usize,
+        1,
+        7,
+        8,
+        100,
+        215,
+        216,
+        219,
+        300,
+        len - 5,
+        len - 4,
+        len - 1,
+    ];
+    for (round, cut) in cuts.into_iter().enumerate() {
         send_hook(&mut b, format!("!CUT{cut}\r\n").as_bytes());
         let r = set_and_save(&mut b, 0.2);
         assert!(r.starts_with("$MCERR,8,STORAGE"), "{name}: cut {cut}: {r}");
@@ -739,5 +752,9 @@ fn save_cut_at_any_point_keeps_the_old_set() {
     assert!(set_and_save(&mut b, 0.5).starts_with("$MCERR,8,STORAGE"));
     reload(&mut b);
     assert_eq!(lag(&mut b), 0.4, "{name}: the newest complete set");
-    eprintln!("{name}: 9 cut saves kept the previous set; complete saves alternate images");
+    eprintln!(
+        "{name}: {} cut saves of a {len}-byte image kept the previous set; complete saves \
+         alternate images",
+        cuts.len() + 1
+    );
 }
