@@ -59,7 +59,8 @@ pub struct CompensateArgs {
     /// `--coeffs` runs on inputs ≥ 256 MiB, `always` streams or says why it cannot,
     /// `never` reads the flight into memory (and, without --coeffs, does not decimate a
     /// long flight either). Streaming covers --coeffs (KF survey mode
-    /// without lag/fluxtemp/rate, or --method tl); its summary leaves out the
+    /// without lag/fluxtemp/rate, or --method tl; several sensors with a several-sensor
+    /// file, one filter each); its summary leaves out the
     /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
     /// (docs/streaming.md).
     #[arg(long, value_enum, default_value_t = StreamMode::Auto)]

@@ -16,7 +16,8 @@
 //! `rate`, a coefficient file without σ1; [`unstreamable`] says which, and
 //! `compensate` then reads the flight into memory. The summary's band-passed figures
 //! (residual, IR, FOM) and the applied-coefficient checks are computed in memory only; a
-//! streamed run says so.
+//! streamed run says so. Several sensors share the three passes, one filter each
+//! ([`several`]).
 mod apply;
 pub mod decimate;
 mod igrf;
@@ -264,6 +265,9 @@ pub(crate) fn prepare(
     sensors: &[SensorRun<'_>],
     quiet: bool,
 ) -> Result<Vec<Prepared>> {
+    if sensors.is_empty() {
+        bail!("no sensor to compensate");
+    }
     let given_year = match date {
         Some(d) => {
             let (y, doy) = crate::flight::igrf::parse_date(d).context("--date")?;
@@ -310,6 +314,7 @@ pub(crate) fn prepare(
     let (seconds, igrf_scan) = second_pass(source, &cols, &core, &need_noise, median_dt, quiet)?;
     let igrf = core_field(&core, &igrf_scan);
     let core_meta = core_meta(&core, &igrf_scan);
+    let tie_point = first0.first.tie_point(&first0.head.meta);
     let mut out = Vec::new();
     let parts = sensors.iter().zip(p1s).zip(specs).zip(seconds);
     for ((((s, p1), spec), second), ((withheld, median_dt), warnings)) in parts.zip(checked) {
@@ -320,6 +325,7 @@ pub(crate) fn prepare(
             noise_from_scalar: second.noise_nt(),
             igrf: igrf.clone(),
             core_meta: core_meta.clone(),
+            tie_point,
             warnings,
         };
         out.push(plan_of(s, p1, settled, est).map_err(|e| named(s, e))?);
@@ -358,6 +364,7 @@ struct Settled {
     noise_from_scalar: Option<f64>,
     igrf: Option<(DateSource, igrf::GapFill)>,
     core_meta: Vec<(String, String)>,
+    tie_point: Option<magcomp_core::compensator::TiePoint>,
     warnings: Vec<String>,
 }
 
@@ -375,6 +382,7 @@ fn plan_of(
         noise_from_scalar,
         igrf,
         core_meta,
+        tie_point,
         mut warnings,
     } = settled;
     let coeffs = s.coeffs;
@@ -414,7 +422,7 @@ fn plan_of(
         cols, head, first, ..
     } = p1;
     let mut plan = Plan {
-        tie_point: first.tie_point(&head.meta),
+        tie_point,
         earth_dir_ned: first.field_dir.finish(),
         base0: first.base0,
         cols,
@@ -477,6 +485,10 @@ fn first_pass(
         .iter()
         .map(|(_, c)| FirstPass::new(c.len()))
         .collect();
+    // One track for every sensor: its tie point is looked for once ([`prepare`]).
+    for f in firsts.iter_mut().skip(1) {
+        f.finds_tie = false;
+    }
     let mut date_col = DateScan::default();
     let mut doy_scans: Vec<DateScan> = Vec::new();
     let mut progress = Progress::new("pass 1/3 (flight figures)", quiet);

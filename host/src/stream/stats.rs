@@ -292,6 +292,9 @@ pub struct FirstPass {
     pub tie: TieDetector,
     pub field_dir: FieldDirection,
     pub prev_t: Option<f64>,
+    /// Whether this pass looks for the tie point (its cells grow with the ground covered;
+    /// several sensors share one track, so only the first looks).
+    pub finds_tie: bool,
 }
 
 impl FirstPass {
@@ -300,6 +303,7 @@ impl FirstPass {
             mag_range: (f64::MAX, f64::MIN),
             flux_range: [(f64::MAX, f64::MIN); 3],
             channel_offsets: vec![None; channels],
+            finds_tie: true,
             ..Default::default()
         }
     }
@@ -349,7 +353,9 @@ impl FirstPass {
         if s.ground_speed_mps.is_finite() {
             self.has_speed = true;
         }
-        self.tie.push(s.t_s, s.lat_deg, s.lon_deg);
+        if self.finds_tie {
+            self.tie.push(s.t_s, s.lat_deg, s.lon_deg);
+        }
     }
 
     pub fn sample_rate_hz(&self) -> Option<f64> {
