@@ -4,6 +4,10 @@
 //! aircraft's cloverleaf. A measurement, not a timed test: run it with
 //! `scripts/stream_rss.sh` (or `cargo bench -p magcomp --bench stream_rss`).
 //!
+//! `STREAM_RSS_SENSORS=N` (2–4, issue 19): the same for N magnetometers — a simulated
+//! N-sensor survey (seed 5) and the several-sensor file `calibrate --sensors` makes on
+//! the N-sensor cloverleaf, applied by `compensate --coeffs` (one filter per sensor).
+//!
 //! Env: `STREAM_RSS_ROWS` (default `1000000,10000000`), `STREAM_RSS_IN_MEMORY_MAX`
 //! (default 1000000: the in-memory run takes ~1 KB/row), `STREAM_RSS_DIR` (default
 //! `$TMPDIR/magcomp-stream-rss`; ~360 bytes of disk per row). Needs GNU `/usr/bin/time`.
@@ -103,42 +107,47 @@ fn main() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(1_000_000);
+    let sensors: usize = std::env::var("STREAM_RSS_SENSORS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1);
     let dir = std::env::var("STREAM_RSS_DIR")
         .map(PathBuf::from)
-        .unwrap_or_else(|_| std::env::temp_dir().join("magcomp-stream-rss"));
+        .unwrap_or_else(|_| {
+            let name = match sensors {
+                1 => "magcomp-stream-rss".to_string(),
+                n => format!("magcomp-stream-rss-{n}-sensors"),
+            };
+            std::env::temp_dir().join(name)
+        });
     std::fs::create_dir_all(&dir).unwrap();
+    // One sensor: seed 8, as before; several: `--sensors N` (seed 5), calibrated jointly.
+    let n_text = sensors.to_string();
+    let names: Vec<String> = (1..=sensors).map(|k| format!("mag_{k}")).collect();
+    let names = names.join(",");
+    let (seed, several): (&str, &[&str]) = match sensors {
+        1 => ("8", &[]),
+        _ => ("5", &["--sensors", &n_text]),
+    };
     if !dir.join("coeffs.json").exists() {
-        magcomp(
-            &[
-                "simulate",
-                "--flight",
-                "calibration",
-                "--seed",
-                "8",
-                "-o",
-                "cal.csv",
-            ],
-            &dir,
-        );
-        magcomp(
-            &[
-                "calibrate",
-                "cal.csv",
-                "--sigma1",
-                "3e-7",
-                "-o",
-                "coeffs.json",
-            ],
-            &dir,
-        );
+        let mut sim = vec!["simulate", "--flight", "calibration", "--seed", seed];
+        sim.extend_from_slice(several);
+        sim.extend_from_slice(&["-o", "cal.csv"]);
+        magcomp(&sim, &dir);
+        let mut cal = vec!["calibrate", "cal.csv", "--sigma1", "3e-7"];
+        if sensors > 1 {
+            cal.extend_from_slice(&["--sensors", &names]);
+        }
+        cal.extend_from_slice(&["-o", "coeffs.json"]);
+        magcomp(&cal, &dir);
     }
     if !dir.join("base.csv").exists() {
-        magcomp(
-            &[
-                "simulate", "--flight", "survey", "--seed", "8", "--lines", "4", "-o", "base.csv",
-            ],
-            &dir,
-        );
+        let mut sim = vec![
+            "simulate", "--flight", "survey", "--seed", seed, "--lines", "4",
+        ];
+        sim.extend_from_slice(several);
+        sim.extend_from_slice(&["-o", "base.csv"]);
+        magcomp(&sim, &dir);
     }
     for n in rows {
         let name = format!("survey_{n}.csv");

@@ -1,12 +1,18 @@
-//! `compensate --sensors` and streaming (issue 19): several magnetometers are compensated
-//! in memory, so `--stream always` is refused with the reason (it was silently ignored and
-//! the whole flight read), and an input `--stream auto` would stream (≥ 256 MiB) is said
-//! to be read whole.
+//! `compensate --sensors` and streaming (issue 19): several magnetometers with a
+//! several-sensor `--coeffs` file stream for real — one read of the file per pass, one
+//! filter per sensor — and write what the in-memory run writes, value for value (the
+//! standard of `stream_compensate.rs`: the files identical line for line). What still
+//! needs the whole flight (the joint calibration without `--coeffs`, `--realtime`, a set
+//! the one-sensor stream refuses) is refused by `--stream always` with the reason, and an
+//! input `--stream auto` would stream (≥ 256 MiB) is said to be read whole.
 
-use magcomp::cli::compensate::{several_sensors_unstreamed, StreamMode};
-use magcomp::io::trace::{read_trace, write_trace, ColumnMap};
+use magcomp::calibration::EstimatorSettings;
+use magcomp::cli::compensate::{stream_decision, StreamMode};
+use magcomp::cli::multi::read_multi;
+use magcomp::io::trace::{read_trace, write_trace, ColumnMap, Trace};
 use magcomp::sim::multi::{simulate_multi, STINGER_WINGTIPS_CABIN_M};
-use magcomp::sim::SimConfig;
+use magcomp::sim::{FlightKind, SimConfig};
+use magcomp::stream::several::several_unstreamable;
 use magcomp::stream::AUTO_STREAM_BYTES;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -28,76 +34,276 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-#[test]
-fn stream_always_is_refused_with_the_reason_and_nothing_is_written() {
+fn ok(o: &Output, what: &str) -> String {
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert!(o.status.success(), "{what}: {err}");
+    err
+}
+
+/// Three sensors' calibration flight and its several-sensor file (`calibrate --sensors`),
+/// made once for every test here.
+fn calibrated() -> (PathBuf, PathBuf) {
+    static MADE: std::sync::OnceLock<(PathBuf, PathBuf)> = std::sync::OnceLock::new();
+    MADE.get_or_init(|| calibrate("cal")).clone()
+}
+
+fn calibrate(tag: &str) -> (PathBuf, PathBuf) {
     let cfg = SimConfig {
         seed: 5,
         ..Default::default()
     };
-    let trace = simulate_multi(&cfg, &STINGER_WINGTIPS_CABIN_M[..2]).unwrap();
-    let input = tmp("sim2.csv");
+    let trace = simulate_multi(&cfg, &STINGER_WINGTIPS_CABIN_M[..3]).unwrap();
+    let input = tmp(&format!("{tag}-cal.csv"));
     write_trace(&input, &trace).unwrap();
-    let coeffs = tmp("sim2.json");
+    let coeffs = tmp(&format!("{tag}-cal.json"));
     let o = magcomp(&[
         "calibrate",
         s(&input),
         "--sensors",
-        "mag_1,mag_2",
+        "mag_1,mag_2,mag_3",
         "-o",
         s(&coeffs),
     ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    // With --sensors, and with the several-sensor file alone (it names its sensors).
-    let with_sensors = ["--sensors", "mag_1,mag_2"];
-    for extra in [&with_sensors[..], &[]] {
-        let out = tmp("refused.csv");
+    ok(&o, "calibrate --sensors");
+    (input, coeffs)
+}
+
+/// A survey of the same aircraft with the faults a real file has: a scalar glitch on
+/// one sensor, a bad fluxgate row (the shared fluxgate), a 3 s time gap, a bad latitude.
+fn survey() -> Trace {
+    let cfg = SimConfig {
+        seed: 5,
+        flight: FlightKind::Survey,
+        survey_lines: 2,
+        max_duration_s: Some(300.0),
+        ..Default::default()
+    };
+    let t = simulate_multi(&cfg, &STINGER_WINGTIPS_CABIN_M[..3]).unwrap();
+    let rows: Vec<usize> = (0..t.len()).filter(|i| !(1200..1230).contains(i)).collect();
+    let mut t = magcomp::flight::input::take_rows(&t, &rows);
+    let mut set = |name: &str, row: usize, f: &dyn Fn(f64) -> f64| {
+        let mut v = t.col(name).unwrap().to_vec();
+        v[row] = f(v[row]);
+        t.set_col(name, v);
+    };
+    set("mag_2", 650, &|x| x + 4000.0);
+    set("flux_z", 2100, &|_| 0.0);
+    set("lat", 900, &|_| 95.0);
+    t
+}
+
+fn lines(p: &Path) -> Vec<String> {
+    std::fs::read_to_string(p)
+        .unwrap()
+        .lines()
+        .map(String::from)
+        .collect()
+}
+
+/// `--stream always` and `--stream never` on one simulated three-sensor survey: the same
+/// file, line for line (every value as the in-memory run writes it, no tolerance: the
+/// same filter on the same numbers), every row in a row out; the same for the
+/// several-sensor file alone (it names its sensors) and with `--gradients`.
+#[test]
+fn streamed_several_sensors_equal_in_memory_line_for_line() {
+    let (_, coeffs) = calibrated();
+    let trace = survey();
+    let input = tmp("survey3.csv");
+    write_trace(&input, &trace).unwrap();
+    // Without the file's core field: computed from positions and --date, in a --time
+    // selection.
+    let mut no_igrf = trace.clone();
+    no_igrf.numeric.retain(|(n, _)| n != "igrf");
+    let input_no_igrf = tmp("survey3-no-igrf.csv");
+    write_trace(&input_no_igrf, &no_igrf).unwrap();
+    let with_sensors: &[&str] = &[
+        "--sensors",
+        "mag_1,mag_2,mag_3",
+        "--gradients",
+        "mag_1-mag_2,mag_2-mag_3",
+    ];
+    let selected: &[&str] = &["--date", "2024-06-01", "--time", "20:250"];
+    let cases = [
+        (&input, with_sensors, trace.len()),
+        (&input, &[][..], trace.len()),
+        (&input_no_igrf, selected, 0),
+    ];
+    for (k, (input, extra, rows)) in cases.into_iter().enumerate() {
+        let mut outs = Vec::new();
+        for mode in ["never", "always"] {
+            let out = tmp(&format!("out-{mode}-{k}.csv"));
+            let _ = std::fs::remove_file(&out);
+            let mut args = vec!["compensate", s(input), "--coeffs", s(&coeffs)];
+            args.extend_from_slice(extra);
+            args.extend_from_slice(&["--stream", mode, "-o", s(&out)]);
+            let err = ok(&magcomp(&args), mode);
+            assert!(!err.contains("not streamed"), "{mode}: {err}");
+            if mode == "always" && k < 2 {
+                // The glitch and the bad fluxgate row are said, naming their sensor.
+                assert!(err.contains("(mag_2): 1 scalar glitch"), "{err}");
+                assert!(err.contains("(mag_3): 1 fluxgate sample"), "{err}");
+                assert!(err.contains("warning: mag_1: 1 time gap"), "{err}");
+            }
+            outs.push(out);
+        }
+        let (mem, streamed) = (lines(&outs[0]), lines(&outs[1]));
+        assert_eq!(mem.len(), streamed.len(), "{extra:?}: lines");
+        for (i, (a, b)) in mem.iter().zip(&streamed).enumerate() {
+            assert_eq!(a, b, "{extra:?}: line {}", i + 1);
+        }
+        let t = read_trace(&outs[1], &ColumnMap::new()).unwrap();
+        if rows > 0 {
+            assert_eq!(t.len(), rows, "{extra:?}: rows in, rows out");
+        } else {
+            let t_s = trace.col("t").unwrap();
+            let kept = t_s.iter().filter(|t| (20.0..=250.0).contains(*t)).count();
+            assert_eq!(t.len(), kept, "--time 20:250: rows in, rows out");
+        }
+        for c in ["compensated_mag_1", "flags_mag_3", "lat", "alt"] {
+            assert!(t.col(c).is_some(), "{extra:?}: no {c}");
+        }
+        if k == 0 {
+            assert!(t.col("gradient_mag_2_mag_3").is_some());
+        }
+        eprintln!(
+            "{extra:?}: {} rows, {} columns identical",
+            t.len(),
+            t.numeric.len()
+        );
+    }
+}
+
+/// `--json` streamed: one entry per sensor, each streamed over every row, with its
+/// figures against the simulated truth.
+#[test]
+fn streamed_several_sensors_json_summary() {
+    let (_, coeffs) = calibrated();
+    let trace = survey();
+    let input = tmp("survey3-json.csv");
+    write_trace(&input, &trace).unwrap();
+    let out = tmp("json.csv");
+    let o = magcomp(&[
+        "compensate",
+        s(&input),
+        "--coeffs",
+        s(&coeffs),
+        "--stream",
+        "always",
+        "--json",
+        "-o",
+        s(&out),
+    ]);
+    ok(&o, "--json");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let sensors = v["sensors"].as_array().unwrap();
+    assert_eq!(sensors.len(), 3);
+    for (k, e) in sensors.iter().enumerate() {
+        assert_eq!(e["sensor"], format!("mag_{}", k + 1));
+        assert_eq!(e["streamed"], true);
+        assert_eq!(e["samples"], trace.len());
+        let err = e["error_rms_nt"].as_f64().unwrap();
+        assert!(err < 0.1, "mag_{}: {err} nT", k + 1);
+    }
+    // The glitch printed for mag_2 is in mag_2's warnings, not mag_1's.
+    let said = |k: usize| sensors[k]["warnings"].to_string().contains("scalar glitch");
+    assert!(said(1) && !said(0), "{v}");
+}
+
+/// What still needs the whole flight is refused by `--stream always`, saying why, and
+/// nothing is written: the joint calibration (no `--coeffs`), `--realtime`. `never` and
+/// `auto` (a small file) run it in memory.
+#[test]
+fn what_needs_the_whole_flight_is_refused_with_the_reason() {
+    let (input, coeffs) = calibrated();
+    let out = tmp("refused.csv");
+    let cases: [(&[&str], &str); 2] = [
+        (&["--sensors", "mag_1,mag_2"], "calibrated jointly"),
+        (
+            &[
+                "--sensors",
+                "mag_1,mag_2",
+                "--coeffs",
+                s(&coeffs),
+                "--realtime",
+            ],
+            "--realtime",
+        ),
+    ];
+    for (extra, why) in cases {
         let _ = std::fs::remove_file(&out);
-        let mut args = vec!["compensate", s(&input), "--coeffs", s(&coeffs)];
+        let mut args = vec!["compensate", s(&input)];
         args.extend_from_slice(extra);
         args.extend_from_slice(&["--stream", "always", "-o", s(&out)]);
         let o = magcomp(&args);
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{extra:?}: {err}");
         assert!(
-            err.contains("--stream always: this run cannot be streamed")
-                && err.contains("several magnetometers"),
+            err.contains("--stream always: this run cannot be streamed") && err.contains(why),
             "{extra:?}: {err}"
         );
         assert!(!out.exists(), "{extra:?}: an output was written");
-        // `never` and `auto` (a small file) run it in memory, every row out.
-        for mode in ["never", "auto"] {
-            let mut args = vec!["compensate", s(&input), "--coeffs", s(&coeffs)];
-            args.extend_from_slice(extra);
-            args.extend_from_slice(&["--stream", mode, "-o", s(&out)]);
-            let o = magcomp(&args);
-            let err = String::from_utf8_lossy(&o.stderr);
-            assert!(o.status.success(), "{extra:?} {mode}: {err}");
-            assert!(!err.contains("not streamed"), "{mode}: {err}");
-            let t = read_trace(&out, &ColumnMap::new()).unwrap();
-            assert_eq!(t.len(), trace.len(), "{mode}");
-            assert!(t.col("compensated_mag_2").is_some(), "{mode}");
-        }
     }
+    // The realtime run in memory, every row out.
+    let mut args = vec!["compensate", s(&input)];
+    args.extend_from_slice(cases[1].0);
+    args.extend_from_slice(&["--stream", "never", "-o", s(&out)]);
+    ok(&magcomp(&args), "--realtime in memory");
+    let t = read_trace(&out, &ColumnMap::new()).unwrap();
+    assert_eq!(
+        t.len(),
+        read_trace(&input, &ColumnMap::new()).unwrap().len()
+    );
 }
 
-/// The decision by size: `auto` notes from 256 MiB (the one-sensor streaming threshold),
-/// not below; `never` never; `always` refuses at any size.
+/// A set the one-sensor stream refuses is refused for several, naming the sensor.
 #[test]
-fn a_large_input_read_whole_is_said_so() {
+fn a_set_the_one_sensor_stream_refuses_is_named() {
+    let (_, coeffs) = calibrated();
+    let (_, sets) = read_multi(&coeffs).unwrap();
+    let est = EstimatorSettings::default();
+    let named: Vec<(&str, _)> = ["mag_1", "mag_2", "mag_3"].into_iter().zip(&sets).collect();
+    assert_eq!(several_unstreamable(&named, &est, false), None);
+    let mut lagged = sets[1].clone();
+    lagged.model = format!("{}+lag", lagged.model);
+    let named = [("mag_1", &sets[0]), ("mag_2", &lagged)];
+    let why = several_unstreamable(&named, &est, false).unwrap();
+    assert!(why.starts_with("mag_2: ") && why.contains("lag"), "{why}");
+    let mut tl = sets[0].clone();
+    tl.method = magcomp::calibration::coefficients::Method::Tl;
+    let why = several_unstreamable(&[("mag_1", &tl)], &est, false).unwrap();
+    assert!(why.contains("Tolles–Lawson"), "{why}");
+}
+
+/// The decision by size: `auto` streams from 256 MiB (the one-sensor threshold) when it
+/// can, else notes that the input is read whole; below, in memory without a note;
+/// `never` never; `always` streams, or refuses at any size saying why.
+#[test]
+fn the_decision_by_size_and_mode() {
     let p = Path::new("big.csv");
+    let per_row = "~1 KB per row per sensor";
     assert_eq!(AUTO_STREAM_BYTES, 268_435_456);
-    let at = several_sensors_unstreamed(StreamMode::Auto, AUTO_STREAM_BYTES, p).unwrap();
-    let note = at.expect("a note at 256 MiB");
+    let why = Some("several magnetometers without a several-sensor --coeffs file …");
+    let decide = |mode, why, size| stream_decision(mode, why, size, p, per_row);
+    let (stream, note) = decide(StreamMode::Auto, why, AUTO_STREAM_BYTES).unwrap();
+    let note = note.expect("a note at 256 MiB");
+    assert!(!stream);
     assert!(
         note.starts_with("note: big.csv is read into memory") && note.contains("not streamed"),
         "{note}"
     );
-    let below = several_sensors_unstreamed(StreamMode::Auto, AUTO_STREAM_BYTES - 1, p).unwrap();
-    assert_eq!(below, None);
-    let never = several_sensors_unstreamed(StreamMode::Never, 10 * AUTO_STREAM_BYTES, p);
-    assert_eq!(never.unwrap(), None);
+    assert_eq!(
+        decide(StreamMode::Auto, None, AUTO_STREAM_BYTES).unwrap(),
+        (true, None)
+    );
+    for w in [why, None] {
+        let below = decide(StreamMode::Auto, w, AUTO_STREAM_BYTES - 1).unwrap();
+        assert_eq!(below, (false, None));
+        let never = decide(StreamMode::Never, w, 10 * AUTO_STREAM_BYTES).unwrap();
+        assert_eq!(never, (false, None));
+    }
+    assert_eq!(decide(StreamMode::Always, None, 0).unwrap(), (true, None));
     for size in [0, AUTO_STREAM_BYTES] {
-        let e = several_sensors_unstreamed(StreamMode::Always, size, p).unwrap_err();
+        let e = decide(StreamMode::Always, why, size).unwrap_err();
         assert!(format!("{e}").contains("cannot be streamed"), "{e}");
     }
 }

@@ -59,7 +59,8 @@ pub struct CompensateArgs {
     /// `--coeffs` runs on inputs ≥ 256 MiB, `always` streams or says why it cannot,
     /// `never` reads the flight into memory (and, without --coeffs, does not decimate a
     /// long flight either). Streaming covers --coeffs (KF survey mode
-    /// without lag/fluxtemp/rate, or --method tl); its summary leaves out the
+    /// without lag/fluxtemp/rate, or --method tl; several sensors with a several-sensor
+    /// file, one filter each); its summary leaves out the
     /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
     /// (docs/streaming.md).
     #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
@@ -100,11 +101,8 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
         None => None,
     };
     if a.multi.applies(multi.as_ref()) {
-        if a.multi.names_several(multi.as_ref()) {
-            let size = std::fs::metadata(&a.input.trace).map_or(0, |m| m.len());
-            if let Some(note) = several_sensors_unstreamed(a.stream, size, &a.input.trace)? {
-                eprintln!("{note}");
-            }
+        if a.multi.names_several(multi.as_ref()) && stream_several_if_asked(a, multi.as_ref())? {
+            return Ok(());
         }
         let trace = a.input.read()?;
         match a
@@ -187,70 +185,52 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     Ok(())
 }
 
-/// Why several magnetometers are not streamed (docs/streaming.md).
-pub const SEVERAL_UNSTREAMED: &str =
-    "several magnetometers (--sensors, or a several-sensor --coeffs file) are compensated in memory";
-
-/// `compensate` on several magnetometers, which is not streamed, given `--stream mode` and
-/// an input of `size` bytes: `--stream always` is refused (it was silently ignored), and
-/// an input `auto` would have streamed gets a note that it is read whole (returned).
-pub fn several_sensors_unstreamed(
+/// Whether `compensate` streams, given `--stream mode`, why the run cannot be streamed
+/// (`why_not`, None: it can) and the input's `size` (bytes): `never` does not; `always`
+/// does, or refuses saying why; `auto` streams an input of 256 MiB or more, and such an
+/// input read into memory gets a note saying why (returned), `per_row` its memory.
+pub fn stream_decision(
     mode: StreamMode,
+    why_not: Option<&str>,
     size: u64,
     input: &std::path::Path,
-) -> Result<Option<String>> {
-    match mode {
-        StreamMode::Always => bail!(
-            "--stream always: this run cannot be streamed: {SEVERAL_UNSTREAMED} (~1 KB per row \
-             per sensor); use --stream auto or never, or stream one sensor at a time \
-             (--map mag=mag_K,flux_x=… with that sensor's `coefficients` from the file, \
-             a one-sensor coefficient file)"
+    per_row: &str,
+) -> Result<(bool, Option<String>)> {
+    Ok(match (mode, why_not) {
+        (StreamMode::Never, _) => (false, None),
+        (StreamMode::Always, Some(w)) => {
+            bail!("--stream always: this run cannot be streamed: {w}")
+        }
+        (StreamMode::Always, None) => (true, None),
+        (StreamMode::Auto, _) if size < AUTO_STREAM_BYTES => (false, None),
+        (StreamMode::Auto, Some(w)) => (
+            false,
+            Some(format!(
+                "note: {} is read into memory ({per_row}), not streamed: {w}",
+                input.display()
+            )),
         ),
-        StreamMode::Auto if size >= AUTO_STREAM_BYTES => Ok(Some(format!(
-            "note: {} is read into memory (~1 KB per row per sensor), not streamed: \
-             {SEVERAL_UNSTREAMED}",
-            input.display()
-        ))),
-        _ => Ok(None),
-    }
+        (StreamMode::Auto, None) => (true, None),
+    })
 }
 
 /// The `compensate` hook: streams when `mode` (and, for `auto`, the input's size) says
 /// so, prints the summary and returns true; false leaves the run to the in-memory path.
 fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Result<bool> {
-    let (est, mode, out, json) = (a.est.settings(), a.stream, a.out.as_path(), a.json);
+    let (est, out, json) = (a.est.settings(), a.out.as_path(), a.json);
     let input = a.input.stream_input();
-    let why_not = match unstreamable(coeffs, &est, a.realtime) {
-        Some(w) => Some(w),
-        None if crate::io::trace::is_hdf5_path(&a.input.trace) => {
-            Some("HDF5 files are read into memory".to_string())
-        }
-        None if a.input.rate_hz.is_some() => {
-            Some("a trace without time (--rate-hz) is read into memory".to_string())
-        }
-        None => None,
-    };
-    let stream = match (mode, &why_not) {
-        (StreamMode::Never, _) => false,
-        (StreamMode::Always, Some(w)) => {
-            bail!("--stream always: this run cannot be streamed: {w}")
-        }
-        (StreamMode::Always, None) => true,
-        (StreamMode::Auto, _) => {
-            let big = std::fs::metadata(input.trace)
-                .map(|m| m.len() >= AUTO_STREAM_BYTES)
-                .unwrap_or(false);
-            if big {
-                if let Some(w) = &why_not {
-                    eprintln!(
-                        "note: {} is read into memory (~1 KB per row), not streamed: {w}",
-                        input.trace.display()
-                    );
-                }
-            }
-            big && why_not.is_none()
-        }
-    };
+    let why_not = unstreamable(coeffs, &est, a.realtime).or_else(|| why_read_whole(a));
+    let size = std::fs::metadata(input.trace).map_or(0, |m| m.len());
+    let (stream, note) = stream_decision(
+        a.stream,
+        why_not.as_deref(),
+        size,
+        input.trace,
+        "~1 KB per row",
+    )?;
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
     let Some(coeffs) = coeffs.filter(|_| stream) else {
         return Ok(false);
     };
@@ -258,6 +238,54 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
     s.warnings.extend(a.input.provenance_warnings(None, coeffs));
     print_stream_summary(&s, json, out)?;
     Ok(true)
+}
+
+/// Inputs every streamed run reads into memory, whatever it computes.
+fn why_read_whole(a: &CompensateArgs) -> Option<String> {
+    if crate::io::trace::is_hdf5_path(&a.input.trace) {
+        Some("HDF5 files are read into memory".to_string())
+    } else if a.input.rate_hz.is_some() {
+        Some("a trace without time (--rate-hz) is read into memory".to_string())
+    } else {
+        None
+    }
+}
+
+/// Several magnetometers: streams them when `--stream` (and the input's size) says so
+/// (`super::multi_stream`) and returns true; false leaves them to the in-memory path.
+fn stream_several_if_asked(
+    a: &CompensateArgs,
+    multi: Option<&super::multi::MultiCoefficients>,
+) -> Result<bool> {
+    let run = super::multi_stream::SeveralStreamed {
+        input: &a.input,
+        multi: &a.multi,
+        coeffs: a.coeffs.as_deref(),
+        est: EstimatorSettings {
+            survey_from_s: a.survey_from,
+            ..a.est.settings()
+        },
+        realtime: a.realtime,
+        json: a.json,
+        out: &a.out,
+        quiet: quiet_progress(a.long.progress),
+    };
+    let why_not = run.why_not(multi);
+    let size = std::fs::metadata(&a.input.trace).map_or(0, |m| m.len());
+    let (stream, note) = stream_decision(
+        a.stream,
+        why_not.as_deref(),
+        size,
+        &a.input.trace,
+        "~1 KB per row per sensor",
+    )?;
+    if let Some(note) = note {
+        eprintln!("{note}");
+    }
+    match multi.filter(|_| stream) {
+        Some(m) => run.run(m).map(|()| true),
+        None => Ok(false),
+    }
 }
 
 /// Calibrates on the decimated copy, then applies the coefficients to the full-rate file
@@ -314,24 +342,7 @@ fn print_stream_summary(s: &StreamSummary, json: bool, out: &std::path::Path) ->
     if json {
         println!("{}", with_printed_warnings(serde_json::to_value(s)?));
     } else {
-        println!(
-            "model {} ({}), {} samples (streamed)",
-            s.model,
-            s.method.name(),
-            s.samples
-        );
-        if let Some(p) = s.predicted_error_nt {
-            println!(
-                "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
-            );
-        }
-        if let Some(e) = s.error_rms_nt {
-            println!("  error vs truth:             {e:.4} nT rms");
-        }
-        println!(
-            "  not computed when streamed: {} (--stream never computes them)",
-            s.not_computed.join(", ")
-        );
+        super::summary_text::print_stream_text(s);
         eprintln!("wrote {}", out.display());
     }
     for w in &s.warnings {

@@ -503,6 +503,24 @@ pub fn compensate(
     Ok(())
 }
 
+/// The separation of `--gradients` pair `a`-`b` (m): both positions known, not one place.
+pub fn gradient_separation_m(sensors: &[SensorSpec], a: usize, b: usize) -> Result<f64> {
+    let sep = separation_m(&sensors[a], &sensors[b]).with_context(|| {
+        format!(
+            "--gradients {}-{}: both positions must be known (`@X/Y/Z` or metadata)",
+            sensors[a].name, sensors[b].name
+        )
+    })?;
+    if sep <= 0.0 {
+        bail!(
+            "--gradients {}-{}: the sensors are at one place",
+            sensors[a].name,
+            sensors[b].name
+        );
+    }
+    Ok(sep)
+}
+
 /// The output: `t`, per sensor `mag_K`, `interference_mag_K`, `compensated_mag_K`,
 /// `anomaly_mag_K`, `flags_mag_K` and `interference_sigma_mag_K` (KF), then `gradient_mag_A_mag_B` per pair, then the trace's position
 /// and line columns when it has them.
@@ -541,19 +559,7 @@ pub fn output_table(
         }
     }
     for &(a, b) in pairs {
-        let sep = separation_m(&sensors[a], &sensors[b]).with_context(|| {
-            format!(
-                "--gradients {}-{}: both positions must be known (`@X/Y/Z` or metadata)",
-                sensors[a].name, sensors[b].name
-            )
-        })?;
-        if sep <= 0.0 {
-            bail!(
-                "--gradients {}-{}: the sensors are at one place",
-                sensors[a].name,
-                sensors[b].name
-            );
-        }
+        let sep = gradient_separation_m(sensors, a, b)?;
         let (ca, cb) = (&results[a].compensated_nt, &results[b].compensated_nt);
         out.set_col(
             &format!("gradient_{}_{}", sensors[a].name, sensors[b].name),

@@ -101,3 +101,25 @@ pub fn print_summary(s: &Summary) {
         }
     }
 }
+
+/// A streamed run's summary as text on stdout.
+pub fn print_stream_text(s: &crate::stream::StreamSummary) {
+    println!(
+        "model {} ({}), {} samples (streamed)",
+        s.model,
+        s.method.name(),
+        s.samples
+    );
+    if let Some(p) = s.predicted_error_nt {
+        println!(
+            "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
+        );
+    }
+    if let Some(e) = s.error_rms_nt {
+        println!("  error vs truth:             {e:.4} nT rms");
+    }
+    println!(
+        "  not computed when streamed: {} (--stream never computes them)",
+        s.not_computed.join(", ")
+    );
+}

@@ -290,6 +290,23 @@ pub fn with_model<R>(spec: &ModelSpec, f: impl FnOnce(Model<'_>) -> R) -> R {
     })
 }
 
+/// [`with_model`] for several models at once (one filter per sensor, all alive together).
+pub fn with_models<R>(specs: &[&ModelSpec], f: impl FnOnce(Vec<Model<'_>>) -> R) -> R {
+    let terms: Vec<Vec<AnyTerm>> = specs.iter().map(|s| s.build_terms()).collect();
+    let refs: Vec<Vec<&dyn Term>> = terms
+        .iter()
+        .map(|t| t.iter().map(|t| t as &dyn Term).collect())
+        .collect();
+    f(specs
+        .iter()
+        .zip(&refs)
+        .map(|(s, r)| Model {
+            field: s.field,
+            terms: r,
+        })
+        .collect())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

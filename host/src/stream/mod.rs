@@ -16,10 +16,14 @@
 //! `rate`, a coefficient file without σ1; [`unstreamable`] says which, and
 //! `compensate` then reads the flight into memory. The summary's band-passed figures
 //! (residual, IR, FOM) and the applied-coefficient checks are computed in memory only; a
-//! streamed run says so.
+//! streamed run says so. Several sensors share the three passes, one filter each
+//! ([`several`]).
 mod apply;
 pub mod decimate;
+mod igrf;
 pub mod rows;
+pub mod several;
+mod stage;
 pub mod stats;
 
 use crate::calibration::coefficients::{CoefficientFile, Method};
@@ -31,6 +35,7 @@ use crate::io::trace::{ColumnMap, ReadOptions};
 use crate::model::spec::ModelSpec;
 use anyhow::{bail, Context, Result};
 use magcomp_core::model::TermKind;
+pub use rows::SensorColumns;
 use rows::{row_sample, Cols, RowFilter};
 use serde::Serialize;
 use stats::{DateScan, DateSource, FirstPass, SecondPass};
@@ -131,10 +136,52 @@ pub(crate) struct Plan {
     pub offsets: Vec<f64>,
     pub assumed_speed_mps: Option<f64>,
     pub noise_nt: f64,
-    pub igrf: Option<(DateSource, apply::GapFill)>,
+    pub igrf: Option<(DateSource, igrf::GapFill)>,
     /// The coefficient file's fluxgate calibration, applied to every fluxgate vector before
     /// the compensator (as `kf::run_kf_estimator` does in memory).
     pub fluxgate_calibration: Option<crate::estimate::fluxcal::FluxgateCalibration>,
+}
+
+/// One sensor of a streamed run: the columns it is read from and its coefficients;
+/// `name` (several sensors) prefixes its errors and names it in its warnings.
+pub struct SensorRun<'a> {
+    pub name: Option<String>,
+    pub columns: SensorColumns,
+    pub coeffs: &'a CoefficientFile,
+}
+
+/// What passes 1 and 2 settle for one sensor.
+pub(crate) struct Prepared {
+    pub plan: Plan,
+    pub spec: Option<ModelSpec>,
+    pub warnings: Vec<String>,
+    /// Why the predicted error is withheld.
+    withheld: Option<String>,
+    position_faults: stats::Listed<crate::flight::position::PositionFault>,
+}
+
+/// The file and the selection a streamed run reads, parsed once.
+pub(crate) struct Opened {
+    map: ColumnMap,
+    sel: Selection,
+}
+
+impl Opened {
+    pub fn new(input: &StreamInput<'_>) -> Result<Self> {
+        let map = match input.map {
+            Some(m) => ColumnMap::parse(m)?,
+            None => ColumnMap::new(),
+        };
+        let sel = Selection::parse(input.lines, input.time)?;
+        Ok(Self { map, sel })
+    }
+    pub fn source<'a>(&'a self, path: &'a Path) -> apply::Source<'a> {
+        apply::Source {
+            path,
+            map: &self.map,
+            sel: &self.sel,
+        }
+    }
 }
 
 /// `compensate --coeffs` streamed: writes `out` and returns the summary. `quiet`: no
@@ -151,36 +198,148 @@ pub fn compensate(
     if let Some(why) = unstreamable(Some(coeffs), est, false) {
         bail!("this run cannot be streamed: {why} (use --stream never)");
     }
-    let map = match input.map {
-        Some(m) => ColumnMap::parse(m)?,
-        None => ColumnMap::new(),
+    let opened = Opened::new(input)?;
+    let source = opened.source(input.trace);
+    let one = SensorRun {
+        name: None,
+        columns: SensorColumns::canonical(),
+        coeffs,
     };
-    let sel = Selection::parse(input.lines, input.time)?;
-    let spec = match coeffs.method {
-        Method::Kf => Some(ModelSpec::parse(&coeffs.model)?),
-        Method::Tl => None,
-    };
-    let channels = spec.as_ref().map(|s| s.channels()).unwrap_or_default();
-    let relative = spec
-        .as_ref()
-        .map(|s| s.relative_channels())
-        .unwrap_or_default();
-    let path = input.trace;
-    let source = apply::Source {
-        path,
-        map: &map,
-        sel: &sel,
-    };
-    let mut warnings = Vec::new();
+    let mut prepared = prepare(&source, input.date, est, std::slice::from_ref(&one), quiet)?;
+    let p = prepared.pop().context("internal: no sensor prepared")?;
+    let result = apply::run(&source, &p.plan, est, coeffs, p.spec.as_ref(), out, quiet)?;
+    Ok(summary(p, result, coeffs, input.trace, None))
+}
 
-    let given_year = match input.date {
+/// The summary of one sensor's pass, its warnings said (glitches, positions: once, on
+/// stderr, as the in-memory path says them), `name` naming the sensor of several.
+pub(crate) fn summary(
+    p: Prepared,
+    result: apply::RunResult,
+    coeffs: &CoefficientFile,
+    path: &Path,
+    name: Option<&str>,
+) -> StreamSummary {
+    let label = match name {
+        Some(n) => format!("{} ({n})", path.display()),
+        None => path.display().to_string(),
+    };
+    let mut warnings = p.warnings;
+    if let Some(w) = stats::glitch_warning(&label, &result.glitches) {
+        crate::flight::position::warn_once(&w);
+    }
+    if let Some(w) = stats::flux_glitch_warning(&label, &result.flux_glitches) {
+        crate::flight::position::warn_once(&w);
+    }
+    // The positions are the same for every sensor: said once, naming none.
+    if let Some(w) = stats::faults_warning(&path.display().to_string(), &p.position_faults) {
+        crate::flight::position::warn_once(&w);
+    }
+    if let Some(w) = result.gaps_warning() {
+        warnings.push(w);
+    }
+    warnings.extend(p.withheld.iter().map(|why| {
+        format!("{why}: improvement ratio, FOM and predicted error are withheld (null)")
+    }));
+    StreamSummary {
+        model: result.model,
+        method: coeffs.method,
+        samples: p.plan.rows,
+        streamed: true,
+        error_rms_nt: result.error_rms_nt,
+        predicted_error_nt: result.predicted_error_nt.filter(|_| p.withheld.is_none()),
+        sample_rate_hz: p.plan.sample_rate_hz,
+        noise_nt: p.spec.as_ref().map(|_| p.plan.noise_nt),
+        not_computed: NOT_COMPUTED_STREAMED.map(String::from).to_vec(),
+        warnings,
+        decimated: None,
+    }
+}
+
+/// Passes 1 and 2 over `source` for every sensor at once: each sensor's flight figures,
+/// checks and noise, the core field (the same for all) decided once.
+pub(crate) fn prepare(
+    source: &apply::Source<'_>,
+    date: Option<&str>,
+    est: &EstimatorSettings,
+    sensors: &[SensorRun<'_>],
+    quiet: bool,
+) -> Result<Vec<Prepared>> {
+    if sensors.is_empty() {
+        bail!("no sensor to compensate");
+    }
+    let given_year = match date {
         Some(d) => {
             let (y, doy) = crate::flight::igrf::parse_date(d).context("--date")?;
             Some(crate::flight::igrf::decimal_year(y, doy, 0.0))
         }
         None => None,
     };
-    let p1 = first_pass(&source, &channels, quiet)?;
+    let specs = sensors
+        .iter()
+        .map(|s| match s.coeffs.method {
+            Method::Kf => ModelSpec::parse(&s.coeffs.model).map(Some),
+            Method::Tl => Ok(None),
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let channels: Vec<Vec<String>> = specs
+        .iter()
+        .map(|s| s.as_ref().map(|s| s.channels()).unwrap_or_default())
+        .collect();
+    let wanted: Vec<(&SensorColumns, &[String])> = sensors
+        .iter()
+        .zip(&channels)
+        .map(|(s, c)| (&s.columns, c.as_slice()))
+        .collect();
+    let p1s = first_pass(source, &wanted, quiet)?;
+    let named = |s: &SensorRun, e: anyhow::Error| match &s.name {
+        Some(n) => e.context(format!("{n} with its coefficients")),
+        None => e,
+    };
+    let mut checked = Vec::new();
+    for (s, p1) in sensors.iter().zip(&p1s) {
+        let mut warnings = Vec::new();
+        let c =
+            check_first(p1, &channels[checked.len()], &mut warnings).map_err(|e| named(s, e))?;
+        checked.push((c, warnings));
+    }
+    let first0 = p1s.first().context("internal: no sensor")?;
+    let core = choose_core(first0, given_year)?;
+    let median_dt = checked[0].0 .1;
+    let need_noise: Vec<bool> = specs
+        .iter()
+        .map(|s| s.is_some() && est.noise_nt.is_none())
+        .collect();
+    let cols: Vec<&Cols> = p1s.iter().map(|p| &p.cols).collect();
+    let (seconds, igrf_scan) = second_pass(source, &cols, &core, &need_noise, median_dt, quiet)?;
+    let igrf = core_field(&core, &igrf_scan);
+    let core_meta = core_meta(&core, &igrf_scan);
+    let tie_point = first0.first.tie_point(&first0.head.meta);
+    let mut out = Vec::new();
+    let parts = sensors.iter().zip(p1s).zip(specs).zip(seconds);
+    for ((((s, p1), spec), second), ((withheld, median_dt), warnings)) in parts.zip(checked) {
+        let settled = Settled {
+            spec,
+            withheld,
+            median_dt,
+            noise_from_scalar: second.noise_nt(),
+            igrf: igrf.clone(),
+            core_meta: core_meta.clone(),
+            tie_point,
+            warnings,
+        };
+        out.push(plan_of(s, p1, settled, est).map_err(|e| named(s, e))?);
+    }
+    Ok(out)
+}
+
+/// Pass 1's checks for one sensor: rows, channels, the input checks; returns why figures
+/// are withheld and the median time step.
+fn check_first(
+    p1: &FirstPassOut,
+    channels: &[String],
+    warnings: &mut Vec<String>,
+) -> Result<(Option<String>, f64)> {
     let first = &p1.first;
     let n = first.rows;
     if channels.len() > magcomp_core::MAX_AUX {
@@ -193,21 +352,48 @@ pub fn compensate(
         bail!("the trace has {n} rows; at least 3 are needed");
     }
     let median_dt = first.dt.median().context("no time step")?;
-    let sample_rate_hz = 1.0 / median_dt;
-    let withheld = input_checks(first, n, sample_rate_hz, &mut warnings)?;
-    let core = choose_core(&p1, given_year)?;
+    let withheld = input_checks(first, n, 1.0 / median_dt, warnings)?;
+    Ok((withheld, median_dt))
+}
 
-    let need_noise = spec.is_some() && est.noise_nt.is_none();
-    let (second, igrf_scan) = second_pass(&source, &p1.cols, &core, need_noise, median_dt, quiet)?;
+/// What passes 1 and 2 settled for one sensor besides its first pass.
+struct Settled {
+    spec: Option<ModelSpec>,
+    withheld: Option<String>,
+    median_dt: f64,
+    noise_from_scalar: Option<f64>,
+    igrf: Option<(DateSource, igrf::GapFill)>,
+    core_meta: Vec<(String, String)>,
+    tie_point: Option<magcomp_core::compensator::TiePoint>,
+    warnings: Vec<String>,
+}
+
+/// One sensor's [`Plan`] for the compensation pass.
+fn plan_of(
+    s: &SensorRun<'_>,
+    p1: FirstPassOut,
+    settled: Settled,
+    est: &EstimatorSettings,
+) -> Result<Prepared> {
+    let Settled {
+        spec,
+        withheld,
+        median_dt,
+        noise_from_scalar,
+        igrf,
+        core_meta,
+        tie_point,
+        mut warnings,
+    } = settled;
+    let coeffs = s.coeffs;
     let noise_nt = match est.noise_nt {
         Some(v) => v,
         None => {
-            let sensor = second.noise_nt().unwrap_or(0.02);
+            let sensor = noise_from_scalar.unwrap_or(0.02);
             (sensor * sensor + 0.005f64.powi(2)).sqrt()
         }
     };
-    let igrf = core_field(&core, &igrf_scan);
-
+    let first = &p1.first;
     let mut assumed_speed_mps = None;
     if let Some(spec) = &spec {
         if spec.field && !(first.has_position || first.has_speed) {
@@ -217,6 +403,10 @@ pub fn compensate(
             warnings.push(warning);
         }
     }
+    let (channels, relative) = match &spec {
+        Some(s) => (s.channels(), s.relative_channels()),
+        None => Default::default(),
+    };
     let offsets = channels
         .iter()
         .zip(&first.channel_offsets)
@@ -231,14 +421,14 @@ pub fn compensate(
     let FirstPassOut {
         cols, head, first, ..
     } = p1;
-    let plan = Plan {
-        tie_point: first.tie_point(&head.meta),
+    let mut plan = Plan {
+        tie_point,
         earth_dir_ned: first.field_dir.finish(),
         base0: first.base0,
         cols,
         head,
-        rows: n,
-        sample_rate_hz,
+        rows: first.rows,
+        sample_rate_hz: 1.0 / median_dt,
         gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt,
         offsets,
         assumed_speed_mps,
@@ -249,34 +439,14 @@ pub fn compensate(
             Method::Tl => None,
         },
     };
-    let result = apply::run(&source, &plan, est, coeffs, spec.as_ref(), out, quiet)?;
-    if let Some(w) = stats::glitch_warning(path, &result.glitches) {
-        crate::flight::position::warn_once(&w);
-    }
-    if let Some(w) = stats::flux_glitch_warning(path, &result.flux_glitches) {
-        crate::flight::position::warn_once(&w);
-    }
-    if let Some(w) = stats::faults_warning(path, &first.position_faults) {
-        crate::flight::position::warn_once(&w);
-    }
-    if let Some(w) = result.gaps_warning() {
-        warnings.push(w);
-    }
-    warnings.extend(withheld.iter().map(|why| {
-        format!("{why}: improvement ratio, FOM and predicted error are withheld (null)")
-    }));
-    Ok(StreamSummary {
-        model: result.model,
-        method: coeffs.method,
-        samples: n,
-        streamed: true,
-        error_rms_nt: result.error_rms_nt,
-        predicted_error_nt: result.predicted_error_nt.filter(|_| withheld.is_none()),
-        sample_rate_hz,
-        noise_nt: spec.as_ref().map(|_| noise_nt),
-        not_computed: NOT_COMPUTED_STREAMED.map(String::from).to_vec(),
+    // The file's metadata as `input::prepare` leaves it: where the core field came from.
+    plan.head.meta.extend(core_meta);
+    Ok(Prepared {
+        plan,
+        spec,
         warnings,
-        decimated: None,
+        withheld,
+        position_faults: first.position_faults,
     })
 }
 
@@ -290,8 +460,8 @@ const NOT_COMPUTED_STREAMED: [&str; 6] = [
     "applied-coefficient checks",
 ];
 
-/// What pass 1 learns: the columns, the file's header, the flight figures, and the dates
-/// its date columns give.
+/// What pass 1 learns of one sensor: the columns, the file's header, the flight figures,
+/// and the dates its date columns give.
 struct FirstPassOut {
     cols: Cols,
     head: crate::io::trace::rows::RowsHeader,
@@ -300,56 +470,72 @@ struct FirstPassOut {
     doy_scans: Vec<DateScan>,
 }
 
-/// Pass 1: resolves the columns on the first row, then gathers the flight figures
-/// ([`FirstPass`]) and scans the date columns over the selected rows.
+/// Pass 1: resolves each sensor's columns (`wanted`: its columns and model channels) on
+/// the first row, then gathers each one's flight figures ([`FirstPass`]) and scans the
+/// date columns over the selected rows.
 fn first_pass(
     source: &apply::Source<'_>,
-    channels: &[String],
+    wanted: &[(&SensorColumns, &[String])],
     quiet: bool,
-) -> Result<FirstPassOut> {
+) -> Result<Vec<FirstPassOut>> {
     let path = source.path;
-    let mut cols: Option<Cols> = None;
+    let mut cols: Vec<Cols> = Vec::new();
     let mut filter = RowFilter::new(source.sel.clone());
-    let mut first = FirstPass::new(channels.len());
+    let mut firsts: Vec<FirstPass> = wanted
+        .iter()
+        .map(|(_, c)| FirstPass::new(c.len()))
+        .collect();
+    // One track for every sensor: its tie point is looked for once ([`prepare`]).
+    for f in firsts.iter_mut().skip(1) {
+        f.finds_tie = false;
+    }
     let mut date_col = DateScan::default();
     let mut doy_scans: Vec<DateScan> = Vec::new();
     let mut progress = Progress::new("pass 1/3 (flight figures)", quiet);
     let head = for_each_row(path, source.map, ReadOptions::default(), |row| {
-        let c = match &mut cols {
-            Some(c) => c,
-            None => {
-                let c = Cols::resolve(row.names, channels)?;
-                doy_scans = vec![DateScan::default(); c.year_doy.len()];
-                cols.insert(c)
+        if cols.is_empty() {
+            for (sensor, channels) in wanted {
+                cols.push(Cols::resolve_sensor(row.names, channels, sensor)?);
             }
-        };
-        if !filter.keep(row, c)? {
+            doy_scans = vec![DateScan::default(); cols[0].year_doy.len()];
+        }
+        let c0 = &cols[0];
+        if !filter.keep(row, c0)? {
             return Ok(());
         }
         progress.tick();
-        let k = first.rows;
-        let mut rs = row_sample(row, c, None, &[]);
-        first.push(&mut rs);
-        if let Some(d) = c.date {
+        let k = firsts[0].rows;
+        for (c, first) in cols.iter().zip(&mut firsts) {
+            let mut rs = row_sample(row, c, None, &[]);
+            first.push(&mut rs);
+        }
+        // The date columns are the same for every sensor: scanned once.
+        if let Some(d) = c0.date {
             scan_year(&mut date_col, stats::year_of_date(row.text(d), k));
         }
-        for ((y, d, names), scan) in c.year_doy.iter().zip(&mut doy_scans) {
+        for ((y, d, names), scan) in c0.year_doy.iter().zip(&mut doy_scans) {
             scan_year(scan, stats::year_of_doy(row.num(*y), row.num(*d), names, k));
         }
         Ok(())
     })
     .with_context(|| format!("reading {}", path.display()))?;
     progress.done();
-    let mut cols = cols.with_context(|| format!("{}: no data rows", path.display()))?;
-    filter.finish(&head, &cols)?;
-    cols.check_kinds(&head, channels)?;
-    Ok(FirstPassOut {
-        cols,
-        head,
-        first,
-        date_col,
-        doy_scans,
-    })
+    if cols.is_empty() {
+        bail!("{}: no data rows", path.display());
+    }
+    filter.finish(&head, &cols[0])?;
+    let mut out = Vec::new();
+    for ((mut c, first), (_, channels)) in cols.into_iter().zip(firsts).zip(wanted) {
+        c.check_kinds(&head, channels)?;
+        out.push(FirstPassOut {
+            cols: c,
+            head: head.clone(),
+            first,
+            date_col: date_col.clone(),
+            doy_scans: doy_scans.clone(),
+        });
+    }
+    Ok(out)
 }
 
 /// The core field, as `input::prepare` decides it: the file's `igrf`, else computed for
@@ -387,20 +573,24 @@ fn choose_core(p1: &FirstPassOut, given_year: Option<f64>) -> Result<Core> {
     Ok(Core::Missing)
 }
 
-/// Pass 2 (only when needed): the scalar's noise (KF without --noise-nt) and the core
-/// field's gaps and range.
+/// Pass 2 (only when needed): each sensor's scalar noise (KF without --noise-nt, as
+/// `need_noise` says) and the core field's gaps and range (the same for every sensor).
 fn second_pass(
     source: &apply::Source<'_>,
-    cols: &Cols,
+    cols: &[&Cols],
     core: &Core,
-    need_noise: bool,
+    need_noise: &[bool],
     median_dt: f64,
     quiet: bool,
-) -> Result<(SecondPass, apply::IgrfScan)> {
+) -> Result<(Vec<SecondPass>, igrf::IgrfScan)> {
     let need_igrf = matches!(core, Core::Computed(..) | Core::Missing);
-    let mut second = SecondPass::new(1.0 / median_dt, median_dt);
-    let mut igrf_scan = apply::IgrfScan::default();
-    if need_noise || need_igrf {
+    let mut seconds: Vec<SecondPass> = cols
+        .iter()
+        .map(|_| SecondPass::new(1.0 / median_dt, median_dt))
+        .collect();
+    let mut igrf_scan = igrf::IgrfScan::default();
+    if need_noise.iter().any(|&n| n) || need_igrf {
+        let c0 = cols.first().context("internal: no sensor")?;
         let mut filter = RowFilter::new(source.sel.clone());
         let mut progress = Progress::new("pass 2/3 (noise, core field)", quiet);
         let mut k = 0usize;
@@ -409,34 +599,41 @@ fn second_pass(
             _ => None,
         };
         for_each_row(source.path, source.map, ReadOptions::default(), |row| {
-            if !filter.keep(row, cols)? {
+            if !filter.keep(row, c0)? {
                 return Ok(());
             }
             progress.tick();
-            if need_noise {
-                let flux = cols.flux.map(|i| row.num(i) as f32);
-                second.push(k, row.line, row.num(cols.t), row.num(cols.mag), flux);
+            for ((c, second), _) in cols
+                .iter()
+                .zip(&mut seconds)
+                .zip(need_noise)
+                .filter(|(_, &n)| n)
+            {
+                let flux = c.flux.map(|i| row.num(i) as f32);
+                second.push(k, row.line, row.num(c.t), row.num(c.mag), flux);
             }
             if need_igrf {
                 let year = match &date {
-                    Some(s) => apply::row_year(s, row, k)?,
+                    Some(s) => igrf::row_year(s, row, k)?,
                     None => 2025.0,
                 };
-                igrf_scan.push(k, year, cols, row)?;
+                igrf_scan.push(k, year, c0, row)?;
             }
             k += 1;
             Ok(())
         })
         .with_context(|| format!("reading {}", source.path.display()))?;
-        second.finish();
+        for second in &mut seconds {
+            second.finish();
+        }
         progress.done();
     }
-    Ok((second, igrf_scan))
+    Ok((seconds, igrf_scan))
 }
 
 /// What the compensation pass computes the core field from (`None`: the file's, or none),
 /// with the note `input::prepare` prints.
-fn core_field(core: &Core, igrf_scan: &apply::IgrfScan) -> Option<(DateSource, apply::GapFill)> {
+fn core_field(core: &Core, igrf_scan: &igrf::IgrfScan) -> Option<(DateSource, igrf::GapFill)> {
     match core {
         Core::Computed(source, label) => {
             let (y0, y1) = igrf_scan.years;
@@ -461,6 +658,25 @@ fn core_field(core: &Core, igrf_scan: &apply::IgrfScan) -> Option<(DateSource, a
             None
         }
         Core::NoPosition | Core::FromFile => None,
+    }
+}
+
+/// The metadata `input::prepare` adds to the trace: where the core field came from.
+fn core_meta(core: &Core, igrf_scan: &igrf::IgrfScan) -> Vec<(String, String)> {
+    use crate::flight::input::{META_CORE_FIELD, META_CORE_FIELD_EPOCH};
+    match core {
+        Core::FromFile => vec![(META_CORE_FIELD.into(), "igrf column of the file".into())],
+        Core::Computed(_, label) => vec![
+            (
+                META_CORE_FIELD.into(),
+                format!("{} ({label})", crate::flight::igrf::MODEL_NAME),
+            ),
+            (
+                META_CORE_FIELD_EPOCH.into(),
+                format!("{:.3}", igrf_scan.years.0),
+            ),
+        ],
+        Core::Missing | Core::NoPosition => Vec::new(),
     }
 }
 

@@ -26,10 +26,42 @@ pub struct Cols {
     pub line: Option<usize>,
 }
 
+/// The columns one sensor is read from: `mag`, `flux_x/y/z` and `truth_interference` for
+/// a one-sensor run; `mag_K`, its fluxgate and `truth_interference_mag_K` (else the shared
+/// one) for each of several (as `multi::sensors::sensor_trace` gives them to the
+/// in-memory path).
+#[derive(Clone, Debug)]
+pub struct SensorColumns {
+    pub scalar: String,
+    pub flux: [String; 3],
+    /// The simulated truth: the first of these the trace has.
+    pub truth: Vec<String>,
+}
+
+impl SensorColumns {
+    /// One sensor: the canonical columns.
+    pub fn canonical() -> Self {
+        Self {
+            scalar: "mag".into(),
+            flux: ["flux_x", "flux_y", "flux_z"].map(String::from),
+            truth: vec!["truth_interference".into()],
+        }
+    }
+}
+
 impl Cols {
     /// From the header of the first row; required columns must be present (their kind is
     /// checked after the first pass, [`Cols::check_kinds`]).
     pub fn resolve(names: &[String], channels: &[String]) -> Result<Self> {
+        Self::resolve_sensor(names, channels, &SensorColumns::canonical())
+    }
+
+    /// [`Cols::resolve`] for the sensor read from `sensor`'s columns.
+    pub fn resolve_sensor(
+        names: &[String],
+        channels: &[String],
+        sensor: &SensorColumns,
+    ) -> Result<Self> {
         let find = |n: &str| names.iter().position(|c| c == n);
         let need = |n: &str| -> Result<usize> {
             find(n).ok_or_else(|| {
@@ -46,8 +78,12 @@ impl Cols {
         }
         Ok(Cols {
             t: need("t")?,
-            mag: need("mag")?,
-            flux: [need("flux_x")?, need("flux_y")?, need("flux_z")?],
+            mag: need(&sensor.scalar)?,
+            flux: [
+                need(&sensor.flux[0])?,
+                need(&sensor.flux[1])?,
+                need(&sensor.flux[2])?,
+            ],
             lat: find("lat"),
             lon: find("lon"),
             alt: find("alt"),
@@ -60,7 +96,7 @@ impl Cols {
                 _ => None,
             },
             channels: channel_idx,
-            truth_interference: find("truth_interference"),
+            truth_interference: sensor.truth.iter().find_map(|n| find(n)),
             date: find("date"),
             year_doy: [("year", "doy"), ("YEAR", "DOY")]
                 .iter()

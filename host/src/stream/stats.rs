@@ -292,6 +292,9 @@ pub struct FirstPass {
     pub tie: TieDetector,
     pub field_dir: FieldDirection,
     pub prev_t: Option<f64>,
+    /// Whether this pass looks for the tie point (its cells grow with the ground covered;
+    /// several sensors share one track, so only the first looks).
+    pub finds_tie: bool,
 }
 
 impl FirstPass {
@@ -300,6 +303,7 @@ impl FirstPass {
             mag_range: (f64::MAX, f64::MIN),
             flux_range: [(f64::MAX, f64::MIN); 3],
             channel_offsets: vec![None; channels],
+            finds_tie: true,
             ..Default::default()
         }
     }
@@ -349,7 +353,9 @@ impl FirstPass {
         if s.ground_speed_mps.is_finite() {
             self.has_speed = true;
         }
-        self.tie.push(s.t_s, s.lat_deg, s.lon_deg);
+        if self.finds_tie {
+            self.tie.push(s.t_s, s.lat_deg, s.lon_deg);
+        }
     }
 
     pub fn sample_rate_hz(&self) -> Option<f64> {
@@ -509,13 +515,13 @@ pub fn year_of_doy(y: f64, d: f64, names: &str, row: usize) -> Result<f64> {
 }
 
 /// `Flight::from_trace`'s glitch warning from the listed glitches.
-pub fn glitch_warning(path: &std::path::Path, g: &Listed<f64>) -> Option<String> {
+pub fn glitch_warning(label: &str, g: &Listed<f64>) -> Option<String> {
     if g.total == 0 {
         return None;
     }
     let mut msg = format!(
         "{}: {} scalar glitch(es) far outside their neighbours, taken as missing (samples flagged MAG_MISSING):",
-        path.display(),
+        label,
         g.total
     );
     for (line, v) in &g.first {
@@ -528,7 +534,7 @@ pub fn glitch_warning(path: &std::path::Path, g: &Listed<f64>) -> Option<String>
 }
 
 /// The stream's fluxgate-glitch warning (the in-memory path's words).
-pub fn flux_glitch_warning(path: &std::path::Path, g: &Listed<[f32; 3]>) -> Option<String> {
+pub fn flux_glitch_warning(label: &str, g: &Listed<[f32; 3]>) -> Option<String> {
     if g.total == 0 {
         return None;
     }
@@ -536,8 +542,7 @@ pub fn flux_glitch_warning(path: &std::path::Path, g: &Listed<[f32; 3]>) -> Opti
         "{}: {} fluxgate sample(s) inconsistent with their neighbours or with the scalar \
          (|B_F| − mag), taken as missing (samples flagged MAG_MISSING, vector bridged from \
          the neighbours):",
-        path.display(),
-        g.total
+        label, g.total
     );
     for (line, v) in &g.first {
         msg.push_str(&format!(
@@ -552,14 +557,13 @@ pub fn flux_glitch_warning(path: &std::path::Path, g: &Listed<[f32; 3]>) -> Opti
 }
 
 /// `position::faults_warning` from the listed faults.
-pub fn faults_warning(path: &std::path::Path, f: &Listed<PositionFault>) -> Option<String> {
+pub fn faults_warning(label: &str, f: &Listed<PositionFault>) -> Option<String> {
     if f.total == 0 {
         return None;
     }
     let mut msg = format!(
         "{}: {} unusable position(s), treated as missing (samples flagged NO_GPS):",
-        path.display(),
-        f.total
+        label, f.total
     );
     for (line, v) in &f.first {
         msg.push_str(&format!("\n  line {line}: {v}"));

@@ -37,7 +37,7 @@ pub use read::{
     Layout, ReadOptions,
 };
 pub use view::{aux_column_candidate, column_kind, required_columns, ColumnKind};
-pub use write::{write_table, write_table_with, write_trace, write_trace_to};
+pub use write::{write_number, write_table, write_table_with, write_trace, write_trace_to};
 pub use xyz_out::{is_xyz_path, XyzWriter};
 
 /// A trace held column-wise in memory. Numeric columns are f64 with NaN for missing values;

@@ -308,6 +308,10 @@ pub(super) trait Sink {
     fn field(&mut self, line: u64, i: usize, text: &str) -> Result<(), TraceError>;
     fn end_row(&mut self, line: u64, found: usize) -> Result<(), TraceError>;
     fn columns(&self) -> usize;
+    /// Whether the sink has read all it wants (a header read stops at the first row).
+    fn done(&self) -> bool {
+        false
+    }
 }
 
 impl Sink for Reader<'_> {
@@ -486,6 +490,9 @@ pub(super) fn scan<R: Read>(
     };
     while let Some((line_no, raw)) = lines.next_line(&mut opts.progress, total_bytes)? {
         scan.line(line_no, raw, rd)?;
+        if rd.done() {
+            break;
+        }
     }
     if let Some(p) = opts.progress.as_mut() {
         p(lines.bytes, total_bytes);

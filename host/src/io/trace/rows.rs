@@ -73,6 +73,8 @@ struct RowSink<'m, F> {
     on_row: F,
     /// The callback's own error (the scanner only carries `TraceError`s).
     failure: Option<anyhow::Error>,
+    /// Stop after the first data row ([`read_head`]).
+    head_only: bool,
 }
 
 impl<F: FnMut(&Row) -> anyhow::Result<()>> Sink for RowSink<'_, F> {
@@ -160,6 +162,10 @@ impl<F: FnMut(&Row) -> anyhow::Result<()>> Sink for RowSink<'_, F> {
     fn columns(&self) -> usize {
         self.head.names.len()
     }
+
+    fn done(&self) -> bool {
+        self.head_only && self.head.rows > 0
+    }
 }
 
 /// Reads `path` row by row (layout, time check and progress as `opts` say), calling
@@ -183,6 +189,7 @@ pub fn for_each_row(
         prev_t: f64::NEG_INFINITY,
         on_row,
         failure: None,
+        head_only: false,
     };
     match scan(file, &name, opts, total, &mut sink) {
         Ok(meta) => {
@@ -190,5 +197,48 @@ pub fn for_each_row(
             Ok(sink.head)
         }
         Err(e) => Err(sink.failure.take().unwrap_or_else(|| e.into())),
+    }
+}
+
+/// The file's header as far as its first data row: the column names, their kinds so far
+/// (a column still missing on that row is `Pending`) and the metadata above it. What a
+/// streamed run needs to resolve its sensors before the first pass.
+pub fn read_head(path: &Path, map: &ColumnMap) -> anyhow::Result<RowsHeader> {
+    let mut opts = ReadOptions::default();
+    let (file, name, total) = open(path, &mut opts)?;
+    let mut sink = RowSink {
+        file: name.clone(),
+        map,
+        check_time: false,
+        head: RowsHeader::default(),
+        nums: Vec::new(),
+        texts: Vec::new(),
+        t_idx: None,
+        prev_t: f64::NEG_INFINITY,
+        on_row: |_: &Row| Ok(()),
+        failure: None,
+        head_only: true,
+    };
+    let meta = scan(file, &name, opts, total, &mut sink)?;
+    sink.head.meta = meta;
+    Ok(sink.head)
+}
+
+impl RowsHeader {
+    /// A trace of no rows with these columns (text ones as text) and metadata: enough to
+    /// resolve names and positions against (`multi::sensors`).
+    pub fn empty_trace(&self) -> super::Trace {
+        let mut t = super::Trace {
+            meta: self.meta.clone(),
+            ..Default::default()
+        };
+        for (n, k) in self.names.iter().zip(&self.kinds) {
+            if *k == Kind::Text {
+                t.text.push((n.clone(), Vec::new()));
+            } else {
+                t.numeric.push((n.clone(), Vec::new()));
+            }
+        }
+        t
     }
 }

@@ -102,17 +102,8 @@ pub fn write_trace_to<W: Write>(mut w: W, trace: &Trace) -> Result<(), TraceErro
                 }
                 first = false;
                 let v = col[row];
-                // Infinities are not data the reader accepts; write them as missing.
                 if v.is_finite() {
-                    // zmij gives the same shortest round-trip digits ~3x faster than
-                    // Display, but switches to exponent form for very large/small
-                    // magnitudes; those (rare in traces) go through Display, which never does.
-                    let s = fast.format_finite(v);
-                    if s.contains(['e', 'E']) {
-                        write!(w, "{v}")?;
-                    } else {
-                        w.write_all(s.as_bytes())?;
-                    }
+                    write_number(&mut w, &mut fast, v)?;
                 } else if lone_column {
                     // An empty line would be skipped as blank: spell the missing value.
                     w.write_all(b"nan")?;
@@ -130,6 +121,27 @@ pub fn write_trace_to<W: Write>(mut w: W, trace: &Trace) -> Result<(), TraceErro
         Ok(())
     })()
     .map_err(io)
+}
+
+/// A finite number as [`write_trace_to`] writes it (a streamed table's rows match it);
+/// infinities are not data the reader accepts: written as missing (nothing).
+pub fn write_number(
+    w: &mut (impl Write + ?Sized),
+    fast: &mut zmij::Buffer,
+    v: f64,
+) -> std::io::Result<()> {
+    if !v.is_finite() {
+        return Ok(());
+    }
+    // zmij gives the same shortest round-trip digits ~3x faster than Display, but
+    // switches to exponent form for very large/small magnitudes; those (rare in traces)
+    // go through Display, which never does.
+    let s = fast.format_finite(v);
+    if s.contains(['e', 'E']) {
+        write!(w, "{v}")
+    } else {
+        w.write_all(s.as_bytes())
+    }
 }
 
 /// Writes a table to `path` atomically: `f` writes CSV, which a `.xyz` path receives

@@ -1,0 +1,472 @@
+//! The compensation pass for one sensor, a row at a time: [`Feeder`] turns each selected
+//! row into a checked, despiked [`Pending`] sample, [`KfStage`] runs the core filter on
+//! them and hands back each row with its outputs. Both are pushed rows rather than reading
+//! the file themselves, so one read of the file can drive one of each per sensor
+//! (`super::several`) as well as the one-sensor run (`super::apply`).
+use super::igrf::IgrfScan;
+use super::rows::row_sample;
+use super::stats::{Despiker, FluxDespiker, Listed};
+use super::Plan;
+use crate::calibration::coefficients::CoefficientFile;
+use crate::calibration::EstimatorSettings;
+use crate::estimate::kf::{filter, HostCompensator, KfOptions};
+use crate::flight::position::PositionChecker;
+use crate::io::trace::rows::Row;
+use crate::model::spec::ModelSpec;
+use anyhow::{Context, Result};
+use magcomp_core::compensator::Output;
+use magcomp_core::model::Model;
+use magcomp_core::Flags;
+use std::collections::{BTreeSet, VecDeque};
+
+/// A row on its way through the windows.
+pub(crate) struct Pending {
+    pub row: usize,
+    pub sample: magcomp_core::AlignedSample,
+    /// The scalar as the compensation sees it (NaN once found a glitch).
+    pub mag_nt: f64,
+    /// The scalar as read (the several-sensor output's `mag_K` column).
+    pub mag_read_nt: f64,
+    pub truth_nt: f64,
+    /// First row after a time gap.
+    pub after_gap: bool,
+    pub carried_num: Vec<f64>,
+    pub carried_text: Vec<String>,
+}
+
+/// What a [`Feeder`] found on the way: glitches, the first time gaps and their count.
+pub(crate) struct Found {
+    pub glitches: Listed<f64>,
+    pub flux_glitches: Listed<[f32; 3]>,
+    pub gaps: Vec<(usize, f64, f64)>,
+    pub gap_count: usize,
+    /// Rows fed.
+    pub rows: usize,
+}
+
+/// A fluxgate row found bad in the stream: its scalar is taken as missing (nothing is learnt
+/// from it) and its vector bridged from the last good row before and the first row after
+/// (still in the queue), as the in-memory path does (`flight::bridge_flux_glitches`).
+#[derive(Default)]
+struct FluxGlitches {
+    listed: Listed<[f32; 3]>,
+    /// Time and vector of the last row passed on with a good vector.
+    last_good: Option<(f64, [f32; 3])>,
+}
+
+impl FluxGlitches {
+    fn take_out(&mut self, p: &mut Pending, line: u64, queue: &VecDeque<(Pending, u64)>) {
+        self.listed.push(line, p.sample.flux_nt);
+        p.mag_nt = f64::NAN;
+        p.sample.mag = None;
+        let good = |f: &[f32; 3]| f.iter().all(|v| v.is_finite());
+        let after = queue
+            .iter()
+            .map(|(q, _)| (q.sample.t_s, q.sample.flux_nt))
+            .find(|(_, f)| good(f));
+        let t = p.sample.t_s;
+        p.sample.flux_nt = match (self.last_good, after) {
+            (Some((ta, a)), Some((tb, b))) if tb > ta => {
+                let w = ((t - ta) / (tb - ta)) as f32;
+                std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
+            }
+            (Some((_, a)), _) => a,
+            (None, Some((_, b))) => b,
+            (None, None) => [f32::NAN; 3],
+        };
+    }
+
+    fn passed(&mut self, p: &Pending, bridged: bool) {
+        if !bridged && p.sample.flux_nt.iter().all(|v| v.is_finite()) {
+            self.last_good = Some((p.sample.t_s, p.sample.flux_nt));
+        }
+    }
+}
+
+/// Each selected row, checked, despiked and with its core field, handed on in order once
+/// the despikers' windows have judged it.
+pub(crate) struct Feeder<'p> {
+    plan: &'p Plan,
+    /// Input columns carried to the output: numeric, text.
+    nums: Vec<usize>,
+    texts: Vec<usize>,
+    positions: PositionChecker,
+    despiker: Despiker,
+    flux_despiker: FluxDespiker,
+    waiting: VecDeque<(Pending, u64)>,
+    glitches: Listed<f64>,
+    flux_glitches: FluxGlitches,
+    gaps: Vec<(usize, f64, f64)>,
+    gap_count: usize,
+    prev_t: Option<f64>,
+    k: usize,
+}
+
+impl<'p> Feeder<'p> {
+    pub fn new(plan: &'p Plan, nums: Vec<usize>, texts: Vec<usize>) -> Self {
+        Self {
+            plan,
+            nums,
+            texts,
+            positions: PositionChecker::default(),
+            despiker: Despiker::new(plan.sample_rate_hz),
+            flux_despiker: FluxDespiker::new(plan.sample_rate_hz),
+            waiting: VecDeque::new(),
+            glitches: Listed::default(),
+            flux_glitches: FluxGlitches::default(),
+            gaps: Vec::new(),
+            gap_count: 0,
+            prev_t: None,
+            k: 0,
+        }
+    }
+
+    /// A selected row; `sink` gets the rows judged by now.
+    pub fn push(&mut self, row: &Row, sink: &mut dyn FnMut(Pending) -> Result<()>) -> Result<()> {
+        let (plan, k) = (self.plan, self.k);
+        let cols = &plan.cols;
+        let mut rs = row_sample(row, cols, plan.base0, &plan.offsets);
+        // Judged as measured, as `Flight::from_trace` judges it (before its calibration).
+        let flux_judged = self.flux_despiker.push(k, rs.sample.flux_nt, rs.mag_nt);
+        if let Some(c) = &plan.fluxgate_calibration {
+            rs.sample.flux_nt = c.apply(rs.sample.flux_nt.map(f64::from)).map(|v| v as f32);
+        }
+        self.positions.check(&mut rs.sample, |_| {});
+        if let Some((source, fill)) = &plan.igrf {
+            let year = super::igrf::row_year(source, row, k)?;
+            let mut scan = IgrfScan::default();
+            let v = scan.value(year, cols, row)?;
+            rs.sample.igrf_nt = if v.is_finite() { v } else { fill.value(k) };
+        }
+        if let Some(v) = plan.assumed_speed_mps {
+            if !rs.sample.ground_speed_mps.is_finite() {
+                rs.sample.ground_speed_mps = v as f32;
+            }
+        }
+        let t = rs.sample.t_s;
+        let after_gap = self.prev_t.is_some_and(|t0| t - t0 > plan.gap_limit_s);
+        if after_gap {
+            let t0 = self.prev_t.unwrap_or(t);
+            if self.gaps.len() < 3 {
+                self.gaps.push((k, t - t0, t0));
+            }
+            self.gap_count += 1;
+        }
+        self.prev_t = Some(t);
+        let p = Pending {
+            row: k,
+            sample: rs.sample,
+            mag_nt: rs.mag_nt,
+            mag_read_nt: rs.mag_nt,
+            truth_nt: rs.truth_interference_nt,
+            after_gap,
+            carried_num: self.nums.iter().map(|&i| row.num(i)).collect(),
+            carried_text: self
+                .texts
+                .iter()
+                .map(|&i| row.text(i).to_string())
+                .collect(),
+        };
+        self.waiting.push_back((p, rs.line));
+        if let Some(j) = self.despiker.push(k, rs.mag_nt) {
+            let flux_glitch = flux_judged.is_some_and(|(_, g)| g);
+            self.judged(j, flux_glitch, sink)?;
+        }
+        self.k += 1;
+        Ok(())
+    }
+
+    /// The row at the queue's front, judged by both despikers.
+    fn judged(
+        &mut self,
+        (row, glitch): (usize, bool),
+        flux_glitch: bool,
+        sink: &mut dyn FnMut(Pending) -> Result<()>,
+    ) -> Result<()> {
+        let (mut p, line) = self
+            .waiting
+            .pop_front()
+            .context("internal: despiker order")?;
+        debug_assert_eq!(p.row, row);
+        if glitch {
+            self.glitches.push(line, p.mag_nt);
+            p.mag_nt = f64::NAN;
+            p.sample.mag = None;
+        } else if flux_glitch {
+            self.flux_glitches.take_out(&mut p, line, &self.waiting);
+        }
+        self.flux_glitches.passed(&p, flux_glitch && !glitch);
+        sink(p)
+    }
+
+    /// The end of the flight: the rows still in the windows, then what was found.
+    pub fn finish(mut self, sink: &mut dyn FnMut(Pending) -> Result<()>) -> Result<Found> {
+        let flux_rest = self.flux_despiker.finish();
+        for (j, (_, flux_glitch)) in self.despiker.finish().into_iter().zip(flux_rest) {
+            self.judged(j, flux_glitch, sink)?;
+        }
+        Ok(Found {
+            glitches: self.glitches,
+            flux_glitches: self.flux_glitches.listed,
+            gaps: self.gaps,
+            gap_count: self.gap_count,
+            rows: self.k,
+        })
+    }
+}
+
+/// Mean and variance of finite values, one at a time (Welford): `truth::error_rms_nt`.
+#[derive(Default)]
+struct Spread {
+    n: f64,
+    mean: f64,
+    m2: f64,
+}
+
+impl Spread {
+    fn push(&mut self, x: f64) {
+        if !x.is_finite() {
+            return;
+        }
+        self.n += 1.0;
+        let d = x - self.mean;
+        self.mean += d / self.n;
+        self.m2 += d * (x - self.mean);
+    }
+    fn rms(&self) -> f64 {
+        if self.n == 0.0 {
+            f64::NAN
+        } else {
+            (self.m2 / self.n).sqrt()
+        }
+    }
+}
+
+/// Running error against the simulated truth: what the TL pass keeps too.
+#[derive(Default)]
+pub(crate) struct TruthError(Spread);
+
+impl TruthError {
+    pub fn push(&mut self, interference_nt: f64, truth_nt: f64) {
+        self.0.push(interference_nt - truth_nt);
+    }
+    pub fn rms(&self) -> f64 {
+        self.0.rms()
+    }
+}
+
+/// `kf::RegressorSpread::sigma_nt` from running sums: the regressors'
+/// covariance over the flight (sums of the deviation from the first row, so no large
+/// mean cancels), against the coefficients' covariance.
+struct RegressorCov {
+    k: usize,
+    shift: Option<Vec<f64>>,
+    n: f64,
+    s1: Vec<f64>,
+    s2: Vec<f64>,
+}
+
+impl RegressorCov {
+    fn new(k: usize) -> Self {
+        Self {
+            k,
+            shift: None,
+            n: 0.0,
+            s1: vec![0.0; k],
+            s2: vec![0.0; k * k],
+        }
+    }
+    fn push(&mut self, r: &[f32]) {
+        if !r.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        let shift = self
+            .shift
+            .get_or_insert_with(|| r.iter().map(|v| *v as f64).collect());
+        let d: Vec<f64> = r
+            .iter()
+            .zip(shift.iter())
+            .map(|(v, s)| *v as f64 - s)
+            .collect();
+        self.n += 1.0;
+        for a in 0..self.k {
+            self.s1[a] += d[a];
+            for b in 0..self.k {
+                self.s2[a * self.k + b] += d[a] * d[b];
+            }
+        }
+    }
+    fn predicted(&self, covariance: &[f64]) -> Option<f64> {
+        let k = self.k;
+        if covariance.len() != k * k || self.n < 2.0 {
+            return None;
+        }
+        let mut var = 0.0;
+        for a in 0..k {
+            for b in 0..k {
+                let c = self.s2[a * k + b] / self.n - (self.s1[a] / self.n) * (self.s1[b] / self.n);
+                var += covariance[a * k + b] * c;
+            }
+        }
+        var.is_finite().then(|| var.max(0.0).sqrt())
+    }
+}
+
+/// A row with the filter's outputs, as `compensate` writes them.
+pub(crate) struct KfRow {
+    pub p: Pending,
+    pub interference_nt: f64,
+    pub compensated_nt: f64,
+    pub anomaly_nt: f64,
+    pub innovation_nt: f64,
+    pub flags: u16,
+}
+
+/// The figures a [`KfStage`] gathered over the flight.
+pub(crate) struct KfFigures {
+    pub error_rms_nt: Option<f64>,
+    pub predicted_error_nt: Option<f64>,
+}
+
+/// The core filter in survey mode (`filter::config_for`/`filter::build`, as the in-memory
+/// path builds it) over rows pushed in order; each row comes back once the row after it
+/// has been seen (a time gap after it flags it too).
+pub(crate) struct KfStage<'m> {
+    comp: Box<HostCompensator<'m>>,
+    mask: Vec<bool>,
+    buf: Vec<f32>,
+    regs: RegressorCov,
+    error: TruthError,
+    truth: bool,
+    covariance: Option<Vec<f64>>,
+    /// Rows in the filter (awaiting their output).
+    in_filter: VecDeque<Pending>,
+    /// Outputs waiting for the next row.
+    ready: VecDeque<(Pending, Output)>,
+    gap_rows: BTreeSet<usize>,
+    newest: usize,
+}
+
+impl<'m> KfStage<'m> {
+    pub fn new(
+        spec: &ModelSpec,
+        model: Model<'m>,
+        plan: &Plan,
+        est: &EstimatorSettings,
+        coeffs: &CoefficientFile,
+    ) -> Result<Self> {
+        let opts = KfOptions::new(spec.clone());
+        let sigma1 = est
+            .sigma1
+            .or(coeffs.sigma1)
+            .context("internal: no sigma1")?;
+        let cfg = filter::config_for(
+            (plan.sample_rate_hz, plan.earth_dir_ned, plan.tie_point),
+            &opts,
+            sigma1,
+            plan.noise_nt,
+        );
+        let given: Vec<f64> = coeffs.coefficients.iter().map(|c| c.value).collect();
+        let mask = filter::interference_mask(&model);
+        let k = model.coefficient_count();
+        let comp = Box::new(filter::build(spec, model, cfg, Some(&given), &[])?);
+        Ok(Self {
+            comp,
+            mask,
+            buf: vec![0.0f32; k],
+            regs: RegressorCov::new(k),
+            error: TruthError::default(),
+            truth: plan.cols.truth_interference.is_some(),
+            covariance: coeffs.covariance.as_ref().map(|rows| rows.concat()),
+            in_filter: VecDeque::new(),
+            ready: VecDeque::new(),
+            gap_rows: BTreeSet::new(),
+            newest: 0,
+        })
+    }
+
+    /// A row from the [`Feeder`]; `out` gets the rows finished by now.
+    pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(KfRow) -> Result<()>) -> Result<()> {
+        if p.after_gap {
+            self.gap_rows.insert(p.row);
+            if p.row > 0 {
+                self.gap_rows.insert(p.row - 1);
+            }
+        }
+        self.newest = p.row;
+        self.comp.set_noise_scale(1.0);
+        let r = self.comp.push_epoch(&p.sample);
+        self.in_filter.push_back(p);
+        self.step(r)?;
+        // A row is written once the row after it has been seen.
+        while self.ready.front().is_some_and(|(p, _)| p.row < self.newest) {
+            let (p, o) = self.ready.pop_front().context("internal")?;
+            self.emit(p, o, out)?;
+        }
+        Ok(())
+    }
+
+    /// The end of the flight: the filter flushed, every row handed on.
+    pub fn finish(mut self, out: &mut dyn FnMut(KfRow) -> Result<()>) -> Result<KfFigures> {
+        while let Some(r) = self.comp.flush_epoch() {
+            self.step(Some(r))?;
+        }
+        if !self.in_filter.is_empty() {
+            anyhow::bail!(
+                "internal: {} samples without an output",
+                self.in_filter.len()
+            );
+        }
+        while let Some((p, o)) = self.ready.pop_front() {
+            self.emit(p, o, out)?;
+        }
+        Ok(KfFigures {
+            error_rms_nt: self.truth.then(|| self.error.rms()),
+            predicted_error_nt: self
+                .covariance
+                .as_ref()
+                .and_then(|c| self.regs.predicted(c)),
+        })
+    }
+
+    fn step(&mut self, ep_out: Option<(magcomp_core::epoch::Epoch, Output)>) -> Result<()> {
+        if let Some((ep, o)) = ep_out {
+            filter::interference_regressors(&self.comp, &ep, &self.mask, &mut self.buf);
+            self.regs.push(&self.buf);
+            let p = self
+                .in_filter
+                .pop_front()
+                .context("internal: more outputs than samples")?;
+            self.ready.push_back((p, o));
+        }
+        Ok(())
+    }
+
+    fn emit(
+        &mut self,
+        p: Pending,
+        o: Output,
+        out: &mut dyn FnMut(KfRow) -> Result<()>,
+    ) -> Result<()> {
+        let i = o.interference_nt as f64;
+        let c = match o.compensated {
+            Some(c) => c.to_nt_f64(),
+            None => p.mag_nt - i,
+        };
+        let mut flags = o.flags.0;
+        if self.gap_rows.remove(&p.row) {
+            flags |= Flags::DERIVATIVE_DEGRADED;
+        }
+        if self.truth {
+            self.error.push(i, p.truth_nt);
+        }
+        out(KfRow {
+            p,
+            interference_nt: i,
+            compensated_nt: c,
+            anomaly_nt: o.anomaly_nt as f64,
+            innovation_nt: o.innovation_nt as f64,
+            flags,
+        })
+    }
+}
