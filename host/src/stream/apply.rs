@@ -4,7 +4,7 @@
 //! centred derivative, Tolles–Lawson's one-sample difference, one row to learn whether a
 //! time gap follows.
 use super::rows::RowFilter;
-use super::stage::{Feeder, Found, KfRow, KfStage, Pending, TruthError};
+use super::stage::{Feeder, Found, KfFigures, KfRow, KfStage, Pending, TruthError};
 use super::stats::Listed;
 use super::{Plan, Progress};
 use crate::calibration::coefficients::CoefficientFile;
@@ -37,6 +37,19 @@ pub(crate) struct RunResult {
 }
 
 impl RunResult {
+    /// A filter pass's result: what its feeder found and the figures its filter gathered.
+    pub fn of_pass(model: String, found: Found, figures: KfFigures) -> Self {
+        Self {
+            model,
+            error_rms_nt: figures.error_rms_nt,
+            predicted_error_nt: figures.predicted_error_nt,
+            glitches: found.glitches,
+            flux_glitches: found.flux_glitches,
+            gaps: found.gaps,
+            gap_count: found.gap_count,
+        }
+    }
+
     /// `qc::gaps::gaps_warning`'s text.
     pub fn gaps_warning(&self) -> Option<String> {
         if self.gap_count == 0 {
@@ -220,15 +233,7 @@ fn run_kf(
             };
             let found = feed(src, plan, quiet, |p| stage.push(p, &mut emit))?;
             let figures = stage.finish(&mut emit)?;
-            Ok(RunResult {
-                model: spec.text(),
-                error_rms_nt: figures.error_rms_nt,
-                predicted_error_nt: figures.predicted_error_nt,
-                glitches: found.glitches,
-                flux_glitches: found.flux_glitches,
-                gaps: found.gaps,
-                gap_count: found.gap_count,
-            })
+            Ok(RunResult::of_pass(spec.text(), found, figures))
         })
     })
 }

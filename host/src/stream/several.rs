@@ -121,15 +121,7 @@ pub fn compensate_several(
     let mut summaries = Vec::new();
     for (((p, s), (found, figures)), name) in prepared.into_iter().zip(sensors).zip(runs).zip(names)
     {
-        let result = RunResult {
-            model: specs_text(&p),
-            error_rms_nt: figures.error_rms_nt,
-            predicted_error_nt: figures.predicted_error_nt,
-            glitches: found.glitches,
-            flux_glitches: found.flux_glitches,
-            gaps: found.gaps,
-            gap_count: found.gap_count,
-        };
+        let result = RunResult::of_pass(specs_text(&p), found, figures);
         summaries.push(summary(p, result, s.coeffs, input.trace, Some(name)));
     }
     Ok(summaries)
