@@ -267,16 +267,26 @@ pub fn detect_tie_point(t: &[f64], lat: &[f64], lon: &[f64]) -> Option<TiePoint>
     d.finish()
 }
 
-/// [`detect_tie_point`] fed one fix at a time; memory grows with the area covered (40 m
-/// cells), not with the samples.
+/// [`detect_tie_point`] fed one fix at a time; memory grows with the area covered (one
+/// entry per 40 m cell flown over), not with the samples nor with the passes over a cell.
 #[derive(Clone, Debug, Default)]
 pub struct TieDetector {
     coslat: Option<f64>,
     cells: HashMap<(i64, i64), Cell>,
 }
 
-/// Per 40 m cell: start times of distinct passes, Σlat, Σlon, sample count.
-type Cell = (Vec<f64>, f64, f64, usize);
+/// Per 40 m cell. Only the count of distinct passes and the time of the latest sample are
+/// kept: a list of every pass grew with the flight (a survey re-flying its lines, or the
+/// streaming benchmark's repeated track, added one entry per cell per pass).
+#[derive(Clone, Debug, Default)]
+struct Cell {
+    passes: usize,
+    /// Time of the latest sample in the cell (a pass is distinct after a 30 s absence).
+    last_t: Option<f64>,
+    lat_sum: f64,
+    lon_sum: f64,
+    samples: usize,
+}
 
 impl TieDetector {
     pub fn push(&mut self, t: f64, lat: f64, lon: f64) {
@@ -289,21 +299,20 @@ impl TieDetector {
         let e = lon.to_radians() * EARTH_RADIUS_M * coslat;
         let key = ((n / CELL_M).floor() as i64, (e / CELL_M).floor() as i64);
         let c = self.cells.entry(key).or_default();
-        if c.0.last().is_none_or(|&last| t - last > 30.0) {
-            c.0.push(t);
-        } else if let Some(last) = c.0.last_mut() {
-            *last = t;
+        if c.last_t.is_none_or(|last| t - last > 30.0) {
+            c.passes += 1;
         }
-        c.1 += lat;
-        c.2 += lon;
-        c.3 += 1;
+        c.last_t = Some(t);
+        c.lat_sum += lat;
+        c.lon_sum += lon;
+        c.samples += 1;
     }
 
     pub fn finish(&self) -> Option<TiePoint> {
-        let best = self.cells.values().max_by_key(|c| (c.0.len(), c.3))?;
-        (best.0.len() >= 3).then(|| TiePoint {
-            lat_deg: best.1 / best.3 as f64,
-            lon_deg: best.2 / best.3 as f64,
+        let best = self.cells.values().max_by_key(|c| (c.passes, c.samples))?;
+        (best.passes >= 3).then(|| TiePoint {
+            lat_deg: best.lat_sum / best.samples as f64,
+            lon_deg: best.lon_sum / best.samples as f64,
         })
     }
 }
