@@ -60,9 +60,21 @@ pub struct IgrfScan {
     /// Least and greatest value (nT), for the change over a flight without a date.
     pub range_nt: (f64, f64),
     started: bool,
+    /// Whether `fill` is gathered: only a computed core field is filled; without a date
+    /// only the range is wanted, and the gaps (one entry per run of rows without a
+    /// position) would be memory for nothing.
+    fills: bool,
 }
 
 impl IgrfScan {
+    /// A scan for pass 2; `fills`: gather the gaps to fill ([`GapFill`]).
+    pub fn new(fills: bool) -> Self {
+        Self {
+            fills,
+            ..Self::default()
+        }
+    }
+
     pub fn value(&mut self, year: f64, cols: &Cols, row: &Row) -> Result<f64> {
         let get = |c: Option<usize>| c.map_or(f64::NAN, |i| row.num(i));
         let (lat, lon, alt) = (get(cols.lat), get(cols.lon), get(cols.alt));
@@ -94,7 +106,9 @@ impl IgrfScan {
         if v.is_finite() {
             self.range_nt = (self.range_nt.0.min(v), self.range_nt.1.max(v));
         }
-        self.fill.push(k, v);
+        if self.fills {
+            self.fill.push(k, v);
+        }
         Ok(())
     }
 }

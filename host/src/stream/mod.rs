@@ -588,7 +588,7 @@ fn second_pass(
         .iter()
         .map(|_| SecondPass::new(1.0 / median_dt, median_dt))
         .collect();
-    let mut igrf_scan = igrf::IgrfScan::default();
+    let mut igrf_scan = igrf::IgrfScan::new(matches!(core, Core::Computed(..)));
     if need_noise.iter().any(|&n| n) || need_igrf {
         let c0 = cols.first().context("internal: no sensor")?;
         let mut filter = RowFilter::new(source.sel.clone());
