@@ -309,7 +309,12 @@ impl TieDetector {
     }
 
     pub fn finish(&self) -> Option<TiePoint> {
-        let best = self.cells.values().max_by_key(|c| (c.passes, c.samples))?;
+        // Ties broken by the cell's key: a HashMap's order is random per run, and the
+        // same flight must give the same tie point every time.
+        let (_, best) = self
+            .cells
+            .iter()
+            .max_by_key(|(key, c)| (c.passes, c.samples, std::cmp::Reverse(**key)))?;
         (best.passes >= 3).then(|| TiePoint {
             lat_deg: best.lat_sum / best.samples as f64,
             lon_deg: best.lon_sum / best.samples as f64,
@@ -651,4 +656,29 @@ fn bridge_flux_glitches(
         ));
     }
     cf
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Two cells flown over alike (three passes, the same samples each) tie; every detector
+    /// must pick the same one (each HashMap iterates in its own random order).
+    #[test]
+    fn tied_cells_give_the_same_tie_point_every_time() {
+        let fly = || {
+            let mut d = TieDetector::default();
+            for pass in 0..3 {
+                let t0 = pass as f64 * 100.0;
+                // 0.01° of longitude apart: ~700 m, two cells far from each other
+                d.push(t0, 45.0, 7.0);
+                d.push(t0 + 50.0, 45.0, 7.01);
+            }
+            d.finish().expect("three passes over each cell")
+        };
+        let first = fly();
+        for _ in 0..50 {
+            assert_eq!(fly(), first);
+        }
+    }
 }
