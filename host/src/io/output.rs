@@ -30,21 +30,18 @@ fn install_cleanup_handler() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
         // Another handler already installed (a library user's) is left in charge.
-        let _ = ctrlc::set_handler(|| {
-            remove_live_temporaries();
-            std::process::exit(130);
-        });
+        let _ = ctrlc::set_handler(remove_live_temporaries_and_exit);
     });
 }
 
-fn remove_live_temporaries() {
-    let live = match LIVE_TEMPORARIES.lock() {
-        Ok(l) => l,
-        Err(p) => p.into_inner(),
-    };
+/// Exits holding the temporaries' lock: a file the program starts to create meanwhile
+/// waits for it and is never made.
+fn remove_live_temporaries_and_exit() {
+    let live = LIVE_TEMPORARIES.lock().unwrap_or_else(|p| p.into_inner());
     for p in live.iter() {
         let _ = std::fs::remove_file(p);
     }
+    std::process::exit(130);
 }
 
 fn forget_temporary(p: &Path) {
@@ -126,12 +123,16 @@ impl AtomicFile {
             b.permissions(std::fs::Permissions::from_mode(0o666));
         }
         install_cleanup_handler();
-        let tmp = b
-            .tempfile_in(dir)
-            .with_context(|| format!("creating {} (in {})", path.display(), dir.display()))?;
-        if let Ok(mut l) = LIVE_TEMPORARIES.lock() {
-            l.push(tmp.path().to_path_buf());
-        }
+        // Created and registered under the handler's lock: a signal between the two would
+        // otherwise find the file unregistered and leave it (CI under load, `robust_io`).
+        let tmp = {
+            let mut live = LIVE_TEMPORARIES.lock().unwrap_or_else(|p| p.into_inner());
+            let tmp = b
+                .tempfile_in(dir)
+                .with_context(|| format!("creating {} (in {})", path.display(), dir.display()))?;
+            live.push(tmp.path().to_path_buf());
+            tmp
+        };
         Ok(Self {
             w: Some(Sink::Temporary(
                 BufWriter::with_capacity(1 << 16, tmp),
