@@ -6,8 +6,8 @@
 mod common;
 
 use common::{
-    assert_one_record_per_sample, banners, coefficients_read_back, reply, reply_values, run_flight,
-    send_hook, speed, start_with_hooks,
+    assert_one_record_per_sample, banners, coefficients_read_back, collect_records, reply,
+    reply_values, run_flight, send_hook, speed, start_with_hooks,
 };
 use hil_tests::board::{self, Board, sentence};
 use hil_tests::capture::{FlightSpec, synthetic_flight};
@@ -501,15 +501,7 @@ fn command_burst_keeps_records_flowing() {
         .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
     let lines = sent.join().expect("command thread");
     let n = cap.scalar_t_s.len();
-    b.wait_records(n.saturating_sub(8), Duration::from_secs(10));
-    b.flush().unwrap_or_else(|e| panic!("{name}: {e}"));
-    let out = b.save_output();
-    let (recs, bad) = b.records();
-    assert!(
-        bad.is_empty(),
-        "{name}: undecodable records ({})",
-        out.display()
-    );
+    let (recs, out) = collect_records(&mut b, name, n);
     assert_one_record_per_sample(name, &b, &cap, &recs);
     let replies = b
         .output()

@@ -8,6 +8,7 @@ use hil_tests::capture::Capture;
 use hil_tests::replay::replay;
 use magcomp_core::protocol::command::check_reply;
 use magcomp_core::protocol::scalar::{ScalarConfig, parse_scalar_line};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 /// The core's scalar parser on one captured line (terminator stripped).
@@ -68,17 +69,7 @@ pub fn run_flight_at(name: &str, cap: &Capture, speed: f64) -> Option<(Board, Ve
     b.stream(cap, speed)
         .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
     let n = cap.scalar_t_s.len();
-    // all but the few samples the centred derivative holds should be out promptly
-    b.wait_records(n.saturating_sub(8), Duration::from_secs(10));
-    b.flush().unwrap_or_else(|e| panic!("{name}: {e}"));
-    let (recs, bad) = b.records();
-    let out = b.save_output();
-    assert!(
-        bad.is_empty(),
-        "{name}: undecodable record lines (see {}): {:?}",
-        out.display(),
-        &bad[..bad.len().min(3)]
-    );
+    let (recs, _) = collect_records(&mut b, name, n);
     let cap_path = b.dir.join("capture.txt");
     cap.write_raw(std::io::BufWriter::new(
         std::fs::File::create(&cap_path).unwrap(),
@@ -116,6 +107,24 @@ pub fn run_flight_at(name: &str, cap: &Capture, speed: f64) -> Option<(Board, Ve
         b.dir.display()
     );
     Some((b, recs))
+}
+
+/// The records of a flight of `n` scalar samples once streamed: all but the few samples the
+/// centred derivative holds should be out promptly, then `FLUSH` sends those; the output
+/// is saved in the board's log folder (the path returned), and every record line must
+/// decode.
+pub fn collect_records(b: &mut Board, name: &str, n: usize) -> (Vec<Record>, PathBuf) {
+    b.wait_records(n.saturating_sub(8), Duration::from_secs(10));
+    b.flush().unwrap_or_else(|e| panic!("{name}: {e}"));
+    let (recs, bad) = b.records();
+    let out = b.save_output();
+    assert!(
+        bad.is_empty(),
+        "{name}: undecodable record lines (see {}): {:?}",
+        out.display(),
+        &bad[..bad.len().min(3)]
+    );
+    (recs, out)
 }
 
 pub fn assert_one_record_per_sample(name: &str, b: &Board, cap: &Capture, recs: &[Record]) {
