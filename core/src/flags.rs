@@ -44,6 +44,10 @@ impl Flags {
     /// different number. Set whether or not the sample was fused (`INNOVATION_REJECTED`
     /// says it was not).
     pub const MAG_SUSPECT: u16 = 1 << 13;
+    /// The record is the filter's with the fluxgate as a witness (`fluxmod`), shown because
+    /// its own bound is decisively tighter than the paper model's (`compensator::witness`).
+    /// Informative: not part of [`Flags::degraded`].
+    pub const WITNESS: u16 = 1 << 14;
 
     pub const fn empty() -> Self {
         Flags(0)

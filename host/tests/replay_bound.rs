@@ -27,7 +27,9 @@ fn shown_good(r: &Record) -> bool {
 
 fn board_records(trace: &Trace) -> Vec<Record> {
     let cap = trace_to_capture(trace, &CaptureOptions::default()).unwrap();
-    let opts = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
+    // The board's two filters: the paper model's, and beside it the fluxgate as a witness.
+    let mut opts = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
+    opts.witness = Some(ModelSpec::parse("tl16+field+fluxmod").unwrap());
     let mut recs = Vec::new();
     replay_capture(&cap[..], &opts, |r| {
         recs.push(*r);
@@ -111,7 +113,20 @@ fn check_flight(name: &str, trace: &Trace, truth_col: &str) {
         .iter()
         .filter(|r| !r.flags.contains(Flags::NOT_CONVERGED))
         .count();
-    eprintln!("{name}: {converged} of {} records converged", recs.len());
+    let witnessed = recs
+        .iter()
+        .filter(|r| r.flags.contains(Flags::WITNESS))
+        .count();
+    eprintln!(
+        "{name}: {converged} of {} records converged, {witnessed} the witness filter's",
+        recs.len()
+    );
+    // The simulator's fluxgates see only the Earth (and their own errors): the witness has
+    // nothing to add, so its records must never be shown (measured: none on every flight).
+    assert_eq!(
+        witnessed, 0,
+        "{name}: the witness filter's records were shown"
+    );
     let truth = trace.col(truth_col).unwrap().to_vec();
     let t = trace.col("t").unwrap();
     let rate_hz = 1.0 / (t[1] - t[0]);

@@ -18,6 +18,7 @@ mod jitter;
 mod loops;
 mod scalar;
 mod ties;
+pub mod witness;
 pub use config::CompensatorConfig;
 use health::{CoefficientHistory, Divergence, HeadingCoverage, InnovationMonitor};
 use loops::{change_regressor, change_regressor_all, dot, dot3, masked_dot, masked_dot3};

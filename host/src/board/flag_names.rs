@@ -1,7 +1,7 @@
 //! The record flags' names, bit by bit (`magcomp_core::Flags`), for every display of them.
 
 /// Flag bits as words, in bit order.
-pub const FLAG_NAMES: [&str; 14] = [
+pub const FLAG_NAMES: [&str; 15] = [
     "FLUX_STALE",
     "NO_GPS",
     "PARSE_ERROR",
@@ -16,4 +16,5 @@ pub const FLAG_NAMES: [&str; 14] = [
     "TIE_REJECTED",
     "LEVEL_UNDETERMINED",
     "MAG_SUSPECT",
+    "WITNESS",
 ];

@@ -772,6 +772,7 @@ mod tests {
     fn flag_words_decode_bits() {
         assert_eq!(flag_words(Flags(0)), "-");
         assert_eq!(flag_words(Flags(0b11)), "FLUX_STALE|NO_GPS");
-        assert_eq!(flag_words(Flags(1 << 8 | 1 << 14)), "SURVEY_MODE|BIT14");
+        assert_eq!(flag_words(Flags(1 << 8 | 1 << 14)), "SURVEY_MODE|WITNESS");
+        assert_eq!(flag_words(Flags(1 << 15)), "BIT15");
     }
 }

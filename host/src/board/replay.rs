@@ -14,7 +14,7 @@
 
 use crate::board::capture::FluxFormat;
 use crate::io::bounded::read_line_bounded;
-use crate::model::spec::{with_model, ModelSpec};
+use crate::model::spec::{with_models, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::{
     compensator_config, AcqConfig, AcqCounters, AcqRecord, Acquisition,
@@ -57,6 +57,9 @@ pub struct ReplayOptions {
     pub flux_temp: Option<FluxTempCal>,
     /// `RAW,ON`: each scalar sample also as a `$MCRAW` line ([`replay_capture_raw`]).
     pub raw: bool,
+    /// The model with the fluxgate as a witness, run beside `model` as a board built with
+    /// it does (`Acquisition::attach_witness`).
+    pub witness: Option<ModelSpec>,
 }
 
 impl ReplayOptions {
@@ -72,6 +75,7 @@ impl ReplayOptions {
             lag_s: None,
             flux_temp: None,
             raw: false,
+            witness: None,
         }
     }
 }
@@ -421,7 +425,9 @@ pub fn replay_capture_any<R: BufRead>(
     let (meta, first_data) = read_header(&mut lines)?;
     let setup = ReplaySetup::of(opts, &meta);
     let spec = &opts.model;
-    with_model(spec, |model| -> Result<ReplayStats> {
+    let specs: Vec<&ModelSpec> = std::iter::once(spec).chain(opts.witness.as_ref()).collect();
+    with_models(&specs, |models| -> Result<ReplayStats> {
+        let model = models[0];
         let comp = Compensator::<REPLAY_STATES, REPLAY_WINDOW>::new(
             model,
             compensator_config(setup.scalar_hz as f32, REPLAY_WINDOW),
@@ -439,6 +445,10 @@ pub fn replay_capture_any<R: BufRead>(
             )
         })?;
         acq.attach_lag_line(&mut lag_line);
+        if let Some(w) = models.get(1) {
+            acq.attach_witness(*w)
+                .map_err(|e| crate::model::errors::cannot_build(&specs[1].text(), &e))?;
+        }
         load_board_state(&mut acq, opts, &setup, model.coefficient_count())?;
         acq.set_raw_output(opts.raw);
         let mut stats = ReplayStats {
@@ -465,8 +475,9 @@ pub fn replay_capture_any<R: BufRead>(
             out.emit(r, &mut stats)?;
         }
         stats.counters = acq.counters();
-        let mut held = vec![0.0f32; model.coefficient_count()];
-        let n = acq.compensator().coefficients(&mut held);
+        let most = models.iter().map(|m| m.coefficient_count()).max();
+        let mut held = vec![0.0f32; most.unwrap_or(0)];
+        let n = acq.coefficients(&mut held);
         held.truncate(n);
         stats.final_coefficients = held;
         Ok(stats)

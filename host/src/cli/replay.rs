@@ -89,6 +89,13 @@ pub struct ReplayArgs {
     /// docs/protocols.md).
     #[arg(long, requires = "records")]
     pub raw: bool,
+
+    /// Run beside the model its form with the fluxgate as a witness (`+fluxmod`), as a
+    /// board does: each record is the witnessed filter's (flag WITNESS) where that
+    /// filter has converged and its stated bound is 1.46× tighter. `--coeffs` may then be
+    /// either model's set (docs/firmware.md, "Fluxgate witness").
+    #[arg(long)]
+    pub witness: bool,
 }
 
 pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
@@ -109,15 +116,21 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         }
         _ => args.model.text.clone(),
     };
-    let model = ModelSpec::parse(&model_text)?;
+    let parsed = ModelSpec::parse(&model_text)?;
+    let (model, witness) = witness_pair(parsed, args.witness)?;
     let coefficients = args
         .coeffs
         .as_deref()
-        .map(|p| read_coefficients_for(p, Some(&model)))
+        .map(|p| match &witness {
+            Some(w) => read_coefficients_for(p, Some(&model))
+                .or_else(|_| read_coefficients_for(p, Some(w))),
+            None => read_coefficients_for(p, Some(&model)),
+        })
         .transpose()?;
     let model_has_lag = model.corrects(InputCorrection::Lag);
     let model_has_fluxtemp = model.corrects(InputCorrection::FluxTemp);
     let mut opts = ReplayOptions::new(model);
+    opts.witness = witness;
     opts.coefficients = coefficients;
     opts.flux_calibration = args
         .coeffs
@@ -252,6 +265,26 @@ fn csv_header(w: &mut AtomicFile, written: &mut Option<u8>, n: u8, seq: u32) -> 
              cannot hold both (write the records with --records)"
         ),
     }
+}
+
+/// `--witness`: the model without `fluxmod` and the model with it (a coefficient file of
+/// the witnessed model names the pair as well as the paper model does).
+fn witness_pair(model: ModelSpec, witness: bool) -> Result<(ModelSpec, Option<ModelSpec>)> {
+    use magcomp_core::model::TermKind;
+    if !witness {
+        return Ok((model, None));
+    }
+    if !model.has(TermKind::FluxMod) {
+        let with = model.with(TermKind::FluxMod.name())?;
+        return Ok((model, Some(with)));
+    }
+    let text = model.text();
+    let without: Vec<&str> = text
+        .split('+')
+        .filter(|t| *t != TermKind::FluxMod.name())
+        .collect();
+    let base = ModelSpec::parse(&without.join("+"))?;
+    Ok((base, Some(model)))
 }
 
 /// `--coeffs-out`: one coefficient per line (f32 written exactly, so it reads back as is).

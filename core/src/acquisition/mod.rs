@@ -31,6 +31,9 @@
 //! channels adds them. A channel added mid-stream has no output for the samples its
 //! compensator has not seen: those records carry it as missing.
 
+mod witness;
+
+use crate::compensator::witness::WitnessChoice;
 use crate::compensator::{Compensator, CompensatorConfig, CompensatorError};
 use crate::continuity::{Continuity, FluxContinuity};
 use crate::epoch::AlignedSample;
@@ -245,6 +248,9 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     extra: [Compensator<'a, N, W>; MAX_CHANNELS - 1],
     /// Channels seen on counter lines (1: single-sensor records).
     channels: u8,
+    /// While single fields arrive, `extra[0]` may run this model beside `comp`: the paper
+    /// model with the fluxgate as a witness (`witness.rs`), and which of the two is shown.
+    witness: Option<(Model<'a>, WitnessChoice)>,
     /// The fluxgate's delay line (`lag`), when the caller gave one (8 KiB: the board keeps
     /// it in its own zero-initialised static).
     lag_line: Option<&'a mut LagLine>,
@@ -288,6 +294,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             comp,
             extra,
             channels: 1,
+            witness: None,
             lag_line: None,
             lag_s: 0.0,
             period_us: cfg.period_us().max(1),
@@ -354,6 +361,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 Compensator::placeholder(model),
             ],
             channels: 1,
+            witness: None,
             lag_line: None,
             lag_s: 0.0,
             period_us: 1,
@@ -387,6 +395,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 .map_err(AcqError::Compensator)?;
         }
         self.channels = 1;
+        self.witness = None;
         self.cfg = cfg;
         self.scalar = ScalarReader::new(cfg.scalar);
         self.flux = FluxAsciiReader::new();
@@ -425,6 +434,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         for c in &mut self.extra {
             c.reset_in_place(model, comp)?;
         }
+        self.restart_witness()?;
         self.aligner.forget_frame_ages();
         // A fresh start for the fluxgate's continuity check too: the frames before the
         // restart need not continue into the ones after it.
@@ -477,6 +487,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         for c in &mut self.extra {
             c.set_survey_mode(on);
         }
+        self.witness_survey_mode(on);
     }
     /// Channels seen on counter lines since the start (1: single-sensor records).
     pub fn channels(&self) -> u8 {
@@ -500,7 +511,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.comp.is_survey_mode()
     }
     /// Loads coefficients (physical units, model order) and switches to survey mode.
+    /// With a witness attached, a set of the witnessed model's length goes to its filter,
+    /// and the records shown are that filter's from then on.
     pub fn set_coefficients(&mut self, c: &[f32]) -> Result<(), CompensatorError> {
+        if let Some(r) = self.set_witness_coefficients(c) {
+            return r;
+        }
         self.comp.set_coefficients(c)
     }
 
@@ -542,8 +558,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         // The modulus moves with the calibration: not a glitch.
         self.flux_check.restart();
     }
+    /// The shown filter's coefficients (the witnessed model's when its records are shown).
     pub fn coefficients(&self, out: &mut [f32]) -> usize {
-        self.comp.coefficients(out)
+        self.shown_compensator().coefficients(out)
     }
 
     /// Virtual time of the next scalar sample.
@@ -563,7 +580,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     pub fn scalar_result(&mut self, r: Result<ScalarFrame, ScalarError>) -> Option<Record> {
         let line_error = r.is_err();
         let s = self.next_sample(r.ok().map(|f| f.mag), line_error);
-        let out = self.comp.push(&s)?;
+        let out = self.comp.push(&s);
+        let witnessed = self.witness.is_some().then(|| self.extra[0].push(&s));
+        let out = self.shown_output(out?, witnessed.flatten());
         Some(self.record(out))
     }
 
@@ -622,6 +641,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             }
             ScalarLine::Multi(f) => {
                 self.channels = self.channels.max(f.channels);
+                self.detach_witness();
                 f
             }
             // a counter that has sent counter lines: a single field is its channel 0,
@@ -852,7 +872,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     /// End of stream: the records still held for the centred derivative, one per call.
     /// A scalar line left unterminated is not a sample (its end never arrived).
     pub fn flush(&mut self) -> Option<Record> {
-        let out = self.comp.flush()?;
+        let out = self.comp.flush();
+        let witnessed = self.witness.is_some().then(|| self.extra[0].flush());
+        let out = self.shown_output(out?, witnessed.flatten());
         Some(self.record(out))
     }
 

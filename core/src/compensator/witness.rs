@@ -1,0 +1,158 @@
+//! The fluxgate as a witness, live. A fluxgate mounted near the scalar sees the aircraft's
+//! field too, and `fluxmod` (|B_F| − |B|) turns that into a regressor of the interference;
+//! where the fluxgate sees only the Earth, the same regressor is the fluxgate's own error
+//! and a filter carrying it waits for a coefficient the flight cannot determine. So a board
+//! runs both filters on the same samples, the paper model's and the witnessed one, and
+//! shows the witnessed one's records only where its own stated bound is decisively tighter
+//! — the flight's evidence, read live, as the host's post-flight calibration reads it from
+//! the jackknife and the held-out figure.
+
+use super::Output;
+use crate::flags::Flags;
+
+/// How much tighter (×) the witness's stated bound must be before its records are shown:
+/// the jackknife resolution the post-flight rule asks for (8 blocks, host
+/// `calibration::cross_check`), so live and after landing ask for the same decisiveness.
+pub const DECISIVE_RATIO: f32 = 1.46;
+
+/// Whose record is shown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shown {
+    /// The paper model's filter (the board's default).
+    Paper,
+    /// The filter with the fluxgate as a witness (`fluxmod`).
+    Witness,
+}
+
+/// The live choice between the two filters, with hysteresis: the witness takes over when
+/// it is converged and its bound is [`DECISIVE_RATIO`] × tighter (or the paper filter has
+/// not converged), and hands back when it loses convergence or its bound is no longer the
+/// tighter one, so two near-equal bounds do not alternate the output sample by sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WitnessChoice {
+    shown: Shown,
+    /// Fixed by the coefficients loaded (survey mode): no switching.
+    fixed: bool,
+    switches: u32,
+}
+
+impl Default for WitnessChoice {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl WitnessChoice {
+    pub const fn new() -> Self {
+        Self {
+            shown: Shown::Paper,
+            fixed: false,
+            switches: 0,
+        }
+    }
+
+    /// The choice is no longer the flight's to make: the loaded coefficients are `shown`'s.
+    pub fn fix(&mut self, shown: Shown) {
+        self.shown = shown;
+        self.fixed = true;
+    }
+
+    /// The flight chooses again (calibrate mode).
+    pub fn release(&mut self) {
+        self.fixed = false;
+    }
+
+    pub fn shown(&self) -> Shown {
+        self.shown
+    }
+
+    /// Times the shown filter changed (the operator's status).
+    pub fn switches(&self) -> u32 {
+        self.switches
+    }
+
+    /// Chooses for this sample from the two filters' records of it.
+    pub fn choose(&mut self, paper: &Output, witness: &Output) -> Shown {
+        if self.fixed {
+            return self.shown;
+        }
+        let bound = |o: &Output| {
+            let usable = !o.flags.contains(Flags::NOT_CONVERGED)
+                && o.interference_sigma_nt.is_finite()
+                && o.interference_sigma_nt > 0.0;
+            usable.then_some(o.interference_sigma_nt)
+        };
+        let next = match (bound(paper), bound(witness)) {
+            (_, None) => Shown::Paper,
+            (None, Some(_)) => Shown::Witness,
+            (Some(p), Some(w)) => match self.shown {
+                Shown::Paper if w * DECISIVE_RATIO < p => Shown::Witness,
+                Shown::Witness if w > p => Shown::Paper,
+                keep => keep,
+            },
+        };
+        if next != self.shown {
+            self.switches = self.switches.saturating_add(1);
+            self.shown = next;
+        }
+        next
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn out(sigma_nt: f32, converged: bool) -> Output {
+        let mut flags = Flags::empty();
+        if !converged {
+            flags.set(Flags::NOT_CONVERGED);
+        }
+        Output {
+            t_s: 0.0,
+            mag: None,
+            interference_nt: 0.0,
+            compensated: None,
+            anomaly_nt: 0.0,
+            innovation_nt: f32::NAN,
+            innovation_var_nt2: f32::NAN,
+            interference_sigma_nt: if converged { sigma_nt } else { f32::NAN },
+            flags,
+        }
+    }
+
+    #[test]
+    fn the_witness_is_shown_only_when_decisively_tighter_and_handed_back_when_not() {
+        let mut c = WitnessChoice::new();
+        // not converged: the paper filter's, whatever its bound
+        assert_eq!(c.choose(&out(4.0, true), &out(1.0, false)), Shown::Paper);
+        // tighter but not decisively (4.0 / 3.0 = 1.33 < 1.46)
+        assert_eq!(c.choose(&out(4.0, true), &out(3.0, true)), Shown::Paper);
+        // decisively tighter
+        assert_eq!(c.choose(&out(4.0, true), &out(2.0, true)), Shown::Witness);
+        // held while still the tighter, even without the margin
+        assert_eq!(c.choose(&out(4.0, true), &out(3.9, true)), Shown::Witness);
+        // handed back once looser
+        assert_eq!(c.choose(&out(4.0, true), &out(4.1, true)), Shown::Paper);
+        // and back on the witness's loss of convergence
+        assert_eq!(c.choose(&out(4.0, true), &out(1.0, true)), Shown::Witness);
+        assert_eq!(c.choose(&out(4.0, true), &out(1.0, false)), Shown::Paper);
+        assert_eq!(c.switches(), 4);
+    }
+
+    #[test]
+    fn a_converged_witness_is_shown_while_the_paper_filter_is_not() {
+        let mut c = WitnessChoice::new();
+        assert_eq!(c.choose(&out(0.0, false), &out(2.0, true)), Shown::Witness);
+    }
+
+    #[test]
+    fn loaded_coefficients_fix_the_choice() {
+        let mut c = WitnessChoice::new();
+        c.fix(Shown::Witness);
+        assert_eq!(c.choose(&out(1.0, true), &out(9.0, false)), Shown::Witness);
+        c.fix(Shown::Paper);
+        assert_eq!(c.choose(&out(9.0, true), &out(1.0, true)), Shown::Paper);
+        assert_eq!(c.switches(), 0);
+    }
+}
