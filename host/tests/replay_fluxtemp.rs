@@ -165,6 +165,8 @@ fn replay_cli_takes_the_correction_from_the_coefficient_file() {
         records: None,
         coeffs_out: None,
         raw: false,
+        witness: false,
+        no_witness: false,
     };
     std::fs::write(&coeffs, file(&ft(1e-5))).unwrap();
     let stats = run_replay(&args).unwrap();

@@ -170,6 +170,8 @@ fn replay_cli_takes_the_lag_from_the_coefficient_file() {
         records: None,
         coeffs_out: None,
         raw: false,
+        witness: false,
+        no_witness: false,
     };
     let rows = |args: &ReplayArgs| -> Vec<String> {
         let stats = run_replay(args).unwrap();

@@ -349,6 +349,8 @@ fn run_replay_writes_csv_and_mcrec_lines() {
         records: Some(dir.join("rec.txt")),
         coeffs_out: None,
         raw: false,
+        witness: false,
+        no_witness: false,
     };
     let stats = run_replay(&args).unwrap();
     assert_eq!(stats.records as usize, trace.len());

@@ -5,7 +5,7 @@
 //! `SAVE` — written to the board's port (or stdout), so coefficients reach the aircraft
 //! without a rebuild.
 
-use crate::calibration::coefficients::{CoefficientFile, Method};
+use crate::calibration::coefficients::{Coefficient, CoefficientFile, Method};
 use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Context, Result};
 use magcomp_core::model::TermKind;
@@ -23,6 +23,29 @@ pub fn upload_lines(file: &CoefficientFile, board_model: &str, save: bool) -> Re
             Ok(String::from_utf8_lossy(&buf[..n]).into_owned())
         })
         .collect()
+}
+
+/// `file` with the board's `fluxmod` coefficient added as exactly 0 (and, in a covariance, a
+/// row and column of zeros: it is not estimated).
+fn with_witness_zero(file: &CoefficientFile, board: &ModelSpec) -> Result<CoefficientFile> {
+    let (name, unit) = board
+        .coefficient_names()
+        .into_iter()
+        .find(|(n, _)| n.starts_with(TermKind::FluxMod.name()))
+        .context("the board's model has no fluxmod coefficient")?;
+    let mut out = file.clone();
+    out.coefficients.push(Coefficient {
+        name,
+        unit,
+        value: 0.0,
+        sigma: 0.0,
+    });
+    if let Some(cov) = out.covariance.as_mut() {
+        let k = cov.len() + 1;
+        cov.iter_mut().for_each(|row| row.push(0.0));
+        cov.push(vec![0.0; k]);
+    }
+    Ok(out)
 }
 
 /// The commands for a coefficient file, `SAVE` last unless `save` is false.
@@ -69,22 +92,25 @@ pub fn upload_commands(
     };
     // `fluxcal`, `lag` and `fluxtemp` add no filter state: their coefficients are the board model's.
     let without_fluxcal = theirs.without_input_corrections();
-    if without_fluxcal.text() != board.text() {
-        // The post-flight default adds `fluxmod` where the fluxgate is a witness; only the
-        // firmware built with `flux-witness` runs it.
-        let hint = if theirs.has(TermKind::FluxMod) && !board.has(TermKind::FluxMod) {
-            " (the post-flight calibration took the fluxgate as a witness, `fluxmod`: flash the \
-             board built with `--features flux-witness` and give `--board-model \
-             tl16+field+fluxmod`, or calibrate with `--method kf` for the paper's model)"
-        } else {
-            ""
-        };
-        bail!(
-            "the coefficients are for model '{}', the board runs '{}'{hint}",
-            theirs.text(),
-            board.text()
-        );
-    }
+    // A board whose vector is its model's witnessed form takes a set of its model with
+    // `fluxmod` = 0 (the paper filter's records are then shown).
+    let padded;
+    let file = if board.has(TermKind::FluxMod)
+        && !without_fluxcal.has(TermKind::FluxMod)
+        && without_fluxcal.with(TermKind::FluxMod.name())?.text() == board.text()
+    {
+        padded = with_witness_zero(file, &board)?;
+        &padded
+    } else {
+        if without_fluxcal.text() != board.text() {
+            bail!(
+                "the coefficients are for model '{}', the board runs '{}'",
+                theirs.text(),
+                board.text()
+            );
+        }
+        file
+    };
     // Every coefficient the board's model has, by name, and nothing else: SETCOEF
     // indices are the board's, so a short, long or reordered file must not reach it.
     let names: Vec<String> = board
@@ -425,12 +451,33 @@ mod tests {
     }
 
     #[test]
-    fn a_witnessed_calibration_names_the_image_that_runs_it() {
+    fn both_the_paper_and_the_witnessed_set_load_into_the_boards_vector() {
+        let board = crate::model::spec::BOARD_COEFFICIENTS;
+        let setcoef = |lines: &[String]| -> Vec<String> {
+            lines
+                .iter()
+                .filter(|l| l.contains("SETCOEF"))
+                .cloned()
+                .collect()
+        };
+        // the witnessed set as it is, 17 values
         let witnessed = file("tl16+field+fluxmod", 17, None);
+        let w = setcoef(&upload_lines(&witnessed, board, true).unwrap());
+        assert_eq!(w.len(), 17);
+        // the paper set: its 16 values, then fluxmod exactly 0 (the paper filter is shown)
+        let mut paper = file("tl16+field", 16, None);
+        paper.covariance = Some(vec![vec![0.01; 16]; 16]);
+        let p = setcoef(&upload_lines(&paper, board, true).unwrap());
+        assert_eq!(p.len(), 17);
+        assert_eq!(p[..16], w[..16], "the same 16 values at the same indices");
+        let last = upload_commands(&paper, board, false).unwrap();
+        assert!(last.contains(&Command::SetCoef {
+            index: 16,
+            value: 0.0
+        }));
+        // a board of the paper model alone (older firmware) refuses the witnessed set
         let e = upload_lines(&witnessed, "tl16+field", true).unwrap_err();
-        assert!(format!("{e:#}").contains("flux-witness"), "{e:#}");
-        let lines = upload_lines(&witnessed, "tl16+field+fluxmod", true).unwrap();
-        assert_eq!(lines.iter().filter(|l| l.contains("SETCOEF")).count(), 17);
+        assert!(format!("{e:#}").contains("board runs"), "{e:#}");
     }
 
     #[test]

@@ -13,6 +13,7 @@ use crate::io::output::AtomicFile;
 use crate::model::spec::{InputCorrection, ModelSpec, BOARD_MODEL};
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::AcqRecord;
+use magcomp_core::model::TermKind;
 use magcomp_core::protocol::multi_raw::MAX_MULTI_RAW_LEN;
 use magcomp_core::protocol::multi_record::MAX_MULTI_RECORD_LEN;
 use std::io::{BufReader, Write};
@@ -90,12 +91,18 @@ pub struct ReplayArgs {
     #[arg(long, requires = "records")]
     pub raw: bool,
 
-    /// Run beside the model its form with the fluxgate as a witness (`+fluxmod`), as a
-    /// board does: each record is the witnessed filter's (flag WITNESS) where that
-    /// filter has converged and its stated bound is 1.46× tighter. `--coeffs` may then be
-    /// either model's set (docs/firmware.md, "Fluxgate witness").
-    #[arg(long)]
+    /// Run beside the model its form with the fluxgate as a witness (`+fluxmod`), as the
+    /// board runs its own: each record is the witnessed filter's (flag WITNESS) once that
+    /// filter has converged and its stated bound is 1.46× tighter; `--coeffs` may then be
+    /// either model's set (docs/firmware.md, "Fluxgate witness"). Default: on for the
+    /// board's model (`tl16+field`, input corrections aside, or its witnessed form), off
+    /// for others.
+    #[arg(long, conflicts_with = "no_witness")]
     pub witness: bool,
+
+    /// The model's filter alone, without the witness beside it.
+    #[arg(long)]
+    pub no_witness: bool,
 }
 
 pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
@@ -117,7 +124,12 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         _ => args.model.text.clone(),
     };
     let parsed = ModelSpec::parse(&model_text)?;
-    let (model, witness) = witness_pair(parsed, args.witness)?;
+    let wanted = match (args.witness, args.no_witness) {
+        (true, _) => true,
+        (_, true) => false,
+        _ => runs_on_board_with_witness(&parsed)?,
+    };
+    let (model, witness) = witness_pair(parsed, wanted)?;
     let coefficients = args
         .coeffs
         .as_deref()
@@ -267,10 +279,17 @@ fn csv_header(w: &mut AtomicFile, written: &mut Option<u8>, n: u8, seq: u32) -> 
     }
 }
 
+/// Whether the board runs `model` with the witness beside it: its own model, input
+/// corrections aside, or that model's witnessed form.
+fn runs_on_board_with_witness(model: &ModelSpec) -> Result<bool> {
+    let board = ModelSpec::parse(BOARD_MODEL)?;
+    let filter = model.without_input_corrections().text();
+    Ok(filter == board.text() || filter == board.with(TermKind::FluxMod.name())?.text())
+}
+
 /// `--witness`: the model without `fluxmod` and the model with it (a coefficient file of
 /// the witnessed model names the pair as well as the paper model does).
 fn witness_pair(model: ModelSpec, witness: bool) -> Result<(ModelSpec, Option<ModelSpec>)> {
-    use magcomp_core::model::TermKind;
     if !witness {
         return Ok((model, None));
     }

@@ -183,6 +183,13 @@ pub fn run(args: &UploadArgs) -> Result<()> {
 /// A model's filter terms: what the board's compiled model must be for its coefficients
 /// (`fluxcal`, `lag`, `fluxtemp` correct the inputs and add no filter state).
 fn filter_model(model: &str) -> Result<String> {
-    let spec = crate::model::spec::ModelSpec::parse(model)?;
-    Ok(spec.without_input_corrections().text())
+    use crate::model::spec::{ModelSpec, BOARD_COEFFICIENTS, BOARD_MODEL};
+    let filter = ModelSpec::parse(model)?.without_input_corrections().text();
+    // The board's own model and its witnessed form load into the board's 17-value vector.
+    if filter == ModelSpec::parse(BOARD_MODEL)?.text()
+        || filter == ModelSpec::parse(BOARD_COEFFICIENTS)?.text()
+    {
+        return Ok(BOARD_COEFFICIENTS.to_string());
+    }
+    Ok(filter)
 }

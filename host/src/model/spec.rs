@@ -105,6 +105,12 @@ pub const DEFAULT_MODEL: &str = "tl16+field+fluxcal";
 /// fluxgate calibration loaded with `SETFLUX` but does not fit one.
 pub const BOARD_MODEL: &str = "tl16+field";
 
+/// The board's coefficient vector (`GETCOEF`/`SETCOEF` indices, its store): beside its
+/// model the board runs that model with the fluxgate as a witness (docs/firmware.md,
+/// "Fluxgate witness"), so the vector is the witnessed model's and a set of
+/// [`BOARD_MODEL`] has `fluxmod` = 0.
+pub const BOARD_COEFFICIENTS: &str = "tl16+field+fluxmod";
+
 impl ModelSpec {
     /// Whether the model asks for the fluxgate's scalar calibration (`fluxcal`).
     pub fn calibrates_fluxgate(&self) -> bool {
