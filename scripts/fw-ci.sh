@@ -21,10 +21,9 @@ arm-none-eabi-size "$FW" | awk 'NR==2{f=$1+$2; r=$2+$3;
   printf "flash %d B = %.1f KiB (budget 256 KiB), static RAM %d B = %.1f KiB (budget 64 KiB)\n", f, f/1024, r, r/1024;
   if (f > 262144 || r > 65536) { print "over budget"; exit 1 } }'
 
-step "lint: firmware (acq, acq+flux-spi, acq+flux-witness) and hil-tests"
+step "lint: firmware (acq, acq+flux-spi) and hil-tests"
 cargo clippy --locked --no-deps -p magcomp-firmware --target thumbv7em-none-eabihf -- -D warnings
 cargo clippy --locked --no-deps -p magcomp-firmware --target thumbv7em-none-eabihf --features flux-spi -- -D warnings
-cargo clippy --locked --no-deps -p magcomp-firmware --target thumbv7em-none-eabihf --features flux-witness -- -D warnings
 cargo clippy --locked --no-deps -p hil-tests --tests -- -D warnings
 bash scripts/build-emu.sh --clippy >/dev/null
 

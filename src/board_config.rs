@@ -8,37 +8,40 @@ use magcomp_core::acquisition::{
 };
 use magcomp_core::compensator::CompensatorError;
 use magcomp_core::model::Model;
-use magcomp_core::protocol::command::model_hash;
+use magcomp_core::protocol::command::{MAX_SENSORS, model_hash};
 use magcomp_core::protocol::fluxgate::{FluxAsciiReader, FluxError, FluxgateCal};
 use magcomp_core::protocol::multi_scalar::ScalarLine;
 use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
 use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
 
-/// The model compiled into the board: the paper's (16 TL coefficients + 5 field states),
-/// or with the `flux-witness` feature the paper's plus `fluxmod`, for an installation
-/// whose fluxgate sees the aircraft's field (docs/firmware.md, "Fluxgate witness").
-#[cfg(not(feature = "flux-witness"))]
-pub const MODEL_SPEC: &[u8] = b"tl16+field";
-#[cfg(feature = "flux-witness")]
+/// The coefficient vector of the board (GETCOEF/SETCOEF indices, staged sets, the store's
+/// blobs): the witnessed model's order, the paper model's 16 terms then `fluxmod`. The board
+/// runs the paper model (16 TL coefficients + 5 field states) with this one beside it as the
+/// fluxgate's witness (docs/firmware.md, "Fluxgate witness"); a paper set is this vector with
+/// `fluxmod` 0.
 pub const MODEL_SPEC: &[u8] = b"tl16+field+fluxmod";
+/// The paper model's spec: the model id of the sets earlier firmware stored.
+pub const PAPER_SPEC: &[u8] = b"tl16+field";
 /// Whether the fluxgate's frames carry its temperature: the serial fluxgate's do
 /// (`X,Y,Z,T*hh`); the SPI ADC (`flux-spi`) has no temperature channel, so a temperature
 /// calibration (`SETFTEMP`) would turn every record `FLUX_STALE` there and is refused.
 pub const FLUX_HAS_TEMPERATURE: bool = !cfg!(feature = "flux-spi");
 
 /// Coefficients of `MODEL_SPEC` (the index bound of GETCOEF/SETCOEF).
-#[cfg(not(feature = "flux-witness"))]
-pub const N_COEF: usize = 16;
-#[cfg(feature = "flux-witness")]
 pub const N_COEF: usize = 17;
+/// Coefficients of the paper model: the vector's first ones.
+pub const N_PAPER: usize = 16;
+/// Index of `fluxmod`'s coefficient in the vector: 0 in a paper set.
+pub const FLUXMOD: usize = N_PAPER;
 
-/// The model of `MODEL_SPEC`.
+/// The model of the board's main filter (and of sensors 1–2 on a counter line).
 pub fn board_model() -> Model<'static> {
-    if cfg!(feature = "flux-witness") {
-        Model::paper_with_fluxgate_witness()
-    } else {
-        Model::paper()
-    }
+    Model::paper()
+}
+
+/// The model run beside it while single fields arrive (`Acquisition::attach_witness`).
+pub fn witness_model() -> Model<'static> {
+    Model::paper_with_fluxgate_witness()
 }
 
 /// State capacity and derivative-window capacity of the on-board filter. 24 holds the paper
@@ -55,12 +58,95 @@ pub const GPS_HZ: f64 = 1.0;
 
 pub type BoardAcquisition = Acquisition<'static, STATE_CAPACITY, WINDOW>;
 
-/// `SETCOEF` values waiting for `MODE,SURVEY`, per sensor (channel of a counter line).
-pub type Staged = [Option<[f32; N_COEF]>; magcomp_core::protocol::command::MAX_SENSORS];
+/// One sensor's set in the board's order ([`MODEL_SPEC`]).
+pub type CoefSet = [f32; N_COEF];
+
+/// Sets not (yet) in a filter.
+#[derive(Clone, Copy, Default)]
+pub struct Staged {
+    /// `SETCOEF` values waiting for `MODE,SURVEY`, per sensor (channel of a counter line).
+    pub sets: [Option<CoefSet>; MAX_SENSORS],
+    /// Sensor 1's loaded set while the witness runs in its compensator: it goes there once
+    /// counter lines take that compensator back (`unpark`), else the witness would run it.
+    pub parked: Option<CoefSet>,
+}
+
+impl Staged {
+    pub const NONE: Self = Self {
+        sets: [None; MAX_SENSORS],
+        parked: None,
+    };
+}
+
+/// Sensor `sensor`'s set as `GETCOEF` and `SAVE` read it: the staged one when one waits;
+/// sensor 0's is the shown filter's (the paper filter's 16 values and `fluxmod` 0, or the
+/// witnessed filter's 17); sensors 1–2 run the paper model (`fluxmod` 0).
+pub fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> CoefSet {
+    if let Some(Some(c)) = staged.sets.get(sensor) {
+        return *c;
+    }
+    let mut c = [0f32; N_COEF];
+    match sensor {
+        0 => {
+            acq.coefficients(&mut c);
+        }
+        // the witness's coefficients are not sensor 1's: its own set, or a fresh filter's 0s
+        1 if acq.witness().is_some() => c = staged.parked.unwrap_or(c),
+        s => {
+            if let Some(comp) = acq.sensor(s) {
+                comp.coefficients(&mut c[..N_PAPER]);
+            }
+        }
+    }
+    c
+}
+
+/// Loads sensor `sensor`'s set (survey mode). Sensor 0: with `fluxmod` 0 it is a paper set
+/// for the paper filter, else the witnessed filter's, shown from then on. Sensors 1–2 run
+/// the paper model: a set with `fluxmod` ≠ 0 is refused; sensor 1's is parked while the
+/// witness holds its compensator.
+pub fn load_set(
+    acq: &mut BoardAcquisition,
+    staged: &mut Staged,
+    sensor: usize,
+    c: &CoefSet,
+) -> Result<(), CompensatorError> {
+    let paper = c[FLUXMOD] == 0.0;
+    match sensor {
+        0 if paper => acq.set_coefficients(&c[..N_PAPER]),
+        0 => acq.set_coefficients(c),
+        _ if !paper || c.iter().any(|v| !v.is_finite()) => Err(CompensatorError::BadCoefficients),
+        1 if acq.witness().is_some() => {
+            staged.parked = Some(*c);
+            Ok(())
+        }
+        s => acq
+            .sensor_mut(s)
+            .ok_or(CompensatorError::BadConfig)?
+            .set_coefficients(&c[..N_PAPER]),
+    }
+}
+
+/// Sensor 1's parked set into its compensator once counter lines have detached the witness
+/// (called after each event; from the line after the first counter line on).
+pub fn unpark(acq: &mut BoardAcquisition, staged: &mut Staged) {
+    if staged.parked.is_none() || acq.witness().is_some() {
+        return;
+    }
+    if let (Some(c), Some(comp)) = (staged.parked.take(), acq.sensor_mut(1)) {
+        // checked when parked
+        let _ = comp.set_coefficients(&c[..N_PAPER]);
+    }
+}
 
 /// Model id stored in the coefficient blob.
 pub fn model_id() -> u32 {
     model_hash(MODEL_SPEC)
+}
+
+/// Model id of the 16-value blobs earlier firmware (the paper model alone) stored.
+pub fn paper_model_id() -> u32 {
+    model_hash(PAPER_SPEC)
 }
 
 /// Rates, default scalar parser, ±100 000 nT fluxgate with identity axes, no fluxgate
@@ -69,16 +155,20 @@ pub fn acq_config() -> AcqConfig {
     AcqConfig::new(SCALAR_HZ, FLUX_HZ, GPS_HZ)
 }
 
-/// Starts (or restarts) the board's acquisition in place: no filter on the stack.
+/// Starts (or restarts) the board's acquisition in place: no filter on the stack. The
+/// witness is attached here because `reset_in_place` drops it.
 pub fn start(acq: &mut BoardAcquisition) -> Result<(), AcqError> {
     acq.reset_in_place(
         acq_config(),
         board_model(),
         compensator_config(SCALAR_HZ as f32, WINDOW),
-    )
+    )?;
+    acq.attach_witness(witness_model())
+        .map_err(AcqError::Compensator)
 }
 
 /// Restarts the compensator in place (`RESET`); sequence numbers and time base continue.
+/// The witness, when attached, restarts with it (`reset_compensator` keeps it).
 pub fn restart_filter(acq: &mut BoardAcquisition) -> Result<(), CompensatorError> {
     acq.reset_compensator(board_model(), compensator_config(SCALAR_HZ as f32, WINDOW))
 }

@@ -35,7 +35,7 @@ use magcomp_core::model::Model;
 use static_cell::ConstStaticCell;
 
 /// A line for the output port (records < 192 bytes, multi records < 384 (`MAX_MULTI_RECORD_LEN`);
-/// GETCOEF of all 16 coefficients < 320).
+/// GETCOEF of all 17 coefficients < 320).
 pub struct Line {
     buf: [u8; LINE_LEN],
     len: usize,
@@ -230,16 +230,17 @@ async fn flux_spi_task(mut f: board::FluxPort) {
 /// the filter's state.
 #[embassy_executor::task]
 async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStore) {
-    match load_coefficients(&mut store, acq) {
+    // `staged` first: sensor 1's stored set may be parked in it
+    let mut staged = Staged::NONE;
+    match load_coefficients(&mut store, acq, &mut staged) {
         Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
         Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
     }
     // `hil-sync`: frames taken per port (scalar, flux, GPS), acknowledged after each one
     #[cfg(feature = "hil-sync")]
     let mut taken = [0u64; 3];
-    // `SETCOEF` values waiting for `MODE,SURVEY`: one value must not switch the board to a
-    // half-uploaded set.
-    let mut staged: Staged = [None; MAX_SENSORS];
+    // `SETCOEF` values wait in `staged` for `MODE,SURVEY`: one value must not switch the
+    // board to a half-uploaded set.
     loop {
         let ev = match health::idle(Task::Acq, select(EVENTS.receive(), COMMANDS.receive())).await {
             Either::First(ev) => ev,
@@ -255,6 +256,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
             Event::Gps(_) => 2,
         };
         let record = ev.apply(acq);
+        bc::unpark(acq, &mut staged);
         // `RAW,ON`: the sample as the aligner made it, for calibration after landing
         if let Some(raw) = acq.take_raw() {
             send_raw(&raw).await;
@@ -317,18 +319,22 @@ fn image_seqs(
 /// blob or there is none. With no valid image, the earlier firmware's store: its newest
 /// valid image, else its single-image blobs (`store::load_legacy`), so an upgraded board
 /// keeps its calibration until the next `SAVE` writes the current images.
-fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
+fn load_coefficients(
+    st: &mut board::CoefStore,
+    acq: &mut BoardAcquisition,
+    staged: &mut Staged,
+) -> Result<(), ()> {
     let mut img = store::ERASED;
     if let Some(i) = store::newest(image_seqs(&mut img, |i, b| st.read(i, b))) {
         st.read(i, &mut img).map_err(|_| ())?;
-        return store::load_image(&img, acq);
+        return store::load_image(&img, acq, staged);
     }
     let old = store::newest(image_seqs(&mut img, |i, b| st.read_old(i, b)));
     // the single-image store was where the two-image firmware put its image 1
     st.read_old(old.unwrap_or(1), &mut img).map_err(|_| ())?;
     match old {
-        Some(_) => store::load_image(&img, acq),
-        None => store::load_legacy(&img, acq),
+        Some(_) => store::load_image(&img, acq, staged),
+        None => store::load_legacy(&img, acq, staged),
     }
 }
 
@@ -350,18 +356,6 @@ fn mode(acq: &BoardAcquisition) -> Mode {
     } else {
         Mode::Cal
     }
-}
-
-/// Sensor `sensor`'s coefficients as `GETCOEF` reads them: the staged set when one waits.
-fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> [f32; N_COEF] {
-    if let Some(Some(c)) = staged.get(sensor) {
-        return *c;
-    }
-    let mut c = [0f32; N_COEF];
-    if let Some(comp) = acq.sensor(sensor) {
-        comp.coefficients(&mut c);
-    }
-    c
 }
 
 fn mode_word(m: Mode) -> &'static [u8] {
@@ -401,13 +395,13 @@ async fn handle_command(
         Command::Mode(m) => set_mode(m, acq, staged),
         Command::Status => status(acq),
         Command::GetCoef(Some(i)) => {
-            let v = coefficients(acq, staged, 0)
+            let v = bc::coefficients(acq, staged, 0)
                 .get(usize::from(i))
                 .copied()
                 .unwrap_or(f32::NAN);
             Line::fill(|out| encode_ack_coef(i, v, out))
         }
-        Command::GetCoef(None) => ack_values(b"GETCOEF", &coefficients(acq, staged, 0)),
+        Command::GetCoef(None) => ack_values(b"GETCOEF", &bc::coefficients(acq, staged, 0)),
         Command::GetSensorCoef { sensor, index } => get_sensor_coef(sensor, index, acq, staged),
         Command::SetCoef { index, value } => stage_coefficient(0, index, value, acq, staged),
         Command::SetSensorCoef {
@@ -458,14 +452,15 @@ async fn handle_command(
 
 /// `MODE`: the staged sets become the survey's coefficients here, all at once; a sensor
 /// with none staged keeps its own (as a single sensor's `MODE,SURVEY` without a set).
+/// Sensor 0's set goes to the paper filter or the witnessed one by its `fluxmod`; sensors
+/// 1–2 refuse a set with `fluxmod` ≠ 0 (`board_config::load_set`).
 fn set_mode(m: Mode, acq: &mut BoardAcquisition, staged: &mut Staged) -> Line {
     if m == Mode::Survey {
-        for (sensor, set) in staged.iter_mut().enumerate() {
-            let Some(c) = set.take() else { continue };
-            if acq
-                .sensor_mut(sensor)
-                .is_none_or(|comp| comp.set_coefficients(&c).is_err())
-            {
+        for sensor in 0..MAX_SENSORS {
+            let Some(c) = staged.sets[sensor].take() else {
+                continue;
+            };
+            if bc::load_set(acq, staged, sensor, &c).is_err() {
                 defmt::error!("staged coefficients of sensor {} refused", sensor);
             }
         }
@@ -515,7 +510,7 @@ fn get_sensor_coef(
     acq: &BoardAcquisition,
     staged: &Staged,
 ) -> Line {
-    let c = coefficients(acq, staged, sensor.into());
+    let c = bc::coefficients(acq, staged, sensor.into());
     let values = match index {
         Some(i) => c
             .get(usize::from(i)..=usize::from(i))
@@ -547,10 +542,10 @@ fn stage_coefficient(
     acq: &BoardAcquisition,
     staged: &mut Staged,
 ) -> Line {
-    let mut c = coefficients(acq, staged, sensor.into());
+    let mut c = bc::coefficients(acq, staged, sensor.into());
     match (
         c.get_mut(usize::from(index)),
-        staged.get_mut(usize::from(sensor)),
+        staged.sets.get_mut(usize::from(sensor)),
     ) {
         (Some(slot), Some(set)) if value.is_finite() => {
             *slot = value;
@@ -622,7 +617,7 @@ async fn restart(
     };
     let mut failed = false;
     if cmd != Command::Flush {
-        *staged = [None; MAX_SENSORS];
+        *staged = Staged::NONE;
         // in place: no second filter on the stack
         if bc::restart_filter(acq).is_err() {
             defmt::error!("compensator re-init failed");
@@ -634,9 +629,9 @@ async fn restart(
             // current set, never an older one. Then the boot defaults.
             failed = st.retire_old().is_err()
                 || (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
-            store::defaults(acq);
+            store::defaults(acq, staged);
         } else {
-            let _ = load_coefficients(st, acq);
+            let _ = load_coefficients(st, acq, staged);
         }
     }
     if failed {

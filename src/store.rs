@@ -16,8 +16,14 @@
 //!
 //! Sensors 1 and 2 (the counter line's channels, `SETCOEF,<sensor>,…`) were added after the
 //! four first slots, at the end: an image written before them (`MCS2`, its CRC after the
-//! four) is the new layout's prefix and still loads, its sensors 1–2 calibrating; new
-//! images say `MCS3`.
+//! four) is the new layout's prefix and still loads, its sensors 1–2 calibrating.
+//!
+//! The sets became the witnessed model's 17 values (`board_config::MODEL_SPEC`) when the
+//! board started running the witness beside the paper model; new images say `MCS4`. Earlier
+//! firmware's images (`MCS3`, `MCS2`) hold the paper model's 16 values (id
+//! `board_config::PAPER_SPEC`), or with its `flux-witness` build the 17 of today: [`Form`];
+//! which one an image holds, its CRC's place says ([`LAYOUTS`]). A paper set loads with
+//! `fluxmod` 0.
 //!
 //! Where the images are is the board's business (`board_shape::CoefStore`): on the real
 //! board the 16 KiB flash sectors 1 and 2. Earlier firmware kept them in the 128 KiB
@@ -33,7 +39,10 @@ use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 
 use magcomp_core::protocol::common::crc32;
 
-use crate::board_config::{BoardAcquisition, FLUX_HAS_TEMPERATURE, N_COEF, Staged, model_id};
+use crate::board_config::{
+    self as bc, BoardAcquisition, FLUX_HAS_TEMPERATURE, N_COEF, N_PAPER, Staged, model_id,
+    paper_model_id,
+};
 
 /// One blob of the store.
 #[derive(Clone, Copy)]
@@ -62,21 +71,37 @@ pub const SLOTS: [Slot; 6] = [
 /// Slots of an `MCS2` image (before sensors 1–2).
 const SLOTS_V2: usize = 4;
 
-/// Bytes of the first `n` slots.
-const fn slots_len(n: usize) -> usize {
+/// How an image holds the sensors' sets.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Form {
+    /// The board's vector: the witnessed model's 17 values (`MODEL_SPEC`'s id).
+    Board,
+    /// Earlier firmware's paper model alone: 16 values (`PAPER_SPEC`'s id).
+    Paper,
+}
+
+impl Form {
+    const fn values(self) -> usize {
+        match self {
+            Form::Board => N_COEF,
+            Form::Paper => N_PAPER,
+        }
+    }
+}
+
+/// Bytes of the first `n` slots with the sets in `form`.
+const fn slots_len(n: usize, form: Form) -> usize {
     let mut len = 0;
     let mut i = 0;
     while i < n {
-        len += blob_len(SLOTS[i].values());
+        len += blob_len(SLOTS[i].values_in(form));
         i += 1;
     }
     len
 }
 
 /// Bytes of the whole store.
-pub const LEN: usize = slots_len(SLOTS.len());
-/// Bytes of an `MCS2` image's blobs.
-const LEN_V2: usize = slots_len(SLOTS_V2);
+pub const LEN: usize = slots_len(SLOTS.len(), Form::Board);
 
 /// Largest slot (values): the scratch array `save`/`load` use.
 const MAX_VALUES: usize = {
@@ -94,18 +119,27 @@ const MAX_VALUES: usize = {
 impl Slot {
     /// Values held.
     pub const fn values(self) -> usize {
+        self.values_in(Form::Board)
+    }
+
+    /// Values held in an image whose sets are in `form`.
+    const fn values_in(self, form: Form) -> usize {
         match self {
-            Slot::Model(_) => N_COEF,
+            Slot::Model(_) => form.values(),
             Slot::FluxCal => FLUX_CAL_LEN,
             Slot::Lag => 1,
             Slot::FluxTemp => FLUX_TEMP_LEN,
         }
     }
 
-    fn id(self) -> u32 {
+    fn id(self, form: Form) -> u32 {
+        let model = match form {
+            Form::Board => model_id(),
+            Form::Paper => paper_model_id(),
+        };
         match self {
             // sensor n's blob: the model's id plus n, so blobs never stand in for each other
-            Slot::Model(n) => model_id().wrapping_add(n.into()),
+            Slot::Model(n) => model.wrapping_add(n.into()),
             Slot::FluxCal => flux_blob_id(),
             Slot::Lag => lag_blob_id(),
             Slot::FluxTemp => flux_temp_blob_id(),
@@ -117,13 +151,7 @@ impl Slot {
     fn read(self, acq: &BoardAcquisition, staged: &Staged, out: &mut [f32; MAX_VALUES]) -> usize {
         let n = self.values();
         match self {
-            Slot::Model(s) => match (staged.get(usize::from(s)), acq.sensor(s.into())) {
-                (Some(Some(c)), _) => out[..n].copy_from_slice(c),
-                (_, Some(comp)) => {
-                    comp.coefficients(&mut out[..n]);
-                }
-                _ => {}
-            },
+            Slot::Model(s) => out[..n].copy_from_slice(&bc::coefficients(acq, staged, s.into())),
             Slot::FluxCal => out[..n].copy_from_slice(&acq.flux_calibration().to_array()),
             Slot::Lag => out[0] = acq.lag_s(),
             Slot::FluxTemp => out[..n].copy_from_slice(&acq.flux_temp_calibration().to_array()),
@@ -133,16 +161,24 @@ impl Slot {
 
     /// Applies stored values (`None`: the slot was absent or invalid). `Err` only for
     /// sensor 0's model, whose absence means "calibrate"; sensors 1–2 without theirs
-    /// calibrate on their own.
-    fn apply(self, acq: &mut BoardAcquisition, v: Option<&[f32]>) -> Result<(), ()> {
+    /// calibrate on their own. A paper set (16 values) is the board's vector with
+    /// `fluxmod` 0.
+    fn apply(
+        self,
+        acq: &mut BoardAcquisition,
+        staged: &mut Staged,
+        v: Option<&[f32]>,
+    ) -> Result<(), ()> {
         match self {
-            Slot::Model(0) => acq.set_coefficients(v.ok_or(())?).map_err(|_| ()),
             Slot::Model(s) => {
-                if let (Some(v), Some(comp)) = (v, acq.sensor_mut(s.into())) {
-                    // a bad blob is refused: that sensor calibrates
-                    let _ = comp.set_coefficients(v);
-                }
-                Ok(())
+                let Some(v) = v else {
+                    return if s == 0 { Err(()) } else { Ok(()) };
+                };
+                let mut c = [0f32; N_COEF];
+                c[..v.len()].copy_from_slice(v);
+                let r = bc::load_set(acq, staged, s.into(), &c);
+                // sensors 1–2: a bad blob is refused, that sensor calibrates
+                if s == 0 { r.map_err(|_| ()) } else { Ok(()) }
             }
             Slot::FluxCal => {
                 let cal = v
@@ -170,16 +206,22 @@ impl Slot {
     }
 }
 
-/// Loads the stored slots into the acquisition. `Err` when the model's blob is missing or
-/// invalid (the board then calibrates; the later slots are not read). Bytes past an
-/// `MCS2` image's blobs hold no valid blob: sensors 1–2 then calibrate.
-pub fn load(raw: &[u8; LEN], acq: &mut BoardAcquisition) -> Result<(), ()> {
+/// Loads the stored slots, the sets in `form`, into the acquisition (sensor 1's set may be
+/// parked in `staged`). `Err` when the model's blob is missing or invalid (the board then
+/// calibrates; the later slots are not read). Bytes past an `MCS2` image's blobs hold no
+/// valid blob: sensors 1–2 then calibrate.
+pub fn load(
+    raw: &[u8; LEN],
+    form: Form,
+    acq: &mut BoardAcquisition,
+    staged: &mut Staged,
+) -> Result<(), ()> {
     let mut at = 0;
     for s in SLOTS {
-        let n = s.values();
+        let n = s.values_in(form);
         let mut v = [0f32; MAX_VALUES];
-        let ok = decode_blob(&raw[at..], s.id(), &mut v[..n]).is_ok();
-        s.apply(acq, ok.then_some(&v[..n]))?;
+        let ok = decode_blob(&raw[at..], s.id(form), &mut v[..n]).is_ok();
+        s.apply(acq, staged, ok.then_some(&v[..n]))?;
         at += blob_len(n);
     }
     Ok(())
@@ -188,10 +230,11 @@ pub fn load(raw: &[u8; LEN], acq: &mut BoardAcquisition) -> Result<(), ()> {
 /// Every slot back to its default (what an erased store loads as): no coefficients (the
 /// filter, restarted by the caller, calibrates), identity fluxgate calibration, τ = 0, no
 /// temperature drift.
-pub fn defaults(acq: &mut BoardAcquisition) {
+pub fn defaults(acq: &mut BoardAcquisition, staged: &mut Staged) {
+    staged.parked = None;
     for s in SLOTS {
         // the model has no default to apply: its `Err` means "calibrate", as after boot
-        let _ = s.apply(acq, None);
+        let _ = s.apply(acq, staged, None);
     }
 }
 
@@ -201,7 +244,7 @@ pub fn save(acq: &BoardAcquisition, staged: &Staged, raw: &mut [u8; LEN]) -> Res
     for s in SLOTS {
         let mut v = [0f32; MAX_VALUES];
         let n = s.read(acq, staged, &mut v);
-        at += encode_blob(s.id(), &v[..n], &mut raw[at..]).map_err(|_| ())?;
+        at += encode_blob(s.id(Form::Board), &v[..n], &mut raw[at..]).map_err(|_| ())?;
     }
     Ok(())
 }
@@ -213,9 +256,18 @@ pub const N_IMAGES: usize = 2;
 pub const N_OLD_IMAGES: usize = N_IMAGES;
 /// Bytes of one image: magic, sequence number (u32 LE), the blobs, CRC-32 (u32 LE).
 pub const IMAGE_LEN: usize = 8 + LEN + 4;
-const IMAGE_MAGIC: [u8; 4] = *b"MCS3";
-/// An image written before sensors 1–2: its CRC follows the first [`SLOTS_V2`] blobs.
-const IMAGE_MAGIC_V2: [u8; 4] = *b"MCS2";
+const IMAGE_MAGIC: [u8; 4] = *b"MCS4";
+
+/// The images boot reads: magic, slots held, form of the sets; the CRC follows the slots.
+/// `MCS3` and `MCS2` are earlier firmware's (`MCS2` before sensors 1–2), in either form:
+/// the paper model's, or its `flux-witness` build's (the current vector).
+const LAYOUTS: [([u8; 4], usize, Form); 5] = [
+    (IMAGE_MAGIC, SLOTS.len(), Form::Board),
+    (*b"MCS3", SLOTS.len(), Form::Paper),
+    (*b"MCS3", SLOTS.len(), Form::Board),
+    (*b"MCS2", SLOTS_V2, Form::Paper),
+    (*b"MCS2", SLOTS_V2, Form::Board),
+];
 
 /// One image's bytes.
 pub type Image = [u8; IMAGE_LEN];
@@ -223,21 +275,23 @@ pub type Image = [u8; IMAGE_LEN];
 /// An image that reads as erased flash.
 pub const ERASED: Image = [0xFF; IMAGE_LEN];
 
-/// The sequence number of a valid image (magic and CRC check), `MCS3` or `MCS2`.
+/// The sequence number of a valid image (magic and CRC check), current or earlier.
 pub fn sequence(img: &Image) -> Option<u32> {
-    let magic: [u8; 4] = img[..4].try_into().ok()?;
-    let len = match magic {
-        IMAGE_MAGIC => LEN,
-        IMAGE_MAGIC_V2 => LEN_V2,
-        _ => return None,
-    };
-    let body = &img[..8 + len];
-    let crc = img[8 + len..12 + len]
-        .try_into()
-        .ok()
-        .map(u32::from_le_bytes)?;
+    layout(img).map(|(seq, _)| seq)
+}
+
+/// A valid image's sequence number and the form of its sets: the first of [`LAYOUTS`]
+/// whose magic it has and whose CRC checks where that layout puts it.
+fn layout(img: &Image) -> Option<(u32, Form)> {
     let seq = img[4..8].try_into().ok().map(u32::from_le_bytes)?;
-    (crc32(body) == crc).then_some(seq)
+    LAYOUTS.iter().find_map(|&(magic, slots, form)| {
+        let len = slots_len(slots, form);
+        let crc = img[8 + len..12 + len]
+            .try_into()
+            .ok()
+            .map(u32::from_le_bytes)?;
+        (img[..4] == magic && crc32(&img[..8 + len]) == crc).then_some((seq, form))
+    })
 }
 
 /// Which image to load: the valid one with the newest sequence number (compared modulo
@@ -261,14 +315,18 @@ pub fn next(seqs: [Option<u32>; N_IMAGES]) -> (usize, u32) {
 }
 
 /// Loads a valid image's blobs (`Err`: no valid model blob: calibrate).
-pub fn load_image(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
-    load(part(img, 8), acq)
+pub fn load_image(img: &Image, acq: &mut BoardAcquisition, staged: &mut Staged) -> Result<(), ()> {
+    let form = layout(img).map_or(Form::Board, |(_, f)| f);
+    load(part(img, 8), form, acq, staged)
 }
 
 /// Loads a store written before the two images existed: the blobs alone at the start of
-/// the earlier firmware's second image (the real board's sector 11).
-pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
-    load(part(img, 0), acq)
+/// the earlier firmware's second image (the real board's sector 11). No CRC says their
+/// form: the paper model's (that firmware's), else the current one; a set that is not
+/// the paper model's fails at the first blob, before anything is applied.
+pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition, staged: &mut Staged) -> Result<(), ()> {
+    load(part(img, 0), Form::Paper, acq, staged)
+        .or_else(|()| load(part(img, 0), Form::Board, acq, staged))
 }
 
 /// `LEN` bytes of an image from `at` (always in range: `at` ≤ 8).

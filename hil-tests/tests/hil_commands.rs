@@ -10,6 +10,7 @@ use common::{
     reply_values, run_flight, send_hook, speed, start_with_hooks,
 };
 use hil_tests::board::{self, Board, sentence};
+use hil_tests::board_config::{FLUXMOD, N_COEF};
 use hil_tests::capture::{FlightSpec, synthetic_flight};
 use hil_tests::replay::replay;
 use magcomp_core::Flags;
@@ -57,7 +58,7 @@ fn malformed_commands_rejected_valid_ones_applied() {
     expect_err(&mut b, &sentence("MCXYZ,STATUS"), "FRAMING");
     expect_err(&mut b, b"garbage \x01\x02\xff\r\n", "FRAMING");
     expect_err(&mut b, &sentence("MCCMD,SETCOEF,99,1.0"), "INDEX");
-    expect_err(&mut b, &sentence("MCCMD,GETCOEF,16"), "INDEX");
+    expect_err(&mut b, &sentence("MCCMD,GETCOEF,17"), "INDEX");
     expect_err(&mut b, &sentence("MCCMD,SETCOEF,1,1E9"), "VALUE");
     expect_err(&mut b, &sentence("MCCMD,SETCOEF,1,NaN"), "BADARG");
     expect_err(&mut b, &sentence("MCCMD,MODE,TURBO"), "BADARG");
@@ -88,8 +89,8 @@ fn malformed_commands_rejected_valid_ones_applied() {
     let all = ack(&mut b, "MCCMD,GETCOEF");
     assert_eq!(
         all.split(',').count(),
-        2 + 16,
-        "GETCOEF returns 16 coefficients: {all}"
+        2 + N_COEF,
+        "GETCOEF returns the board's 17 coefficients: {all}"
     );
     assert!(ack(&mut b, "MCCMD,SETCOEF,0,5.25").starts_with("$MCACK,SETCOEF,0,"));
     assert_eq!(coef(&ack(&mut b, "MCCMD,GETCOEF,0")), 5.25);
@@ -372,9 +373,12 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
     eprintln!("{name}: {}", said.trim());
     let check = |b: &mut Board, when: &str| {
         let c = reply_values(&b.command("MCCMD,GETCOEF").unwrap());
+        // the board's vector: the paper model's 16, then `fluxmod`, 0 for a paper set
+        assert_eq!(c.get(FLUXMOD), Some(&0.0), "{when}: fluxmod in {c:?}");
+        let c = &c[..FLUXMOD];
         let f = reply_values(&b.command("MCCMD,GETFLUX").unwrap());
         assert!(
-            coefficients_read_back(&c, &want_coef),
+            coefficients_read_back(c, &want_coef),
             "{when}: coefficients {c:?} ≠ {want_coef:?}"
         );
         assert_eq!(f, want_flux, "{when}: fluxgate calibration");
@@ -416,11 +420,11 @@ fn commands_back_to_back_all_take_effect() {
     }
     let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
     let n_rounds = 40;
-    let mut want = [0f32; 16];
+    let mut want = [0f32; N_COEF];
     for round in 0..n_rounds {
         for (i, w) in want.iter_mut().enumerate() {
             // distinct, exactly representable values
-            *w = (round * 16 + i) as f32 * 0.25 - 100.0;
+            *w = (round * N_COEF + i) as f32 * 0.25 - 100.0;
             let r = b
                 .command(&format!("MCCMD,SETCOEF,{i},{w}"))
                 .unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -441,7 +445,7 @@ fn commands_back_to_back_all_take_effect() {
     assert_eq!(cmd_errors, b.resends(), "command errors = resends: {s}");
     eprintln!(
         "{name}: {} commands back to back, all applied; {} arrived damaged and were resent",
-        n_rounds * 17 + 1,
+        n_rounds * (N_COEF + 1) + 1,
         b.resends()
     );
 }
@@ -704,7 +708,7 @@ fn save_cut_at_any_point_keeps_the_old_set() {
     assert!(set_and_save(&mut b, 0.1).starts_with("$MCACK,SAVE"));
     reload(&mut b);
     assert_eq!(lag(&mut b), 0.1);
-    // image: 8-byte header, the blobs (the first four 208 bytes, then sensors 1 and 2),
+    // image: 8-byte header, the blobs (the first four 212 bytes, then sensors 1 and 2),
     // CRC-32 last: cut before, inside the first blobs and the later sensors', at the end
     let len = hil_tests::store::IMAGE_LEN;
     let cuts = [
@@ -713,9 +717,9 @@ fn save_cut_at_any_point_keeps_the_old_set() {
         7,
         8,
         100,
-        215,
-        216,
         219,
+        220,
+        223,
         300,
         len - 5,
         len - 4,
@@ -748,5 +752,66 @@ fn save_cut_at_any_point_keeps_the_old_set() {
         "{name}: {} cut saves of a {len}-byte image kept the previous set; complete saves \
          alternate images",
         cuts.len() + 1
+    );
+}
+
+/// The board runs the paper model with the fluxgate's witness beside it (docs/firmware.md,
+/// "Fluxgate witness"): a set of the board's 17 values with `fluxmod` ≠ 0 flies the
+/// witnessed filter, whose records are shown (flag `WITNESS`) and whose set `GETCOEF` reads
+/// back; the same set with `fluxmod` 0 is the paper filter's, its records without the flag.
+#[test]
+fn a_set_with_fluxmod_flies_the_witnessed_filter_and_one_without_the_paper_filter() {
+    let name = "witness";
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return;
+    }
+    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    // exactly representable; `fluxmod`'s (index 16) 0.5
+    let mut want: Vec<f32> = (0..N_COEF).map(|i| (i as f32 - 8.0) * 0.125).collect();
+    want[FLUXMOD] = 0.5;
+    let fly = |b: &mut Board, set: &[f32], from: usize| {
+        for (i, v) in set.iter().enumerate() {
+            let r = reply(b, &format!("MCCMD,SETCOEF,{i},{v}"));
+            assert!(
+                r.starts_with(&format!("$MCACK,SETCOEF,{i},")),
+                "{name}: {r}"
+            );
+        }
+        assert!(reply(b, "MCCMD,MODE,SURVEY").starts_with("$MCACK,MODE,SURVEY"));
+        let got = reply_values(&reply(b, "MCCMD,GETCOEF"));
+        assert!(
+            coefficients_read_back(&got, set),
+            "{name}: GETCOEF {got:?} ≠ {set:?}"
+        );
+        let cap = synthetic_flight(&FlightSpec::new(0x3171_7E55, 3.0));
+        b.stream(&cap, speed())
+            .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
+        let (recs, _) = collect_records(b, name, from + cap.scalar_t_s.len());
+        assert_eq!(recs.len(), from + cap.scalar_t_s.len(), "{name}: records");
+        recs[from..]
+            .iter()
+            .map(|r| {
+                assert!(r.flags.contains(Flags::SURVEY_MODE), "{name}: {r:?}");
+                r.flags.contains(Flags::WITNESS)
+            })
+            .collect::<Vec<bool>>()
+    };
+    let witnessed = fly(&mut b, &want, 0);
+    assert!(
+        witnessed.iter().all(|&w| w),
+        "{name}: a set with fluxmod: every record the witnessed filter's"
+    );
+    want[FLUXMOD] = 0.0;
+    let paper = fly(&mut b, &want, witnessed.len());
+    assert!(
+        paper.iter().all(|&w| !w),
+        "{name}: fluxmod 0: every record the paper filter's"
+    );
+    eprintln!(
+        "{name}: {} records of the witnessed set flagged WITNESS, {} of the paper set not; \
+         GETCOEF read each set back",
+        witnessed.len(),
+        paper.len()
     );
 }
