@@ -66,15 +66,11 @@ pub type CoefSet = [f32; N_COEF];
 pub struct Staged {
     /// `SETCOEF` values waiting for `MODE,SURVEY`, per sensor (channel of a counter line).
     pub sets: [Option<CoefSet>; MAX_SENSORS],
-    /// Sensor 1's loaded set while the witness runs in its compensator: it goes there once
-    /// counter lines take that compensator back (`unpark`), else the witness would run it.
-    pub parked: Option<CoefSet>,
 }
 
 impl Staged {
     pub const NONE: Self = Self {
         sets: [None; MAX_SENSORS],
-        parked: None,
     };
 }
 
@@ -90,8 +86,7 @@ pub fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> C
         0 => {
             acq.coefficients(&mut c);
         }
-        // the witness's coefficients are not sensor 1's: its own set, or a fresh filter's 0s
-        1 if acq.witness().is_some() => c = staged.parked.unwrap_or(c),
+        // while the witness runs in channel 1's compensator, sensor 1 has none: 0s
         s => {
             if let Some(comp) = acq.sensor(s) {
                 comp.coefficients(&mut c[..N_PAPER]);
@@ -101,13 +96,23 @@ pub fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> C
     c
 }
 
+/// Whether sensor `sensor` holds a set worth storing: staged, loaded (survey mode), or
+/// learnt from the counter lines that feed it. A single-sensor board's idle channels do
+/// not, nor does channel 1 while the witness runs in its compensator.
+pub fn holds_set(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> bool {
+    staged.sets.get(sensor).is_some_and(Option::is_some)
+        || acq
+            .sensor(sensor)
+            .is_some_and(|c| c.is_survey_mode() || usize::from(acq.channels()) > sensor)
+}
+
 /// Loads sensor `sensor`'s set (survey mode). Sensor 0: with `fluxmod` 0 it is a paper set
 /// for the paper filter, else the witnessed filter's, shown from then on. Sensors 1–2 run
-/// the paper model: a set with `fluxmod` ≠ 0 is refused; sensor 1's is parked while the
-/// witness holds its compensator.
+/// the paper model: a set with `fluxmod` ≠ 0 is refused; sensor 1's takes channel 1's
+/// compensator back from the witness (an installation of several magnetometers; where the
+/// witness's set was shown, sensor 0 then calibrates afresh).
 pub fn load_set(
     acq: &mut BoardAcquisition,
-    staged: &mut Staged,
     sensor: usize,
     c: &CoefSet,
 ) -> Result<(), CompensatorError> {
@@ -116,26 +121,10 @@ pub fn load_set(
         0 if paper => acq.set_coefficients(&c[..N_PAPER]),
         0 => acq.set_coefficients(c),
         _ if !paper || c.iter().any(|v| !v.is_finite()) => Err(CompensatorError::BadCoefficients),
-        1 if acq.witness().is_some() => {
-            staged.parked = Some(*c);
-            Ok(())
-        }
         s => acq
             .sensor_mut(s)
             .ok_or(CompensatorError::BadConfig)?
             .set_coefficients(&c[..N_PAPER]),
-    }
-}
-
-/// Sensor 1's parked set into its compensator once counter lines have detached the witness
-/// (called after each event; from the line after the first counter line on).
-pub fn unpark(acq: &mut BoardAcquisition, staged: &mut Staged) {
-    if staged.parked.is_none() || acq.witness().is_some() {
-        return;
-    }
-    if let (Some(c), Some(comp)) = (staged.parked.take(), acq.sensor_mut(1)) {
-        // checked when parked
-        let _ = comp.set_coefficients(&c[..N_PAPER]);
     }
 }
 

@@ -230,9 +230,7 @@ async fn flux_spi_task(mut f: board::FluxPort) {
 /// the filter's state.
 #[embassy_executor::task]
 async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStore) {
-    // `staged` first: sensor 1's stored set may be parked in it
-    let mut staged = Staged::NONE;
-    match load_coefficients(&mut store, acq, &mut staged) {
+    match load_coefficients(&mut store, acq) {
         Ok(()) => defmt::info!("stored coefficients loaded: survey mode"),
         Err(()) => defmt::info!("no valid stored coefficients: calibrate mode"),
     }
@@ -241,6 +239,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
     let mut taken = [0u64; 3];
     // `SETCOEF` values wait in `staged` for `MODE,SURVEY`: one value must not switch the
     // board to a half-uploaded set.
+    let mut staged = Staged::NONE;
     loop {
         let ev = match health::idle(Task::Acq, select(EVENTS.receive(), COMMANDS.receive())).await {
             Either::First(ev) => ev,
@@ -256,7 +255,6 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
             Event::Gps(_) => 2,
         };
         let record = ev.apply(acq);
-        bc::unpark(acq, &mut staged);
         // `RAW,ON`: the sample as the aligner made it, for calibration after landing
         if let Some(raw) = acq.take_raw() {
             send_raw(&raw).await;
@@ -319,22 +317,18 @@ fn image_seqs(
 /// blob or there is none. With no valid image, the earlier firmware's store: its newest
 /// valid image, else its single-image blobs (`store::load_legacy`), so an upgraded board
 /// keeps its calibration until the next `SAVE` writes the current images.
-fn load_coefficients(
-    st: &mut board::CoefStore,
-    acq: &mut BoardAcquisition,
-    staged: &mut Staged,
-) -> Result<(), ()> {
+fn load_coefficients(st: &mut board::CoefStore, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut img = store::ERASED;
     if let Some(i) = store::newest(image_seqs(&mut img, |i, b| st.read(i, b))) {
         st.read(i, &mut img).map_err(|_| ())?;
-        return store::load_image(&img, acq, staged);
+        return store::load_image(&img, acq);
     }
     let old = store::newest(image_seqs(&mut img, |i, b| st.read_old(i, b)));
     // the single-image store was where the two-image firmware put its image 1
     st.read_old(old.unwrap_or(1), &mut img).map_err(|_| ())?;
     match old {
-        Some(_) => store::load_image(&img, acq, staged),
-        None => store::load_legacy(&img, acq, staged),
+        Some(_) => store::load_image(&img, acq),
+        None => store::load_legacy(&img, acq),
     }
 }
 
@@ -460,7 +454,7 @@ fn set_mode(m: Mode, acq: &mut BoardAcquisition, staged: &mut Staged) -> Line {
             let Some(c) = staged.sets[sensor].take() else {
                 continue;
             };
-            if bc::load_set(acq, staged, sensor, &c).is_err() {
+            if bc::load_set(acq, sensor, &c).is_err() {
                 defmt::error!("staged coefficients of sensor {} refused", sensor);
             }
         }
@@ -629,9 +623,9 @@ async fn restart(
             // current set, never an older one. Then the boot defaults.
             failed = st.retire_old().is_err()
                 || (0..store::N_IMAGES).any(|i| st.write(i, &store::ERASED).is_err());
-            store::defaults(acq, staged);
+            store::defaults(acq);
         } else {
-            let _ = load_coefficients(st, acq, staged);
+            let _ = load_coefficients(st, acq);
         }
     }
     if failed {

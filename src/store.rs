@@ -146,29 +146,27 @@ impl Slot {
         }
     }
 
-    /// The acquisition's current values for this slot; a sensor's are `staged` when a
-    /// set is waiting for `MODE,SURVEY`.
-    fn read(self, acq: &BoardAcquisition, staged: &Staged, out: &mut [f32; MAX_VALUES]) -> usize {
+    /// The acquisition's current values for this slot (a sensor's are `staged` when a set
+    /// is waiting for `MODE,SURVEY`); false for sensors 1–2 when they hold nothing to keep
+    /// (`board_config::holds_set`): a blob of an idle filter's zeros would load as a set
+    /// and, for sensor 1, stop the witness.
+    fn read(self, acq: &BoardAcquisition, staged: &Staged, out: &mut [f32; MAX_VALUES]) -> bool {
         let n = self.values();
         match self {
+            Slot::Model(s) if s > 0 && !bc::holds_set(acq, staged, s.into()) => return false,
             Slot::Model(s) => out[..n].copy_from_slice(&bc::coefficients(acq, staged, s.into())),
             Slot::FluxCal => out[..n].copy_from_slice(&acq.flux_calibration().to_array()),
             Slot::Lag => out[0] = acq.lag_s(),
             Slot::FluxTemp => out[..n].copy_from_slice(&acq.flux_temp_calibration().to_array()),
         }
-        n
+        true
     }
 
     /// Applies stored values (`None`: the slot was absent or invalid). `Err` only for
     /// sensor 0's model, whose absence means "calibrate"; sensors 1–2 without theirs
     /// calibrate on their own. A paper set (16 values) is the board's vector with
     /// `fluxmod` 0.
-    fn apply(
-        self,
-        acq: &mut BoardAcquisition,
-        staged: &mut Staged,
-        v: Option<&[f32]>,
-    ) -> Result<(), ()> {
+    fn apply(self, acq: &mut BoardAcquisition, v: Option<&[f32]>) -> Result<(), ()> {
         match self {
             Slot::Model(s) => {
                 let Some(v) = v else {
@@ -176,7 +174,7 @@ impl Slot {
                 };
                 let mut c = [0f32; N_COEF];
                 c[..v.len()].copy_from_slice(v);
-                let r = bc::load_set(acq, staged, s.into(), &c);
+                let r = bc::load_set(acq, s.into(), &c);
                 // sensors 1–2: a bad blob is refused, that sensor calibrates
                 if s == 0 { r.map_err(|_| ()) } else { Ok(()) }
             }
@@ -206,22 +204,16 @@ impl Slot {
     }
 }
 
-/// Loads the stored slots, the sets in `form`, into the acquisition (sensor 1's set may be
-/// parked in `staged`). `Err` when the model's blob is missing or invalid (the board then
+/// Loads the stored slots, the sets in `form`, into the acquisition. `Err` when the model's blob is missing or invalid (the board then
 /// calibrates; the later slots are not read). Bytes past an `MCS2` image's blobs hold no
 /// valid blob: sensors 1–2 then calibrate.
-pub fn load(
-    raw: &[u8; LEN],
-    form: Form,
-    acq: &mut BoardAcquisition,
-    staged: &mut Staged,
-) -> Result<(), ()> {
+pub fn load(raw: &[u8; LEN], form: Form, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let mut at = 0;
     for s in SLOTS {
         let n = s.values_in(form);
         let mut v = [0f32; MAX_VALUES];
         let ok = decode_blob(&raw[at..], s.id(form), &mut v[..n]).is_ok();
-        s.apply(acq, staged, ok.then_some(&v[..n]))?;
+        s.apply(acq, ok.then_some(&v[..n]))?;
         at += blob_len(n);
     }
     Ok(())
@@ -230,11 +222,10 @@ pub fn load(
 /// Every slot back to its default (what an erased store loads as): no coefficients (the
 /// filter, restarted by the caller, calibrates), identity fluxgate calibration, τ = 0, no
 /// temperature drift.
-pub fn defaults(acq: &mut BoardAcquisition, staged: &mut Staged) {
-    staged.parked = None;
+pub fn defaults(acq: &mut BoardAcquisition) {
     for s in SLOTS {
         // the model has no default to apply: its `Err` means "calibrate", as after boot
-        let _ = s.apply(acq, staged, None);
+        let _ = s.apply(acq, None);
     }
 }
 
@@ -243,8 +234,15 @@ pub fn save(acq: &BoardAcquisition, staged: &Staged, raw: &mut [u8; LEN]) -> Res
     let mut at = 0;
     for s in SLOTS {
         let mut v = [0f32; MAX_VALUES];
-        let n = s.read(acq, staged, &mut v);
-        at += encode_blob(s.id(Form::Board), &v[..n], &mut raw[at..]).map_err(|_| ())?;
+        let n = s.values();
+        if s.read(acq, staged, &mut v) {
+            at += encode_blob(s.id(Form::Board), &v[..n], &mut raw[at..]).map_err(|_| ())?;
+        } else {
+            // absent: erased bytes, which no blob decodes from (that sensor calibrates)
+            let end = at + blob_len(n);
+            raw.get_mut(at..end).ok_or(())?.fill(0xFF);
+            at = end;
+        }
     }
     Ok(())
 }
@@ -315,18 +313,17 @@ pub fn next(seqs: [Option<u32>; N_IMAGES]) -> (usize, u32) {
 }
 
 /// Loads a valid image's blobs (`Err`: no valid model blob: calibrate).
-pub fn load_image(img: &Image, acq: &mut BoardAcquisition, staged: &mut Staged) -> Result<(), ()> {
+pub fn load_image(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
     let form = layout(img).map_or(Form::Board, |(_, f)| f);
-    load(part(img, 8), form, acq, staged)
+    load(part(img, 8), form, acq)
 }
 
 /// Loads a store written before the two images existed: the blobs alone at the start of
 /// the earlier firmware's second image (the real board's sector 11). No CRC says their
 /// form: the paper model's (that firmware's), else the current one; a set that is not
 /// the paper model's fails at the first blob, before anything is applied.
-pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition, staged: &mut Staged) -> Result<(), ()> {
-    load(part(img, 0), Form::Paper, acq, staged)
-        .or_else(|()| load(part(img, 0), Form::Board, acq, staged))
+pub fn load_legacy(img: &Image, acq: &mut BoardAcquisition) -> Result<(), ()> {
+    load(part(img, 0), Form::Paper, acq).or_else(|()| load(part(img, 0), Form::Board, acq))
 }
 
 /// `LEN` bytes of an image from `at` (always in range: `at` ≤ 8).

@@ -347,8 +347,9 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
     let sent = lines.lines().count();
     assert_eq!(
         sent,
-        16 + 12 + 1 + 7 + 1,
-        "SETCOEF × 16, SETFLUX × 12, SETLAG (0: no `lag`), SETFTEMP × 7 (0: no `fluxtemp`), SAVE"
+        17 + 12 + 1 + 7 + 1,
+        "SETCOEF × 17 (the paper set's 16, then `fluxmod` 0: the board's vector), SETFLUX × \
+         12, SETLAG (0: no `lag`), SETFTEMP × 7 (0: no `fluxtemp`), SAVE"
     );
     // `magcomp upload --to PORT` itself, on the board's command port served as a socket
     // (as ser2net/socat serve a real one): every line acknowledged, SAVE, read-back

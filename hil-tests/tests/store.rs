@@ -67,46 +67,25 @@ fn every_sensor_is_saved_and_an_image_from_before_sensors_1_and_2_still_loads() 
     let acq = acquisition();
     let staged = Staged {
         sets: [
-            Some(set(1.0, true)),
+            Some(set(1.0, false)),
             Some(set(-2.0, false)),
             Some(set(3.5, false)),
         ],
-        parked: None,
     };
     let mut img = store::ERASED;
     store::seal(7, &acq, &staged, &mut img).unwrap();
     assert_eq!(&img[..4], b"MCS4");
     assert_eq!(store::sequence(&img), Some(7));
     let mut back = acquisition();
-    let mut held = Staged::NONE;
-    store::load_image(&img, &mut back, &mut held).unwrap();
+    let held = Staged::NONE;
+    store::load_image(&img, &mut back).unwrap();
+    // sensor 1's set took channel 1's compensator back from the witness
+    assert!(back.witness().is_none());
     for (s, want) in staged.sets.iter().enumerate() {
         let got = coefficients(&back, &held, s);
         assert!(close(&got, want.as_ref().unwrap()), "sensor {s}: {got:?}");
+        assert!(back.sensor(s).unwrap().is_survey_mode(), "sensor {s}");
     }
-    // sensor 0's set has a `fluxmod`: the witnessed filter's, shown; sensor 1's waits for
-    // counter lines (the witness runs in its compensator), sensor 2's is in its filter
-    assert!(back.is_survey_mode());
-    assert!(back.witness().unwrap().0.is_survey_mode());
-    assert!(held.parked.is_some());
-    assert!(back.sensor(2).unwrap().is_survey_mode());
-    // the first counter line takes sensor 1's compensator back from the witness: the
-    // parked set goes into it after that line
-    let mut port = board_config::ScalarPort::new();
-    for &c in b"M,51234.5678,51236.0000\r\n" {
-        if let Some(ev) = port.push(c) {
-            ev.apply(&mut back);
-            board_config::unpark(&mut back, &mut held);
-        }
-    }
-    assert!(back.witness().is_none() && held.parked.is_none());
-    let mut c1 = [0.0; N_COEF];
-    back.sensor(1).unwrap().coefficients(&mut c1[..N_PAPER]);
-    assert!(
-        close(&c1, staged.sets[1].as_ref().unwrap()),
-        "sensor 1: {c1:?}"
-    );
-    assert!(back.sensor(1).unwrap().is_survey_mode());
     // one flipped byte in sensor 2's blob: the image fails its CRC
     let mut bad = img;
     bad[store::IMAGE_LEN - 20] ^= 1;
@@ -117,11 +96,14 @@ fn every_sensor_is_saved_and_an_image_from_before_sensors_1_and_2_still_loads() 
     let mut old = image(b"MCS2", 7, &img[8..8 + v2]);
     assert_eq!(store::sequence(&old), Some(7));
     let mut back = acquisition();
-    let mut held = Staged::NONE;
-    store::load_image(&old, &mut back, &mut held).unwrap();
-    assert!(close(&coefficients(&back, &held, 0), &set(1.0, true)));
+    let held = Staged::NONE;
+    store::load_image(&old, &mut back).unwrap();
+    assert!(close(&coefficients(&back, &held, 0), &set(1.0, false)));
     assert!(back.is_survey_mode());
-    assert!(held.parked.is_none(), "sensor 1 calibrates");
+    assert!(
+        back.witness().is_some(),
+        "no sensor 1 set: the witness runs"
+    );
     assert!(
         !back.sensor(2).unwrap().is_survey_mode(),
         "sensor 2 calibrates"
@@ -187,22 +169,50 @@ fn an_image_of_the_firmware_before_the_witness_loads_as_paper_sets() {
         "the previous firmware's image is valid"
     );
     let mut back = acquisition();
-    let mut held = Staged::NONE;
-    store::load_image(&old, &mut back, &mut held).unwrap();
+    let held = Staged::NONE;
+    store::load_image(&old, &mut back).unwrap();
     check("MCS3", &back, &held);
     // its next `SAVE` writes them in the board's vector, `fluxmod` 0: they read back alike
     let mut img = store::ERASED;
     store::seal(42, &back, &held, &mut img).unwrap();
     let mut again = acquisition();
-    let mut held2 = Staged::NONE;
-    store::load_image(&img, &mut again, &mut held2).unwrap();
+    let held2 = Staged::NONE;
+    store::load_image(&img, &mut again).unwrap();
     check("resaved", &again, &held2);
 
     // the single-image store: the same blobs alone at the image's start, no image CRC
     let mut legacy = store::ERASED;
     legacy[..body.len()].copy_from_slice(body);
     let mut back = acquisition();
-    let mut held = Staged::NONE;
-    store::load_legacy(&legacy, &mut back, &mut held).unwrap();
+    let held = Staged::NONE;
+    store::load_legacy(&legacy, &mut back).unwrap();
     check("single image", &back, &held);
+}
+
+/// Sensor 0's witnessed set alone is shown from the store; stored beside a set for
+/// sensor 1 (an installation of several magnetometers, which needs channel 1's
+/// compensator) it cannot run, and sensor 0 calibrates afresh instead of showing a filter
+/// frozen beside the witness.
+#[test]
+fn a_witnessed_set_loads_shown_and_yields_honestly_to_a_second_sensor() {
+    let store_of = |sets: [Option<CoefSet>; 3]| {
+        let mut img = store::ERASED;
+        store::seal(3, &acquisition(), &Staged { sets }, &mut img).unwrap();
+        let mut back = acquisition();
+        store::load_image(&img, &mut back).unwrap();
+        back
+    };
+    let alone = store_of([Some(set(1.0, true)), None, None]);
+    assert_eq!(
+        alone.witness().map(|(_, c)| c.shown()),
+        Some(magcomp_core::compensator::witness::Shown::Witness)
+    );
+    assert!(close(
+        &coefficients(&alone, &Staged::NONE, 0),
+        &set(1.0, true)
+    ));
+    let both = store_of([Some(set(1.0, true)), Some(set(-2.0, false)), None]);
+    assert!(both.witness().is_none());
+    assert!(!both.is_survey_mode(), "sensor 0 calibrates");
+    assert!(both.sensor(1).unwrap().is_survey_mode());
 }

@@ -494,17 +494,24 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.channels
     }
     /// Channel `sensor`'s compensator (0 = the single sensor's), `None` beyond
-    /// [`MAX_CHANNELS`].
+    /// [`MAX_CHANNELS`] and for channel 1 while the witness runs in its compensator.
     pub fn sensor(&self, sensor: usize) -> Option<&Compensator<'a, N, W>> {
         match sensor {
             0 => Some(&self.comp),
+            1 if self.witness.is_some() => None,
             s => self.extra.get(s - 1),
         }
     }
+    /// Channel `sensor`'s compensator to change: taking channel 1's stops the witness.
     pub fn sensor_mut(&mut self, sensor: usize) -> Option<&mut Compensator<'a, N, W>> {
         match sensor {
             0 => Some(&mut self.comp),
-            s => self.extra.get_mut(s - 1),
+            s => {
+                if s == 1 {
+                    self.detach_witness();
+                }
+                self.extra.get_mut(s - 1)
+            }
         }
     }
     pub fn is_survey_mode(&self) -> bool {

@@ -1,11 +1,13 @@
 //! The fluxgate witness beside the paper model (`compensator::witness`): while the scalar
 //! port sends single fields, channel 1's compensator, idle then, runs the witnessed model
 //! on the same samples, and each record is the shown filter's. Counter lines need that
-//! compensator for their second channel, so the witness stops when they arrive.
+//! compensator for their second channel, so the witness stops when they arrive or when a
+//! set is loaded for sensor 1 (an installation of several magnetometers).
 
 use super::Acquisition;
 use crate::compensator::witness::{Shown, WitnessChoice};
 use crate::compensator::{Compensator, CompensatorError, Output};
+#[allow(unused_imports)] // the docs' link
 use crate::flags::Flags;
 use crate::model::Model;
 
@@ -21,7 +23,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         Ok(())
     }
 
-    /// The witnessed filter and the choice, when one is attached.
+    /// The witnessed filter and the choice, when one is attached ([`Flags::WITNESS`](crate::flags::Flags::WITNESS) marks
+    /// its records).
     pub fn witness(&self) -> Option<(&Compensator<'a, N, W>, WitnessChoice)> {
         self.witness.map(|(_, choice)| (&self.extra[0], choice))
     }
@@ -34,18 +37,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         }
     }
 
-    /// The record of this sample: the paper filter's, or the witnessed one's (flagged
-    /// [`Flags::WITNESS`]) when the choice says so.
+    /// The record of this sample: the paper filter's, or the witnessed one's at the shown
+    /// level (flagged [`Flags::WITNESS`](crate::flags::Flags::WITNESS)) when the choice says so.
     pub(super) fn shown_output(&mut self, paper: Output, witnessed: Option<Output>) -> Output {
-        let (Some((_, choice)), Some(mut w)) = (self.witness.as_mut(), witnessed) else {
-            return paper;
-        };
-        match choice.choose(&paper, &w) {
-            Shown::Paper => paper,
-            Shown::Witness => {
-                w.flags.set(Flags::WITNESS);
-                w
-            }
+        match (self.witness.as_mut(), witnessed) {
+            (Some((_, choice)), Some(w)) => choice.show(paper, w),
+            _ => paper,
         }
     }
 
@@ -78,7 +75,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     pub(super) fn witness_survey_mode(&mut self, on: bool) {
         if let Some((_, choice)) = self.witness.as_mut() {
             if on {
-                choice.fix(choice.shown());
+                choice.freeze();
             } else {
                 choice.release();
             }
@@ -94,11 +91,19 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         Ok(())
     }
 
-    /// Counter lines take channel 1's compensator back for their second sensor.
+    /// Counter lines, or a set loaded for sensor 1, take channel 1's compensator back for
+    /// their second sensor. Where the witnessed filter's records were shown, the paper
+    /// filter starts afresh in calibrate mode: it was frozen beside the witness (or never
+    /// shown), so its coefficients are not ones to show as good.
     pub(super) fn detach_witness(&mut self) {
-        if self.witness.take().is_some() {
-            // Built with this model and configuration before, so it cannot fail.
-            let _ = self.extra[0].reset_in_place(*self.comp.model(), *self.comp.config());
+        let Some((_, choice)) = self.witness.take() else {
+            return;
+        };
+        let (model, cfg) = (*self.comp.model(), *self.comp.config());
+        // Built with this model and configuration before, so neither can fail.
+        let _ = self.extra[0].reset_in_place(model, cfg);
+        if choice.shown() == Shown::Witness {
+            let _ = self.comp.reset_in_place(model, cfg);
         }
     }
 }

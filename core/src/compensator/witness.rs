@@ -6,9 +6,17 @@
 //! shows the witnessed one's records only where its own stated bound is decisively tighter
 //! — the flight's evidence, read live, as the host's post-flight calibration reads it from
 //! the jackknife and the held-out figure.
+//!
+//! The two filters agree on the interference's variation, not on its level: in calibrate
+//! mode neither determines the level (the anomaly states share it; the record's bound
+//! covers the variation about the minute's mean). So a switch carries the level across:
+//! the newly shown filter's interference is offset to continue the last shown value, and
+//! the output has no step (measured on the real boxes flown cold through both: a step at
+//! each of 3 switches took `mag_4`'s band std from 0.99 to 11.2 nT).
 
 use super::Output;
 use crate::flags::Flags;
+use crate::units::MagCounts;
 
 /// How much tighter (×) the witness's stated bound must be before its records are shown:
 /// the jackknife resolution the post-flight rule asks for (8 blocks, host
@@ -28,12 +36,14 @@ pub enum Shown {
 /// it is converged and its bound is [`DECISIVE_RATIO`] × tighter (or the paper filter has
 /// not converged), and hands back when it loses convergence or its bound is no longer the
 /// tighter one, so two near-equal bounds do not alternate the output sample by sample.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WitnessChoice {
     shown: Shown,
-    /// Fixed by the coefficients loaded (survey mode): no switching.
+    /// Fixed by the coefficients loaded or by survey mode: no switching.
     fixed: bool,
     switches: u32,
+    /// Added to the shown filter's interference (nT): the level carried across switches.
+    level_nt: f32,
 }
 
 impl Default for WitnessChoice {
@@ -48,12 +58,21 @@ impl WitnessChoice {
             shown: Shown::Paper,
             fixed: false,
             switches: 0,
+            level_nt: 0.0,
         }
     }
 
-    /// The choice is no longer the flight's to make: the loaded coefficients are `shown`'s.
+    /// The choice is no longer the flight's to make: the loaded coefficients are `shown`'s,
+    /// and they set the level.
     pub fn fix(&mut self, shown: Shown) {
         self.shown = shown;
+        self.fixed = true;
+        self.level_nt = 0.0;
+    }
+
+    /// Survey mode after calibrating in flight: the filter shown now stays shown, at the
+    /// level it has.
+    pub fn freeze(&mut self) {
         self.fixed = true;
     }
 
@@ -69,6 +88,30 @@ impl WitnessChoice {
     /// Times the shown filter changed (the operator's status).
     pub fn switches(&self) -> u32 {
         self.switches
+    }
+
+    /// The record shown for this sample, from the two filters' records of it: the chosen
+    /// one's, its interference carried at the shown level, flagged [`Flags::WITNESS`] when
+    /// it is the witness's.
+    pub fn show(&mut self, paper: Output, witness: Output) -> Output {
+        let before = self.shown;
+        let now = self.choose(&paper, &witness);
+        let of = |s: Shown| match s {
+            Shown::Paper => paper,
+            Shown::Witness => witness,
+        };
+        if now != before {
+            self.level_nt += of(before).interference_nt - of(now).interference_nt;
+        }
+        let mut out = of(now);
+        if self.level_nt != 0.0 {
+            out.interference_nt += self.level_nt;
+            out.compensated = out.mag.map(|m: MagCounts| m.minus_nt(out.interference_nt));
+        }
+        if now == Shown::Witness {
+            out.flags.set(Flags::WITNESS);
+        }
+        out
     }
 
     /// Chooses for this sample from the two filters' records of it.
@@ -144,6 +187,40 @@ mod tests {
     fn a_converged_witness_is_shown_while_the_paper_filter_is_not() {
         let mut c = WitnessChoice::new();
         assert_eq!(c.choose(&out(0.0, false), &out(2.0, true)), Shown::Witness);
+    }
+
+    #[test]
+    fn a_switch_carries_the_level_so_the_output_has_no_step() {
+        let with = |sigma: f32, interference_nt: f32| {
+            let mut o = out(sigma, true);
+            o.interference_nt = interference_nt;
+            o.mag = MagCounts::from_nt_f64(53_000.0);
+            o
+        };
+        let mut c = WitnessChoice::new();
+        let a = c.show(with(4.0, 120.0), with(3.0, 40.0));
+        assert_eq!(a.interference_nt, 120.0);
+        assert!(!a.flags.contains(Flags::WITNESS));
+        // the witness is shown: its variation (+1 nT) at the paper filter's level
+        let b = c.show(with(4.0, 121.5), with(1.0, 41.0));
+        assert!(b.flags.contains(Flags::WITNESS));
+        assert_eq!(b.interference_nt, 121.5);
+        assert_eq!(b.compensated, MagCounts::from_nt_f64(53_000.0 - 121.5));
+        let b2 = c.show(with(4.0, 125.0), with(1.0, 42.0));
+        assert_eq!(
+            b2.interference_nt, 122.5,
+            "the witness's variation, not the paper's"
+        );
+        // handed back: the paper filter continues from the shown value
+        let d = c.show(with(4.0, 126.0), with(5.0, 42.5));
+        assert!(!d.flags.contains(Flags::WITNESS));
+        assert_eq!(d.interference_nt, 123.0);
+        // loaded coefficients set the level: no offset
+        c.fix(Shown::Paper);
+        assert_eq!(
+            c.show(with(4.0, 126.0), with(1.0, 42.5)).interference_nt,
+            126.0
+        );
     }
 
     #[test]

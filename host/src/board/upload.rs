@@ -203,6 +203,17 @@ pub fn sensor_commands(
             files.len()
         );
     }
+    // The board runs the witness in channel 1's compensator, which a second sensor needs.
+    if let Some(f) = files
+        .iter()
+        .find(|f| ModelSpec::parse(&f.model).is_ok_and(|m| m.has(TermKind::FluxMod)))
+    {
+        bail!(
+            "model '{}' takes the fluxgate as a witness (`fluxmod`), which the board runs for a \
+             single magnetometer only: calibrate the several sensors with `--method kf`",
+            f.model
+        );
+    }
     let mut cmds = upload_commands(&files[0], board_model, false)?;
     for (sensor, f) in files.iter().enumerate().skip(1) {
         let theirs =
@@ -245,6 +256,16 @@ mod tests {
             fluxgate_calibration: flux,
             ..CoefficientFile::new(model, Method::Kf, 10.0, coefficients)
         }
+    }
+
+    #[test]
+    fn a_several_sensor_file_with_a_witnessed_set_is_refused() {
+        let paper = file("tl16+field", 16, None);
+        let witnessed = file("tl16+field+fluxmod", 17, None);
+        let board = crate::model::spec::BOARD_COEFFICIENTS;
+        let e = sensor_commands(&[witnessed, paper.clone()], board, true).unwrap_err();
+        assert!(e.to_string().contains("single magnetometer"), "{e}");
+        assert!(sensor_commands(&[paper.clone(), paper], board, true).is_ok());
     }
 
     #[test]
