@@ -144,3 +144,46 @@ fn coefficients_the_board_learns_on_box_1_compensate_box_2_as_post_flight_does()
         );
     }
 }
+
+/// The board flown cold through both boxes, one continuous flight (`capture` of the whole
+/// file, `replay`): box 2's band std as the board outputs it, with the witness beside the
+/// paper filter and without. Measured: mag_5 0.69 / 0.69 nT (16 records of box 2 shown from
+/// the witness), mag_4 with flux_c 1.11 / 3.54 (3 switches, each carried at the shown level;
+/// with a step at each it was 11.2), mag_3 with flux_b 2.14 / 4.65.
+#[test]
+fn the_board_flown_cold_through_both_boxes_takes_the_witness_where_it_helps() {
+    let d = tmp("board-cold-both");
+    let Some(real) = boxes() else { return };
+    for (mag, flux, most) in [
+        ("mag_5_uc", "flux_d", 1.02),
+        ("mag_4_uc", "flux_c", 0.6),
+        ("mag_3_uc", "flux_b", 0.6),
+    ] {
+        let trace = d.join("boxes.csv");
+        write_trace(&trace, &real.trace(0..real.len(), mag, flux)).unwrap();
+        let cap = d.join("both.cap");
+        run_ok(
+            bin()
+                .arg("capture")
+                .arg(&trace)
+                .args(["--speed-mps", "60", "-o"])
+                .arg(&cap),
+        );
+        let box2_band = |args: &[&str]| {
+            let out = d.join("both.csv");
+            run_ok(bin().arg("replay").arg(&cap).args(args).arg("-o").arg(&out));
+            let c = csv_column(&out, "compensated");
+            assert_eq!(c.len(), real.len(), "one record per sample");
+            band_std_nt(&c[BOX_2_FROM..])
+        };
+        let (pair, alone) = (box2_band(&[]), box2_band(&["--no-witness"]));
+        eprintln!("{mag}/{flux}: cold through both boxes, box 2 band std {pair:.2} nT with the witness beside, {alone:.2} without");
+        assert!(
+            pair <= most * alone,
+            "{mag}/{flux}: {pair:.2} against {alone:.2} nT"
+        );
+    }
+}
+
+/// Box 2's first row in the real file (box 1: rows 0–6499).
+const BOX_2_FROM: usize = 6500;

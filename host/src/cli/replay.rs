@@ -123,13 +123,7 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         }
         _ => args.model.text.clone(),
     };
-    let parsed = ModelSpec::parse(&model_text)?;
-    let wanted = match (args.witness, args.no_witness) {
-        (true, _) => true,
-        (_, true) => false,
-        _ => runs_on_board_with_witness(&parsed)?,
-    };
-    let (model, witness) = witness_pair(parsed, wanted)?;
+    let (model, witness) = models_of(args, &model_text)?;
     let coefficients = args
         .coeffs
         .as_deref()
@@ -277,6 +271,18 @@ fn csv_header(w: &mut AtomicFile, written: &mut Option<u8>, n: u8, seq: u32) -> 
              cannot hold both (write the records with --records)"
         ),
     }
+}
+
+/// The model replayed, and the witness beside it (`--witness`, `--no-witness`, else as
+/// the board does).
+fn models_of(args: &ReplayArgs, model_text: &str) -> Result<(ModelSpec, Option<ModelSpec>)> {
+    let parsed = ModelSpec::parse(model_text)?;
+    let wanted = match (args.witness, args.no_witness) {
+        (true, _) => true,
+        (_, true) => false,
+        _ => runs_on_board_with_witness(&parsed)?,
+    };
+    witness_pair(parsed, wanted)
 }
 
 /// Whether the board runs `model` with the witness beside it: its own model, input
