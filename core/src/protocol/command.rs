@@ -191,8 +191,9 @@ pub fn parse_reply(line: &[u8]) -> Option<Reply<'_>> {
     )
 }
 
-/// Parses one command line; `n_coef` is the model's state count (index bound).
-pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError> {
+/// A command line's payload between `$` and `*`, once its framing, length and checksum
+/// (2 hex digits XOR or 4 hex digits CRC-16) hold; trailing CR, LF and spaces are ignored.
+fn checked_payload(line: &[u8]) -> Result<&[u8], CommandError> {
     let mut line = line;
     while let [rest @ .., b'\r' | b'\n' | b' '] = line {
         line = rest;
@@ -214,10 +215,16 @@ pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError
         4 => parse_hex_u32(cs).is_some_and(|v| v as u16 == crc16_ccitt(payload)),
         _ => false,
     };
-    if !ok {
-        return Err(CommandError::BadChecksum);
+    if ok {
+        Ok(payload)
+    } else {
+        Err(CommandError::BadChecksum)
     }
-    let mut it = fields(payload);
+}
+
+/// Parses one command line; `n_coef` is the model's state count (index bound).
+pub fn parse_command(line: &[u8], n_coef: usize) -> Result<Command, CommandError> {
+    let mut it = fields(checked_payload(line)?);
     if it.next() != Some(b"MCCMD") {
         return Err(CommandError::Framing);
     }
