@@ -16,7 +16,7 @@ use magcomp::board::replay::{replay_capture, ReplayOptions};
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;
 use magcomp::signal::bandpass::bandpass;
-use magcomp::sim::{simulate, SimConfig};
+use magcomp::sim::{parse_hidden, simulate, SimConfig};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::Flags;
 
@@ -25,11 +25,14 @@ fn shown_good(r: &Record) -> bool {
     !r.flags.contains(Flags::NOT_CONVERGED) && !r.flags.degraded()
 }
 
-fn board_records(trace: &Trace) -> Vec<Record> {
+/// The board's records (`witness`: its two filters, the paper model's and beside it the
+/// fluxgate as a witness; else the paper filter alone).
+fn board_records(trace: &Trace, witness: bool) -> Vec<Record> {
     let cap = trace_to_capture(trace, &CaptureOptions::default()).unwrap();
-    // The board's two filters: the paper model's, and beside it the fluxgate as a witness.
     let mut opts = ReplayOptions::new(ModelSpec::parse("tl16+field").unwrap());
-    opts.witness = Some(ModelSpec::parse("tl16+field+fluxmod").unwrap());
+    if witness {
+        opts.witness = Some(ModelSpec::parse("tl16+field+fluxmod").unwrap());
+    }
     let mut recs = Vec::new();
     replay_capture(&cap[..], &opts, |r| {
         recs.push(*r);
@@ -59,6 +62,8 @@ fn assert_bound_present_iff_converged(recs: &[Record], name: &str) {
 #[derive(Debug, Default)]
 struct Holding {
     records: usize,
+    /// rms error in the band (nT).
+    band_error_nt: f64,
     /// rms error / rms bound, and the share beyond 3σ, in the band.
     band_ratio: f64,
     band_beyond_3s: f64,
@@ -99,6 +104,7 @@ fn bound_against_truth(recs: &[Record], truth: &[f64], rate_hz: f64) -> Holding 
     let share = |c: usize| c as f64 / n.max(1) as f64;
     Holding {
         records: n,
+        band_error_nt: (band.0 / n.max(1) as f64).sqrt(),
         band_ratio: (band.0 / sig2).sqrt(),
         band_beyond_3s: share(band.1),
         minute_ratio: (minute.0 / sig2).sqrt(),
@@ -106,9 +112,31 @@ fn bound_against_truth(recs: &[Record], truth: &[f64], rate_hz: f64) -> Holding 
     }
 }
 
-fn check_flight(name: &str, trace: &Trace, truth_col: &str) {
-    let recs = board_records(trace);
-    assert_bound_present_iff_converged(&recs, name);
+/// The board's records of `trace` hold their bound against `truth` (the interference);
+/// returns how many were the witness filter's.
+fn check_flight(name: &str, trace: &Trace, truth: &[f64]) -> usize {
+    let recs = board_records(trace, true);
+    let h = holding(name, &recs, trace, truth);
+    if h.records > 0 {
+        assert!(
+            h.band_ratio <= 2.0 && h.band_beyond_3s <= 0.05,
+            "{name}: {h:?}"
+        );
+        // About the minute's mean (turns, the level moving between headings) it holds too,
+        // less tightly: 0.51–1.10 measured, up to 6.9 % beyond 3σ (cloverleaf).
+        assert!(
+            h.minute_ratio <= 2.0 && h.minute_beyond_3s <= 0.10,
+            "{name}: {h:?}"
+        );
+    }
+    recs.iter()
+        .filter(|r| r.flags.contains(Flags::WITNESS))
+        .count()
+}
+
+/// How `recs` hold their bound against `truth`, said on stderr.
+fn holding(name: &str, recs: &[Record], trace: &Trace, truth: &[f64]) -> Holding {
+    assert_bound_present_iff_converged(recs, name);
     let converged = recs
         .iter()
         .filter(|r| !r.flags.contains(Flags::NOT_CONVERGED))
@@ -121,44 +149,38 @@ fn check_flight(name: &str, trace: &Trace, truth_col: &str) {
         "{name}: {converged} of {} records converged, {witnessed} the witness filter's",
         recs.len()
     );
-    // The simulator's fluxgates see only the Earth (and their own errors): the witness has
-    // nothing to add, so its records must never be shown (measured: none on every flight).
-    assert_eq!(
-        witnessed, 0,
-        "{name}: the witness filter's records were shown"
-    );
-    let truth = trace.col(truth_col).unwrap().to_vec();
     let t = trace.col("t").unwrap();
     let rate_hz = 1.0 / (t[1] - t[0]);
-    let h = bound_against_truth(&recs, &truth, rate_hz);
+    let h = bound_against_truth(recs, truth, rate_hz);
     eprintln!(
-        "{name}: {} records shown good in runs ≥ 30 s; band: error/bound {:.2}, beyond 3σ \
-         {:.1} %; about the minute's mean: {:.2}, {:.1} %",
+        "{name}: {} records shown good in runs ≥ 30 s; band: error {:.3} nT, error/bound \
+         {:.2}, beyond 3σ {:.1} %; about the minute's mean: {:.2}, {:.1} %",
         h.records,
+        h.band_error_nt,
         h.band_ratio,
         h.band_beyond_3s * 100.0,
         h.minute_ratio,
         h.minute_beyond_3s * 100.0
     );
-    if h.records == 0 {
-        return;
-    }
-    assert!(
-        h.band_ratio <= 2.0 && h.band_beyond_3s <= 0.05,
-        "{name}: {h:?}"
-    );
-    // About the minute's mean (turns, the level moving between headings) it holds too, less
-    // tightly: 0.51–1.10 measured, up to 6.9 % beyond 3σ (cloverleaf).
-    assert!(
-        h.minute_ratio <= 2.0 && h.minute_beyond_3s <= 0.10,
-        "{name}: {h:?}"
+    h
+}
+
+/// The simulator's own fluxgates see the Earth, the aircraft and their own errors, nothing
+/// the paper model misses: the witness has nothing to add, and its records must never be
+/// shown (measured: none on every flight).
+fn check_unwitnessed(name: &str, trace: &Trace, truth_col: &str) {
+    let truth = trace.col(truth_col).unwrap().to_vec();
+    let witnessed = check_flight(name, trace, &truth);
+    assert_eq!(
+        witnessed, 0,
+        "{name}: the witness filter's records were shown"
     );
 }
 
 #[test]
 fn cloverleaf_with_exit_leg_records_hold_their_bound() {
     let trace = simulate(&SimConfig::calibration_with_exit(7)).unwrap();
-    check_flight(
+    check_unwitnessed(
         "cloverleaf + exit leg, seed 7",
         &trace,
         "truth_interference",
@@ -182,7 +204,7 @@ fn broad_flights_records_hold_their_bound() {
             ..SimConfig::broad(seed)
         };
         let trace = simulate(&cfg).unwrap();
-        check_flight(&format!("broad seed {seed}"), &trace, "truth_interference");
+        check_unwitnessed(&format!("broad seed {seed}"), &trace, "truth_interference");
     }
 }
 
@@ -191,8 +213,59 @@ fn independent_flights_records_hold_their_bound() {
     // The independent simulator's flights, where the shared data are present.
     for name in ["clean_s33", "lag_s32"] {
         match independent_sim::independent(name) {
-            Some(trace) => check_flight(name, &trace, "truth_interference"),
+            Some(trace) => check_unwitnessed(name, &trace, "truth_interference"),
             None => eprintln!("{name}: shared data absent, not checked"),
         }
+    }
+}
+
+#[test]
+fn a_cabin_current_the_fluxgate_also_sees_is_taken_by_the_witness_within_its_bound() {
+    // A load current near a cabin scalar and nearer its fluxgate (3 × the field there), its
+    // channel not recorded: the paper model cannot see it, the fluxgate's modulus can
+    // (`fluxmod`). The paper filter alone then breaks its bound (seeds 1 / 2: band error
+    // 3.88 / 2.66 nT, error/bound 1.62 / 0.91 with 9.3 / 8.9 % beyond 3σ; about the minute's
+    // mean 3.97 / 2.66, 36 / 24 % beyond). The board shows the witness, whose error is lower
+    // (2.34 / 1.71 nT) and whose rms bound holds in the band (0.89 / 0.69; its own bound was
+    // 2.2–8 × below its error, the two filters' disagreement makes it honest). Not held: the
+    // tails (4.3 / 9.1 % beyond 3σ in the band, the current's on/off ramps) and the minute
+    // scale (1.92 / 2.64, 30 / 41 % beyond 3σ): the current's slow part hides in the anomaly
+    // states of both filters, where neither bound can see it — no worse than the paper
+    // filter alone, which is what is asserted there.
+    for seed in 1..=3 {
+        let mut cfg = SimConfig::calibration_with_exit(seed);
+        cfg.hidden = vec![parse_hidden("current:cabin").unwrap()];
+        cfg.hidden_std_nt = 10.0;
+        cfg.hidden_at_fluxgate = 3.0;
+        let trace = simulate(&cfg).unwrap();
+        let truth: Vec<f64> = (trace.col("truth_interference").unwrap().iter())
+            .zip(trace.col("truth_hidden_current_cabin").unwrap())
+            .map(|(a, b)| a + b)
+            .collect();
+        let name = format!("cabin current seen by the fluxgate, seed {seed}");
+        let paper = holding(
+            &format!("{name}, paper filter alone"),
+            &board_records(&trace, false),
+            &trace,
+            &truth,
+        );
+        let recs = board_records(&trace, true);
+        let pair = holding(&name, &recs, &trace, &truth);
+        let witnessed = recs
+            .iter()
+            .filter(|r| r.flags.contains(Flags::WITNESS))
+            .count();
+        assert!(witnessed > 2000, "{name}: {witnessed} witness records");
+        assert!(pair.band_ratio <= 2.0, "{name}: {pair:?}");
+        assert!(
+            pair.minute_ratio <= paper.minute_ratio.max(2.0),
+            "{name}: {pair:?} against {paper:?}"
+        );
+        assert!(
+            pair.band_error_nt <= 0.75 * paper.band_error_nt,
+            "{name}: {:.2} against {:.2} nT alone",
+            pair.band_error_nt,
+            paper.band_error_nt
+        );
     }
 }

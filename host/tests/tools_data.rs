@@ -239,7 +239,15 @@ fn coefficient_files_are_read_by_name() {
     assert_eq!(up(&swapped), up(&coeffs));
     // The default model calibrates the fluxgate: its 12 values go with SETFLUX.
     let lines = up(&coeffs);
-    assert_eq!(lines.lines().filter(|l| l.contains("SETCOEF")).count(), 16);
+    // The board's vector: the file's 16, then `fluxmod` 0 (its witness filter's term).
+    assert_eq!(lines.lines().filter(|l| l.contains("SETCOEF")).count(), 17);
+    assert_eq!(
+        lines
+            .lines()
+            .filter(|l| l.starts_with("$MCCMD,SETCOEF,16,0*"))
+            .count(),
+        1
+    );
     assert_eq!(lines.lines().filter(|l| l.contains("SETFLUX")).count(), 12);
     // No `lag` in the model: SETLAG 0, so a τ left by an earlier upload does not stay.
     assert_eq!(
@@ -260,8 +268,8 @@ fn coefficient_files_are_read_by_name() {
     );
     assert_eq!(
         lines.lines().count(),
-        37,
-        "16 SETCOEF, 12 SETFLUX, SETLAG, 7 SETFTEMP and SAVE"
+        38,
+        "17 SETCOEF, 12 SETFLUX, SETLAG, 7 SETFTEMP and SAVE"
     );
     // An unknown or a missing name is an error naming it; so is a short file for upload.
     let bad = d.join("bad.json");

@@ -19,8 +19,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             return Err(CompensatorError::BadConfig);
         }
         self.extra[0].reset_in_place(model, *self.comp.config())?;
-        self.witness = Some((model, WitnessChoice::new()));
+        self.witness = Some((model, self.fresh_choice()));
         Ok(())
+    }
+
+    fn fresh_choice(&self) -> WitnessChoice {
+        WitnessChoice::new(disagreement_window(self.cfg.scalar_hz))
     }
 
     /// The witnessed filter and the choice, when one is attached ([`Flags::WITNESS`](crate::flags::Flags::WITNESS) marks
@@ -86,7 +90,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     pub(super) fn restart_witness(&mut self) -> Result<(), CompensatorError> {
         if let Some((model, choice)) = self.witness.as_mut() {
             self.extra[0].reset_in_place(*model, *self.comp.config())?;
-            *choice = WitnessChoice::new();
+            *choice = WitnessChoice::new(disagreement_window(self.cfg.scalar_hz));
         }
         Ok(())
     }
@@ -106,4 +110,12 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             let _ = self.comp.reset_in_place(model, cfg);
         }
     }
+}
+
+/// Samples the two filters' disagreement is followed over: the time constant of the
+/// compensation band's lower edge, 1 / (2π · 0.1 Hz) = 1.6 s, so it is taken in the band
+/// the records' bound is judged in (their slow level difference is the anomaly's).
+fn disagreement_window(scalar_hz: f64) -> u32 {
+    const BAND_LOW_HZ: f64 = 0.1;
+    libm::round(scalar_hz / (2.0 * core::f64::consts::PI * BAND_LOW_HZ)).max(1.0) as u32
 }

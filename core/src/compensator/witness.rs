@@ -13,6 +13,14 @@
 //! the newly shown filter's interference is offset to continue the last shown value, and
 //! the output has no step (measured on the real boxes flown cold through both: a step at
 //! each of 3 switches took `mag_4`'s band std from 0.99 to 11.2 nT).
+//!
+//! The witness leans on one more sensor, the fluxgate's modulus, whose errors its own bound
+//! does not see; and where an effect both filters miss hides in the anomaly states, neither
+//! bound sees it. What can be seen is how far the two disagree: a witnessed record states
+//! at least the two filters' disagreement (its variation about the last minute's mean, as
+//! the bound is defined). Simulated cabin current seen by the fluxgate too (`replay_bound`):
+//! the witness's own bound was 2.2–8 × below its band error; with the disagreement, within
+//! the bound.
 
 use super::Output;
 use crate::flags::Flags;
@@ -41,25 +49,63 @@ pub struct WitnessChoice {
     shown: Shown,
     /// Fixed by the coefficients loaded or by survey mode: no switching.
     fixed: bool,
+    /// Fixed by loaded coefficients: the other filter holds nothing to compare with.
+    loaded: bool,
     switches: u32,
     /// Added to the shown filter's interference (nT): the level carried across switches.
     level_nt: f32,
-}
-
-impl Default for WitnessChoice {
-    fn default() -> Self {
-        Self::new()
-    }
+    /// The filters' disagreement (witness − paper interference, nT) while both have
+    /// converged: its running mean and variance about it over ~`1 / rate` samples.
+    disagreement_mean_nt: f32,
+    disagreement_var_nt2: f32,
+    disagreement_samples: u32,
+    rate: f32,
 }
 
 impl WitnessChoice {
-    pub const fn new() -> Self {
+    /// `window_samples`: how many samples the disagreement is followed over (the minute of
+    /// the records' bound, `converged_window_epochs`).
+    pub fn new(window_samples: u32) -> Self {
         Self {
             shown: Shown::Paper,
             fixed: false,
+            loaded: false,
             switches: 0,
             level_nt: 0.0,
+            disagreement_mean_nt: 0.0,
+            disagreement_var_nt2: 0.0,
+            disagreement_samples: 0,
+            rate: 1.0 / window_samples.max(1) as f32,
         }
+    }
+
+    /// The two filters' disagreement (nT, 1σ about its running mean; 0 before both have
+    /// converged together).
+    pub fn disagreement_nt(&self) -> f32 {
+        libm::sqrtf(self.disagreement_var_nt2.max(0.0))
+    }
+
+    fn follow_disagreement(&mut self, paper: &Output, witness: &Output) {
+        if self.loaded {
+            return;
+        }
+        let converged = |o: &Output| !o.flags.contains(Flags::NOT_CONVERGED);
+        let d = witness.interference_nt - paper.interference_nt;
+        if !(converged(paper) && converged(witness) && d.is_finite()) {
+            return;
+        }
+        // Exponentially weighted mean and variance (West's update: no cancellation of
+        // large squares in f32, the level difference being tens to hundreds of nT).
+        let a = if self.disagreement_samples == 0 {
+            1.0
+        } else {
+            // the first samples weigh as a plain mean until the window fills
+            self.rate.max(1.0 / (self.disagreement_samples + 1) as f32)
+        };
+        let delta = d - self.disagreement_mean_nt;
+        self.disagreement_mean_nt += a * delta;
+        self.disagreement_var_nt2 = (1.0 - a) * (self.disagreement_var_nt2 + a * delta * delta);
+        self.disagreement_samples = self.disagreement_samples.saturating_add(1);
     }
 
     /// The choice is no longer the flight's to make: the loaded coefficients are `shown`'s,
@@ -67,6 +113,7 @@ impl WitnessChoice {
     pub fn fix(&mut self, shown: Shown) {
         self.shown = shown;
         self.fixed = true;
+        self.loaded = true;
         self.level_nt = 0.0;
     }
 
@@ -79,6 +126,7 @@ impl WitnessChoice {
     /// The flight chooses again (calibrate mode).
     pub fn release(&mut self) {
         self.fixed = false;
+        self.loaded = false;
     }
 
     pub fn shown(&self) -> Shown {
@@ -94,6 +142,7 @@ impl WitnessChoice {
     /// one's, its interference carried at the shown level, flagged [`Flags::WITNESS`] when
     /// it is the witness's.
     pub fn show(&mut self, paper: Output, witness: Output) -> Output {
+        self.follow_disagreement(&paper, &witness);
         let before = self.shown;
         let now = self.choose(&paper, &witness);
         let of = |s: Shown| match s {
@@ -110,6 +159,10 @@ impl WitnessChoice {
         }
         if now == Shown::Witness {
             out.flags.set(Flags::WITNESS);
+            if !self.loaded {
+                // NaN (not converged) stays NaN
+                out.interference_sigma_nt = out.interference_sigma_nt.max(self.disagreement_nt());
+            }
         }
         out
     }
@@ -166,7 +219,7 @@ mod tests {
 
     #[test]
     fn the_witness_is_shown_only_when_decisively_tighter_and_handed_back_when_not() {
-        let mut c = WitnessChoice::new();
+        let mut c = WitnessChoice::new(600);
         // not converged: the paper filter's, whatever its bound
         assert_eq!(c.choose(&out(4.0, true), &out(1.0, false)), Shown::Paper);
         // tighter but not decisively (4.0 / 3.0 = 1.33 < 1.46)
@@ -185,7 +238,7 @@ mod tests {
 
     #[test]
     fn a_converged_witness_is_shown_while_the_paper_filter_is_not() {
-        let mut c = WitnessChoice::new();
+        let mut c = WitnessChoice::new(600);
         assert_eq!(c.choose(&out(0.0, false), &out(2.0, true)), Shown::Witness);
     }
 
@@ -197,7 +250,7 @@ mod tests {
             o.mag = MagCounts::from_nt_f64(53_000.0);
             o
         };
-        let mut c = WitnessChoice::new();
+        let mut c = WitnessChoice::new(600);
         let a = c.show(with(4.0, 120.0), with(3.0, 40.0));
         assert_eq!(a.interference_nt, 120.0);
         assert!(!a.flags.contains(Flags::WITNESS));
@@ -224,8 +277,35 @@ mod tests {
     }
 
     #[test]
+    fn a_witnessed_record_states_at_least_the_two_filters_disagreement() {
+        let with = |sigma: f32, interference_nt: f32| {
+            let mut o = out(sigma, true);
+            o.interference_nt = interference_nt;
+            o
+        };
+        let mut c = WitnessChoice::new(100);
+        let mut last = with(0.0, 0.0);
+        for k in 0..400 {
+            // they disagree by ±2 nT about a 300 nT level difference; the witness claims 0.2
+            let wobble = if k % 2 == 0 { 2.0 } else { -2.0 };
+            last = c.show(with(4.0, 10.0), with(0.2, 310.0 + wobble));
+        }
+        assert!(last.flags.contains(Flags::WITNESS));
+        assert!(
+            (c.disagreement_nt() - 2.0).abs() < 0.1,
+            "{}",
+            c.disagreement_nt()
+        );
+        assert!((last.interference_sigma_nt - c.disagreement_nt()).abs() < 1e-6);
+        // a paper record keeps its own bound
+        let p = c.show(with(4.0, 10.0), with(5.0, 310.0));
+        assert!(!p.flags.contains(Flags::WITNESS));
+        assert_eq!(p.interference_sigma_nt, 4.0);
+    }
+
+    #[test]
     fn loaded_coefficients_fix_the_choice() {
-        let mut c = WitnessChoice::new();
+        let mut c = WitnessChoice::new(600);
         c.fix(Shown::Witness);
         assert_eq!(c.choose(&out(1.0, true), &out(9.0, false)), Shown::Witness);
         c.fix(Shown::Paper);

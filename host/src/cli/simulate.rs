@@ -262,6 +262,13 @@ pub struct SimulateArgs {
     #[arg(long, default_value_t = 2.0)]
     pub hidden_std_nt: f64,
 
+    /// The fluxgate sees the hidden currents and periodic lines too, this many times as
+    /// strong along the same direction (a cabin source nearer the fluxgate than the
+    /// scalar; 0: it does not). Without the current's channel in the trace, only the
+    /// fluxgate's modulus then witnesses it (`fluxmod`).
+    #[arg(long, default_value_t = 0.0, value_name = "X")]
+    pub hidden_at_fluxgate: f64,
+
     /// Stop the flight after this many seconds.
     #[arg(long)]
     pub max_duration_s: Option<f64>,
@@ -376,6 +383,7 @@ impl SimulateArgs {
             hidden,
             decoys: self.decoys.clone(),
             hidden_std_nt: self.hidden_std_nt,
+            hidden_at_fluxgate: self.hidden_at_fluxgate,
             max_duration_s: self.max_duration_s,
             physics: profile.physics,
             base_station: self.base_station.unwrap_or(profile.base_station),

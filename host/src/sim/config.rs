@@ -101,6 +101,11 @@ pub struct SimConfig {
     pub decoys: Vec<String>,
     /// Target standard deviation (nT) of scaled hidden effects inside their window.
     pub hidden_std_nt: f64,
+    /// The fluxgate sees the hidden vector effects too (currents, periodic lines), this
+    /// many times as strong, along the same direction: a cabin source nearer the fluxgate
+    /// than the scalar, which only the fluxgate's modulus then witnesses (`fluxmod`) when
+    /// its channel is not recorded. 0 = the fluxgate does not see them (the default).
+    pub hidden_at_fluxgate: f64,
     /// Truncate the flight (s); None = fly the whole plan.
     pub max_duration_s: Option<f64>,
     /// Aircraft and fluxgate physics (`physics.rs`): `Classic`, or the `Broad` profile of
@@ -213,6 +218,7 @@ impl Default for SimConfig {
             hidden: Vec::new(),
             decoys: Vec::new(),
             hidden_std_nt: 2.0,
+            hidden_at_fluxgate: 0.0,
             max_duration_s: None,
             physics: Physics::Classic,
             base_station: true,
@@ -325,6 +331,12 @@ impl SimConfig {
         finite_in(self.gps_sigma_v_m, 0.0, 100.0, "GPS vertical error (m)")?;
         finite_in(self.gps_tau_s, 1.0, 10_000.0, "GPS correlation time (s)")?;
         finite_in(self.hidden_std_nt, 0.0, 1000.0, "hidden effect std (nT)")?;
+        finite_in(
+            self.hidden_at_fluxgate,
+            0.0,
+            100.0,
+            "hidden effect at the fluxgate (×)",
+        )?;
         if let Some(d) = self.max_duration_s {
             finite_in(d, 1.0, 1e6, "maximum duration (s)")?;
         }

@@ -10,7 +10,7 @@ use super::world::{
     decoy_channels, json_mat, json_vec, random_dir, random_sign, std_dev, Inst, VecEffect, World,
 };
 use super::{rng_for, stream_of};
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -210,6 +210,16 @@ impl Effects {
                 _ => {}
             }
         }
+    }
+
+    /// The hidden vector effects' field at an instant (body axes, nT), as scaled: what a
+    /// fluxgate beside the same sources sees of them (`SimConfig::hidden_at_fluxgate`).
+    pub(super) fn hidden_field(&self, cfg: &SimConfig, t: f64, i: &Inst) -> Vector3<f64> {
+        self.vector
+            .iter()
+            .filter(|(hi, ..)| cfg.hidden[*hi].active(t))
+            .map(|(_, eff, scale)| eff.field(t, i) * *scale)
+            .sum()
     }
 
     /// Noise-free scalar at an instant, with per-effect incremental contributions.

@@ -145,7 +145,13 @@ pub(super) fn fluxgate_readings(
             (&fe.scale, &fe.rot, &fe.bias)
         };
         let a = sc * rot;
-        let f_static = a * (i.b_body + fe.kf + fe.lf * i.b_body + fe.mf * i.db_body) + bias;
+        let hidden = if cfg.hidden_at_fluxgate > 0.0 {
+            effects.hidden_field(cfg, t, i) * cfg.hidden_at_fluxgate
+        } else {
+            Vector3::zeros()
+        };
+        let f_static =
+            a * (i.b_body + fe.kf + fe.lf * i.b_body + fe.mf * i.db_body + hidden) + bias;
         // (mf·d²B/dt² left out of the rate: the fluxcal truth column is a first-order figure.)
         let f_static_dot = a * (i.db_body + fe.lf * i.db_body);
         let f_clean = match &effects.fluxtemp {
