@@ -43,7 +43,8 @@ pub enum Shown {
 /// The live choice between the two filters, with hysteresis: the witness takes over when
 /// it is converged and its bound is [`DECISIVE_RATIO`] × tighter (or the paper filter has
 /// not converged), and hands back when it loses convergence or its bound is no longer the
-/// tighter one, so two near-equal bounds do not alternate the output sample by sample.
+/// tighter one or its record alone is degraded, so two near-equal bounds do not alternate
+/// the output sample by sample.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WitnessChoice {
     shown: Shown,
@@ -60,6 +61,11 @@ pub struct WitnessChoice {
     disagreement_var_nt2: f32,
     disagreement_samples: u32,
     rate: f32,
+    /// The disagreement at the last sample both filters' records were trusted (converged,
+    /// not degraded): what a switch carries the level by, so a fault one filter shows
+    /// (a fluxgate step: the witness's interference jumps while flagged) is not carried
+    /// into the output.
+    trusted_disagreement_nt: Option<f32>,
 }
 
 impl WitnessChoice {
@@ -76,6 +82,7 @@ impl WitnessChoice {
             disagreement_var_nt2: 0.0,
             disagreement_samples: 0,
             rate: 1.0 / window_samples.max(1) as f32,
+            trusted_disagreement_nt: None,
         }
     }
 
@@ -89,11 +96,12 @@ impl WitnessChoice {
         if self.loaded {
             return;
         }
-        let converged = |o: &Output| !o.flags.contains(Flags::NOT_CONVERGED);
+        let trusted = |o: &Output| !o.flags.contains(Flags::NOT_CONVERGED) && !o.flags.degraded();
         let d = witness.interference_nt - paper.interference_nt;
-        if !(converged(paper) && converged(witness) && d.is_finite()) {
+        if !(trusted(paper) && trusted(witness) && d.is_finite()) {
             return;
         }
+        self.trusted_disagreement_nt = Some(d);
         // Exponentially weighted mean and variance (West's update: no cancellation of
         // large squares in f32, the level difference being tens to hundreds of nT).
         let a = if self.disagreement_samples == 0 {
@@ -150,7 +158,14 @@ impl WitnessChoice {
             Shown::Witness => witness,
         };
         if now != before {
-            self.level_nt += of(before).interference_nt - of(now).interference_nt;
+            // witness − paper, as last seen with both trusted (this sample's when it is)
+            let d = self
+                .trusted_disagreement_nt
+                .unwrap_or(witness.interference_nt - paper.interference_nt);
+            self.level_nt += match now {
+                Shown::Witness => -d,
+                Shown::Paper => d,
+            };
         }
         let mut out = of(now);
         if self.level_nt != 0.0 {
@@ -180,6 +195,13 @@ impl WitnessChoice {
         };
         let next = match (bound(paper), bound(witness)) {
             (_, None) => Shown::Paper,
+            // The witness's own fault (its fluxgate stepped, a suspect modulus): the paper
+            // filter's, which reads the fluxgate for its direction only, at the level last
+            // seen with both trusted.
+            _ if witness.flags.degraded() && !paper.flags.degraded() => Shown::Paper,
+            // A shared cause (the ends of the stream, a gap, a GPS outage): no switch on
+            // degraded records.
+            _ if paper.flags.degraded() || witness.flags.degraded() => self.shown,
             (None, Some(_)) => Shown::Witness,
             (Some(p), Some(w)) => match self.shown {
                 Shown::Paper if w * DECISIVE_RATIO < p => Shown::Witness,
@@ -301,6 +323,43 @@ mod tests {
         let p = c.show(with(4.0, 10.0), with(5.0, 310.0));
         assert!(!p.flags.contains(Flags::WITNESS));
         assert_eq!(p.interference_sigma_nt, 4.0);
+    }
+
+    #[test]
+    fn a_jump_the_shown_witness_makes_while_flagged_is_not_carried_into_the_output() {
+        let with = |sigma: f32, interference_nt: f32, degraded: bool| {
+            let mut o = out(sigma, true);
+            o.interference_nt = interference_nt;
+            if degraded {
+                o.flags.set(Flags::FLUX_STALE);
+            }
+            o
+        };
+        let mut c = WitnessChoice::new(16);
+        assert!(c
+            .show(with(4.0, -827.0, false), with(1.0, -843.0, false))
+            .flags
+            .contains(Flags::WITNESS));
+        // The fluxgate steps: the witness's interference jumps 426 nT, its record alone
+        // flagged: the paper filter's is shown, at the level shown before the fault.
+        let fault = c.show(with(4.0, -827.3, false), with(1.0, -1269.0, true));
+        assert!(!fault.flags.contains(Flags::WITNESS));
+        assert!(
+            (fault.interference_nt - -827.3).abs() < 0.01,
+            "{}",
+            fault.interference_nt
+        );
+        // trusted again, the witness's bound tighter: shown again, still continuous
+        let again = c.show(with(4.0, -827.4, false), with(1.0, -1269.1, false));
+        assert!(again.flags.contains(Flags::WITNESS));
+        assert!(
+            (again.interference_nt - -827.4).abs() < 0.01,
+            "{}",
+            again.interference_nt
+        );
+        // both flagged (a shared cause): the shown filter holds, flagged
+        let shared = c.show(with(0.5, -827.5, true), with(1.0, -1269.2, true));
+        assert!(shared.flags.contains(Flags::WITNESS) && shared.flags.degraded());
     }
 
     #[test]
