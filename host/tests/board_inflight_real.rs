@@ -148,7 +148,7 @@ fn coefficients_the_board_learns_on_box_1_compensate_box_2_as_post_flight_does()
 /// The board flown cold through both boxes, one continuous flight (`capture` of the whole
 /// file, `replay`): box 2's band std as the board outputs it, with the witness beside the
 /// paper filter and without. Measured: mag_5 0.69 / 0.69 nT (16 records of box 2 shown from
-/// the witness), mag_4 with flux_c 1.11 / 3.54 (3 switches, each carried at the shown level;
+/// the witness), mag_4 with flux_c 1.10 / 3.54 (3 switches, each carried at the shown level;
 /// with a step at each it was 11.2), mag_3 with flux_b 2.14 / 4.65.
 #[test]
 fn the_board_flown_cold_through_both_boxes_takes_the_witness_where_it_helps() {
