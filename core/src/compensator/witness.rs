@@ -10,17 +10,18 @@
 //! The two filters agree on the interference's variation, not on its level: in calibrate
 //! mode neither determines the level (the anomaly states share it; the record's bound
 //! covers the variation about the minute's mean). So a switch carries the level across:
-//! the newly shown filter's interference is offset to continue the last shown value, and
-//! the output has no step (measured on the real boxes flown cold through both: a step at
-//! each of 3 switches took `mag_4`'s band std from 0.99 to 11.2 nT).
+//! the newly shown filter's interference is offset by the two filters' disagreement as
+//! last seen with both records trusted, and the output has no step (the real boxes flown
+//! cold through both: `mag_4`'s box-2 band std 1.10 nT, 11.2 with a step at each of its 3
+//! switches), nor does it take a fault one filter showed while flagged.
 //!
 //! The witness leans on one more sensor, the fluxgate's modulus, whose errors its own bound
 //! does not see; and where an effect both filters miss hides in the anomaly states, neither
 //! bound sees it. What can be seen is how far the two disagree: a witnessed record states
-//! at least the two filters' disagreement (its variation about the last minute's mean, as
-//! the bound is defined). Simulated cabin current seen by the fluxgate too (`replay_bound`):
-//! the witness's own bound was 2.2–8 × below its band error; with the disagreement, within
-//! the bound.
+//! at least the two filters' disagreement (its variation in the compensation band, about a
+//! running mean of the band's lower-edge time constant). Simulated cabin current seen by
+//! the fluxgate too (`replay_bound`): the witness's own bound was 2.2–8 × below its band
+//! error; with the disagreement, 0.68–0.89 × its error.
 
 use super::Output;
 use crate::flags::Flags;
@@ -55,8 +56,8 @@ pub struct WitnessChoice {
     switches: u32,
     /// Added to the shown filter's interference (nT): the level carried across switches.
     level_nt: f32,
-    /// The filters' disagreement (witness − paper interference, nT) while both have
-    /// converged: its running mean and variance about it over ~`1 / rate` samples.
+    /// The filters' disagreement (witness − paper interference, nT) while both records are
+    /// trusted: its running mean and variance about it over ~`1 / rate` samples.
     disagreement_mean_nt: f32,
     disagreement_var_nt2: f32,
     disagreement_samples: u32,
@@ -69,8 +70,8 @@ pub struct WitnessChoice {
 }
 
 impl WitnessChoice {
-    /// `window_samples`: how many samples the disagreement is followed over (the minute of
-    /// the records' bound, `converged_window_epochs`).
+    /// `window_samples`: the time constant the disagreement's running mean follows, in
+    /// samples (the board's: 1.6 s, the compensation band's lower edge).
     pub fn new(window_samples: u32) -> Self {
         Self {
             shown: Shown::Paper,
@@ -86,8 +87,8 @@ impl WitnessChoice {
         }
     }
 
-    /// The two filters' disagreement (nT, 1σ about its running mean; 0 before both have
-    /// converged together).
+    /// The two filters' disagreement (nT, 1σ about its running mean; 0 before both records
+    /// were trusted together).
     pub fn disagreement_nt(&self) -> f32 {
         libm::sqrtf(self.disagreement_var_nt2.max(0.0))
     }
