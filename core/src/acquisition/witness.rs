@@ -7,8 +7,6 @@
 use super::Acquisition;
 use crate::compensator::witness::{Shown, WitnessChoice};
 use crate::compensator::{Compensator, CompensatorError, Output};
-#[allow(unused_imports)] // the docs' link
-use crate::flags::Flags;
 use crate::model::Model;
 
 impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
