@@ -86,9 +86,10 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
 
     /// A filter restart restarts the witness too (same model, choice back to the paper's).
     pub(super) fn restart_witness(&mut self) -> Result<(), CompensatorError> {
+        let fresh = self.fresh_choice();
         if let Some((model, choice)) = self.witness.as_mut() {
             self.extra[0].reset_in_place(*model, *self.comp.config())?;
-            *choice = WitnessChoice::new(disagreement_window(self.cfg.scalar_hz));
+            *choice = fresh;
         }
         Ok(())
     }
