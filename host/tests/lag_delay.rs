@@ -140,6 +140,7 @@ fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
         speed_mps: None,
         cross_check: false,
         survey_from_s: None,
+        live_witness: true,
     };
     let (f, cal) = compensate_trace(&trace, &est, None, false).expect("calibrate");
     let file = cal.coefficients.clone().expect("file");

@@ -32,6 +32,7 @@ fn est(method: Method, model: &str) -> EstimatorSettings {
         speed_mps: Some(SPEED_MPS),
         cross_check: false,
         survey_from_s: None,
+        live_witness: true,
     }
 }
 

@@ -36,6 +36,7 @@ fn transfer_nt(b: &Boxes, mag: &str, model: &str) -> f64 {
         speed_mps: Some(SPEED_MPS),
         cross_check: false,
         survey_from_s: None,
+        live_witness: true,
     };
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();

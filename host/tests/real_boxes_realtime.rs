@@ -36,6 +36,7 @@ fn settings(cross_check: bool) -> EstimatorSettings {
         // The product's default calibration (the cross-checked method) is the reference.
         cross_check,
         survey_from_s: None,
+        live_witness: true,
     }
 }
 

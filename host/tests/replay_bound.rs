@@ -8,15 +8,18 @@
 //! inside each run of ≥ 30 s of records shown good, less its 60 s running mean.
 //! Run in release: `cargo test --release -p magcomp --test replay_bound -- --nocapture`.
 
+#[path = "common/cabin_current.rs"]
+mod cabin_current;
 #[path = "common/independent.rs"]
 mod independent_sim;
 
+use cabin_current::flown_with_cabin_current;
 use magcomp::board::capture::{trace_to_capture, CaptureOptions};
 use magcomp::board::replay::{replay_capture, ReplayOptions};
 use magcomp::io::trace::Trace;
 use magcomp::model::spec::ModelSpec;
 use magcomp::signal::bandpass::bandpass;
-use magcomp::sim::{parse_hidden, simulate, SimConfig};
+use magcomp::sim::{simulate, SimConfig};
 use magcomp_core::protocol::record::Record;
 use magcomp_core::Flags;
 
@@ -280,18 +283,7 @@ fn the_witness_hands_back_when_its_fluxgate_steps() {
 /// 3 × as strongly (channel not recorded) and `more` hidden effects: the board's records,
 /// how they hold their bound, and how the paper filter's alone do.
 fn cabin_current_flight(name: &str, seed: u64, more: &[&str]) -> (Vec<Record>, Holding, Holding) {
-    let mut cfg = SimConfig::calibration_with_exit(seed);
-    cfg.hidden = std::iter::once("current:cabin")
-        .chain(more.iter().copied())
-        .map(|h| parse_hidden(h).unwrap())
-        .collect();
-    cfg.hidden_std_nt = 10.0;
-    cfg.hidden_at_fluxgate = 3.0;
-    let trace = simulate(&cfg).unwrap();
-    let truth: Vec<f64> = (trace.col("truth_interference").unwrap().iter())
-        .zip(trace.col("truth_hidden_current_cabin").unwrap())
-        .map(|(a, b)| a + b)
-        .collect();
+    let (trace, truth) = flown_with_cabin_current(SimConfig::calibration_with_exit(seed), more);
     let paper = holding(
         &format!("{name}, paper filter alone"),
         &board_records(&trace, false),

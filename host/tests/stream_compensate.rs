@@ -26,6 +26,7 @@ fn est(method: Method) -> EstimatorSettings {
         speed_mps: None,
         cross_check: false,
         survey_from_s: None,
+        live_witness: true,
     }
 }
 

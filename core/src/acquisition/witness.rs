@@ -22,7 +22,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     }
 
     fn fresh_choice(&self) -> WitnessChoice {
-        WitnessChoice::new(disagreement_window(self.cfg.scalar_hz))
+        WitnessChoice::for_rate(self.cfg.scalar_hz)
     }
 
     /// The witnessed filter and the choice, when one is attached ([`Flags::WITNESS`](crate::flags::Flags::WITNESS) marks
@@ -109,12 +109,4 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             let _ = self.comp.reset_in_place(model, cfg);
         }
     }
-}
-
-/// Samples the two filters' disagreement is followed over: the time constant of the
-/// compensation band's lower edge, 1 / (2π · 0.1 Hz) = 1.6 s, so it is taken in the band
-/// the records' bound is judged in (their slow level difference is the anomaly's).
-fn disagreement_window(scalar_hz: f64) -> u32 {
-    const BAND_LOW_HZ: f64 = 0.1;
-    libm::round(scalar_hz / (2.0 * core::f64::consts::PI * BAND_LOW_HZ)).max(1.0) as u32
 }

@@ -87,6 +87,15 @@ impl WitnessChoice {
         }
     }
 
+    /// The choice at a scalar rate: the disagreement is followed over the time constant of
+    /// the compensation band's lower edge, 1 / (2π · 0.1 Hz) = 1.6 s, so it is taken in the
+    /// band the records' bound is judged in (their slow level difference is the anomaly's).
+    pub fn for_rate(scalar_hz: f64) -> Self {
+        const BAND_LOW_HZ: f64 = 0.1;
+        let window = libm::round(scalar_hz / (2.0 * core::f64::consts::PI * BAND_LOW_HZ));
+        Self::new(window.max(1.0) as u32)
+    }
+
     /// The two filters' disagreement (nT, 1σ about its running mean; 0 before both records
     /// were trusted together).
     pub fn disagreement_nt(&self) -> f32 {

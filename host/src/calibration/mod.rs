@@ -18,6 +18,7 @@ pub mod fluxgate_check;
 pub mod fluxgate_witness;
 pub mod fom;
 mod kf;
+mod live_witness;
 pub mod provenance;
 pub mod result;
 pub mod summary;
@@ -46,6 +47,10 @@ pub struct EstimatorSettings {
     /// Real time: switch to survey mode at this time (s), as the operator's `MODE,SURVEY`
     /// would: the coefficients held then are kept for the rest of the flight.
     pub survey_from_s: Option<f64>,
+    /// Real time with the default estimator: the model's witnessed form (`+fluxmod`) runs
+    /// beside it and each record is the shown filter's, as on the board
+    /// ([`live_witness`]); `--no-witness` turns it off.
+    pub live_witness: bool,
 }
 
 impl Default for EstimatorSettings {
@@ -60,6 +65,7 @@ impl Default for EstimatorSettings {
             speed_mps: None,
             cross_check: false,
             survey_from_s: None,
+            live_witness: true,
         }
     }
 }
@@ -130,6 +136,12 @@ fn run_method(
             let (flight, mut comp) = cross_check::choose(kalman, least_squares)?;
             comp.warnings.extend(witness_note);
             Ok((flight, comp))
+        }
+        Method::Kf if realtime && coeffs.is_none() => {
+            match live_witness::witnessed_model(est, &model_text) {
+                Some(witnessed) => live_witness::run_pair(trace, est, &model_text, &witnessed),
+                None => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
+            }
         }
         Method::Kf => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
         Method::Tl => tl::run_tl_method(trace, est, coeffs),

@@ -394,6 +394,7 @@ impl EstimatorArgs {
             // is used as asked.
             cross_check: self.method.is_none(),
             survey_from_s: None,
+            live_witness: true,
         }
     }
 

@@ -42,6 +42,12 @@ pub struct CompensateArgs {
         conflicts_with = "coeffs"
     )]
     pub survey_from: Option<f64>,
+    /// With `--realtime`: the model's filter alone. By default, calibrating in flight with
+    /// the default estimator, the model's form with the fluxgate as a witness (`+fluxmod`)
+    /// runs beside it and each record is the shown filter's (flag WITNESS), as on the board
+    /// and in `replay` (docs/firmware.md, "Fluxgate witness").
+    #[arg(long, requires = "realtime")]
+    pub no_witness: bool,
     /// Output CSV: t,mag,interference,compensated[,anomaly,innovation,flags], then `igrf`
     /// and every other input column (lat, lon, LINE, X, Y, …; the input `mag` as
     /// `in_mag`), row for row; `OUT.xyz` writes Geosoft XYZ; docs/trace-format.md.
@@ -149,6 +155,7 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
     let stage = crate::io::progress::Stage::new("compensation (all filter passes)");
     let est = EstimatorSettings {
         survey_from_s: a.survey_from,
+        live_witness: !a.no_witness,
         ..a.est.settings()
     };
     let (flight, comp) = compensate_trace(&trace, &est, coeffs.as_ref(), a.realtime)?;
