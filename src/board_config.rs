@@ -61,24 +61,17 @@ pub type BoardAcquisition = Acquisition<'static, STATE_CAPACITY, WINDOW>;
 /// One sensor's set in the board's order ([`MODEL_SPEC`]).
 pub type CoefSet = [f32; N_COEF];
 
-/// Sets not (yet) in a filter.
-#[derive(Clone, Copy, Default)]
-pub struct Staged {
-    /// `SETCOEF` values waiting for `MODE,SURVEY`, per sensor (channel of a counter line).
-    pub sets: [Option<CoefSet>; MAX_SENSORS],
-}
+/// `SETCOEF` values waiting for `MODE,SURVEY`, per sensor (channel of a counter line).
+pub type Staged = [Option<CoefSet>; MAX_SENSORS];
 
-impl Staged {
-    pub const NONE: Self = Self {
-        sets: [None; MAX_SENSORS],
-    };
-}
+/// No set staged.
+pub const NONE_STAGED: Staged = [None; MAX_SENSORS];
 
 /// Sensor `sensor`'s set as `GETCOEF` and `SAVE` read it: the staged one when one waits;
 /// sensor 0's is the shown filter's (the paper filter's 16 values and `fluxmod` 0, or the
 /// witnessed filter's 17); sensors 1–2 run the paper model (`fluxmod` 0).
 pub fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> CoefSet {
-    if let Some(Some(c)) = staged.sets.get(sensor) {
+    if let Some(Some(c)) = staged.get(sensor) {
         return *c;
     }
     let mut c = [0f32; N_COEF];
@@ -100,7 +93,7 @@ pub fn coefficients(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> C
 /// learnt from the counter lines that feed it. A single-sensor board's idle channels do
 /// not, nor does channel 1 while the witness runs in its compensator.
 pub fn holds_set(acq: &BoardAcquisition, staged: &Staged, sensor: usize) -> bool {
-    staged.sets.get(sensor).is_some_and(Option::is_some)
+    staged.get(sensor).is_some_and(Option::is_some)
         || acq
             .sensor(sensor)
             .is_some_and(|c| c.is_survey_mode() || usize::from(acq.channels()) > sensor)

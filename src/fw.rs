@@ -10,7 +10,6 @@ use embassy_sync::channel::Channel;
 use embassy_time::{Duration, Timer, with_timeout};
 use embedded_io_async::{Read, Write};
 use magcomp_core::acquisition::AcqRecord;
-use magcomp_core::protocol::command::MAX_SENSORS;
 use magcomp_core::protocol::command::{
     Command, CommandError, CommandReader, FLUX_CAL_LEN, FLUX_TEMP_LEN, Mode, encode_ack_coef,
     encode_ack_indexed, encode_error,
@@ -239,7 +238,7 @@ async fn acq_task(acq: &'static mut BoardAcquisition, mut store: board::CoefStor
     let mut taken = [0u64; 3];
     // `SETCOEF` values wait in `staged` for `MODE,SURVEY`: one value must not switch the
     // board to a half-uploaded set.
-    let mut staged = Staged::NONE;
+    let mut staged = bc::NONE_STAGED;
     loop {
         let ev = match health::idle(Task::Acq, select(EVENTS.receive(), COMMANDS.receive())).await {
             Either::First(ev) => ev,
@@ -450,8 +449,8 @@ async fn handle_command(
 /// 1–2 refuse a set with `fluxmod` ≠ 0 (`board_config::load_set`).
 fn set_mode(m: Mode, acq: &mut BoardAcquisition, staged: &mut Staged) -> Line {
     if m == Mode::Survey {
-        for sensor in 0..MAX_SENSORS {
-            let Some(c) = staged.sets[sensor].take() else {
+        for (sensor, slot) in staged.iter_mut().enumerate() {
+            let Some(c) = slot.take() else {
                 continue;
             };
             if bc::load_set(acq, sensor, &c).is_err() {
@@ -539,7 +538,7 @@ fn stage_coefficient(
     let mut c = bc::coefficients(acq, staged, sensor.into());
     match (
         c.get_mut(usize::from(index)),
-        staged.sets.get_mut(usize::from(sensor)),
+        staged.get_mut(usize::from(sensor)),
     ) {
         (Some(slot), Some(set)) if value.is_finite() => {
             *slot = value;
@@ -611,7 +610,7 @@ async fn restart(
     };
     let mut failed = false;
     if cmd != Command::Flush {
-        *staged = Staged::NONE;
+        *staged = bc::NONE_STAGED;
         // in place: no second filter on the stack
         if bc::restart_filter(acq).is_err() {
             defmt::error!("compensator re-init failed");

@@ -4,7 +4,7 @@
 //! witness (16-value paper sets) loaded as paper sets, `fluxmod` 0.
 
 use hil_tests::board_config::{
-    self, BoardAcquisition, CoefSet, FLUXMOD, N_COEF, N_PAPER, Staged, paper_model_id,
+    self, BoardAcquisition, CoefSet, FLUXMOD, N_COEF, N_PAPER, NONE_STAGED, Staged, paper_model_id,
 };
 use hil_tests::store;
 use magcomp_core::model::Model;
@@ -65,23 +65,21 @@ fn image(magic: &[u8; 4], seq: u32, body: &[u8]) -> store::Image {
 #[test]
 fn every_sensor_is_saved_and_an_image_from_before_sensors_1_and_2_still_loads() {
     let acq = acquisition();
-    let staged = Staged {
-        sets: [
-            Some(set(1.0, false)),
-            Some(set(-2.0, false)),
-            Some(set(3.5, false)),
-        ],
-    };
+    let staged: Staged = [
+        Some(set(1.0, false)),
+        Some(set(-2.0, false)),
+        Some(set(3.5, false)),
+    ];
     let mut img = store::ERASED;
     store::seal(7, &acq, &staged, &mut img).unwrap();
     assert_eq!(&img[..4], b"MCS4");
     assert_eq!(store::sequence(&img), Some(7));
     let mut back = acquisition();
-    let held = Staged::NONE;
+    let held = NONE_STAGED;
     store::load_image(&img, &mut back).unwrap();
     // sensor 1's set took channel 1's compensator back from the witness
     assert!(back.witness().is_none());
-    for (s, want) in staged.sets.iter().enumerate() {
+    for (s, want) in staged.iter().enumerate() {
         let got = coefficients(&back, &held, s);
         assert!(close(&got, want.as_ref().unwrap()), "sensor {s}: {got:?}");
         assert!(back.sensor(s).unwrap().is_survey_mode(), "sensor {s}");
@@ -96,7 +94,7 @@ fn every_sensor_is_saved_and_an_image_from_before_sensors_1_and_2_still_loads() 
     let mut old = image(b"MCS2", 7, &img[8..8 + v2]);
     assert_eq!(store::sequence(&old), Some(7));
     let mut back = acquisition();
-    let held = Staged::NONE;
+    let held = NONE_STAGED;
     store::load_image(&old, &mut back).unwrap();
     assert!(close(&coefficients(&back, &held, 0), &set(1.0, false)));
     assert!(back.is_survey_mode());
@@ -169,14 +167,14 @@ fn an_image_of_the_firmware_before_the_witness_loads_as_paper_sets() {
         "the previous firmware's image is valid"
     );
     let mut back = acquisition();
-    let held = Staged::NONE;
+    let held = NONE_STAGED;
     store::load_image(&old, &mut back).unwrap();
     check("MCS3", &back, &held);
     // its next `SAVE` writes them in the board's vector, `fluxmod` 0: they read back alike
     let mut img = store::ERASED;
     store::seal(42, &back, &held, &mut img).unwrap();
     let mut again = acquisition();
-    let held2 = Staged::NONE;
+    let held2 = NONE_STAGED;
     store::load_image(&img, &mut again).unwrap();
     check("resaved", &again, &held2);
 
@@ -184,7 +182,7 @@ fn an_image_of_the_firmware_before_the_witness_loads_as_paper_sets() {
     let mut legacy = store::ERASED;
     legacy[..body.len()].copy_from_slice(body);
     let mut back = acquisition();
-    let held = Staged::NONE;
+    let held = NONE_STAGED;
     store::load_legacy(&legacy, &mut back).unwrap();
     check("single image", &back, &held);
 }
@@ -197,7 +195,7 @@ fn an_image_of_the_firmware_before_the_witness_loads_as_paper_sets() {
 fn a_witnessed_set_loads_shown_and_yields_honestly_to_a_second_sensor() {
     let store_of = |sets: [Option<CoefSet>; 3]| {
         let mut img = store::ERASED;
-        store::seal(3, &acquisition(), &Staged { sets }, &mut img).unwrap();
+        store::seal(3, &acquisition(), &sets, &mut img).unwrap();
         let mut back = acquisition();
         store::load_image(&img, &mut back).unwrap();
         back
@@ -208,7 +206,7 @@ fn a_witnessed_set_loads_shown_and_yields_honestly_to_a_second_sensor() {
         Some(magcomp_core::compensator::witness::Shown::Witness)
     );
     assert!(close(
-        &coefficients(&alone, &Staged::NONE, 0),
+        &coefficients(&alone, &NONE_STAGED, 0),
         &set(1.0, true)
     ));
     let both = store_of([Some(set(1.0, true)), Some(set(-2.0, false)), None]);
