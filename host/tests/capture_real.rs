@@ -45,7 +45,10 @@ fn real_flight_capture_replays_one_record_per_sample_as_realtime_compensate() {
         bin()
             .arg("calibrate")
             .arg(&trace)
-            .args(["--map", MAP, "--model", MODEL, "--speed-mps", "60", "-o"])
+            // The board loads the filter's coefficients: the filter asked for by name (the
+            // default cross-check may choose TL18-OLS, which the board cannot load).
+            .args(["--map", MAP, "--model", MODEL, "--method", "kf"])
+            .args(["--speed-mps", "60", "-o"])
             .arg(&coeffs),
     );
 

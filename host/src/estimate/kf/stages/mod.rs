@@ -69,7 +69,14 @@ pub(crate) fn calibrate(
     // joint filter at 300 m over strong geology 0.028 → 0.045 nT on a sensor, `multi_sim`).
     // Within the first run's family: its scale is what the fluxgate's error moved.
     let family = reuse.and_then(|r| r.field_family);
-    let (field, made) = field_process_stage(flight, opts, (cfg, &excitation.held), made, family)?;
+    let model_error = noise.model_error_nt.is_some();
+    let (field, made) = field_process_stage(
+        flight,
+        opts,
+        (cfg, &excitation.held, model_error),
+        made,
+        family,
+    )?;
     let filter = PassSetup {
         field_profile: field.profile.as_deref(),
         ..PassSetup::held(cfg, &excitation.held)
@@ -103,15 +110,15 @@ fn excitation_stage(
 }
 
 /// The anomaly-process stage on the stationary pass at `cfg` with `held` held, when the
-/// choice runs.
+/// choice runs (`model_error`: the noise stage found error beyond the sensor's noise).
 fn field_process_stage(
     flight: &crate::flight::Flight,
     opts: &KfOptions,
-    (cfg, held): (CompensatorConfig, &[Vec<f32>]),
+    (cfg, held, model_error): (CompensatorConfig, &[Vec<f32>], bool),
     made: Option<StationaryPass>,
     family: Option<usize>,
 ) -> Result<(FieldProcessStage, Option<StationaryPass>)> {
-    if !FieldProcessStage::applies(opts) {
+    if !FieldProcessStage::applies(opts, model_error) {
         return Ok((FieldProcessStage::stationary(), made));
     }
     let stationary = StationaryPass::at(flight, opts, (cfg, held), made)?;
