@@ -2,11 +2,10 @@
 //! does (`calibration::live_witness`): the real SGL boxes flown cold through both boxes,
 //! and a simulated cabin current the fluxgate sees 3 × as strongly as the scalar, whose
 //! channel is not recorded. Measured (box 2 band std, nT, with the pair / the model's
-//! filter alone): `mag_3` with `flux_b` 3.44 / 4.38, `mag_4` with `flux_c` 2.52 / 3.40,
-//! `mag_4` with `flux_d` 3.41 / 3.43 (224 records shown at box 1's end), `mag_5` 0.73 / 0.73
-//! (never shown). The board's pair through `replay` does better on the boxes (2.14 / 1.10
-//! nT): it adapts its noise to its innovations, where the host's real time takes one
-//! noise tuned on the whole flight.
+//! filter alone): `mag_3` with `flux_b` 3.28 / 5.22, `mag_4` with `flux_c` 1.58 / 3.70,
+//! `mag_5` 0.74 / 0.74 (never shown). The board's pair through `replay` does better on
+//! `mag_3` (2.14 / 1.10 nT): it adapts its noise to its innovations, where the host's real
+//! time takes one noise tuned on the whole flight.
 
 #[path = "common/cabin_current.rs"]
 mod cabin_current;
@@ -114,9 +113,9 @@ fn real_time_on_the_host_takes_the_witness_where_the_board_does() {
 }
 
 /// A 10 nT cabin current near the scalar, 3 × as strong at the fluxgate, its channel not
-/// recorded: the filter alone states a bound its error breaks by 2 × (seeds 1 / 2: band
-/// error 6.87 / 3.30 nT against an rms bound of 3.32 / 1.79); with the witness beside it the
-/// records shown hold theirs (3.29 / 1.58 against 4.03 / 1.86) and the error halves. The
+/// recorded: the filter alone states a bound its error breaks (seeds 1 / 2: band error
+/// 6.72 / 3.42 nT against an rms bound of 5.68 / 2.06); with the witness beside it the
+/// records shown hold theirs (3.29 / 1.58 against 3.80 / 1.76) and the error halves. The
 /// default calibration flight converges 18 s before its end, so these are its last records.
 #[test]
 fn real_time_with_a_cabin_current_the_fluxgate_sees_holds_its_bound_with_the_witness() {
