@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::cli::{bin, data_rows, run_ok, run_ok_with_stderr, simulate, tmp};
+use common::cli::{bin, data_rows, flags_column, run_ok, run_ok_with_stderr, simulate, tmp};
 use magcomp_core::Flags;
 use std::path::{Path, PathBuf};
 
@@ -48,26 +48,6 @@ fn with_bad_value(
     let p = dir.join(format!("{name}.csv"));
     std::fs::write(&p, ls.join("\n") + "\n").unwrap();
     (p, r + 1)
-}
-
-/// Output flags column of a `compensate` CSV, one per row.
-fn output_flags(p: &Path) -> Vec<u16> {
-    let text = std::fs::read_to_string(p).unwrap();
-    let mut rows = text.lines().filter(|l| !l.starts_with('#'));
-    let flags = rows
-        .next()
-        .unwrap()
-        .split(',')
-        .position(|c| c == "flags")
-        .unwrap();
-    rows.map(|l| {
-        u16::from_str_radix(
-            l.split(',').nth(flags).unwrap().trim_start_matches("0x"),
-            16,
-        )
-        .unwrap()
-    })
-    .collect()
 }
 
 /// Rewrites one field's value.
@@ -152,7 +132,7 @@ fn one_bad_coordinate_gives_the_clean_calibration() {
                 .arg("--out")
                 .arg(&out),
         );
-        let flags = output_flags(&out);
+        let flags = flags_column(&out);
         assert_eq!(flags.len(), rows, "{name}: rows in = rows out");
         let no_gps: Vec<usize> = (0..rows)
             .filter(|&i| flags[i] & Flags::NO_GPS != 0)

@@ -14,7 +14,7 @@ mod common;
 mod real_boxes_data;
 
 use cabin_current::flown_with_cabin_current;
-use common::cli::{bin, csv_column, run_ok_with_stderr, tmp};
+use common::cli::{bin, csv_column, flags_column, run_ok_with_stderr, tmp};
 use magcomp::io::trace::write_trace;
 use magcomp::sim::SimConfig;
 use magcomp_core::Flags;
@@ -40,7 +40,7 @@ fn realtime(trace: &Path, out: &Path, extra: &[&str]) -> Realtime {
             .arg(out)
             .args(extra),
     );
-    let witness_records = flags(out)
+    let witness_records = flags_column(out)
         .iter()
         .filter(|&&f| f & Flags::WITNESS != 0)
         .count();
@@ -51,19 +51,6 @@ fn realtime(trace: &Path, out: &Path, extra: &[&str]) -> Realtime {
         witness_records,
         stderr,
     }
-}
-
-/// The output's `flags` column (hex).
-fn flags(out: &Path) -> Vec<u16> {
-    let text = std::fs::read_to_string(out).unwrap();
-    let mut rows = text.lines().filter(|l| !l.starts_with('#'));
-    let header = rows.next().unwrap();
-    let col = header.split(',').position(|c| c == "flags").unwrap();
-    rows.map(|l| {
-        let cell = l.split(',').nth(col).unwrap();
-        u16::from_str_radix(cell.trim_start_matches("0x"), 16).unwrap()
-    })
-    .collect()
 }
 
 #[test]

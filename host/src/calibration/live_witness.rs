@@ -19,9 +19,14 @@ use magcomp_core::Flags;
 
 /// The witnessed form of `model_text` when the pair runs: the default estimator (not a
 /// method asked for by name, as post-flight considers the witness only then), calibrating
-/// in flight, a model with induced terms and no `fluxmod` yet (the board's rule).
-pub(super) fn witnessed_model(est: &EstimatorSettings, model_text: &str) -> Option<String> {
-    if !(est.cross_check && est.live_witness) {
+/// in flight (`calibrating_live`: real time without coefficients), a model with induced
+/// terms and no `fluxmod` yet (the board's rule).
+pub(super) fn witnessed_model(
+    est: &EstimatorSettings,
+    model_text: &str,
+    calibrating_live: bool,
+) -> Option<String> {
+    if !(calibrating_live && est.cross_check && est.live_witness) {
         return None;
     }
     let spec = ModelSpec::parse(model_text).ok()?;
@@ -87,14 +92,20 @@ fn merge(flight: &Flight, mut paper: Compensation, witness: Compensation) -> Res
         }
         let o = choice.show(p, w);
         let witnessed = o.flags.contains(Flags::WITNESS);
-        let from = if witnessed { &witness } else { &paper };
+        let (from, shown) = if witnessed {
+            (&witness, w)
+        } else {
+            (&paper, p)
+        };
         // The level carried across switches (f32, as the core holds it).
-        let carried = o.interference_nt - record(from, i).interference_nt;
+        let carried = o.interference_nt - shown.interference_nt;
         if witnessed || carried != 0.0 {
-            shown_witness += usize::from(witnessed);
             let interference = from.interference_nt[i] + f64::from(carried);
-            let cols = from_columns(from, i);
-            copy_columns(&mut paper, cols, i);
+            if witnessed {
+                shown_witness += 1;
+                copy_at(&mut paper.anomaly_nt, &witness.anomaly_nt, i);
+                copy_at(&mut paper.innovation_nt, &witness.innovation_nt, i);
+            }
             paper.interference_nt[i] = interference;
             paper.compensated_nt[i] = flight.mag_nt[i] - interference;
         }
@@ -143,24 +154,9 @@ fn record(c: &Compensation, i: usize) -> Output {
     }
 }
 
-/// The columns a record carries besides the interference, flags and bound.
-struct OtherColumns {
-    anomaly_nt: Option<f64>,
-    innovation_nt: Option<f64>,
-}
-
-fn from_columns(c: &Compensation, i: usize) -> OtherColumns {
-    OtherColumns {
-        anomaly_nt: c.anomaly_nt.as_ref().map(|v| v[i]),
-        innovation_nt: c.innovation_nt.as_ref().map(|v| v[i]),
-    }
-}
-
-fn copy_columns(into: &mut Compensation, cols: OtherColumns, i: usize) {
-    if let (Some(v), Some(a)) = (into.anomaly_nt.as_mut(), cols.anomaly_nt) {
-        v[i] = a;
-    }
-    if let (Some(v), Some(x)) = (into.innovation_nt.as_mut(), cols.innovation_nt) {
-        v[i] = x;
+/// `into[i] = from[i]` where both columns exist.
+fn copy_at(into: &mut Option<Vec<f64>>, from: &Option<Vec<f64>>, i: usize) {
+    if let (Some(v), Some(f)) = (into.as_mut(), from.as_ref()) {
+        v[i] = f[i];
     }
 }

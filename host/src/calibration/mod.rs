@@ -137,13 +137,13 @@ fn run_method(
             comp.warnings.extend(witness_note);
             Ok((flight, comp))
         }
-        Method::Kf if realtime && coeffs.is_none() => {
-            match live_witness::witnessed_model(est, &model_text) {
+        Method::Kf => {
+            let calibrating_live = realtime && coeffs.is_none();
+            match live_witness::witnessed_model(est, &model_text, calibrating_live) {
                 Some(witnessed) => live_witness::run_pair(trace, est, &model_text, &witnessed),
                 None => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
             }
         }
-        Method::Kf => kf::run_kf_method(trace, est, coeffs, realtime, &model_text),
         Method::Tl => tl::run_tl_method(trace, est, coeffs),
     }
 }

@@ -83,8 +83,8 @@ pub fn data_rows(p: &Path) -> usize {
         - 1
 }
 
-/// A named numeric column of a CSV with `#` comments.
-pub fn csv_column(path: &Path, name: &str) -> Vec<f64> {
+/// A named column's cells of a CSV with `#` comments.
+fn column_cells(path: &Path, name: &str) -> Vec<String> {
     let text = std::fs::read_to_string(path).unwrap();
     let mut lines = text.lines().filter(|l| !l.starts_with('#'));
     let j = lines
@@ -94,6 +94,22 @@ pub fn csv_column(path: &Path, name: &str) -> Vec<f64> {
         .position(|c| c == name)
         .unwrap_or_else(|| panic!("no {name} in {}", path.display()));
     lines
-        .map(|l| l.split(',').nth(j).unwrap().parse().unwrap_or(f64::NAN))
+        .map(|l| l.split(',').nth(j).unwrap().to_string())
+        .collect()
+}
+
+/// A named numeric column of a CSV with `#` comments.
+pub fn csv_column(path: &Path, name: &str) -> Vec<f64> {
+    column_cells(path, name)
+        .iter()
+        .map(|c| c.parse().unwrap_or(f64::NAN))
+        .collect()
+}
+
+/// The `flags` column (hex, `0x…`) of a `compensate` output CSV, one per row.
+pub fn flags_column(path: &Path) -> Vec<u16> {
+    column_cells(path, "flags")
+        .iter()
+        .map(|c| u16::from_str_radix(c.trim_start_matches("0x"), 16).unwrap())
         .collect()
 }
