@@ -7,7 +7,9 @@
 
 mod common;
 
-use common::{assert_one_record_per_sample, reply, run_flight, run_flight_at, scalar_line, speed};
+use common::{
+    assert_one_record_per_sample, reply, run_flight, run_flight_at, scalar_line, speed, start,
+};
 use hil_tests::board::{self, Board};
 use hil_tests::capture::{Capture, FlightSpec, GPS_T0_S, Port, synthetic_flight};
 use magcomp_core::Flags;
@@ -367,11 +369,9 @@ fn random_bytes_on_every_port_no_reset_no_lost_sample() {
 #[test]
 fn raw_lines_follow_every_sample_as_the_host_replay_writes_them() {
     let name = "raw";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let r = reply(&mut b, "MCCMD,RAW,MAYBE");
     assert!(r.starts_with("$MCERR,"), "RAW,MAYBE → {r}");
     let r = reply(&mut b, "MCCMD,RAW,ON");

@@ -7,7 +7,7 @@ mod common;
 
 use common::{
     assert_one_record_per_sample, banners, coefficients_read_back, collect_records, reply,
-    reply_values, run_flight, send_hook, speed, start_with_hooks,
+    reply_values, run_flight, send_hook, speed, start, start_with_hooks,
 };
 use hil_tests::board::{self, Board, sentence};
 use hil_tests::board_config::{FLUXMOD, N_COEF};
@@ -21,11 +21,9 @@ use std::time::{Duration, Instant};
 #[test]
 fn malformed_commands_rejected_valid_ones_applied() {
     let name = "commands";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let mut rejected = 0;
     let mut expect_err = |b: &mut Board, bytes: &[u8], reason: &str| {
         let mut r = b.command_raw(bytes).unwrap();
@@ -159,11 +157,9 @@ fn malformed_commands_rejected_valid_ones_applied() {
 #[test]
 fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
     let name = "lag";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let value = |r: &str| -> f64 {
         r.split(['*', ','])
             .nth(2)
@@ -236,11 +232,9 @@ fn lag_set_over_the_command_port_delays_the_fluxgate_without_losing_a_record() {
 #[test]
 fn fluxtemp_set_over_the_command_port_is_stored() {
     let name = "fluxtemp";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     assert_eq!(
         reply_values(&reply(&mut b, "MCCMD,GETFTEMP")),
         [0.0; 7],
@@ -415,11 +409,9 @@ fn coefficients_from_magcomp_calibrate_uploaded() {
 #[test]
 fn commands_back_to_back_all_take_effect() {
     let name = "backtoback";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let n_rounds = 40;
     let mut want = [0f32; N_COEF];
     for round in 0..n_rounds {
@@ -460,12 +452,10 @@ fn commands_back_to_back_all_take_effect() {
 #[test]
 fn command_burst_keeps_records_flowing() {
     let name = "burst";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
-        return;
-    }
     let cap = synthetic_flight(&FlightSpec::new(0x5EED_0023, 8.0));
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let Some(mut b) = start(name) else {
+        return;
+    };
     let cmd = b.command_writer();
     let sent = std::thread::spawn(move || {
         let send = |bytes: &[u8]| {
@@ -643,11 +633,9 @@ fn status_reports_uart_errors_by_kind_and_port() {
 #[test]
 fn factory_reset_erases_the_store() {
     let name = "factory";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let ok = |r: &str, what: &str| assert!(r.starts_with(what), "{name}: {r}");
     ok(&reply(&mut b, "MCCMD,SETCOEF,3,1.5"), "$MCACK,SETCOEF,3,");
     ok(&reply(&mut b, "MCCMD,SETLAG,0.3"), "$MCACK,SETLAG,");
@@ -763,11 +751,9 @@ fn save_cut_at_any_point_keeps_the_old_set() {
 #[test]
 fn a_set_with_fluxmod_flies_the_witnessed_filter_and_one_without_the_paper_filter() {
     let name = "witness";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     // exactly representable; `fluxmod`'s (index 16) 0.5
     let mut want: Vec<f32> = (0..N_COEF).map(|i| (i as f32 - 8.0) * 0.125).collect();
     want[FLUXMOD] = 0.5;

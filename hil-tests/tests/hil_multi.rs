@@ -4,7 +4,10 @@
 //! SKIPs (passes with a message) when qemu-system-arm is missing, unless
 //! `MAGCOMP_REQUIRE_QEMU=1`.
 
-use hil_tests::board::{self, Board};
+mod common;
+
+use common::start;
+use hil_tests::board;
 use hil_tests::capture::{FlightSpec, Port, synthetic_flight};
 use hil_tests::replay::replay_any;
 use magcomp_core::Flags;
@@ -22,12 +25,10 @@ fn three_sensors_one_record_per_line_byte_identical_to_replay_with_a_dead_channe
     // sensor 1 sends nothing for 5 s: its channel is flagged, the lines keep coming
     spec.dead_channel_s = Some((1, 10.0, 15.0));
     let cap = synthetic_flight(&spec);
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
-        return;
-    }
     let n = cap.scalar_t_s.len();
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: board start: {e}"));
+    let Some(mut b) = start(name) else {
+        return;
+    };
     b.stream(&cap, 1.0)
         .unwrap_or_else(|e| panic!("{name}: stream: {e}"));
     b.wait_records(n.saturating_sub(8), Duration::from_secs(10));
@@ -144,12 +145,10 @@ fn raw_lines_carry_every_channel_exactly() {
     spec.sensors = 3;
     spec.dead_channel_s = Some((1, 3.0, 5.0));
     let cap = synthetic_flight(&spec);
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
-        return;
-    }
     let n = cap.scalar_t_s.len();
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: board start: {e}"));
+    let Some(mut b) = start(name) else {
+        return;
+    };
     let r = b
         .command("MCCMD,RAW,ON")
         .unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -241,11 +240,9 @@ fn raw_lines_carry_every_channel_exactly() {
 #[test]
 fn sensor_coefficients_are_addressed_staged_and_saved_per_sensor() {
     let name = "multi_cmd";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: board start: {e}"));
+    };
     let mut cmd = |body: &str| {
         let r = b.command(body).unwrap_or_else(|e| panic!("{body}: {e}"));
         r.split('*').next().unwrap_or_default().to_string()

@@ -8,7 +8,7 @@
 mod common;
 
 use common::{
-    assert_one_record_per_sample, collect_records, reply, reply_values, send_hook, speed,
+    assert_one_record_per_sample, collect_records, reply, reply_values, send_hook, speed, start,
     start_with_hooks,
 };
 use hil_tests::board::{self, Board, MAX_RESENDS, sentence};
@@ -67,11 +67,9 @@ fn command_while_streaming(
 #[test]
 fn save_while_sensors_stream_keeps_every_record_and_the_watchdog_fed() {
     let name = "savestream";
-    if let Some(why) = board::skip_reason() {
-        eprintln!("{why}");
+    let Some(mut b) = start(name) else {
         return;
-    }
-    let mut b = Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}"));
+    };
     let t0 = Instant::now();
     assert!(reply(&mut b, "MCCMD,SAVE").starts_with("$MCACK,SAVE"));
     let idle_save = t0.elapsed().as_secs_f64();

@@ -133,14 +133,7 @@ fn the_coefficient_file_carries_the_lag_and_compensate_applies_it() {
     let est = EstimatorSettings {
         model: "tl16+field+lag".into(),
         method: Method::Kf,
-        sigma1: None,
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
-        speed_mps: None,
-        cross_check: false,
-        survey_from_s: None,
-        live_witness: true,
+        ..Default::default()
     };
     let (f, cal) = compensate_trace(&trace, &est, None, false).expect("calibrate");
     let file = cal.coefficients.clone().expect("file");

@@ -15,14 +15,7 @@ fn est(method: Method) -> EstimatorSettings {
     EstimatorSettings {
         model: "tl16+field".into(),
         method,
-        sigma1: None,
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
-        speed_mps: None,
-        cross_check: false,
-        survey_from_s: None,
-        live_witness: true,
+        ..Default::default()
     }
 }
 

@@ -25,14 +25,8 @@ fn est(method: Method, model: &str) -> EstimatorSettings {
     EstimatorSettings {
         model: model.into(),
         method,
-        sigma1: None,
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
-        cross_check: false,
-        survey_from_s: None,
-        live_witness: true,
+        ..Default::default()
     }
 }
 

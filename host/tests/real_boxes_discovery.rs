@@ -29,14 +29,8 @@ fn transfer_nt(b: &Boxes, mag: &str, model: &str) -> f64 {
     let e = EstimatorSettings {
         model: model.into(),
         method: Method::Kf,
-        sigma1: None,
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
-        cross_check: false,
-        survey_from_s: None,
-        live_witness: true,
+        ..Default::default()
     };
     let (_, cal) = compensate_trace(&trace(b, 0..BOX1_ROWS, mag), &e, None, false).unwrap();
     let file = cal.coefficients.unwrap();

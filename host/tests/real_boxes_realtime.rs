@@ -28,15 +28,10 @@ fn settings(cross_check: bool) -> EstimatorSettings {
     EstimatorSettings {
         model: DEFAULT_MODEL.into(),
         method: Method::Kf,
-        sigma1: None,
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
         speed_mps: Some(SPEED_MPS),
         // The product's default calibration (the cross-checked method) is the reference.
         cross_check,
-        survey_from_s: None,
-        live_witness: true,
+        ..Default::default()
     }
 }
 

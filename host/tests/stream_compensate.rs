@@ -20,13 +20,7 @@ fn est(method: Method) -> EstimatorSettings {
         method,
         // Fixed σ1: the calibration here only has to produce coefficients, quickly.
         sigma1: Some(3e-7),
-        noise_nt: None,
-        tl_terms: "tl18".into(),
-        tl_ridge: None,
-        speed_mps: None,
-        cross_check: false,
-        survey_from_s: None,
-        live_witness: true,
+        ..Default::default()
     }
 }
 

@@ -164,6 +164,17 @@ pub fn send_hook(b: &mut Board, line: &[u8]) {
     b.send_command_bytes(line).unwrap();
 }
 
+/// Starts the board for test `name` (emulated, or the real one with
+/// `MAGCOMP_HIL_TARGET=serial`); `None` (SKIP, the reason on stderr) where neither can run.
+/// A board that cannot start is a failure, not a skip.
+pub fn start(name: &str) -> Option<Board> {
+    if let Some(why) = board::skip_reason() {
+        eprintln!("{why}");
+        return None;
+    }
+    Some(Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}")))
+}
+
 /// Starts the emulated board for a test that uses its hidden hooks (`!STALL`, `!PANIC`,
 /// `!CUT<n>`); `None` (SKIP) without QEMU or on a real board, whose image has no hooks.
 pub fn start_with_hooks(name: &str) -> Option<Board> {
@@ -175,7 +186,7 @@ pub fn start_with_hooks(name: &str) -> Option<Board> {
         eprintln!("SKIP: {name} uses the emulated build's hidden test hooks");
         return None;
     }
-    Some(Board::start(name).unwrap_or_else(|e| panic!("{name}: {e}")))
+    start(name)
 }
 
 /// Boot banners so far.
