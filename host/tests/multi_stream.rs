@@ -1,19 +1,22 @@
 //! `compensate --sensors` and streaming (issue 19): several magnetometers with a
 //! several-sensor `--coeffs` file stream for real — one read of the file per pass, one
-//! filter per sensor — and write what the in-memory run writes, value for value (the
-//! standard of `stream_compensate.rs`: the files identical line for line). What still
+//! stage per sensor (the filter, or Tolles–Lawson for a Tolles–Lawson set, any mix) — and
+//! write what the in-memory run writes, value for value (the standard of
+//! `stream_compensate.rs`: the files identical line for line). What still
 //! needs the whole flight (the joint calibration without `--coeffs`, `--realtime`, a set
 //! the one-sensor stream refuses) is refused by `--stream always` with the reason, and an
 //! input `--stream auto` would stream (≥ 256 MiB) is said to be read whole.
 
+use magcomp::calibration::coefficients::Method;
 use magcomp::calibration::EstimatorSettings;
 use magcomp::cli::compensate::{stream_decision, StreamMode};
-use magcomp::cli::multi::read_multi;
+use magcomp::cli::multi::{read_multi, MultiFile};
 use magcomp::io::trace::{read_trace, write_trace, ColumnMap, Trace};
 use magcomp::sim::multi::{simulate_multi, STINGER_WINGTIPS_CABIN_M};
 use magcomp::sim::{FlightKind, SimConfig};
 use magcomp::stream::several::several_unstreamable;
 use magcomp::stream::AUTO_STREAM_BYTES;
+use magcomp_core::Flags;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -255,7 +258,8 @@ fn what_needs_the_whole_flight_is_refused_with_the_reason() {
     );
 }
 
-/// A set the one-sensor stream refuses is refused for several, naming the sensor.
+/// A set the one-sensor stream refuses is refused for several, naming the sensor; a
+/// Tolles–Lawson set is not.
 #[test]
 fn a_set_the_one_sensor_stream_refuses_is_named() {
     let (_, coeffs) = calibrated();
@@ -268,10 +272,139 @@ fn a_set_the_one_sensor_stream_refuses_is_named() {
     let named = [("mag_1", &sets[0]), ("mag_2", &lagged)];
     let why = several_unstreamable(&named, &est, false).unwrap();
     assert!(why.starts_with("mag_2: ") && why.contains("lag"), "{why}");
-    let mut tl = sets[0].clone();
-    tl.method = magcomp::calibration::coefficients::Method::Tl;
-    let why = several_unstreamable(&[("mag_1", &tl)], &est, false).unwrap();
-    assert!(why.contains("Tolles–Lawson"), "{why}");
+    // A Tolles–Lawson set streams (it used to be refused: "applied in memory").
+    let tl = read_multi(&tl_files().0).unwrap().1;
+    assert_eq!(tl[0].method, Method::Tl);
+    let named = [("mag_1", &sets[0]), ("mag_2", &tl[1])];
+    assert_eq!(several_unstreamable(&named, &est, false), None);
+}
+
+/// Several-sensor files holding Tolles–Lawson sets: every sensor's, and a mix (mag_2's
+/// Tolles–Lawson, mag_1's and mag_3's the Kalman filter's), made once. `calibrate
+/// --sensors` writes Kalman-filter sets only (its joint estimate is the filter's; `--method
+/// tl` is not taken per sensor), so each Tolles–Lawson set is `calibrate --sensors mag_K
+/// --method tl` on the same flight, put in the file in place of the filter's.
+fn tl_files() -> (PathBuf, PathBuf) {
+    static MADE: std::sync::OnceLock<(PathBuf, PathBuf)> = std::sync::OnceLock::new();
+    MADE.get_or_init(|| {
+        let (input, coeffs) = calibrated();
+        let (kf, _) = read_multi(&coeffs).unwrap();
+        let tl_set = |k: usize| {
+            let one = tmp(&format!("tl-mag_{k}.json"));
+            let name = format!("mag_{k}");
+            let args = ["calibrate", s(&input), "--sensors", &name, "--method", "tl"];
+            let mut args = args.to_vec();
+            args.extend_from_slice(&["-o", s(&one)]);
+            ok(&magcomp(&args), "calibrate --method tl");
+            // The sealed text as written: its checksum is on these characters.
+            let text = std::fs::read_to_string(&one).unwrap();
+            serde_json::value::RawValue::from_string(text.trim_end().to_string()).unwrap()
+        };
+        let sets: Vec<_> = (1..=3).map(tl_set).collect();
+        let write = |name: &str, tl: &[bool]| {
+            let mut m: MultiFile = kf.clone();
+            for ((e, set), &tl) in m.sensors.iter_mut().zip(&sets).zip(tl) {
+                if tl {
+                    e.coefficients = set.clone();
+                }
+            }
+            let path = tmp(name);
+            std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
+            path
+        };
+        (
+            write("tl-all.json", &[true; 3]),
+            write("tl-mix.json", &[false, true, false]),
+        )
+    })
+    .clone()
+}
+
+/// Tolles–Lawson sets stream: `--stream always` and `--stream never` on the faulty
+/// survey (glitch, bad fluxgate row, time gap, bad latitude) write the same file line
+/// for line, every row in a row out, for a file of Tolles–Lawson sets only (with
+/// `--gradients`) and for a mix of Tolles–Lawson and Kalman-filter sets. A
+/// Tolles–Lawson sensor has no `anomaly_mag_K` column, as in memory; its flags mark the
+/// rows without a usable scalar.
+#[test]
+fn tolles_lawson_sets_stream_equal_in_memory_line_for_line() {
+    let (all, mix) = tl_files();
+    let trace = survey();
+    let input = tmp("survey3-tl.csv");
+    write_trace(&input, &trace).unwrap();
+    let with_gradients: &[&str] = &["--gradients", "mag_1-mag_2,mag_2-mag_3"];
+    let cases = [(&all, with_gradients, "all"), (&mix, &[][..], "mix")];
+    for (coeffs, extra, tag) in cases {
+        let mut outs = Vec::new();
+        for mode in ["never", "always"] {
+            let out = tmp(&format!("tl-{tag}-{mode}.csv"));
+            let _ = std::fs::remove_file(&out);
+            let mut args = vec!["compensate", s(&input), "--coeffs", s(coeffs)];
+            args.extend_from_slice(extra);
+            args.extend_from_slice(&["--stream", mode, "-o", s(&out)]);
+            let err = ok(&magcomp(&args), &format!("{tag} {mode}"));
+            assert!(!err.contains("not streamed"), "{tag} {mode}: {err}");
+            outs.push(out);
+        }
+        let (mem, streamed) = (lines(&outs[0]), lines(&outs[1]));
+        assert_eq!(mem.len(), streamed.len(), "{tag}: lines");
+        for (i, (a, b)) in mem.iter().zip(&streamed).enumerate() {
+            assert_eq!(a, b, "{tag}: line {}", i + 1);
+        }
+        let t = read_trace(&outs[1], &ColumnMap::new()).unwrap();
+        assert_eq!(t.len(), trace.len(), "{tag}: rows in, rows out");
+        let tl = |k: usize| tag == "all" || k == 2;
+        for k in 1..=3 {
+            let has = |c: &str| t.col(&format!("{c}_mag_{k}")).is_some();
+            assert!(has("compensated") && has("flags"), "{tag}: mag_{k}");
+            assert_eq!(has("anomaly"), !tl(k), "{tag}: anomaly_mag_{k}");
+        }
+        // mag_2's glitch (row 650) is taken out, and flagged, by Tolles–Lawson too.
+        let flags = t.col("flags_mag_2").unwrap();
+        assert_ne!(flags[650] as u16 & Flags::MAG_MISSING, 0, "{tag}");
+        assert!(t.col("compensated_mag_2").unwrap()[650].is_nan(), "{tag}");
+        if tag == "all" {
+            assert!(t.col("gradient_mag_2_mag_3").is_some());
+        }
+        eprintln!(
+            "{tag}: {} rows, {} columns identical",
+            t.len(),
+            t.numeric.len()
+        );
+    }
+}
+
+/// `--stream always` takes a Tolles–Lawson several-sensor file (it used to refuse it):
+/// each sensor streamed over every row, by its own method, with its error against the
+/// simulated truth.
+#[test]
+fn stream_always_takes_tolles_lawson_sets() {
+    let (_, mix) = tl_files();
+    let trace = survey();
+    let input = tmp("survey3-tl-json.csv");
+    write_trace(&input, &trace).unwrap();
+    let out = tmp("tl-json.csv");
+    let o = magcomp(&[
+        "compensate",
+        s(&input),
+        "--coeffs",
+        s(&mix),
+        "--stream",
+        "always",
+        "--json",
+        "-o",
+        s(&out),
+    ]);
+    ok(&o, "--stream always, Tolles–Lawson sets");
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let sensors = v["sensors"].as_array().unwrap();
+    assert_eq!(sensors.len(), 3);
+    for (k, e) in sensors.iter().enumerate() {
+        assert_eq!(e["streamed"], true, "{e}");
+        assert_eq!(e["samples"], trace.len());
+        assert_eq!(e["method"], if k == 1 { "tl" } else { "kf" }, "{e}");
+        assert!(e["error_rms_nt"].as_f64().unwrap().is_finite(), "{e}");
+    }
 }
 
 /// The decision by size: `auto` streams from 256 MiB (the one-sensor threshold) when it

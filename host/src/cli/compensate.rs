@@ -66,7 +66,7 @@ pub struct CompensateArgs {
     /// `never` reads the flight into memory (and, without --coeffs, does not decimate a
     /// long flight either). Streaming covers --coeffs (KF survey mode
     /// without lag/fluxtemp/rate, or --method tl; several sensors with a several-sensor
-    /// file, one filter each); its summary leaves out the
+    /// file, each by its own KF or TL set); its summary leaves out the
     /// band-passed figures (residual, IR, FOM) and the applied-coefficient checks
     /// (docs/streaming.md).
     #[arg(long, value_enum, default_value_t = StreamMode::Auto)]

@@ -1,7 +1,7 @@
 //! `compensate --sensors --stream`: several magnetometers streamed (issue 19) — the plan
 //! and the several-sensor coefficient file as the in-memory run reads them
-//! (`super::multi`), the rows through `stream::several`, one filter per sensor, and each
-//! sensor's summary as the one-sensor stream gives it.
+//! (`super::multi`), the rows through `stream::several`, one filter (or Tolles–Lawson) per
+//! sensor, and each sensor's summary as the one-sensor stream gives it.
 
 use super::args::TraceInput;
 use super::multi::{gradient_separation_m, sets_of, MultiArgs, MultiCoefficients, SensorPlan};

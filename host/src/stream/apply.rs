@@ -4,7 +4,7 @@
 //! centred derivative, Tolles–Lawson's one-sample difference, one row to learn whether a
 //! time gap follows.
 use super::rows::RowFilter;
-use super::stage::{Feeder, Found, KfFigures, KfRow, KfStage, Pending, TruthError};
+use super::stage::{Feeder, Figures, Found, KfStage, Pending, SensorStage, StageRow, TlStage};
 use super::stats::Listed;
 use super::{Plan, Progress};
 use crate::calibration::coefficients::CoefficientFile;
@@ -15,7 +15,6 @@ use crate::io::trace::rows::{for_each_row, Kind, Row};
 use crate::io::trace::{ColumnMap, ReadOptions};
 use crate::model::spec::{with_model, ModelSpec};
 use anyhow::{bail, Context, Result};
-use std::collections::VecDeque;
 use std::io::Write;
 use std::path::Path;
 
@@ -37,8 +36,8 @@ pub(crate) struct RunResult {
 }
 
 impl RunResult {
-    /// A filter pass's result: what its feeder found and the figures its filter gathered.
-    pub fn of_pass(model: String, found: Found, figures: KfFigures) -> Self {
+    /// A pass's result: what its feeder found and the figures its stage gathered.
+    pub fn of_pass(model: String, found: Found, figures: Figures) -> Self {
         Self {
             model,
             error_rms_nt: figures.error_rms_nt,
@@ -203,122 +202,39 @@ pub(crate) fn run(
         writeln!(w)?;
         Ok(())
     };
+    let run = (src, plan, quiet, igrf);
     match spec {
-        Some(spec) => run_kf(src, plan, est, coeffs, spec, out, quiet, &header, igrf),
-        None => run_tl(src, plan, coeffs, out, quiet, &header, igrf),
+        Some(spec) => with_model(spec, |model| {
+            let stage = KfStage::new(spec, model, plan, est, coeffs)?;
+            run_stage(run, SensorStage::Kf(stage), &spec.text(), out, &header)
+        }),
+        None => {
+            let stage = TlStage::new(plan, coeffs)?;
+            let model = stage.model().to_string();
+            run_stage(run, SensorStage::Tl(stage), &model, out, &header)
+        }
     }
 }
 
 type Header<'a> = dyn Fn(&mut dyn Write, &str, bool) -> Result<()> + 'a;
 
-#[allow(clippy::too_many_arguments)]
-fn run_kf(
-    src: &Source,
-    plan: &Plan,
-    est: &EstimatorSettings,
-    coeffs: &CoefficientFile,
-    spec: &ModelSpec,
+/// Every row through `stage` (either method: the same pass), each written as it comes back.
+fn run_stage(
+    (src, plan, quiet, igrf): (&Source, &Plan, bool, bool),
+    mut stage: SensorStage<'_>,
+    model: &str,
     out: &Path,
-    quiet: bool,
     header: &Header,
-    igrf: bool,
 ) -> Result<RunResult> {
-    with_model(spec, |model| {
-        let mut stage = KfStage::new(spec, model, plan, est, coeffs)?;
-        crate::io::trace::write_table_with(out, |w| {
-            header(w, &spec.text(), true)?;
-            let mut emit = |r: KfRow| {
-                let kf = Some((r.anomaly_nt, r.innovation_nt, r.flags));
-                write_row(w, &r.p, r.interference_nt, r.compensated_nt, kf, igrf)
-            };
-            let found = feed(src, plan, quiet, |p| stage.push(p, &mut emit))?;
-            let figures = stage.finish(&mut emit)?;
-            Ok(RunResult::of_pass(spec.text(), found, figures))
-        })
-    })
-}
-
-/// Rows per Tolles–Lawson design block (one row of context either side).
-const TL_BLOCK: usize = 1024;
-
-fn run_tl(
-    src: &Source,
-    plan: &Plan,
-    coeffs: &CoefficientFile,
-    out: &Path,
-    quiet: bool,
-    header: &Header,
-    igrf: bool,
-) -> Result<RunResult> {
-    let cfg = coeffs
-        .tl_config
-        .clone()
-        .context("the coefficient file has no Tolles–Lawson configuration")?;
-    let fit = coeffs.tl_fit(cfg);
-    if fit.coefficients.len() != fit.config.terms.columns().len() {
-        bail!(
-            "{} Tolles–Lawson coefficients for {} terms",
-            fit.coefficients.len(),
-            fit.config.terms.columns().len()
-        );
-    }
-    let model = format!("{:?}", fit.config.terms).to_lowercase();
-    let truth = plan.cols.truth_interference.is_some();
-    let mut error = TruthError::default();
+    let kf = matches!(stage, SensorStage::Kf(_));
     crate::io::trace::write_table_with(out, |w| {
-        header(w, &model, false)?;
-        let mut block: VecDeque<Pending> = VecDeque::new();
-        let mut context: Option<[f64; 3]> = None;
-        let flux = |p: &Pending| p.sample.flux_nt.map(f64::from);
-        // Interference of the first `count` rows of the block: the design over the
-        // previous row (context), the block, so every centred difference is the whole
-        // stretch's.
-        let mut emit = |count: usize,
-                        block: &mut VecDeque<Pending>,
-                        context: &mut Option<[f64; 3]>,
-                        w: &mut dyn Write|
-         -> Result<()> {
-            let rows: Vec<[f64; 3]> = context
-                .iter()
-                .copied()
-                .chain(block.iter().map(flux))
-                .collect();
-            let off = context.is_some() as usize;
-            let inter = crate::estimate::tl::interference(&fit, &rows);
-            for j in 0..count {
-                let p = block.pop_front().context("internal: TL block")?;
-                let i = inter[off + j];
-                if truth {
-                    error.push(i, p.truth_nt);
-                }
-                write_row(w, &p, i, p.mag_nt - i, None, igrf)?;
-                *context = Some(flux(&p));
-            }
-            Ok(())
+        header(w, model, kf)?;
+        let mut emit = |r: StageRow| {
+            let kf = r.anomaly.map(|(a, nu)| (a, nu, r.flags));
+            write_row(w, &r.p, r.interference_nt, r.compensated_nt, kf, igrf)
         };
-        let found = feed(src, plan, quiet, |p| {
-            if p.after_gap {
-                // A new stretch: no difference across the gap.
-                let n = block.len();
-                emit(n, &mut block, &mut context, w)?;
-                context = None;
-            }
-            block.push_back(p);
-            if block.len() > TL_BLOCK {
-                emit(TL_BLOCK, &mut block, &mut context, w)?;
-            }
-            Ok(())
-        })?;
-        let n = block.len();
-        emit(n, &mut block, &mut context, w)?;
-        Ok(RunResult {
-            model: model.clone(),
-            error_rms_nt: truth.then(|| error.rms()),
-            predicted_error_nt: None,
-            glitches: found.glitches,
-            flux_glitches: found.flux_glitches,
-            gaps: found.gaps,
-            gap_count: found.gap_count,
-        })
+        let found = feed(src, plan, quiet, |p| stage.push(p, &mut emit))?;
+        let figures = stage.finish(&mut emit)?;
+        Ok(RunResult::of_pass(model.to_string(), found, figures))
     })
 }

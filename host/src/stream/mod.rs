@@ -16,8 +16,8 @@
 //! `rate`, a coefficient file without σ1; [`unstreamable`] says which, and
 //! `compensate` then reads the flight into memory. The summary's band-passed figures
 //! (residual, IR, FOM) and the applied-coefficient checks are computed in memory only; a
-//! streamed run says so. Several sensors share the three passes, one filter each
-//! ([`several`]).
+//! streamed run says so. Several sensors share the three passes, each its own filter or
+//! Tolles–Lawson ([`several`]).
 mod apply;
 pub mod decimate;
 mod igrf;

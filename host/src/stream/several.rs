@@ -1,14 +1,16 @@
 //! Several magnetometers streamed (issue 19): one read of the file per pass drives one
-//! [`Feeder`] and one core filter ([`KfStage`], built as the one-sensor stream builds
-//! it) per sensor, and each output row is written once every sensor has finished it, in
-//! the in-memory several-sensor layout (`cli::multi::output_table`): `t`, per sensor
-//! `mag_K`, `interference_mag_K`, `compensated_mag_K`, `anomaly_mag_K`, `flags_mag_K`,
-//! then the gradients, then `lat`, `lon`, `alt`, `line`, `LINE`. Memory: each sensor's
-//! windows (the despiker's ±0.3 s, the filter's derivative), not the flight.
+//! [`Feeder`] and one stage per sensor (the core filter, [`KfStage`], or Tolles–Lawson,
+//! [`TlStage`], by its set's method, built as the one-sensor stream builds them), and
+//! each output row is written once every sensor has finished it, in the in-memory
+//! several-sensor layout (`cli::multi::output_table`): `t`, per sensor `mag_K`,
+//! `interference_mag_K`, `compensated_mag_K`, `anomaly_mag_K` (Kalman filter only),
+//! `flags_mag_K`, then the gradients, then `lat`, `lon`, `alt`, `line`, `LINE`. Memory:
+//! each sensor's windows (the despiker's ±0.3 s, the filter's derivative, a Tolles–Lawson
+//! block), not the flight.
 use super::apply::{feed_rows, RunResult};
-use super::stage::{Feeder, Found, KfFigures, KfRow, KfStage, Pending};
+use super::stage::{Feeder, Figures, Found, KfStage, Pending, SensorStage, StageRow, TlStage};
+use super::StreamSummary;
 use super::{prepare, summary, unstreamable, Opened, Prepared, SensorRun, StreamInput};
-use super::{Method, StreamSummary};
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::EstimatorSettings;
 use crate::io::trace::rows::{Kind, RowsHeader};
@@ -35,8 +37,7 @@ pub struct Gradient {
 const CARRIED: [&str; 5] = ["lat", "lon", "alt", "line", "LINE"];
 
 /// Why these sensors (name, coefficients) cannot be streamed (None: they can): what the
-/// one-sensor stream refuses, for any of them, and a Tolles–Lawson set (`calibrate
-/// --sensors` writes Kalman-filter sets; a Tolles–Lawson one is applied in memory).
+/// one-sensor stream refuses, for any of them.
 pub fn several_unstreamable(
     sensors: &[(&str, &CoefficientFile)],
     est: &EstimatorSettings,
@@ -46,11 +47,6 @@ pub fn several_unstreamable(
         return unstreamable(sensors.first().map(|s| s.1), est, true);
     }
     sensors.iter().find_map(|(name, coeffs)| {
-        if coeffs.method == Method::Tl {
-            return Some(format!(
-                "{name}: its coefficients are Tolles–Lawson, which several sensors apply in memory"
-            ));
-        }
         unstreamable(Some(coeffs), est, false).map(|w| format!("{name}: {w}"))
     })
 }
@@ -84,10 +80,8 @@ pub fn compensate_several(
     let opened = Opened::new(input)?;
     let source = opened.source(input.trace);
     let prepared = prepare(&source, input.date, est, sensors, quiet)?;
-    let specs: Vec<&ModelSpec> = prepared
-        .iter()
-        .map(|p| p.spec.as_ref().context("internal: a Tolles–Lawson sensor"))
-        .collect::<Result<_>>()?;
+    // The Kalman-filter sensors' models (Tolles–Lawson needs none).
+    let specs: Vec<&ModelSpec> = prepared.iter().filter_map(|p| p.spec.as_ref()).collect();
     let names: Vec<&str> = sensors
         .iter()
         .map(|s| {
@@ -102,33 +96,58 @@ pub fn compensate_several(
         .filter_map(|c| Some((c.to_string(), head.index(c)?)))
         .filter(|(_, i)| head.kinds[*i] != Kind::Text)
         .collect();
+    let kf: Vec<bool> = prepared.iter().map(|p| p.spec.is_some()).collect();
     let table = Table {
         names: &names,
+        kf: &kf,
         gradients,
         carried: &carried,
     };
-    let runs = with_models(&specs, |models| -> Result<Vec<(Found, KfFigures)>> {
+    let runs = with_models(&specs, |models| -> Result<Vec<(String, Found, Figures)>> {
+        let mut models = models.into_iter();
         let mut stages = Vec::new();
-        for ((p, s), model) in prepared.iter().zip(sensors).zip(models) {
-            let spec = p.spec.as_ref().context("internal")?;
-            stages.push(KfStage::new(spec, model, &p.plan, est, s.coeffs)?);
+        let mut model_names = Vec::new();
+        for (p, s) in prepared.iter().zip(sensors) {
+            let stage = match &p.spec {
+                Some(spec) => {
+                    let model = models.next().context("internal: a model short")?;
+                    model_names.push(spec.text());
+                    SensorStage::Kf(KfStage::new(spec, model, &p.plan, est, s.coeffs)?)
+                }
+                None => {
+                    let tl = TlStage::new(&p.plan, s.coeffs).with_context(|| sensor_context(s))?;
+                    model_names.push(tl.model().to_string());
+                    SensorStage::Tl(tl)
+                }
+            };
+            stages.push(stage);
         }
-        crate::io::trace::write_table_with(out, |w| {
+        let done = crate::io::trace::write_table_with(out, |w| {
             table.header(w, head)?;
             run_all(&source, &prepared, stages, &table, w, quiet)
-        })
+        })?;
+        Ok(model_names
+            .into_iter()
+            .zip(done)
+            .map(|(m, (found, figures))| (m, found, figures))
+            .collect())
     })?;
     let mut summaries = Vec::new();
-    for (((p, s), (found, figures)), name) in prepared.into_iter().zip(sensors).zip(runs).zip(names)
+    for (((p, s), (model, found, figures)), name) in
+        prepared.into_iter().zip(sensors).zip(runs).zip(names)
     {
-        let result = RunResult::of_pass(specs_text(&p), found, figures);
+        let result = RunResult::of_pass(model, found, figures);
         summaries.push(summary(p, result, s.coeffs, input.trace, Some(name)));
     }
     Ok(summaries)
 }
 
-fn specs_text(p: &Prepared) -> String {
-    p.spec.as_ref().map(ModelSpec::text).unwrap_or_default()
+/// What a sensor's error is prefixed with, as `prepare` prefixes its own.
+fn sensor_context(s: &SensorRun<'_>) -> String {
+    format!(
+        "{} with its coefficients",
+        s.name.as_deref().unwrap_or("mag")
+    )
 }
 
 /// The compensation pass: every row to every sensor's feeder and filter, each output row
@@ -136,11 +155,11 @@ fn specs_text(p: &Prepared) -> String {
 fn run_all(
     source: &super::apply::Source<'_>,
     prepared: &[Prepared],
-    stages: Vec<KfStage<'_>>,
+    stages: Vec<SensorStage<'_>>,
     table: &Table<'_>,
     w: &mut dyn Write,
     quiet: bool,
-) -> Result<Vec<(Found, KfFigures)>> {
+) -> Result<Vec<(Found, Figures)>> {
     let carried: Vec<usize> = table.carried.iter().map(|(_, i)| *i).collect();
     let mut feeders: Vec<Feeder> = prepared
         .iter()
@@ -155,7 +174,7 @@ fn run_all(
         })
         .collect();
     let mut stages = stages;
-    let mut queues: Vec<VecDeque<KfRow>> = prepared.iter().map(|_| VecDeque::new()).collect();
+    let mut queues: Vec<VecDeque<StageRow>> = prepared.iter().map(|_| VecDeque::new()).collect();
     let mut fast = zmij::Buffer::new();
     let plans: Vec<&super::Plan> = prepared.iter().map(|p| &p.plan).collect();
     feed_rows(source, &plans, quiet, |row| {
@@ -195,6 +214,8 @@ fn run_all(
 /// The output's layout.
 struct Table<'a> {
     names: &'a [&'a str],
+    /// Per sensor: a Kalman-filter set (an `anomaly_mag_K` column; Tolles–Lawson has none).
+    kf: &'a [bool],
     gradients: &'a [Gradient],
     carried: &'a [(String, usize)],
 }
@@ -209,10 +230,12 @@ impl Table<'_> {
         };
         let mut col = |n: String| t.numeric.push((n, Vec::new()));
         col("t".into());
-        for n in self.names {
+        for (n, &kf) in self.names.iter().zip(self.kf) {
             col(n.to_string());
             for what in ["interference", "compensated", "anomaly", "flags"] {
-                col(format!("{what}_{n}"));
+                if kf || what != "anomaly" {
+                    col(format!("{what}_{n}"));
+                }
             }
         }
         for g in self.gradients {
@@ -229,11 +252,11 @@ impl Table<'_> {
     fn write_ready(
         &self,
         w: &mut dyn Write,
-        queues: &mut [VecDeque<KfRow>],
+        queues: &mut [VecDeque<StageRow>],
         fast: &mut zmij::Buffer,
     ) -> Result<()> {
         while queues.iter().all(|q| !q.is_empty()) {
-            let rows: Vec<KfRow> = queues
+            let rows: Vec<StageRow> = queues
                 .iter_mut()
                 .map(|q| q.pop_front().context("internal"))
                 .collect::<Result<_>>()?;
@@ -243,13 +266,9 @@ impl Table<'_> {
             }
             let mut cells = vec![first.sample.t_s];
             for r in &rows {
-                cells.extend([
-                    r.p.mag_read_nt,
-                    r.interference_nt,
-                    r.compensated_nt,
-                    r.anomaly_nt,
-                    f64::from(r.flags),
-                ]);
+                cells.extend([r.p.mag_read_nt, r.interference_nt, r.compensated_nt]);
+                cells.extend(r.anomaly.map(|(a, _)| a));
+                cells.push(f64::from(r.flags));
             }
             for g in self.gradients {
                 let (a, b) = (rows[g.a].compensated_nt, rows[g.b].compensated_nt);

@@ -1,8 +1,9 @@
 //! The compensation pass for one sensor, a row at a time: [`Feeder`] turns each selected
 //! row into a checked, despiked [`Pending`] sample, [`KfStage`] runs the core filter on
-//! them and hands back each row with its outputs. Both are pushed rows rather than reading
-//! the file themselves, so one read of the file can drive one of each per sensor
-//! (`super::several`) as well as the one-sensor run (`super::apply`).
+//! them, or [`TlStage`] Tolles–Lawson, and hands back each row with its outputs. They are
+//! pushed rows rather than reading the file themselves, so one read of the file can drive
+//! one feeder and one stage per sensor (`super::several`) as well as the one-sensor run
+//! (`super::apply`).
 use super::igrf::IgrfScan;
 use super::rows::row_sample;
 use super::stats::{Despiker, FluxDespiker, Listed};
@@ -44,41 +45,47 @@ pub(crate) struct Found {
     pub rows: usize,
 }
 
+/// A row waiting for the despikers: with its file line and its fluxgate as read (f64).
+type Waiting = (Pending, u64, [f64; 3]);
+
 /// A fluxgate row found bad in the stream: its scalar is taken as missing (nothing is learnt
 /// from it) and its vector bridged from the last good row before and the first row after
-/// (still in the queue), as the in-memory path does (`flight::bridge_flux_glitches`).
+/// (still in the queue), as the in-memory path does (`flight::bridge_flux_glitches`): from
+/// the vectors as read, in f64, before any fluxgate calibration, so the bridged vector is
+/// the same to the last bit (Tolles–Lawson's full-precision output showed an f32 bridge).
 #[derive(Default)]
 struct FluxGlitches {
     listed: Listed<[f32; 3]>,
-    /// Time and vector of the last row passed on with a good vector.
-    last_good: Option<(f64, [f32; 3])>,
+    /// Time and vector (as read) of the last row passed on with a good vector.
+    last_good: Option<(f64, [f64; 3])>,
 }
 
 impl FluxGlitches {
-    fn take_out(&mut self, p: &mut Pending, line: u64, queue: &VecDeque<(Pending, u64)>) {
+    fn take_out(&mut self, p: &mut Pending, line: u64, queue: &VecDeque<Waiting>) {
         self.listed.push(line, p.sample.flux_nt);
         p.mag_nt = f64::NAN;
         p.sample.mag = None;
-        let good = |f: &[f32; 3]| f.iter().all(|v| v.is_finite());
+        let good = |f: &[f64; 3]| f.iter().all(|v| v.is_finite());
         let after = queue
             .iter()
-            .map(|(q, _)| (q.sample.t_s, q.sample.flux_nt))
+            .map(|(q, _, raw)| (q.sample.t_s, *raw))
             .find(|(_, f)| good(f));
         let t = p.sample.t_s;
-        p.sample.flux_nt = match (self.last_good, after) {
+        let v = match (self.last_good, after) {
             (Some((ta, a)), Some((tb, b))) if tb > ta => {
-                let w = ((t - ta) / (tb - ta)) as f32;
+                let w = (t - ta) / (tb - ta);
                 std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
             }
             (Some((_, a)), _) => a,
             (None, Some((_, b))) => b,
-            (None, None) => [f32::NAN; 3],
+            (None, None) => [f64::NAN; 3],
         };
+        p.sample.flux_nt = v.map(|x| x as f32);
     }
 
-    fn passed(&mut self, p: &Pending, bridged: bool) {
-        if !bridged && p.sample.flux_nt.iter().all(|v| v.is_finite()) {
-            self.last_good = Some((p.sample.t_s, p.sample.flux_nt));
+    fn passed(&mut self, p: &Pending, raw: [f64; 3], bridged: bool) {
+        if !bridged && raw.iter().all(|v| v.is_finite()) {
+            self.last_good = Some((p.sample.t_s, raw));
         }
     }
 }
@@ -93,7 +100,7 @@ pub(crate) struct Feeder<'p> {
     positions: PositionChecker,
     despiker: Despiker,
     flux_despiker: FluxDespiker,
-    waiting: VecDeque<(Pending, u64)>,
+    waiting: VecDeque<Waiting>,
     glitches: Listed<f64>,
     flux_glitches: FluxGlitches,
     gaps: Vec<(usize, f64, f64)>,
@@ -128,9 +135,6 @@ impl<'p> Feeder<'p> {
         let mut rs = row_sample(row, cols, plan.base0, &plan.offsets);
         // Judged as measured, as `Flight::from_trace` judges it (before its calibration).
         let flux_judged = self.flux_despiker.push(k, rs.sample.flux_nt, rs.mag_nt);
-        if let Some(c) = &plan.fluxgate_calibration {
-            rs.sample.flux_nt = c.apply(rs.sample.flux_nt.map(f64::from)).map(|v| v as f32);
-        }
         self.positions.check(&mut rs.sample, |_| {});
         if let Some((source, fill)) = &plan.igrf {
             let year = super::igrf::row_year(source, row, k)?;
@@ -167,7 +171,7 @@ impl<'p> Feeder<'p> {
                 .map(|&i| row.text(i).to_string())
                 .collect(),
         };
-        self.waiting.push_back((p, rs.line));
+        self.waiting.push_back((p, rs.line, rs.raw_flux));
         if let Some(j) = self.despiker.push(k, rs.mag_nt) {
             let flux_glitch = flux_judged.is_some_and(|(_, g)| g);
             self.judged(j, flux_glitch, sink)?;
@@ -183,7 +187,7 @@ impl<'p> Feeder<'p> {
         flux_glitch: bool,
         sink: &mut dyn FnMut(Pending) -> Result<()>,
     ) -> Result<()> {
-        let (mut p, line) = self
+        let (mut p, line, raw) = self
             .waiting
             .pop_front()
             .context("internal: despiker order")?;
@@ -195,7 +199,11 @@ impl<'p> Feeder<'p> {
         } else if flux_glitch {
             self.flux_glitches.take_out(&mut p, line, &self.waiting);
         }
-        self.flux_glitches.passed(&p, flux_glitch && !glitch);
+        self.flux_glitches.passed(&p, raw, flux_glitch && !glitch);
+        // After the bridging, as in memory (`fluxcal::calibrated_flight` on the flight).
+        if let Some(c) = &self.plan.fluxgate_calibration {
+            p.sample.flux_nt = c.apply(p.sample.flux_nt.map(f64::from)).map(|v| v as f32);
+        }
         sink(p)
     }
 
@@ -312,18 +320,18 @@ impl RegressorCov {
     }
 }
 
-/// A row with the filter's outputs, as `compensate` writes them.
-pub(crate) struct KfRow {
+/// A row with its sensor's outputs, as `compensate` writes them.
+pub(crate) struct StageRow {
     pub p: Pending,
     pub interference_nt: f64,
     pub compensated_nt: f64,
-    pub anomaly_nt: f64,
-    pub innovation_nt: f64,
+    /// The filter's anomaly and innovation (Tolles–Lawson has none: None).
+    pub anomaly: Option<(f64, f64)>,
     pub flags: u16,
 }
 
-/// The figures a [`KfStage`] gathered over the flight.
-pub(crate) struct KfFigures {
+/// The figures a stage gathered over the flight.
+pub(crate) struct Figures {
     pub error_rms_nt: Option<f64>,
     pub predicted_error_nt: Option<f64>,
 }
@@ -386,7 +394,7 @@ impl<'m> KfStage<'m> {
     }
 
     /// A row from the [`Feeder`]; `out` gets the rows finished by now.
-    pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(KfRow) -> Result<()>) -> Result<()> {
+    pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<()> {
         if p.after_gap {
             self.gap_rows.insert(p.row);
             if p.row > 0 {
@@ -407,7 +415,7 @@ impl<'m> KfStage<'m> {
     }
 
     /// The end of the flight: the filter flushed, every row handed on.
-    pub fn finish(mut self, out: &mut dyn FnMut(KfRow) -> Result<()>) -> Result<KfFigures> {
+    pub fn finish(mut self, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<Figures> {
         while let Some(r) = self.comp.flush_epoch() {
             self.step(Some(r))?;
         }
@@ -420,7 +428,7 @@ impl<'m> KfStage<'m> {
         while let Some((p, o)) = self.ready.pop_front() {
             self.emit(p, o, out)?;
         }
-        Ok(KfFigures {
+        Ok(Figures {
             error_rms_nt: self.truth.then(|| self.error.rms()),
             predicted_error_nt: self
                 .covariance
@@ -446,7 +454,7 @@ impl<'m> KfStage<'m> {
         &mut self,
         p: Pending,
         o: Output,
-        out: &mut dyn FnMut(KfRow) -> Result<()>,
+        out: &mut dyn FnMut(StageRow) -> Result<()>,
     ) -> Result<()> {
         let i = o.interference_nt as f64;
         let c = match o.compensated {
@@ -460,13 +468,139 @@ impl<'m> KfStage<'m> {
         if self.truth {
             self.error.push(i, p.truth_nt);
         }
-        out(KfRow {
+        out(StageRow {
             p,
             interference_nt: i,
             compensated_nt: c,
-            anomaly_nt: o.anomaly_nt as f64,
-            innovation_nt: o.innovation_nt as f64,
+            anomaly: Some((o.anomaly_nt as f64, o.innovation_nt as f64)),
             flags,
         })
+    }
+}
+
+/// Rows per Tolles–Lawson design block (one row of context either side).
+const TL_BLOCK: usize = 1024;
+
+/// Tolles–Lawson over rows pushed in order, as the in-memory path computes it per stretch
+/// between time gaps: in blocks of [`TL_BLOCK`] rows, each with the row before and after
+/// it as context, so every centred difference is the whole stretch's.
+pub(crate) struct TlStage {
+    fit: crate::estimate::tl::TlFit,
+    model: String,
+    block: VecDeque<Pending>,
+    /// The fluxgate of the last row handed on, in this stretch.
+    context: Option<[f64; 3]>,
+    truth: bool,
+    error: TruthError,
+}
+
+impl TlStage {
+    pub fn new(plan: &Plan, coeffs: &CoefficientFile) -> Result<Self> {
+        let cfg = coeffs
+            .tl_config
+            .clone()
+            .context("the coefficient file has no Tolles–Lawson configuration")?;
+        let fit = coeffs.tl_fit(cfg);
+        let terms = fit.config.terms.columns().len();
+        if fit.coefficients.len() != terms {
+            anyhow::bail!(
+                "{} Tolles–Lawson coefficients for {terms} terms",
+                fit.coefficients.len()
+            );
+        }
+        Ok(Self {
+            model: format!("{:?}", fit.config.terms).to_lowercase(),
+            fit,
+            block: VecDeque::new(),
+            context: None,
+            truth: plan.cols.truth_interference.is_some(),
+            error: TruthError::default(),
+        })
+    }
+
+    /// The terms' name, as the in-memory run names the model.
+    pub fn model(&self) -> &str {
+        &self.model
+    }
+
+    /// A row from the [`Feeder`]; `out` gets the rows finished by now.
+    pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<()> {
+        if p.after_gap {
+            // A new stretch: no difference across the gap.
+            self.emit(self.block.len(), out)?;
+            self.context = None;
+        }
+        self.block.push_back(p);
+        // One row stays behind: the next block's first difference needs it.
+        if self.block.len() > TL_BLOCK {
+            self.emit(TL_BLOCK, out)?;
+        }
+        Ok(())
+    }
+
+    /// The end of the flight: every row handed on.
+    pub fn finish(mut self, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<Figures> {
+        self.emit(self.block.len(), out)?;
+        Ok(Figures {
+            error_rms_nt: self.truth.then(|| self.error.rms()),
+            predicted_error_nt: None,
+        })
+    }
+
+    /// The first `count` rows of the block: the design over the context row and the block.
+    fn emit(&mut self, count: usize, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<()> {
+        let flux = |p: &Pending| p.sample.flux_nt.map(f64::from);
+        let rows: Vec<[f64; 3]> = self
+            .context
+            .iter()
+            .copied()
+            .chain(self.block.iter().map(flux))
+            .collect();
+        let off = usize::from(self.context.is_some());
+        let inter = crate::estimate::tl::interference(&self.fit, &rows);
+        for j in 0..count {
+            let p = self.block.pop_front().context("internal: TL block")?;
+            let i = inter[off + j];
+            if self.truth {
+                self.error.push(i, p.truth_nt);
+            }
+            self.context = Some(flux(&p));
+            // As `calibration::tl` flags a sample without a usable scalar.
+            let flags = if p.sample.mag.is_none() {
+                Flags::MAG_MISSING
+            } else {
+                0
+            };
+            out(StageRow {
+                compensated_nt: p.mag_nt - i,
+                interference_nt: i,
+                anomaly: None,
+                flags,
+                p,
+            })?;
+        }
+        Ok(())
+    }
+}
+
+/// One sensor's compensation, by its coefficient file's method.
+pub(crate) enum SensorStage<'m> {
+    Kf(KfStage<'m>),
+    Tl(TlStage),
+}
+
+impl SensorStage<'_> {
+    pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<()> {
+        match self {
+            Self::Kf(s) => s.push(p, out),
+            Self::Tl(s) => s.push(p, out),
+        }
+    }
+
+    pub fn finish(self, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<Figures> {
+        match self {
+            Self::Kf(s) => s.finish(out),
+            Self::Tl(s) => s.finish(out),
+        }
     }
 }
