@@ -279,11 +279,11 @@ fn a_set_the_one_sensor_stream_refuses_is_named() {
     assert_eq!(several_unstreamable(&named, &est, false), None);
 }
 
-/// Several-sensor files holding Tolles–Lawson sets: every sensor's, and a mix (mag_2's
-/// Tolles–Lawson, mag_1's and mag_3's the Kalman filter's), made once. `calibrate
-/// --sensors` writes Kalman-filter sets only (its joint estimate is the filter's; `--method
-/// tl` is not taken per sensor), so each Tolles–Lawson set is `calibrate --sensors mag_K
-/// --method tl` on the same flight, put in the file in place of the filter's.
+/// Several-sensor files holding Tolles–Lawson sets, made once: every sensor's (`calibrate
+/// --sensors mag_1,mag_2,mag_3 --method tl`, which must hold each sensor's own `calibrate
+/// --sensors mag_K --method tl` set: there is no joint Tolles–Lawson), and a mix (mag_2's
+/// Tolles–Lawson set put in place of the joint file's Kalman-filter one; the command line
+/// takes one method for all).
 fn tl_files() -> (PathBuf, PathBuf) {
     static MADE: std::sync::OnceLock<(PathBuf, PathBuf)> = std::sync::OnceLock::new();
     MADE.get_or_init(|| {
@@ -312,10 +312,26 @@ fn tl_files() -> (PathBuf, PathBuf) {
             std::fs::write(&path, serde_json::to_string_pretty(&m).unwrap()).unwrap();
             path
         };
-        (
-            write("tl-all.json", &[true; 3]),
-            write("tl-mix.json", &[false, true, false]),
-        )
+        let all = tmp("tl-all.json");
+        let args = ["calibrate", s(&input), "--sensors", "mag_1,mag_2,mag_3"];
+        let mut args = args.to_vec();
+        args.extend_from_slice(&["--method", "tl", "-o", s(&all)]);
+        let err = ok(&magcomp(&args), "calibrate --sensors … --method tl");
+        assert!(err.contains("Tolles–Lawson"), "{err}");
+        let (m, _) = read_multi(&all).unwrap();
+        assert_eq!(m.sensors.len(), 3);
+        assert_eq!(m.sigma1, None, "no shared σ1 without a joint filter");
+        let value = |t: &str| serde_json::from_str::<serde_json::Value>(t).unwrap();
+        for (e, set) in m.sensors.iter().zip(&sets) {
+            assert!(!e.joint, "{}", e.name);
+            let got = value(e.coefficients.get());
+            assert_eq!(got["method"], "tl", "{}", e.name);
+            // The same set and checksum; a one-sensor file also carries its provenance.
+            let mut own = value(set.get());
+            own.as_object_mut().unwrap().remove("provenance");
+            assert_eq!(got, own, "{}: its own TL set", e.name);
+        }
+        (all, write("tl-mix.json", &[false, true, false]))
     })
     .clone()
 }

@@ -3,7 +3,9 @@
 //! magnetometers"). With one sensor (or none) the commands are today's, unchanged. A
 //! several-sensor `--coeffs` file brings its own sensors.
 
-use crate::calibration::coefficients::{coefficients_from_text, to_sealed_json, CoefficientFile};
+use crate::calibration::coefficients::{
+    coefficients_from_text, to_sealed_json, CoefficientFile, Method,
+};
 use crate::calibration::result::Compensation;
 use crate::calibration::summary::{summarise, Summary};
 use crate::calibration::{compensate_trace, EstimatorSettings};
@@ -197,7 +199,10 @@ pub struct SensorEntry {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct MultiFile {
     pub format: String,
-    pub sigma1: f64,
+    /// The anomaly's σ1 the joint calibration shared (none when each sensor was calibrated
+    /// on its own, as Tolles–Lawson sets are).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sigma1: Option<f64>,
     pub sensors: Vec<SensorEntry>,
 }
 
@@ -352,13 +357,18 @@ fn embedded(sealed: &str) -> Result<Box<RawValue>> {
     Ok(RawValue::from_string(text)?)
 }
 
-/// `calibrate --sensors`: the joint calibration, one file holding every sensor.
+/// `calibrate --sensors`: the joint calibration, one file holding every sensor; with
+/// `--method tl`, each sensor's own Tolles–Lawson calibration (there is no joint one: TL has
+/// no anomaly states to share).
 pub fn calibrate(
     trace: &Trace,
     est: &EstimatorSettings,
     sensors: &[SensorSpec],
     out: &Path,
 ) -> Result<()> {
+    if est.method == Method::Tl {
+        return calibrate_each_tl(trace, est, sensors, out);
+    }
     let r = calibrate_joint(trace, est, sensors)?;
     let mut entries = Vec::new();
     eprintln!("several magnetometers, one anomaly (docs/model.md §7):");
@@ -395,10 +405,52 @@ pub fn calibrate(
             coefficients: embedded(&to_sealed_json(&file)?)?,
         });
     }
+    write_multi(out, Some(r.sigma1), entries)
+}
+
+/// `calibrate --sensors … --method tl`: each sensor calibrated alone by Tolles–Lawson, as
+/// `calibrate --method tl` calibrates one, the sets kept in one file.
+fn calibrate_each_tl(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+    out: &Path,
+) -> Result<()> {
+    eprintln!("several magnetometers, each its own Tolles–Lawson calibration (no joint one):");
+    let mut entries = Vec::new();
+    for s in sensors {
+        let (_, comp) = compensate_trace(&sensor_trace(trace, s), est, None, false)
+            .with_context(|| format!("{} alone", s.name))?;
+        let file = comp.coefficients.clone().context("no coefficients")?;
+        eprintln!(
+            "  {} ({}): predicted error {} nT",
+            s.name,
+            s.scalar_column,
+            fmt(file.predicted_error_nt)
+        );
+        for w in &comp.warnings {
+            eprintln!("warning: {w}");
+        }
+        entries.push(SensorEntry {
+            name: s.name.clone(),
+            scalar_column: s.scalar_column.clone(),
+            flux_columns: s.flux_columns.clone(),
+            position_m: s.position_m,
+            joint: false,
+            joint_predicted_error_nt: None,
+            alone_predicted_error_nt: file.predicted_error_nt,
+            alone_predicted_is_lower_bound: false,
+            coefficients: embedded(&to_sealed_json(&file)?)?,
+        });
+    }
+    write_multi(out, None, entries)
+}
+
+fn write_multi(out: &Path, sigma1: Option<f64>, sensors: Vec<SensorEntry>) -> Result<()> {
     let m = MultiFile {
         format: MULTI_FORMAT.into(),
-        sigma1: r.sigma1,
-        sensors: entries,
+        sigma1,
+        sensors,
     };
     crate::io::output::write_file(out, serde_json::to_string_pretty(&m)?)?;
     eprintln!("wrote {}", out.display());
