@@ -134,8 +134,13 @@ fn transfer(
 /// (the issue's aim of ≤ 0.7 ×) and 1.06–1.15 × on mag_5, where the aim is not met.
 /// The default now takes the fluxgate as a witness where it decisively helps
 /// (`calibration::fluxgate_witness`: mag_3 with flux_b, mag_4 with flux_c), so it keeps
-/// alone-with-`fluxmod` there: 1.73 / 2.21 and 0.87 / 1.11 nT.
-/// Asserted (both models): kept ≤ 0.7 × TL18-OLS on mag_3 and mag_4, ≤ 1.2 × on mag_5,
+/// alone-with-`fluxmod` there: 1.73 / 2.21 and 0.87 / 1.11 nT. And it checks each sensor's
+/// kept set against TL18-OLS as the one-sensor default does (2026-11-27, default model /
+/// `tl16+fluxmod+field`): mag_3 1.566 / 2.162 and 1.591 / 2.264, mag_4 0.874 / 1.089 both,
+/// mag_5 0.655 / 0.725 (TL18-OLS kept box 2 → 1; the filter's was 0.694) and 0.656 / 0.725
+/// (TL18-OLS both ways; the filter's 0.663 / 0.742 were 1.01 / 1.02 × TL18-OLS).
+/// Asserted (both models): kept ≤ 0.7 × TL18-OLS on mag_3 and mag_4, ≤ TL18-OLS on mag_5
+/// (issue 17 item 5; 0.5 % for rounding: without the check it was 1.01 / 1.02 ×),
 /// both ways; every model: kept ≤ 1.3 × alone.
 #[test]
 fn joint_calibration_on_the_real_boxes_against_alone_and_tl18_ols() {
@@ -160,7 +165,7 @@ fn joint_calibration_on_the_real_boxes_against_alone_and_tl18_ols() {
                     r.kept / r.ols,
                     r.joint / r.alone
                 );
-                let ratio = if r.name == "mag_5" { 1.2 } else { 0.7 };
+                let ratio = if r.name == "mag_5" { 1.005 } else { 0.7 };
                 if r.kept > ratio * r.ols {
                     failures.push(format!(
                         "{model} {label} {}: kept {:.3} vs TL18-OLS {:.3}",

@@ -109,6 +109,18 @@ pub fn compensate_trace(
     Ok((flight, comp))
 }
 
+/// The default's check of a Kalman-filter calibration of `trace` against TL18-OLS on the
+/// flight's own evidence ([`cross_check`]): the filter's result, or TL18-OLS's where that
+/// evidence trusts it more, as `calibrate` without `--method` chooses for one sensor. Used
+/// for each sensor of a several-sensor calibration.
+pub fn cross_checked(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    kalman: (Flight, Compensation),
+) -> Result<(Flight, Compensation)> {
+    cross_check::choose(kalman, cross_check::least_squares(trace, est))
+}
+
 fn run_method(
     trace: &Trace,
     est: &EstimatorSettings,

@@ -7,7 +7,7 @@ use super::lever::{lever_arms, LeverArm};
 use super::sensors::{sensor_trace, SensorSpec};
 use crate::calibration::result::Compensation;
 use crate::calibration::{
-    compensate_trace, fluxgate_witness, CoefficientFile, EstimatorSettings, Method,
+    compensate_trace, cross_checked, fluxgate_witness, CoefficientFile, EstimatorSettings, Method,
 };
 use crate::estimate::kf::{interference_of, RegressorSpread};
 use crate::flight::Flight;
@@ -182,7 +182,7 @@ pub fn calibrate_joint(
     let levers = lever_arms(&flights, &kept, sensors);
     let mut results = Vec::new();
     let mut jackknife_nt = Vec::new();
-    for (j, ((_, alone_j, witnessed_j), s)) in alone.into_iter().zip(sensors).enumerate() {
+    for (j, ((trace_j, alone_j, witnessed_j), s)) in alone.into_iter().zip(sensors).enumerate() {
         let flight = &flights[j];
         let evidence = SensorEvidence::of(&prepared, j, &refits[j], flight);
         jackknife_nt.push(evidence.jackknife_nt);
@@ -202,6 +202,9 @@ pub fn calibrate_joint(
             .as_ref()
             .and_then(|c| c.predicted_error_nt);
         let mut r = choose_result(s, alone_j, joint, predicted, alone_predicted, flight);
+        if est.cross_check {
+            checked_against_least_squares(&mut r, &trace_j, est, flight)?;
+        }
         r.lever_arm = levers[j];
         if let Some(l) = levers[j].filter(LeverArm::exceeds_noise) {
             r.alone.warnings.push(l.warning(&s.name));
@@ -406,6 +409,25 @@ fn joint_compensation(
         withheld: None,
     };
     (joint, predicted)
+}
+
+/// The default for several sensors checks each sensor's kept calibration against TL18-OLS
+/// as the one-sensor default does (issue 17: never worse than classic Tolles–Lawson after
+/// landing): where the flight's evidence trusts least squares more, its set is the
+/// sensor's own (`alone`), with the cross-check's warning.
+fn checked_against_least_squares(
+    r: &mut SensorResult,
+    trace: &Trace,
+    est: &EstimatorSettings,
+    flight: &Flight,
+) -> Result<()> {
+    let (_, checked) = cross_checked(trace, est, (flight.clone(), r.chosen().clone()))
+        .with_context(|| format!("{}: the TL18-OLS cross-check", r.spec.name))?;
+    if checked.method == Some(Method::Tl) {
+        r.alone = checked;
+        r.joint_chosen = false;
+    }
+    Ok(())
 }
 
 /// The sensor's result: the joint calibration where its predicted error is at most the
