@@ -38,7 +38,9 @@ const LEVEL_PRIOR_NT: f32 = 1.0e4;
 #[derive(Clone, Debug)]
 pub struct SensorResult {
     pub spec: SensorSpec,
-    /// Today's single-sensor calibration (`--method kf`) of this sensor alone.
+    /// This sensor's own calibration: today's single-sensor filter (`--method kf`), or
+    /// TL18-OLS where the default's cross-check kept least squares
+    /// ([`checked_against_least_squares`]).
     pub alone: Compensation,
     /// The joint calibration: its coefficient file (the alone file's settings, the joint
     /// coefficients, covariance and predicted error) and per-sample output.
@@ -424,6 +426,10 @@ fn checked_against_least_squares(
     let (_, checked) = cross_checked(trace, est, (flight.clone(), r.chosen().clone()))
         .with_context(|| format!("{}: the TL18-OLS cross-check", r.spec.name))?;
     if checked.method == Some(Method::Tl) {
+        r.truth_error_alone_nt = flight
+            .truth_interference_nt
+            .as_ref()
+            .map(|t| crate::qc::truth::error_rms_nt(&checked.interference_nt, t, None));
         r.alone = checked;
         r.joint_chosen = false;
     }
