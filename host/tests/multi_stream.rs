@@ -103,6 +103,60 @@ fn lines(p: &Path) -> Vec<String> {
         .collect()
 }
 
+/// `compensate INPUT --coeffs COEFFS EXTRA` in memory (`--stream never`) and streamed
+/// (`always`), output files named by `tag`: both must succeed, stream as asked and write
+/// the same file line for line. The streamed output and its stderr.
+fn in_memory_and_streamed(
+    input: &Path,
+    coeffs: &Path,
+    extra: &[&str],
+    tag: &str,
+) -> (PathBuf, String) {
+    let mut runs = Vec::new();
+    for mode in ["never", "always"] {
+        let out = tmp(&format!("{tag}-{mode}.csv"));
+        let _ = std::fs::remove_file(&out);
+        let mut args = vec!["compensate", s(input), "--coeffs", s(coeffs)];
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&["--stream", mode, "-o", s(&out)]);
+        let err = ok(&magcomp(&args), &format!("{tag} {mode}"));
+        assert!(!err.contains("not streamed"), "{tag} {mode}: {err}");
+        runs.push((out, err));
+    }
+    let streamed = runs.pop().unwrap();
+    let (mem, str_lines) = (lines(&runs[0].0), lines(&streamed.0));
+    assert_eq!(mem.len(), str_lines.len(), "{tag}: lines");
+    for (i, (a, b)) in mem.iter().zip(&str_lines).enumerate() {
+        assert_eq!(a, b, "{tag}: line {}", i + 1);
+    }
+    streamed
+}
+
+/// The faulty survey compensated with `coeffs`, streamed, `--json`: the summary's
+/// per-sensor entries and the survey's row count.
+fn streamed_json(coeffs: &Path, tag: &str) -> (Vec<serde_json::Value>, usize) {
+    let trace = survey();
+    let input = tmp(&format!("survey3-{tag}.csv"));
+    write_trace(&input, &trace).unwrap();
+    let out = tmp(&format!("{tag}.csv"));
+    let args = [
+        "compensate",
+        s(&input),
+        "--coeffs",
+        s(coeffs),
+        "--stream",
+        "always",
+    ];
+    let mut args = args.to_vec();
+    args.extend_from_slice(&["--json", "-o", s(&out)]);
+    let o = magcomp(&args);
+    ok(&o, &format!("{tag}: --stream always --json"));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let sensors = v["sensors"].as_array().unwrap().clone();
+    assert_eq!(sensors.len(), 3, "{v}");
+    (sensors, trace.len())
+}
+
 /// `--stream always` and `--stream never` on one simulated three-sensor survey: the same
 /// file, line for line (every value as the in-memory run writes it, no tolerance: the
 /// same filter on the same numbers), every row in a row out; the same for the
@@ -132,29 +186,14 @@ fn streamed_several_sensors_equal_in_memory_line_for_line() {
         (&input_no_igrf, selected, 0),
     ];
     for (k, (input, extra, rows)) in cases.into_iter().enumerate() {
-        let mut outs = Vec::new();
-        for mode in ["never", "always"] {
-            let out = tmp(&format!("out-{mode}-{k}.csv"));
-            let _ = std::fs::remove_file(&out);
-            let mut args = vec!["compensate", s(input), "--coeffs", s(&coeffs)];
-            args.extend_from_slice(extra);
-            args.extend_from_slice(&["--stream", mode, "-o", s(&out)]);
-            let err = ok(&magcomp(&args), mode);
-            assert!(!err.contains("not streamed"), "{mode}: {err}");
-            if mode == "always" && k < 2 {
-                // The glitch and the bad fluxgate row are said, naming their sensor.
-                assert!(err.contains("(mag_2): 1 scalar glitch"), "{err}");
-                assert!(err.contains("(mag_3): 1 fluxgate sample"), "{err}");
-                assert!(err.contains("warning: mag_1: 1 time gap"), "{err}");
-            }
-            outs.push(out);
+        let (out, err) = in_memory_and_streamed(input, &coeffs, extra, &format!("out-{k}"));
+        if k < 2 {
+            // The glitch and the bad fluxgate row are said, naming their sensor.
+            assert!(err.contains("(mag_2): 1 scalar glitch"), "{err}");
+            assert!(err.contains("(mag_3): 1 fluxgate sample"), "{err}");
+            assert!(err.contains("warning: mag_1: 1 time gap"), "{err}");
         }
-        let (mem, streamed) = (lines(&outs[0]), lines(&outs[1]));
-        assert_eq!(mem.len(), streamed.len(), "{extra:?}: lines");
-        for (i, (a, b)) in mem.iter().zip(&streamed).enumerate() {
-            assert_eq!(a, b, "{extra:?}: line {}", i + 1);
-        }
-        let t = read_trace(&outs[1], &ColumnMap::new()).unwrap();
+        let t = read_trace(&out, &ColumnMap::new()).unwrap();
         if rows > 0 {
             assert_eq!(t.len(), rows, "{extra:?}: rows in, rows out");
         } else {
@@ -181,35 +220,17 @@ fn streamed_several_sensors_equal_in_memory_line_for_line() {
 #[test]
 fn streamed_several_sensors_json_summary() {
     let (_, coeffs) = calibrated();
-    let trace = survey();
-    let input = tmp("survey3-json.csv");
-    write_trace(&input, &trace).unwrap();
-    let out = tmp("json.csv");
-    let o = magcomp(&[
-        "compensate",
-        s(&input),
-        "--coeffs",
-        s(&coeffs),
-        "--stream",
-        "always",
-        "--json",
-        "-o",
-        s(&out),
-    ]);
-    ok(&o, "--json");
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let sensors = v["sensors"].as_array().unwrap();
-    assert_eq!(sensors.len(), 3);
+    let (sensors, rows) = streamed_json(&coeffs, "json");
     for (k, e) in sensors.iter().enumerate() {
         assert_eq!(e["sensor"], format!("mag_{}", k + 1));
         assert_eq!(e["streamed"], true);
-        assert_eq!(e["samples"], trace.len());
+        assert_eq!(e["samples"], rows);
         let err = e["error_rms_nt"].as_f64().unwrap();
         assert!(err < 0.1, "mag_{}: {err} nT", k + 1);
     }
     // The glitch printed for mag_2 is in mag_2's warnings, not mag_1's.
     let said = |k: usize| sensors[k]["warnings"].to_string().contains("scalar glitch");
-    assert!(said(1) && !said(0), "{v}");
+    assert!(said(1) && !said(0), "{sensors:?}");
 }
 
 /// What still needs the whole flight is refused by `--stream always`, saying why, and
@@ -351,23 +372,8 @@ fn tolles_lawson_sets_stream_equal_in_memory_line_for_line() {
     let with_gradients: &[&str] = &["--gradients", "mag_1-mag_2,mag_2-mag_3"];
     let cases = [(&all, with_gradients, "all"), (&mix, &[][..], "mix")];
     for (coeffs, extra, tag) in cases {
-        let mut outs = Vec::new();
-        for mode in ["never", "always"] {
-            let out = tmp(&format!("tl-{tag}-{mode}.csv"));
-            let _ = std::fs::remove_file(&out);
-            let mut args = vec!["compensate", s(&input), "--coeffs", s(coeffs)];
-            args.extend_from_slice(extra);
-            args.extend_from_slice(&["--stream", mode, "-o", s(&out)]);
-            let err = ok(&magcomp(&args), &format!("{tag} {mode}"));
-            assert!(!err.contains("not streamed"), "{tag} {mode}: {err}");
-            outs.push(out);
-        }
-        let (mem, streamed) = (lines(&outs[0]), lines(&outs[1]));
-        assert_eq!(mem.len(), streamed.len(), "{tag}: lines");
-        for (i, (a, b)) in mem.iter().zip(&streamed).enumerate() {
-            assert_eq!(a, b, "{tag}: line {}", i + 1);
-        }
-        let t = read_trace(&outs[1], &ColumnMap::new()).unwrap();
+        let (out, _) = in_memory_and_streamed(&input, coeffs, extra, &format!("tl-{tag}"));
+        let t = read_trace(&out, &ColumnMap::new()).unwrap();
         assert_eq!(t.len(), trace.len(), "{tag}: rows in, rows out");
         let tl = |k: usize| tag == "all" || k == 2;
         for k in 1..=3 {
@@ -396,28 +402,10 @@ fn tolles_lawson_sets_stream_equal_in_memory_line_for_line() {
 #[test]
 fn stream_always_takes_tolles_lawson_sets() {
     let (_, mix) = tl_files();
-    let trace = survey();
-    let input = tmp("survey3-tl-json.csv");
-    write_trace(&input, &trace).unwrap();
-    let out = tmp("tl-json.csv");
-    let o = magcomp(&[
-        "compensate",
-        s(&input),
-        "--coeffs",
-        s(&mix),
-        "--stream",
-        "always",
-        "--json",
-        "-o",
-        s(&out),
-    ]);
-    ok(&o, "--stream always, Tolles–Lawson sets");
-    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
-    let sensors = v["sensors"].as_array().unwrap();
-    assert_eq!(sensors.len(), 3);
+    let (sensors, rows) = streamed_json(&mix, "tl-json");
     for (k, e) in sensors.iter().enumerate() {
         assert_eq!(e["streamed"], true, "{e}");
-        assert_eq!(e["samples"], trace.len());
+        assert_eq!(e["samples"], rows);
         assert_eq!(e["method"], if k == 1 { "tl" } else { "kf" }, "{e}");
         assert!(e["error_rms_nt"].as_f64().unwrap().is_finite(), "{e}");
     }
