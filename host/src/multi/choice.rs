@@ -1,0 +1,75 @@
+//! Which set each sensor keeps: the joint one where its predicted error is at most the
+//! alone one's, and then the one-sensor cross-check against TL18-OLS (issue 17: never worse
+//! than classic Tolles–Lawson after landing).
+
+use super::result::SensorResult;
+use super::sensors::SensorSpec;
+use crate::calibration::result::Compensation;
+use crate::calibration::{cross_checked, EstimatorSettings, Method};
+use crate::flight::Flight;
+use crate::io::trace::Trace;
+use anyhow::{Context, Result};
+
+/// The default for several sensors checks each sensor's kept calibration against TL18-OLS
+/// as the one-sensor default does (issue 17: never worse than classic Tolles–Lawson after
+/// landing): where the flight's evidence trusts least squares more, its set is the
+/// sensor's own (`alone`), with the cross-check's warning.
+pub(super) fn checked_against_least_squares(
+    r: &mut SensorResult,
+    trace: &Trace,
+    est: &EstimatorSettings,
+    flight: &Flight,
+) -> Result<()> {
+    let (_, checked) = cross_checked(trace, est, (flight.clone(), r.chosen().clone()))
+        .with_context(|| format!("{}: the TL18-OLS cross-check", r.spec.name))?;
+    if checked.method == Some(Method::Tl) {
+        r.truth_error_alone_nt = flight
+            .truth_interference_nt
+            .as_ref()
+            .map(|t| crate::qc::truth::error_rms_nt(&checked.interference_nt, t, None));
+        r.alone = checked;
+        r.joint_chosen = false;
+    }
+    Ok(())
+}
+
+/// The sensor's result: the joint calibration where its predicted error is at most the
+/// alone one's, else the alone one with a warning saying why.
+pub(super) fn choose_result(
+    s: &SensorSpec,
+    mut alone: Compensation,
+    joint: Compensation,
+    predicted: Option<f64>,
+    alone_predicted: Option<f64>,
+    flight: &Flight,
+) -> SensorResult {
+    let truth = flight.truth_interference_nt.as_ref();
+    let err = |i: &[f64]| truth.map(|t| crate::qc::truth::error_rms_nt(i, t, None));
+    let truth_error_alone_nt = err(&alone.interference_nt);
+    let truth_error_joint_nt = err(&joint.interference_nt);
+    let joint_chosen = match (predicted, alone_predicted) {
+        (Some(p), Some(a)) => p <= a,
+        (Some(_), None) => true,
+        _ => false,
+    };
+    if !joint_chosen {
+        alone.warnings.push(format!(
+            "{}: the joint calibration predicts {} nT against {} nT alone: the sensor's \
+             own calibration is kept (the anomaly differences between the sensors hold \
+             more than the joint model describes)",
+            s.name,
+            predicted.map_or("?".into(), |p| format!("{p:.4}")),
+            alone_predicted.map_or("?".into(), |p| format!("{p:.4}")),
+        ));
+    }
+    SensorResult {
+        joint_chosen,
+        lever_arm: None,
+        spec: s.clone(),
+        alone,
+        joint,
+        predicted_error_nt: predicted,
+        truth_error_alone_nt,
+        truth_error_joint_nt,
+    }
+}
