@@ -268,7 +268,7 @@ pub fn igrf_column(lat: &[f64], lon: &[f64], alt_m: &[f64], years: &[f64]) -> Re
 }
 
 /// Linear interpolation over NaN runs, the nearest value at the ends.
-fn fill_gaps(v: &mut [f64]) {
+pub(crate) fn fill_gaps(v: &mut [f64]) {
     let idx: Vec<usize> = (0..v.len()).filter(|&i| v[i].is_finite()).collect();
     let (Some(&first), Some(&last)) = (idx.first(), idx.last()) else {
         return;

@@ -3,49 +3,189 @@
 use super::rows::Cols;
 use super::stats::{year_of_date, year_of_doy, DateSource};
 use crate::io::trace::rows::Row;
-use anyhow::Result;
+use anyhow::{Context, Result};
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::os::unix::fs::FileExt;
+use std::sync::Arc;
 
-/// `input::fill_gaps` without the column: the first and last finite values and each
-/// interior run of missing ones with the values around it.
-#[derive(Clone, Debug, Default)]
-pub struct GapFill {
-    first: Option<(usize, f64)>,
-    last: Option<(usize, f64)>,
-    runs: Vec<(usize, usize, f64, f64)>,
+/// One interior run of missing values: the last finite row before it and the first after,
+/// with their values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Run {
+    before: usize,
+    after: usize,
+    v_before: f64,
+    v_after: f64,
 }
 
-impl GapFill {
-    fn push(&mut self, row: usize, v: f64) {
+const RUN_BYTES: usize = 32;
+/// Runs read at a time by a [`GapCursor`] (4 KiB).
+const RUNS_PER_READ: usize = 128;
+
+impl Run {
+    fn to_bytes(self) -> [u8; RUN_BYTES] {
+        let mut b = [0u8; RUN_BYTES];
+        b[..8].copy_from_slice(&(self.before as u64).to_le_bytes());
+        b[8..16].copy_from_slice(&(self.after as u64).to_le_bytes());
+        b[16..24].copy_from_slice(&self.v_before.to_le_bytes());
+        b[24..].copy_from_slice(&self.v_after.to_le_bytes());
+        b
+    }
+
+    fn from_bytes(b: &[u8]) -> Self {
+        let word = |i: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&b[i..i + 8]);
+            w
+        };
+        Self {
+            before: u64::from_le_bytes(word(0)) as usize,
+            after: u64::from_le_bytes(word(8)) as usize,
+            v_before: f64::from_le_bytes(word(16)),
+            v_after: f64::from_le_bytes(word(24)),
+        }
+    }
+}
+
+/// `input::fill_gaps` without the column, as pass 2 gathers it: the first and last finite
+/// values, and each interior run of missing ones with the values around it written to an
+/// unnamed temporary file (the system removes it however the run ends). A run is one GPS
+/// dropout, and a long flight can hold millions: kept in memory they grew the streamed
+/// pass by 32 B each (issue 21: streamed `compensate` in constant memory).
+#[derive(Default)]
+pub struct GapWriter {
+    first: Option<(usize, f64)>,
+    last: Option<(usize, f64)>,
+    out: Option<BufWriter<File>>,
+    runs: u64,
+}
+
+impl GapWriter {
+    fn push(&mut self, row: usize, v: f64) -> Result<()> {
         if !v.is_finite() {
-            return;
+            return Ok(());
         }
         if let Some((a, va)) = self.last {
             if row > a + 1 {
-                self.runs.push((a, row, va, v));
+                let run = Run {
+                    before: a,
+                    after: row,
+                    v_before: va,
+                    v_after: v,
+                };
+                let out = match &mut self.out {
+                    Some(out) => out,
+                    None => self.out.insert(BufWriter::new(
+                        tempfile::tempfile()
+                            .context("a temporary file for the core field's gaps")?,
+                    )),
+                };
+                out.write_all(&run.to_bytes())?;
+                self.runs += 1;
             }
         }
         self.first.get_or_insert((row, v));
         self.last = Some((row, v));
+        Ok(())
     }
 
-    /// The filled value of a missing row (NaN when the column has no value at all).
-    pub(crate) fn value(&self, row: usize) -> f64 {
-        let (Some((f, vf)), Some((l, vl))) = (self.first, self.last) else {
-            return f64::NAN;
+    /// The runs written, for the compensation pass to read.
+    fn finish(self) -> Result<GapFill> {
+        let runs = match self.out {
+            Some(out) => Some(Arc::new(
+                out.into_inner()
+                    .map_err(|e| e.into_error())
+                    .context("writing the core field's gaps")?,
+            )),
+            None => None,
+        };
+        Ok(GapFill {
+            first: self.first,
+            last: self.last,
+            runs,
+            count: self.runs,
+        })
+    }
+}
+
+/// The gathered fill (cheap to clone: the runs stay in their file); each reader of it
+/// takes a [`GapCursor`].
+#[derive(Clone, Debug, Default)]
+pub struct GapFill {
+    first: Option<(usize, f64)>,
+    last: Option<(usize, f64)>,
+    runs: Option<Arc<File>>,
+    count: u64,
+}
+
+impl GapFill {
+    pub fn cursor(&self) -> GapCursor {
+        GapCursor {
+            fill: self.clone(),
+            next: 0,
+            buffered: Vec::new(),
+            at: 0,
+        }
+    }
+}
+
+/// Reads a [`GapFill`]'s runs forward as the rows go by: a pass asks rows in order, so it
+/// holds one block of runs, not all of them.
+pub struct GapCursor {
+    fill: GapFill,
+    /// The index of the first run not yet read from the file.
+    next: u64,
+    buffered: Vec<Run>,
+    /// The run of `buffered` the rows have reached.
+    at: usize,
+}
+
+impl GapCursor {
+    /// The filled value of a missing row (NaN when the column has no value at all); rows
+    /// in increasing order.
+    pub(crate) fn value(&mut self, row: usize) -> Result<f64> {
+        let (Some((f, vf)), Some((l, vl))) = (self.fill.first, self.fill.last) else {
+            return Ok(f64::NAN);
         };
         if row < f {
-            return vf;
+            return Ok(vf);
         }
         if row > l {
-            return vl;
+            return Ok(vl);
         }
-        let k = self.runs.partition_point(|r| r.1 <= row);
-        match self.runs.get(k) {
-            Some(&(a, b, va, vb)) if a < row && row < b => {
-                va + (vb - va) * (row - a) as f64 / (b - a) as f64
+        loop {
+            match self.buffered.get(self.at).copied() {
+                Some(r) if r.after <= row => self.at += 1,
+                Some(r) if r.before < row => {
+                    let (a, b) = (r.before, r.after);
+                    return Ok(
+                        r.v_before + (r.v_after - r.v_before) * (row - a) as f64 / (b - a) as f64
+                    );
+                }
+                Some(_) => return Ok(f64::NAN),
+                None if !self.read_block()? => return Ok(f64::NAN),
+                None => {}
             }
-            _ => f64::NAN,
         }
+    }
+
+    /// The next block of runs; false when all were read.
+    fn read_block(&mut self) -> Result<bool> {
+        let Some(file) = &self.fill.runs else {
+            return Ok(false);
+        };
+        let n = (self.fill.count - self.next).min(RUNS_PER_READ as u64) as usize;
+        if n == 0 {
+            return Ok(false);
+        }
+        let mut bytes = vec![0u8; n * RUN_BYTES];
+        file.read_exact_at(&mut bytes, self.next * RUN_BYTES as u64)
+            .context("reading the core field's gaps back")?;
+        self.buffered = bytes.chunks_exact(RUN_BYTES).map(Run::from_bytes).collect();
+        self.next += n as u64;
+        self.at = 0;
+        Ok(true)
     }
 }
 
@@ -54,6 +194,8 @@ impl GapFill {
 #[derive(Default)]
 pub struct IgrfScan {
     cache: Option<(f64, crate::flight::igrf::Coefficients)>,
+    gaps: GapWriter,
+    /// The gaps gathered, once [`finish`](Self::finish) was called.
     pub fill: GapFill,
     /// Least and greatest decimal year.
     pub years: (f64, f64),
@@ -107,8 +249,14 @@ impl IgrfScan {
             self.range_nt = (self.range_nt.0.min(v), self.range_nt.1.max(v));
         }
         if self.fills {
-            self.fill.push(k, v);
+            self.gaps.push(k, v)?;
         }
+        Ok(())
+    }
+
+    /// Ends the scan: the gaps gathered become [`fill`](Self::fill).
+    pub fn finish(&mut self) -> Result<()> {
+        self.fill = std::mem::take(&mut self.gaps).finish()?;
         Ok(())
     }
 }
@@ -119,5 +267,56 @@ pub fn row_year(source: &DateSource, row: &Row, k: usize) -> Result<f64> {
         DateSource::Given(y) => Ok(*y),
         DateSource::Column(c) => year_of_date(row.text(*c), k),
         DateSource::YearDoy(y, d, names) => year_of_doy(row.num(*y), row.num(*d), names, k),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cursor fills every row as `input::fill_gaps` does, across several blocks of runs
+    /// (one missing row in three: ~400 runs, more than three reads).
+    #[test]
+    fn the_cursor_fills_as_the_column_is_filled() {
+        let n = 1200;
+        let truth: Vec<f64> = (0..n).map(|k| 50_000.0 + 0.37 * k as f64).collect();
+        let column: Vec<f64> = (0..n)
+            .map(|k| {
+                if k % 3 == 1 || k < 5 || k > n - 4 {
+                    f64::NAN
+                } else {
+                    truth[k]
+                }
+            })
+            .collect();
+        let mut writer = GapWriter::default();
+        for (k, &v) in column.iter().enumerate() {
+            writer.push(k, v).unwrap();
+        }
+        let fill = writer.finish().unwrap();
+        let finite: Vec<usize> = (0..n).filter(|&k| column[k].is_finite()).collect();
+        let runs = finite.windows(2).filter(|w| w[1] > w[0] + 1).count();
+        assert!(runs > 3 * RUNS_PER_READ, "{runs} runs");
+        assert_eq!(fill.count, runs as u64);
+        let mut filled = column.clone();
+        crate::flight::input::fill_gaps(&mut filled);
+        for _ in 0..2 {
+            // two cursors over one fill read the same
+            let mut cursor = fill.cursor();
+            for (k, &v) in column.iter().enumerate() {
+                let got = if v.is_finite() {
+                    v
+                } else {
+                    cursor.value(k).unwrap()
+                };
+                assert_eq!(got.to_bits(), filled[k].to_bits(), "row {k}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_empty_column_fills_nothing() {
+        let fill = GapWriter::default().finish().unwrap();
+        assert!(fill.cursor().value(3).unwrap().is_nan());
     }
 }

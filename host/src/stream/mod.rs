@@ -626,6 +626,7 @@ fn second_pass(
         for second in &mut seconds {
             second.finish();
         }
+        igrf_scan.finish()?;
         progress.done();
     }
     Ok((seconds, igrf_scan))

@@ -4,7 +4,7 @@
 //! pushed rows rather than reading the file themselves, so one read of the file can drive
 //! one feeder and one stage per sensor (`super::several`) as well as the one-sensor run
 //! (`super::apply`).
-use super::igrf::IgrfScan;
+use super::igrf::{GapCursor, IgrfScan};
 use super::rows::row_sample;
 use super::stats::{Despiker, FluxDespiker, Listed};
 use super::Plan;
@@ -107,6 +107,8 @@ pub(crate) struct Feeder<'p> {
     gap_count: usize,
     prev_t: Option<f64>,
     k: usize,
+    /// Where the core field's gaps are read (a computed core field only).
+    core_gaps: Option<GapCursor>,
 }
 
 impl<'p> Feeder<'p> {
@@ -125,6 +127,7 @@ impl<'p> Feeder<'p> {
             gap_count: 0,
             prev_t: None,
             k: 0,
+            core_gaps: plan.igrf.as_ref().map(|(_, fill)| fill.cursor()),
         }
     }
 
@@ -136,11 +139,11 @@ impl<'p> Feeder<'p> {
         // Judged as measured, as `Flight::from_trace` judges it (before its calibration).
         let flux_judged = self.flux_despiker.push(k, rs.sample.flux_nt, rs.mag_nt);
         self.positions.check(&mut rs.sample, |_| {});
-        if let Some((source, fill)) = &plan.igrf {
+        if let (Some((source, _)), Some(gaps)) = (&plan.igrf, &mut self.core_gaps) {
             let year = super::igrf::row_year(source, row, k)?;
             let mut scan = IgrfScan::default();
             let v = scan.value(year, cols, row)?;
-            rs.sample.igrf_nt = if v.is_finite() { v } else { fill.value(k) };
+            rs.sample.igrf_nt = if v.is_finite() { v } else { gaps.value(k)? };
         }
         if let Some(v) = plan.assumed_speed_mps {
             if !rs.sample.ground_speed_mps.is_finite() {
