@@ -2,7 +2,9 @@
 //! same simulated survey: the output files must be identical line for line (frames in =
 //! frames out), with a scalar glitch, a bad fluxgate row, a bad latitude, a time gap, a run of missing
 //! positions, an extra numeric and text column, the core field from the file or computed
-//! from a date, KF and Tolles–Lawson, and a `--time` selection.
+//! from a date, KF and Tolles–Lawson, and a `--time` selection; and through the command,
+//! glitches that meet (a row both a scalar and a fluxgate glitch, adjacent fluxgate
+//! glitches, the first and last row), with the same warnings.
 use magcomp::calibration::coefficients::{CoefficientFile, Method};
 use magcomp::calibration::summary::{summarise, write_output_csv, Summary};
 use magcomp::calibration::{compensate_trace, EstimatorSettings};
@@ -12,6 +14,8 @@ use magcomp::io::trace::{write_trace, Trace};
 use magcomp::sim::{simulate, FlightKind, SimConfig};
 use magcomp::stream::StreamInput;
 use std::path::{Path, PathBuf};
+
+mod common;
 
 fn est(method: Method) -> EstimatorSettings {
     EstimatorSettings {
@@ -43,16 +47,21 @@ fn coefficients(method: Method) -> CoefficientFile {
     comp.coefficients.unwrap()
 }
 
-/// A 10 Hz survey with the faults a real file has.
-fn survey(with_igrf: bool) -> Trace {
-    let t = simulate(&SimConfig {
+/// The aircraft's survey: 10 Hz, two lines, 300 s (3,000 rows), no fault.
+fn clean_survey() -> Trace {
+    simulate(&SimConfig {
         seed: 8,
         flight: FlightKind::Survey,
         survey_lines: 2,
         max_duration_s: Some(300.0),
         ..SimConfig::default()
     })
-    .unwrap();
+    .unwrap()
+}
+
+/// A 10 Hz survey with the faults a real file has.
+fn survey(with_igrf: bool) -> Trace {
+    let t = clean_survey();
     let n = t.len();
     // A 3 s time gap (rows 1200..1230 dropped).
     let rows: Vec<usize> = (0..n).filter(|i| !(1200..1230).contains(i)).collect();
@@ -285,4 +294,136 @@ fn what_cannot_stream_says_why() {
     assert!(magcomp::stream::unstreamable(Some(&c), &e, false)
         .unwrap()
         .contains("lag"));
+}
+
+/// Issue 21: the glitches where the stream's fluxgate bridge could part from memory's, in
+/// one simulated survey (10 Hz, 3,000 rows; `flux_z` = 0 is a fluxgate glitch, +4000 nT a
+/// scalar one): a fluxgate glitch in the first and in the last row; a row that is both a
+/// scalar and a fluxgate glitch (400); two adjacent fluxgate glitches (700, 701); a
+/// fluxgate glitch whose next finite row is another (1000, 1001 without a fluxgate,
+/// 1002); a fluxgate glitch followed by a scalar glitch (1600, 1601); a fluxgate glitch
+/// followed by more rows without a fluxgate than its bridge reaches (2200, 2201..2220).
+/// Returns the trace, the scalar glitches and the fluxgate glitches.
+fn coincident_glitches() -> (Trace, Vec<usize>, Vec<usize>) {
+    let mut t = clean_survey();
+    let n = t.len();
+    let scalar = vec![400, 1601];
+    let flux = vec![0, 400, 700, 701, 1000, 1002, 1600, 2200, n - 1];
+    let missing = |i: usize| i == 1001 || (2201..=2220).contains(&i);
+    let mut set = |name: &str, f: &dyn Fn(usize, f64) -> f64| {
+        let v = t.col(name).unwrap().iter().enumerate();
+        let v = v.map(|(i, x)| f(i, *x)).collect();
+        t.set_col(name, v);
+    };
+    set("mag", &|i, x| {
+        if scalar.contains(&i) {
+            x + 4000.0
+        } else {
+            x
+        }
+    });
+    for axis in ["flux_x", "flux_y", "flux_z"] {
+        set(axis, &|i, x| if missing(i) { f64::NAN } else { x });
+    }
+    set("flux_z", &|i, x| if flux.contains(&i) { 0.0 } else { x });
+    (t, scalar, flux)
+}
+
+/// The count a glitch warning on stderr gives (`FILE: N what`), 0 without one, and the
+/// lines it lists.
+fn warned(stderr: &str, what: &str) -> (usize, Vec<String>) {
+    let Some(at) = stderr.find(what) else {
+        return (0, Vec::new());
+    };
+    let count = stderr[..at].rsplit(": ").next().unwrap().trim();
+    let listed = stderr[at..]
+        .lines()
+        .skip(1)
+        .take_while(|l| l.starts_with("  line "))
+        .map(|l| l.split(':').next().unwrap().trim().to_string())
+        .collect();
+    (count.parse().unwrap(), listed)
+}
+
+/// The data rows of two `compensate` outputs that differ, each with the largest
+/// difference of its numeric cells (a NaN against a number counts as infinite).
+fn differing_rows(a: &str, b: &str) -> Vec<(usize, f64)> {
+    let rows = |s: &str| -> Vec<String> {
+        let data = s.lines().filter(|l| !l.starts_with('#')).skip(1);
+        data.map(String::from).collect()
+    };
+    let (ra, rb) = (rows(a), rows(b));
+    assert_eq!(ra.len(), rb.len(), "rows in memory vs streamed");
+    let cell = |c: &str| c.parse::<f64>().unwrap_or(f64::NAN);
+    let gap = |x: f64, y: f64| match (x.is_nan(), y.is_nan()) {
+        (true, true) => 0.0,
+        (false, false) => (x - y).abs(),
+        _ => f64::INFINITY,
+    };
+    let mut out = Vec::new();
+    for (i, (x, y)) in ra.iter().zip(&rb).enumerate() {
+        if x != y {
+            let cells = x.split(',').zip(y.split(','));
+            let d = cells
+                .map(|(p, q)| gap(cell(p), cell(q)))
+                .fold(0.0, f64::max);
+            out.push((i, d));
+        }
+    }
+    out
+}
+
+/// Every case of [`coincident_glitches`], for the Kalman filter and Tolles–Lawson:
+/// `compensate --stream never` and `--stream always` write the same file line for line,
+/// every row in a row out, and warn of the same scalar and fluxgate glitches (all of
+/// them).
+#[test]
+fn coincident_and_adjacent_glitches_stream_as_in_memory() {
+    use common::cli::{bin, run_ok_with_stderr, tmp};
+    let d = tmp("glitch-coincidence");
+    let (trace, scalar, flux) = coincident_glitches();
+    let input = d.join("survey.csv");
+    write_trace(&input, &trace).unwrap();
+    let mut failures = Vec::new();
+    for method in [Method::Kf, Method::Tl] {
+        let coeffs = d.join(format!("{}.json", method.name()));
+        let text = magcomp::calibration::coefficients::to_sealed_json(&coefficients(method));
+        std::fs::write(&coeffs, text.unwrap()).unwrap();
+        let mut runs = Vec::new();
+        for mode in ["never", "always"] {
+            let out = d.join(format!("{}-{mode}.csv", method.name()));
+            let mut cmd = bin();
+            cmd.arg("compensate")
+                .arg(&input)
+                .arg("--coeffs")
+                .arg(&coeffs);
+            cmd.args(["--stream", mode, "-o"]).arg(&out);
+            let (_, err) = run_ok_with_stderr(&mut cmd);
+            assert!(!err.contains("not streamed"), "{mode}: {err}");
+            runs.push((std::fs::read_to_string(&out).unwrap(), err));
+        }
+        let [(mem, mem_err), (streamed, str_err)] = <[_; 2]>::try_from(runs).unwrap();
+        let rows_out = streamed.lines().filter(|l| !l.starts_with('#')).count() - 1;
+        assert_eq!(rows_out, trace.len(), "{method:?}: rows in, rows out");
+        for (what, expected) in [("scalar glitch", &scalar), ("fluxgate sample", &flux)] {
+            let (m, s) = (warned(&mem_err, what), warned(&str_err, what));
+            eprintln!("{method:?} {what}: in memory {m:?}, streamed {s:?}");
+            if m != s || m.0 != expected.len() {
+                failures.push(format!(
+                    "{method:?} {what}: {m:?} in memory, {s:?} streamed"
+                ));
+            }
+        }
+        let differ = differing_rows(&mem, &streamed);
+        // The rows a bridge moved, not the filter's state carried on by 1e-4 nT.
+        let big: Vec<_> = differ.iter().filter(|(_, d)| *d >= 1e-3).collect();
+        eprintln!(
+            "{method:?}: {rows_out} rows, {} differ; by ≥ 1e-3 (data row, largest |Δ|): {big:?}",
+            differ.len()
+        );
+        if !differ.is_empty() {
+            failures.push(format!("{method:?}: {} rows differ: {big:?}", differ.len()));
+        }
+    }
+    assert!(failures.is_empty(), "streamed ≠ in memory: {failures:#?}");
 }

@@ -615,7 +615,10 @@ fn tie_point_of(trace: &Trace, t: &[f64], samples: &[AlignedSample]) -> Option<T
 
 /// Fluxgate glitches: the row's scalar is taken as missing (nothing is learnt from it) and
 /// its vector is bridged from the neighbours, so that no regressor, rate or direction
-/// estimate sees the bad value. Returns the bridged axes.
+/// estimate sees the bad value: between the last good vector before and the first within
+/// `despike::bridge_reach` rows after (else the one before is held). A row that is also a
+/// scalar glitch is bridged too; a scalar glitch's own vector is good. Returns the
+/// bridged axes.
 fn bridge_flux_glitches(
     trace: &Trace,
     t: &[f64],
@@ -627,6 +630,7 @@ fn bridge_flux_glitches(
 ) -> [Vec<f64>; 3] {
     let n = flux.len();
     let flux_bad = crate::signal::despike::flux_glitches(flux, mag_nt, sample_rate_hz);
+    let reach = crate::signal::despike::bridge_reach(sample_rate_hz);
     let mut cf: [Vec<f64>; 3] = std::array::from_fn(|k| flux.iter().map(|f| f[k]).collect());
     if !flux_bad.is_empty() {
         let usable =
@@ -634,17 +638,10 @@ fn bridge_flux_glitches(
         for &i in &flux_bad {
             mag_nt[i] = f64::NAN;
             samples[i].mag = None;
-            let before = (0..i).rev().find(|&j| usable(j));
-            let after = (i + 1..n).find(|&j| usable(j));
-            let v = match (before, after) {
-                (Some(a), Some(b)) => {
-                    let w = (t[i] - t[a]) / (t[b] - t[a]);
-                    std::array::from_fn(|k| flux[a][k] + w * (flux[b][k] - flux[a][k]))
-                }
-                (Some(a), None) => flux[a],
-                (None, Some(b)) => flux[b],
-                (None, None) => [f64::NAN; 3],
-            };
+            let at = |j: usize| (t[j], flux[j]);
+            let before = (0..i).rev().find(|&j| usable(j)).map(at);
+            let after = (i + 1..n).take(reach).find(|&j| usable(j)).map(at);
+            let v = bridged_vector(t[i], before, after);
             samples[i].flux_nt = v.map(|x| x as f32);
             (cf[0][i], cf[1][i], cf[2][i]) = (v[0], v[1], v[2]);
         }
@@ -656,6 +653,24 @@ fn bridge_flux_glitches(
         ));
     }
     cf
+}
+
+/// A bridged fluxgate vector at `t_s`: on the line between the good (time, vector) before
+/// and after it, else the one there is (NaN without either). The stream bridges with it too.
+pub(crate) fn bridged_vector(
+    t_s: f64,
+    before: Option<(f64, [f64; 3])>,
+    after: Option<(f64, [f64; 3])>,
+) -> [f64; 3] {
+    match (before, after) {
+        (Some((ta, a)), Some((tb, b))) if tb > ta => {
+            let w = (t_s - ta) / (tb - ta);
+            std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
+        }
+        (Some((_, a)), _) => a,
+        (None, Some((_, b))) => b,
+        (None, None) => [f64::NAN; 3],
+    }
 }
 
 #[cfg(test)]

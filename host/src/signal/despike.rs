@@ -20,6 +20,15 @@ pub fn half_window(sample_rate_hz: f64) -> usize {
     ((0.5 * sample_rate_hz).round() as usize).clamp(5, 15)
 }
 
+/// Rows after a fluxgate glitch its bridge looks through for a good vector: one despiker
+/// window, the longest run of glitches it can find. Further on the last good vector is
+/// held: the stream then bridges in a bounded queue (unbounded, a fluxgate dead after a
+/// glitch held back the rest of the flight), and a line drawn across a longer dropout is
+/// no better than the vector held.
+pub fn bridge_reach(sample_rate_hz: f64) -> usize {
+    2 * half_window(sample_rate_hz) + 1
+}
+
 /// Is `window[centre]` a glitch? `window` is consecutive samples around it (NaN = none).
 /// It is judged against a robust line through its neighbours (Theil–Sen: the median of
 /// the pairwise slopes, then the median intercept) and their median departure from it:
@@ -118,6 +127,11 @@ pub fn glitches(mag_nt: &[f64], sample_rate_hz: f64) -> Vec<usize> {
         .collect()
 }
 
+/// `|B_F|`, as the fluxgate test judges it (the stream's too).
+pub fn modulus_nt(b: &[f64; 3]) -> f64 {
+    (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt()
+}
+
 /// Rows whose fluxgate vector is inconsistent with its neighbours or with the scalar: a
 /// glitch (by [`judge`]) in the modulus `|B_F|` or in `|B_F| − mag`. Both are free of the
 /// attitude (an axis swings by thousands of nT in a turn; the modulus does not), so the
@@ -125,10 +139,7 @@ pub fn glitches(mag_nt: &[f64], sample_rate_hz: f64) -> Vec<usize> {
 /// (48954.7 → 48), otherwise gave the fluxgate calibration a −38,736 nT bias and a survey
 /// 6× worse. Rows without a finite vector are not judged (they are missing already).
 pub fn flux_glitches(flux_nt: &[[f64; 3]], mag_nt: &[f64], sample_rate_hz: f64) -> Vec<usize> {
-    let modulus: Vec<f64> = flux_nt
-        .iter()
-        .map(|b| (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt())
-        .collect();
+    let modulus: Vec<f64> = flux_nt.iter().map(modulus_nt).collect();
     let against_scalar: Vec<f64> = modulus.iter().zip(mag_nt).map(|(f, m)| f - m).collect();
     let mut rows = glitches(&modulus, sample_rate_hz);
     rows.extend(glitches(&against_scalar, sample_rate_hz));

@@ -609,7 +609,7 @@ fn second_pass(
                 .zip(need_noise)
                 .filter(|(_, &n)| n)
             {
-                let flux = c.flux.map(|i| row.num(i) as f32);
+                let flux = c.flux.map(|i| row.num(i));
                 second.push(k, row.line, row.num(c.t), row.num(c.mag), flux);
             }
             if need_igrf {

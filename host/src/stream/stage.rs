@@ -6,7 +6,7 @@
 //! (`super::apply`).
 use super::igrf::{GapCursor, IgrfScan};
 use super::rows::row_sample;
-use super::stats::{Despiker, FluxDespiker, Listed};
+use super::stats::{GlitchJudge, Listed, Verdict};
 use super::Plan;
 use crate::calibration::coefficients::CoefficientFile;
 use crate::calibration::EstimatorSettings;
@@ -48,61 +48,96 @@ pub(crate) struct Found {
 /// A row waiting for the despikers: with its file line and its fluxgate as read (f64).
 type Waiting = (Pending, u64, [f64; 3]);
 
-/// A fluxgate row found bad in the stream: its scalar is taken as missing (nothing is learnt
-/// from it) and its vector bridged from the last good row before and the first row after
-/// (still in the queue), as the in-memory path does (`flight::bridge_flux_glitches`): from
-/// the vectors as read, in f64, before any fluxgate calibration, so the bridged vector is
-/// the same to the last bit (Tolles–Lawson's full-precision output showed an f32 bridge).
-#[derive(Default)]
-struct FluxGlitches {
+/// Fluxgate glitches bridged as in memory (`flight::bridge_flux_glitches`): the row's
+/// scalar taken as missing (nothing is learnt from it), its vector drawn between the last
+/// good vector before and the first within `despike::bridge_reach` rows after, only ever
+/// from rows already judged good (a neighbour still unjudged may be a glitch itself), and
+/// from the vectors as read, in f64, before any fluxgate calibration, so the bridged
+/// vector is the same to the last bit (Tolles–Lawson's full-precision output showed an
+/// f32 bridge). From a glitch until its good row after, rows are held back, in order.
+struct FluxBridge {
     listed: Listed<[f32; 3]>,
-    /// Time and vector (as read) of the last row passed on with a good vector.
+    reach_rows: usize,
+    /// Time and vector (as read) of the last row judged with a good vector.
     last_good: Option<(f64, [f64; 3])>,
+    /// Rows held back, each with whether it is a glitch still to bridge.
+    held: VecDeque<(Pending, bool)>,
 }
 
-impl FluxGlitches {
-    fn take_out(&mut self, p: &mut Pending, line: u64, queue: &VecDeque<Waiting>) {
-        self.listed.push(line, p.sample.flux_nt);
-        p.mag_nt = f64::NAN;
-        p.sample.mag = None;
-        let good = |f: &[f64; 3]| f.iter().all(|v| v.is_finite());
-        let after = queue
-            .iter()
-            .map(|(q, _, raw)| (q.sample.t_s, *raw))
-            .find(|(_, f)| good(f));
-        let t = p.sample.t_s;
-        let v = match (self.last_good, after) {
-            (Some((ta, a)), Some((tb, b))) if tb > ta => {
-                let w = (t - ta) / (tb - ta);
-                std::array::from_fn(|k| a[k] + w * (b[k] - a[k]))
-            }
-            (Some((_, a)), _) => a,
-            (None, Some((_, b))) => b,
-            (None, None) => [f64::NAN; 3],
-        };
-        p.sample.flux_nt = v.map(|x| x as f32);
+impl FluxBridge {
+    fn new(sample_rate_hz: f64) -> Self {
+        Self {
+            listed: Listed::default(),
+            reach_rows: crate::signal::despike::bridge_reach(sample_rate_hz),
+            last_good: None,
+            held: VecDeque::new(),
+        }
     }
 
-    fn passed(&mut self, p: &Pending, raw: [f64; 3], bridged: bool) {
-        if !bridged && raw.iter().all(|v| v.is_finite()) {
-            self.last_good = Some((p.sample.t_s, raw));
+    /// A judged row; `out` gets the rows whose bridges are known by now, in order.
+    fn judged(
+        &mut self,
+        (mut p, line, raw): Waiting,
+        flux_glitch: bool,
+        out: &mut dyn FnMut(Pending) -> Result<()>,
+    ) -> Result<()> {
+        if flux_glitch {
+            self.listed.push(line, p.sample.flux_nt);
+            p.mag_nt = f64::NAN;
+            p.sample.mag = None;
         }
+        let (row, t_s) = (p.row, p.sample.t_s);
+        self.held.push_back((p, flux_glitch));
+        if !flux_glitch && raw.iter().all(|v| v.is_finite()) {
+            self.bridge(|_| true, Some((t_s, raw)));
+            self.last_good = Some((t_s, raw));
+        } else {
+            // Glitches whose reach ends here found no good row after.
+            let reach = self.reach_rows;
+            self.bridge(|g| g + reach <= row, None);
+        }
+        self.release(out)
+    }
+
+    /// The end of the flight: the last glitches have no good row after.
+    fn finish(mut self, out: &mut dyn FnMut(Pending) -> Result<()>) -> Result<Listed<[f32; 3]>> {
+        self.bridge(|_| true, None);
+        self.release(out)?;
+        Ok(self.listed)
+    }
+
+    /// The held glitches whose row `due` accepts, bridged to `after`.
+    fn bridge(&mut self, due: impl Fn(usize) -> bool, after: Option<(f64, [f64; 3])>) {
+        for (p, pending) in self.held.iter_mut().filter(|(p, g)| *g && due(p.row)) {
+            let v = crate::flight::bridged_vector(p.sample.t_s, self.last_good, after);
+            p.sample.flux_nt = v.map(|x| x as f32);
+            *pending = false;
+        }
+    }
+
+    /// The held rows up to the first glitch still to bridge.
+    fn release(&mut self, out: &mut dyn FnMut(Pending) -> Result<()>) -> Result<()> {
+        while self.held.front().is_some_and(|(_, g)| !g) {
+            let (p, _) = self.held.pop_front().context("internal: held rows")?;
+            out(p)?;
+        }
+        Ok(())
     }
 }
 
 /// Each selected row, checked, despiked and with its core field, handed on in order once
-/// the despikers' windows have judged it.
+/// the despikers' windows have judged it (and, after a fluxgate glitch, once its bridge is
+/// known).
 pub(crate) struct Feeder<'p> {
     plan: &'p Plan,
     /// Input columns carried to the output: numeric, text.
     nums: Vec<usize>,
     texts: Vec<usize>,
     positions: PositionChecker,
-    despiker: Despiker,
-    flux_despiker: FluxDespiker,
+    judge: GlitchJudge,
     waiting: VecDeque<Waiting>,
     glitches: Listed<f64>,
-    flux_glitches: FluxGlitches,
+    bridge: FluxBridge,
     gaps: Vec<(usize, f64, f64)>,
     gap_count: usize,
     prev_t: Option<f64>,
@@ -118,11 +153,10 @@ impl<'p> Feeder<'p> {
             nums,
             texts,
             positions: PositionChecker::default(),
-            despiker: Despiker::new(plan.sample_rate_hz),
-            flux_despiker: FluxDespiker::new(plan.sample_rate_hz),
+            judge: GlitchJudge::new(plan.sample_rate_hz),
             waiting: VecDeque::new(),
             glitches: Listed::default(),
-            flux_glitches: FluxGlitches::default(),
+            bridge: FluxBridge::new(plan.sample_rate_hz),
             gaps: Vec::new(),
             gap_count: 0,
             prev_t: None,
@@ -136,8 +170,6 @@ impl<'p> Feeder<'p> {
         let (plan, k) = (self.plan, self.k);
         let cols = &plan.cols;
         let mut rs = row_sample(row, cols, plan.base0, &plan.offsets);
-        // Judged as measured, as `Flight::from_trace` judges it (before its calibration).
-        let flux_judged = self.flux_despiker.push(k, rs.sample.flux_nt, rs.mag_nt);
         self.positions.check(&mut rs.sample, |_| {});
         if let (Some((source, _)), Some(gaps)) = (&plan.igrf, &mut self.core_gaps) {
             let year = super::igrf::row_year(source, row, k)?;
@@ -175,55 +207,59 @@ impl<'p> Feeder<'p> {
                 .collect(),
         };
         self.waiting.push_back((p, rs.line, rs.raw_flux));
-        if let Some(j) = self.despiker.push(k, rs.mag_nt) {
-            let flux_glitch = flux_judged.is_some_and(|(_, g)| g);
-            self.judged(j, flux_glitch, sink)?;
+        // Judged as measured, as `Flight::from_trace` judges it (before its calibration).
+        if let Some(v) = self.judge.push(k, rs.mag_nt, rs.raw_flux) {
+            self.judged(v, sink)?;
         }
         self.k += 1;
         Ok(())
     }
 
-    /// The row at the queue's front, judged by both despikers.
-    fn judged(
-        &mut self,
-        (row, glitch): (usize, bool),
-        flux_glitch: bool,
-        sink: &mut dyn FnMut(Pending) -> Result<()>,
-    ) -> Result<()> {
+    /// The row at the queue's front, judged.
+    fn judged(&mut self, v: Verdict, sink: &mut dyn FnMut(Pending) -> Result<()>) -> Result<()> {
         let (mut p, line, raw) = self
             .waiting
             .pop_front()
             .context("internal: despiker order")?;
-        debug_assert_eq!(p.row, row);
-        if glitch {
+        debug_assert_eq!(p.row, v.row);
+        if v.scalar {
             self.glitches.push(line, p.mag_nt);
             p.mag_nt = f64::NAN;
             p.sample.mag = None;
-        } else if flux_glitch {
-            self.flux_glitches.take_out(&mut p, line, &self.waiting);
         }
-        self.flux_glitches.passed(&p, raw, flux_glitch && !glitch);
-        // After the bridging, as in memory (`fluxcal::calibrated_flight` on the flight).
-        if let Some(c) = &self.plan.fluxgate_calibration {
-            p.sample.flux_nt = c.apply(p.sample.flux_nt.map(f64::from)).map(|v| v as f32);
-        }
-        sink(p)
+        let plan = self.plan;
+        self.bridge
+            .judged((p, line, raw), v.flux, &mut |p| calibrated(plan, p, sink))
     }
 
     /// The end of the flight: the rows still in the windows, then what was found.
     pub fn finish(mut self, sink: &mut dyn FnMut(Pending) -> Result<()>) -> Result<Found> {
-        let flux_rest = self.flux_despiker.finish();
-        for (j, (_, flux_glitch)) in self.despiker.finish().into_iter().zip(flux_rest) {
-            self.judged(j, flux_glitch, sink)?;
+        for v in self.judge.finish() {
+            self.judged(v, sink)?;
         }
+        let plan = self.plan;
+        let flux_glitches = self.bridge.finish(&mut |p| calibrated(plan, p, sink))?;
         Ok(Found {
             glitches: self.glitches,
-            flux_glitches: self.flux_glitches.listed,
+            flux_glitches,
             gaps: self.gaps,
             gap_count: self.gap_count,
             rows: self.k,
         })
     }
+}
+
+/// A judged, bridged row to `sink` with the fluxgate calibration applied: after the
+/// bridging, as in memory (`fluxcal::calibrated_flight` on the flight).
+fn calibrated(
+    plan: &Plan,
+    mut p: Pending,
+    sink: &mut dyn FnMut(Pending) -> Result<()>,
+) -> Result<()> {
+    if let Some(c) = &plan.fluxgate_calibration {
+        p.sample.flux_nt = c.apply(p.sample.flux_nt.map(f64::from)).map(|v| v as f32);
+    }
+    sink(p)
 }
 
 /// Mean and variance of finite values, one at a time (Welford): `truth::error_rms_nt`.

@@ -205,44 +205,84 @@ impl Despiker {
     }
 }
 
-/// The stream's [`crate::signal::despike::flux_glitches`]: a fluxgate row whose modulus
-/// `|B_F|`, or `|B_F| − mag`, is a glitch by the scalar's rule. It judges the same rows as
-/// the scalar's [`Despiker`], at the same delay, so the two verdicts meet in the queue.
-pub struct FluxDespiker {
-    modulus: Despiker,
-    against_scalar: Despiker,
+/// A row's verdicts: whether its scalar, and whether its fluxgate vector, is a glitch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Verdict {
+    pub row: usize,
+    pub scalar: bool,
+    pub flux: bool,
 }
 
-impl FluxDespiker {
+/// `Flight::from_trace`'s glitch tests over a stream: the scalar's
+/// ([`crate::signal::despike::glitches`]), then the fluxgate's
+/// ([`crate::signal::despike::flux_glitches`]) on its modulus `|B_F|` and on `|B_F| − mag`.
+/// In memory that second series has the scalar's glitches taken out (NaN), so it is fed
+/// only once the scalar's verdict is in: a row is judged `2·half` rows after it came in.
+/// (Fed the raw scalar, a scalar glitch was also a fluxgate one, and its neighbours were
+/// judged against a different window.)
+pub struct GlitchJudge {
+    scalar: Despiker,
+    modulus: Despiker,
+    against_scalar: Despiker,
+    /// Rows not yet judged by the scalar's rule: (`|B_F|`, mag), in order.
+    unjudged: VecDeque<(f64, f64)>,
+    /// Rows judged by the scalar and the modulus, waiting for `|B_F| − mag`: (scalar
+    /// glitch, modulus glitch), in order.
+    half_judged: VecDeque<(bool, bool)>,
+}
+
+impl GlitchJudge {
     pub fn new(sample_rate_hz: f64) -> Self {
         Self {
+            scalar: Despiker::new(sample_rate_hz),
             modulus: Despiker::new(sample_rate_hz),
             against_scalar: Despiker::new(sample_rate_hz),
+            unjudged: VecDeque::new(),
+            half_judged: VecDeque::new(),
         }
     }
 
-    fn values(flux_nt: [f32; 3], mag_nt: f64) -> (f64, f64) {
-        let b = flux_nt.map(f64::from);
-        let modulus = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-        (modulus, modulus - mag_nt)
+    /// Adds a row (its scalar and fluxgate as read, f64 as in memory); returns the
+    /// verdicts on a row when one is due.
+    pub fn push(&mut self, row: usize, mag_nt: f64, flux_nt: [f64; 3]) -> Option<Verdict> {
+        let modulus = crate::signal::despike::modulus_nt(&flux_nt);
+        self.unjudged.push_back((modulus, mag_nt));
+        let s = self.scalar.push(row, mag_nt);
+        let m = self.modulus.push(row, modulus);
+        debug_assert_eq!(s.map(|v| v.0), m.map(|v| v.0));
+        self.half_way(s?, m?)
     }
 
-    /// Adds a row; returns the judged (row, is_glitch) when one is due.
-    pub fn push(&mut self, row: usize, flux_nt: [f32; 3], mag_nt: f64) -> Option<(usize, bool)> {
-        let (m, d) = Self::values(flux_nt, mag_nt);
-        let a = self.modulus.push(row, m)?;
-        let b = self.against_scalar.push(row, d)?;
-        debug_assert_eq!(a.0, b.0);
-        Some((a.0, a.1 || b.1))
+    /// The rows still in the windows, at the end of the flight.
+    pub fn finish(&mut self) -> Vec<Verdict> {
+        let (s, m) = (self.scalar.finish(), self.modulus.finish());
+        let mut out: Vec<Verdict> = s
+            .into_iter()
+            .zip(m)
+            .filter_map(|(s, m)| self.half_way(s, m))
+            .collect();
+        for a in self.against_scalar.finish() {
+            out.extend(self.verdict(a));
+        }
+        out
     }
 
-    pub fn finish(&mut self) -> Vec<(usize, bool)> {
-        let a = self.modulus.finish();
-        let b = self.against_scalar.finish();
-        a.into_iter()
-            .zip(b)
-            .map(|(x, y)| (x.0, x.1 || y.1))
-            .collect()
+    /// A row judged by the scalar and the modulus: on to `|B_F| − mag`.
+    fn half_way(&mut self, (row, scalar): (usize, bool), m: (usize, bool)) -> Option<Verdict> {
+        let (modulus, mag_nt) = self.unjudged.pop_front()?;
+        self.half_judged.push_back((scalar, m.1));
+        let mag_nt = if scalar { f64::NAN } else { mag_nt };
+        let a = self.against_scalar.push(row, modulus - mag_nt)?;
+        self.verdict(a)
+    }
+
+    fn verdict(&mut self, (row, against): (usize, bool)) -> Option<Verdict> {
+        let (scalar, modulus) = self.half_judged.pop_front()?;
+        Some(Verdict {
+            row,
+            scalar,
+            flux: modulus || against,
+        })
     }
 }
 
@@ -377,10 +417,9 @@ impl FirstPass {
 
 /// Pass 2 (needs the sample rate): glitches, time gaps, the scalar's noise.
 pub struct SecondPass {
-    pub despiker: Despiker,
     /// Bad fluxgate rows are taken out of the scalar too (as `Flight::from_trace` does
     /// before the noise is estimated).
-    flux_despiker: FluxDespiker,
+    judge: GlitchJudge,
     pub gap_limit_s: f64,
     pub prev_t: Option<f64>,
     /// (data row, gap length, t before) of the first gaps, and their count.
@@ -396,8 +435,7 @@ pub struct SecondPass {
 impl SecondPass {
     pub fn new(sample_rate_hz: f64, median_dt_s: f64) -> Self {
         Self {
-            despiker: Despiker::new(sample_rate_hz),
-            flux_despiker: FluxDespiker::new(sample_rate_hz),
+            judge: GlitchJudge::new(sample_rate_hz),
             gap_limit_s: crate::qc::gaps::GAP_FACTOR * median_dt_s,
             prev_t: None,
             gaps: Vec::new(),
@@ -409,7 +447,7 @@ impl SecondPass {
         }
     }
 
-    pub fn push(&mut self, row: usize, line: u64, t_s: f64, mag_nt: f64, flux_nt: [f32; 3]) {
+    pub fn push(&mut self, row: usize, line: u64, t_s: f64, mag_nt: f64, flux_nt: [f64; 3]) {
         if let Some(t0) = self.prev_t {
             if t_s - t0 > self.gap_limit_s {
                 if self.gaps.len() < 3 {
@@ -420,28 +458,26 @@ impl SecondPass {
         }
         self.prev_t = Some(t_s);
         self.pending.push_back((row, line, mag_nt));
-        let flux = self.flux_despiker.push(row, flux_nt, mag_nt);
-        if let Some(j) = self.despiker.push(row, mag_nt) {
-            self.judged(j, flux.is_some_and(|(_, g)| g));
+        if let Some(v) = self.judge.push(row, mag_nt, flux_nt) {
+            self.judged(v);
         }
     }
 
     pub fn finish(&mut self) {
-        let flux = self.flux_despiker.finish();
-        for (j, (_, flux_glitch)) in self.despiker.finish().into_iter().zip(flux) {
-            self.judged(j, flux_glitch);
+        for v in self.judge.finish() {
+            self.judged(v);
         }
     }
 
-    fn judged(&mut self, (row, glitch): (usize, bool), flux_glitch: bool) {
+    fn judged(&mut self, verdict: Verdict) {
         let Some((r, line, mag)) = self.pending.pop_front() else {
             return;
         };
-        debug_assert_eq!(r, row);
-        let v = if glitch {
+        debug_assert_eq!(r, verdict.row);
+        if verdict.scalar {
             self.glitches.push(line, mag);
-            f64::NAN
-        } else if flux_glitch {
+        }
+        let v = if verdict.scalar || verdict.flux {
             f64::NAN
         } else {
             mag
@@ -572,4 +608,53 @@ pub fn faults_warning(label: &str, f: &Listed<PositionFault>) -> Option<String> 
         msg.push_str(&format!("\n  … and {} more", f.total - f.first.len()));
     }
     Some(msg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{GlitchJudge, Verdict};
+    use crate::signal::despike;
+
+    /// The stream's verdicts are `Flight::from_trace`'s on every row, whatever the
+    /// flight's length (a short one is judged at its end only): scalar and fluxgate
+    /// glitches on one row, side by side, in the first and last rows.
+    #[test]
+    fn the_stream_judges_every_row_as_in_memory() {
+        for n in [3, 7, 12, 40, 200] {
+            let mut mag: Vec<f64> = (0..n).map(|i| 52_000.0 + 0.3 * i as f64).collect();
+            let mut flux: Vec<[f64; 3]> = (0..n)
+                .map(|i| [20_000.0 + i as f64, 1_000.0, 47_000.0])
+                .collect();
+            for &i in &[0, n / 2, n - 1] {
+                flux[i][2] = 0.0;
+            }
+            mag[n / 2] += 4000.0;
+            mag[(n / 2 + 1).min(n - 1)] -= 4000.0;
+            let scalar = despike::glitches(&mag, 10.0);
+            let mut despiked = mag.clone();
+            for &i in &scalar {
+                despiked[i] = f64::NAN;
+            }
+            let bad = despike::flux_glitches(&flux, &despiked, 10.0);
+            if n >= 12 {
+                // Found in memory: the cases are there (the second scalar glitch's own
+                // vector is good, its |B_F| − mag NaN in memory).
+                assert_eq!(scalar, [n / 2, n / 2 + 1], "{n} rows");
+                assert_eq!(bad, [0, n / 2, n - 1], "{n} rows");
+            }
+            let expected: Vec<Verdict> = (0..n)
+                .map(|row| Verdict {
+                    row,
+                    scalar: scalar.contains(&row),
+                    flux: bad.contains(&row),
+                })
+                .collect();
+            let mut judge = GlitchJudge::new(10.0);
+            let mut got: Vec<Verdict> = (0..n)
+                .filter_map(|i| judge.push(i, mag[i], flux[i]))
+                .collect();
+            got.extend(judge.finish());
+            assert_eq!(got, expected, "{n} rows");
+        }
+    }
 }
