@@ -163,8 +163,11 @@ fn check(seed: u64, site: (f64, f64)) -> (f64, f64, f64) {
         // The catalogue alone names its nearest proxy, a current-like vector on temp_mag.
         let d0 = diagnose(&trace, &model, &DiagnoseOptions::default()).expect("diagnose");
         eprintln!("site {site:?}, catalogue only:\n{}", d0.table());
-        eprintln!("with sensor_temp:\n{}", d.table());
     }
+    eprintln!(
+        "site {site:?} seed {seed}, with sensor_temp:\n{}",
+        d.table()
+    );
     assert_eq!(
         d.candidates[0].term,
         "sensor_temp:temp_mag",
@@ -172,6 +175,23 @@ fn check(seed: u64, site: (f64, f64)) -> (f64, f64, f64) {
         d.table()
     );
     assert!(d.candidates[0].significant, "seed {seed}\n{}", d.table());
+    // Recalibrating the fluxgate against a scalar that holds the hidden effect moves the
+    // compensation without explaining it. Credited by that change against the residual,
+    // `fluxcal` was material at 10° N (16.3 % and 55.9 %, seeds 1 and 2); from the model
+    // refitted with it (predicted error 0.7669 → 0.7540 and 0.6101 → 0.6145 nT) it is not.
+    let fluxcal = d
+        .candidates
+        .iter()
+        .find(|c| c.term == "fluxcal")
+        .expect("fluxcal tested");
+    assert!(
+        !fluxcal.material
+            && fluxcal.explained_fraction < DiagnoseOptions::default().min_explained
+            && fluxcal.explained_fraction < d.candidates[0].explained_fraction,
+        "seed {seed}: fluxcal credited {:.3}\n{}",
+        fluxcal.explained_fraction,
+        d.table()
+    );
     assert!(
         d.candidates
             .iter()

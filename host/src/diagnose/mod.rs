@@ -87,9 +87,10 @@ pub struct DiagnoseOptions {
     pub window_s: f64,
     /// Order of the AR prewhitening filter.
     pub ar_order: usize,
-    /// `fluxcal` (and `fluxtemp:CH`) is material when correcting the fluxgate changes the
-    /// compensated field by at least this (nT rms): a tenth of a survey's 0.1 nT. Clean simulated fluxgates
-    /// (30 nT bias, 0.1 % scale) change it by ≤ 0.004 nT, a 300 nT / 0.7 % one by 0.02–0.03.
+    /// `fluxcal` (and `fluxtemp:CH`) is material only when the model refitted with the
+    /// correction changes the compensated field by at least this (nT rms): a tenth of a
+    /// survey's 0.1 nT. Clean simulated fluxgates (30 nT bias, 0.1 % scale) change it by
+    /// ≤ 0.004 nT, a 300 nT / 0.7 % one by 0.02–0.03.
     pub min_fluxcal_change_nt: f64,
     /// Which auxiliary columns are candidates (`--aux`); None: all but navigation, time,
     /// identifiers, other magnetometers, fluxgates and constants (`candidates`).
@@ -152,9 +153,11 @@ pub struct Candidate {
     /// Exactly what the user appends to the model: `--model "SPEC+TERM"`.
     pub term: String,
     pub effect: String,
-    /// Share of the residual variance the term explains. For `fluxcal`, which leaves the
-    /// scalar residual nearly unchanged, the variance of the change it makes to the
-    /// compensation relative to the residual's (capped at 1).
+    /// Share of the residual variance the term explains. `fluxcal` and `fluxtemp:CH` leave
+    /// the scalar residual nearly unchanged and are judged by the model refitted with them
+    /// (`effect_tests::fluxgate_share`): the variance of the change the refit makes to the
+    /// compensation relative to the residual's (capped at 1), for `fluxcal` at most the
+    /// fall of the predicted error and 0 when the refit leaves more residual.
     pub explained_fraction: f64,
     pub residual_rms_after_nt: f64,
     pub significant: bool,
@@ -185,7 +188,8 @@ pub struct Candidate {
     pub reference_heldout_fraction: Option<f64>,
     /// The whole model refitted with it: predicted error before/after, output change.
     pub refit: Option<Refit>,
-    /// With `fluxcal`/`fluxtemp`: the change correcting the fluxgate makes (nT rms).
+    /// With `fluxcal`/`fluxtemp`: the change the model refitted with the correction makes to
+    /// the compensated field (nT std; None when not refitted).
     pub fluxgate_change_nt: Option<f64>,
     /// For `lag`: what reciprocal passes over the same ground say (`reciprocal.rs`).
     pub reciprocal: Option<reciprocal::Reciprocal>,
@@ -448,6 +452,7 @@ fn diagnose_from(
     let mut candidates = Vec::new();
     let mut untestable = Vec::new();
     let mut cand_cols: HashMap<String, Vec<usize>> = HashMap::new();
+    let mut fluxgate_refits = HashMap::new();
     let mut bi = model.terms.len();
     for (text, spec) in &cand_specs {
         let tested = match spec {
@@ -460,7 +465,11 @@ fn diagnose_from(
                 t
             }
             CandidateTest::Field => ws.test_field(),
-            CandidateTest::Fluxgate(fix, ch) => ws.test_fluxgate(text, *fix, ch.as_deref())?,
+            CandidateTest::Fluxgate(fix, ch) => {
+                let (t, run) = ws.test_fluxgate(text, *fix, ch.as_deref())?;
+                fluxgate_refits.extend(run.map(|r| (text.clone(), r)));
+                t
+            }
         };
         match tested {
             Tested::Ranked(c) => candidates.push(*c),
@@ -476,7 +485,8 @@ fn diagnose_from(
     for c in &mut candidates {
         ranking::judge(c, opts, ws.m);
     }
-    let refits = ranking::refit_candidates(&ws, &mut candidates);
+    let mut refits = ranking::refit_candidates(&ws, &mut candidates);
+    refits.extend(fluxgate_refits);
     ranking::rank(&ws, &mut candidates, &cand_cols);
     Ok((conclude(ws, candidates, untestable, &cand_cols), refits))
 }

@@ -56,8 +56,9 @@ pub(super) fn judge(c: &mut Candidate, opts: &DiagnoseOptions, m: f64) {
 /// Refits the model with the statistically significant candidates (those another witness
 /// found material first, then the most significant; at most [`evidence::MAX_REFITS`]):
 /// where the anomaly states absorbed an effect, only the refit shows it, and a term the
-/// calibration cannot use shows there as a rise of its predicted error. Returns the
-/// refitted runs by term.
+/// calibration cannot use shows there as a rise of its predicted error. Candidates
+/// refitted by their own test (`fluxcal`, `fluxtemp:CH`) are not refitted again. Returns
+/// the refitted runs by term.
 pub(super) fn refit_candidates(
     ws: &Workspace,
     candidates: &mut [Candidate],
@@ -74,6 +75,7 @@ pub(super) fn refit_candidates(
             c.p_value < ws.opts.alpha / ws.m
                 && c.term != RECALIBRATE
                 && c.term != "field"
+                && c.refit.is_none()
                 && ws.model.with(&c.term).is_ok()
         })
         .collect();

@@ -5,9 +5,10 @@
 //! anomaly states).
 
 use super::effect_tests::{
-    calibrated_trace, explained_of, fluxcal_test, fluxtemp_test, rate_crossover_test,
+    calibrated_trace, explained_of, fluxcal_test, fluxgate_share, fluxtemp_test,
+    interference_for_fluxgate, rate_crossover_test,
 };
-use super::evidence::DirectRegression;
+use super::evidence::{self, DirectRegression};
 use super::holdout::{self, Folds};
 use super::regression::{
     build_columns, build_columns_with, fit_map, nested_test, usable_rows, Block, ColTerm,
@@ -46,7 +47,6 @@ pub(super) enum Tested {
 /// Shared state of one diagnosis (module notes).
 pub(super) struct Workspace<'a> {
     pub(super) original_trace: &'a Trace,
-    pub(super) original_flight: Flight,
     /// The flight the model sees (re-aligned scalar, corrected fluxgate).
     pub(super) flight: Flight,
     pub(super) model: &'a ModelSpec,
@@ -61,6 +61,8 @@ pub(super) struct Workspace<'a> {
     pub(super) blocks: Vec<Block>,
     pub(super) base_idx: Vec<usize>,
     pub(super) inn: Innovations,
+    /// The anomaly filter's settings `inn` was made with.
+    field: FieldSettings,
     pub(super) rows: Vec<usize>,
     pub(super) sd: Vec<f64>,
     /// The model's residual (nT) on `rows`.
@@ -118,7 +120,7 @@ impl<'a> Workspace<'a> {
                     Flight::from_trace(&prepared, &model.channels(), &model.relative_channels())?;
                 (&prepared, f)
             }
-            None => (trace, original_flight.clone()),
+            None => (trace, original_flight),
         };
         // With `fluxcal` in the model every regressor is built from the calibrated fluxgate.
         let calibrated;
@@ -193,7 +195,6 @@ impl<'a> Workspace<'a> {
         };
         Ok(Self {
             original_trace: trace,
-            original_flight,
             flight,
             model,
             opts,
@@ -204,6 +205,7 @@ impl<'a> Workspace<'a> {
             blocks,
             base_idx,
             inn,
+            field: settings,
             rows,
             sd,
             e0,
@@ -332,32 +334,21 @@ impl<'a> Workspace<'a> {
         c
     }
 
-    /// `fluxcal` or `fluxtemp:CH`, tested on the fluxgate.
+    /// `fluxcal` or `fluxtemp:CH`, tested on the fluxgate and judged by the model refitted
+    /// with it, which is also returned (`--iterate` starts from it).
     pub(super) fn test_fluxgate(
         &self,
         text: &str,
         correction: InputCorrection,
         channel: Option<&str>,
-    ) -> Result<Tested> {
+    ) -> Result<(Tested, Option<KfRun>)> {
         let t = match (correction, channel) {
             (InputCorrection::FluxTemp, Some(ch)) => {
-                fluxtemp_test(self.original_trace, &self.flight, self.model, &self.run, ch)?
+                fluxtemp_test(self.original_trace, &self.flight, &self.run, ch)?
             }
-            _ => fluxcal_test(&self.flight, &self.original_flight, self.model, &self.run)?,
-        };
-        // The scalar residual hardly moves (a TL fit hides a bent fluxgate), so the share
-        // reported and ranked is the compensation change's variance relative to the
-        // residual's: comparable with the other candidates' shares, and small when another,
-        // larger misfit is what moves the compensation. When the calibration does not fit
-        // the fluxgate down to its noise, another effect drives the change: no share is
-        // claimed.
-        let share = if self.residual_rms > 0.0 && t.fits_to_noise {
-            (t.change_nt / self.residual_rms).powi(2).min(1.0)
-        } else {
-            0.0
+            _ => fluxcal_test(&self.flight, &self.run)?,
         };
         let mut c = Candidate::new(text, &t.effect, self.residual_rms);
-        c.explained_fraction = share;
         // The static calibration's 9 parameters; a temperature drift adds 6 to them.
         c.added_parameters = if correction == InputCorrection::FluxCal {
             9
@@ -366,9 +357,91 @@ impl<'a> Workspace<'a> {
         };
         c.f_statistic = t.f;
         c.p_value = t.p;
-        c.fluxgate_change_nt = Some(t.change_nt);
         c.evidence_tested.push("fluxgate".into());
-        Ok(Tested::Ranked(Box::new(c)))
+        // A calibration that does not fit the fluxgate down to its noise: another effect
+        // drives whatever it would change, so nothing is claimed and no refit is spent.
+        // Nor without the model's predicted error to compare the refit's with (no deviation
+        // terms), as for the other candidates' refits.
+        let refittable = self.run.predicted_error_nt.is_some() && !self.model.terms.is_empty();
+        let run = if t.fits_to_noise && refittable {
+            evidence::refit_run(self.original_trace, self.model, text)
+        } else {
+            None
+        };
+        match run
+            .as_ref()
+            .and_then(|r| Some((r, evidence::refit(text, r, &self.run)?)))
+        {
+            Some((r, refit)) => {
+                let left = self.residuals_left([&self.run, r]);
+                let share = fluxgate_share(correction, &refit, self.residual_rms, left);
+                c.effect = format!(
+                    "{}; the model refitted with it changes the compensated field by {:.3} nT rms, its predicted error {:.4} → {:.4} nT, the residual {:.4} → {:.4} nT (share: {})",
+                    t.effect,
+                    refit.output_change_nt,
+                    refit.predicted_before_nt,
+                    refit.predicted_after_nt,
+                    left[0],
+                    left[1],
+                    if correction == InputCorrection::FluxTemp {
+                        "that change against the residual: the predicted error and the residual do not see a slow drift"
+                    } else {
+                        "the predicted error's fall, at most that change against the residual, none if the residual rises"
+                    }
+                );
+                c.explained_fraction = share;
+                c.residual_rms_after_nt = self.residual_rms * (1.0 - share).sqrt();
+                c.fluxgate_change_nt = Some(refit.output_change_nt);
+                c.refit = Some(refit);
+                c.evidence_tested.push("refit".into());
+            }
+            None if t.fits_to_noise => {
+                c.effect = format!(
+                    "{}; the model could not be refitted with it: no share claimed",
+                    t.effect
+                );
+            }
+            None => {}
+        }
+        Ok((Tested::Ranked(Box::new(c)), run))
+    }
+
+    /// The residual each run leaves (nT rms on `rows`): the scalar less the run's
+    /// interference through the anomaly filter the diagnosis's residual comes from, on the
+    /// samples both runs have (a sample one lacks is left out of both).
+    fn residuals_left(&self, runs: [&KfRun; 2]) -> [f64; 2] {
+        let interferences = runs.map(|r| interference_for_fluxgate(&self.flight, r));
+        let present =
+            |k: usize| self.y[k].is_finite() && interferences.iter().all(|i| i[k].is_finite());
+        // Relative to the first value, as `y` is: the field states start at zero.
+        let targets: Vec<Vec<f64>> = interferences
+            .iter()
+            .map(|i| {
+                let i0 = i.iter().copied().find(|v| v.is_finite()).unwrap_or(0.0);
+                (0..self.y.len())
+                    .map(|k| {
+                        if present(k) {
+                            self.y[k] - (i[k] - i0)
+                        } else {
+                            f64::NAN
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let columns: Vec<&[f64]> = targets.iter().map(Vec::as_slice).collect();
+        let inn = filter_columns(&self.tc.geometry, &columns, self.field);
+        let used: Vec<usize> = self
+            .rows
+            .iter()
+            .copied()
+            .filter(|&k| inn.var_nt2[k].is_finite() && inn.cols.iter().all(|c| c[k].is_finite()))
+            .collect();
+        let rms = |c: &[f64]| {
+            let ss: f64 = used.iter().map(|&k| c[k] * c[k] * inn.var_nt2[k]).sum();
+            (ss / used.len().max(1) as f64).sqrt()
+        };
+        [rms(&inn.cols[0]), rms(&inn.cols[1])]
     }
 
     /// `field`: it changes the filter itself, not the regressors: rerun it with field
