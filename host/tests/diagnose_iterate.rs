@@ -129,7 +129,7 @@ fn two_effects_pump_current_and_lag_are_both_found() {
     }
 }
 
-/// Measured: 1: 1.88 → 0.0061 (1.40×); 2: 1.62 → 0.0058 (0.63×).
+/// Measured (2026-11-27): 1: 1.84 → 0.0056 (1.28×); 2: 1.62 → 0.0080 (0.86×).
 #[test]
 fn three_effects_pump_current_lag_and_fluxgate_temperature_are_all_found() {
     for seed in [1, 2] {
