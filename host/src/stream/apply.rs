@@ -4,7 +4,7 @@
 //! centred derivative, Tolles–Lawson's one-sample difference, one row to learn whether a
 //! time gap follows.
 use super::rows::RowFilter;
-use super::stage::{Feeder, Figures, Found, KfStage, Pending, SensorStage, StageRow, TlStage};
+use super::stage::{Feeder, Figures, Found, Pending, SensorStage, StageRow};
 use super::stats::Listed;
 use super::{Plan, Progress};
 use crate::calibration::coefficients::CoefficientFile;
@@ -205,14 +205,15 @@ pub(crate) fn run(
     let run = (src, plan, quiet, igrf);
     match spec {
         Some(spec) => with_model(spec, |model| {
-            let stage = KfStage::new(spec, model, plan, est, coeffs)?;
-            run_stage(run, SensorStage::Kf(stage), &spec.text(), out, &header)
+            let stage = SensorStage::new(Some((spec, model)), plan, est, coeffs)?;
+            run_stage(run, stage, out, &header)
         }),
-        None => {
-            let stage = TlStage::new(plan, coeffs)?;
-            let model = stage.model().to_string();
-            run_stage(run, SensorStage::Tl(stage), &model, out, &header)
-        }
+        None => run_stage(
+            run,
+            SensorStage::new(None, plan, est, coeffs)?,
+            out,
+            &header,
+        ),
     }
 }
 
@@ -222,19 +223,18 @@ type Header<'a> = dyn Fn(&mut dyn Write, &str, bool) -> Result<()> + 'a;
 fn run_stage(
     (src, plan, quiet, igrf): (&Source, &Plan, bool, bool),
     mut stage: SensorStage<'_>,
-    model: &str,
     out: &Path,
     header: &Header,
 ) -> Result<RunResult> {
-    let kf = matches!(stage, SensorStage::Kf(_));
+    let model = stage.model().to_string();
     crate::io::trace::write_table_with(out, |w| {
-        header(w, model, kf)?;
+        header(w, &model, stage.is_kf())?;
         let mut emit = |r: StageRow| {
             let kf = r.anomaly.map(|(a, nu)| (a, nu, r.flags));
             write_row(w, &r.p, r.interference_nt, r.compensated_nt, kf, igrf)
         };
         let found = feed(src, plan, quiet, |p| stage.push(p, &mut emit))?;
         let figures = stage.finish(&mut emit)?;
-        Ok(RunResult::of_pass(model.to_string(), found, figures))
+        Ok(RunResult::of_pass(model, found, figures))
     })
 }

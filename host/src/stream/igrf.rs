@@ -55,10 +55,9 @@ impl Run {
 /// pass by 32 B each (issue 21: streamed `compensate` in constant memory).
 #[derive(Default)]
 pub struct GapWriter {
-    first: Option<(usize, f64)>,
-    last: Option<(usize, f64)>,
+    /// First, last and the count so far (its `runs` file is set at the end).
+    fill: GapFill,
     out: Option<BufWriter<File>>,
-    runs: u64,
 }
 
 impl GapWriter {
@@ -66,7 +65,8 @@ impl GapWriter {
         if !v.is_finite() {
             return Ok(());
         }
-        if let Some((a, va)) = self.last {
+        let fill = &mut self.fill;
+        if let Some((a, va)) = fill.last {
             if row > a + 1 {
                 let run = Run {
                     before: a,
@@ -82,30 +82,25 @@ impl GapWriter {
                     )),
                 };
                 out.write_all(&run.to_bytes())?;
-                self.runs += 1;
+                fill.count += 1;
             }
         }
-        self.first.get_or_insert((row, v));
-        self.last = Some((row, v));
+        fill.first.get_or_insert((row, v));
+        fill.last = Some((row, v));
         Ok(())
     }
 
     /// The runs written, for the compensation pass to read.
     fn finish(self) -> Result<GapFill> {
-        let runs = match self.out {
-            Some(out) => Some(Arc::new(
-                out.into_inner()
-                    .map_err(|e| e.into_error())
-                    .context("writing the core field's gaps")?,
-            )),
-            None => None,
-        };
-        Ok(GapFill {
-            first: self.first,
-            last: self.last,
-            runs,
-            count: self.runs,
-        })
+        let mut fill = self.fill;
+        if let Some(out) = self.out {
+            let file = out
+                .into_inner()
+                .map_err(|e| e.into_error())
+                .context("writing the core field's gaps")?;
+            fill.runs = Some(Arc::new(file));
+        }
+        Ok(fill)
     }
 }
 

@@ -1,14 +1,13 @@
 //! Several magnetometers streamed (issue 19): one read of the file per pass drives one
-//! [`Feeder`] and one stage per sensor (the core filter, [`KfStage`], or Tolles–Lawson,
-//! [`TlStage`], by its set's method, built as the one-sensor stream builds them), and
-//! each output row is written once every sensor has finished it, in the in-memory
-//! several-sensor layout (`cli::multi::output_table`): `t`, per sensor `mag_K`,
-//! `interference_mag_K`, `compensated_mag_K`, `anomaly_mag_K` (Kalman filter only),
-//! `flags_mag_K`, then the gradients, then `lat`, `lon`, `alt`, `line`, `LINE`. Memory:
-//! each sensor's windows (the despiker's ±0.3 s, the filter's derivative, a Tolles–Lawson
-//! block), not the flight.
+//! [`Feeder`] and one [`SensorStage`] per sensor (the core filter or Tolles–Lawson, by its
+//! set's method, built as the one-sensor stream builds them), and each output row is
+//! written once every sensor has finished it, in the in-memory several-sensor layout
+//! (`cli::multi::output_table`): `t`, per sensor `mag_K`, `interference_mag_K`,
+//! `compensated_mag_K`, `anomaly_mag_K` (Kalman filter only), `flags_mag_K`, then the
+//! gradients, then `lat`, `lon`, `alt`, `line`, `LINE`. Memory: each sensor's windows (the
+//! despiker's ±0.3 s, the filter's derivative, a Tolles–Lawson block), not the flight.
 use super::apply::{feed_rows, RunResult};
-use super::stage::{Feeder, Figures, Found, KfStage, Pending, SensorStage, StageRow, TlStage};
+use super::stage::{Feeder, Figures, Found, Pending, SensorStage, StageRow};
 use super::StreamSummary;
 use super::{prepare, summary, unstreamable, Opened, Prepared, SensorRun, StreamInput};
 use crate::calibration::coefficients::CoefficientFile;
@@ -106,22 +105,21 @@ pub fn compensate_several(
     let runs = with_models(&specs, |models| -> Result<Vec<(String, Found, Figures)>> {
         let mut models = models.into_iter();
         let mut stages = Vec::new();
-        let mut model_names = Vec::new();
         for (p, s) in prepared.iter().zip(sensors) {
-            let stage = match &p.spec {
-                Some(spec) => {
-                    let model = models.next().context("internal: a model short")?;
-                    model_names.push(spec.text());
-                    SensorStage::Kf(KfStage::new(spec, model, &p.plan, est, s.coeffs)?)
-                }
-                None => {
-                    let tl = TlStage::new(&p.plan, s.coeffs).with_context(|| sensor_context(s))?;
-                    model_names.push(tl.model().to_string());
-                    SensorStage::Tl(tl)
-                }
+            let kf_model = match &p.spec {
+                Some(spec) => Some((spec, models.next().context("internal: a model short")?)),
+                None => None,
             };
-            stages.push(stage);
+            let tl = kf_model.is_none();
+            let stage = SensorStage::new(kf_model, &p.plan, est, s.coeffs);
+            // A Tolles–Lawson set's refusal names its sensor, as `prepare` names its own.
+            stages.push(if tl {
+                stage.with_context(|| sensor_context(s))?
+            } else {
+                stage?
+            });
         }
+        let model_names: Vec<String> = stages.iter().map(|s| s.model().to_string()).collect();
         let done = crate::io::trace::write_table_with(out, |w| {
             table.header(w, head)?;
             run_all(&source, &prepared, stages, &table, w, quiet)

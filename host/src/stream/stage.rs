@@ -142,8 +142,9 @@ pub(crate) struct Feeder<'p> {
     gap_count: usize,
     prev_t: Option<f64>,
     k: usize,
-    /// Where the core field's gaps are read (a computed core field only).
-    core_gaps: Option<GapCursor>,
+    /// A computed core field: the model at the row's date (kept: its coefficients are
+    /// interpolated once per date, not per row), and where its gaps are read.
+    core: Option<(IgrfScan, GapCursor)>,
 }
 
 impl<'p> Feeder<'p> {
@@ -161,7 +162,10 @@ impl<'p> Feeder<'p> {
             gap_count: 0,
             prev_t: None,
             k: 0,
-            core_gaps: plan.igrf.as_ref().map(|(_, fill)| fill.cursor()),
+            core: plan
+                .igrf
+                .as_ref()
+                .map(|(_, fill)| (IgrfScan::default(), fill.cursor())),
         }
     }
 
@@ -171,9 +175,8 @@ impl<'p> Feeder<'p> {
         let cols = &plan.cols;
         let mut rs = row_sample(row, cols, plan.base0, &plan.offsets);
         self.positions.check(&mut rs.sample, |_| {});
-        if let (Some((source, _)), Some(gaps)) = (&plan.igrf, &mut self.core_gaps) {
+        if let (Some((source, _)), Some((scan, gaps))) = (&plan.igrf, &mut self.core) {
             let year = super::igrf::row_year(source, row, k)?;
-            let mut scan = IgrfScan::default();
             let v = scan.value(year, cols, row)?;
             rs.sample.igrf_nt = if v.is_finite() { v } else { gaps.value(k)? };
         }
@@ -379,6 +382,8 @@ pub(crate) struct Figures {
 /// path builds it) over rows pushed in order; each row comes back once the row after it
 /// has been seen (a time gap after it flags it too).
 pub(crate) struct KfStage<'m> {
+    /// The model's text, as the in-memory run names it.
+    model: String,
     comp: Box<HostCompensator<'m>>,
     mask: Vec<bool>,
     buf: Vec<f32>,
@@ -418,6 +423,7 @@ impl<'m> KfStage<'m> {
         let k = model.coefficient_count();
         let comp = Box::new(filter::build(spec, model, cfg, Some(&given), &[])?);
         Ok(Self {
+            model: spec.text(),
             comp,
             mask,
             buf: vec![0.0f32; k],
@@ -557,11 +563,6 @@ impl TlStage {
         })
     }
 
-    /// The terms' name, as the in-memory run names the model.
-    pub fn model(&self) -> &str {
-        &self.model
-    }
-
     /// A row from the [`Feeder`]; `out` gets the rows finished by now.
     pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<()> {
         if p.after_gap {
@@ -628,7 +629,33 @@ pub(crate) enum SensorStage<'m> {
     Tl(TlStage),
 }
 
-impl SensorStage<'_> {
+impl<'m> SensorStage<'m> {
+    /// The stage a set's method asks for: the core filter with the set's model (and its
+    /// built `Model`), or Tolles–Lawson without one.
+    pub fn new(
+        kf_model: Option<(&ModelSpec, Model<'m>)>,
+        plan: &Plan,
+        est: &EstimatorSettings,
+        coeffs: &CoefficientFile,
+    ) -> Result<Self> {
+        Ok(match kf_model {
+            Some((spec, model)) => Self::Kf(KfStage::new(spec, model, plan, est, coeffs)?),
+            None => Self::Tl(TlStage::new(plan, coeffs)?),
+        })
+    }
+
+    /// The model's name, as the in-memory run gives it.
+    pub fn model(&self) -> &str {
+        match self {
+            Self::Kf(s) => &s.model,
+            Self::Tl(s) => &s.model,
+        }
+    }
+
+    pub fn is_kf(&self) -> bool {
+        matches!(self, Self::Kf(_))
+    }
+
     pub fn push(&mut self, p: Pending, out: &mut dyn FnMut(StageRow) -> Result<()>) -> Result<()> {
         match self {
             Self::Kf(s) => s.push(p, out),
