@@ -168,29 +168,57 @@ fn to_body(ned: [f64; 3], roll: f64, pitch: f64, yaw: f64) -> [f64; 3] {
 /// GPS time of day at the capture start (12:00:00 UTC).
 pub const GPS_T0_S: f64 = 43_200.0;
 
+/// The synthetic field: |F| 52,000 nT, inclination 70°, declination −14°, in NED (nT).
+fn earth_ned_nt() -> [f64; 3] {
+    let (incl, decl) = (70f64.to_radians(), (-14f64).to_radians());
+    [
+        EARTH_F_NT * incl.cos() * decl.cos(),
+        EARTH_F_NT * incl.cos() * decl.sin(),
+        EARTH_F_NT * incl.sin(),
+    ]
+}
+
+const EARTH_F_NT: f64 = 52_000.0;
+
+const SPEED_MPS: f64 = 60.0;
+
+/// The aircraft at `t` s: (yaw, roll, pitch) in rad and the distance flown (m). A weaving
+/// east-bound line: heading 90° ± 20°, small pitch and roll oscillations.
+fn state(t: f64) -> (f64, f64, f64, f64) {
+    let yaw = (90.0 + 20.0 * (std::f64::consts::TAU * t / 15.0).sin()).to_radians();
+    let roll = (8.0 * (std::f64::consts::TAU * t / 7.0).sin()).to_radians();
+    let pitch = (3.0 * (std::f64::consts::TAU * t / 5.0).sin()).to_radians();
+    (yaw, roll, pitch, SPEED_MPS * t)
+}
+
+fn in_window(w: Option<(f64, f64)>, t: f64) -> bool {
+    w.is_some_and(|(a, b)| t >= a && t < b)
+}
+
+/// The capture of `spec`'s flight: each stream with its own phase, so lines of different
+/// ports never coincide; then the line ends lost and the bytes corrupted as asked.
 pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
     let mut rng = Prng::new(spec.seed);
+    let (mut chunks, scalar_t_s) = scalar_chunks(spec, &mut rng);
+    chunks.extend(flux_chunks(spec, &mut rng));
+    chunks.extend(gps_chunks(spec));
+    chunks.sort_by_key(|c| c.t_us);
+    let mut cap = Capture {
+        chunks,
+        scalar_t_s,
+        corrupted_bytes: 0,
+        payload_bytes: 0,
+    };
+    damage(&mut cap, spec, &mut rng);
+    cap
+}
+
+/// The scalar port's lines (one sensor's `$ nT,quality` or a counter line `M,…`) and
+/// their times (s).
+fn scalar_chunks(spec: &FlightSpec, rng: &mut Prng) -> (Vec<Chunk>, Vec<f64>) {
+    let ned = earth_ned_nt();
     let mut chunks = Vec::new();
     let mut scalar_t_s = Vec::new();
-    let (f_nt, incl, decl) = (52_000.0f64, 70f64.to_radians(), (-14f64).to_radians());
-    let ned = [
-        f_nt * incl.cos() * decl.cos(),
-        f_nt * incl.cos() * decl.sin(),
-        f_nt * incl.sin(),
-    ];
-    let speed_mps = 60.0;
-    let (lat0, lon0, alt_m) = (45.5f64, -73.5f64, 300.0f64);
-    let state = |t: f64| {
-        // weaving east-bound line: heading 90° ± 20°, small pitch and roll oscillations
-        let yaw = (90.0 + 20.0 * (std::f64::consts::TAU * t / 15.0).sin()).to_radians();
-        let roll = (8.0 * (std::f64::consts::TAU * t / 7.0).sin()).to_radians();
-        let pitch = (3.0 * (std::f64::consts::TAU * t / 5.0).sin()).to_radians();
-        let x_m = speed_mps * t;
-        (yaw, roll, pitch, x_m)
-    };
-    let in_window = |w: Option<(f64, f64)>, t: f64| w.is_some_and(|(a, b)| t >= a && t < b);
-
-    // each stream has its own phase so lines of different ports never coincide
     let n_scalar = (spec.duration_s * spec.scalar_hz).round() as u64;
     for k in 0..n_scalar {
         let t = k as f64 / spec.scalar_hz + 0.05;
@@ -199,7 +227,7 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
         let bn = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
         let anomaly = 30.0 * (-((x_m - 900.0) / 200.0).powi(2)).exp();
         let interference = (3.0 * b[0] - 2.0 * b[1] + 1.5 * b[2]) / bn + 4.0;
-        let total = f_nt + anomaly + interference + 0.01 * rng.gauss();
+        let total = EARTH_F_NT + anomaly + interference + 0.01 * rng.gauss();
         let bytes = if spec.sensors <= 1 {
             format!("$ {total:.4},0999\r\n")
         } else {
@@ -210,7 +238,7 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
                 let anomaly = 30.0 * (-((x_m - d_m - 900.0) / 200.0).powi(2)).exp();
                 let k = 1.0 + 0.5 * i as f64;
                 let interference = k * (3.0 * b[0] - 2.0 * b[1] + 1.5 * b[2]) / bn + 4.0 * k;
-                let field = f_nt + anomaly + interference + 0.01 * rng.gauss();
+                let field = EARTH_F_NT + anomaly + interference + 0.01 * rng.gauss();
                 let dead = spec
                     .dead_channel_s
                     .is_some_and(|(c, a, e)| c == i && t >= a && t < e);
@@ -229,6 +257,13 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
         });
         scalar_t_s.push(t);
     }
+    (chunks, scalar_t_s)
+}
+
+/// The fluxgate port's lines (body-frame vector, 0.5 nT noise), none in the dropout.
+fn flux_chunks(spec: &FlightSpec, rng: &mut Prng) -> Vec<Chunk> {
+    let ned = earth_ned_nt();
+    let mut chunks = Vec::new();
     let n_flux = (spec.duration_s * spec.flux_hz).round() as u64;
     for k in 0..n_flux {
         let t = k as f64 / spec.flux_hz + 0.002;
@@ -249,6 +284,13 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
             bytes: line.into_bytes(),
         });
     }
+    chunks
+}
+
+/// The GPS port's sentences (GGA, RMC, VTG; no fix in the outage).
+fn gps_chunks(spec: &FlightSpec) -> Vec<Chunk> {
+    let (lat0, lon0, alt_m) = (45.5f64, -73.5f64, 300.0f64);
+    let mut chunks = Vec::new();
     let n_gps = (spec.duration_s * spec.gps_hz).round() as u64;
     for k in 0..n_gps {
         let t = k as f64 / spec.gps_hz + 0.02;
@@ -256,7 +298,7 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
         let (yaw, _, _, x_m) = state(t);
         let lat = lat0;
         let lon = lon0 + x_m / (111_320.0 * lat0.to_radians().cos());
-        let kn = speed_mps * 3600.0 / 1852.0;
+        let kn = SPEED_MPS * 3600.0 / 1852.0;
         let trk = yaw.to_degrees().rem_euclid(360.0);
         let mut lines = Vec::new();
         if in_window(spec.gps_outage_s, t) {
@@ -295,14 +337,11 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
             });
         }
     }
-    chunks.sort_by_key(|c| c.t_us);
+    chunks
+}
 
-    let mut cap = Capture {
-        chunks,
-        scalar_t_s,
-        corrupted_bytes: 0,
-        payload_bytes: 0,
-    };
+/// Lost line ends and corrupted bytes, as `spec` asks.
+fn damage(cap: &mut Capture, spec: &FlightSpec, rng: &mut Prng) {
     let scalar_lines = cap.chunks.iter_mut().filter(|c| c.port == Port::Scalar);
     for (k, c) in scalar_lines.enumerate() {
         if spec.lost_line_ends.contains(&k) {
@@ -325,7 +364,6 @@ pub fn synthetic_flight(spec: &FlightSpec) -> Capture {
             }
         }
     }
-    cap
 }
 
 impl Capture {

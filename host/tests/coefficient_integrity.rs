@@ -32,6 +32,29 @@ fn index_of(v: &Value, name: &str) -> usize {
         .unwrap_or_else(|| panic!("{name} in {v}"))
 }
 
+/// A calibrated simulated flight, its sealed coefficient file, and a scratch file the
+/// checks write their edited copies to.
+struct Fixture {
+    d: common::cli::Scratch,
+    trace: std::path::PathBuf,
+    edited: std::path::PathBuf,
+    sealed: Value,
+}
+
+impl Fixture {
+    fn compensate(&self, c: &Path) -> std::process::Output {
+        bin()
+            .arg("compensate")
+            .arg(&self.trace)
+            .arg("--coeffs")
+            .arg(c)
+            .arg("--out")
+            .arg(self.d.join("o.csv"))
+            .output()
+            .unwrap()
+    }
+}
+
 #[test]
 fn changed_values_are_refused_and_implausible_ones_named() {
     let d = tmp("integrity");
@@ -43,18 +66,13 @@ fn changed_values_are_refused_and_implausible_ones_named() {
         .as_str()
         .expect("calibrate writes a checksum");
     assert_eq!(sum.len(), 64, "SHA-256 hex: {sum}");
-    let compensate = |c: &Path| {
-        bin()
-            .arg("compensate")
-            .arg(&trace)
-            .arg("--coeffs")
-            .arg(c)
-            .arg("--out")
-            .arg(d.join("o.csv"))
-            .output()
-            .unwrap()
+    let f = Fixture {
+        edited: d.join("edited.json"),
+        d,
+        trace,
+        sealed,
     };
-    let ok = compensate(&coeffs);
+    let ok = f.compensate(&coeffs);
     assert!(
         ok.status.success(),
         "{}",
@@ -64,15 +82,25 @@ fn changed_values_are_refused_and_implausible_ones_named() {
         !String::from_utf8_lossy(&ok.stderr).contains("checksum"),
         "a sealed file loads without a note"
     );
+    changed_values_are_refused(&f);
+    let old = unsealed_loads_with_a_note(&f);
+    implausible_values_are_named(&f, &old);
+    unphysical_fluxgate_calibrations_are_not_uploaded(&f, &old);
+    std::fs::remove_dir_all(&f.d).ok();
+}
 
+/// A value changed after `calibrate` is refused by `compensate` and `upload`; reordered
+/// entries are not a change.
+fn changed_values_are_refused(f: &Fixture) {
+    let (edited, sealed) = (&f.edited, &f.sealed);
+    let compensate = |c: &Path| f.compensate(c);
     const CHANGED: &str = "does not match its checksum";
-    let edited = d.join("edited.json");
     let expect_refused = |v: &Value, what: &str| {
-        write(&edited, v);
-        let out = compensate(&edited);
+        write(edited, v);
+        let out = compensate(edited);
         let e = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && e.contains(CHANGED), "{what}: {e}");
-        let e = run_err(bin().arg("upload").arg(&edited));
+        let e = run_err(bin().arg("upload").arg(edited));
         assert!(e.contains(CHANGED), "upload, {what}: {e}");
     };
     // Two induced coefficients' values swapped.
@@ -108,24 +136,28 @@ fn changed_values_are_refused_and_implausible_ones_named() {
     let mut v = sealed.clone();
     v["coefficients"].as_array_mut().unwrap().reverse();
     v.as_object_mut().unwrap().remove("provenance");
-    std::fs::write(&edited, serde_json::to_string(&v).unwrap()).unwrap();
-    let out = compensate(&edited);
+    std::fs::write(edited, serde_json::to_string(&v).unwrap()).unwrap();
+    let out = compensate(edited);
     assert!(
         out.status.success(),
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
 
+/// Without its checksum a file loads with a note (stderr and `--json`); returns it.
+fn unsealed_loads_with_a_note(f: &Fixture) -> Value {
+    let (d, trace, edited, sealed) = (&f.d, &f.trace, &f.edited, &f.sealed);
     // No checksum: loads, with a note; then each implausible value is named in words.
     let mut old = sealed.clone();
     old.as_object_mut().unwrap().remove("checksum");
-    write(&edited, &old);
+    write(edited, &old);
     let (_, e) = run_ok_with_stderr(
         bin()
             .arg("compensate")
-            .arg(&trace)
+            .arg(trace)
             .arg("--coeffs")
-            .arg(&edited)
+            .arg(edited)
             .arg("--out")
             .arg(d.join("o.csv")),
     );
@@ -134,9 +166,9 @@ fn changed_values_are_refused_and_implausible_ones_named() {
     let (json, _) = run_ok_with_stderr(
         bin()
             .arg("compensate")
-            .arg(&trace)
+            .arg(trace)
             .arg("--coeffs")
-            .arg(&edited)
+            .arg(edited)
             .arg("--json")
             .arg("--out")
             .arg(d.join("o.csv")),
@@ -149,6 +181,13 @@ fn changed_values_are_refused_and_implausible_ones_named() {
             .any(|w| w.as_str().is_some_and(|w| w.contains("no checksum"))),
         "{warnings:?}"
     );
+    old
+}
+
+/// Each implausible value of an unsealed file is refused, named in words.
+fn implausible_values_are_named(f: &Fixture, old: &Value) {
+    let edited = &f.edited;
+    let compensate = |c: &Path| f.compensate(c);
     let k = old["coefficients"].as_array().unwrap().len();
     let cases: Vec<Case> = vec![
         (
@@ -194,8 +233,8 @@ fn changed_values_are_refused_and_implausible_ones_named() {
     for (what, edit, said) in cases {
         let mut v = old.clone();
         edit(&mut v);
-        write(&edited, &v);
-        let out = compensate(&edited);
+        write(edited, &v);
+        let out = compensate(edited);
         let e = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success(), "{what}: accepted");
         assert!(e.contains(said), "{what}: {e}");
@@ -205,7 +244,12 @@ fn changed_values_are_refused_and_implausible_ones_named() {
             e.lines().find(|l| l.contains(said)).unwrap_or("")
         );
     }
+}
 
+/// A fluxgate calibration only bad data gives, or a left-handed one, is refused by
+/// `upload`, checksum or not.
+fn unphysical_fluxgate_calibrations_are_not_uploaded(f: &Fixture, old: &Value) {
+    let edited = &f.edited;
     // A fluxgate calibration only bad data gives (one zero row: −38,736 nT, z scale
     // 1.75) or a left-handed one is refused by `upload`, checksum or not.
     let bad_fluxcal: [Case; 3] = [
@@ -232,12 +276,11 @@ fn changed_values_are_refused_and_implausible_ones_named() {
     for (what, edit, said) in bad_fluxcal {
         let mut v = old.clone();
         edit(&mut v);
-        write(&edited, &v);
-        let e = run_err(bin().arg("upload").arg(&edited));
+        write(edited, &v);
+        let e = run_err(bin().arg("upload").arg(edited));
         assert!(
             e.contains(said) && e.contains("not uploaded"),
             "{what}: {e}"
         );
     }
-    std::fs::remove_dir_all(&d).ok();
 }
