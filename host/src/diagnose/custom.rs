@@ -3,9 +3,9 @@
 //! coefficients), with a model built from any `Term` values. Lets a user check a new
 //! effect end to end before it is pasted into `core/src/model` (docs/adding-an-effect.md).
 
-use crate::estimate::kf::{self, HostCompensator};
+use crate::estimate::kf;
 use crate::flight::Flight;
-use anyhow::{anyhow, bail, Result};
+use anyhow::{bail, Result};
 use magcomp_core::model::{Model, Term};
 
 /// Interference estimate per sample (nT) and the final coefficients, post-flight.
@@ -29,30 +29,18 @@ pub fn post_flight_with_terms(
     kf::set_run_mode(&mut cfg, false);
     let model = Model { field, terms };
     let k = model.coefficient_count();
-    let mut comp = HostCompensator::new(model, cfg).map_err(|e| {
-        anyhow!(
-            "cannot build the filter: {}",
-            crate::model::errors::compensator_error(&e)
-        )
-    })?;
+    // Named by its terms in the filter's errors, as a catalogue model by its text.
+    let names: Vec<&str> = terms.iter().map(|t| t.name()).collect();
+    let label = format!("{}{}", if field { "field+" } else { "" }, names.join("+"));
+    let mut comp = kf::build(&label, model, cfg, None, &[])?;
     for s in &flight.samples {
         comp.push(s);
     }
     while comp.flush().is_some() {}
     let mut c = vec![0.0f32; k];
     comp.coefficients(&mut c);
-    let mut apply = HostCompensator::new(model, cfg).map_err(|e| {
-        anyhow!(
-            "cannot build the filter: {}",
-            crate::model::errors::compensator_error(&e)
-        )
-    })?;
-    apply.set_coefficients(&c).map_err(|e| {
-        anyhow!(
-            "coefficients rejected: {}",
-            crate::model::errors::compensator_error(&e)
-        )
-    })?;
+    let c64: Vec<f64> = c.iter().map(|v| *v as f64).collect();
+    let mut apply = kf::build(&label, model, cfg, Some(&c64), &[])?;
     let mut out = Vec::with_capacity(flight.len());
     for s in &flight.samples {
         if let Some(o) = apply.push(s) {
@@ -69,5 +57,5 @@ pub fn post_flight_with_terms(
             flight.len()
         );
     }
-    Ok((out, c.iter().map(|v| *v as f64).collect()))
+    Ok((out, c64))
 }

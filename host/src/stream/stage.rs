@@ -421,7 +421,7 @@ impl<'m> KfStage<'m> {
         let given: Vec<f64> = coeffs.coefficients.iter().map(|c| c.value).collect();
         let mask = filter::interference_mask(&model);
         let k = model.coefficient_count();
-        let comp = Box::new(filter::build(spec, model, cfg, Some(&given), &[])?);
+        let comp = Box::new(filter::build(&spec.text(), model, cfg, Some(&given), &[])?);
         Ok(Self {
             model: spec.text(),
             comp,

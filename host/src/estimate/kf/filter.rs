@@ -4,7 +4,6 @@
 //! `compensate` (`crate::stream`) both build it here, so they cannot drift apart.
 
 use super::KfOptions;
-use crate::model::spec::ModelSpec;
 use anyhow::{bail, Result};
 use magcomp_core::compensator::{Compensator, CompensatorConfig, TiePoint};
 use magcomp_core::epoch::Epoch;
@@ -70,28 +69,23 @@ pub(crate) fn set_run_mode(cfg: &mut CompensatorConfig, realtime: bool) {
     }
 }
 
-/// The compensator for `model` (parsed from `spec`) at `cfg`: with `coefficients` applied
-/// (survey mode), else calibrating with the `held` combinations (prior-σ units, model
-/// order) held at their prior.
+/// The compensator for `model` (`model_text` names it in errors) at `cfg`: with
+/// `coefficients` applied (survey mode), else calibrating with the `held` combinations
+/// (prior-σ units, model order) held at their prior. Every host filter is built here.
 pub(crate) fn build<'m>(
-    spec: &ModelSpec,
+    model_text: &str,
     model: Model<'m>,
     cfg: CompensatorConfig,
     coefficients: Option<&[f64]>,
     held: &[Vec<f32>],
 ) -> Result<HostCompensator<'m>> {
     let mut comp = HostCompensator::new(model, cfg)
-        .map_err(|e| crate::model::errors::cannot_build(&spec.text(), &e))?;
+        .map_err(|e| crate::model::errors::cannot_build(model_text, &e))?;
     match coefficients {
         Some(c) => {
             let c32: Vec<f32> = c.iter().map(|v| *v as f32).collect();
             comp.set_coefficients(&c32).map_err(|e| {
-                crate::model::errors::do_not_fit(
-                    &spec.text(),
-                    c.len(),
-                    model.coefficient_count(),
-                    &e,
-                )
+                crate::model::errors::do_not_fit(model_text, c.len(), model.coefficient_count(), &e)
             })?;
         }
         None => {

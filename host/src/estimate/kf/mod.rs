@@ -12,7 +12,7 @@ mod parallel;
 mod stages;
 mod tuning;
 
-pub(crate) use filter::{base_config, set_run_mode};
+pub(crate) use filter::{base_config, build, set_run_mode};
 pub use filter::{HostCompensator, HOST_STATES, HOST_WINDOW};
 pub use stages::jackknife::{KfJackknife, INCONSISTENT_REFITS};
 pub use tuning::{

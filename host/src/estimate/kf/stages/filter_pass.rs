@@ -97,7 +97,7 @@ pub(crate) fn run(
     };
     let freeze_at = freeze_at(flight, opts, setup, coefficients.is_some());
     with_model(spec, |model| {
-        let mut comp = filter::build(spec, model, setup.cfg, coefficients, setup.held)?;
+        let mut comp = filter::build(&spec.text(), model, setup.cfg, coefficients, setup.held)?;
         let mask = interference_mask(&model);
         let k = model.coefficient_count();
         let mut outs = Vec::with_capacity(flight.len());
