@@ -303,8 +303,9 @@ fn a_set_the_one_sensor_stream_refuses_is_named() {
 /// Several-sensor files holding Tolles–Lawson sets, made once: every sensor's (`calibrate
 /// --sensors mag_1,mag_2,mag_3 --method tl`, which must hold each sensor's own `calibrate
 /// --sensors mag_K --method tl` set: there is no joint Tolles–Lawson), and a mix (mag_2's
-/// Tolles–Lawson set put in place of the joint file's Kalman-filter one; the command line
-/// takes one method for all).
+/// Tolles–Lawson set put in place of the joint file's Kalman-filter one, so the other two
+/// keep the three-sensor joint sets: `calibrate --sensor-method mag_2=tl` would run the
+/// joint filter on mag_1 and mag_3 alone).
 fn tl_files() -> (PathBuf, PathBuf) {
     static MADE: std::sync::OnceLock<(PathBuf, PathBuf)> = std::sync::OnceLock::new();
     MADE.get_or_init(|| {

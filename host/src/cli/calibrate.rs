@@ -3,12 +3,13 @@
 
 use super::args::{EstimatorArgs, LongFlightArgs, TraceInput};
 use super::multi::{MultiArgs, OneSensorRerun, SensorPlan};
+use super::multi_calibrate::{self, methods_asked, parse_sensor_methods};
 use super::summary_text::{print_summary, print_warnings};
 use crate::calibration::coefficients::Method;
 use crate::calibration::summary::summarise_with;
 use crate::calibration::{compensate_trace, SURVEY_TOLERANCE_NT};
 use crate::io::output::check_outputs;
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Clone, Debug)]
@@ -21,6 +22,15 @@ pub struct CalibrateArgs {
     pub long: LongFlightArgs,
     #[command(flatten)]
     pub multi: super::multi::MultiArgs,
+    /// With `--sensors` naming two or more: a method per sensor, `mag_K=tl|kf`, comma
+    /// separated, e.g. `mag_5=tl,mag_3=kf`. `tl`: that sensor alone by Tolles–Lawson, its
+    /// set as `--method tl` writes it; `kf`: in the joint Kalman filter, its set neither
+    /// cross-checked against TL18-OLS nor witnessed by its fluxgate (as `--method kf`).
+    /// The sensors not named follow `--method` (with `--method tl` a sensor named `kf` is
+    /// the Kalman filter's); one Kalman-filter sensor left is calibrated alone, as
+    /// `calibrate` calibrates one. The file keeps the `--sensors` order.
+    #[arg(long, value_name = "mag_K=tl|kf,...")]
+    pub sensor_method: Option<String>,
     /// Where to write the coefficients (JSON).
     #[arg(
         short = 'o',
@@ -48,15 +58,41 @@ impl OneSensorRerun for CalibrateArgs {
     }
 }
 
+/// `--sensor-method`, parsed (empty when not given), refused before the trace is read
+/// unless `--sensors` names two sensors or more.
+fn sensor_methods(a: &CalibrateArgs) -> Result<Vec<(String, Method)>> {
+    let Some(text) = &a.sensor_method else {
+        return Ok(Vec::new());
+    };
+    if a.multi.sensors.is_none() {
+        bail!("--sensor-method needs --sensors (a method for each of several magnetometers)");
+    }
+    if !a.multi.names_several(None) {
+        bail!(
+            "--sensor-method needs two sensors or more in --sensors (one sensor: its method \
+             is --method)"
+        );
+    }
+    parse_sensor_methods(text)
+}
+
 pub fn run(a: &CalibrateArgs) -> Result<()> {
     check_outputs(&[&a.input.trace], &[&a.output])?;
     crate::io::progress::force_progress(a.long.progress);
+    let asked = sensor_methods(a)?;
     let (trace, decimated) = a.input.read_for_calibration(&a.long)?;
     match a.multi.plan(&trace, a.input.map.as_deref())? {
         SensorPlan::Today => {}
         SensorPlan::One(map) => return run(&a.as_one_sensor(map)),
         SensorPlan::Several(sensors, _) => {
-            return super::multi::calibrate(&trace, &a.est.settings(), &sensors, &a.output);
+            let asked = methods_asked(&asked, &sensors)?;
+            return multi_calibrate::calibrate(
+                &trace,
+                &a.est.settings(),
+                &sensors,
+                &asked,
+                &a.output,
+            );
         }
     }
     let stage = crate::io::progress::Stage::new("calibration (all filter passes)");

@@ -12,6 +12,7 @@ pub mod demo;
 pub mod diagnose;
 pub mod monitor;
 pub mod multi;
+pub mod multi_calibrate;
 pub mod multi_stream;
 pub mod nmea;
 pub mod replay;

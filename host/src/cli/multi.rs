@@ -1,11 +1,10 @@
 //! `calibrate --sensors` and `compensate --sensors` (and what `report --sensors` shares
 //! with them): several magnetometers at once (docs/trace-format.md "Several
 //! magnetometers"). With one sensor (or none) the commands are today's, unchanged. A
-//! several-sensor `--coeffs` file brings its own sensors.
+//! several-sensor `--coeffs` file brings its own sensors. The several-sensor calibration
+//! itself is `multi_calibrate`.
 
-use crate::calibration::coefficients::{
-    coefficients_from_text, to_sealed_json, CoefficientFile, Method,
-};
+use crate::calibration::coefficients::{coefficients_from_text, CoefficientFile};
 use crate::calibration::result::Compensation;
 use crate::calibration::summary::{summarise, Summary};
 use crate::calibration::{compensate_trace, EstimatorSettings};
@@ -348,117 +347,6 @@ pub fn sets_of(
             .collect::<Result<Vec<_>>>()
             .map(|v| v.into_iter().unzip()),
     }
-}
-
-/// A sealed one-sensor file's text as it sits in a several-sensor file's `sensors` entry:
-/// the characters kept (so its checksum holds), the lines indented to the entry's depth.
-fn embedded(sealed: &str) -> Result<Box<RawValue>> {
-    let text = sealed.trim_end().replace('\n', "\n      ");
-    Ok(RawValue::from_string(text)?)
-}
-
-/// `calibrate --sensors`: the joint calibration, one file holding every sensor; with
-/// `--method tl`, each sensor's own Tolles–Lawson calibration (there is no joint one: TL has
-/// no anomaly states to share).
-pub fn calibrate(
-    trace: &Trace,
-    est: &EstimatorSettings,
-    sensors: &[SensorSpec],
-    out: &Path,
-) -> Result<()> {
-    if est.method == Method::Tl {
-        return calibrate_each_tl(trace, est, sensors, out);
-    }
-    let r = calibrate_joint(trace, est, sensors)?;
-    let mut entries = Vec::new();
-    eprintln!("several magnetometers, one anomaly (docs/model.md §7):");
-    for s in &r.sensors {
-        let file = s.chosen().coefficients.clone().context("no coefficients")?;
-        let alone_p = s
-            .alone
-            .coefficients
-            .as_ref()
-            .and_then(|c| c.predicted_error_nt);
-        eprintln!(
-            "  {} ({}, fluxgate {}): predicted error joint {}, alone {} nT: {} kept",
-            s.spec.name,
-            s.spec.scalar_column,
-            s.spec.flux_columns[0]
-                .trim_end_matches("_x")
-                .trim_end_matches("_X"),
-            fmt(s.predicted_error_nt),
-            fmt(alone_p),
-            if s.joint_chosen { "joint" } else { "alone" }
-        );
-        for w in s.joint.warnings.iter().chain(&s.chosen().warnings) {
-            eprintln!("warning: {w}");
-        }
-        entries.push(SensorEntry {
-            name: s.spec.name.clone(),
-            scalar_column: s.spec.scalar_column.clone(),
-            flux_columns: s.spec.flux_columns.clone(),
-            position_m: s.spec.position_m,
-            joint: s.joint_chosen,
-            joint_predicted_error_nt: s.predicted_error_nt,
-            alone_predicted_error_nt: alone_p,
-            alone_predicted_is_lower_bound: s.lever_arm.is_some_and(|l| l.exceeds_noise()),
-            coefficients: embedded(&to_sealed_json(&file)?)?,
-        });
-    }
-    write_multi(out, Some(r.sigma1), entries)
-}
-
-/// `calibrate --sensors … --method tl`: each sensor calibrated alone by Tolles–Lawson, as
-/// `calibrate --method tl` calibrates one, the sets kept in one file.
-fn calibrate_each_tl(
-    trace: &Trace,
-    est: &EstimatorSettings,
-    sensors: &[SensorSpec],
-    out: &Path,
-) -> Result<()> {
-    eprintln!("several magnetometers, each its own Tolles–Lawson calibration (no joint one):");
-    let mut entries = Vec::new();
-    for s in sensors {
-        let (_, comp) = compensate_trace(&sensor_trace(trace, s), est, None, false)
-            .with_context(|| format!("{} alone", s.name))?;
-        let file = comp.coefficients.clone().context("no coefficients")?;
-        eprintln!(
-            "  {} ({}): predicted error {} nT",
-            s.name,
-            s.scalar_column,
-            fmt(file.predicted_error_nt)
-        );
-        for w in &comp.warnings {
-            eprintln!("warning: {w}");
-        }
-        entries.push(SensorEntry {
-            name: s.name.clone(),
-            scalar_column: s.scalar_column.clone(),
-            flux_columns: s.flux_columns.clone(),
-            position_m: s.position_m,
-            joint: false,
-            joint_predicted_error_nt: None,
-            alone_predicted_error_nt: file.predicted_error_nt,
-            alone_predicted_is_lower_bound: false,
-            coefficients: embedded(&to_sealed_json(&file)?)?,
-        });
-    }
-    write_multi(out, None, entries)
-}
-
-fn write_multi(out: &Path, sigma1: Option<f64>, sensors: Vec<SensorEntry>) -> Result<()> {
-    let m = MultiFile {
-        format: MULTI_FORMAT.into(),
-        sigma1,
-        sensors,
-    };
-    crate::io::output::write_file(out, serde_json::to_string_pretty(&m)?)?;
-    eprintln!("wrote {}", out.display());
-    Ok(())
-}
-
-fn fmt(v: Option<f64>) -> String {
-    v.map_or("–".into(), |v| format!("{v:.4}"))
 }
 
 /// How `compensate --sensors` runs and reports.

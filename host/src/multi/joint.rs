@@ -26,11 +26,24 @@ fn alone_settings(est: &EstimatorSettings) -> EstimatorSettings {
     }
 }
 
-/// Calibrates `sensors` of `trace` alone and together.
+/// Calibrates `sensors` of `trace` alone and together; with `est.cross_check` (the
+/// default), each sensor checked against TL18-OLS.
 pub fn calibrate_joint(
     trace: &Trace,
     est: &EstimatorSettings,
     sensors: &[SensorSpec],
+) -> Result<JointResult> {
+    calibrate_joint_checking(trace, est, sensors, &vec![est.cross_check; sensors.len()])
+}
+
+/// [`calibrate_joint`] with the default's checks asked per sensor (`checked[j]`, for
+/// `calibrate --sensor-method mag_K=kf`): a sensor not checked is neither cross-checked
+/// against TL18-OLS nor offered its fluxgate-witnessed calibration, as `--method kf`.
+pub fn calibrate_joint_checking(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    sensors: &[SensorSpec],
+    checked: &[bool],
 ) -> Result<JointResult> {
     if sensors.len() < 2 || sensors.len() > MAX_SENSORS {
         bail!(
@@ -38,7 +51,14 @@ pub fn calibrate_joint(
             sensors.len()
         );
     }
-    let alone = calibrate_alone(trace, est, sensors)?;
+    if checked.len() != sensors.len() {
+        bail!(
+            "{} sensors but {} cross-check choices",
+            sensors.len(),
+            checked.len()
+        );
+    }
+    let alone = calibrate_alone(trace, est, sensors, checked)?;
     let files: Vec<CoefficientFile> = alone
         .iter()
         .map(|(_, c, _)| c.coefficients.clone().context("no coefficients"))
@@ -78,7 +98,7 @@ pub fn calibrate_joint(
             .as_ref()
             .and_then(|c| c.predicted_error_nt);
         let mut r = choose_result(s, alone_j, joint, predicted, alone_predicted, flight);
-        if est.cross_check {
+        if checked[j] {
             checked_against_least_squares(&mut r, &trace_j, est, flight)?;
         }
         r.lever_arm = levers[j];
@@ -97,20 +117,21 @@ pub fn calibrate_joint(
 
 /// Each sensor alone ([`Alone`]): its single-sensor calibration is what the joint run
 /// starts from; the witnessed one (`calibration::fluxgate_witness`) competes with the
-/// joint one.
+/// joint one where the sensor is `checked` (the default's checks).
 fn calibrate_alone(
     trace: &Trace,
     est: &EstimatorSettings,
     sensors: &[SensorSpec],
+    checked: &[bool],
 ) -> Result<Vec<Alone>> {
     let est1 = alone_settings(est);
     let mut alone = Vec::new();
-    for s in sensors {
+    for (s, &checked) in sensors.iter().zip(checked) {
         let t = sensor_trace(trace, s);
         let run = compensate_trace(&t, &est1, None, false)
             .with_context(|| format!("{} alone", s.name))?;
         // As the single-sensor default: `--method kf` keeps the model as given.
-        let witness = if est.cross_check {
+        let witness = if checked {
             fluxgate_witness::consider(&t, &est1, &run, &est1.model)
                 .with_context(|| format!("{} alone, with its fluxgate as a witness", s.name))?
         } else {
