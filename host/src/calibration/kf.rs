@@ -12,6 +12,12 @@ use crate::model::corrections::ScalarLag;
 use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Result};
 
+/// The Kalman filter's calibration (or, with `coeffs`, its application) as a sequence of
+/// stages: prepare ([`PreparedFlight`]: the flight read for the model, despiked, checked;
+/// an assumed ground speed) → corrections (the scalar's delay looked for here, then
+/// `estimate::corrections::CorrectedFlight`: `lag`, `fluxtemp`; the fluxgate's calibration,
+/// `estimate::kf::FluxgateStage`) → σ and noise → filter → coefficients → QC
+/// (`estimate::kf::stages`) → the coefficient file and the run's records.
 pub(super) fn run_kf_method(
     trace: &Trace,
     est: &EstimatorSettings,
@@ -20,17 +26,12 @@ pub(super) fn run_kf_method(
     model_text: &str,
 ) -> Result<(Flight, Compensation)> {
     let spec = ModelSpec::parse(model_text)?;
-    let mut flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
-    let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
-    let mut warnings = qc.warnings.clone();
-    let mut assumed_speed_mps = None;
-    if spec.field && !flight.has_track() {
-        let given = est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps));
-        let (v, warning) = crate::flight::input::assumed_ground_speed(given)?;
-        flight.assume_ground_speed(v);
-        assumed_speed_mps = Some(v);
-        warnings.push(warning);
-    }
+    let PreparedFlight {
+        flight,
+        qc,
+        mut warnings,
+        assumed_speed_mps,
+    } = PreparedFlight::of(trace, &spec, est, coeffs)?;
     // The default calibration looks for a scalar delay the model was not told of.
     let (spec, detected_lag) = if est.cross_check
         && coeffs.is_none()
@@ -90,6 +91,45 @@ pub(super) fn run_kf_method(
         withheld: qc.withheld,
     };
     Ok((flight, comp))
+}
+
+/// The prepare stage: the flight read from the trace for the model (its channels, the
+/// scalar's glitches blanked and the fluxgate's bridged: `Flight::from_trace`), its inputs
+/// checked (`qc::inputs`), and a ground speed assumed where the field model needs one and
+/// the trace has no track.
+struct PreparedFlight {
+    flight: Flight,
+    qc: crate::qc::inputs::InputCheck,
+    /// The checks' warnings, then the assumed speed's.
+    warnings: Vec<String>,
+    assumed_speed_mps: Option<f64>,
+}
+
+impl PreparedFlight {
+    fn of(
+        trace: &Trace,
+        spec: &ModelSpec,
+        est: &EstimatorSettings,
+        coeffs: Option<&CoefficientFile>,
+    ) -> Result<Self> {
+        let mut flight = Flight::from_trace(trace, &spec.channels(), &spec.relative_channels())?;
+        let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
+        let mut warnings = qc.warnings.clone();
+        let mut assumed_speed_mps = None;
+        if spec.field && !flight.has_track() {
+            let given = est.speed_mps.or(coeffs.and_then(|c| c.assumed_speed_mps));
+            let (v, warning) = crate::flight::input::assumed_ground_speed(given)?;
+            flight.assume_ground_speed(v);
+            assumed_speed_mps = Some(v);
+            warnings.push(warning);
+        }
+        Ok(Self {
+            flight,
+            qc,
+            warnings,
+            assumed_speed_mps,
+        })
+    }
 }
 
 /// The model with `lag` added, and the delay, when the flight shows one (with a warning

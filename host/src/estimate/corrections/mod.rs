@@ -19,6 +19,7 @@ use crate::io::trace::Trace;
 use crate::model::corrections::Preprocessing;
 use crate::model::spec::{InputCorrection, ModelSpec};
 use anyhow::{bail, Context, Result};
+use std::borrow::Cow;
 
 /// Whether the model names a term handled here.
 pub fn needed(spec: &ModelSpec) -> bool {
@@ -124,64 +125,90 @@ pub fn error_against_truth_nt(trace: &Trace, flight: &Flight, run: &KfRun) -> Op
 }
 
 /// Runs the compensator over a flight. With `lag` or `fluxtemp` in the model the flight is
-/// first pre-processed (scalar re-aligned, fluxgate corrected for temperature), then
-/// [`run_kf_estimator`] runs on it.
+/// first corrected ([`CorrectedFlight`]: scalar re-aligned, fluxgate corrected for
+/// temperature), then [`run_kf_estimator`] runs on it.
 pub fn run_kf(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
-    if needed(&opts.model) {
-        return run_kf_preprocessed(flight, opts);
-    }
-    run_kf_estimator(flight, opts)
+    let corrected = CorrectedFlight::prepare(flight, opts)?;
+    let mut run = run_kf_estimator(&corrected.flight, opts)?;
+    corrected.finish(&mut run, flight);
+    Ok(run)
 }
 
-/// Estimates what the model's pre-processing terms need (or takes `opts.preprocessing`),
-/// prepares the flight and runs the estimator on it. The interference is reported against
-/// the *recorded* scalar (`mag − compensated`), so it includes what the delay did to the
-/// reading, as a compensated output must.
-fn run_kf_preprocessed(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
-    let given = opts.preprocessing.clone().unwrap_or_default();
-    let mut prep = Preprocessing::default();
-    let mut f = flight.clone();
-    if opts.model.corrects(InputCorrection::Lag) {
-        let l = match given.scalar_lag {
-            Some(l) => l,
-            None => lag::estimate(flight, &opts.model)?,
-        };
-        f = lag::realign(&f, l.lag_s);
-        prep.scalar_lag = Some(l);
-    }
-    if let Some(ch) = fluxtemp_channel(&opts.model) {
-        let idx = f
-            .channels
-            .iter()
-            .position(|x| *x == ch)
-            .context("internal: the flight lacks the model's temperature channel")?;
-        let c = match given.fluxgate_temperature {
-            Some(c) if c.channel == ch => c,
-            Some(c) => bail!(
-                "the fluxgate temperature correction is for channel '{}', the model reads '{ch}'",
-                c.channel
-            ),
-            None => {
-                // A first pass of the estimator gives the interference removed from the
-                // scalar reference (the fluxgate does not see the aircraft's field there).
-                let first = run_kf_estimator(&f, &crate::estimate::kf::first_pass(opts))?;
-                fluxtemp::fit_flight(&f, idx, &first.interference_nt)?.correction
-            }
-        };
-        f = c.apply_to_flight(&f, idx);
-        prep.fluxgate_temperature = Some(c);
-    }
-    let mut run = run_kf_estimator(&f, opts)?;
-    if prep.scalar_lag.is_some() {
-        for ((i, c), m) in run
-            .interference_nt
-            .iter_mut()
-            .zip(&run.compensated_nt)
-            .zip(&flight.mag_nt)
-        {
-            *i = m - c;
+/// The corrections stage: the flight the estimator runs on, with the input corrections the
+/// model names (`lag`, `fluxtemp:CH`) estimated (or taken from `opts.preprocessing`) and
+/// applied; the flight as given, not copied, when it names none.
+pub struct CorrectedFlight<'f> {
+    pub flight: Cow<'f, Flight>,
+    /// What was applied; `None` when the model names no input correction.
+    pub preprocessing: Option<Preprocessing>,
+}
+
+impl<'f> CorrectedFlight<'f> {
+    /// The lag first (its estimate uses band-passed data, which a few nT of fluxgate drift
+    /// hardly move), then the temperature fit on the re-aligned flight (module docs).
+    pub fn prepare(flight: &'f Flight, opts: &KfOptions) -> Result<Self> {
+        if !needed(&opts.model) {
+            return Ok(Self {
+                flight: Cow::Borrowed(flight),
+                preprocessing: None,
+            });
         }
+        let given = opts.preprocessing.clone().unwrap_or_default();
+        let mut prep = Preprocessing::default();
+        let mut f = flight.clone();
+        if opts.model.corrects(InputCorrection::Lag) {
+            let l = match given.scalar_lag {
+                Some(l) => l,
+                None => lag::estimate(flight, &opts.model)?,
+            };
+            f = lag::realign(&f, l.lag_s);
+            prep.scalar_lag = Some(l);
+        }
+        if let Some(ch) = fluxtemp_channel(&opts.model) {
+            let idx = f
+                .channels
+                .iter()
+                .position(|x| *x == ch)
+                .context("internal: the flight lacks the model's temperature channel")?;
+            let c = match given.fluxgate_temperature {
+                Some(c) if c.channel == ch => c,
+                Some(c) => bail!(
+                    "the fluxgate temperature correction is for channel '{}', the model reads '{ch}'",
+                    c.channel
+                ),
+                None => {
+                    // A first pass of the estimator gives the interference removed from the
+                    // scalar reference (the fluxgate does not see the aircraft's field there).
+                    let first = run_kf_estimator(&f, &crate::estimate::kf::first_pass(opts))?;
+                    fluxtemp::fit_flight(&f, idx, &first.interference_nt)?.correction
+                }
+            };
+            f = c.apply_to_flight(&f, idx);
+            prep.fluxgate_temperature = Some(c);
+        }
+        Ok(Self {
+            flight: Cow::Owned(f),
+            preprocessing: Some(prep),
+        })
     }
-    run.preprocessing = Some(prep);
-    Ok(run)
+
+    /// The run as the recorded flight sees it: with a delay, the interference against the
+    /// *recorded* scalar (`mag − compensated`), so it includes what the delay did to the
+    /// reading, as a compensated output must; the corrections applied, in the run.
+    pub fn finish(self, run: &mut KfRun, recorded: &Flight) {
+        let Some(prep) = self.preprocessing else {
+            return;
+        };
+        if prep.scalar_lag.is_some() {
+            for ((i, c), m) in run
+                .interference_nt
+                .iter_mut()
+                .zip(&run.compensated_nt)
+                .zip(&recorded.mag_nt)
+            {
+                *i = m - c;
+            }
+        }
+        run.preprocessing = Some(prep);
+    }
 }

@@ -6,6 +6,7 @@ use crate::flight::Flight;
 use crate::model::spec::ModelSpec;
 use anyhow::Result;
 use magcomp_core::compensator::Output;
+use std::ops::ControlFlow;
 
 pub(crate) mod filter;
 mod parallel;
@@ -270,55 +271,92 @@ pub(crate) fn first_pass(opts: &KfOptions) -> KfOptions {
 }
 
 /// The estimator on a flight as given. With `fluxcal` in the model the fluxgate is first
-/// calibrated against the scalar (the stored calibration, or one fitted on this flight to
-/// the scalar minus a first pass's interference) and the filter runs on the calibrated
-/// fluxgate. A fit the flight does not determine is not applied: the fluxgate is used as
-/// measured (identity calibration) and a warning says so. In real time without a stored
-/// calibration the fluxgate is used as measured, as on the board before `SETFLUX`.
+/// calibrated ([`FluxgateStage`]) and the filter runs on the calibrated fluxgate, reusing
+/// what the stage's first run chose.
 pub fn run_kf_estimator(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {
     if !opts.model.calibrates_fluxgate() {
         return run_kf_on(flight, opts);
     }
-    let mut not_calibrated = None;
-    let mut reusable = None;
-    let (calibration, fit) = match opts.fluxgate_calibration {
-        Some(c) => (c, None),
-        None if opts.realtime => (fluxcal::FluxgateCalibration::IDENTITY, None),
-        None => {
-            // `fluxcal` adds no filter state, so the first pass is the model without it.
-            let (mut first, chosen) = stages::calibrate(flight, &first_pass(opts), None)?;
-            reusable = Some(chosen);
-            let fitted = fluxcal::fit_flight(flight, &first.interference_nt)
-                .and_then(fluxcal::FluxgateFit::determined)
-                .and_then(fluxcal::FluxgateFit::physical);
-            match fitted {
-                Ok(fit) => (fit.calibration, Some(fit)),
-                Err(reason) => {
-                    let warning = format!(
-                        "fluxgate not calibrated against the scalar, used as measured: {reason:#}"
-                    );
-                    if !opts.jackknife {
-                        first.warnings.push(warning);
-                        first.fluxgate_calibration = Some(fluxcal::FluxgateCalibration::IDENTITY);
-                        return Ok(first);
-                    }
-                    // The first pass made no jackknife: the final pass, on the fluxgate
-                    // as measured, does.
-                    not_calibrated = Some(warning);
-                    (fluxcal::FluxgateCalibration::IDENTITY, None)
-                }
-            }
-        }
+    let stage = match FluxgateStage::choose(flight, opts)? {
+        ControlFlow::Continue(stage) => stage,
+        ControlFlow::Break(first) => return Ok(first),
     };
     // The second run keeps the first's σ1 (the fluxgate's calibration moves the
     // interference by far less than what chose it) and chooses its noise and anomaly
     // process again, from innovations without the fluxgate's error.
-    let calibrated = fluxcal::calibrated_flight(flight, &calibration);
-    let (mut run, _) = stages::calibrate(&calibrated, opts, reusable.as_ref())?;
-    run.warnings.extend(not_calibrated);
-    run.fluxgate_calibration = Some(calibration);
-    run.fluxgate_fit = fit;
+    let calibrated = fluxcal::calibrated_flight(flight, &stage.calibration);
+    let (mut run, _) = stages::calibrate(&calibrated, opts, stage.reusable.as_ref())?;
+    run.warnings.extend(stage.not_calibrated);
+    run.fluxgate_calibration = Some(stage.calibration);
+    run.fluxgate_fit = stage.fit;
     Ok(run)
+}
+
+/// The fluxgate's calibration of a `fluxcal` model (an input correction that adds no
+/// filter state): the stored one, or one fitted on this flight to the scalar minus a first
+/// run's interference. A fit the flight does not determine is not applied: the fluxgate is
+/// used as measured (identity calibration) and a warning says so. In real time without a
+/// stored calibration the fluxgate is used as measured, as on the board before `SETFLUX`.
+struct FluxgateStage {
+    calibration: FluxgateCalibration,
+    /// The fit made on this flight, when it was applied.
+    fit: Option<FluxgateFit>,
+    /// Why the fluxgate is used as measured, when a fit was refused.
+    not_calibrated: Option<String>,
+    /// What the first run chose that the second reuses (σ1, the anomaly process's family).
+    reusable: Option<stages::Reusable>,
+}
+
+impl FluxgateStage {
+    /// The stage, or (`Break`) the first run itself when it is the result: the fit was
+    /// refused and no jackknife is asked, so a second run on the fluxgate as measured
+    /// would repeat it.
+    fn choose(flight: &Flight, opts: &KfOptions) -> Result<ControlFlow<KfRun, Self>> {
+        let given = |calibration| Self {
+            calibration,
+            fit: None,
+            not_calibrated: None,
+            reusable: None,
+        };
+        if let Some(c) = opts.fluxgate_calibration {
+            return Ok(ControlFlow::Continue(given(c)));
+        }
+        if opts.realtime {
+            return Ok(ControlFlow::Continue(given(FluxgateCalibration::IDENTITY)));
+        }
+        // `fluxcal` adds no filter state, so the first run is the model without it.
+        let (mut first, chosen) = stages::calibrate(flight, &first_pass(opts), None)?;
+        let fitted = fluxcal::fit_flight(flight, &first.interference_nt)
+            .and_then(FluxgateFit::determined)
+            .and_then(FluxgateFit::physical);
+        let reusable = Some(chosen);
+        match fitted {
+            Ok(fit) => Ok(ControlFlow::Continue(Self {
+                calibration: fit.calibration,
+                fit: Some(fit),
+                not_calibrated: None,
+                reusable,
+            })),
+            Err(reason) => {
+                let warning = format!(
+                    "fluxgate not calibrated against the scalar, used as measured: {reason:#}"
+                );
+                if !opts.jackknife {
+                    first.warnings.push(warning);
+                    first.fluxgate_calibration = Some(FluxgateCalibration::IDENTITY);
+                    return Ok(ControlFlow::Break(first));
+                }
+                // The first run made no jackknife: the final run, on the fluxgate as
+                // measured, does.
+                Ok(ControlFlow::Continue(Self {
+                    calibration: FluxgateCalibration::IDENTITY,
+                    fit: None,
+                    not_calibrated: Some(warning),
+                    reusable,
+                }))
+            }
+        }
+    }
 }
 
 fn run_kf_on(flight: &Flight, opts: &KfOptions) -> Result<KfRun> {

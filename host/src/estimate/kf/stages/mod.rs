@@ -14,10 +14,13 @@
 //!
 //! Every stage is made of [`filter_pass`]es; the stationary calibration pass at one
 //! configuration ([`StationaryPass`]) is made once and handed on to the stages that start
-//! from it. Preparing the flight (despiking, the scalar's delay, `lag`/`fluxtemp`) comes
-//! before (`crate::estimate::corrections`, `crate::calibration`), and with `fluxcal` the
-//! fluxgate's calibration between a first run and a second
-//! (`crate::estimate::kf::run_kf_estimator`), which reuses the first run's [`Reusable`].
+//! from it. Before them come the stages that prepare the flight, each a type too: the
+//! flight read, despiked and checked (`calibration::kf::PreparedFlight`; the scalar's
+//! delay looked for there), its input corrections (`lag`, `fluxtemp`:
+//! `crate::estimate::corrections::CorrectedFlight`), and with `fluxcal` the fluxgate's
+//! calibration between a first run and a second (`crate::estimate::kf::FluxgateStage`),
+//! which reuses the first run's [`Reusable`] (σ1 and the anomaly process's family; the
+//! noise is chosen again, see [`calibrate`]).
 
 mod coefficients;
 mod excitation;
