@@ -9,6 +9,7 @@ use crate::calibration::result::Compensation;
 use crate::calibration::summary::{summarise, Summary};
 use crate::calibration::{compensate_trace, EstimatorSettings};
 use crate::flight::Flight;
+use crate::io::csv::rounded;
 use crate::io::trace::Trace;
 use crate::multi::joint::{apply_each, calibrate_joint};
 use crate::multi::sensors::{parse_pairs, parse_sensors, sensor_trace, separation_m, SensorSpec};
@@ -480,13 +481,16 @@ pub fn output_table(
     for (s, c) in sensors.iter().zip(results) {
         let mag = trace.col(&s.scalar_column).context("sensor column")?;
         out.set_col(&s.name, mag.to_vec());
+        // Estimates to 0.1 pT, the compensated field's own grid (the one-sensor table's 4
+        // decimals): beyond it an f32 filter's digits are noise.
+        let to_grid = |v: &[f64]| v.iter().map(|&x| rounded(x, 4)).collect::<Vec<f64>>();
         out.set_col(
             &format!("interference_{}", s.name),
-            c.interference_nt.clone(),
+            to_grid(&c.interference_nt),
         );
         out.set_col(&format!("compensated_{}", s.name), c.compensated_nt.clone());
         if let Some(a) = &c.anomaly_nt {
-            out.set_col(&format!("anomaly_{}", s.name), a.clone());
+            out.set_col(&format!("anomaly_{}", s.name), to_grid(a));
         }
         // The record's flags and bound: in real time they say which outputs are not yet
         // compensated (`NOT_CONVERGED`: the raw field) and how far each can be trusted.
@@ -495,7 +499,7 @@ pub fn output_table(
             out.set_col(&format!("flags_{}", s.name), flags);
         }
         if let Some(b) = &c.interference_sigma_nt {
-            out.set_col(&format!("interference_sigma_{}", s.name), b.clone());
+            out.set_col(&format!("interference_sigma_{}", s.name), to_grid(b));
         }
     }
     for &(a, b) in pairs {

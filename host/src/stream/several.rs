@@ -264,8 +264,10 @@ impl Table<'_> {
             }
             let mut cells = vec![first.sample.t_s];
             for r in &rows {
-                cells.extend([r.p.mag_read_nt, r.interference_nt, r.compensated_nt]);
-                cells.extend(r.anomaly.map(|(a, _)| a));
+                // As the in-memory table (`cli::multi::output_table`): to 0.1 pT.
+                let interference_nt = crate::io::csv::rounded(r.interference_nt, 4);
+                cells.extend([r.p.mag_read_nt, interference_nt, r.compensated_nt]);
+                cells.extend(r.anomaly.map(|(a, _)| crate::io::csv::rounded(a, 4)));
                 cells.push(f64::from(r.flags));
             }
             for g in self.gradients {
