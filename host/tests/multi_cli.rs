@@ -254,6 +254,17 @@ fn sensor_method_mixes_tolles_lawson_and_the_joint_filter() {
         let (name, _, _, method) = entry(&v, k);
         assert_eq!(method, "kf", "{name}");
     }
+    // The check against TL18-OLS is recorded in the set it kept, as in a one-sensor file:
+    // mag_1 was checked (the default), mag_3 (`kf`) and mag_2 (`tl`) were not.
+    let checked = |k: usize| {
+        let set: serde_json::Value = serde_json::from_str(&entry(&v, k).2).unwrap();
+        !set["cross_check"].is_null()
+    };
+    assert_eq!(
+        [0, 1, 2].map(checked),
+        [true, false, false],
+        "cross_check records"
+    );
     assert!(v.sigma1.is_some(), "the joint run's σ1");
     for (name, method) in [("mag_1", "kf"), ("mag_2", "tl"), ("mag_3", "kf")] {
         let line = err

@@ -183,7 +183,14 @@ fn joint(s: &SensorResult) -> Result<Calibrated> {
         )?,
         summary,
         note: None,
-        warnings: (s.joint.warnings.iter().chain(&s.chosen().warnings))
+        // The joint run's own warnings whichever set is kept, then the alone set's when
+        // that one is (the joint one's are not said twice).
+        warnings: (s.joint.warnings.iter())
+            .chain(if s.joint_chosen {
+                &[]
+            } else {
+                &s.alone.warnings[..]
+            })
             .cloned()
             .collect(),
     })
