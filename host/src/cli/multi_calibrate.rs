@@ -87,8 +87,9 @@ pub fn calibrate(
     out: &Path,
 ) -> Result<()> {
     let n = sensors.len();
-    let method = |j: usize| asked.get(j).copied().flatten().unwrap_or(est.method);
-    let checked = |j: usize| est.cross_check && asked.get(j).copied().flatten().is_none();
+    let asked_for = |j: usize| asked.get(j).copied().flatten();
+    let method = |j: usize| asked_for(j).unwrap_or(est.method);
+    let checked = |j: usize| est.cross_check && asked_for(j).is_none();
     let kalman: Vec<usize> = (0..n).filter(|&j| method(j) == Method::Kf).collect();
     eprintln!("{}", header(kalman.len(), n));
     let kf = EstimatorSettings {
@@ -129,7 +130,7 @@ pub fn calibrate(
     let mut entries = Vec::new();
     for (j, c) in done.into_iter().enumerate() {
         let c = c.with_context(|| format!("{}: not calibrated", sensors[j].name))?;
-        let by_name = asked.get(j).copied().flatten().map(|_| "--sensor-method");
+        let by_name = asked_for(j).map(|_| "--sensor-method");
         let notes: Vec<&str> = by_name.into_iter().chain(c.note).collect();
         if notes.is_empty() {
             eprintln!("{}", c.summary);
@@ -221,9 +222,7 @@ fn label(s: &SensorSpec) -> String {
         "  {} ({}, fluxgate {})",
         s.name,
         s.scalar_column,
-        s.flux_columns[0]
-            .trim_end_matches("_x")
-            .trim_end_matches("_X")
+        s.fluxgate_name()
     )
 }
 

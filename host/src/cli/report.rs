@@ -257,9 +257,7 @@ fn several_sensor_pages(
         .map(|((s, ev), joint)| SensorRow {
             name: &s.name,
             scalar_column: &s.scalar_column,
-            fluxgate: s.flux_columns[0]
-                .trim_end_matches("_x")
-                .trim_end_matches("_X"),
+            fluxgate: s.fluxgate_name(),
             position_m: s.position_m,
             joint: Some(*joint),
             flight: &ev.flight,

@@ -21,6 +21,16 @@ pub struct SensorSpec {
     pub position_m: Option<[f64; 3]>,
 }
 
+impl SensorSpec {
+    /// Its fluxgate's name as the columns give it: `flux_b` for `flux_b_x/y/z`, `FLUXB` for
+    /// `FLUXB_X/Y/Z` (what `calibrate`'s summary and the sensors page show).
+    pub fn fluxgate_name(&self) -> &str {
+        self.flux_columns[0]
+            .trim_end_matches("_x")
+            .trim_end_matches("_X")
+    }
+}
+
 /// Besides a `mag_K` column, the names the public SGL data give sensor K: MagNav.jl's
 /// HDF5/CSV `mag_K_uc`, the SGL XYZ `UNCOMPMAGK`.
 fn scalar_aliases(k: usize) -> [String; 3] {
