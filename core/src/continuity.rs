@@ -250,8 +250,18 @@ impl Spread {
 /// ~10 nT); the median follows a manoeuvre within 4 frames, this covers its onset.
 pub const FLUX_ANGULAR_ACCEL_RAD_S2: f32 = 0.2;
 /// Fraction of the last frames' motion the vector check allows for beyond its recent
-/// departures: a change of body rate by that fraction of itself within one frame.
+/// departures: a change of body rate by that fraction of itself within one frame (a sharp
+/// control input; the simulator's pitch manoeuvres change their rate 5 → 10°/s between two
+/// 10 Hz frames, ~0.9 rad/s²).
 pub const FLUX_RATE_CHANGE: f32 = 1.0;
+/// Angular acceleration (rad/s²) allowed while there are no recent departures to scale by
+/// (the first departure from the line after a start, a gap or a step): a survey aircraft's
+/// gusts and control inputs, ~5× the calibration manoeuvres' 0.37 rad/s².
+pub const FLUX_MAX_ANGULAR_ACCEL_RAD_S2: f32 = 2.0;
+/// Body rate (rad/s, 34°/s) allowed between the only two frames there are (the first frame
+/// judged after a start, a gap or a step): above a survey aircraft's manoeuvres (±10° roll
+/// at 5 s, ~13°/s), turns and taxiing.
+pub const FLUX_MAX_BODY_RATE_RAD_S: f32 = 0.6;
 
 /// The fluxgate's check on each corrected body-frame frame (f32 nT), judged two ways
 /// against the line through the last two accepted frames:
@@ -263,7 +273,10 @@ pub const FLUX_RATE_CHANGE: f32 = 1.0;
 ///   last 8 norms. It sees what keeps |B| (an axis that read near 0 read as 0, a sign flip
 ///   of a small axis, two axes swapped, a rotated frame), which the modulus cannot; the
 ///   motion and dt² terms let a change of body rate and a manoeuvre's onset through, its
-///   median the rest.
+///   median the rest. Before any departure is known, physical bounds stand in for the
+///   median: a step from the only frame within [`FLUX_MAX_BODY_RATE_RAD_S`] × |B| × dt, the
+///   first departure from the line within [`FLUX_MAX_ANGULAR_ACCEL_RAD_S2`] × |B| × dt²
+///   (beside the motion term).
 ///
 /// A frame is suspect when either says so, and then not learnt from by either; the same
 /// run and gap as the scalar's (3 suspects in a row that agree in both = a real step). Time
@@ -319,21 +332,31 @@ impl VectorTrack {
     /// The limit on the departure's norm, `dt_s` after an accepted frame of modulus
     /// `m1_nt`.
     fn limit_nt(&self, ratio: Option<f32>, dt_s: f32, m1_nt: f32) -> f32 {
-        // The body rate may change by up to itself within a frame (a gust, a control
-        // input; the simulator's manoeuvres change their pitch rate 5 → 10°/s between two
-        // 10 Hz frames): allow the last frames' motion over this interval again.
-        let motion = match (self.last, ratio) {
-            ([Some((_, v1)), Some((_, v2))], Some(r)) => {
-                modulus_nt(core::array::from_fn(|k| v1[k] - v2[k])) * r
+        let (r, v1, v2) = match (ratio, self.last) {
+            (Some(r), [Some((_, v1)), Some((_, v2))]) => (r, v1, v2),
+            // No line yet: the step from the only frame is the body's rotation over dt.
+            _ => {
+                return FLUX_FLOOR_NT
+                    + FLUX_ANGULAR_ACCEL_RAD_S2 * m1_nt * dt_s * dt_s
+                    + FLUX_MAX_BODY_RATE_RAD_S * m1_nt * dt_s
             }
-            _ => 0.0,
         };
-        let floor = FLUX_FLOOR_NT
-            + FLUX_RATE_CHANGE * motion
-            + FLUX_ANGULAR_ACCEL_RAD_S2 * m1_nt * dt_s * dt_s;
+        // The body rate may change by up to itself within a frame: allow the last frames'
+        // motion over this interval again.
+        let motion = modulus_nt(core::array::from_fn(|k| v1[k] - v2[k])) * r;
         match self.departures.median_abs() {
-            Some(spread) => floor + SPREAD_FACTOR * spread,
-            None => 100.0 * floor,
+            Some(spread) => {
+                FLUX_FLOOR_NT
+                    + FLUX_RATE_CHANGE * motion
+                    + FLUX_ANGULAR_ACCEL_RAD_S2 * m1_nt * dt_s * dt_s
+                    + SPREAD_FACTOR * spread
+            }
+            // The first departure from the line: no spread to scale by yet.
+            None => {
+                FLUX_FLOOR_NT
+                    + FLUX_RATE_CHANGE * motion
+                    + FLUX_MAX_ANGULAR_ACCEL_RAD_S2 * m1_nt * dt_s * dt_s
+            }
         }
     }
 
@@ -389,7 +412,9 @@ impl FluxContinuity {
         let margins = [libm::fabsf(dm) / lm, nv / lv];
         if libm::fabsf(dm) <= lm && nv <= lv {
             self.modulus.accept(t_s, m, Some(dm));
-            self.vector.accept(t_s, v, Some(nv));
+            // A step from the only frame is the rotation itself, not a departure from a
+            // line: it would set the spread to the body rate.
+            self.vector.accept(t_s, v, ratio.map(|_| nv));
             return (Continuity::Consistent, margins);
         }
         let agrees = self.modulus.agrees(t_s, m, lm)

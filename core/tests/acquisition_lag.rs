@@ -27,9 +27,11 @@ fn acq_at<'a>(scalar_hz: f64, flux_hz: f64) -> Acq<'a> {
     Acquisition::new(AcqConfig::new(scalar_hz, flux_hz, 1.0), comp).unwrap()
 }
 
-/// Field vector of a manoeuvring aircraft, body frame (nT), at fluxgate epoch `k`.
-fn flux_at(k: i64) -> [f64; 3] {
-    let a = k as f64 * 0.3;
+/// Field vector of a manoeuvring aircraft, body frame (nT), at `t_s` (the phase turns at
+/// 3 rad/s: 0.3 per epoch at 10 Hz; per frame at 1 kHz, a rotation the fluxgate's
+/// continuity check takes for one).
+fn flux_at(t_s: f64) -> [f64; 3] {
+    let a = t_s * 3.0;
     [
         20_000.0 + 3000.0 * a.sin(),
         1000.0 * (0.7 * a).cos(),
@@ -37,12 +39,13 @@ fn flux_at(k: i64) -> [f64; 3] {
     ]
 }
 
-/// `n` epochs of fluxgate then scalar; the fluxgate shows epoch `k − delay`, none inside `gap`.
-fn stream(n: usize, delay: i64, gap: Option<(usize, usize)>) -> Vec<(Port, Vec<u8>)> {
+/// `n` epochs at `rate_hz` of fluxgate then scalar; the fluxgate shows epoch `k − delay`,
+/// none inside `gap`.
+fn stream(rate_hz: f64, n: usize, delay: i64, gap: Option<(usize, usize)>) -> Vec<(Port, Vec<u8>)> {
     let mut chunks = Vec::new();
     for k in 0..n {
         if !gap.is_some_and(|(a, b)| (a..b).contains(&k)) {
-            let f = flux_at(k as i64 - delay);
+            let f = flux_at((k as i64 - delay) as f64 / rate_hz);
             let line = format!("{:.3},{:.3},{:.3}\r\n", f[0], f[1], f[2]);
             chunks.push((Port::Flux, line.into_bytes()));
         }
@@ -78,14 +81,14 @@ fn whole_sample_delay_equals_a_fluxgate_sent_late(rate_hz: f64, delay: usize, n:
     a.set_lag_s(lag_s).unwrap();
     assert_eq!(a.lag_s(), lag_s);
     a.set_coefficients(&coefficients()).unwrap();
-    let lagged = run(&mut a, &stream(n, 0, None));
+    let lagged = run(&mut a, &stream(rate_hz, n, 0, None));
     let mut b = acq_at(rate_hz, rate_hz);
     b.set_coefficients(&coefficients()).unwrap();
-    let late = run(&mut b, &stream(n, delay as i64, None));
+    let late = run(&mut b, &stream(rate_hz, n, delay as i64, None));
     // Without the delay, the same stream is another pairing altogether.
     let mut c = acq_at(rate_hz, rate_hz);
     c.set_coefficients(&coefficients()).unwrap();
-    let plain = run(&mut c, &stream(n, 0, None));
+    let plain = run(&mut c, &stream(rate_hz, n, 0, None));
     assert_eq!((lagged.len(), late.len()), (n, n));
     assert_eq!(a.counters().records as usize, n);
     assert_eq!(stale(&lagged), (0..delay).collect::<Vec<_>>());
@@ -172,9 +175,9 @@ fn a_fluxgate_gap_is_flagged_shifted_by_the_delay_and_nothing_is_lost() {
     let mut a = acq(RATE_HZ);
     a.attach_lag_line(&mut line);
     a.set_lag_s(0.5).unwrap();
-    let lagged = run(&mut a, &stream(n, 0, Some((50, 60))));
+    let lagged = run(&mut a, &stream(RATE_HZ, n, 0, Some((50, 60))));
     let mut b = acq(RATE_HZ);
-    let plain = run(&mut b, &stream(n, 0, Some((50, 60))));
+    let plain = run(&mut b, &stream(RATE_HZ, n, 0, Some((50, 60))));
     assert_eq!((lagged.len(), plain.len()), (n, n));
     for (k, r) in lagged.iter().enumerate() {
         assert_eq!(r.seq as usize, k);

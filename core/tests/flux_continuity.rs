@@ -125,6 +125,30 @@ fn a_corrupted_frame_in_a_real_flight_is_caught_alone() {
     assert_eq!(suspects(&ts, &bad), []);
 }
 
+/// The first frames, before any departure sets a spread, are judged by physical bounds
+/// alone: the step from the only frame by the body rate (0.6 rad/s: 3200 nT at 10 Hz), the
+/// first departure from the line by the angular acceleration (2 rad/s²: 1100 nT, plus the
+/// last frames' motion). An axis read as 0 or sign-flipped in the second frame (8730 nT on
+/// flux_b) passed the 100 × floor (~12 000 nT) this frame had before; now it is caught, and
+/// so is every corruption of the third frame. A 5° rotation of the second frame (2522 nT,
+/// 27°/s) is a rotation the body could have made: taken, and the frame after it suspect.
+#[test]
+fn the_first_frames_are_judged_by_physical_bounds() {
+    let (ts, vs) = read_flux(SGL, "flux_b_");
+    let first = |row: usize, f: Corrupt| {
+        let mut bad = vs[..40].to_vec();
+        bad[row] = f(bad[row]);
+        suspects(&ts[..40], &bad)
+    };
+    for (what, f) in corruptions() {
+        assert_eq!(first(2, f), [2], "third frame, {what}");
+        if what != "rotated 5°" {
+            assert_eq!(first(1, f), [1], "second frame, {what}");
+        }
+    }
+    assert_eq!(first(1, |v| rotate_x(v, 5.0)), [2]);
+}
+
 /// A corruption of one frame.
 type Corrupt = fn([f32; 3]) -> [f32; 3];
 
@@ -159,11 +183,22 @@ fn rotate_x(v: [f32; 3], deg: f64) -> [f32; 3] {
 /// [`corruptions`]): how many are caught alone, missed (with the largest vector change
 /// missed), or otherwise (the frame taken and the next ones suspect, or more than it
 /// suspect). `cargo test --release -p magcomp-core --test flux_continuity -- --ignored
-/// --nocapture sweep`.
+/// --nocapture sweep`; another trace with `MAGCOMP_FLUX_CSV` (and `MAGCOMP_FLUX_PREFIX`,
+/// `MAGCOMP_SWEEP_STEP` for every n-th row), as for `suspects_in_a_given_trace`.
 #[test]
 #[ignore]
 fn sweep_corrupted_rows() {
-    let (ts, vs) = read_flux(SGL, "flux_b_");
+    let (ts, vs) = match std::env::var("MAGCOMP_FLUX_CSV") {
+        Ok(path) => {
+            let prefix = std::env::var("MAGCOMP_FLUX_PREFIX").unwrap_or_else(|_| "flux_".into());
+            read_flux(&path, &prefix)
+        }
+        Err(_) => read_flux(SGL, "flux_b_"),
+    };
+    let step: usize = std::env::var("MAGCOMP_SWEEP_STEP")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(10);
     let norm = |a: [f32; 3], b: [f32; 3]| {
         (0..3)
             .map(|k| (f64::from(a[k]) - f64::from(b[k])).powi(2))
@@ -173,7 +208,7 @@ fn sweep_corrupted_rows() {
     for (what, f) in corruptions() {
         let (mut caught, mut other, mut tried, mut unchanged) = (0, 0, 0, 0);
         let mut missed: Vec<f64> = Vec::new();
-        for row in (1..vs.len()).step_by(10) {
+        for row in (1..vs.len()).step_by(step) {
             let mut bad = vs.clone();
             bad[row] = f(bad[row]);
             if norm(bad[row], vs[row]) < 1.0 {
