@@ -128,10 +128,16 @@ fn latest(
 
 fn check_log(dir: &std::path::Path, name: &str) -> Tally {
     let log = std::fs::read(dir.join(name)).unwrap();
-    // 1. Stream the raw log byte by byte: no panic; every `$` yields exactly one result.
+    stream_log(name, &log);
+    check_checksums(name, &log);
+    tpv_agreement(dir, name)
+}
+
+/// Streams the raw log byte by byte: no panic; every `$` yields exactly one result.
+fn stream_log(name: &str, log: &[u8]) {
     let mut rd = NmeaReader::new();
     let mut results = 0usize;
-    for &b in &log {
+    for &b in log {
         if rd.push(b).is_some() {
             results += 1;
         }
@@ -148,8 +154,11 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
         results,
         "{name}: counters add up"
     );
-    // 2. Independent checksum verification, line by line.
-    let text = String::from_utf8_lossy(&log);
+}
+
+/// Verifies every line's checksum independently: a bad one is rejected as a checksum error.
+fn check_checksums(name: &str, log: &[u8]) {
+    let text = String::from_utf8_lossy(log);
     let mut bad_cs = 0;
     for line in text.lines() {
         let line = line.trim_end_matches(['\r', '\n']);
@@ -181,7 +190,10 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
     if bad_cs > 0 {
         println!("  {name}: {bad_cs} sentences with bad checksums rejected");
     }
-    // 3. TPV agreement.
+}
+
+/// Compares each TPV gpsd wrote with what our sentences of the same moment gave.
+fn tpv_agreement(dir: &std::path::Path, name: &str) -> Tally {
     let chk = std::fs::read_to_string(dir.join(format!("{name}.chk"))).unwrap();
     let mut hist: Vec<Decoded> = Vec::new();
     let mut cycle_tod = None;
@@ -235,14 +247,26 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
             continue;
         };
         t.tpv_timed += 1;
-        let mut any = false;
-        let mut ok = true;
-        let mut gpsd_only = Vec::new();
-        let mut cmp = |what: &str,
-                       gpsd: Option<f64>,
-                       ours: Option<(&Decoded, f64)>,
-                       tol: f64,
-                       n: &mut usize| {
+        let any = compare_values(name, tod, &v, &hist, &mut t);
+        compare_fix_state(name, tod, &v, &hist, &last_kind, any, &mut t);
+    }
+    t
+}
+
+/// A timed TPV's position, height, speed and track against our latest values of that
+/// second; true when we had any of them.
+fn compare_values(
+    name: &str,
+    tod: f64,
+    v: &serde_json::Value,
+    hist: &[Decoded],
+    t: &mut Tally,
+) -> bool {
+    let mut any = false;
+    let mut ok = true;
+    let mut gpsd_only = Vec::new();
+    let mut cmp =
+        |what: &str, gpsd: Option<f64>, ours: Option<(&Decoded, f64)>, tol: f64, n: &mut usize| {
             if let (Some(g), None) = (gpsd, ours) {
                 gpsd_only.push(format!("{name} {tod}: {what} gpsd {g}, none from us"));
             }
@@ -259,66 +283,76 @@ fn check_log(dir: &std::path::Path, name: &str) -> Tally {
                 }
             }
         };
-        cmp(
-            "lat",
-            v["lat"].as_f64(),
-            latest(&hist, tod, |d| d.lat),
-            1e-6,
-            &mut t.pos,
-        );
-        cmp(
-            "lon",
-            v["lon"].as_f64(),
-            latest(&hist, tod, |d| d.lon),
-            1e-6,
-            &mut 0,
-        );
-        let galt = v["altMSL"].as_f64().or(v["alt"].as_f64());
-        cmp("alt", galt, latest(&hist, tod, |d| d.alt), 1e-3, &mut t.alt);
-        // gpsd prints speed with 3 decimals.
-        cmp(
-            "speed",
-            v["speed"].as_f64(),
-            latest(&hist, tod, |d| d.speed),
-            6e-4,
-            &mut t.speed,
-        );
-        cmp(
-            "track",
-            v["track"].as_f64(),
-            latest(&hist, tod, |d| d.track),
-            1e-4,
-            &mut t.track,
-        );
-        if any && ok {
-            t.matched += 1;
-        }
-        t.gpsd_only.extend(gpsd_only);
-        // Fix state: gpsd mode 1 ⇔ our sentence of that second says no fix (2-D vs 3-D
-        // comes from GSA, which we do not decode).
-        let mode = v["mode"].as_u64().unwrap_or(0);
-        // The most recent GGA/RMC, timed or not (a receiver losing its fix sends them
-        // with empty time fields).
-        let last_fix = hist.iter().rev().find_map(|d| d.fix.map(|f| (d, f)));
-        if let Some((d, f)) = last_fix {
-            if f != (mode >= 2) && last_kind == "GSA" {
-                // gpsd takes the fix mode from GSA (`$GPGSA,A,1` = no fix), which we do
-                // not decode: explained, not a decoding disagreement.
-                t.explained.push(format!(
-                    "{name} {tod}: mode {mode} from GSA, our {} says fix={f}",
-                    d.kind
-                ));
-            } else if f != (mode >= 2) {
-                t.disagreements.push(format!(
-                    "{name} {tod}: mode gpsd {mode}, ours fix={f} ({})",
-                    d.kind
-                ));
-            } else if mode == 1 && !f && !any {
-                t.no_fix_agreed += 1;
-            }
+    cmp(
+        "lat",
+        v["lat"].as_f64(),
+        latest(hist, tod, |d| d.lat),
+        1e-6,
+        &mut t.pos,
+    );
+    cmp(
+        "lon",
+        v["lon"].as_f64(),
+        latest(hist, tod, |d| d.lon),
+        1e-6,
+        &mut 0,
+    );
+    let galt = v["altMSL"].as_f64().or(v["alt"].as_f64());
+    cmp("alt", galt, latest(hist, tod, |d| d.alt), 1e-3, &mut t.alt);
+    // gpsd prints speed with 3 decimals.
+    cmp(
+        "speed",
+        v["speed"].as_f64(),
+        latest(hist, tod, |d| d.speed),
+        6e-4,
+        &mut t.speed,
+    );
+    cmp(
+        "track",
+        v["track"].as_f64(),
+        latest(hist, tod, |d| d.track),
+        1e-4,
+        &mut t.track,
+    );
+    if any && ok {
+        t.matched += 1;
+    }
+    t.gpsd_only.extend(gpsd_only);
+    any
+}
+
+/// The TPV's fix state (gpsd mode 1 ⇔ our sentence of that second says no fix; 2-D vs
+/// 3-D comes from GSA, which we do not decode).
+fn compare_fix_state(
+    name: &str,
+    tod: f64,
+    v: &serde_json::Value,
+    hist: &[Decoded],
+    last_kind: &str,
+    any: bool,
+    t: &mut Tally,
+) {
+    let mode = v["mode"].as_u64().unwrap_or(0);
+    // The most recent GGA/RMC, timed or not (a receiver losing its fix sends them
+    // with empty time fields).
+    let last_fix = hist.iter().rev().find_map(|d| d.fix.map(|f| (d, f)));
+    if let Some((d, f)) = last_fix {
+        if f != (mode >= 2) && last_kind == "GSA" {
+            // gpsd takes the fix mode from GSA (`$GPGSA,A,1` = no fix), which we do
+            // not decode: explained, not a decoding disagreement.
+            t.explained.push(format!(
+                "{name} {tod}: mode {mode} from GSA, our {} says fix={f}",
+                d.kind
+            ));
+        } else if f != (mode >= 2) {
+            t.disagreements.push(format!(
+                "{name} {tod}: mode gpsd {mode}, ours fix={f} ({})",
+                d.kind
+            ));
+        } else if mode == 1 && !f && !any {
+            t.no_fix_agreed += 1;
         }
     }
-    t
 }
 
 #[test]

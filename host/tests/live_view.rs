@@ -27,14 +27,17 @@ use magcomp_core::protocol::raw::decode_raw;
 use magcomp_core::protocol::record::{decode_record, encode_record, Record, MAX_RECORD_LEN};
 use magcomp_core::{Flags, MagCounts};
 use serde_json::{json, Value};
-use std::io::{BufRead, BufReader, Read, Write};
+use std::io::Write;
 use std::net::{TcpListener, TcpStream};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
 mod common;
-use common::{chromium_command, CHROMIUM};
+use common::CHROMIUM;
+#[path = "common/live_page.rs"]
+mod live_page;
+use live_page::{numbers, read_until, start_server, ws_connect, Page};
 
 fn sentence(body: &str) -> String {
     format!("${body}*{:04X}\r\n", crc16_ccitt(body.as_bytes()))
@@ -123,181 +126,6 @@ fn expected_d4(recs: &[Record]) -> Vec<Option<f64>> {
         }
     }
     d4
-}
-
-/// Starts `magcomp monitor --web` on a free port; returns it and the page's address.
-fn start_server(args: &[&str]) -> (Killed, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_magcomp"))
-        .args(["monitor", "--web", "--listen", "127.0.0.1:0"])
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("start magcomp monitor --web");
-    let mut out = BufReader::new(child.stdout.take().unwrap());
-    let mut first = String::new();
-    out.read_line(&mut first).unwrap();
-    let url = first
-        .split_whitespace()
-        .find(|w| w.starts_with("http://"))
-        .unwrap_or_else(|| panic!("no address in {first:?}"))
-        .to_string();
-    (Killed(child), url)
-}
-
-/// `None` while the browser's DevTools server is not answering yet. HTTP/1.1 with the body
-/// read to its `Content-Length`: that server does not answer HTTP/1.0 and keeps the
-/// connection open.
-fn http_get(host_port: &str, path: &str) -> Option<String> {
-    let mut s = TcpStream::connect(host_port).ok()?;
-    s.set_read_timeout(Some(Duration::from_secs(5))).ok()?;
-    write!(s, "GET {path} HTTP/1.1\r\nHost: {host_port}\r\n\r\n").ok()?;
-    let mut r = BufReader::new(s);
-    let mut len = 0;
-    loop {
-        let mut h = String::new();
-        r.read_line(&mut h).ok()?;
-        let h = h.trim_end();
-        if h.is_empty() {
-            break;
-        }
-        if let Some((k, v)) = h.split_once(':') {
-            if k.eq_ignore_ascii_case("content-length") {
-                len = v.trim().parse().ok()?;
-            }
-        }
-    }
-    let mut body = vec![0u8; len];
-    r.read_exact(&mut body).ok()?;
-    String::from_utf8(body).ok()
-}
-
-/// A child process killed when the test ends, passed or not (a failing assertion must not
-/// leave a server or a browser running).
-struct Killed(Child);
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-type Ws = tungstenite::WebSocket<tungstenite::stream::MaybeTlsStream<TcpStream>>;
-
-fn ws_connect(url: &str) -> Ws {
-    let (ws, _) = tungstenite::connect(url).unwrap();
-    if let tungstenite::stream::MaybeTlsStream::Plain(s) = ws.get_ref() {
-        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-    }
-    ws
-}
-
-/// The page in Chromium, driven over the DevTools protocol.
-struct Page {
-    ws: Ws,
-    next_id: u64,
-    /// Console errors and uncaught exceptions the browser reported.
-    console_errors: Vec<String>,
-}
-
-impl Page {
-    fn open(url: &str, profile: &Path) -> (Killed, Page) {
-        let chrome = chromium_command(profile)
-            .args(["--remote-debugging-port=0", "--window-size=1200,1400", url])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()
-            .expect("start chromium");
-        let chrome = Killed(chrome);
-        let port_file = profile.join("DevToolsActivePort");
-        let start = Instant::now();
-        let port = loop {
-            if let Some(p) = std::fs::read_to_string(&port_file)
-                .ok()
-                .and_then(|t| t.lines().next().map(String::from))
-                .filter(|p| !p.is_empty())
-            {
-                break p;
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(20),
-                "no DevTools port"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        };
-        let target = loop {
-            let list: Value = http_get(&format!("127.0.0.1:{port}"), "/json/list")
-                .and_then(|b| serde_json::from_str(&b).ok())
-                .unwrap_or(Value::Null);
-            let page = list.as_array().and_then(|a| {
-                a.iter()
-                    .find(|t| t["type"] == "page" && t["url"].as_str() == Some(url))
-                    .and_then(|t| t["webSocketDebuggerUrl"].as_str().map(String::from))
-            });
-            if let Some(p) = page {
-                break p;
-            }
-            assert!(start.elapsed() < Duration::from_secs(20), "no page target");
-            std::thread::sleep(Duration::from_millis(50));
-        };
-        let mut page = Page {
-            ws: ws_connect(&target),
-            next_id: 1,
-            console_errors: Vec::new(),
-        };
-        page.call("Runtime.enable", json!({}));
-        (chrome, page)
-    }
-
-    /// Sends a command and returns its result, noting console events met on the way.
-    fn call(&mut self, method: &str, params: Value) -> Value {
-        let id = self.next_id;
-        self.next_id += 1;
-        let msg = json!({"id": id, "method": method, "params": params}).to_string();
-        self.ws.send(tungstenite::Message::text(msg)).unwrap();
-        loop {
-            let m = self.ws.read().unwrap();
-            let Ok(text) = m.to_text() else { continue };
-            let v: Value = serde_json::from_str(text).unwrap();
-            match v["method"].as_str() {
-                Some("Runtime.consoleAPICalled") if v["params"]["type"] == "error" => {
-                    self.console_errors.push(v["params"]["args"].to_string())
-                }
-                Some("Runtime.exceptionThrown") => self
-                    .console_errors
-                    .push(v["params"]["exceptionDetails"].to_string()),
-                _ => {}
-            }
-            if v["id"] == id {
-                return v["result"].clone();
-            }
-        }
-    }
-
-    /// The page's `#plotted` element, parsed (`Null` before the first draw).
-    fn plotted(&mut self) -> Value {
-        let r = self.call(
-            "Runtime.evaluate",
-            json!({"expression": "document.getElementById('plotted').textContent",
-                   "returnByValue": true}),
-        );
-        serde_json::from_str(r["result"]["value"].as_str().unwrap_or("")).unwrap_or(Value::Null)
-    }
-
-    fn text_of(&mut self, id: &str) -> String {
-        let r = self.call(
-            "Runtime.evaluate",
-            json!({"expression": format!("document.getElementById('{id}').textContent"),
-                   "returnByValue": true}),
-        );
-        r["result"]["value"].as_str().unwrap_or("").to_string()
-    }
-}
-
-fn numbers(v: &Value) -> Vec<Option<f64>> {
-    v.as_array()
-        .map(|a| a.iter().map(Value::as_f64).collect())
-        .unwrap_or_default()
 }
 
 #[test]
@@ -442,30 +270,6 @@ fn page_plots_the_stream_live_through_garbage_and_a_reset() {
     assert!(status.contains("restarts 1"), "{status}");
     assert!(status.contains("lost 3"), "{status}");
     println!("browser test took {:.1} s", t0.elapsed().as_secs_f64());
-}
-
-/// Reads websocket messages until `stop` says so (or 10 s pass).
-fn read_until(ws: &mut Ws, mut stop: impl FnMut(&Value) -> bool) -> Vec<Value> {
-    let start = Instant::now();
-    let mut got = Vec::new();
-    while start.elapsed() < Duration::from_secs(10) {
-        let m = ws.read().unwrap();
-        let Ok(t) = m.to_text() else { continue };
-        let v: Value = serde_json::from_str(t).unwrap();
-        // A backlog (what was sent before this client subscribed) is its messages.
-        let batch = match v["messages"].as_array() {
-            Some(b) if v["kind"] == "backlog" => b.clone(),
-            _ => vec![v],
-        };
-        for v in batch {
-            let done = stop(&v);
-            got.push(v);
-            if done {
-                return got;
-            }
-        }
-    }
-    got
 }
 
 #[test]
