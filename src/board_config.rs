@@ -12,7 +12,7 @@ use magcomp_core::protocol::command::{MAX_SENSORS, model_hash};
 use magcomp_core::protocol::fluxgate::{FluxAsciiReader, FluxError, FluxgateCal};
 use magcomp_core::protocol::multi_scalar::ScalarLine;
 use magcomp_core::protocol::nmea::{NmeaError, NmeaReader, Sentence};
-use magcomp_core::protocol::scalar::{ScalarConfig, ScalarReader};
+use magcomp_core::protocol::scalar::{ScalarConfig, ScalarError, ScalarReader};
 
 /// The coefficient vector of the board (GETCOEF/SETCOEF indices, staged sets, the store's
 /// blobs): the witnessed model's order, the paper model's 16 terms then `fluxmod`. The board
@@ -179,6 +179,18 @@ impl Event {
                 acq.nmea_result(r);
                 None
             }
+        }
+    }
+
+    /// The event of a line the UART flagged an error on (`protocol::uart_errors`): a
+    /// scalar line (no checksum: a digit may be wrong) or a fluxgate frame is rejected, its
+    /// record flagged `PARSE_ERROR` and counted as the port's parse error; a GPS sentence
+    /// keeps its own checksum's verdict.
+    pub fn with_uart_error(self) -> Event {
+        match self {
+            Event::Scalar(_) => Event::Scalar(ScalarLine::Single(Err(ScalarError::Uart))),
+            Event::Flux(_, temp_degc) => Event::Flux(Err(FluxError::Uart), temp_degc),
+            gps @ Event::Gps(_) => gps,
         }
     }
 }

@@ -18,6 +18,7 @@ use magcomp_core::protocol::common::{BufferFull, Cursor, crc16_ccitt};
 use magcomp_core::protocol::fluxgate::{FluxCalibration, FluxTempCal};
 use magcomp_core::protocol::lag_line::LagLine;
 use magcomp_core::protocol::multi_raw::RawLine;
+use magcomp_core::protocol::uart_errors::LineErrors;
 
 #[cfg(feature = "board-acq")]
 use defmt_rtt as _;
@@ -164,17 +165,29 @@ async fn read_some(rx: &mut BufferedUartRx<'static>, buf: &mut [u8]) -> usize {
 }
 
 /// A sensor UART's bytes through its port parser into the event channel, forever; a
-/// scalar line that ran into the next sends one event per sample it carried.
-async fn forward(task: Task, mut rx: BufferedUartRx<'static>, mut port: impl SensorPort) -> ! {
+/// scalar line that ran into the next sends one event per sample it carried. A line the
+/// UART flagged an error on (the port's count grew on the chunk it came in) goes as an
+/// error (`Event::with_uart_error`), the samples it owes with it.
+async fn forward(
+    task: Task,
+    uart: uart_stats::Port,
+    mut rx: BufferedUartRx<'static>,
+    mut port: impl SensorPort,
+) -> ! {
     let mut buf = [0u8; 64];
+    let mut errors = LineErrors::new(uart_stats::port_total(uart));
+    let mut suspect = false;
+    let checked = |ev: Event, suspect: bool| if suspect { ev.with_uart_error() } else { ev };
     loop {
         let n = health::idle(task, read_some(&mut rx, &mut buf)).await;
+        errors.after_read(uart_stats::port_total(uart));
         for &b in &buf[..n] {
             if let Some(ev) = port.push(b) {
-                EVENTS.send(ev).await;
+                suspect = errors.line_done();
+                EVENTS.send(checked(ev, suspect)).await;
             }
             while let Some(ev) = port.owed() {
-                EVENTS.send(ev).await;
+                EVENTS.send(checked(ev, suspect)).await;
             }
         }
     }
@@ -183,13 +196,13 @@ async fn forward(task: Task, mut rx: BufferedUartRx<'static>, mut port: impl Sen
 #[embassy_executor::task]
 async fn scalar_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Scalar;
-    forward(TASK, rx, bc::ScalarPort::new()).await
+    forward(TASK, uart_stats::Port::Scalar, rx, bc::ScalarPort::new()).await
 }
 
 #[embassy_executor::task]
 async fn gps_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Gps;
-    forward(TASK, rx, bc::GpsPort::new()).await
+    forward(TASK, uart_stats::Port::Gps, rx, bc::GpsPort::new()).await
 }
 
 /// Fluxgate on its serial ASCII alternative (sensor frame → body frame by the board's axes).
@@ -197,7 +210,7 @@ async fn gps_task(rx: BufferedUartRx<'static>) {
 #[embassy_executor::task]
 async fn flux_uart_task(rx: BufferedUartRx<'static>) {
     const TASK: Task = Task::Flux;
-    forward(TASK, rx, bc::FluxAsciiPort::new()).await
+    forward(TASK, uart_stats::Port::Flux, rx, bc::FluxAsciiPort::new()).await
 }
 
 /// Fluxgate ADC (ADS131M03) on SPI: on each data-ready edge read one 15-byte frame

@@ -4,6 +4,10 @@
 //! interrupt ([`uart_error_counter!`]): it reads SR (a read alone clears nothing on the
 //! F4's USART v1; the HAL's SR-then-DR read that follows clears the flags as before).
 //!
+//! A sensor task also compares its port's total after each read, so the scalar lines and
+//! fluxgate frames an error may have touched are rejected and their records flagged
+//! (`fw::forward`, `magcomp_core::protocol::uart_errors`).
+//!
 //! Not counted: a byte dropped because the driver's RX ring is full (the HAL drops it
 //! silently and exposes no flag); on the F4 that also shows up as an overrun soon after.
 
@@ -53,11 +57,21 @@ pub fn by_kind() -> [u32; N_KINDS] {
 pub fn by_port() -> [u32; N_PORTS] {
     let mut t = [0u32; N_PORTS];
     for (t, p) in t.iter_mut().zip(&ERRORS) {
-        *t = p
-            .iter()
-            .fold(0u32, |a, e| a.wrapping_add(e.load(Ordering::Relaxed)));
+        *t = total(p);
     }
     t
+}
+
+/// One port's errors of every kind (wrapping): what its task compares after each read to
+/// tell the lines an error may have touched (`magcomp_core::protocol::uart_errors`).
+pub fn port_total(port: Port) -> u32 {
+    total(&ERRORS[port as usize])
+}
+
+fn total(kinds: &[AtomicU32; N_KINDS]) -> u32 {
+    kinds
+        .iter()
+        .fold(0u32, |a, e| a.wrapping_add(e.load(Ordering::Relaxed)))
 }
 
 /// Defines an interrupt handler type `$name` that counts `$pac`'s error flags for `$port`;

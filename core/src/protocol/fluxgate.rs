@@ -39,6 +39,9 @@ pub enum FluxError {
     NotReady,
     /// ASCII line too long.
     Overlong,
+    /// The UART flagged an overrun, framing or noise error while the line was received
+    /// ([`super::uart_errors::LineErrors`]).
+    Uart,
 }
 
 /// Raw ADC conversion.

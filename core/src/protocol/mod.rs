@@ -17,3 +17,4 @@ pub mod nmea;
 pub mod raw;
 pub mod record;
 pub mod scalar;
+pub mod uart_errors;

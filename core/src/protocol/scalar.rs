@@ -47,6 +47,10 @@ pub enum ScalarError {
     /// A further sample of a line that ran into the next (a lost terminator): the reader
     /// owes one line per sample it carried ([`ScalarReader::owed_line`]).
     Merged,
+    /// The UART flagged an overrun, framing or noise error while the line was received
+    /// ([`super::uart_errors::LineErrors`]): a digit may be wrong or lost, and a scalar line
+    /// has no checksum to tell.
+    Uart,
 }
 
 /// One scalar sample.
