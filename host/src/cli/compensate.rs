@@ -28,8 +28,10 @@ pub struct CompensateArgs {
     /// Apply these coefficients (from `calibrate`) instead of calibrating on this trace.
     #[arg(long, value_name = "COEFFS.json")]
     pub coeffs: Option<PathBuf>,
-    /// The causal filter's output sample by sample, as the board produces it (default:
-    /// post-flight — calibrate on the whole trace, then apply the final coefficients).
+    /// The causal filter's output sample by sample, with the board's checks, but its σ1 and
+    /// noise tuned on the whole flight (the board adapts its noise as it flies: `capture`
+    /// then `replay` gives the board's own records). Default: post-flight — calibrate on
+    /// the whole trace, then apply the final coefficients.
     #[arg(long)]
     pub realtime: bool,
     /// With `--realtime`: switch to survey mode at this time (s, the trace's `t`), as the
