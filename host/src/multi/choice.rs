@@ -29,12 +29,10 @@ pub(super) fn checked_against_least_squares(
             .map(|t| crate::qc::truth::error_rms_nt(&checked.interference_nt, t, None));
         r.alone = checked;
         r.joint_chosen = false;
-    } else if r.joint_chosen {
+    } else {
         // The filter's set kept: with the check's record in its file and its warning (the
         // two methods disagreeing beyond their errors), as the one-sensor default keeps them.
-        r.joint = checked;
-    } else {
-        r.alone = checked;
+        *r.chosen_mut() = checked;
     }
     Ok(())
 }

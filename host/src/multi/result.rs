@@ -48,6 +48,15 @@ impl SensorResult {
         }
     }
 
+    /// The kept calibration, to replace or amend.
+    pub fn chosen_mut(&mut self) -> &mut Compensation {
+        if self.joint_chosen {
+            &mut self.joint
+        } else {
+            &mut self.alone
+        }
+    }
+
     /// Its predicted error (nT).
     pub fn chosen_predicted_nt(&self) -> Option<f64> {
         if self.joint_chosen {

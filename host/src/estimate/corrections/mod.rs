@@ -155,13 +155,14 @@ impl<'f> CorrectedFlight<'f> {
         }
         let given = opts.preprocessing.clone().unwrap_or_default();
         let mut prep = Preprocessing::default();
-        let mut f = flight.clone();
+        // Each correction makes its own copy: the flight is not cloned first.
+        let mut f = Cow::Borrowed(flight);
         if opts.model.corrects(InputCorrection::Lag) {
             let l = match given.scalar_lag {
                 Some(l) => l,
                 None => lag::estimate(flight, &opts.model)?,
             };
-            f = lag::realign(&f, l.lag_s);
+            f = Cow::Owned(lag::realign(&f, l.lag_s));
             prep.scalar_lag = Some(l);
         }
         if let Some(ch) = fluxtemp_channel(&opts.model) {
@@ -183,11 +184,11 @@ impl<'f> CorrectedFlight<'f> {
                     fluxtemp::fit_flight(&f, idx, &first.interference_nt)?.correction
                 }
             };
-            f = c.apply_to_flight(&f, idx);
+            f = Cow::Owned(c.apply_to_flight(&f, idx));
             prep.fluxgate_temperature = Some(c);
         }
         Ok(Self {
-            flight: Cow::Owned(f),
+            flight: f,
             preprocessing: Some(prep),
         })
     }
