@@ -9,15 +9,12 @@
 //! post-flight calibration takes the fluxgate as a witness (mag_3 with flux_b, mag_4 with
 //! flux_c) the board must too, and gain most of what it gains; where it does not (mag_5,
 //! mag_4 with flux_d) the board must not either. Measured (box 2 band std, nT; board with
-//! the witness / paper filter alone / post-flight default): mag_5 0.71 / 0.71 / 0.65
-//! (1.08 ×); mag_3 2.13 / 4.58 / 1.57 (1.36 ×: item 2's 1.2 × is missed there; it was 1.23
-//! × before the post-flight calibration stopped loosening the anomaly by a roughness
-//! measured on the model's error, `FieldProcessStage::applies`); mag_4 with flux_c 1.01 /
-//! 3.19 / 0.87 (1.16 ×); mag_4 with flux_d 3.26 / 3.26 / 2.91 (TL). The board's gap on
-//! mag_3 is its adapted noise: it rises from the 0.3 nT floor to the 2 nT ceiling over box
-//! 1, so the first heading's manoeuvres weigh ~44 × the rest; with any constant noise its
-//! coefficients transfer at 1.54–1.68 nT, but then the witness does not converge by box 1's
-//! end (its coefficients still move 3.5–14 nT over the window) and is not shown.
+//! the witness / paper filter alone / post-flight default): mag_5 0.69 / 0.69 / 0.65
+//! (1.05 ×); mag_3 1.60 / 4.40 / 1.57 (1.02 ×); mag_4 with flux_c 0.90 / 3.20 / 0.87
+//! (1.03 ×); mag_4 with flux_d 3.27 / 3.27 / 2.91 (TL; 1.12 ×). Before the board's
+//! covariance followed its adapted noise (`follow_variance_factor`): 0.71, 2.13 (1.36 ×),
+//! 1.01, 3.26. Its noise rises from the 0.3 nT floor to the ceiling over box 1, and the
+//! first heading's manoeuvres, fused at the floor, weighed ~44 × the rest.
 
 mod common;
 #[path = "common/real_boxes.rs"]
@@ -142,11 +139,9 @@ fn coefficients_the_board_learns_on_box_1_compensate_box_2_as_post_flight_does()
         } else {
             assert_eq!(board, alone, "{mag}/{flux}: the witness must not change it");
         }
-        // Issue 17 item 2 asks 1.2 ×: held where it is met; mag_3 is at 1.36 × (module
-        // comment), held at 1.4 so a regression shows.
-        let most = if mag == "mag_3_uc" { 1.4 } else { 1.2 };
+        // Issue 17 item 2: within 1.2 × of post-flight.
         assert!(
-            board <= most * post,
+            board <= 1.2 * post,
             "{mag}/{flux}: {board:.2} against {post:.2} nT post-flight"
         );
     }
@@ -154,9 +149,13 @@ fn coefficients_the_board_learns_on_box_1_compensate_box_2_as_post_flight_does()
 
 /// The board flown cold through both boxes, one continuous flight (`capture` of the whole
 /// file, `replay`): box 2's band std as the board outputs it, with the witness beside the
-/// paper filter and without. Measured: mag_5 0.69 / 0.69 nT (16 records of box 2 shown from
-/// the witness), mag_4 with flux_c 1.10 / 3.54 (3 switches, each carried at the shown level;
-/// with a step at each it was 11.2), mag_3 with flux_b 2.14 / 4.65.
+/// paper filter and without. Measured: mag_5 0.77 / 0.77 nT, mag_4 with flux_c 0.96 / 5.05
+/// (the witness's switches each carried at the shown level; with a step at each it was
+/// 11.2), mag_3 with flux_b 1.82 / 7.41. Before the coefficients' covariance followed the
+/// adapted noise: 0.69 / 0.69, 1.10 / 3.54, 2.14 / 4.65. Flown on in calibrate mode through
+/// a second pattern, the filters that weigh every sample alike follow it more than the
+/// stiff ones did, which had fused box 1's first manoeuvres at the floor; their records'
+/// bounds hold it (docs/model.md §5, "The board's scalar variance").
 #[test]
 fn the_board_flown_cold_through_both_boxes_takes_the_witness_where_it_helps() {
     let d = tmp("board-cold-both");

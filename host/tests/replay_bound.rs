@@ -214,11 +214,25 @@ fn broad_flights_records_hold_their_bound() {
 #[test]
 fn independent_flights_records_hold_their_bound() {
     // The independent simulator's flights, where the shared data are present.
-    for name in ["clean_s33", "lag_s32"] {
-        match independent_sim::independent(name) {
-            Some(trace) => check_unwitnessed(name, &trace, "truth_interference"),
-            None => eprintln!("{name}: shared data absent, not checked"),
+    match independent_sim::independent("clean_s33") {
+        Some(trace) => check_unwitnessed("clean_s33", &trace, "truth_interference"),
+        None => eprintln!("clean_s33: shared data absent, not checked"),
+    }
+    // A scalar lag neither model has: the witnessed filter's extra regressor takes a little
+    // of it, and 4 isolated records (0.4 s) of 11,476 were shown from it once its noise was
+    // re-weighted by the variance factor (`follow_variance_factor`); 52 records converge
+    // either way, none in a run of 30 s. Whatever is shown must hold its bound (checked by
+    // `check_flight`).
+    match independent_sim::independent("lag_s32") {
+        Some(trace) => {
+            let truth = trace.col("truth_interference").unwrap().to_vec();
+            let witnessed = check_flight("lag_s32", &trace, &truth);
+            assert!(
+                witnessed * 100 <= trace.len(),
+                "lag_s32: {witnessed} witness records"
+            );
         }
+        None => eprintln!("lag_s32: shared data absent, not checked"),
     }
 }
 
@@ -226,15 +240,18 @@ fn independent_flights_records_hold_their_bound() {
 fn a_cabin_current_the_fluxgate_also_sees_is_taken_by_the_witness_within_its_bound() {
     // A load current near a cabin scalar and nearer its fluxgate (3 × the field there), its
     // channel not recorded: the paper model cannot see it, the fluxgate's modulus can
-    // (`fluxmod`). The paper filter alone then breaks its bound (seeds 1 / 2: band error
-    // 3.88 / 2.66 nT, error/bound 1.62 / 0.91 with 9.3 / 8.9 % beyond 3σ; about the minute's
-    // mean 3.97 / 2.66, 36 / 24 % beyond). The board shows the witness, whose error is lower
-    // (2.34 / 1.71 nT) and whose rms bound holds in the band (0.89 / 0.68; its own bound was
-    // 2.2–8 × below its error, the two filters' disagreement makes it honest). Not held: the
-    // tails (4.5 / 9.1 % beyond 3σ in the band, the current's on/off ramps) and the minute
-    // scale (1.92 / 2.64, 30 / 41 % beyond 3σ): the current's slow part hides in the anomaly
-    // states of both filters, where neither bound can see it — no worse than the paper
-    // filter alone, which is what is asserted there.
+    // (`fluxmod`). The paper filter alone then breaks its bound (seeds 1 / 3: band error
+    // 4.44 / 3.13 nT, error/bound 1.89 / 1.48 with 13.3 / 10.7 % beyond 3σ; about the
+    // minute's mean 5.19 / 4.60; seed 2: never shown good, 208 records converged in short
+    // runs). The board shows the witness, whose error is lower (2.08 / 1.63 / 1.63 nT) and
+    // whose rms bound holds in the band (0.58 / 0.06 / 0.64: on seed 2 the disagreement
+    // with a paper filter that never settles makes it very cautious; its own bound was
+    // 2.2–8 × below its error). Not held: the tails (4.8 / 0.2 / 4.2 % beyond 3σ in the band,
+    // the current's on/off ramps) and the minute scale (1.53 / 0.22 / 1.96, 26 / 1 / 31 %
+    // beyond 3σ): the current's slow part hides in the anomaly states of both filters,
+    // where neither bound can see it — no worse than the paper filter alone, which is what
+    // is asserted there. (Before the board's covariance followed its adapted noise,
+    // `follow_variance_factor`: paper alone 3.88 / 2.66 / 2.46 nT, pair 2.34 / 1.71 / 1.77.)
     for seed in 1..=3 {
         let name = format!("cabin current seen by the fluxgate, seed {seed}");
         let (recs, pair, paper) = cabin_current_flight(&name, seed, &[]);
@@ -248,8 +265,9 @@ fn a_cabin_current_the_fluxgate_also_sees_is_taken_by_the_witness_within_its_bou
             pair.minute_ratio <= paper.minute_ratio.max(2.0),
             "{name}: {pair:?} against {paper:?}"
         );
+        // where the paper filter alone shows nothing good, the pair's records are all there is
         assert!(
-            pair.band_error_nt <= 0.75 * paper.band_error_nt,
+            paper.records == 0 || pair.band_error_nt <= 0.75 * paper.band_error_nt,
             "{name}: {:.2} against {:.2} nT alone",
             pair.band_error_nt,
             paper.band_error_nt
@@ -265,14 +283,17 @@ fn the_witness_hands_back_when_its_fluxgate_steps() {
     // carry the fluxgate's flags, the paper filter's are shown, and the level is carried
     // by the disagreement last seen with both trusted (by the jump itself, a 426 nT step
     // stayed in the output). Measured, seeds 1 / 2, band error against truth, error/bound,
-    // about the minute's mean: the pair 2.97 / 1.87 nT, 1.08 / 0.70, 2.03 / 2.03; the
-    // paper filter alone 3.89 / 2.47 nT, 1.62 / 0.86, 4.17 / 2.71.
+    // about the minute's mean: the pair 3.26 / 2.19 nT, 0.97 / 0.09, 2.55 / 0.31 (seed 2:
+    // 1,095 records shown good, the witness's before the step; after it the paper filter,
+    // which never converges there, is shown `NOT_CONVERGED`); the paper filter alone 4.40 nT,
+    // 1.87, 5.19 / never shown good.
     for seed in 1..=2 {
         let name = format!("cabin current, the fluxgate stepping at 800 s, seed {seed}");
         let (_, pair, paper) = cabin_current_flight(&name, seed, &["fluxcal@800:1000"]);
         assert!(pair.band_ratio <= 2.0, "{name}: {pair:?}");
+        assert!(pair.records > 0, "{name}: {pair:?}");
         assert!(
-            pair.band_error_nt <= paper.band_error_nt
+            (paper.records == 0 || pair.band_error_nt <= paper.band_error_nt)
                 && pair.minute_ratio <= paper.minute_ratio.max(2.0),
             "{name}: {pair:?} against {paper:?}"
         );

@@ -144,6 +144,9 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     /// Real time: the scalar variance the innovations have shown, held with a long
     /// memory (nT²; 0 before any): rises within seconds, decays over minutes.
     adapted_r: f32,
+    /// The variance factor the covariance is expressed in (1 at the configured noise; see
+    /// `follow_variance_factor` in scalar.rs).
+    variance_factor: f32,
     /// The output interference's sample-to-sample jitter (part of the record's bound).
     jitter: jitter::InterferenceJitter,
     /// The survey envelope's variance at its last evaluation (nT²), and evaluations until
@@ -256,6 +259,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             regressor_mean_count: 0,
             innovations: InnovationMonitor::new(),
             adapted_r: 0.0,
+            variance_factor: 1.0,
             jitter: jitter::InterferenceJitter::new(),
             envelope_var: f32::INFINITY,
             envelope_countdown: 0,
@@ -393,6 +397,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.regressor_mean_count = 0;
         self.innovations = InnovationMonitor::new();
         self.adapted_r = 0.0;
+        self.variance_factor = 1.0;
         self.jitter = jitter::InterferenceJitter::new();
         self.envelope_var = f32::INFINITY;
         self.envelope_countdown = 0;
@@ -544,6 +549,8 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         x0[self.terms_at..self.n].copy_from_slice(&self.last_good[self.terms_at..self.n]);
         let ok = self.filter.reset(self.n, &x0, &[1.0; N]);
         debug_assert!(ok);
+        // the prior is the configured one; the next fusion expresses it in the factor
+        self.variance_factor = 1.0;
         self.ties = [TIE_STATE_INIT; MAX_TIE_POINTS];
         self.regressor_mean_count = 0;
         self.not_converged = true;

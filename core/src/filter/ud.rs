@@ -397,6 +397,15 @@ impl<const N: usize> UdFilter<N> {
         }
     }
 
+    /// Multiplies the whole covariance by `k` (`D ← k·D`; `U` is unchanged): the state of a
+    /// filter whose prior, process and measurement variances were all `k` times larger,
+    /// which gives the same estimate.
+    pub fn scale_covariance(&mut self, k: f32) {
+        for d in self.d[..self.n].iter_mut() {
+            *d *= k;
+        }
+    }
+
     /// True when every `d_i` is finite and non-negative and every `d_i` of a state not
     /// meant to be a clone is positive: the covariance is positive (semi-)definite.
     pub fn is_healthy(&self) -> bool {
@@ -904,6 +913,62 @@ mod tests {
         fast_paths_match_plain_loops::<32>(28, 5);
         // beyond the straight-line columns: the looped fallback
         fast_paths_match_plain_loops::<36>(33, 5);
+    }
+
+    /// Scaling the covariance by `k` before fusing at `k·r` is the filter that had a `k`-times
+    /// prior and fused every sample at `k·r`: the same estimate and covariance, so the
+    /// samples fused before the scaling keep their weight relative to the ones after.
+    #[test]
+    fn scaling_the_covariance_re_weights_the_past_as_a_noise_k_times_larger() {
+        let (k, r) = (44.0f32, 0.09f32);
+        let sigma0 = [3.0f32, 1.0, 2.0];
+        let prior_k: [f32; 3] = core::array::from_fn(|i| sigma0[i] * k.sqrt());
+        let mut rescaled = UdFilter::<3>::new(3, &[0.0; 3], &sigma0).unwrap();
+        let mut from_start = UdFilter::<3>::new(3, &[0.0; 3], &prior_k).unwrap();
+        let sample = |i: usize| {
+            let a = i as f32 * 0.7;
+            (
+                [a.cos(), a.sin(), 1.0],
+                2.0 * a.cos() - a.sin() + 0.5 + 0.3 * (3.1 * a).sin(),
+            )
+        };
+        for i in 0..20 {
+            let (h, z) = sample(i);
+            rescaled.update(&h, z, r).unwrap();
+            from_start.update(&h, z, k * r).unwrap();
+        }
+        rescaled.scale_covariance(k);
+        for i in 20..40 {
+            let (h, z) = sample(i);
+            rescaled.update(&h, z, k * r).unwrap();
+            from_start.update(&h, z, k * r).unwrap();
+        }
+        for i in 0..3 {
+            let (a, b) = (rescaled.state()[i], from_start.state()[i]);
+            assert!(
+                (a - b).abs() <= 1e-4 * b.abs().max(1.0),
+                "x{i}: {a} against {b}"
+            );
+            for j in 0..3 {
+                let (a, b) = (rescaled.covariance(i, j), from_start.covariance(i, j));
+                assert!(
+                    (a - b).abs() <= 1e-4 * b.abs().max(1e-3),
+                    "P{i}{j}: {a} against {b}"
+                );
+            }
+        }
+        // and not the filter that raised r alone: the first 20 samples weigh k × more there
+        let mut raised_alone = UdFilter::<3>::new(3, &[0.0; 3], &sigma0).unwrap();
+        for i in 0..40 {
+            let (h, z) = sample(i);
+            raised_alone
+                .update(&h, z, if i < 20 { r } else { k * r })
+                .unwrap();
+        }
+        let moved = (0..3)
+            .map(|i| (raised_alone.state()[i] - from_start.state()[i]).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1e-3, "{moved}");
     }
 
     #[test]
