@@ -98,11 +98,16 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         status
     }
 
+    /// The configured scalar variance (nT²): `noise_nt`, times the present noise scale.
+    fn configured_variance_nt2(&self) -> f32 {
+        let sigma = self.cfg.noise_nt * self.noise_scale;
+        sigma * sigma
+    }
+
     /// The scalar's variance for the next update (nT²): the configured noise, raised in
     /// real time to what the recent innovations show (`adaptive_noise`).
     fn scalar_variance_nt2(&self) -> f32 {
-        let sigma = self.cfg.noise_nt * self.noise_scale;
-        let configured = sigma * sigma;
+        let configured = self.configured_variance_nt2();
         if self.cfg.adaptive_noise {
             configured.max(self.adapted_r)
         } else {
@@ -128,9 +133,7 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         if !self.cfg.adaptive_noise {
             return;
         }
-        let sigma = self.cfg.noise_nt * self.noise_scale;
-        let configured = sigma * sigma;
-        let factor = (self.adapted_r / configured).max(1.0);
+        let factor = (self.adapted_r / self.configured_variance_nt2()).max(1.0);
         if factor.is_finite() && factor != self.variance_factor {
             self.filter.scale_covariance(factor / self.variance_factor);
             self.variance_factor = factor;
