@@ -12,7 +12,7 @@ use magcomp::calibration::summary::{summarise, Summary};
 use magcomp::calibration::{compensate_trace, EstimatorSettings, Method};
 use magcomp::estimate::jackknife::Estimator;
 use magcomp::io::trace::Trace;
-use magcomp::sim::{parse_hidden, simulate, SimConfig};
+use magcomp::sim::{parse_hidden, simulate, Geology, GeologyPreset, SimConfig};
 
 #[path = "common/independent.rs"]
 mod independent_sim;
@@ -41,6 +41,71 @@ fn run(trace: &Trace, est: &EstimatorSettings) -> Summary {
 
 fn ratio(s: &Summary) -> f64 {
     s.error_rms_nt.expect("truth") / s.predicted_error_nt.expect("predicted")
+}
+
+/// The flight's error lies in its 90 % range (`qc::error_range`).
+fn within_range(s: &Summary) -> bool {
+    let e = s.error_rms_nt.expect("truth");
+    s.predicted_error_range_nt
+        .is_some_and(|[lo, hi]| lo <= e && e <= hi)
+}
+
+/// Issue 17 item 4's floor: one flight's error is spread over few directions (1.5–3.5),
+/// so an honest rms figure cannot hold every flight within [1/3, 2] of itself; the 90 %
+/// range beside it must hold nine flights in ten. 24 flights: 300 m over strong geology
+/// (broad physics and the default aircraft, seeds 1–8 each) and clean 3000 m broad
+/// flights (seeds 1–8). Measured (this commit): 23 of 24 in their range (the one out is
+/// the default aircraft's 300 m seed 6, actual/predicted 2.27), actual/predicted
+/// 0.32–2.27, mean of its square 1.07; on 52 flights (seeds 1–16 of each, four with a
+/// lag) 49 in range (out: 300 m seeds 6 and 10 at 2.27 and 2.24, 3000 m seed 10 at 1.67
+/// against a range up to 1.63 ×), mean square 1.26.
+#[test]
+fn one_flights_error_lies_in_its_predicted_range_on_nine_flights_in_ten() {
+    let strong = |cfg: SimConfig| SimConfig {
+        cal_altitude_m: 300.0,
+        geology: Geology::preset(GeologyPreset::Strong),
+        ..cfg
+    };
+    let mut flights = Vec::new();
+    for seed in 1u64..=8 {
+        flights.push(SimConfig {
+            anomaly_pp_nt: None,
+            ..strong(SimConfig::broad(seed))
+        });
+        flights.push(SimConfig {
+            altitude_swing_m: 100.0,
+            ..strong(SimConfig {
+                seed,
+                ..SimConfig::default()
+            })
+        });
+        flights.push(SimConfig::broad(seed));
+    }
+    let (mut inside, mut square) = (0, 0.0);
+    for cfg in &flights {
+        let d = run(&simulate(cfg).expect("simulate"), &default_settings());
+        let [lo, hi] = d.predicted_error_range_nt.expect("range");
+        let p = d.predicted_error_nt.unwrap();
+        assert!(lo < p && p < hi, "{lo} {p} {hi}");
+        println!(
+            "seed {} at {} m: {:.4} nT, predicted {p:.4} ({:.2}), range {lo:.4}–{hi:.4}",
+            cfg.seed,
+            cfg.cal_altitude_m,
+            d.error_rms_nt.unwrap(),
+            ratio(&d)
+        );
+        inside += usize::from(within_range(&d));
+        square += ratio(&d).powi(2);
+    }
+    let mean_square = square / flights.len() as f64;
+    println!(
+        "{inside} of {} in range, mean ratio² {mean_square:.2}",
+        flights.len()
+    );
+    // 90 % expected: 21.6 of 24, binomial σ 1.5.
+    assert!(inside >= 20, "{inside} of {}", flights.len());
+    // The figure is an rms: the squared ratio averages to 1 when it is honest.
+    assert!((0.6..=1.6).contains(&mean_square), "{mean_square:.2}");
 }
 
 #[test]
@@ -107,9 +172,10 @@ fn independent_simulator_flights_no_worse_than_tl18_ols_and_honestly_predicted()
     let tl = run(&clean, &tl_ols());
     let (e, t) = (d.error_rms_nt.unwrap(), tl.error_rms_nt.unwrap());
     println!(
-        "clean_s33: default {e:.4} nT, TL18-OLS {t:.4}, {:?}",
-        d.cross_check
+        "clean_s33: default {e:.4} nT, TL18-OLS {t:.4}, range {:?}, {:?}",
+        d.predicted_error_range_nt, d.cross_check
     );
+    assert!(within_range(&d), "{:?}", d.predicted_error_range_nt);
     assert!(e <= (1.1 * t).max(t + 0.005), "{e} vs {t}");
     assert!((0.5..=2.0).contains(&ratio(&d)), "{:.2}", ratio(&d));
 
@@ -118,9 +184,12 @@ fn independent_simulator_flights_no_worse_than_tl18_ols_and_honestly_predicted()
     let tl = run(&lag, &tl_ols());
     let (e, t) = (d.error_rms_nt.unwrap(), tl.error_rms_nt.unwrap());
     println!(
-        "lag_s32: default {e:.4} nT, TL18-OLS {t:.4}, model {}",
-        d.model
+        "lag_s32: default {e:.4} nT, TL18-OLS {t:.4}, model {}, range {:?}",
+        d.model, d.predicted_error_range_nt
     );
+    // Not held to its range: 0.083 nT against 0.012–0.074 (this commit), 1.12 × its top.
+    // Not the lag's own uncertainty: found at 164 ± 3 ms against the simulator's 166.3.
+    // One flight in ten out of its 90 % range is what the range allows.
     assert!(d.model.contains("lag"));
     assert!(e < 0.2 * t, "{e} vs {t}");
     assert!((0.5..=2.0).contains(&ratio(&d)), "{:.2}", ratio(&d));

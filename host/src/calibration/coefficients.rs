@@ -88,6 +88,11 @@ pub struct CoefficientFile {
     /// own covariance (`kf::RegressorSpread::sigma_nt`, nT rms).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
+    /// The range one flight's actual error falls in beside `predicted_error_nt` (nT, low
+    /// and high, 90 %): the error of one flight is spread over few directions
+    /// (`crate::qc::error_range`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_error_range_nt: Option<[f64; 2]>,
     /// KF: the coefficients' covariance (rows in the model's coefficient order, as
     /// `calibrate` writes `coefficients`; physical units), so
     /// that `compensate --coeffs` can predict the error on the flight it compensates.
@@ -368,6 +373,7 @@ impl CoefficientFile {
             field_process: None,
             rate_crossover: None,
             predicted_error_nt: None,
+            predicted_error_range_nt: None,
             covariance: None,
             assumed_speed_mps: None,
             cross_check: None,

@@ -58,6 +58,7 @@ pub(super) fn run_kf_method(
     }
     if qc.withheld.is_some() {
         run.predicted_error_nt = None;
+        run.predicted_error_range_nt = None;
     }
     let file = coefficient_file(&run, &spec, &flight, coeffs, assumed_speed_mps);
     let comp = Compensation {
@@ -249,6 +250,7 @@ fn coefficient_file(
             (None, None) => None,
         },
         predicted_error_nt: run.predicted_error_nt,
+        predicted_error_range_nt: run.predicted_error_range_nt,
         assumed_speed_mps,
         cross_check: None,
         predicted_band_rms_nt: None,

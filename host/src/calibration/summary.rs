@@ -33,6 +33,10 @@ pub struct Summary {
     /// says the calibration left part of this flight's interference undetermined.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub predicted_error_nt: Option<f64>,
+    /// The range (nT, low and high, 90 %) one flight's actual error falls in beside
+    /// `predicted_error_nt` (`crate::qc::error_range`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub predicted_error_range_nt: Option<[f64; 2]>,
     /// Calibration: the manoeuvre-band rms another flight like this one should show after
     /// compensation (`CoefficientFile::predicted_band_rms_nt`); with `--coeffs`, the file's,
     /// to hold against `compensated_band_rms_nt`.
@@ -103,6 +107,9 @@ pub fn summarise_with(flight: &Flight, comp: &Compensation, fit_field_estimate: 
         oracle_floor_nt: oracle,
         predicted_error_nt: file
             .and_then(|c| c.predicted_error_nt)
+            .filter(|_| !withheld),
+        predicted_error_range_nt: file
+            .and_then(|c| c.predicted_error_range_nt)
             .filter(|_| !withheld),
         field_process: file.and_then(|c| c.field_process.clone()),
         predicted_band_rms_nt: file

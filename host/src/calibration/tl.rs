@@ -121,12 +121,17 @@ pub(super) fn run_tl_method(
     let predicted_error_nt = refits
         .as_ref()
         .and_then(|r| crate::estimate::jackknife::series_sigma_nt(r));
+    let predicted_error_range_nt = refits.as_ref().and_then(|r| {
+        let n = crate::estimate::jackknife::series_effective_dimensions(r)?;
+        crate::qc::error_range::range_nt(predicted_error_nt?, 0.0, n)
+    });
     let (band_jackknife_nt, holdout_band_nt) = refits.as_ref().map_or((None, None), |r| {
         crate::estimate::jackknife::band_figures(&flight, &span, r)
     });
     let file = CoefficientFile {
         tl_config: Some(fit.config.clone()),
         predicted_error_nt,
+        predicted_error_range_nt,
         ..CoefficientFile::new(
             format!("{:?}", fit.config.terms).to_lowercase(),
             Method::Tl,

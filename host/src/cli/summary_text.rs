@@ -56,6 +56,11 @@ pub fn print_summary(s: &Summary) {
             "  predicted error:            {p:.4} nT rms (the coefficients' covariance and the flight's own jackknife)"
         );
     }
+    if let Some([lo, hi]) = s.predicted_error_range_nt {
+        println!(
+            "  this flight's error:        {lo:.4}–{hi:.4} nT (90 %: its error lies in few directions, so one flight may fall well below or above the rms figure)"
+        );
+    }
     if let Some(p) = s.predicted_band_rms_nt {
         println!(
             "  predicted band rms:         {p:.4} nT (what a flight like the calibration should show in the manoeuvre band after compensation)"

@@ -68,35 +68,79 @@ pub fn covariance(estimates: &[Vec<f64>]) -> Vec<f64> {
 /// The jackknife 1σ of an interference series (nT rms over the samples, each refit's mean
 /// removed: the level is the anomaly's) from the series the refits give.
 pub fn series_sigma_nt(refits: &[Vec<f64>]) -> Option<f64> {
-    let g = refits.len();
-    let n = refits.first()?.len();
-    if g < 2 || refits.iter().any(|r| r.len() != n) {
-        return None;
-    }
-    let finite: Vec<usize> = (0..n)
-        .filter(|&i| refits.iter().all(|r| r[i].is_finite()))
-        .collect();
-    if finite.len() < 2 {
-        return None;
-    }
-    let m = finite.len() as f64;
-    let demeaned: Vec<Vec<f64>> = refits
-        .iter()
-        .map(|r| {
-            let mean = finite.iter().map(|&i| r[i]).sum::<f64>() / m;
-            finite.iter().map(|&i| r[i] - mean).collect()
-        })
-        .collect();
-    let mut var = 0.0;
-    for j in 0..finite.len() {
-        let centre = demeaned.iter().map(|d| d[j]).sum::<f64>() / g as f64;
-        var += demeaned
-            .iter()
-            .map(|d| (d[j] - centre).powi(2))
-            .sum::<f64>();
-    }
-    let sigma = ((g as f64 - 1.0) / g as f64 * var / m).sqrt();
+    let deviations = SeriesDeviations::of(refits)?;
+    let var: f64 = (0..deviations.rows.len())
+        .map(|g| deviations.inner(g, g))
+        .sum();
+    let sigma = var.sqrt();
     sigma.is_finite().then_some(sigma)
+}
+
+/// The number of independent directions [`series_sigma_nt`]'s error is spread over
+/// (`crate::qc::error_range`): `(tr G)² / tr(G²)` of the refits' Gram matrix, whose
+/// non-zero eigenvalues are those of the jackknife covariance times the regressors' spread.
+pub fn series_effective_dimensions(refits: &[Vec<f64>]) -> Option<f64> {
+    let deviations = SeriesDeviations::of(refits)?;
+    let g = deviations.rows.len();
+    let trace: f64 = (0..g).map(|a| deviations.inner(a, a)).sum();
+    let trace_sq: f64 = (0..g * g)
+        .map(|ab| deviations.inner(ab / g, ab % g).powi(2))
+        .sum();
+    let n = trace * trace / trace_sq;
+    (n.is_finite() && n > 0.0).then_some(n)
+}
+
+/// Each refit's series about the refits' centre, over the samples every refit has, each
+/// refit's mean removed.
+struct SeriesDeviations {
+    rows: Vec<Vec<f64>>,
+    /// `(g − 1)/g / m`: the jackknife's scale over the samples' count.
+    scale: f64,
+}
+
+impl SeriesDeviations {
+    fn of(refits: &[Vec<f64>]) -> Option<Self> {
+        let g = refits.len();
+        let n = refits.first()?.len();
+        if g < 2 || refits.iter().any(|r| r.len() != n) {
+            return None;
+        }
+        let finite: Vec<usize> = (0..n)
+            .filter(|&i| refits.iter().all(|r| r[i].is_finite()))
+            .collect();
+        if finite.len() < 2 {
+            return None;
+        }
+        let m = finite.len() as f64;
+        let demeaned: Vec<Vec<f64>> = refits
+            .iter()
+            .map(|r| {
+                let mean = finite.iter().map(|&i| r[i]).sum::<f64>() / m;
+                finite.iter().map(|&i| r[i] - mean).collect()
+            })
+            .collect();
+        let centre: Vec<f64> = (0..finite.len())
+            .map(|j| demeaned.iter().map(|d| d[j]).sum::<f64>() / g as f64)
+            .collect();
+        let rows = demeaned
+            .into_iter()
+            .map(|d| d.iter().zip(&centre).map(|(v, c)| v - c).collect())
+            .collect();
+        Some(Self {
+            rows,
+            scale: (g as f64 - 1.0) / g as f64 / m,
+        })
+    }
+
+    /// The Gram matrix's element (a, b).
+    fn inner(&self, a: usize, b: usize) -> f64 {
+        let dot: f64 = self.rows[a]
+            .iter()
+            .zip(&self.rows[b])
+            .map(|(x, y)| x * y)
+            .sum();
+        self.scale * dot
+    }
 }
 
 /// The refits' manoeuvre-band signals (`figures::band_passed`); None when one cannot be
@@ -236,5 +280,21 @@ mod tests {
         let rms = (base.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / 100.0).sqrt();
         // (g−1)/g · Σ (0.1·b)² over 4 refits = 0.03·b²: σ = √0.03 · rms.
         assert!((sigma / rms - 0.03f64.sqrt()).abs() < 0.02, "{sigma} {rms}");
+        // All of that spread is along one shape.
+        let n = series_effective_dimensions(&scaled).unwrap();
+        assert!((n - 1.0).abs() < 1e-9, "{n}");
+    }
+
+    #[test]
+    fn refits_spread_alike_over_two_shapes_count_two_directions() {
+        let sine: Vec<f64> = (0..200).map(|i| (i as f64 * 0.1).sin()).collect();
+        let cosine: Vec<f64> = (0..200).map(|i| (i as f64 * 0.1).cos()).collect();
+        // ±1 along each shape in turn: the centre is zero, each shape carries half.
+        let refits: Vec<Vec<f64>> = [(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)]
+            .iter()
+            .map(|(a, b)| (0..200).map(|i| a * sine[i] + b * cosine[i]).collect())
+            .collect();
+        let n = series_effective_dimensions(&refits).unwrap();
+        assert!((n - 2.0).abs() < 0.05, "{n}");
     }
 }

@@ -148,6 +148,11 @@ pub fn figures_section(s: &Summary) -> Section {
             "predicted error: coefficient covariance and model error (nT rms)".into(),
             fmt_opt(s.predicted_error_nt, 4),
         ],
+        vec![
+            "this flight's error, 90 % range (nT rms)".into(),
+            s.predicted_error_range_nt
+                .map_or_else(|| "–".into(), |[lo, hi]| format!("{lo:.4}–{hi:.4}")),
+        ],
         // Six decimals: the figure is compared with `compensate --json`'s.
         vec!["error vs truth (nT rms)".into(), fmt_opt(s.error_rms_nt, 6)],
         vec![

@@ -147,6 +147,9 @@ pub struct KfRun {
     /// [`RegressorSpread::sigma_nt`] on this flight: of the calibration, or of the
     /// given coefficients when their covariance was given too (None otherwise).
     pub predicted_error_nt: Option<f64>,
+    /// The range one flight's actual error falls in beside it (nT, low and high;
+    /// `crate::qc::error_range`).
+    pub predicted_error_range_nt: Option<[f64; 2]>,
     /// The coefficients' covariance (k×k, row-major, physical units): the calibration's,
     /// or the one given with the coefficients.
     pub coefficient_covariance: Vec<f64>,
@@ -252,6 +255,16 @@ impl RegressorSpread {
             .map(|(p, c)| p * c)
             .sum();
         var.is_finite().then(|| var.max(0.0).sqrt())
+    }
+
+    /// The number of independent directions [`Self::sigma_nt`]'s error is spread over
+    /// (`crate::qc::error_range::effective_dimensions`).
+    pub fn effective_dimensions(&self, coefficient_covariance: &[f64]) -> Option<f64> {
+        crate::qc::error_range::effective_dimensions(
+            coefficient_covariance,
+            &self.covariance,
+            self.k,
+        )
     }
 }
 

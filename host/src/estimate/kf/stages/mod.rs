@@ -143,6 +143,7 @@ fn report(
         coefficient_names: spec.coefficient_names(),
         coefficient_sigmas: qc.sigmas,
         predicted_error_nt: qc.predicted_error_nt,
+        predicted_error_range_nt: qc.predicted_error_range_nt,
         coefficient_covariance: qc.covariance,
         coefficients: output.coefficients,
         regressors: output.regressors,

@@ -17,6 +17,8 @@ pub(crate) struct QcStage {
     pub sigmas: Vec<f64>,
     /// `RegressorSpread::sigma_nt` on this flight with the model error added.
     pub predicted_error_nt: Option<f64>,
+    /// The range one flight's actual error falls in (`crate::qc::error_range`).
+    pub predicted_error_range_nt: Option<[f64; 2]>,
     pub jackknife: Option<KfJackknife>,
     /// In order: the jackknife's (refits inconsistent), the model error's.
     pub warnings: Vec<String>,
@@ -45,7 +47,7 @@ impl QcStage {
         let sigmas = (0..k)
             .map(|i| covariance[i * k + i].max(0.0).sqrt())
             .collect();
-        let (covariance, predicted_error_nt) =
+        let (covariance, predicted) =
             predicted_error(opts, spread.as_ref(), covariance, noise.model_error_nt);
         if let Some(m) = noise.model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
             let sensor_noise_nt = noise.sensor_noise_nt;
@@ -59,7 +61,8 @@ impl QcStage {
         Ok(Self {
             covariance,
             sigmas,
-            predicted_error_nt,
+            predicted_error_nt: predicted.map(|p| p.figure_nt),
+            predicted_error_range_nt: predicted.and_then(|p| p.range_nt),
             jackknife,
             warnings,
         })
@@ -102,6 +105,14 @@ fn with_jackknife(
     Ok((total, Some(j)))
 }
 
+/// The flight's predicted error (the model error added) and the range one flight's actual
+/// error falls in beside it.
+#[derive(Clone, Copy)]
+struct PredictedError {
+    figure_nt: f64,
+    range_nt: Option<[f64; 2]>,
+}
+
 /// The covariance the run reports and the flight's predicted error (with the model error
 /// added). Given coefficients predict this flight's error only with their own covariance.
 fn predicted_error(
@@ -109,15 +120,22 @@ fn predicted_error(
     spread: Option<&RegressorSpread>,
     covariance: Vec<f64>,
     model_error_nt: Option<f64>,
-) -> (Vec<f64>, Option<f64>) {
-    let (covariance, predicted) = match (&opts.coefficients, &opts.coefficient_covariance) {
-        (Some(_), Some(given)) => (given.clone(), spread.and_then(|s| s.sigma_nt(given))),
-        (Some(_), None) => (covariance, None),
-        (None, _) => {
-            let predicted = spread.and_then(|s| s.sigma_nt(&covariance));
-            (covariance, predicted)
-        }
+) -> (Vec<f64>, Option<PredictedError>) {
+    let covariance = match (&opts.coefficients, &opts.coefficient_covariance) {
+        (Some(_), Some(given)) => given.clone(),
+        (Some(_), None) => return (covariance, None),
+        (None, _) => covariance,
     };
-    let predicted = predicted.map(|p| p.hypot(model_error_nt.unwrap_or(0.0)));
+    let model_error_nt = model_error_nt.unwrap_or(0.0);
+    let predicted = spread.and_then(|s| {
+        let coefficient_part_nt = s.sigma_nt(&covariance)?;
+        let range_nt = s
+            .effective_dimensions(&covariance)
+            .and_then(|n| crate::qc::error_range::range_nt(coefficient_part_nt, model_error_nt, n));
+        Some(PredictedError {
+            figure_nt: coefficient_part_nt.hypot(model_error_nt),
+            range_nt,
+        })
+    });
     (covariance, predicted)
 }
