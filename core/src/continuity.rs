@@ -444,6 +444,99 @@ pub fn modulus_nt(v: [f32; 3]) -> f32 {
     libm::sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
 }
 
+/// Shortest time (s) and fewest frames an axis must repeat the same value while another
+/// axis moves before it is judged stuck: a real fluxgate's noise and the aircraft's motion
+/// change every axis from frame to frame (SGL 2020's fluxgates never repeat a value twice
+/// in a row in flight), and 2 s is one turbulence period.
+const STUCK_MIN_S: f64 = 2.0;
+const STUCK_MIN_FRAMES: u32 = 20;
+/// How far (nT) another axis must move meanwhile: the aircraft is moving, so the stuck
+/// axis should have too. At rest nothing moves and no axis is judged.
+const STUCK_OTHERS_MOVE_NT: f32 = 5.0;
+
+/// An axis that repeats one value while the others move (a dead channel, an axis read as 0
+/// from power-up): the continuity check sees a change, not a channel that never changes.
+/// From the second frame on, until every axis has been seen to change once since the
+/// start, the frames are not trusted either: an axis that has never moved cannot be told
+/// from a dead one (a real fluxgate's noise moves every axis between its first two frames,
+/// so a working one loses none; the first frame, which nothing can judge, is taken, and
+/// its record is already `DERIVATIVE_DEGRADED`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StuckAxis {
+    /// Per axis: the frame where its current run of one value began, its time and the
+    /// frames since.
+    runs: [Option<([f32; 3], f64, u32)>; 3],
+    /// Per axis: it has changed since the start.
+    moved: [bool; 3],
+    /// Frames judged since the start (saturating).
+    frames: u32,
+}
+
+impl StuckAxis {
+    pub const fn new() -> Self {
+        Self {
+            runs: [None; 3],
+            moved: [false; 3],
+            frames: 0,
+        }
+    }
+
+    /// Forgets every run (a restart, a gap).
+    pub fn restart(&mut self) {
+        *self = Self::new();
+    }
+
+    /// The frame `v` at `t_s`: true from the second frame while an axis has not changed
+    /// since the start, and
+    /// when one has held one value for at least `STUCK_MIN_S` and `STUCK_MIN_FRAMES`
+    /// while another moved `STUCK_OTHERS_MOVE_NT`.
+    pub fn judge(&mut self, t_s: f64, v: [f32; 3]) -> bool {
+        let mut stuck = false;
+        self.frames = self.frames.saturating_add(1);
+        for (axis, run) in self.runs.iter_mut().enumerate() {
+            if run.is_some_and(|(start, _, _)| start[axis] != v[axis]) {
+                self.moved[axis] = true;
+            }
+            match run {
+                Some((start, t0, frames)) if start[axis] == v[axis] && t_s >= *t0 => {
+                    *frames += 1;
+                    let others_moved = (0..3)
+                        .filter(|&b| b != axis)
+                        .any(|b| (v[b] - start[b]).abs() > STUCK_OTHERS_MOVE_NT);
+                    stuck |=
+                        *frames >= STUCK_MIN_FRAMES && t_s - *t0 >= STUCK_MIN_S && others_moved;
+                }
+                _ => *run = Some((v, t_s, 1)),
+            }
+        }
+        // The whole frame repeated (a reader that resends its last buffer): nothing moved,
+        // which the aircraft cannot hold for 2 s in the air, and a fluxgate's noise not
+        // even at rest.
+        let frozen = self.runs.iter().all(|r| {
+            r.is_some_and(|(_, t0, frames)| frames >= STUCK_MIN_FRAMES && t_s - t0 >= STUCK_MIN_S)
+        });
+        stuck || frozen || (self.frames >= 2 && self.moved.contains(&false))
+    }
+}
+
+/// Largest difference between the fluxgate's modulus and the scalar field, as a fraction of
+/// the scalar, that a working fluxgate shows. SGL 2020's uncalibrated fluxgates differ from
+/// their scalars by up to 12 % (6,176 nT, `flux_c` against `mag_4` through calibration
+/// box 1: scale, offset and the cabin's own field). An axis read as 0 from power-up, which
+/// the continuity check cannot see (it has no past), takes that axis's component away: on
+/// the vertical axis 60–95 % of the field.
+pub const FLUX_SCALAR_MAX_FRACTION: f32 = 0.2;
+
+/// The fluxgate frame `flux_nt` reads no field an aircraft carrying the scalar that reads
+/// `scalar_nt` can see: their moduli differ by more than [`FLUX_SCALAR_MAX_FRACTION`].
+pub fn flux_disagrees_with_scalar(flux_nt: [f32; 3], scalar_nt: f32) -> bool {
+    let m = modulus_nt(flux_nt);
+    m.is_finite()
+        && scalar_nt.is_finite()
+        && scalar_nt > 0.0
+        && (m - scalar_nt).abs() > FLUX_SCALAR_MAX_FRACTION * scalar_nt
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -643,5 +736,83 @@ mod tests {
             "not finite"
         );
         assert_eq!(c.judge(0.2, flux_quiet(2)), Continuity::Consistent);
+    }
+
+    #[test]
+    fn an_axis_that_never_moves_while_the_others_do_is_stuck_after_two_seconds() {
+        // 10 Hz, the aircraft rolling: x and y swing by hundreds of nT, z reads 0.
+        let frame = |k: u32| {
+            let a = k as f32 * 0.3;
+            [15_000.0 * libm::cosf(a), 15_000.0 * libm::sinf(a), 0.0]
+        };
+        // Never seen to move: the first frame is taken (nothing can judge it), the
+        // second and every one after it are not trusted.
+        let mut check = StuckAxis::new();
+        assert!(!check.judge(0.0, frame(0)));
+        assert!((1..40u32).all(|k| check.judge(f64::from(k) * 0.1, frame(k))));
+        // Once it moves, it is trusted; stuck again while the others move, it is judged
+        // stuck on the run's 21st frame (2.0 s).
+        assert!(!check.judge(4.0, [1.0, 2.0, 3.0]));
+        let first = (41..80u32)
+            .find(|&k| check.judge(f64::from(k) * 0.1, frame(k)))
+            .expect("judged stuck");
+        assert_eq!(first, 61, "the run began at frame 41: {first}");
+    }
+
+    #[test]
+    fn a_fluxgate_at_rest_or_in_motion_is_never_stuck() {
+        // At rest a fluxgate's noise moves every axis: nothing is judged.
+        let noise = |k: u32| [0.1, -0.1, 0.05].map(|a| if k.is_multiple_of(2) { a } else { -a });
+        let mut rest = StuckAxis::new();
+        assert!((0..100u32).all(|k| {
+            let n = noise(k);
+            !rest.judge(
+                f64::from(k) * 0.1,
+                [15_000.0 + n[0], -800.0 + n[1], 49_000.0 + n[2]],
+            )
+        }));
+        let mut moving = StuckAxis::new();
+        moving.judge(0.0, [0.0; 3]);
+        assert!((1..100u32).all(|k| {
+            let a = k as f32 * 0.05;
+            !moving.judge(
+                f64::from(k) * 0.1,
+                [
+                    15_000.0 + 50.0 * libm::sinf(a),
+                    -800.0 + 30.0 * libm::cosf(a),
+                    49_000.0 + a,
+                ],
+            )
+        }));
+    }
+
+    #[test]
+    fn a_frame_repeated_whole_for_two_seconds_is_frozen() {
+        let mut check = StuckAxis::new();
+        assert!(!check.judge(0.0, [15_000.0, -800.0, 49_000.0]));
+        assert!(!check.judge(0.1, [15_000.1, -800.1, 49_000.1]));
+        let frozen = [15_000.2, -800.2, 49_000.2];
+        let first = (2..60u32)
+            .find(|&k| check.judge(f64::from(k) * 0.1, frozen))
+            .expect("judged frozen");
+        assert_eq!(first, 22, "the run began at frame 2: {first}");
+    }
+
+    #[test]
+    fn a_fluxgate_modulus_far_from_the_scalar_is_no_field() {
+        // SGL's worst uncalibrated fluxgate, 12 % off, passes; a vertical axis read as 0
+        // does not.
+        assert!(!flux_disagrees_with_scalar(
+            [45_000.0, 0.0, 30_000.0],
+            48_000.0
+        ));
+        assert!(flux_disagrees_with_scalar(
+            [15_552.0, -794.0, 0.0],
+            51_522.0
+        ));
+        assert!(!flux_disagrees_with_scalar(
+            [15_552.0, -794.0, 0.0],
+            f32::NAN
+        ));
     }
 }

@@ -43,7 +43,7 @@ pub use output::{AcqCounters, AcqRecord};
 
 use crate::compensator::witness::WitnessChoice;
 use crate::compensator::{Compensator, CompensatorConfig, CompensatorError};
-use crate::continuity::{Continuity, FluxContinuity};
+use crate::continuity::{Continuity, FluxContinuity, StuckAxis};
 use crate::epoch::AlignedSample;
 use crate::flags::Flags;
 use crate::model::Model;
@@ -66,6 +66,10 @@ use crate::protocol::scalar::{
 };
 use crate::units::MagCounts;
 
+/// Oldest scalar value a fluxgate frame is held against (µs): the field moves at most a few
+/// nT in a second, far inside the check's 20 % of it.
+const SCALAR_REFERENCE_MAX_AGE_US: u64 = 1_000_000;
+
 /// Sensor bytes → records. `N`, `W`: the compensator's state and derivative-ring capacity.
 pub struct Acquisition<'a, const N: usize, const W: usize> {
     cfg: AcqConfig,
@@ -76,6 +80,8 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     aligner: Aligner,
     /// The fluxgate modulus judged against its recent past, frame by frame.
     flux_check: FluxContinuity,
+    /// The raw frames' axes, each judged for a value that never changes.
+    flux_stuck: StuckAxis,
     comp: Compensator<'a, N, W>,
     /// Channels 1 and 2 of a counter line (`comp` is channel 0).
     extra: [Compensator<'a, N, W>; MAX_CHANNELS - 1],
@@ -99,6 +105,9 @@ pub struct Acquisition<'a, const N: usize, const W: usize> {
     /// `(t at k_anchor, k_anchor)`.
     anchor: Option<(f64, u32)>,
     counters: AcqCounters,
+    /// The latest scalar value (nT) and its virtual time, that fluxgate frames are held
+    /// against ([`flux_disagrees_with_scalar`](crate::continuity::flux_disagrees_with_scalar)).
+    last_scalar: Option<(u64, f32)>,
     /// `RAW,ON`: each scalar sample is also kept as a raw line ([`take_raw`](Self::take_raw)).
     raw_output: bool,
     last_raw: Option<RawLine>,
@@ -124,6 +133,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             nmea: NmeaReader::new(),
             aligner: Aligner::new(cfg.aligner_config()),
             flux_check: FluxContinuity::new(),
+            flux_stuck: StuckAxis::new(),
             comp,
             extra,
             channels: 1,
@@ -136,6 +146,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             last_fix: None,
             anchor: None,
             counters: AcqCounters::default(),
+            last_scalar: None,
             raw_output: false,
             last_raw: None,
         })
@@ -188,6 +199,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             nmea: NmeaReader::new(),
             aligner: Aligner::new(aligner),
             flux_check: FluxContinuity::new(),
+            flux_stuck: StuckAxis::new(),
             comp: Compensator::placeholder(model),
             extra: [
                 Compensator::placeholder(model),
@@ -203,6 +215,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
             last_fix: None,
             anchor: None,
             counters: COUNTERS_ZERO,
+            last_scalar: None,
             raw_output: false,
             last_raw: None,
         }
@@ -236,6 +249,8 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         self.nmea = NmeaReader::new();
         self.aligner = Aligner::new(cfg.aligner_config());
         self.flux_check = FluxContinuity::new();
+        self.flux_stuck.restart();
+        self.last_scalar = None;
         // A fresh start has no delay until one is set (the board reloads its stored τ).
         self.lag_s = 0.0;
         if let Some(l) = self.lag_line.as_deref_mut() {
@@ -272,6 +287,7 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         // A fresh start for the fluxgate's continuity check too: the frames before the
         // restart need not continue into the ones after it.
         self.flux_check.restart();
+        self.flux_stuck.restart();
         Ok(())
     }
 
@@ -435,6 +451,9 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         if line_error {
             inc(&mut self.counters.scalar_errors);
             self.aligner.note_parse_error();
+        }
+        if let Some(m) = mag {
+            self.last_scalar = Some((t_us, m.to_nt_f64() as f32));
         }
         let mut s = self
             .aligner
@@ -607,9 +626,13 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
     /// aligner and the delay line hold and interpolate corrected vectors.
     pub fn flux_result_temp(&mut self, r: Result<[f32; 3], FluxError>, temp_degc: f32) {
         match r {
-            Ok(v) => {
+            Ok(raw) => {
                 inc(&mut self.counters.flux_frames);
-                let v = self.cfg.flux_temp_cal.apply(v, temp_degc);
+                // Judged raw: a correction that mixes the axes or follows the temperature
+                // would move a dead channel.
+                let stuck = raw.iter().all(|x| x.is_finite())
+                    && self.flux_stuck.judge(self.now_us() as f64 * 1e-6, raw);
+                let v = self.cfg.flux_temp_cal.apply(raw, temp_degc);
                 if !v[0].is_finite() {
                     // A correction is set and this frame has no temperature: the frame
                     // counts (timing, lost-frame checks) but samples using it are FLUX_STALE.
@@ -627,11 +650,13 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 };
                 let now = self.now_us();
                 if v.iter().all(|x| x.is_finite())
-                    && self.flux_check.judge(now as f64 * 1e-6, v) == Continuity::Suspect
+                    && (self.flux_check.judge(now as f64 * 1e-6, v) == Continuity::Suspect
+                        || stuck
+                        || self.flux_disagrees_with_scalar(now, v))
                 {
-                    // Parsed but read wrong (an axis 0, a corrupted digit): as a frame
-                    // without its temperature, it counts for timing, samples using it are
-                    // FLUX_STALE.
+                    // Parsed but read wrong (an axis 0, a corrupted digit, a dead axis from
+                    // power-up): as a frame without its temperature, it counts for timing,
+                    // samples using it are FLUX_STALE.
                     inc(&mut self.counters.flux_suspect);
                     self.aligner.push_flux_unusable(now);
                     if let Some(l) = self.lag_line.as_deref_mut() {
@@ -650,6 +675,15 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 self.aligner.note_parse_error();
             }
         }
+    }
+
+    /// The frame `flux_nt` at `now_us` against the latest scalar value, when that is at
+    /// most [`SCALAR_REFERENCE_MAX_AGE_US`] old (a silent scalar judges nothing).
+    fn flux_disagrees_with_scalar(&self, now_us: u64, flux_nt: [f32; 3]) -> bool {
+        self.last_scalar.is_some_and(|(t_us, scalar_nt)| {
+            now_us.saturating_sub(t_us) <= SCALAR_REFERENCE_MAX_AGE_US
+                && crate::continuity::flux_disagrees_with_scalar(flux_nt, scalar_nt)
+        })
     }
 
     /// One byte from the GPS port.
