@@ -46,6 +46,8 @@ struct Row {
     chosen: f64,
     chosen_predicted: f64,
     joint_chosen: bool,
+    /// The kept figure's 90 % range (`qc::error_range`).
+    range: Option<[f64; 2]>,
     /// The kept figure says it is a lower bound (the sensor's lever arm, `multi::lever`).
     lower_bound: bool,
     /// The lever arm's signal in the band (nT) and the noise the calibration allowed for.
@@ -74,6 +76,11 @@ fn run_at(cfg: &SimConfig, offsets: &[[f64; 3]]) -> (Vec<Row>, f64, f64) {
             chosen: s.chosen_truth_error_nt().unwrap(),
             chosen_predicted: s.chosen_predicted_nt().unwrap(),
             joint_chosen: s.joint_chosen,
+            range: s
+                .chosen()
+                .coefficients
+                .as_ref()
+                .and_then(|c| c.predicted_error_range_nt),
             lower_bound: s.chosen_predicted_is_lower_bound(),
             lever: s.lever_arm.map(|l| (l.signal_band_nt, l.noise_nt)),
         })
@@ -103,11 +110,14 @@ fn run_at(cfg: &SimConfig, offsets: &[[f64; 3]]) -> (Vec<Row>, f64, f64) {
 /// lacks: 0.052 nT in the band from the flight's gradient and their motion, 4.6 × the
 /// 0.011 nT noise they allowed for (3000 m: 0.001 nT, 0.09 ×), so their figure says it is
 /// a lower bound.
+/// Since the joint figure is held to its move from the alone one
+/// (`multi::choice::no_better_than_its_move`), the stinger's joint predicted error at
+/// 3000 m is 0.0059 nT (0.0042 before; actual 0.0029, 0.50 ×).
 /// Asserted: the kept result ≤ 1.05 × alone + 0.002 nT per sensor; the joint's actual ≤
-/// 2 × its predicted (never optimistic); the kept result's actual/predicted within [0.5, 2]
-/// at 3000 m and never below 1/3 at 300 m (issue 17 item 4); above 2 only where the figure
-/// says it is a lower bound, which it says for the wingtips at 300 m and for no sensor at
-/// 3000 m; the wingtip gradient (16 m) within 0.002 nT/m at 3000 m and 0.05 nT/m at 300 m.
+/// 2 × its predicted (never optimistic); the kept result's actual within its 90 % range
+/// (`qc::error_range`; issue 17 item 4), above it only where the figure says it is a lower
+/// bound, which it says for the wingtips at 300 m and for no sensor at 3000 m; the
+/// wingtip gradient (16 m) within 0.002 nT/m at 3000 m and 0.05 nT/m at 300 m.
 #[test]
 fn joint_against_alone_on_simulated_stinger_and_wingtips() {
     let results: Vec<_> = cases().into_iter().map(|c| (run(&c.cfg, 3), c)).collect();
@@ -115,7 +125,7 @@ fn joint_against_alone_on_simulated_stinger_and_wingtips() {
         for r in per {
             eprintln!(
                 "{} {}: alone {:.4}, joint {:.4} nT (predicted {:.4}); kept: {} {:.4} \
-                 (predicted {:.4}{}, actual/predicted {:.2}); lever arm {:?}",
+                 (predicted {:.4}{}, actual/predicted {:.2}, range {:?}); lever arm {:?}",
                 c.label,
                 r.name,
                 r.alone,
@@ -126,6 +136,7 @@ fn joint_against_alone_on_simulated_stinger_and_wingtips() {
                 r.chosen_predicted,
                 if r.lower_bound { ", a lower bound" } else { "" },
                 r.chosen / r.chosen_predicted,
+                r.range,
                 r.lever
             );
         }
@@ -153,11 +164,10 @@ fn joint_against_alone_on_simulated_stinger_and_wingtips() {
                 r.joint,
                 r.joint_predicted
             );
-            let ratio = r.chosen / r.chosen_predicted;
-            let lo = if high { 0.5 } else { 1.0 / 3.0 };
+            let [lo, hi] = r.range.expect("range");
             assert!(
-                ratio >= lo && (ratio <= 2.0 || r.lower_bound),
-                "{} {}: actual {:.4} / predicted {:.4} = {ratio:.2} (lower bound: {})",
+                lo <= r.chosen && (r.chosen <= hi || r.lower_bound),
+                "{} {}: actual {:.4}, predicted {:.4} in {lo:.4}–{hi:.4} (lower bound: {})",
                 c.label,
                 r.name,
                 r.chosen,
@@ -267,4 +277,38 @@ fn the_wingtips_lever_arm_is_what_their_figure_misses() {
         assert!(e_own - e_c > p_own, "{}", s.name);
         assert!((0.5..=2.0).contains(&(e_c / p_c)), "{}", s.name);
     }
+}
+
+/// The kept stinger's figure at 3000 m over seeds 1–6 (issue 19 item 4): the joint set is
+/// kept on every seed, and before its figure was held to its move from the alone set
+/// (`multi::choice::no_better_than_its_move`) it was optimistic: actual/predicted 0.69 /
+/// 1.49 / 1.61 / 1.43 / 1.35 / 1.61, mean square 1.96 (seeds 1–10: 2.18, up to 2.90).
+/// Measured now: 0.50 / 1.13 / 1.18 / 1.43 / 1.04 / 1.53, mean square 1.40 (seeds 1–10:
+/// 1.15, every one in its 90 % range). Asserted: each in its range, mean square ≤ 1.6 (an
+/// honest rms figure gives 1).
+#[test]
+fn the_kept_stingers_figure_is_honest_across_seeds() {
+    let mut square = 0.0;
+    let seeds = 1u64..=6;
+    for seed in seeds.clone() {
+        let cfg = SimConfig {
+            seed,
+            ..Default::default()
+        };
+        let (per, _, _) = run(&cfg, 3);
+        let r = &per[0];
+        let ratio = r.chosen / r.chosen_predicted;
+        let [lo, hi] = r.range.expect("range");
+        eprintln!(
+            "seed {seed} stinger: {} {:.4} nT, predicted {:.4} ({ratio:.2}), range {lo:.4}–{hi:.4}",
+            if r.joint_chosen { "joint" } else { "alone" },
+            r.chosen,
+            r.chosen_predicted
+        );
+        assert!(lo <= r.chosen && r.chosen <= hi, "seed {seed}: {ratio:.2}");
+        square += ratio * ratio;
+    }
+    let mean_square = square / seeds.count() as f64;
+    eprintln!("mean (actual/predicted)²: {mean_square:.2}");
+    assert!(mean_square <= 1.6, "{mean_square:.2}");
 }

@@ -3,7 +3,7 @@
 //! [`magcomp_core::joint::JointFilter`] over all of them with the anomaly shared, and the
 //! joint coefficients applied to every sample, as the single-sensor post-flight run does.
 
-use super::choice::{checked_against_least_squares, choose_result};
+use super::choice::{checked_against_least_squares, choose_result, no_better_than_its_move};
 use super::joint_pass::{choose_field_process, pass, prepare, prepare_flights, Pass, Prepared};
 use super::lever::{lever_arms, LeverArm};
 use super::result::{Alone, JointResult};
@@ -82,7 +82,7 @@ pub fn calibrate_joint_checking(
         let flight = &flights[j];
         let evidence = SensorEvidence::of(&prepared, j, &refits[j], flight);
         jackknife_nt.push(evidence.jackknife_nt);
-        let (joint, predicted) = joint_compensation(
+        let (mut joint, predicted) = joint_compensation(
             &full,
             j,
             evidence,
@@ -97,6 +97,7 @@ pub fn calibrate_joint_checking(
             .coefficients
             .as_ref()
             .and_then(|c| c.predicted_error_nt);
+        let predicted = no_better_than_its_move(&mut joint, predicted, &alone_j, alone_predicted);
         let mut r = choose_result(s, alone_j, joint, predicted, alone_predicted, flight);
         if checked[j] {
             checked_against_least_squares(&mut r, &trace_j, est, flight)?;
