@@ -505,6 +505,10 @@ fn status(acq: &BoardAcquisition) -> Line {
             c.byte(b',')?;
             c.u64(v.into())?;
         }
+        // fluxgate frames refused as suspect (a step, an axis that does not move, a
+        // modulus 20 % off the scalar): why records are FLUX_STALE while frames arrive
+        c.byte(b',')?;
+        c.u64(n.flux_suspect.into())?;
         Ok(())
     })
 }

@@ -610,7 +610,7 @@ fn status_reports_uart_errors_by_kind_and_port() {
     assert_one_record_per_sample(name, &b, &cap, &recs);
     let s = reply(&mut b, "MCCMD,STATUS");
     let f: Vec<&str> = s.split('*').next().unwrap_or_default().split(',').collect();
-    assert_eq!(f.len(), 2 + 1 + 6 + 7, "{name}: STATUS fields: {s}");
+    assert_eq!(f.len(), 2 + 1 + 6 + 7 + 1, "{name}: STATUS fields: {s}");
     let n: Vec<u64> = f[3..].iter().map(|v| v.parse().unwrap()).collect();
     let (uart, kinds, ports) = (n[4], &n[6..9], &n[9..13]);
     assert_eq!(
@@ -624,6 +624,8 @@ fn status_reports_uart_errors_by_kind_and_port() {
         "{name}: err_uart = ports: {s}"
     );
     assert_eq!(uart, 0, "{name}: UART errors on clean input: {s}");
+    // The last field: fluxgate frames refused as suspect, none from a working fluxgate.
+    assert_eq!(n[13], 0, "{name}: flux_suspect on clean input: {s}");
     eprintln!("{name}: {s}");
 }
 

@@ -3,8 +3,8 @@
 //! CRC-checked, and the STATUS counters are shown.
 
 use magcomp::board::monitor::{
-    checked_body, monitor_stream, parse_boot, parse_status, parse_sync, BoardStatus, Display,
-    Monitor,
+    checked_body, monitor_stream, parse_boot, parse_status, parse_sync, status_text, BoardStatus,
+    Display, Monitor,
 };
 use magcomp_core::protocol::common::crc16_ccitt;
 use magcomp_core::protocol::record::{encode_record, Record, MAX_RECORD_LEN};
@@ -64,6 +64,7 @@ fn board_lines_parse_with_their_crc() {
             err_gps: 33,
             err_uart: 1,
             err_cmd: 2,
+            flux_suspect: None,
         })
     );
     assert!(parse_status(&sentence("MCACK,STATUS,FOO,1,2,3,4,5,6")).is_none());
@@ -72,6 +73,14 @@ fn board_lines_parse_with_their_crc() {
     let s = parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2,0,1,0,4,0")).unwrap();
     assert_eq!((s.err_uart, s.err_cmd), (5, 6));
     assert!(parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2")).is_none());
+    // and then the fluxgate frames refused as suspect
+    let s = parse_status(&sentence("MCACK,STATUS,CAL,1,2,3,4,5,6,3,2,0,1,0,4,0,12")).unwrap();
+    assert_eq!((s.err_cmd, s.flux_suspect), (6, Some(12)));
+    assert!(
+        status_text(&s).ends_with("| flux suspect 12"),
+        "{}",
+        status_text(&s)
+    );
     // a wrong CRC is not a board line
     let mut bad = sentence("MCSYN,1,2,3");
     bad[3] = b'X';

@@ -112,7 +112,7 @@ pub struct BootBanner {
     pub panic: Option<String>,
 }
 
-/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>[,<7 UART counts>]*HHHH`.
+/// `$MCACK,STATUS,<CAL|SURVEY>,<records>,<err_scalar>,<err_flux>,<err_gps>,<err_uart>,<err_cmd>[,<7 UART counts>[,<flux_suspect>]]*HHHH`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BoardStatus {
     pub survey: bool,
@@ -126,6 +126,8 @@ pub struct BoardStatus {
     pub err_uart: u64,
     /// Commands rejected with `$MCERR`.
     pub err_cmd: u64,
+    /// Fluxgate frames refused as suspect (firmware from 2026-11-27; None before).
+    pub flux_suspect: Option<u64>,
 }
 
 /// The body of `$<body>*HHHH` (line end optional) when its CRC-16 is right.
@@ -196,9 +198,10 @@ pub fn parse_status(l: &[u8]) -> Option<BoardStatus> {
         *v = f.next()?.parse().ok()?;
     }
     // firmware from 2026-11-25 appends the UART errors by kind (3) and by port (4):
-    // accepted, not shown
+    // accepted, not shown; from 2026-11-27 the fluxgate frames refused as suspect
     let rest: Vec<&str> = f.collect();
-    let extra_ok = matches!(rest.len(), 0 | 7) && rest.iter().all(|v| v.parse::<u64>().is_ok());
+    let extra_ok = matches!(rest.len(), 0 | 7 | 8) && rest.iter().all(|v| v.parse::<u64>().is_ok());
+    let flux_suspect = rest.get(7).and_then(|v| v.parse().ok());
     extra_ok.then_some(BoardStatus {
         survey,
         records: n[0],
@@ -207,6 +210,7 @@ pub fn parse_status(l: &[u8]) -> Option<BoardStatus> {
         err_gps: n[3],
         err_uart: n[4],
         err_cmd: n[5],
+        flux_suspect,
     })
 }
 
@@ -546,10 +550,13 @@ impl Monitor {
     }
 }
 
-/// `CAL records 400 | errors scalar 0 flux 0 gps 0 uart 0 cmd 0`.
+/// `CAL records 400 | errors scalar 0 flux 0 gps 0 uart 0 cmd 0 | flux suspect 0`.
 pub fn status_text(st: &BoardStatus) -> String {
+    let suspect = st
+        .flux_suspect
+        .map_or(String::new(), |n| format!(" | flux suspect {n}"));
     format!(
-        "{} records {} | errors scalar {} flux {} gps {} uart {} cmd {}",
+        "{} records {} | errors scalar {} flux {} gps {} uart {} cmd {}{suspect}",
         if st.survey { "SURVEY" } else { "CAL" },
         st.records,
         st.err_scalar,
