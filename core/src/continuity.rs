@@ -481,15 +481,15 @@ impl StuckAxis {
         }
     }
 
-    /// Forgets every run (a restart, a gap).
+    /// Forgets every run (a restart).
     pub fn restart(&mut self) {
         *self = Self::new();
     }
 
     /// The frame `v` at `t_s`: true from the second frame while an axis has not changed
-    /// since the start, and
-    /// when one has held one value for at least `STUCK_MIN_S` and `STUCK_MIN_FRAMES`
-    /// while another moved `STUCK_OTHERS_MOVE_NT`.
+    /// since the start, when one has held one value for at least `STUCK_MIN_S` and
+    /// `STUCK_MIN_FRAMES` while another moved `STUCK_OTHERS_MOVE_NT`, and when the whole
+    /// frame has held as long.
     pub fn judge(&mut self, t_s: f64, v: [f32; 3]) -> bool {
         let mut stuck = false;
         self.frames = self.frames.saturating_add(1);
@@ -499,7 +499,7 @@ impl StuckAxis {
             }
             match run {
                 Some((start, t0, frames)) if start[axis] == v[axis] && t_s >= *t0 => {
-                    *frames += 1;
+                    *frames = frames.saturating_add(1);
                     let others_moved = (0..3)
                         .filter(|&b| b != axis)
                         .any(|b| (v[b] - start[b]).abs() > STUCK_OTHERS_MOVE_NT);
