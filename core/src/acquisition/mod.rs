@@ -628,15 +628,16 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
         match r {
             Ok(raw) => {
                 inc(&mut self.counters.flux_frames);
+                // The frame's time on the board's clock, for every check and store below.
+                let now = self.now_us();
                 // Judged raw: a correction that mixes the axes or follows the temperature
                 // would move a dead channel.
                 let stuck = raw.iter().all(|x| x.is_finite())
-                    && self.flux_stuck.judge(self.now_us() as f64 * 1e-6, raw);
+                    && self.flux_stuck.judge(now as f64 * 1e-6, raw);
                 let v = self.cfg.flux_temp_cal.apply(raw, temp_degc);
                 if !v[0].is_finite() {
                     // A correction is set and this frame has no temperature: the frame
                     // counts (timing, lost-frame checks) but samples using it are FLUX_STALE.
-                    let now = self.now_us();
                     self.aligner.push_flux_unusable(now);
                     if let Some(l) = self.lag_line.as_deref_mut() {
                         l.push(now, v);
@@ -648,7 +649,6 @@ impl<'a, const N: usize, const W: usize> Acquisition<'a, N, W> {
                 } else {
                     self.cfg.flux_scalar_cal.apply(v)
                 };
-                let now = self.now_us();
                 if v.iter().all(|x| x.is_finite())
                     && (self.flux_check.judge(now as f64 * 1e-6, v) == Continuity::Suspect
                         || stuck

@@ -86,8 +86,7 @@ pub fn series_effective_dimensions(refits: &[Vec<f64>]) -> Option<f64> {
     let trace_sq: f64 = (0..g * g)
         .map(|ab| deviations.inner(ab / g, ab % g).powi(2))
         .sum();
-    let n = trace * trace / trace_sq;
-    (n.is_finite() && n > 0.0).then_some(n)
+    crate::qc::error_range::participation_ratio(trace, trace_sq)
 }
 
 /// Each refit's series about the refits' centre, over the samples every refit has, each

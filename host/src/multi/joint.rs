@@ -273,11 +273,9 @@ fn joint_compensation(
     file.sigma1 = Some(sigma1);
     file.predicted_error_nt = predicted;
     // The covariance and the jackknife summed, spread as their sum is.
-    file.predicted_error_range_nt = spread.as_ref().and_then(|s| {
-        let coefficient_part_nt = s.sigma_nt(&cov)?;
-        let n = s.effective_dimensions(&cov)?;
-        crate::qc::error_range::range_nt(coefficient_part_nt, model_error, n)
-    });
+    file.predicted_error_range_nt = spread
+        .as_ref()
+        .and_then(|s| s.error_range_nt(&cov, model_error));
     file.cross_check = None;
     file.rate_crossover = None;
     file.field_process = Some(label.to_string());

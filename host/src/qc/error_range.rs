@@ -33,7 +33,13 @@ pub fn effective_dimensions(p: &[f64], c: &[f64], k: usize) -> Option<f64> {
     let trace_sq: f64 = (0..k * k)
         .map(|ab| pc[ab] * pc[(ab % k) * k + ab / k])
         .sum();
-    let n = trace * trace / trace_sq;
+    participation_ratio(trace, trace_sq)
+}
+
+/// `(Σ λ)² / Σ λ²` from a matrix's trace and the trace of its square: the effective number
+/// of directions, whichever matrix carries the eigenvalues. None when not finite.
+pub fn participation_ratio(trace: f64, trace_of_square: f64) -> Option<f64> {
+    let n = trace * trace / trace_of_square;
     (n.is_finite() && n > 0.0).then_some(n)
 }
 

@@ -257,14 +257,21 @@ impl RegressorSpread {
         var.is_finite().then(|| var.max(0.0).sqrt())
     }
 
-    /// The number of independent directions [`Self::sigma_nt`]'s error is spread over
-    /// (`crate::qc::error_range::effective_dimensions`).
-    pub fn effective_dimensions(&self, coefficient_covariance: &[f64]) -> Option<f64> {
-        crate::qc::error_range::effective_dimensions(
+    /// The range one flight's error falls in (`crate::qc::error_range::range_nt`): the
+    /// covariance's part [`Self::sigma_nt`], spread over its effective number of
+    /// directions, with `model_error_nt` carried by every flight alike.
+    pub fn error_range_nt(
+        &self,
+        coefficient_covariance: &[f64],
+        model_error_nt: f64,
+    ) -> Option<[f64; 2]> {
+        let coefficient_part_nt = self.sigma_nt(coefficient_covariance)?;
+        let n = crate::qc::error_range::effective_dimensions(
             coefficient_covariance,
             &self.covariance,
             self.k,
-        )
+        )?;
+        crate::qc::error_range::range_nt(coefficient_part_nt, model_error_nt, n)
     }
 }
 

@@ -128,13 +128,9 @@ fn predicted_error(
     };
     let model_error_nt = model_error_nt.unwrap_or(0.0);
     let predicted = spread.and_then(|s| {
-        let coefficient_part_nt = s.sigma_nt(&covariance)?;
-        let range_nt = s
-            .effective_dimensions(&covariance)
-            .and_then(|n| crate::qc::error_range::range_nt(coefficient_part_nt, model_error_nt, n));
         Some(PredictedError {
-            figure_nt: coefficient_part_nt.hypot(model_error_nt),
-            range_nt,
+            figure_nt: s.sigma_nt(&covariance)?.hypot(model_error_nt),
+            range_nt: s.error_range_nt(&covariance, model_error_nt),
         })
     });
     (covariance, predicted)
