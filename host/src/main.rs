@@ -1,12 +1,31 @@
 //! `magcomp`: airborne magnetometer compensation on the ground, with the same core that
 //! flies on the board. Parses the command line and hands it to `magcomp::cli`.
 
+use std::process::ExitCode;
+
 use anyhow::Result;
 use clap::Parser;
 use magcomp::cli::{self, Cli, Command};
+use magcomp::io::console;
 
-fn main() -> Result<()> {
-    match Cli::parse().command {
+fn main() -> ExitCode {
+    // Printed here rather than by `Result`'s `Termination`, which panics when stderr is
+    // a closed pipe.
+    if let Err(e) = run(Cli::parse().command) {
+        magcomp::errln!("Error: {e:?}");
+        return ExitCode::FAILURE;
+    }
+    match console::lost_text() {
+        Some(lost) => {
+            magcomp::errln!("Error: {lost}");
+            ExitCode::FAILURE
+        }
+        None => ExitCode::SUCCESS,
+    }
+}
+
+fn run(command: Command) -> Result<()> {
+    match command {
         Command::Simulate { sim, capture } => cli::simulate::run(&sim, &capture),
         Command::Calibrate(a) => cli::calibrate::run(&a),
         Command::Compensate(a) => cli::compensate::run(&a),

@@ -651,3 +651,49 @@ fn calibrate_help_names_only_its_own_options() {
     let help = run_ok(bin().args(["compensate", "--help"]));
     assert!(help.contains("--rate-hz"));
 }
+
+/// `magcomp compensate … 2>&1 | tail -0` used to panic ("failed printing to stderr"):
+/// a reader that has gone must cost the terminal text only, never the work or a panic.
+#[test]
+fn a_closed_pipe_costs_the_text_only() {
+    let d = tmp("closed-pipe");
+    let out = d.join("compensated.csv");
+    let rows_in = std::fs::read_to_string(&fixture().flight)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .count();
+    let mut child = quiet_to_closed_pipes(compensate_to(&out).arg("--json"));
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(0), "{status}");
+    let rows_out = std::fs::read_to_string(&out)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .count();
+    assert_eq!(
+        rows_out, rows_in,
+        "every row written though nobody read the text"
+    );
+
+    // A failing command still fails with its own status (1), not a panic's (101).
+    let mut failing = quiet();
+    failing
+        .args(["compensate", "no-such-flight.csv", "-o"])
+        .arg(d.join("x.csv"));
+    let status = quiet_to_closed_pipes(&mut failing).wait().unwrap();
+    assert_eq!(status.code(), Some(1), "{status}");
+}
+
+/// Spawns `cmd` with stdout and stderr into pipes whose reading ends are closed at once.
+fn quiet_to_closed_pipes(cmd: &mut Command) -> std::process::Child {
+    let mut child = cmd
+        .env("RUST_BACKTRACE", "0")
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    drop(child.stdout.take());
+    drop(child.stderr.take());
+    child
+}

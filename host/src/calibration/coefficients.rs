@@ -339,7 +339,7 @@ pub fn coefficients_from_text(text: &str, path: &dyn std::fmt::Display) -> Resul
             }
         }
         None => {
-            eprintln!("note: {}: {}", path, UNSEALED_NOTE);
+            crate::errln!("note: {}: {}", path, UNSEALED_NOTE);
             ordered.unsealed = true;
         }
     }

@@ -82,7 +82,7 @@ impl TraceInput {
             if lines && last.elapsed().as_secs_f64() >= 5.0 {
                 last = std::time::Instant::now();
                 let mib = |b: u64| b as f64 / (1u64 << 20) as f64;
-                eprintln!(
+                crate::errln!(
                     "reading {}: {:.0} of {:.0} MiB, {:.0} MiB/s",
                     self.trace.display(),
                     mib(done),
@@ -107,7 +107,7 @@ impl TraceInput {
         let (t, core) = crate::flight::input::prepare(t, &sel, self.date.as_deref())
             .with_context(|| format!("preparing {}", self.trace.display()))?;
         if let Some(m) = core.message() {
-            eprintln!("{m}");
+            crate::errln!("{m}");
         }
         Ok(t)
     }
@@ -211,9 +211,9 @@ impl TraceInput {
         )
         .with_context(|| format!("preparing {}", self.trace.display()))?;
         if let Some(m) = core.message() {
-            eprintln!("{m}");
+            crate::errln!("{m}");
         }
-        eprintln!("note: {}", d.message());
+        crate::errln!("note: {}", d.message());
         Ok((t, Some(d)))
     }
 
@@ -431,7 +431,7 @@ pub fn diagnosis_trace(
     };
     let (out, added) = crate::flight::with_assumed_ground_speed(&trace, v)?;
     if added && warn {
-        eprintln!(
+        crate::errln!(
             "warning: the trace has no position: the anomaly is modelled in time, at the assumed ground speed of {v} m/s (--speed-mps)"
         );
     }

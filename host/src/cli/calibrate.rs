@@ -140,27 +140,30 @@ pub fn run(a: &CalibrateArgs) -> Result<()> {
         ));
     }
     if a.json {
-        println!(
+        crate::outln!(
             "{}",
             super::summary_text::with_printed_warnings(serde_json::to_value(&s)?)
         );
     } else {
-        println!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
+        crate::outln!("{:<28} {:>12} {:>10}  unit", "coefficient", "value", "1σ");
         for c in &file.coefficients {
-            println!(
+            crate::outln!(
                 "{:<28} {:>12.4} {:>10.4}  {}",
-                c.name, c.value, c.sigma, c.unit
+                c.name,
+                c.value,
+                c.sigma,
+                c.unit
             );
         }
         print_summary(&s);
         if comp.method == Some(Method::Tl) && !a.aircraft_fom && flight.has_track() {
             // Say what was left out, and how to get it.
-            println!(
+            crate::outln!(
                 "  aircraft-only FOM:          not computed (add --aircraft-fom: one Kalman pass)"
             );
         }
     }
     print_warnings(&s);
-    eprintln!("wrote {}", a.output.display());
+    crate::errln!("wrote {}", a.output.display());
     Ok(())
 }

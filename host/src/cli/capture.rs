@@ -60,7 +60,7 @@ pub fn run(a: &CaptureCmdArgs) -> Result<()> {
         o.date = rmc_date(d).with_context(|| format!("--date {d}"))?;
     }
     let s = write_capture_file(&trace, &o, &a.out)?;
-    eprintln!(
+    crate::errln!(
         "wrote {}: {} scalar lines at {} Hz, {} fluxgate frames, {} NMEA sentences{} ({} bytes)",
         a.out.display(),
         s.scalar_lines,

@@ -185,10 +185,10 @@ pub fn run(a: &CompensateArgs) -> Result<()> {
                 obj.insert(key.into(), m.parse::<f64>().map_or(m.into(), Into::into));
             }
         }
-        println!("{}", with_printed_warnings(v));
+        crate::outln!("{}", with_printed_warnings(v));
     } else {
         print_summary(&s);
-        eprintln!("wrote {}", a.out.display());
+        crate::errln!("wrote {}", a.out.display());
     }
     print_warnings(&s);
     Ok(())
@@ -238,7 +238,7 @@ fn run_if_streamed(a: &CompensateArgs, coeffs: Option<&CoefficientFile>) -> Resu
         "~1 KB per row",
     )?;
     if let Some(note) = note {
-        eprintln!("{note}");
+        crate::errln!("{note}");
     }
     let Some(coeffs) = coeffs.filter(|_| stream) else {
         return Ok(false);
@@ -289,7 +289,7 @@ fn stream_several_if_asked(
         "~1 KB per row per sensor",
     )?;
     if let Some(note) = note {
-        eprintln!("{note}");
+        crate::errln!("{note}");
     }
     match multi.filter(|_| stream) {
         Some(m) => run.run(m).map(|()| true),
@@ -349,13 +349,13 @@ fn compensate_decimated(a: &CompensateArgs, trace: Trace, d: Decimation) -> Resu
 
 fn print_stream_summary(s: &StreamSummary, json: bool, out: &std::path::Path) -> Result<()> {
     if json {
-        println!("{}", with_printed_warnings(serde_json::to_value(s)?));
+        crate::outln!("{}", with_printed_warnings(serde_json::to_value(s)?));
     } else {
         super::summary_text::print_stream_text(s);
-        eprintln!("wrote {}", out.display());
+        crate::errln!("wrote {}", out.display());
     }
     for w in &s.warnings {
-        eprintln!("warning: {w}");
+        crate::errln!("warning: {w}");
     }
     Ok(())
 }

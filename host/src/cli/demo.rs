@@ -51,7 +51,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         anomaly_pp_nt: None,
         ..profile
     };
-    println!("== 1. Simulated flights (seed {}) ==", args.seed);
+    crate::outln!("== 1. Simulated flights (seed {}) ==", args.seed);
     let cal_cfg = SimConfig {
         flight: FlightKind::Calibration,
         cal_altitude_m: 3000.0,
@@ -60,7 +60,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let cal = simulate(&cal_cfg)?;
     let cal_path = args.out.join("calibration.csv");
     write_trace(&cal_path, &cal)?;
-    println!(
+    crate::outln!(
         "calibration: cloverleaf at 3000 m, 4 headings x roll/pitch/yaw, {} samples at 10 Hz -> {}",
         cal.len(),
         cal_path.display()
@@ -73,13 +73,13 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let survey = simulate(&survey_cfg)?;
     let survey_path = args.out.join("survey.csv");
     write_trace(&survey_path, &survey)?;
-    println!(
+    crate::outln!(
         "survey: lines 0/180 deg at 300 m over moderate geology, {} samples -> {}",
         survey.len(),
         survey_path.display()
     );
 
-    println!("\n== 2. Calibration flight: calibrate and compensate ==");
+    crate::outln!("\n== 2. Calibration flight: calibrate and compensate ==");
     let mut rows = Vec::new();
     let mut coeffs = Vec::new();
     for method in [Method::Kf, Method::Tl] {
@@ -100,12 +100,17 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         coeffs.push(file);
         rows.push((format!("{name} ({})", s.model), s));
     }
-    println!(
+    crate::outln!(
         "{:<22} {:>10} {:>10} {:>12} {:>12} {:>14}",
-        "method", "FOM nT", "IR", "error nT", "oracle nT", "predicted nT"
+        "method",
+        "FOM nT",
+        "IR",
+        "error nT",
+        "oracle nT",
+        "predicted nT"
     );
     for (n, s) in &rows {
-        println!(
+        crate::outln!(
             "{:<22} {:>10} {:>10} {:>12} {:>12} {:>14}",
             n,
             fmt(s.fom_nt, 3),
@@ -115,15 +120,17 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             fmt(s.predicted_error_nt, 4)
         );
     }
-    println!(
+    crate::outln!(
         "(predicted: the KF's own figure for how well the flight determined the \
          interference, from its covariance; no truth needed)"
     );
 
-    println!("\n== 3. Survey flight: apply the calibration coefficients ==");
-    println!(
+    crate::outln!("\n== 3. Survey flight: apply the calibration coefficients ==");
+    crate::outln!(
         "{:<22} {:>12} {:>14}",
-        "method", "error nT", "uncompensated"
+        "method",
+        "error nT",
+        "uncompensated"
     );
     for file in &coeffs {
         let (flight, comp) = compensate_trace(&survey, &est(file.method), Some(file), false)?;
@@ -143,7 +150,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             .truth_interference_nt
             .as_ref()
             .map(|t| crate::qc::figures::rms_demeaned(t));
-        println!(
+        crate::outln!(
             "{:<22} {:>12} {:>14}",
             format!("{name} ({})", s.model),
             fmt(s.error_rms_nt, 4),
@@ -151,7 +158,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         );
     }
     discovery_loop(args)?;
-    println!("\noutputs in {}", args.out.display());
+    crate::outln!("\noutputs in {}", args.out.display());
     Ok(())
 }
 
@@ -160,7 +167,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
 fn discovery_loop(args: &DemoArgs) -> Result<()> {
     use crate::diagnose::{diagnose, DiagnoseOptions};
     use crate::model::spec::ModelSpec;
-    println!("\n== 4. Model discovery: a flight with an effect the model does not know ==");
+    crate::outln!("\n== 4. Model discovery: a flight with an effect the model does not know ==");
     let cfg = SimConfig {
         seed: args.seed,
         hidden: vec![crate::sim::parse_hidden("current:cur_pump")?],
@@ -170,13 +177,13 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
     let trace = simulate(&cfg)?;
     let path = args.out.join("hidden-effect.csv");
     write_trace(&path, &trace)?;
-    println!(
+    crate::outln!(
         "calibration flight with a hidden pump current and two decoy channels -> {}",
         path.display()
     );
     let model = ModelSpec::parse("tl16+field")?;
     let d = diagnose(&trace, &model, &DiagnoseOptions::default())?;
-    println!("{}", d.table());
+    crate::outln!("{}", d.table());
     let named = d
         .candidates
         .iter()
@@ -192,12 +199,15 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
         let (flight, comp) = compensate_trace(&trace, &e, None, false)?;
         rows.push((spec.text(), summarise(&flight, &comp)));
     }
-    println!(
+    crate::outln!(
         "{:<36} {:>12} {:>10} {:>12}",
-        "model", "band rms nT", "FOM nT", "error nT"
+        "model",
+        "band rms nT",
+        "FOM nT",
+        "error nT"
     );
     for (m, s) in &rows {
-        println!(
+        crate::outln!(
             "{:<36} {:>12} {:>10} {:>12}",
             m,
             fmt(Some(s.compensated_band_rms_nt), 4),
@@ -213,6 +223,6 @@ fn discovery_loop(args: &DemoArgs) -> Result<()> {
         &Default::default(),
         &report_dir,
     )?;
-    println!("report with plots (before/after): {}", page.display());
+    crate::outln!("report with plots (before/after): {}", page.display());
     Ok(())
 }

@@ -181,13 +181,13 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
                 dir,
             )?;
             if !args.json {
-                println!("report written to {}", path.display());
+                crate::outln!("report written to {}", path.display());
             }
         }
         if args.json {
-            println!("{}", it.to_json());
+            crate::outln!("{}", it.to_json());
         } else {
-            print!("{}", it.table());
+            crate::out!("{}", it.table());
         }
         return Ok(());
     }
@@ -207,18 +207,18 @@ pub fn run(args: &DiagnoseArgs) -> Result<()> {
             )?,
         };
         if !args.json {
-            println!("report written to {}", path.display());
+            crate::outln!("report written to {}", path.display());
         }
     }
     if args.json {
-        println!("{}", json(&d, evaluated.as_ref(), decimated.as_ref())?);
+        crate::outln!("{}", json(&d, evaluated.as_ref(), decimated.as_ref())?);
     } else {
         match &evaluated {
-            Some(_) => print!("{}", applied_table(&d)),
-            None => print!("{}", d.table()),
+            Some(_) => crate::out!("{}", applied_table(&d)),
+            None => crate::out!("{}", d.table()),
         }
         if let Some(ev) = &evaluated {
-            println!("compensation checked ({}):", ev.source);
+            crate::outln!("compensation checked ({}):", ev.source);
             super::summary_text::print_summary(&ev.summary);
         }
     }
@@ -346,10 +346,10 @@ fn run_sensors(
     )?;
     drop(stage);
     if args.json {
-        println!("{}", crate::diagnose::sensors::to_json(&findings));
+        crate::outln!("{}", crate::diagnose::sensors::to_json(&findings));
         return Ok(());
     }
-    println!(
+    crate::outln!(
         "discovery across sensors, model {}: each sensor against the others' compensated fields",
         model.text()
     );
@@ -359,13 +359,13 @@ fn run_sensors(
         } else {
             f.named.join(", ")
         };
-        println!("{}: named {named}", f.sensor);
+        crate::outln!("{}: named {named}", f.sensor);
         for (other, d) in &f.against {
             let significant: Vec<String> = (d.candidates.iter())
                 .filter(|c| c.significant)
                 .map(|c| format!("{} ({})", c.term, c.evidence.join("+")))
                 .collect();
-            println!(
+            crate::outln!(
                 "  against {other}: residual {:.3} nT; significant: {}",
                 d.residual_rms_nt,
                 if significant.is_empty() {

@@ -425,22 +425,22 @@ pub fn compensate(
                 Ok(v)
             })
             .collect::<Result<Vec<_>>>()?;
-        println!("{}", serde_json::json!({ "sensors": entries }));
+        crate::outln!("{}", serde_json::json!({ "sensors": entries }));
     }
     for (name, summary) in &summaries {
         if !how.json {
-            println!("{name}:");
+            crate::outln!("{name}:");
             super::summary_text::print_summary(summary);
         }
         for w in &summary.warnings {
             if w.starts_with(&format!("{name}:")) {
-                eprintln!("warning: {w}");
+                crate::errln!("warning: {w}");
             } else {
-                eprintln!("warning: {name}: {w}");
+                crate::errln!("warning: {name}: {w}");
             }
         }
     }
-    eprintln!("wrote {}", out.display());
+    crate::errln!("wrote {}", out.display());
     Ok(())
 }
 

@@ -91,7 +91,7 @@ pub fn calibrate(
     let method = |j: usize| asked_for(j).unwrap_or(est.method);
     let checked = |j: usize| est.cross_check && asked_for(j).is_none();
     let kalman: Vec<usize> = (0..n).filter(|&j| method(j) == Method::Kf).collect();
-    eprintln!("{}", header(kalman.len(), n));
+    crate::errln!("{}", header(kalman.len(), n));
     let kf = EstimatorSettings {
         method: Method::Kf,
         ..est.clone()
@@ -133,12 +133,12 @@ pub fn calibrate(
         let by_name = asked_for(j).map(|_| "--sensor-method");
         let notes: Vec<&str> = by_name.into_iter().chain(c.note).collect();
         if notes.is_empty() {
-            eprintln!("{}", c.summary);
+            crate::errln!("{}", c.summary);
         } else {
-            eprintln!("{} ({})", c.summary, notes.join("; "));
+            crate::errln!("{} ({})", c.summary, notes.join("; "));
         }
         for w in &c.warnings {
-            eprintln!("warning: {w}");
+            crate::errln!("warning: {w}");
         }
         entries.push(c.entry);
     }
@@ -261,7 +261,7 @@ fn write_multi(out: &Path, sigma1: Option<f64>, sensors: Vec<SensorEntry>) -> Re
         sensors,
     };
     crate::io::output::write_file(out, serde_json::to_string_pretty(&m)?)?;
-    eprintln!("wrote {}", out.display());
+    crate::errln!("wrote {}", out.display());
     Ok(())
 }
 

@@ -139,7 +139,7 @@ impl SeveralStreamed<'_> {
         }
         let names: Vec<&str> = sensors.iter().map(|s| s.name.as_str()).collect();
         print_summaries(&names, &summaries, a.json)?;
-        eprintln!("wrote {}", a.out.display());
+        crate::errln!("wrote {}", a.out.display());
         Ok(())
     }
 }
@@ -169,15 +169,15 @@ fn print_summaries(names: &[&str], summaries: &[StreamSummary], json: bool) -> R
                 Ok(v)
             })
             .collect::<Result<Vec<_>>>()?;
-        println!("{}", serde_json::json!({ "sensors": entries }));
+        crate::outln!("{}", serde_json::json!({ "sensors": entries }));
     }
     for (name, s) in names.iter().zip(summaries) {
         if !json {
-            println!("{name}:");
+            crate::outln!("{name}:");
             print_stream_text(s);
         }
         for w in &s.warnings {
-            eprintln!("warning: {name}: {w}");
+            crate::errln!("warning: {name}: {w}");
         }
     }
     Ok(())

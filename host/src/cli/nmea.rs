@@ -19,7 +19,7 @@ pub fn run(a: &NmeaArgs) -> Result<()> {
             .with_context(|| format!("opening {}", a.file.display()))?;
         crate::board::nmea::decode_log(std::io::BufReader::new(f), out)?
     };
-    eprintln!(
+    crate::errln!(
         "nmea: {} lines, {} sentences decoded, {} of types not decoded, {} rejected ({} by checksum)",
         stats.lines, stats.decoded, stats.unsupported, stats.errors, stats.checksum_errors
     );

@@ -239,12 +239,12 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     for w in [csv, txt.into_inner()].into_iter().flatten() {
         w.commit()?;
     }
-    eprintln!("replay: {stats}");
+    crate::errln!("replay: {stats}");
     if let Some(w) = stats.dropped_warning() {
-        eprintln!("warning: {}: {w}", args.capture.display());
+        crate::errln!("warning: {}: {w}", args.capture.display());
     }
     if let Some(w) = tally.warning(&FLAG_NAMES) {
-        eprintln!("warning: {}: {w}", args.capture.display());
+        crate::errln!("warning: {}: {w}", args.capture.display());
     }
     if let Some(p) = args.coeffs_out.as_deref() {
         write_held_coefficients(p, &stats.final_coefficients)?;

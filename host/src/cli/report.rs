@@ -149,7 +149,7 @@ pub fn run(args: &ReportArgs) -> Result<()> {
         let info = args.sheet_info(&trace, &ev.summary.model)?;
         let path = super::diagnose::write_evaluation(&trace, &ev, &info, &args.out)?;
         super::summary_text::print_warnings(&ev.summary);
-        println!("report written to {}", path.display());
+        crate::outln!("report written to {}", path.display());
         return Ok(());
     }
     let default = [crate::model::spec::DEFAULT_MODEL.to_string()];
@@ -166,7 +166,7 @@ pub fn run(args: &ReportArgs) -> Result<()> {
     let info = args.sheet_info(&trace, &models[0].text())?;
     let trace = super::args::diagnosis_trace(trace, args.tuning.speed_mps, field, true)?;
     let path = write_report(&trace, &models, None, &info, &args.out)?;
-    println!("report written to {}", path.display());
+    crate::outln!("report written to {}", path.display());
     Ok(())
 }
 
@@ -192,7 +192,7 @@ fn run_sensors(
         &|model| args.sheet_info(trace, model),
         &args.out,
     )?;
-    println!("report written to {}", path.display());
+    crate::outln!("report written to {}", path.display());
     Ok(())
 }
 
@@ -246,7 +246,7 @@ fn several_sensor_pages(
         let info = sheet(&ev.summary.model)?;
         super::diagnose::write_evaluation(&sensor_trace(trace, s), &ev, &info, &out.join(&s.name))?;
         for w in &ev.summary.warnings {
-            eprintln!("warning: {}: {w}", s.name);
+            crate::errln!("warning: {}: {w}", s.name);
         }
         evaluated.push(ev);
     }

@@ -497,9 +497,9 @@ pub fn run(sim: &SimulateArgs, capture: &CaptureArgs) -> Result<()> {
         n => bail!("--sensors {n}: 1 to 4"),
     };
     crate::io::trace::write_trace(&out, &trace)?;
-    eprintln!("wrote {} rows to {}", trace.len(), out.display());
+    crate::errln!("wrote {} rows to {}", trace.len(), out.display());
     if let (Some(c), Some(p)) = (capture.write_if_requested(&trace)?, &capture.capture) {
-        eprintln!(
+        crate::errln!(
             "wrote the capture {}: {} scalar lines ({} Hz), {} fluxgate frames ({} Hz), {} GPS sentences ({} Hz), {} bytes ({} corrupted)",
             p.display(),
             c.scalar_lines,

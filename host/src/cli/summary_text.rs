@@ -24,50 +24,50 @@ pub fn with_printed_warnings(mut v: serde_json::Value) -> serde_json::Value {
 /// Warnings go to stderr always, whatever else is printed.
 pub fn print_warnings(s: &Summary) {
     for w in &s.warnings {
-        eprintln!("warning: {w}");
+        crate::errln!("warning: {w}");
     }
 }
 
 pub fn print_summary(s: &Summary) {
-    println!(
+    crate::outln!(
         "model {} ({}), {} samples",
         s.model,
         s.method.name(),
         s.samples
     );
-    println!(
+    crate::outln!(
         "  compensated rms in the manoeuvre band: {:.4} nT",
         s.compensated_band_rms_nt
     );
     if let Some(ir) = s.improvement_ratio {
-        println!("  improvement ratio:          {ir:.2}");
+        crate::outln!("  improvement ratio:          {ir:.2}");
     }
     if let Some(f) = s.fom_nt {
-        println!("  figure of merit (FOM):      {f:.3} nT");
+        crate::outln!("  figure of merit (FOM):      {f:.3} nT");
     }
     if let Some(a) = s.aircraft_fom_nt {
-        println!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
+        crate::outln!("  aircraft-only FOM:          {a:.3} nT (compensated − KF anomaly)");
     }
     if let Some(t) = &s.fom_table {
-        println!("{}", crate::calibration::fom::format_table(t));
+        crate::outln!("{}", crate::calibration::fom::format_table(t));
     }
     if let Some(p) = s.predicted_error_nt {
-        println!(
+        crate::outln!(
             "  predicted error:            {p:.4} nT rms (the coefficients' covariance and the flight's own jackknife)"
         );
     }
     if let Some([lo, hi]) = s.predicted_error_range_nt {
-        println!(
+        crate::outln!(
             "  this flight's error:        {lo:.4}–{hi:.4} nT (90 %: its error lies in few directions, so one flight may fall well below or above the rms figure)"
         );
     }
     if let Some(p) = s.predicted_band_rms_nt {
-        println!(
+        crate::outln!(
             "  predicted band rms:         {p:.4} nT (what a flight like the calibration should show in the manoeuvre band after compensation)"
         );
     }
     if let Some(c) = &s.cross_check {
-        println!(
+        crate::outln!(
             "  cross-check (jackknife):    Kalman filter {:.4} nT, TL18-OLS {:.4} nT, disagreement {:.4} nT: {} used",
             c.kalman_filter_jackknife_nt,
             c.tolles_lawson_jackknife_nt,
@@ -79,13 +79,13 @@ pub fn print_summary(s: &Summary) {
         );
     }
     if let Some(e) = s.error_rms_nt {
-        println!("  error vs truth:             {e:.4} nT rms");
+        crate::outln!("  error vs truth:             {e:.4} nT rms");
     }
     if let Some(o) = s.oracle_floor_nt {
-        println!("  oracle floor of the model:  {o:.4} nT rms (filter regressors only)");
+        crate::outln!("  oracle floor of the model:  {o:.4} nT rms (filter regressors only)");
     }
     if let Some(r) = &s.rate_crossover {
-        println!(
+        crate::outln!(
             "  rate at {} crossovers:      differences {:.3} → {:.3} nT rms, p = {:.1e}, {}",
             r.fit.crossings,
             r.fit.rms_before_nt,
@@ -102,28 +102,28 @@ pub fn print_summary(s: &Summary) {
             .iter()
             .zip(r.fit.coefficients.iter().zip(&r.fit.sigmas))
         {
-            println!("    {l:<10} {v:>9.4} ± {e:.4} s");
+            crate::outln!("    {l:<10} {v:>9.4} ± {e:.4} s");
         }
     }
 }
 
 /// A streamed run's summary as text on stdout.
 pub fn print_stream_text(s: &crate::stream::StreamSummary) {
-    println!(
+    crate::outln!(
         "model {} ({}), {} samples (streamed)",
         s.model,
         s.method.name(),
         s.samples
     );
     if let Some(p) = s.predicted_error_nt {
-        println!(
+        crate::outln!(
             "  predicted error (filter):   {p:.4} nT rms (how well the calibration determined it)"
         );
     }
     if let Some(e) = s.error_rms_nt {
-        println!("  error vs truth:             {e:.4} nT rms");
+        crate::outln!("  error vs truth:             {e:.4} nT rms");
     }
-    println!(
+    crate::outln!(
         "  not computed when streamed: {} (--stream never computes them)",
         s.not_computed.join(", ")
     );

@@ -106,7 +106,7 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         _ => sensor_commands(&files, &board_model, !args.no_save)?,
     };
     if let Some(r) = file.rate_crossover.as_ref().filter(|r| r.applied) {
-        eprintln!(
+        crate::errln!(
             "note: the crossover rate fit's isotropic part ({:.4} s · d|B|/dt, the anomaly read {:.4} s late) has no board coefficient; the board compensates the rest",
             r.fit.coefficients[5], r.fit.coefficients[5]
         );
@@ -124,7 +124,7 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         // Written whole and renamed (or through a device): never the start of an old file
         // left behind its end, as an open without truncation did to a flight trace.
         crate::io::output::write_file(std::path::Path::new(&args.to), &text)?;
-        eprintln!("wrote {} command lines to {}", cmds.len(), args.to);
+        crate::errln!("wrote {} command lines to {}", cmds.len(), args.to);
         return Ok(());
     }
     if args.no_verify {
@@ -135,7 +135,7 @@ pub fn run(args: &UploadArgs) -> Result<()> {
         port.write_all(text.as_bytes())
             .and_then(|()| port.flush())
             .with_context(|| format!("writing {}", args.to))?;
-        eprintln!(
+        crate::errln!(
             "sent {} command lines to {} unverified (replies: magcomp monitor {})",
             cmds.len(),
             args.to,
@@ -164,7 +164,7 @@ pub fn run(args: &UploadArgs) -> Result<()> {
     let mut link = BoardLink::new(writer, lines, opts);
     let s = upload(&mut link, &cmds).with_context(|| format!("uploading to {}", args.to))?;
     let e = s.exchange;
-    println!(
+    crate::outln!(
         "sent {} lines to {}: {} acknowledged, {} resends ({} damaged, {} unanswered){}; read-back OK: {} of {} values equal the file ({} resends); survey mode on with this set",
         e.lines_sent,
         args.to,

@@ -182,7 +182,7 @@ pub fn warn_once(msg: &str) {
         .get_or_insert_with(HashSet::new)
         .insert(msg.to_string())
     {
-        eprintln!("warning: {msg}");
+        crate::errln!("warning: {msg}");
         PRINTED
             .lock()
             .unwrap_or_else(|e| e.into_inner())

@@ -2,6 +2,7 @@
 //! half-written, progress on stderr. Imports nothing else from the crate.
 
 pub mod bounded;
+pub mod console;
 pub mod csv;
 pub mod output;
 pub mod progress;

@@ -51,7 +51,7 @@ impl Progress {
         {
             self.last = now;
             let s = now.duration_since(self.start).as_secs_f64();
-            eprintln!(
+            crate::errln!(
                 "{}: {} rows, {:.0} rows/s",
                 self.stage,
                 self.rows,
@@ -62,7 +62,7 @@ impl Progress {
     pub fn done(&self) {
         let s = self.start.elapsed().as_secs_f64();
         if !self.quiet && s >= 1.0 {
-            eprintln!(
+            crate::errln!(
                 "{}: {} rows in {s:.1} s, {:.0} rows/s",
                 self.stage,
                 self.rows,
@@ -92,7 +92,7 @@ impl Drop for Stage {
     fn drop(&mut self) {
         let s = self.start.elapsed().as_secs_f64();
         if s >= 1.0 && !quiet_progress(false) {
-            eprintln!("{}: {s:.1} s", self.name);
+            crate::errln!("{}: {s:.1} s", self.name);
         }
     }
 }

@@ -89,7 +89,7 @@ pub fn serve(
             .with_context(|| format!("listening on {listen}"))?;
         let addr = listener.local_addr()?;
         let names: Vec<&str> = inputs.iter().map(|i| i.name.as_str()).collect();
-        println!(
+        crate::outln!(
             "live view: http://{addr}/  (following {})",
             names.join(", ")
         );

@@ -638,7 +638,7 @@ fn core_field(core: &Core, igrf_scan: &igrf::IgrfScan) -> Option<(DateSource, ig
     match core {
         Core::Computed(source, label) => {
             let (y0, y1) = igrf_scan.years;
-            eprintln!(
+            crate::errln!(
                 "{}",
                 crate::flight::input::CoreField::Computed {
                     model: crate::flight::igrf::MODEL_NAME.into(),
@@ -654,7 +654,7 @@ fn core_field(core: &Core, igrf_scan: &igrf::IgrfScan) -> Option<(DateSource, ig
             let (lo, hi) = igrf_scan.range_nt;
             let change_nt = (hi >= lo).then_some(hi - lo);
             if let Some(m) = (crate::flight::input::CoreField::Missing { change_nt }).message() {
-                eprintln!("{m}");
+                crate::errln!("{m}");
             }
             None
         }

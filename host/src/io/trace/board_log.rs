@@ -113,7 +113,7 @@ pub fn read_board_log(path: &Path) -> Result<Trace, TraceError> {
         trace.meta[0].1 = "board output log ($MCMRAW lines)".into();
     }
     if bad > 0 {
-        eprintln!(
+        crate::errln!(
             "warning: {file}: {bad} $MCRAW line(s) failed their checksum or fields and were \
              not read (the first at line {})",
             first_bad.unwrap_or(0)
