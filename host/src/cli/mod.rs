@@ -67,3 +67,37 @@ pub enum Command {
     /// End-to-end demonstration on built-in simulated data (nothing to download).
     Demo(demo::DemoArgs),
 }
+
+/// Runs one command to its exit status: 0 done, 1 with `Error: …` on stderr. The error is
+/// printed here rather than by `Result`'s `Termination`, which panics when stderr is a
+/// closed pipe; text lost to another error (a full disk) fails the command too.
+pub fn run(command: Command) -> std::process::ExitCode {
+    use std::process::ExitCode;
+    if let Err(e) = dispatch(command) {
+        crate::errln!("Error: {e:?}");
+        return ExitCode::FAILURE;
+    }
+    match crate::io::console::lost_text() {
+        Some(lost) => {
+            crate::errln!("Error: {lost}");
+            ExitCode::FAILURE
+        }
+        None => ExitCode::SUCCESS,
+    }
+}
+
+fn dispatch(command: Command) -> anyhow::Result<()> {
+    match command {
+        Command::Simulate { sim, capture } => simulate::run(&sim, &capture),
+        Command::Calibrate(a) => calibrate::run(&a),
+        Command::Compensate(a) => compensate::run(&a),
+        Command::Nmea(a) => nmea::run(&a),
+        Command::Diagnose(a) => diagnose::run(&a),
+        Command::Report(a) => report::run(&a),
+        Command::Capture(a) => capture::run(&a),
+        Command::Replay(a) => replay::run(&a).map(drop),
+        Command::Monitor(a) => monitor::run(&a).map(drop),
+        Command::Upload(a) => upload::run(&a),
+        Command::Demo(a) => demo::run(&a),
+    }
+}
