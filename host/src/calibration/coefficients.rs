@@ -93,6 +93,11 @@ pub struct CoefficientFile {
     /// (`crate::qc::error_range`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_range_nt: Option<[f64; 2]>,
+    /// The compensated output's high-frequency content beyond the scalar's own noise (nT
+    /// rms; `crate::qc::high_frequency`): interference the model does not follow, counted
+    /// in `predicted_error_nt` and its range.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unfollowed_high_frequency_nt: Option<f64>,
     /// KF: the coefficients' covariance (rows in the model's coefficient order, as
     /// `calibrate` writes `coefficients`; physical units), so
     /// that `compensate --coeffs` can predict the error on the flight it compensates.
@@ -374,6 +379,7 @@ impl CoefficientFile {
             rate_crossover: None,
             predicted_error_nt: None,
             predicted_error_range_nt: None,
+            unfollowed_high_frequency_nt: None,
             covariance: None,
             assumed_speed_mps: None,
             cross_check: None,

@@ -251,6 +251,7 @@ fn coefficient_file(
         },
         predicted_error_nt: run.predicted_error_nt,
         predicted_error_range_nt: run.predicted_error_range_nt,
+        unfollowed_high_frequency_nt: run.unfollowed_high_frequency_nt,
         assumed_speed_mps,
         cross_check: None,
         predicted_band_rms_nt: None,

@@ -37,6 +37,10 @@ pub struct Summary {
     /// `predicted_error_nt` (`crate::qc::error_range`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub predicted_error_range_nt: Option<[f64; 2]>,
+    /// The output's high-frequency content beyond the scalar's noise, counted in
+    /// `predicted_error_nt` (`CoefficientFile::unfollowed_high_frequency_nt`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unfollowed_high_frequency_nt: Option<f64>,
     /// Calibration: the manoeuvre-band rms another flight like this one should show after
     /// compensation (`CoefficientFile::predicted_band_rms_nt`); with `--coeffs`, the file's,
     /// to hold against `compensated_band_rms_nt`.
@@ -110,6 +114,9 @@ pub fn summarise_with(flight: &Flight, comp: &Compensation, fit_field_estimate: 
             .filter(|_| !withheld),
         predicted_error_range_nt: file
             .and_then(|c| c.predicted_error_range_nt)
+            .filter(|_| !withheld),
+        unfollowed_high_frequency_nt: file
+            .and_then(|c| c.unfollowed_high_frequency_nt)
             .filter(|_| !withheld),
         field_process: file.and_then(|c| c.field_process.clone()),
         predicted_band_rms_nt: file

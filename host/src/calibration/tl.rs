@@ -72,7 +72,7 @@ pub(super) fn run_tl_method(
         .iter()
         .flat_map(|r| tl::interference(&fit, &flux[r.clone()]))
         .collect();
-    let compensated = flight
+    let compensated: Vec<f64> = flight
         .mag_nt
         .iter()
         .zip(&interference)
@@ -118,12 +118,21 @@ pub(super) fn run_tl_method(
         }
         _ => None,
     };
-    let predicted_error_nt = refits
+    // The refits' scatter, and what the output carries at high frequency beyond the
+    // scalar's noise (`crate::qc::high_frequency`): it stays in the output alike.
+    let coefficient_part_nt = refits
         .as_ref()
         .and_then(|r| crate::estimate::jackknife::series_sigma_nt(r));
+    let high_frequency_nt = crate::qc::high_frequency::unfollowed_high_frequency_nt(
+        &compensated,
+        &flight.t_s,
+        flight.sample_rate_hz,
+    );
+    let unexplained_nt = high_frequency_nt.unwrap_or(0.0);
+    let predicted_error_nt = coefficient_part_nt.map(|c| c.hypot(unexplained_nt));
     let predicted_error_range_nt = refits.as_ref().and_then(|r| {
         let n = crate::estimate::jackknife::series_effective_dimensions(r)?;
-        crate::qc::error_range::range_nt(predicted_error_nt?, 0.0, n)
+        crate::qc::error_range::range_nt(coefficient_part_nt?, unexplained_nt, n)
     });
     let (band_jackknife_nt, holdout_band_nt) = refits.as_ref().map_or((None, None), |r| {
         crate::estimate::jackknife::band_figures(&flight, &span, r)
@@ -132,6 +141,7 @@ pub(super) fn run_tl_method(
         tl_config: Some(fit.config.clone()),
         predicted_error_nt,
         predicted_error_range_nt,
+        unfollowed_high_frequency_nt: high_frequency_nt,
         ..CoefficientFile::new(
             format!("{:?}", fit.config.terms).to_lowercase(),
             Method::Tl,
@@ -167,7 +177,7 @@ pub(super) fn run_tl_method(
         coefficients: Some(file),
         regressors,
         warnings,
-        jackknife_nt: predicted_error_nt,
+        jackknife_nt: coefficient_part_nt,
         band_jackknife_nt,
         holdout_band_nt,
         refit_inflation: None,

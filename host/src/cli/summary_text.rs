@@ -53,12 +53,17 @@ pub fn print_summary(s: &Summary) {
     }
     if let Some(p) = s.predicted_error_nt {
         crate::outln!(
-            "  predicted error:            {p:.4} nT rms (the coefficients' covariance and the flight's own jackknife)"
+            "  predicted error:            {p:.4} nT rms (the coefficients' covariance, the flight's own jackknife and what the model leaves unexplained)"
         );
     }
     if let Some([lo, hi]) = s.predicted_error_range_nt {
         crate::outln!(
             "  this flight's error:        {lo:.4}–{hi:.4} nT (90 %: its error lies in few directions, so one flight may fall well below or above the rms figure)"
+        );
+    }
+    if let Some(h) = s.unfollowed_high_frequency_nt.filter(|h| *h >= 0.001) {
+        crate::outln!(
+            "  high-frequency residual:    {h:.4} nT rms beyond the scalar's noise (the output's quietest minutes): interference the model does not follow, counted in the predicted error"
         );
     }
     if let Some(p) = s.predicted_band_rms_nt {

@@ -250,9 +250,6 @@ fn joint_compensation(
     let cov_sigma = spread
         .as_ref()
         .and_then(|s| s.sigma_nt(&full.covariance[j]));
-    let model_error = alone_file.model_error_nt.unwrap_or(0.0);
-    let predicted =
-        cov_sigma.map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error * model_error).sqrt());
     let interference_nt = interference_of(&interf_regs, &full.coefficients[j]);
     let compensated_nt: Vec<f64> = flight
         .mag_nt
@@ -260,6 +257,19 @@ fn joint_compensation(
         .zip(&interference_nt)
         .map(|(m, i)| m - i)
         .collect();
+    // What the sensor's own calibration found beyond its noise, or what this output
+    // carries at high frequency beyond it (`crate::qc::high_frequency`): the larger.
+    let high_frequency_nt = crate::qc::high_frequency::unfollowed_high_frequency_nt(
+        &compensated_nt,
+        &flight.t_s,
+        flight.sample_rate_hz,
+    );
+    let model_error = alone_file
+        .model_error_nt
+        .unwrap_or(0.0)
+        .max(high_frequency_nt.unwrap_or(0.0));
+    let predicted =
+        cov_sigma.map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error * model_error).sqrt());
     let mut file = alone_file.clone();
     for (c, (v, i)) in file
         .coefficients
@@ -272,6 +282,7 @@ fn joint_compensation(
     file.covariance = Some(cov.chunks(k).map(<[f64]>::to_vec).collect());
     file.sigma1 = Some(sigma1);
     file.predicted_error_nt = predicted;
+    file.unfollowed_high_frequency_nt = high_frequency_nt;
     // The covariance and the jackknife summed, spread as their sum is.
     file.predicted_error_range_nt = spread
         .as_ref()

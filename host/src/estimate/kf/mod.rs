@@ -150,6 +150,9 @@ pub struct KfRun {
     /// The range one flight's actual error falls in beside it (nT, low and high;
     /// `crate::qc::error_range`).
     pub predicted_error_range_nt: Option<[f64; 2]>,
+    /// The output's high-frequency content beyond the scalar's noise, counted in the
+    /// predicted error (`crate::qc::high_frequency`).
+    pub unfollowed_high_frequency_nt: Option<f64>,
     /// The coefficients' covariance (k×k, row-major, physical units): the calibration's,
     /// or the one given with the coefficients.
     pub coefficient_covariance: Vec<f64>,

@@ -144,6 +144,7 @@ fn report(
         coefficient_sigmas: qc.sigmas,
         predicted_error_nt: qc.predicted_error_nt,
         predicted_error_range_nt: qc.predicted_error_range_nt,
+        unfollowed_high_frequency_nt: qc.high_frequency_nt,
         coefficient_covariance: qc.covariance,
         coefficients: output.coefficients,
         regressors: output.regressors,

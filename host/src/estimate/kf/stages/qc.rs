@@ -2,7 +2,7 @@
 //! covariance the run reports, the flight's predicted error and the warnings a user must
 //! read.
 
-use super::super::{KfOptions, RegressorSpread, MODEL_ERROR_WARNING_NT};
+use super::super::{interference_of, KfOptions, RegressorSpread, MODEL_ERROR_WARNING_NT};
 use super::filter_pass::{CalibrationPass, PassSetup};
 use super::jackknife::{kf_jackknife, KfJackknife, INCONSISTENT_REFITS};
 use super::noise::NoiseStage;
@@ -20,6 +20,9 @@ pub(crate) struct QcStage {
     /// The range one flight's actual error falls in (`crate::qc::error_range`).
     pub predicted_error_range_nt: Option<[f64; 2]>,
     pub jackknife: Option<KfJackknife>,
+    /// The output's high-frequency content beyond the scalar's noise
+    /// (`crate::qc::high_frequency`), counted in the predicted error.
+    pub high_frequency_nt: Option<f64>,
     /// In order: the jackknife's (refits inconsistent), the model error's.
     pub warnings: Vec<String>,
 }
@@ -47,8 +50,15 @@ impl QcStage {
         let sigmas = (0..k)
             .map(|i| covariance[i * k + i].max(0.0).sqrt())
             .collect();
+        let high_frequency_nt = unfollowed_high_frequency_nt(flight, calibration);
+        // Both measure what the output carries beyond the sensor's noise (the innovations'
+        // excess over the whole band, the output's above its quietest windows): the larger.
+        let unexplained_nt = match (noise.model_error_nt, high_frequency_nt) {
+            (Some(m), Some(h)) => Some(m.max(h)),
+            (m, h) => m.or(h),
+        };
         let (covariance, predicted) =
-            predicted_error(opts, spread.as_ref(), covariance, noise.model_error_nt);
+            predicted_error(opts, spread.as_ref(), covariance, unexplained_nt);
         if let Some(m) = noise.model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
             let sensor_noise_nt = noise.sensor_noise_nt;
             warnings.push(format!(
@@ -59,6 +69,7 @@ impl QcStage {
             ));
         }
         Ok(Self {
+            high_frequency_nt,
             covariance,
             sigmas,
             predicted_error_nt: predicted.map(|p| p.figure_nt),
@@ -67,6 +78,27 @@ impl QcStage {
             warnings,
         })
     }
+}
+
+/// The output of the calibration's final coefficients above its quietest windows at high
+/// frequency (`crate::qc::high_frequency`). Not the pass's own records: while the filter
+/// converges its coefficients move from sample to sample (on `lag_s32` that read 0.56 nT).
+fn unfollowed_high_frequency_nt(flight: &Flight, calibration: &CalibrationPass) -> Option<f64> {
+    if calibration.regressors.len() != flight.len() {
+        return None;
+    }
+    let interference = interference_of(&calibration.regressors, &calibration.coefficients);
+    let compensated: Vec<f64> = flight
+        .mag_nt
+        .iter()
+        .zip(&interference)
+        .map(|(mag, i)| mag - i)
+        .collect();
+    crate::qc::high_frequency::unfollowed_high_frequency_nt(
+        &compensated,
+        &flight.t_s,
+        flight.sample_rate_hz,
+    )
 }
 
 /// The coefficients' covariance with the jackknife's added, and the jackknife, when it
