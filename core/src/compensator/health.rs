@@ -695,7 +695,9 @@ impl<const N: usize, const W: usize> Compensator<'_, N, W> {
         if !self.cfg.adaptive_noise {
             return 0.0;
         }
-        let sensor_nt = self.cfg.sensor_noise_nt;
+        // Beyond the same floor as `model_error_nt` (a board without a configured sensor
+        // noise counted its whole adapted noise as model error here).
+        let sensor_nt = self.sensor_floor_nt();
         libm::sqrtf((self.adapted_r - sensor_nt * sensor_nt).max(0.0))
     }
 

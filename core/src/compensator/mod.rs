@@ -473,17 +473,24 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     /// last `consistency_window_epochs`: signal the model does not describe, which stays
     /// in the compensated output.
     pub fn model_error_nt(&self) -> f32 {
-        let sensor_nt = if self.cfg.sensor_noise_nt > 0.0 {
-            self.cfg.sensor_noise_nt.min(self.cfg.noise_nt)
-        } else {
-            self.cfg.noise_nt
-        };
+        let sensor_nt = self.sensor_floor_nt();
         let r_sensor = sensor_nt * sensor_nt;
         let excess = self.innovations.observed_r() - r_sensor;
         if excess > 0.0 {
             libm::sqrtf(excess)
         } else {
             0.0
+        }
+    }
+
+    /// The scalar's own noise (nT) that model errors are counted beyond: the configured
+    /// sensor noise, or `noise_nt` where none is configured (`sensor_noise_nt` 0), never
+    /// above `noise_nt`.
+    fn sensor_floor_nt(&self) -> f32 {
+        if self.cfg.sensor_noise_nt > 0.0 {
+            self.cfg.sensor_noise_nt.min(self.cfg.noise_nt)
+        } else {
+            self.cfg.noise_nt
         }
     }
 
