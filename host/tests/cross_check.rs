@@ -112,6 +112,47 @@ fn one_flights_error_lies_in_its_predicted_range_on_nine_flights_in_ten() {
     assert!((0.6..=1.6).contains(&mean_square), "{mean_square:.2}");
 }
 
+/// Issue 17 item 4 on clean 3000 m calibrations, the default estimator: actual/predicted
+/// within [0.5, 2] on nine flights in ten, over the broad physics and over the default
+/// aircraft (each seed its own aircraft, fluxgate and heading order), seeds 1–16 each.
+/// Measured (this commit): 31 of 32 inside (the default aircraft's seed 7 at 0.47, its
+/// figure pessimistic), 0.47–1.67, mean square 1.10 (broad 1.18, default 1.02).
+#[test]
+fn clean_flights_are_honestly_predicted_nine_in_ten() {
+    let mut flights = Vec::new();
+    for seed in 1u64..=16 {
+        flights.push(("broad", SimConfig::broad(seed)));
+        flights.push((
+            "default",
+            SimConfig {
+                seed,
+                ..SimConfig::default()
+            },
+        ));
+    }
+    let (mut inside, mut square) = (0, 0.0);
+    for (label, cfg) in &flights {
+        let d = run(&simulate(cfg).expect("simulate"), &default_settings());
+        let r = ratio(&d);
+        println!(
+            "seed {} ({label}): {:.4} nT, predicted {:.4} ({r:.2})",
+            cfg.seed,
+            d.error_rms_nt.unwrap(),
+            d.predicted_error_nt.unwrap()
+        );
+        inside += usize::from((0.5..=2.0).contains(&r));
+        square += r * r;
+    }
+    let mean_square = square / flights.len() as f64;
+    println!(
+        "{inside} of {} within [0.5, 2], mean ratio² {mean_square:.2}",
+        flights.len()
+    );
+    // Nine in ten of 32: 28.8.
+    assert!(inside >= 29, "{inside} of {}", flights.len());
+    assert!((0.6..=1.6).contains(&mean_square), "{mean_square:.2}");
+}
+
 #[test]
 fn on_clean_broad_flights_the_filter_is_kept_and_its_figure_is_honest() {
     // Seed 2 is where the held-out figure alone would pick TL18-OLS (0.025 nT held out
