@@ -240,6 +240,11 @@ fn independent_simulator_flights_no_worse_than_tl18_ols_and_honestly_predicted()
     assert!(within_range(&d), "{:?}", d.predicted_error_range_nt);
     let high_frequency = d.unfollowed_high_frequency_nt.unwrap();
     assert!((0.03..0.08).contains(&high_frequency), "{high_frequency}");
+    assert!(
+        d.warnings.iter().any(|w| w.contains("at high frequency")),
+        "{:?}",
+        d.warnings
+    );
     assert!(e < 0.2 * t, "{e} vs {t}");
     assert!((0.5..=2.0).contains(&ratio(&d)), "{:.2}", ratio(&d));
 }

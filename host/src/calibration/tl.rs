@@ -154,6 +154,7 @@ pub(super) fn run_tl_method(
     if coeffs.is_none() {
         warnings.extend(crate::estimate::excitation::tl_warning(&flight));
     }
+    warnings.extend(crate::qc::high_frequency::warning(high_frequency_nt));
     // A sample without a usable scalar value (missing, or a glitch the despiker took
     // out) is flagged as the filter's output flags it, so either method's file says which
     // rows were refused.

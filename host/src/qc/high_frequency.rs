@@ -69,6 +69,21 @@ pub fn unfollowed_high_frequency_nt(
     })
 }
 
+/// Above this (nT rms) the unfollowed high frequency is worth a warning: it is then half a
+/// survey's 0.1 nT tolerance, as for the model error (`kf::MODEL_ERROR_WARNING_NT`).
+pub const WARNING_NT: f64 = 0.05;
+
+/// The warning for a high-frequency residual above [`WARNING_NT`].
+pub fn warning(high_frequency_nt: Option<f64>) -> Option<String> {
+    let h = high_frequency_nt.filter(|h| *h > WARNING_NT)?;
+    Some(format!(
+        "the compensated output carries {h:.3} nT rms at high frequency beyond the scalar's \
+         own noise (its quietest minutes): interference the model does not follow (a \
+         scalar lag, eddy currents of a buffeted airframe), counted in the predicted \
+         error. `magcomp diagnose` names candidates"
+    ))
+}
+
 /// One window's third-difference mean square (nT²) and the difference between its two
 /// halves' mean squares.
 struct WindowLevel {
@@ -159,6 +174,15 @@ mod tests {
         let x = unfollowed_high_frequency_nt(&out, &times(n), 10.0).unwrap();
         let expected = (0.05f64.powi(2) / 2.0).sqrt();
         assert!((x / expected - 1.0).abs() < 0.1, "{x} vs {expected}");
+    }
+
+    #[test]
+    fn warned_above_half_a_survey_tolerance() {
+        assert_eq!(warning(Some(0.04)), None);
+        assert_eq!(warning(None), None);
+        assert!(warning(Some(0.06))
+            .unwrap()
+            .contains("0.060 nT rms at high frequency"));
     }
 
     #[test]

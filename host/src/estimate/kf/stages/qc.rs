@@ -68,6 +68,7 @@ impl QcStage {
                  names candidates (docs/adding-an-effect.md)"
             ));
         }
+        warnings.extend(crate::qc::high_frequency::warning(high_frequency_nt));
         Ok(Self {
             high_frequency_nt,
             covariance,
