@@ -79,8 +79,8 @@ pub fn warning(high_frequency_nt: Option<f64>) -> Option<String> {
     Some(format!(
         "the compensated output carries {h:.3} nT rms at high frequency beyond the scalar's \
          own noise (its quietest minutes): interference the model does not follow (a \
-         scalar lag, eddy currents of a buffeted airframe), counted in the predicted \
-         error. `magcomp diagnose` names candidates"
+         scalar lag, eddy currents of a buffeted airframe) or noise from the ground (power \
+         lines), counted in the predicted error. `magcomp diagnose` names candidates"
     ))
 }
 
