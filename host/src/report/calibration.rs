@@ -153,6 +153,11 @@ pub fn figures_section(s: &Summary) -> Section {
             s.predicted_error_range_nt
                 .map_or_else(|| "–".into(), |[lo, hi]| format!("{lo:.4}–{hi:.4}")),
         ],
+        vec![
+            "high-frequency residual beyond the scalar's noise, in the predicted error (nT rms)"
+                .into(),
+            fmt_opt(s.unfollowed_high_frequency_nt, 4),
+        ],
         // Six decimals: the figure is compared with `compensate --json`'s.
         vec!["error vs truth (nT rms)".into(), fmt_opt(s.error_rms_nt, 6)],
         vec![
