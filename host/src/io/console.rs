@@ -32,7 +32,7 @@ fn keep_unless_closed_pipe(result: std::io::Result<()>, stream: &str) {
     }
 }
 
-/// The first terminal text lost to an error other than a closed pipe, if any: `main`
+/// The first terminal text lost to an error other than a closed pipe, if any: `cli::run`
 /// turns it into a failing exit status.
 pub fn lost_text() -> Option<String> {
     LOST_TEXT.lock().ok().and_then(|lost| lost.clone())

@@ -257,17 +257,16 @@ fn joint_compensation(
         .zip(&interference_nt)
         .map(|(m, i)| m - i)
         .collect();
-    // What the sensor's own calibration found beyond its noise, or what this output
-    // carries at high frequency beyond it (`crate::qc::high_frequency`): the larger.
+    // What the sensor's own calibration found beyond its noise, and what this output
+    // carries at high frequency beyond it (`crate::qc::high_frequency`).
     let high_frequency_nt = crate::qc::high_frequency::unfollowed_high_frequency_nt(
         &compensated_nt,
         &flight.t_s,
         flight.sample_rate_hz,
     );
-    let model_error = alone_file
-        .model_error_nt
-        .unwrap_or(0.0)
-        .max(high_frequency_nt.unwrap_or(0.0));
+    let model_error =
+        crate::qc::high_frequency::unexplained_nt(alone_file.model_error_nt, high_frequency_nt)
+            .unwrap_or(0.0);
     let predicted =
         cov_sigma.map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error * model_error).sqrt());
     let mut file = alone_file.clone();

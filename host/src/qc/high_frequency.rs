@@ -69,6 +69,17 @@ pub fn unfollowed_high_frequency_nt(
     })
 }
 
+/// What the output carries beyond the scalar's noise, as the predicted error counts it:
+/// the larger of the model error (the innovations' excess over the whole band) and the
+/// high-frequency part (the output's above its quietest windows). Both measure the same
+/// thing, so they are not summed.
+pub fn unexplained_nt(model_error_nt: Option<f64>, high_frequency_nt: Option<f64>) -> Option<f64> {
+    match (model_error_nt, high_frequency_nt) {
+        (Some(m), Some(h)) => Some(m.max(h)),
+        (m, h) => m.or(h),
+    }
+}
+
 /// Above this (nT rms) the unfollowed high frequency is worth a warning: it is then half a
 /// survey's 0.1 nT tolerance, as for the model error (`kf::MODEL_ERROR_WARNING_NT`).
 pub const WARNING_NT: f64 = 0.05;
@@ -174,6 +185,15 @@ mod tests {
         let x = unfollowed_high_frequency_nt(&out, &times(n), 10.0).unwrap();
         let expected = (0.05f64.powi(2) / 2.0).sqrt();
         assert!((x / expected - 1.0).abs() < 0.1, "{x} vs {expected}");
+    }
+
+    #[test]
+    fn the_larger_of_model_error_and_high_frequency_is_unexplained() {
+        assert_eq!(unexplained_nt(Some(0.3), Some(0.05)), Some(0.3));
+        assert_eq!(unexplained_nt(Some(0.01), Some(0.05)), Some(0.05));
+        assert_eq!(unexplained_nt(None, Some(0.05)), Some(0.05));
+        assert_eq!(unexplained_nt(Some(0.3), None), Some(0.3));
+        assert_eq!(unexplained_nt(None, None), None);
     }
 
     #[test]

@@ -51,12 +51,8 @@ impl QcStage {
             .map(|i| covariance[i * k + i].max(0.0).sqrt())
             .collect();
         let high_frequency_nt = unfollowed_high_frequency_nt(flight, calibration);
-        // Both measure what the output carries beyond the sensor's noise (the innovations'
-        // excess over the whole band, the output's above its quietest windows): the larger.
-        let unexplained_nt = match (noise.model_error_nt, high_frequency_nt) {
-            (Some(m), Some(h)) => Some(m.max(h)),
-            (m, h) => m.or(h),
-        };
+        let unexplained_nt =
+            crate::qc::high_frequency::unexplained_nt(noise.model_error_nt, high_frequency_nt);
         let (covariance, predicted) =
             predicted_error(opts, spread.as_ref(), covariance, unexplained_nt);
         if let Some(m) = noise.model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
