@@ -63,7 +63,10 @@ pub struct Output {
     pub interference_nt: f32,
     /// `mag − interference`, exact to 1e-4 nT.
     pub compensated: Option<MagCounts>,
-    /// Field-state estimate `B_h + B_z·(h − h0)` relative to the reference (nT).
+    /// Field-state estimate `B_h + B_z·(h − h0)` (nT) relative to the first reference (the
+    /// flight's first scalar reading less the core-field change), whatever the epoch
+    /// builder re-referenced since: on the real boxes the raw scalar drifts thousands of nT
+    /// and each re-reference stepped this 2 000 nT.
     pub anomaly_nt: f32,
     /// Innovation and its predicted variance (NaN when no update was made).
     pub innovation_nt: f32,
@@ -117,6 +120,9 @@ pub struct Compensator<'a, const N: usize, const W: usize> {
     n: usize,
     survey: bool,
     last_reference: Option<MagCounts>,
+    /// The first reference: the anomaly is output relative to it, so that the epoch
+    /// builder's re-referencing (every 2 000 nT of drift) does not step the output.
+    first_reference: Option<MagCounts>,
     reject_run: u32,
     /// The scalar against its own recent past, where the filter cannot judge it.
     continuity: ScalarContinuity,
@@ -243,6 +249,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             n: 0,
             survey: false,
             last_reference: None,
+            first_reference: None,
             reject_run: 0,
             continuity: ScalarContinuity::new(),
             scalar: ScalarFusion::NONE,
@@ -378,6 +385,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.n = n;
         self.survey = false;
         self.last_reference = None;
+        self.first_reference = None;
         self.reject_run = 0;
         self.continuity = ScalarContinuity::new();
         self.scalar = ScalarFusion::NONE;
@@ -815,7 +823,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
             x[a] * self.scale[a] + x[a + 3] * self.scale[a + 3] * dh_out
         } else {
             x[0] * self.scale[0]
-        };
+        } + self.reference_shift_nt();
         Output {
             t_s: ep.t_s,
             mag: ep.mag,
@@ -917,7 +925,17 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
     }
 
     /// Keeps the field states continuous when the builder moves its exact reference.
+    /// The current reference less the first (nT): what the states, held relative to the
+    /// current one, need added to be relative to the first.
+    fn reference_shift_nt(&self) -> f32 {
+        match (self.last_reference, self.first_reference) {
+            (Some(now), Some(first)) => now.diff_nt(first),
+            _ => 0.0,
+        }
+    }
+
     fn rereference(&mut self, reference: MagCounts) {
+        self.first_reference.get_or_insert(reference);
         let Some(old) = self.last_reference.replace(reference) else {
             return;
         };

@@ -181,6 +181,8 @@ impl WitnessChoice {
         if self.level_nt != 0.0 {
             out.interference_nt += self.level_nt;
             out.compensated = out.mag.map(|m: MagCounts| m.minus_nt(out.interference_nt));
+            // The level moved from the anomaly to the interference: their sum is the field.
+            out.anomaly_nt -= self.level_nt;
         }
         if now == Shown::Witness {
             out.flags.set(Flags::WITNESS);
@@ -291,6 +293,8 @@ mod tests {
         assert!(b.flags.contains(Flags::WITNESS));
         assert_eq!(b.interference_nt, 121.5);
         assert_eq!(b.compensated, MagCounts::from_nt_f64(53_000.0 - 121.5));
+        // the level leaves the witness's anomaly: anomaly + interference stays its field
+        assert_eq!(b.anomaly_nt + b.interference_nt, 41.0);
         let b2 = c.show(with(4.0, 125.0), with(1.0, 42.0));
         assert_eq!(
             b2.interference_nt, 122.5,

@@ -106,6 +106,10 @@ fn merge(flight: &Flight, mut paper: Compensation, witness: Compensation) -> Res
                 copy_at(&mut paper.anomaly_nt, &witness.anomaly_nt, i);
                 copy_at(&mut paper.innovation_nt, &witness.innovation_nt, i);
             }
+            // The carried level leaves the anomaly: their sum stays the field.
+            if let Some(a) = paper.anomaly_nt.as_mut().and_then(|a| a.get_mut(i)) {
+                *a -= f64::from(carried);
+            }
             paper.interference_nt[i] = interference;
             paper.compensated_nt[i] = flight.mag_nt[i] - interference;
         }
