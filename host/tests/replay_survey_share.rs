@@ -73,6 +73,11 @@ fn a_survey_losing_its_gps_says_so_and_a_clean_one_does_not() {
         if warned {
             assert!(stderr.contains("NO_GPS 13."), "{name}: {stderr}");
         }
+        // What the operator saw: uploaded coefficients compensate from the first record.
+        assert!(
+            stderr.contains("live readout: converged from t = 43200.0 s (0.0 s after the first record); 3000 of 3000 records (100.0 %)"),
+            "{name}: {stderr}"
+        );
 
         // The live stream: the same records through the monitor, as the board sends them.
         let mut opts = ReplayOptions::new(ModelSpec::parse(MODEL).unwrap());

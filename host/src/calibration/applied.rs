@@ -84,7 +84,8 @@ pub fn flag_shares(flags: &[u16], model_error_nt: Option<f64>) -> Vec<String> {
         ),
         (
             Flags::MAG_SUSPECT,
-            "flagged MAG_SUSPECT: the scalar lies beyond 5σ of the prediction, or jumps              against its recent readings where the filter cannot judge it",
+            "flagged MAG_SUSPECT: the scalar lies beyond 5σ of the prediction, or jumps \
+             against its recent readings where the filter cannot judge it",
         ),
         (
             Flags::NO_GPS,

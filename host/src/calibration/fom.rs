@@ -143,37 +143,75 @@ pub fn fom_table(
                 aircraft_nt: aircraft.as_ref().map(|a| peak_to_peak(&a[m.start..m.end])),
             })
             .collect();
-        rows.push(FomRow {
-            heading: leg.tag.clone(),
-            heading_deg: leg.heading_deg,
-            uncompensated_sum_nt: cells.iter().map(|c| c.uncompensated_nt).sum(),
-            compensated_sum_nt: cells.iter().map(|c| c.compensated_nt).sum(),
-            aircraft_sum_nt: aircraft
-                .as_ref()
-                .map(|_| cells.iter().filter_map(|c| c.aircraft_nt).sum()),
-            cells,
-        });
+        rows.push(FomRow::of(leg.tag.clone(), leg.heading_deg, cells));
     }
-    let uncompensated_nt: f64 = rows.iter().map(|r| r.uncompensated_sum_nt).sum();
-    let fom_nt: f64 = rows.iter().map(|r| r.compensated_sum_nt).sum();
-    Some(FomTable {
+    let mut table = FomTable {
         source: source.into(),
         heading_source: pattern.heading_source.clone(),
         manoeuvre_source: pattern.manoeuvre_source.clone(),
-        manoeuvres: rows.iter().map(|r| r.cells.len()).sum(),
-        uncompensated_nt,
-        fom_nt,
+        manoeuvres: 0,
+        uncompensated_nt: f64::NAN,
+        fom_nt: f64::NAN,
         improvement_ratio: {
             let rows: Vec<usize> = pattern.manoeuvres().flat_map(|m| m.start..m.end).collect();
             improvement_ratio_of_bands(&raw, &comp, &rows).unwrap_or(f64::NAN)
         },
-        peak_to_peak_ratio: uncompensated_nt / fom_nt,
-        aircraft_fom_nt: aircraft
-            .as_ref()
-            .map(|_| rows.iter().filter_map(|r| r.aircraft_sum_nt).sum()),
+        peak_to_peak_ratio: f64::NAN,
+        aircraft_fom_nt: None,
         field_estimate: field.map(|(_, n)| n.to_string()),
         rows,
-    })
+    };
+    table.total();
+    Some(table)
+}
+
+impl FomRow {
+    /// A heading's row: its cells and their sums.
+    fn of(heading: String, heading_deg: f64, cells: Vec<FomCell>) -> Self {
+        let with_aircraft = cells.iter().any(|c| c.aircraft_nt.is_some());
+        Self {
+            heading,
+            heading_deg,
+            uncompensated_sum_nt: cells.iter().map(|c| c.uncompensated_nt).sum(),
+            compensated_sum_nt: cells.iter().map(|c| c.compensated_nt).sum(),
+            aircraft_sum_nt: with_aircraft
+                .then(|| cells.iter().filter_map(|c| c.aircraft_nt).sum()),
+            cells,
+        }
+    }
+}
+
+impl FomTable {
+    /// The totals over the rows (the improvement ratio is the band's, kept).
+    fn total(&mut self) {
+        self.manoeuvres = self.rows.iter().map(|r| r.cells.len()).sum();
+        self.uncompensated_nt = self.rows.iter().map(|r| r.uncompensated_sum_nt).sum();
+        self.fom_nt = self.rows.iter().map(|r| r.compensated_sum_nt).sum();
+        self.peak_to_peak_ratio = self.uncompensated_nt / self.fom_nt;
+        let with_aircraft = self.rows.iter().any(|r| r.aircraft_sum_nt.is_some());
+        self.aircraft_fom_nt =
+            with_aircraft.then(|| self.rows.iter().filter_map(|r| r.aircraft_sum_nt).sum());
+    }
+
+    /// The manoeuvres with figures (a real-time run's output shown converged over part of
+    /// them), the totals over those; None when no manoeuvre has any.
+    pub fn measured_only(self) -> Option<Self> {
+        let measured = |c: &FomCell| c.uncompensated_nt.is_finite() && c.compensated_nt.is_finite();
+        let rows: Vec<FomRow> = self
+            .rows
+            .iter()
+            .filter_map(|r| {
+                let cells: Vec<FomCell> = r.cells.iter().filter(|c| measured(c)).cloned().collect();
+                (!cells.is_empty()).then(|| FomRow::of(r.heading.clone(), r.heading_deg, cells))
+            })
+            .collect();
+        if rows.is_empty() {
+            return None;
+        }
+        let mut table = Self { rows, ..self };
+        table.total();
+        Some(table)
+    }
 }
 
 /// The model whose Kalman-filter anomaly estimate is the field estimate of a compensation

@@ -38,3 +38,11 @@ pub struct Compensation {
 }
 
 pub type CoefficientFileOpt = Option<CoefficientFile>;
+
+impl Compensation {
+    /// A real-time run (the board's view, `--realtime`): it carries each record's stated
+    /// bound, which only the live filter states.
+    pub fn is_live(&self) -> bool {
+        self.interference_sigma_nt.is_some()
+    }
+}

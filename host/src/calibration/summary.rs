@@ -2,10 +2,12 @@
 //! CSV.
 
 use super::coefficients::{Method, RateCrossover};
+use super::fom::FomTable;
 use super::result::Compensation;
 use crate::flight::Flight;
 use crate::io::csv::{csv_text, fixed_cell, number_cell};
 use crate::qc::figures::{fom, improvement_ratio, ManoeuvreFom};
+use crate::qc::live_readout::{converged_only, live_error_rms_nt, LiveReadout};
 use crate::qc::truth::{error_rms_nt, oracle_floor_nt};
 use anyhow::Result;
 use serde::{Deserialize, Serialize};
@@ -72,6 +74,11 @@ pub struct Summary {
     /// docs/streaming.md); the figures above are the copy's.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub decimated: Option<crate::flight::input::Decimation>,
+    /// Real time (`--realtime`): what the live readout showed. The figures above (band rms,
+    /// IR, FOM, error vs truth) are then over the records it showed converged; the
+    /// predicted error is that of the coefficients held at the end.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub live: Option<LiveReadout>,
 }
 
 /// FOM, IR, compensated band rms, and error/oracle against truth when the trace has it.
@@ -82,6 +89,44 @@ pub fn summarise(flight: &Flight, comp: &Compensation) -> Summary {
 /// [`summarise`]; `fit_field_estimate` false leaves out the aircraft-only figures of a
 /// compensation without its own anomaly estimate (TL), which need a whole Kalman pass.
 pub fn summarise_with(flight: &Flight, comp: &Compensation, fit_field_estimate: bool) -> Summary {
+    match live_view(flight, comp) {
+        Some((seen, shown, live)) => {
+            let mut s = summarise_output(&seen, &shown, fit_field_estimate);
+            // Manoeuvres flown before convergence have no live figures.
+            s.manoeuvres.retain(|m| {
+                m.peak_to_peak_nt.is_finite() && m.uncompensated_peak_to_peak_nt.is_finite()
+            });
+            s.fom_table = s.fom_table.and_then(FomTable::measured_only);
+            s.fom_nt = s.fom_table.as_ref().map(|t| t.fom_nt);
+            s.aircraft_fom_nt = s.fom_table.as_ref().and_then(|t| t.aircraft_fom_nt);
+            if let (Some(truth), Some(flags)) = (&flight.truth_interference_nt, &comp.flags) {
+                s.error_rms_nt = live_error_rms_nt(&comp.interference_nt, truth, flags);
+            }
+            Summary {
+                live: Some(live),
+                ..s
+            }
+        }
+        None => summarise_output(flight, comp, fit_field_estimate),
+    }
+}
+
+/// A real-time run's records as its figures see them: the flight and the output with the
+/// records shown raw (not converged) blanked, and the readout's counts. None for a
+/// post-flight compensation.
+fn live_view(flight: &Flight, comp: &Compensation) -> Option<(Flight, Compensation, LiveReadout)> {
+    let flags = comp.flags.as_deref().filter(|_| comp.is_live())?;
+    let live = LiveReadout::of(&flight.t_s, flags);
+    let mut seen = flight.clone();
+    seen.mag_nt = converged_only(&flight.mag_nt, flags);
+    let mut shown = comp.clone();
+    shown.compensated_nt = converged_only(&comp.compensated_nt, flags);
+    shown.interference_nt = converged_only(&comp.interference_nt, flags);
+    shown.anomaly_nt = comp.anomaly_nt.as_deref().map(|a| converged_only(a, flags));
+    Some((seen, shown, live))
+}
+
+fn summarise_output(flight: &Flight, comp: &Compensation, fit_field_estimate: bool) -> Summary {
     let band_rms = crate::qc::figures::band_rms_nt(flight, &comp.compensated_nt);
     let withheld = comp.withheld.is_some();
     let f = fom(flight, &comp.compensated_nt).filter(|_| !withheld);
@@ -129,6 +174,7 @@ pub fn summarise_with(flight: &Flight, comp: &Compensation, fit_field_estimate: 
         manoeuvres: f.map(|f| f.1).unwrap_or_default(),
         warnings: comp.warnings.clone(),
         decimated: None,
+        live: None,
     }
 }
 

@@ -11,6 +11,7 @@ use crate::board::replay::{
 };
 use crate::io::output::AtomicFile;
 use crate::model::spec::{InputCorrection, ModelSpec, BOARD_MODEL};
+use crate::qc::live_readout::LiveReadout;
 use anyhow::{bail, Context, Result};
 use magcomp_core::acquisition::AcqRecord;
 use magcomp_core::model::TermKind;
@@ -187,6 +188,8 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
     let mut buf = [0u8; MAX_MULTI_RECORD_LEN];
     let mut raw_buf = [0u8; MAX_MULTI_RAW_LEN];
     let mut tally = FlagTally::default();
+    // What the operator saw, per magnetometer.
+    let mut live: Vec<LiveReadout> = Vec::new();
     opts.raw = args.raw;
     let stats = replay_capture_any(
         BufReader::new(f),
@@ -195,6 +198,8 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
             match rec {
                 AcqRecord::One(r) => {
                     tally.push(r.flags);
+                    live.resize_with(1, LiveReadout::default);
+                    live[0].push(r.t_s, r.flags.0);
                     if let Some(w) = csv.as_mut() {
                         csv_header(w, &mut csv_channels, 1, r.seq)?;
                         writeln!(w, "{}", csv_row(r))
@@ -202,9 +207,14 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
                     }
                 }
                 AcqRecord::Multi(r) => {
-                    r.ch[..usize::from(r.channels)]
-                        .iter()
-                        .for_each(|c| tally.push(c.flags));
+                    let channels = &r.ch[..usize::from(r.channels)];
+                    channels.iter().for_each(|c| tally.push(c.flags));
+                    if live.len() < channels.len() {
+                        live.resize_with(channels.len(), LiveReadout::default);
+                    }
+                    for (l, c) in live.iter_mut().zip(channels) {
+                        l.push(r.t_s, c.flags.0);
+                    }
                     if let Some(w) = csv.as_mut() {
                         csv_header(w, &mut csv_channels, r.channels, r.seq)?;
                         writeln!(w, "{}", multi_csv_row(r))
@@ -240,6 +250,12 @@ pub fn run(args: &ReplayArgs) -> Result<ReplayStats> {
         w.commit()?;
     }
     crate::errln!("replay: {stats}");
+    for (k, l) in live.iter().enumerate() {
+        match live.len() {
+            1 => crate::errln!("replay: {}", l.text()),
+            _ => crate::errln!("replay: mag_{}: {}", k + 1, l.text()),
+        }
+    }
     if let Some(w) = stats.dropped_warning() {
         crate::errln!("warning: {}: {w}", args.capture.display());
     }

@@ -35,6 +35,12 @@ pub fn print_summary(s: &Summary) {
         s.method.name(),
         s.samples
     );
+    if let Some(live) = &s.live {
+        crate::outln!("  {}", live.text());
+        crate::outln!(
+            "  the figures below are over the records shown converged; the predicted error is that of the coefficients held at the end"
+        );
+    }
     crate::outln!(
         "  compensated rms in the manoeuvre band: {:.4} nT",
         s.compensated_band_rms_nt
