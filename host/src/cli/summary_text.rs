@@ -90,7 +90,12 @@ pub fn print_summary(s: &Summary) {
         );
     }
     if let Some(e) = s.error_rms_nt {
-        crate::outln!("  error vs truth:             {e:.4} nT rms");
+        let live = if s.live.is_some() {
+            " (records shown converged, each convergence's level removed)"
+        } else {
+            ""
+        };
+        crate::outln!("  error vs truth:             {e:.4} nT rms{live}");
     }
     if let Some(o) = s.oracle_floor_nt {
         crate::outln!("  oracle floor of the model:  {o:.4} nT rms (filter regressors only)");
