@@ -235,8 +235,11 @@ fn independent_simulator_flights_no_worse_than_tl18_ols_and_honestly_predicted()
     // Most of its error is high-frequency interference the re-alignment cannot undo at
     // 10 Hz (0.066 nT above 1 Hz of 0.083): before the figure counted the output's
     // high-frequency content beyond its quietest minutes (`qc::high_frequency`, 0.058 nT
-    // here) it lay out of its range (0.012–0.074); now 0.060–0.095.
-    assert!(d.model.contains("lag"));
+    // here) it lay out of its range (0.012–0.074). Since TL18-OLS is fitted on the
+    // re-aligned scalar too, it is the choice here (0.0857 nT, the filter 0.0831), its
+    // range 0.060–0.091 (the high end allows all the output's high frequency to be
+    // interference: with the part found alone, 0.060–0.076 missed it).
+    assert!(d.warnings.iter().any(|w| w.contains("lags the fluxgate")));
     assert!(within_range(&d), "{:?}", d.predicted_error_range_nt);
     let high_frequency = d.unfollowed_high_frequency_nt.unwrap();
     assert!((0.03..0.08).contains(&high_frequency), "{high_frequency}");
@@ -247,4 +250,67 @@ fn independent_simulator_flights_no_worse_than_tl18_ols_and_honestly_predicted()
     );
     assert!(e < 0.2 * t, "{e} vs {t}");
     assert!((0.5..=2.0).contains(&ratio(&d)), "{:.2}", ratio(&d));
+}
+
+/// `clean_s33` with its scalar delayed by 0.25 s (the noise-free field the truth columns
+/// give, shifted by a cubic interpolation the product does not use): the delay is found
+/// and TL18-OLS is fitted on the re-aligned scalar beside the filter, so the flight's own
+/// evidence still chooses. Before, a found delay kept the filter unchecked: 0.108 nT
+/// against the truth, outside its range (0.018–0.101), where TL18-OLS on the re-aligned
+/// scalar is 0.043. Measured (this commit): 0.0427 nT, predicted 0.028, range 0.014–0.051.
+#[test]
+fn a_delayed_flight_is_still_checked_against_tl18_ols() {
+    let Some(mut trace) = independent("clean_s33") else {
+        eprintln!("skipped: ../shared/reference-data/independent-sim not present");
+        return;
+    };
+    let col = |t: &Trace, name: &str| t.col(name).expect(name).to_vec();
+    let (interference, anomaly, igrf) = (
+        col(&trace, "truth_interference"),
+        col(&trace, "truth_anomaly"),
+        col(&trace, "igrf"),
+    );
+    let field: Vec<f64> = (0..interference.len())
+        .map(|k| interference[k] + anomaly[k] + igrf[k])
+        .collect();
+    let delay_samples = 2.5;
+    let delayed = |k: usize| -> f64 {
+        let x = k as f64 - delay_samples;
+        let i = (x.floor() as usize).clamp(1, field.len() - 3);
+        let f = x - i as f64;
+        let p = &field[i - 1..=i + 2];
+        p[1] + 0.5
+            * f
+            * (p[2] - p[0]
+                + f * (2.0 * p[0] - 5.0 * p[1] + 4.0 * p[2] - p[3]
+                    + f * (3.0 * (p[1] - p[2]) + p[3] - p[0])))
+    };
+    let effect: Vec<f64> = (0..field.len())
+        .map(|k| if k >= 3 { delayed(k) - field[k] } else { 0.0 })
+        .collect();
+    let shifted = |name: &str| -> Vec<f64> {
+        col(&trace, name)
+            .iter()
+            .zip(&effect)
+            .map(|(v, e)| v + e)
+            .collect()
+    };
+    let (mag, truth) = (shifted("mag"), shifted("truth_interference"));
+    trace.set_col("mag", mag);
+    trace.set_col("truth_interference", truth);
+    let d = run(&trace, &default_settings());
+    let chosen = d.cross_check.as_ref().map(|c| c.chosen);
+    println!(
+        "clean_s33 delayed 0.25 s: {:.4} nT, predicted {:.4}, range {:?}, chosen {chosen:?}",
+        d.error_rms_nt.unwrap(),
+        d.predicted_error_nt.unwrap(),
+        d.predicted_error_range_nt
+    );
+    assert!(d
+        .warnings
+        .iter()
+        .any(|w| w.contains("lags the fluxgate by 25")));
+    assert_eq!(chosen, Some(Estimator::TollesLawsonOls));
+    assert!(d.error_rms_nt.unwrap() < 0.06);
+    assert!(within_range(&d), "{:?}", d.predicted_error_range_nt);
 }

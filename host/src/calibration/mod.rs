@@ -118,7 +118,7 @@ pub fn cross_checked(
     est: &EstimatorSettings,
     kalman: (Flight, Compensation),
 ) -> Result<(Flight, Compensation)> {
-    cross_check::choose(kalman, cross_check::least_squares(trace, est))
+    cross_check::choose(trace, est, kalman, cross_check::least_squares(trace, est))
 }
 
 fn run_method(
@@ -145,7 +145,7 @@ fn run_method(
                 )
             });
             let (kalman, witness_note) = kalman?;
-            let (flight, mut comp) = cross_check::choose(kalman, least_squares)?;
+            let (flight, mut comp) = cross_check::choose(trace, est, kalman, least_squares)?;
             comp.warnings.extend(witness_note);
             Ok((flight, comp))
         }

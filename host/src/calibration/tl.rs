@@ -7,6 +7,7 @@ use super::EstimatorSettings;
 use crate::estimate::tl;
 use crate::flight::Flight;
 use crate::io::trace::Trace;
+use crate::model::corrections::ScalarLag;
 use anyhow::{bail, ensure, Context, Result};
 
 pub(super) fn tl_config(flight: &Flight, est: &EstimatorSettings) -> Result<tl::TlConfig> {
@@ -30,7 +31,47 @@ pub(super) fn run_tl_method(
     est: &EstimatorSettings,
     coeffs: Option<&CoefficientFile>,
 ) -> Result<(Flight, Compensation)> {
-    let flight = Flight::from_trace(trace, &[], &[])?;
+    run_tl_method_aligned(trace, est, coeffs, coeffs.and_then(|c| c.scalar_lag))
+}
+
+/// [`run_tl_method`] on the scalar re-aligned by `lag` (a delay the filter's calibration
+/// found, or the applied file's): the fit and the compensated output are the re-aligned
+/// scalar's, the interference is against the recorded one (`mag − compensated`, as the
+/// filter's with a delay), and the file carries the delay so that applying it re-aligns.
+pub(super) fn run_tl_method_aligned(
+    trace: &Trace,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+    lag: Option<ScalarLag>,
+) -> Result<(Flight, Compensation)> {
+    let recorded = Flight::from_trace(trace, &[], &[])?;
+    let (flight, comp) = match lag {
+        Some(l) => {
+            let aligned = crate::estimate::corrections::lag::realign(&recorded, l.lag_s);
+            let (_, mut comp) = fit_and_apply(aligned, est, coeffs)?;
+            for ((i, c), m) in comp
+                .interference_nt
+                .iter_mut()
+                .zip(&comp.compensated_nt)
+                .zip(&recorded.mag_nt)
+            {
+                *i = m - c;
+            }
+            if let Some(file) = comp.coefficients.as_mut() {
+                file.scalar_lag = Some(l);
+            }
+            (recorded, comp)
+        }
+        None => fit_and_apply(recorded, est, coeffs)?,
+    };
+    Ok((flight, comp))
+}
+
+fn fit_and_apply(
+    flight: Flight,
+    est: &EstimatorSettings,
+    coeffs: Option<&CoefficientFile>,
+) -> Result<(Flight, Compensation)> {
     let qc = crate::qc::inputs::check(&flight, coeffs.is_none())?;
     let flux = crate::estimate::fluxcal::flight_flux(&flight);
     // Not across a time gap: the rows beside it are left out, which splits the
@@ -123,13 +164,11 @@ pub(super) fn run_tl_method(
     let coefficient_part_nt = refits
         .as_ref()
         .and_then(|r| crate::estimate::jackknife::series_sigma_nt(r));
-    let high_frequency_nt = crate::qc::high_frequency::unfollowed_high_frequency_nt(
-        &compensated,
-        &flight.t_s,
-        flight.sample_rate_hz,
-    );
-    let unexplained_nt = high_frequency_nt.unwrap_or(0.0);
-    let predicted_error_nt = coefficient_part_nt.map(|c| c.hypot(unexplained_nt));
+    let high_frequency =
+        crate::qc::high_frequency::high_frequency(&compensated, &flight.t_s, flight.sample_rate_hz);
+    let high_frequency_nt = high_frequency.map(|h| h.unfollowed_nt);
+    let unexplained_nt = crate::qc::high_frequency::unexplained_range_nt(None, high_frequency);
+    let predicted_error_nt = coefficient_part_nt.map(|c| c.hypot(unexplained_nt[0]));
     let predicted_error_range_nt = refits.as_ref().and_then(|r| {
         let n = crate::estimate::jackknife::series_effective_dimensions(r)?;
         crate::qc::error_range::range_nt(coefficient_part_nt?, unexplained_nt, n)

@@ -259,16 +259,16 @@ fn joint_compensation(
         .collect();
     // What the sensor's own calibration found beyond its noise, and what this output
     // carries at high frequency beyond it (`crate::qc::high_frequency`).
-    let high_frequency_nt = crate::qc::high_frequency::unfollowed_high_frequency_nt(
+    let high_frequency = crate::qc::high_frequency::high_frequency(
         &compensated_nt,
         &flight.t_s,
         flight.sample_rate_hz,
     );
+    let high_frequency_nt = high_frequency.map(|h| h.unfollowed_nt);
     let model_error =
-        crate::qc::high_frequency::unexplained_nt(alone_file.model_error_nt, high_frequency_nt)
-            .unwrap_or(0.0);
-    let predicted =
-        cov_sigma.map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error * model_error).sqrt());
+        crate::qc::high_frequency::unexplained_range_nt(alone_file.model_error_nt, high_frequency);
+    let predicted = cov_sigma
+        .map(|c| (c * c + jk.unwrap_or(0.0).powi(2) + model_error[0] * model_error[0]).sqrt());
     let mut file = alone_file.clone();
     for (c, (v, i)) in file
         .coefficients

@@ -45,19 +45,23 @@ pub fn participation_ratio(trace: f64, trace_of_square: f64) -> Option<f64> {
 
 /// The [`RANGE_PROBABILITY`] range (nT, low and high) of one flight's actual error, for a
 /// coefficients' part `coefficient_part_nt` spread over `effective_dimensions` directions
-/// and a model error `model_error_nt` that every flight of the installation carries alike.
+/// and a model error that every flight of the installation carries alike, known to lie in
+/// `model_error_nt` (low, high: `crate::qc::high_frequency::unexplained_range_nt`).
 pub fn range_nt(
     coefficient_part_nt: f64,
-    model_error_nt: f64,
+    model_error_nt: [f64; 2],
     effective_dimensions: f64,
 ) -> Option<[f64; 2]> {
     let chi = ChiSquared::new(effective_dimensions).ok()?;
     let tail = (1.0 - RANGE_PROBABILITY) / 2.0;
-    let at = |q: f64| {
+    let at = |q: f64, model_error_nt: f64| {
         let scaled = coefficient_part_nt.powi(2) * chi.inverse_cdf(q) / effective_dimensions;
         (scaled + model_error_nt.powi(2)).sqrt()
     };
-    let range = [at(tail), at(1.0 - tail)];
+    let range = [
+        at(tail, model_error_nt[0]),
+        at(1.0 - tail, model_error_nt[1]),
+    ];
     range.iter().all(|v| v.is_finite()).then_some(range)
 }
 
@@ -77,7 +81,7 @@ mod tests {
     #[test]
     fn the_range_is_the_chi_square_quantiles_and_narrows_with_more_directions() {
         // χ²_2: the 5 % and 95 % points are −2 ln 0.95 and −2 ln 0.05.
-        let [lo, hi] = range_nt(1.0, 0.0, 2.0).unwrap();
+        let [lo, hi] = range_nt(1.0, [0.0; 2], 2.0).unwrap();
         assert!(
             (lo - (-2.0 * 0.95f64.ln() / 2.0).sqrt()).abs() < 1e-6,
             "{lo}"
@@ -86,11 +90,14 @@ mod tests {
             (hi - (-2.0 * 0.05f64.ln() / 2.0).sqrt()).abs() < 1e-6,
             "{hi}"
         );
-        let [lo40, hi40] = range_nt(1.0, 0.0, 40.0).unwrap();
+        let [lo40, hi40] = range_nt(1.0, [0.0; 2], 40.0).unwrap();
         assert!(lo40 > lo && hi40 < hi && lo40 > 0.8 && hi40 < 1.2);
         // A model error that every flight carries raises the low end to it.
-        let [lo_m, _] = range_nt(1.0, 2.0, 2.0).unwrap();
+        let [lo_m, hi_m] = range_nt(1.0, [2.0, 3.0], 2.0).unwrap();
         let expected = (4.0 - 2.0 * 0.95f64.ln() / 2.0).sqrt();
         assert!((lo_m - expected).abs() < 1e-6, "{lo_m}");
+        // …and one known only to lie between 2 and 3 raises the high end to 3's.
+        let expected = (9.0 - 2.0 * 0.05f64.ln() / 2.0).sqrt();
+        assert!((hi_m - expected).abs() < 1e-6, "{hi_m}");
     }
 }

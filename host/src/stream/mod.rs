@@ -69,7 +69,9 @@ pub fn unstreamable(
         return Some("--realtime is run in memory".into());
     }
     if c.method == Method::Tl {
-        return None;
+        return c.scalar_lag.map(|_| {
+            "a re-aligned scalar (`scalar_lag`) is pre-processed over the whole flight".into()
+        });
     }
     let spec = match ModelSpec::parse(&c.model) {
         Ok(s) => s,

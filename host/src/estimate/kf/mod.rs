@@ -262,11 +262,12 @@ impl RegressorSpread {
 
     /// The range one flight's error falls in (`crate::qc::error_range::range_nt`): the
     /// covariance's part [`Self::sigma_nt`], spread over its effective number of
-    /// directions, with `model_error_nt` carried by every flight alike.
+    /// directions, with a model error in `model_error_nt` (low, high) carried by every
+    /// flight alike.
     pub fn error_range_nt(
         &self,
         coefficient_covariance: &[f64],
-        model_error_nt: f64,
+        model_error_nt: [f64; 2],
     ) -> Option<[f64; 2]> {
         let coefficient_part_nt = self.sigma_nt(coefficient_covariance)?;
         let n = crate::qc::error_range::effective_dimensions(

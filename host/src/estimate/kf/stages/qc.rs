@@ -50,9 +50,10 @@ impl QcStage {
         let sigmas = (0..k)
             .map(|i| covariance[i * k + i].max(0.0).sqrt())
             .collect();
-        let high_frequency_nt = unfollowed_high_frequency_nt(flight, calibration);
+        let high_frequency = output_high_frequency(flight, calibration);
+        let high_frequency_nt = high_frequency.map(|h| h.unfollowed_nt);
         let unexplained_nt =
-            crate::qc::high_frequency::unexplained_nt(noise.model_error_nt, high_frequency_nt);
+            crate::qc::high_frequency::unexplained_range_nt(noise.model_error_nt, high_frequency);
         let (covariance, predicted) =
             predicted_error(opts, spread.as_ref(), covariance, unexplained_nt);
         if let Some(m) = noise.model_error_nt.filter(|m| *m > MODEL_ERROR_WARNING_NT) {
@@ -80,7 +81,10 @@ impl QcStage {
 /// The output of the calibration's final coefficients above its quietest windows at high
 /// frequency (`crate::qc::high_frequency`). Not the pass's own records: while the filter
 /// converges its coefficients move from sample to sample (on `lag_s32` that read 0.56 nT).
-fn unfollowed_high_frequency_nt(flight: &Flight, calibration: &CalibrationPass) -> Option<f64> {
+fn output_high_frequency(
+    flight: &Flight,
+    calibration: &CalibrationPass,
+) -> Option<crate::qc::high_frequency::HighFrequency> {
     if calibration.regressors.len() != flight.len() {
         return None;
     }
@@ -91,11 +95,7 @@ fn unfollowed_high_frequency_nt(flight: &Flight, calibration: &CalibrationPass) 
         .zip(&interference)
         .map(|(mag, i)| mag - i)
         .collect();
-    crate::qc::high_frequency::unfollowed_high_frequency_nt(
-        &compensated,
-        &flight.t_s,
-        flight.sample_rate_hz,
-    )
+    crate::qc::high_frequency::high_frequency(&compensated, &flight.t_s, flight.sample_rate_hz)
 }
 
 /// The coefficients' covariance with the jackknife's added, and the jackknife, when it
@@ -143,22 +143,23 @@ struct PredictedError {
 }
 
 /// The covariance the run reports and the flight's predicted error (with the model error
-/// added). Given coefficients predict this flight's error only with their own covariance.
+/// added: its low end, `model_error_nt` being what the output carries beyond the scalar's
+/// noise, low and high). Given coefficients predict this flight's error only with their
+/// own covariance.
 fn predicted_error(
     opts: &KfOptions,
     spread: Option<&RegressorSpread>,
     covariance: Vec<f64>,
-    model_error_nt: Option<f64>,
+    model_error_nt: [f64; 2],
 ) -> (Vec<f64>, Option<PredictedError>) {
     let covariance = match (&opts.coefficients, &opts.coefficient_covariance) {
         (Some(_), Some(given)) => given.clone(),
         (Some(_), None) => return (covariance, None),
         (None, _) => covariance,
     };
-    let model_error_nt = model_error_nt.unwrap_or(0.0);
     let predicted = spread.and_then(|s| {
         Some(PredictedError {
-            figure_nt: s.sigma_nt(&covariance)?.hypot(model_error_nt),
+            figure_nt: s.sigma_nt(&covariance)?.hypot(model_error_nt[0]),
             range_nt: s.error_range_nt(&covariance, model_error_nt),
         })
     });
