@@ -115,7 +115,10 @@ pub fn summarise_with(flight: &Flight, comp: &Compensation, fit_field_estimate: 
 /// records shown raw (not converged) blanked, and the readout's counts. None for a
 /// post-flight compensation.
 fn live_view(flight: &Flight, comp: &Compensation) -> Option<(Flight, Compensation, LiveReadout)> {
-    let flags = comp.flags.as_deref().filter(|_| comp.is_live())?;
+    let flags = comp
+        .flags
+        .as_deref()
+        .filter(|f| comp.is_live() && f.len() == flight.len())?;
     let live = LiveReadout::of(&flight.t_s, flags);
     let mut seen = flight.clone();
     seen.mag_nt = converged_only(&flight.mag_nt, flags);
