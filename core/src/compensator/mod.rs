@@ -924,7 +924,6 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         self.h0_shift_m += delta_m;
     }
 
-    /// Keeps the field states continuous when the builder moves its exact reference.
     /// The current reference less the first (nT): what the states, held relative to the
     /// current one, need added to be relative to the first.
     fn reference_shift_nt(&self) -> f32 {
@@ -934,6 +933,7 @@ impl<'a, const N: usize, const W: usize> Compensator<'a, N, W> {
         }
     }
 
+    /// Keeps the field states continuous when the builder moves its exact reference.
     fn rereference(&mut self, reference: MagCounts) {
         self.first_reference.get_or_insert(reference);
         let Some(old) = self.last_reference.replace(reference) else {

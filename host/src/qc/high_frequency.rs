@@ -29,26 +29,13 @@ const QUIET_SHARE_Z: f64 = 1.2816;
 /// How many times its own scatter the excess must reach to count.
 const SIGNIFICANCE: f64 = 2.0;
 
-/// The rms (nT) of the compensated output's high-frequency content beyond its quietest
-/// windows' (the scalar's noise), over the whole flight; `None` when the flight is too
-/// short for [`MIN_WINDOWS`] windows. The level is the third difference's mean square
-/// (white noise of σ gives σ²; the anomaly, the core field and the slow interference
-/// give nothing at 10 Hz), taken per [`WINDOW_S`] window; no difference spans a time gap
-/// or a missing value.
-pub fn unfollowed_high_frequency_nt(
-    compensated_nt: &[f64],
-    t_s: &[f64],
-    rate_hz: f64,
-) -> Option<f64> {
-    high_frequency(compensated_nt, t_s, rate_hz).map(|h| h.unfollowed_nt)
-}
-
 /// The output's high-frequency content: what lies beyond its quietest windows (a lower
 /// bound of the interference there) and all of it (an upper bound, the scalar's noise
 /// included).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HighFrequency {
-    /// [`unfollowed_high_frequency_nt`].
+    /// The rms (nT) beyond the quietest windows' level (the scalar's noise): a lower bound
+    /// of the interference there (the coefficient file's `unfollowed_high_frequency_nt`).
     pub unfollowed_nt: f64,
     /// The whole flight's third-difference level (nT rms, white-equivalent).
     pub output_nt: f64,
@@ -68,7 +55,11 @@ impl HighFrequency {
     }
 }
 
-/// [`unfollowed_high_frequency_nt`] with the output's whole high-frequency level beside it.
+/// The compensated output's high-frequency content over the whole flight; `None` when the
+/// flight is too short for [`MIN_WINDOWS`] windows. The level is the third difference's
+/// mean square (white noise of σ gives σ²; the anomaly, the core field and the slow
+/// interference give nothing at 10 Hz), taken per [`WINDOW_S`] window; no difference spans
+/// a time gap or a missing value.
 pub fn high_frequency(compensated_nt: &[f64], t_s: &[f64], rate_hz: f64) -> Option<HighFrequency> {
     let levels = window_levels(compensated_nt, t_s, rate_hz);
     if levels.len() < MIN_WINDOWS {
@@ -194,6 +185,10 @@ fn mean_of_valid(values: &[Option<f64>], min_count: usize) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn unfollowed_high_frequency_nt(out: &[f64], t_s: &[f64], rate_hz: f64) -> Option<f64> {
+        high_frequency(out, t_s, rate_hz).map(|h| h.unfollowed_nt)
+    }
     use rand::{Rng, SeedableRng};
     use rand_distr::StandardNormal;
 

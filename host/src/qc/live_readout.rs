@@ -47,7 +47,7 @@ impl LiveReadout {
     pub fn push(&mut self, t_s: f64, bits: u16) {
         let f = Flags(bits);
         let converged = is_converged(bits);
-        let was_converged = self.records > 0 && self.last_converged;
+        let was_converged = self.last_converged;
         self.records += 1;
         self.first_record_s.get_or_insert(t_s);
         if converged {
